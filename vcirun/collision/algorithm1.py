@@ -1,0 +1,127 @@
+# numba source unit: Algorithm 1 (event-driven collision integration), compiled as a whole so the
+# event loop itself runs native. It knows only `full`, `partial`, `reset` (and the scene's phi, H and
+# the optional modified energy); which method it runs is decided by what the module binds to them.
+import math
+
+import numpy as np
+from numba import njit
+
+ST_OK = 0
+ST_NEWTON = 1
+ST_EVENT = 2
+ST_RESET = 3
+ST_ACCUMULATION = 4
+ST_NONFINITE = 5
+
+
+@njit(cache=True, nogil=True)
+def _finite(x):
+    for i in range(x.shape[0]):
+        if not math.isfinite(x[i]):
+            return False
+    return True
+
+
+@njit(cache=True, nogil=True)
+def integrate(q0, p0, t0, h, N, prm, constrained, ntol, maxit, event_tol, max_impacts_step,
+              Q, P, Hs, Eds, Hm, imp_t, imp_q, imp_pm, imp_pp, imp_step, partial_log, iters_log, info):
+    """Run N grid steps of Algorithm 1 from (q0, p0) at t0. Output arrays are preallocated by the
+    caller; info receives [status, fail_step, n_impacts, n_partial, steps_done]."""
+    q = q0.copy()
+    p = p0.copy()
+    qt = np.empty(NDOF)
+    pt = np.empty(NDOF)
+    vt = np.empty(NDOF)
+    qh = np.empty(NDOF)
+    ph = np.empty(NDOF)
+    pp = np.empty(NDOF)
+    Q[0, :] = q
+    P[0, :] = p
+    n_imp = 0
+    n_par = 0
+    status = ST_OK
+    fail = -1
+    cap_imp = imp_t.shape[0]
+    cap_par = partial_log.shape[0]
+    i = 0
+    while i < N:
+        t = t0 + i * h
+        it, Ed = full(q, p, h, t, prm, ntol, maxit, qt, pt, vt)
+        Hs[i] = hamiltonian(q, p, prm)
+        Eds[i] = Ed
+        Hm[i] = modified_energy(q, p, h, prm)
+        if it < 0:
+            status = ST_NEWTON
+            fail = i
+            break
+        iters = it
+        if (not constrained) or sys_phi(qt, prm) > 0.0:
+            q[:] = qt
+            p[:] = pt
+        else:
+            imp_step[i] = True
+            qh[:] = q
+            ph[:] = p
+            tau_max = h
+            tc = t
+            k_imp = 0
+            while tau_max > 0.0:
+                code, dtau, Epre, itc = collision_time(qh, ph, tau_max, h, tc, prm, ntol, maxit, event_tol,
+                                                       qt, pt, vt)
+                iters += itc
+                if code < 0:
+                    status = ST_NEWTON if code == -1 else ST_EVENT
+                    break
+                if n_par < cap_par:
+                    partial_log[n_par] = dtau
+                    n_par += 1
+                tau_rem = tau_max - dtau
+                if code == 1:
+                    itr, lam = reset(qt, pt, Epre, tau_rem, h, tc + dtau, prm, ntol, maxit, pp)
+                    iters += abs(itr)
+                    if itr < 0:
+                        status = ST_RESET
+                        break
+                    k_imp += 1
+                    if n_imp >= cap_imp or k_imp > max_impacts_step:
+                        status = ST_ACCUMULATION
+                        break
+                    imp_t[n_imp] = tc + dtau
+                    imp_q[n_imp, :] = qt
+                    imp_pm[n_imp, :] = pt
+                    imp_pp[n_imp, :] = pp
+                    n_imp += 1
+                    qh[:] = qt
+                    ph[:] = pp
+                    tau_max = tau_rem
+                    tc += dtau
+                else:
+                    qh[:] = qt
+                    ph[:] = pt
+                    tau_max = 0.0
+            if status != ST_OK:
+                fail = i
+                break
+            q[:] = qh
+            p[:] = ph
+        if not (_finite(q) and _finite(p)):
+            status = ST_NONFINITE
+            fail = i
+            break
+        iters_log[i] = iters
+        Q[i + 1, :] = q
+        P[i + 1, :] = p
+        i += 1
+    steps = i
+    if status == ST_OK:
+        # energies at the last grid state (its discrete energy from one more trial step)
+        it, Ed = full(q, p, h, t0 + N * h, prm, ntol, maxit, qt, pt, vt)
+        Hs[N] = hamiltonian(q, p, prm)
+        Eds[N] = Ed
+        Hm[N] = modified_energy(q, p, h, prm)
+    info[0] = status
+    info[1] = fail
+    info[2] = n_imp
+    info[3] = n_par
+    info[4] = steps
+    return status

@@ -1,0 +1,97 @@
+# numba source unit: the full step Phi_h of a discrete Lagrangian on (q, p).
+# Requires from the generated module: NDOF, FULL_STAGES, FULL_FRACS, ld_PmJ, ld_Pp, ld_Ed, sys_M.
+import math
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True)
+def velocity_guess(q, p, prm, v):
+    """v = M(q)^{-1} p: the continuous velocity, Newton's starting point for every step."""
+    A = np.empty((NDOF, NDOF))
+    sys_M(q, prm, A)
+    for i in range(NDOF):
+        v[i] = p[i]
+    if not solve_small(A, v, NDOF):
+        for i in range(NDOF):
+            v[i] = 0.0
+
+
+@njit(cache=True, nogil=True)
+def explicit_step(sid, q0, p0, h, t, prm, newton_tol, max_iter, v, q1, p1):
+    """One step of explicit discrete Lagrangian `sid`: solve Pm(q0, v, h) = p0 for the step velocity v
+    (v holds the initial guess on entry) by Newton with the analytic Jacobian, then q1 = q0 + h v,
+    p1 = Pp(q0, v, h). Returns the number of iterations, or -iterations if Newton did not converge."""
+    r = np.empty(NDOF)
+    J = np.empty((NDOF, NDOF))
+    it = 0
+    converged = False
+    while it < max_iter:
+        it += 1
+        ld_PmJ(sid, q0, v, h, t, prm, r, J)
+        for i in range(NDOF):
+            r[i] -= p0[i]
+        if not solve_small(J, r, NDOF):
+            break
+        dn = 0.0
+        vn = 0.0
+        for i in range(NDOF):
+            v[i] -= r[i]
+            dn = max(dn, abs(r[i]))
+            vn = max(vn, abs(v[i]))
+        if not math.isfinite(dn):
+            break
+        if dn <= newton_tol * (1.0 + vn):
+            converged = True
+            break
+    for i in range(NDOF):
+        q1[i] = q0[i] + h * v[i]
+    ld_Pp(sid, q0, v, h, t, prm, p1)
+    return it if converged else -it
+
+
+@njit(cache=True, nogil=True)
+def ld_step(q0, p0, h, t, prm, newton_tol, max_iter, q1, p1, vlast):
+    """Phi_h of the scene's discrete Lagrangian (a composition of explicit stages, e.g. SVA =
+    SE1 then SE2 half steps). Returns (iterations >= 0, or < 0 on failure, discrete energy -D3 Ld).
+    vlast receives the last stage's step velocity."""
+    qa = q0.copy()
+    pa = p0.copy()
+    v = np.empty(NDOF)
+    total = 0
+    Ed = 0.0
+    ts = t
+    for s in range(FULL_STAGES.shape[0]):
+        hs = FULL_FRACS[s] * h
+        velocity_guess(qa, pa, prm, v)
+        it = explicit_step(FULL_STAGES[s], qa, pa, hs, ts, prm, newton_tol, max_iter, v, q1, p1)
+        if it < 0:
+            return it - total, np.nan
+        total += it
+        # D3 of a composition: sum of fraction * D3 of the stages (interior nodes are stationary)
+        Ed += FULL_FRACS[s] * ld_Ed(FULL_STAGES[s], qa, v, hs, prm)
+        ts += hs
+        qa[:] = q1
+        pa[:] = p1
+    vlast[:] = v
+    return total, Ed
+
+
+@njit(cache=True, nogil=True)
+def hamiltonian(q, p, prm):
+    """H(q, p) = 1/2 p^T M(q)^{-1} p + V(q)."""
+    A = np.empty((NDOF, NDOF))
+    x = p.copy()
+    sys_M(q, prm, A)
+    solve_small(A, x, NDOF)
+    s = 0.0
+    for i in range(NDOF):
+        s += p[i] * x[i]
+    return 0.5 * s + sys_V(q, prm)
+
+
+@njit(cache=True, nogil=True)
+def ld_partial(q0, p0, tau, h, t, prm, newton_tol, max_iter, q1, p1, vlast):
+    """Phi^partial = Phi^full_tau (CVA, VCI): the same discrete Lagrangian at step tau."""
+    return ld_step(q0, p0, tau, t, prm, newton_tol, max_iter, q1, p1, vlast)

@@ -1,0 +1,351 @@
+"""Safe parsing of user-written math expressions into sympy objects.
+
+Config files carry expressions such as ``"m2*L*sin(theta)"`` or ``"0.5*k*x**2"``.
+They are never handed to ``eval``/``exec``/``sympify`` (all of which run Python code):
+the text is parsed with :func:`ast.parse` and the tree is walked against an explicit
+whitelist, building sympy objects node by node. Anything off the whitelist raises
+:class:`ExpressionError` whose one-line message names the config field, the offending
+token and what to write instead.
+
+Accepted grammar: int/float literals (incl. ``1e-3``), declared names, ``pi``, ``E``,
+binary ``+ - * / **``, unary ``+ -``, parentheses and calls ``f(arg, ...)`` of
+:data:`ALLOWED_FUNCTIONS` with positional arguments.
+"""
+
+from __future__ import annotations
+
+import ast
+import math
+import numbers
+import re
+
+import sympy
+
+__all__ = [
+    "ALLOWED_CONSTANTS",
+    "ALLOWED_FUNCTIONS",
+    "ExpressionError",
+    "MAX_DEPTH",
+    "MAX_LENGTH",
+    "parse_expression",
+    "parse_matrix",
+]
+
+MAX_LENGTH = 10_000  # characters; bounds parse time and memory
+MAX_DEPTH = 100  # nesting levels of the syntax tree; keeps the walker's recursion shallow
+# Exact integers/rationals are capped so "9**9**9" cannot eat the machine; 10_000 bits
+# (~3000 digits) also stays below Python's 4300-digit int->str limit, so results print.
+_MAX_INT_BITS = 10_000
+_MAX_TOKEN_CHARS = 60  # offending tokens are shortened so messages stay one readable line
+
+ALLOWED_FUNCTIONS: dict[str, object] = {
+    "sin": sympy.sin,
+    "cos": sympy.cos,
+    "tan": sympy.tan,
+    "exp": sympy.exp,
+    "log": sympy.log,
+    "sqrt": sympy.sqrt,
+    "sinh": sympy.sinh,
+    "cosh": sympy.cosh,
+    "tanh": sympy.tanh,
+    "asin": sympy.asin,
+    "acos": sympy.acos,
+    "atan": sympy.atan,
+    "atan2": sympy.atan2,
+    "abs": sympy.Abs,
+}
+_ARITY = {name: 1 for name in ALLOWED_FUNCTIONS} | {"atan2": 2}
+
+ALLOWED_CONSTANTS: dict[str, sympy.Expr] = {"pi": sympy.pi, "E": sympy.E}
+
+_FUNCS_HINT = "allowed functions: " + ", ".join(ALLOWED_FUNCTIONS)
+_GRAMMAR_HINT = (
+    "only numbers, declared names, pi, E, + - * / **, parentheses and calls like sin(x) are allowed"
+)
+_BINOP_SYMBOLS = {
+    ast.Add: "+", ast.Sub: "-", ast.Mult: "*", ast.Div: "/", ast.Pow: "**",
+    ast.FloorDiv: "//", ast.Mod: "%", ast.MatMult: "@", ast.LShift: "<<",
+    ast.RShift: ">>", ast.BitOr: "|", ast.BitXor: "^", ast.BitAnd: "&",
+}
+_UNARY_SYMBOLS = {ast.UAdd: "+", ast.USub: "-", ast.Not: "not", ast.Invert: "~"}
+# Human names for rejected node types (anything else falls back to the class name).
+_NODE_NAMES = {
+    ast.Attribute: "attribute access", ast.Subscript: "subscript", ast.Slice: "slice",
+    ast.Lambda: "lambda", ast.ListComp: "comprehension", ast.SetComp: "comprehension",
+    ast.DictComp: "comprehension", ast.GeneratorExp: "generator expression",
+    ast.Compare: "comparison", ast.BoolOp: "boolean operator",
+    ast.IfExp: "conditional expression", ast.NamedExpr: "assignment expression (:=)",
+    ast.Starred: "starred argument", ast.JoinedStr: "f-string",
+    ast.FormattedValue: "f-string", ast.Tuple: "tuple", ast.List: "list", ast.Set: "set",
+    ast.Dict: "dict", ast.Await: "await", ast.Yield: "yield", ast.YieldFrom: "yield",
+}
+
+
+class ExpressionError(ValueError):
+    """A user expression was rejected.
+
+    Attributes ``field`` (config location, e.g. ``"system.potential"``), ``token`` (the
+    offending piece of text) and ``reason`` (what is wrong and how to fix it; it quotes
+    the token). ``str(err)`` is the single line ``"<field>: <reason>"``.
+    """
+
+    def __init__(self, field: str, token: str, reason: str):
+        self.field = field
+        self.token = token
+        self.reason = reason
+        # One line, whatever the inputs hold, so it reads well in CLI/log output.
+        super().__init__(" ".join(f"{field}: {reason}".split()))
+
+
+def _short(token: str) -> str:
+    return token if len(token) <= _MAX_TOKEN_CHARS else token[: _MAX_TOKEN_CHARS - 3] + "..."
+
+
+class _Builder:
+    """Walks a parsed tree and builds the sympy expression; one instance per text."""
+
+    def __init__(self, text: str, symbols: dict, field: str):
+        self.text = text
+        self.symbols = symbols
+        self.field = field
+
+    def fail(self, token: str, reason: str) -> ExpressionError:
+        return ExpressionError(self.field, token, reason)
+
+    def segment(self, node: ast.AST) -> str:
+        seg = ast.get_source_segment(self.text, node)
+        return _short(seg if seg is not None else type(node).__name__)
+
+    def walk(self, node: ast.AST, depth: int) -> sympy.Expr:
+        if depth > MAX_DEPTH:
+            tok = self.segment(node)
+            raise self.fail(tok, f"expression nested deeper than {MAX_DEPTH} levels (at {tok!r}, "
+                                 f"column {node.col_offset + 1}); split it or simplify it")
+        if isinstance(node, ast.Constant):
+            return self.constant(node)
+        if isinstance(node, ast.Name):
+            return self.name(node)
+        if isinstance(node, ast.BinOp):
+            return self.binop(node, depth)
+        if isinstance(node, ast.UnaryOp):
+            return self.unaryop(node, depth)
+        if isinstance(node, ast.Call):
+            return self.call(node, depth)
+        tok = self.segment(node)
+        kind = _NODE_NAMES.get(type(node), f"{type(node).__name__} expression")
+        raise self.fail(tok, f"{kind} {tok!r} is not allowed; {_GRAMMAR_HINT}")
+
+    def constant(self, node: ast.Constant) -> sympy.Expr:
+        value, tok = node.value, self.segment(node)
+        # bool is a subclass of int, so it must be rejected before the int branch.
+        if isinstance(value, bool):
+            raise self.fail(tok, f"boolean {tok!r} is not allowed; write 1 or 0")
+        if isinstance(value, int):
+            return self.checked(sympy.Integer(value), tok)
+        if isinstance(value, float):
+            if not math.isfinite(value):  # e.g. 1e999 overflows to inf
+                raise self.fail(tok, f"number {tok!r} is not finite; use a smaller literal")
+            return sympy.Float(value)
+        kind = {str: "string", bytes: "bytes literal", complex: "complex number"}.get(
+            type(value), "constant")
+        raise self.fail(tok, f"{kind} {tok!r} is not allowed; only real numbers such as 2, "
+                             "0.5 or 1e-3 are accepted")
+
+    def name(self, node: ast.Name) -> sympy.Expr:
+        ident = node.id
+        if ident.startswith("__"):
+            raise self.fail(ident, f"name {ident!r} is not allowed (dunder names are forbidden)")
+        # Declared names shadow the constants: the user chose them explicitly.
+        if ident in self.symbols:
+            return self.symbols[ident]
+        if ident in ALLOWED_CONSTANTS:
+            return ALLOWED_CONSTANTS[ident]
+        if ident in ALLOWED_FUNCTIONS:
+            raise self.fail(ident, f"{ident!r} is a function; call it, e.g. {ident}(x)")
+        raise self.fail(ident, f"unknown name {ident!r} ({self.names_hint()}; {_FUNCS_HINT})")
+
+    def names_hint(self) -> str:
+        names = list(self.symbols)
+        shown = ", ".join(names[:30]) + (", ..." if len(names) > 30 else "")
+        return f"declared names: {shown or '(none)'}; constants: pi, E"
+
+    def binop(self, node: ast.BinOp, depth: int) -> sympy.Expr:
+        # Walk the left spine iteratively: "a + b + c + ..." is a left-leaning chain, and a
+        # long sum should not count as deep nesting nor recurse once per term.
+        spine = []
+        while isinstance(node, ast.BinOp):
+            spine.append(node)
+            node = node.left
+        acc = self.walk(node, depth + 1)
+        for op_node in reversed(spine):  # innermost first = left-to-right source order
+            op = type(op_node.op)
+            sym = _BINOP_SYMBOLS.get(op, type(op_node.op).__name__)
+            tok = self.segment(op_node)
+            if op is ast.BitXor:
+                raise self.fail("^", f"operator '^' in {tok!r} is not allowed; "
+                                     "use ** for powers, e.g. x**2")
+            if sym not in ("+", "-", "*", "/", "**"):
+                raise self.fail(sym, f"operator {sym!r} in {tok!r} is not allowed; "
+                                     "use + - * / **")
+            right = self.walk(op_node.right, depth + 1)
+            if sym == "**":
+                self.check_power(acc, right, tok)
+            try:
+                acc = {"+": acc.__add__, "-": acc.__sub__, "*": acc.__mul__,
+                       "/": acc.__truediv__, "**": acc.__pow__}[sym](right)
+            except (ArithmeticError, TypeError, ValueError) as exc:  # defensive: sympy failure
+                raise self.fail(tok, f"cannot build {tok!r}: {exc}") from None
+            acc = self.checked(acc, tok)
+        return acc
+
+    def check_power(self, base: sympy.Expr, exponent: sympy.Expr, tok: str) -> None:
+        # sympy evaluates exact powers eagerly; estimate the size before computing.
+        if base.is_Rational and exponent.is_Integer and (abs(base.p) > 1 or base.q > 1):
+            bits = abs(int(exponent)) * max(abs(base.p).bit_length(), base.q.bit_length())
+            if bits > _MAX_INT_BITS:
+                raise self.fail(tok, f"exact power {tok!r} is too large (over {_MAX_INT_BITS} "
+                                     "bits); use a float such as 10.0**400")
+
+    def checked(self, value: sympy.Expr, tok: str) -> sympy.Expr:
+        if getattr(value, "is_Rational", False) and max(abs(value.p).bit_length(), value.q.bit_length()) > _MAX_INT_BITS:
+            raise self.fail(tok, f"exact number in {tok!r} is too large (over {_MAX_INT_BITS} "
+                                 "bits); use a float literal")
+        return value
+
+    def unaryop(self, node: ast.UnaryOp, depth: int) -> sympy.Expr:
+        op = type(node.op)
+        if op not in (ast.UAdd, ast.USub):
+            sym = _UNARY_SYMBOLS.get(op, op.__name__)
+            tok = self.segment(node)
+            raise self.fail(sym, f"operator {sym!r} in {tok!r} is not allowed; "
+                                 "only unary + and - are")
+        operand = self.walk(node.operand, depth + 1)
+        return -operand if op is ast.USub else operand
+
+    def call(self, node: ast.Call, depth: int) -> sympy.Expr:
+        func, tok = node.func, self.segment(node)
+        if not isinstance(func, ast.Name):
+            self.walk(func, depth + 1)  # reports attribute access, lambdas, ... precisely
+            ftok = self.segment(func)
+            raise self.fail(ftok, f"{ftok!r} cannot be called; only {_FUNCS_HINT}")
+        name = func.id
+        if name.startswith("__"):
+            raise self.fail(name, f"name {name!r} is not allowed (dunder names are forbidden)")
+        if name not in ALLOWED_FUNCTIONS:
+            what = "is not a function" if name in self.symbols or name in ALLOWED_CONSTANTS \
+                else "is not an allowed function"
+            raise self.fail(name, f"{name!r} {what} in {tok!r} ({_FUNCS_HINT})")
+        if node.keywords:
+            kw = self.segment(node.keywords[0])
+            raise self.fail(kw, f"keyword argument {kw!r} in {tok!r} is not allowed; "
+                                "pass arguments by position")
+        for arg in node.args:
+            if isinstance(arg, ast.Starred):
+                star = self.segment(arg)
+                raise self.fail(star, f"starred argument {star!r} in {tok!r} is not allowed")
+        want = _ARITY[name]
+        if len(node.args) != want:
+            raise self.fail(name, f"{name} takes {want} argument{'s' * (want > 1)}, got "
+                                  f"{len(node.args)} in {tok!r}")
+        args = [self.walk(arg, depth + 1) for arg in node.args]
+        return ALLOWED_FUNCTIONS[name](*args)
+
+
+def _syntax_error(text: str, lead: str, exc: SyntaxError, field: str) -> ExpressionError:
+    """Translate a SyntaxError on the stripped ``text`` into an ExpressionError whose
+    position refers to the original text (``lead`` is the whitespace stripped in front)."""
+    lineno, offset = exc.lineno, exc.offset
+    msg = exc.msg or "invalid syntax"
+    if not lineno or not offset:  # e.g. "x +": Python reports no useful column
+        tok = _short(text)
+        return ExpressionError(field, tok, f"syntax error in {tok!r}: {msg}")
+    lines = text.splitlines() or [""]
+    line = lines[lineno - 1] if lineno <= len(lines) else ""
+    found = re.compile(r"\w+|\S").search(line, offset - 1)
+    tok = _short(found.group() if found else "end of text")
+    # Map the position back through the leading whitespace we stripped before parsing.
+    shift_lines = lead.count("\n")
+    col = offset + (len(lead) - lead.rfind("\n") - 1 if lineno == 1 else 0)
+    where = f"column {col}" if "\n" not in text else f"line {lineno + shift_lines}, column {col}"
+    return ExpressionError(field, tok, f"syntax error at {where} near {tok!r}: {msg} "
+                                       "(check parentheses and operators)")
+
+
+def _number(value, field: str) -> sympy.Expr:
+    if isinstance(value, bool):  # bool is an Integral; True in a config is a mistake
+        raise ExpressionError(field, repr(value), f"boolean {value!r} is not a number; write 1 or 0")
+    if isinstance(value, numbers.Integral):
+        return sympy.Integer(int(value))
+    if not math.isfinite(float(value)):
+        raise ExpressionError(field, repr(value), f"number {value!r} is not finite")
+    return sympy.Float(float(value))
+
+
+def parse_expression(text: str, symbols: dict[str, sympy.Symbol], field: str) -> sympy.Expr:
+    """Parse ``text`` against the whitelist and return the sympy expression it denotes.
+
+    ``symbols`` maps the names the user may write to sympy objects (declared names take
+    precedence over ``pi``/``E``). ``field`` names the config location for error messages.
+    A plain int/float is also accepted (YAML gives ``potential: 0`` as a number).
+    Raises :class:`ExpressionError` for anything outside the grammar; the text is never
+    executed.
+    """
+    if isinstance(text, numbers.Real):
+        return _number(text, field)
+    if not isinstance(text, str):
+        raise ExpressionError(field, type(text).__name__,
+                              f"expected an expression string, got {type(text).__name__}")
+    if len(text) > MAX_LENGTH:
+        raise ExpressionError(field, _short(text), f"expression is {len(text)} characters long; "
+                                                   f"the limit is {MAX_LENGTH}")
+    stripped = text.strip()
+    if not stripped:
+        raise ExpressionError(field, "", "expression is empty; write e.g. 0 or m*g*y")
+    # compile() rejects leading whitespace in eval mode ("unexpected indent"), so strip it.
+    lead = text[: len(text) - len(text.lstrip())]
+    try:
+        tree = ast.parse(stripped, mode="eval")
+    except SyntaxError as exc:
+        raise _syntax_error(stripped, lead, exc, field) from None
+    except (RecursionError, MemoryError, ValueError):  # parser limits on pathological input
+        tok = _short(stripped)
+        raise ExpressionError(field, tok, f"expression {tok!r} is too deeply nested or too "
+                                          "complex to parse; simplify it") from None
+    expr = _Builder(stripped, symbols, field).walk(tree.body, 0)
+    # 1/0 or log(0) give zoo/nan in sympy instead of raising: refuse them here.
+    if isinstance(expr, sympy.Basic) and expr.has(sympy.zoo, sympy.nan, sympy.oo, -sympy.oo):
+        tok = _short(stripped)
+        raise ExpressionError(field, tok, f"expression {tok!r} is undefined or infinite "
+                                          "(division by zero?)")
+    return expr
+
+
+def parse_matrix(entries, symbols: dict[str, sympy.Symbol], field: str) -> sympy.Matrix:
+    """Parse an ``n x n`` list of lists of expression strings / numbers into a sympy Matrix.
+
+    Errors name the exact location, e.g. ``system.mass_matrix[1][0]`` for a bad entry or
+    ``system.mass_matrix[1]`` for a row of the wrong length.
+    """
+    if not isinstance(entries, (list, tuple)) or not entries:
+        raise ExpressionError(field, _short(repr(entries)),
+                              "expected a non-empty square list of rows, e.g. [[m, 0], [0, m]]")
+    n = len(entries)
+    rows = []
+    for i, row in enumerate(entries):
+        where = f"{field}[{i}]"
+        if not isinstance(row, (list, tuple)):
+            raise ExpressionError(where, _short(repr(row)),
+                                  f"row {_short(repr(row))} must be a list of {n} entries")
+        if len(row) != n:
+            raise ExpressionError(where, _short(repr(row)),
+                                  f"row {_short(repr(row))} has {len(row)} entr{'y' if len(row) == 1 else 'ies'} but the matrix has {n} rows; "
+                                  f"it must be square ({n} x {n})")
+        parsed = []
+        for j, value in enumerate(row):
+            at = f"{where}[{j}]"
+            if not isinstance(value, (str, numbers.Real)):
+                raise ExpressionError(at, _short(repr(value)), f"entry {_short(repr(value))} "
+                                      "must be an expression string or a number")
+            parsed.append(parse_expression(value, symbols, at))
+        rows.append(parsed)
+    return sympy.Matrix(rows)

@@ -1,0 +1,168 @@
+"""Symbolic mechanical systems L = 1/2 qdot^T M(q) qdot - V(q) with one unilateral constraint phi(q) >= 0.
+
+A `MechanicalSystem` is pure data plus derived sympy objects; it never computes numbers itself:
+the only bridge to numbers is `vcirun.codegen`. Parameters stay symbols so that a parameter change
+does not recompile anything (their values are passed to kernels at run time).
+"""
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+
+import numpy as np
+import sympy as sp
+
+
+@dataclass(eq=False)
+class MechanicalSystem:
+    """A hyperregular mechanical Lagrangian system with one holonomic unilateral constraint.
+
+    name      : identifier (used in records and kernel cache keys)
+    q         : list of n coordinate symbols
+    params    : ordered dict symbol-name -> float value (the symbols appear in M, V, phi, forcing)
+    M         : n x n symmetric sympy Matrix in q and params
+    V         : sympy expression, potential energy
+    phi       : sympy expression, constraint function, admissible set phi(q) >= 0
+    forcing   : optional length-n sympy Matrix f(q, qdot, t) (generalized forces), symbols `qd` and `t`
+    ic_map    : optional callable beta -> (q0, qdot0) (a scene's initial-condition family, e.g. Xi)
+    """
+
+    name: str
+    q: list
+    params: dict
+    M: sp.Matrix
+    V: sp.Expr
+    phi: sp.Expr
+    forcing: sp.Matrix | None = None
+    qd: list = field(default_factory=list)
+    t: sp.Symbol = field(default_factory=lambda: sp.Symbol("t"))
+    ic_map: object = None
+    default_q0: np.ndarray | None = None
+    default_p0: np.ndarray | None = None
+    description: str = ""
+
+    def __post_init__(self):
+        self.q = list(self.q)
+        n = len(self.q)
+        self.M = sp.Matrix(self.M)
+        if self.M.shape != (n, n):
+            raise ValueError(f"system {self.name}: mass_matrix must be {n}x{n} (got {self.M.shape[0]}x{self.M.shape[1]})")
+        if any(sp.simplify(self.M[i, j] - self.M[j, i]) != 0 for i in range(n) for j in range(i + 1, n)):
+            raise ValueError(f"system {self.name}: mass_matrix must be symmetric (fix the off-diagonal entries)")
+        if not self.qd:
+            self.qd = [sp.Symbol(f"{s.name}_dot") for s in self.q]
+        if self.forcing is not None:
+            self.forcing = sp.Matrix(self.forcing).reshape(n, 1)
+        self.V = sp.sympify(self.V)
+        self.phi = sp.sympify(self.phi)
+        self.params = dict(self.params)
+
+    # --- basic sizes and symbols -------------------------------------------------------------
+    @property
+    def n(self) -> int:
+        return len(self.q)
+
+    @property
+    def param_symbols(self) -> list:
+        return [sp.Symbol(k) for k in self.params]
+
+    def param_values(self, overrides: dict | None = None) -> np.ndarray:
+        """Parameter vector in declaration order, with overrides applied (unknown names rejected)."""
+        vals = dict(self.params)
+        for k, v in (overrides or {}).items():
+            if k not in vals:
+                raise ValueError(f"params.{k}: unknown parameter of system {self.name} (known: {', '.join(vals)})")
+            vals[k] = float(v)
+        return np.array([float(vals[k]) for k in self.params], dtype=float)
+
+    # --- derived symbolic objects ------------------------------------------------------------
+    def lagrangian(self, q=None, qd=None):
+        """L(q, qdot) = 1/2 qdot^T M(q) qdot - V(q), optionally at other symbols/expressions."""
+        q = self.q if q is None else list(q)
+        qd = self.qd if qd is None else list(qd)
+        sub = dict(zip(self.q, q))
+        M = self.M.subs(sub, simultaneous=True)
+        v = sp.Matrix(qd)
+        return (v.T * M * v)[0, 0] / 2 - self.V.subs(sub, simultaneous=True)
+
+    def forcing_at(self, q, qd, t):
+        """Generalized force f(q, qdot, t) at given expressions (zero vector if unforced)."""
+        if self.forcing is None:
+            return sp.zeros(self.n, 1)
+        sub = dict(zip(self.q, q)) | dict(zip(self.qd, qd)) | {self.t: t}
+        return self.forcing.subs(sub, simultaneous=True)
+
+    @property
+    def grad_phi(self) -> sp.Matrix:
+        return sp.Matrix([sp.diff(self.phi, s) for s in self.q])
+
+    def hamiltonian_symbolic(self):
+        """H(q, p) = 1/2 p^T M(q)^{-1} p + V(q) with symbols p_i; only sensible for small n."""
+        p = sp.Matrix([sp.Symbol(f"p_{s.name}") for s in self.q])
+        return (p.T * self.M.inv() * p)[0, 0] / 2 + self.V, list(p)
+
+    @property
+    def is_forced(self) -> bool:
+        return self.forcing is not None and any(e != 0 for e in self.forcing)
+
+    def fingerprint(self) -> str:
+        """Hash of the symbolic content (not the parameter values): the kernel cache key part."""
+        if getattr(self, "_fp", None):
+            return self._fp
+        text = repr((self.name, [str(s) for s in self.q], list(self.params), sp.srepr(self.M),
+                     sp.srepr(self.V), sp.srepr(self.phi),
+                     sp.srepr(self.forcing) if self.forcing is not None else None))
+        self._fp = hashlib.sha256(text.encode()).hexdigest()[:16]
+        return self._fp
+
+    # --- numeric helpers that need no compiled kernels (validation, initial conditions) ------
+    def _lambdas(self):
+        if not hasattr(self, "_lam"):
+            args = (self.q, self.param_symbols)
+            self._lam = (sp.lambdify(args, self.M, "numpy"), sp.lambdify(args, self.phi, "numpy"))
+        return self._lam
+
+    def mass_matrix(self, q, params=None) -> np.ndarray:
+        prm = self.param_values() if params is None else np.asarray(params, float)
+        return np.array(self._lambdas()[0](list(q), list(prm)), dtype=float)
+
+    def phi_value(self, q, params=None) -> float:
+        prm = self.param_values() if params is None else np.asarray(params, float)
+        return float(self._lambdas()[1](list(q), list(prm)))
+
+    def check_hyperregular(self, q, params=None) -> None:
+        """The Legendre transform must be invertible: M(q) symmetric positive definite."""
+        Mq = self.mass_matrix(q, params)
+        if not np.all(np.isfinite(Mq)):
+            raise ValueError(f"system {self.name}: mass_matrix is not finite at q0={list(q)}")
+        try:
+            np.linalg.cholesky(0.5 * (Mq + Mq.T))
+        except np.linalg.LinAlgError:
+            ev = np.linalg.eigvalsh(0.5 * (Mq + Mq.T))
+            raise ValueError(f"system {self.name}: mass_matrix is not positive definite at q0={list(q)} "
+                             f"(eigenvalues {ev}); the Lagrangian must be hyperregular") from None
+
+    def legendre(self, q, qdot, params=None):
+        """FL: (q, qdot) -> (q, p = M(q) qdot)."""
+        q = np.asarray(q, float)
+        return q.copy(), self.mass_matrix(q, params) @ np.asarray(qdot, float)
+
+    def initial_state(self, beta=None, q0=None, p0=None, params=None):
+        """(q0, p0) from explicit values, the scene's initial-condition map at beta, or its default."""
+        if q0 is not None or p0 is not None:
+            if q0 is None or p0 is None:
+                raise ValueError("initial state: give both q0 and p0 (or beta)")
+            q0, p0 = np.asarray(q0, float).ravel(), np.asarray(p0, float).ravel()
+        elif beta is not None:
+            if self.ic_map is None:
+                raise ValueError(f"beta: system {self.name} has no initial-condition map; give q0 and p0")
+            qq, qdot = self.ic_map(float(beta))
+            q0, p0 = self.legendre(qq, qdot, params)
+        elif self.default_q0 is not None:
+            q0, p0 = np.array(self.default_q0, float), np.array(self.default_p0, float)
+        else:
+            raise ValueError(f"initial state: system {self.name} needs q0 and p0 (or beta)")
+        if q0.shape != (self.n,) or p0.shape != (self.n,):
+            raise ValueError(f"initial state: q0 and p0 must have length {self.n}")
+        self.check_hyperregular(q0, params)
+        return q0, p0

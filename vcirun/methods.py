@@ -1,0 +1,66 @@
+"""Named methods as data: a choice of (full, partial, reset) for Algorithm 1 (Section 4, Table I)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from .codegen.build import KernelSet
+from .discrete.lagrangians import LIBRARY, get_ld
+
+
+@dataclass(frozen=True)
+class Method:
+    """name; ld: discrete Lagrangian of the full step; partial: 'ld' (Phi^Ld_tau) or 'gauss'
+    (Gauss collocation of the truncated modified Hamiltonian's flow); reset: 'cva', 'vci', 'mcva', or
+    None (smooth integration, constraint ignored); mh_order, flow_order: MCVA family only."""
+
+    name: str
+    ld: str
+    partial: str = "ld"
+    reset: str | None = None
+    mh_order: int | None = None
+    flow_order: int | None = None
+    properties: dict = field(default_factory=dict, compare=False)
+
+    def kernel_set(self) -> KernelSet:
+        ld = get_ld(self.ld)
+        return KernelSet(
+            full_stages=tuple(ld.stages),
+            partial=self.partial,
+            reset=self.reset or "cva",
+            vci_stage=self.ld if self.reset == "vci" else None,
+            modified=(self.ld, self.mh_order, self.flow_order) if self.reset == "mcva" else None,
+        )
+
+    @property
+    def constrained(self) -> bool:
+        return self.reset is not None
+
+
+def _props(mh, sympl, explicit):
+    return {"conserves_mh": mh, "symplectic": sympl, "explicit_ld": explicit}
+
+
+METHODS = {
+    # Table I of the paper: CVA and VCI use SVC (explicit Ld); VCI is exactly symplectic.
+    "CVA": Method("CVA", ld="SVC", reset="cva", properties=_props(False, False, True)),
+    "VCI": Method("VCI", ld="SVC", reset="vci", properties=_props(False, "exact", True)),
+}
+
+
+def resolve_method(method, **options) -> Method:
+    """A Method from a name (CVA, VCI, MCVAA, MCVAC, MCVA with ld/mh_order/flow_order, or a bare
+    discrete Lagrangian name for smooth integration) or a Method instance."""
+    if isinstance(method, Method):
+        return method
+    if not isinstance(method, str):
+        raise ValueError(f"method: expected a method name, got {type(method).__name__}")
+    if method in METHODS:
+        return METHODS[method]
+    if method in LIBRARY:
+        return Method(method, ld=method, reset=None, properties=_props(False, "exact", LIBRARY[method].explicit))
+    if method == "MCVA":
+        from .modified import generalized_mcva
+
+        return generalized_mcva(**options)
+    known = ", ".join(list(METHODS) + ["MCVA"] + list(LIBRARY))
+    raise ValueError(f"method: unknown method {method!r} (choose one of {known})")
