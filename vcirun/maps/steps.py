@@ -95,3 +95,19 @@ def hamiltonian(q, p, prm):
 def ld_partial(q0, p0, tau, h, t, prm, newton_tol, max_iter, q1, p1, vlast):
     """Phi^partial = Phi^full_tau (CVA, VCI): the same discrete Lagrangian at step tau."""
     return ld_step(q0, p0, tau, t, prm, newton_tol, max_iter, q1, p1, vlast)
+
+
+@njit(cache=True, nogil=True)
+def hamilton_rhs(y, prm, out):
+    """Hamilton's equations (6)-(7) on y = (q, p): qdot = M^-1 p, pdot = -dH/dq."""
+    q = y[:NDOF]
+    p = y[NDOF:]
+    A = np.empty((NDOF, NDOF))
+    x = p.copy()
+    sys_M(q, prm, A)
+    solve_small(A, x, NDOF)
+    g = np.empty(NDOF)
+    sys_dHq(q, x, prm, g)
+    for i in range(NDOF):
+        out[i] = x[i]
+        out[NDOF + i] = -g[i]
