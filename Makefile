@@ -1,0 +1,44 @@
+# vcirun: one virtual environment in .venv, one kernel cache in .vcirun_cache (shared by tests).
+PY      ?= python3
+VENV    := .venv
+BIN     := $(VENV)/bin
+export VCIRUN_CACHE_DIR ?= $(CURDIR)/.vcirun_cache
+
+.PHONY: run test test-all bench reproduce clean install
+
+$(BIN)/vcirun: pyproject.toml
+	$(PY) -m venv $(VENV)
+	$(BIN)/pip install -q --upgrade pip
+	$(BIN)/pip install -q -e '.[test,dask]'
+	@touch $@
+
+install: $(BIN)/vcirun
+
+# The main job on a small default: sweep configs/quick.yaml and plot it.
+run: install
+	$(BIN)/vcirun sweep configs/quick.yaml
+	$(BIN)/vcirun plot results/quick.h5
+
+# The default test suite (slow tests excluded; `make test-all` runs them too).
+test: install
+	$(BIN)/python -m pytest -n 2 -q
+
+test-all: install
+	$(BIN)/python -m pytest -n 2 -q -m ''
+
+bench: install
+	$(BIN)/python bench/bench_core.py
+
+# Every figure and table of the paper into results/.
+reproduce: install
+	$(BIN)/vcirun sweep configs/fig4.yaml
+	$(BIN)/vcirun sweep configs/fig3.yaml
+	$(BIN)/vcirun sweep configs/fig1.yaml
+	$(BIN)/vcirun sweep configs/table2.yaml
+	$(BIN)/vcirun plot results/fig4.h5
+	$(BIN)/vcirun plot results/fig3.h5
+	$(BIN)/vcirun plot results/fig1.h5
+	$(BIN)/vcirun plot results/table2.h5
+
+clean:
+	rm -rf $(VENV) .vcirun_cache build *.egg-info
