@@ -56,9 +56,16 @@ def ld_step(q0, p0, h, t, prm, newton_tol, max_iter, q1, p1, vlast):
     """Phi_h of the scene's discrete Lagrangian (a composition of explicit stages, e.g. SVA =
     SE1 then SE2 half steps). Returns (iterations >= 0, or < 0 on failure, discrete energy -D3 Ld).
     vlast receives the last stage's step velocity."""
+    v = np.empty(NDOF)
+    if FULL_STAGES.shape[0] == 1:  # explicit Ld: no intermediate nodes to copy
+        velocity_guess(q0, p0, prm, v)
+        it = explicit_step(FULL_STAGES[0], q0, p0, h, t, prm, newton_tol, max_iter, v, q1, p1)
+        vlast[:] = v
+        if it < 0:
+            return it, np.nan
+        return it, ld_Ed(FULL_STAGES[0], q0, v, h, prm)
     qa = q0.copy()
     pa = p0.copy()
-    v = np.empty(NDOF)
     total = 0
     Ed = 0.0
     ts = t
