@@ -44,6 +44,12 @@ METHODS = {
     # Table I of the paper: CVA and VCI use SVC (explicit Ld); VCI is exactly symplectic.
     "CVA": Method("CVA", ld="SVC", reset="cva", properties=_props(False, False, True)),
     "VCI": Method("VCI", ld="SVC", reset="vci", properties=_props(False, "exact", True)),
+    # Section 5.2: MCVA on SVA with H~^{O(h^4)} (H4 kept: it does not vanish, see vcirun/modified) and
+    # MCVAC, the generalized MCVA on SVC with H~^{O(h^3)}; both with the order-4 Gauss partial flow.
+    "MCVAA": Method("MCVAA", ld="SVA", partial="gauss", reset="mcva", mh_order=4, flow_order=4,
+                    properties=_props(True, True, False)),
+    "MCVAC": Method("MCVAC", ld="SVC", partial="gauss", reset="mcva", mh_order=3, flow_order=4,
+                    properties=_props(True, True, True)),
 }
 
 

@@ -29,7 +29,7 @@ UNITS_BASE = ["maps/linalg.py", "maps/steps.py", "collision/events.py", "collisi
               "collision/algorithm1.py"]
 # files whose text changes the generated code: hashed into the key
 _GENERATOR_FILES = ["codegen/kernels.py", "codegen/printer.py", "codegen/build.py", "codegen/derive.py",
-                    "discrete/lagrangians.py", "mechanics/system.py"]
+                    "discrete/lagrangians.py", "mechanics/system.py", "modified/derive.py", "modified/series.py"]
 
 _loaded: dict[str, object] = {}
 BUILD_LOG: list[dict] = []  # (key, symbolic seconds, write seconds, cached?) for benchmarks

@@ -49,7 +49,7 @@ def ld_kernels(system, name: str, sid: int, need_edv: bool) -> list[Kernel]:
 
 def _dispatch(fname: str, sig: str, call: str, names: list[str], returns: bool) -> str:
     """ld_X(sid, ...) -> NAME_X(...) by stage id: a branch on an int is free next to the kernel."""
-    lines = ["@njit(cache=True, nogil=True)", f"def {fname}(sid, {sig}):"]
+    lines = ['@njit(cache=True, nogil=True, error_model="numpy")', f"def {fname}(sid, {sig}):"]
     for i, nm in enumerate(names):
         kw = "if" if i == 0 else "elif"
         lines.append(f"    {kw} sid == {i}:")
@@ -74,7 +74,7 @@ def module_source(system, ks, unit_texts: list[str]) -> str:
     parts.append(_dispatch("ld_Pp", "q0, v, h, t, prm, out", "Pp", names, False))
     parts.append(_dispatch("ld_Ed", "q0, v, h, prm", "Ed", names, True))
     if ks.vci_stage:  # only R^VCI needs dEd/dv, and only of its own stage
-        parts.append("@njit(cache=True, nogil=True)\ndef ld_Edv(sid, q0, v, h, prm, out):\n"
+        parts.append('@njit(cache=True, nogil=True, error_model="numpy")\ndef ld_Edv(sid, q0, v, h, prm, out):\n'
                      f"    {ks.vci_stage}_Edv(q0, v, h, prm, out)\n")
     if ks.modified is not None:
         from ..modified.derive import modified_kernels_source

@@ -36,7 +36,7 @@ class Kernel:
         return len(self.outputs) == 1 and not isinstance(self.outputs[0][1], sp.MatrixBase)
 
     def emit(self) -> str:
-        lines = ["@njit(cache=True, nogil=True)", f"def {self.name}({self.signature()}):"]
+        lines = ['@njit(cache=True, nogil=True, error_model="numpy")', f"def {self.name}({self.signature()}):"]
         body = []
         used = set()
         flat = []  # (target, expr)

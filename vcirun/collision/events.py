@@ -5,17 +5,20 @@ import math
 import numpy as np
 from numba import njit
 
+N_SCAN = 4  # interior samples of the initial bracket (first-root search)
 
-@njit(cache=True, nogil=True)
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def collision_time(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt, vt):
     """First root tau in (0, tau_max] of g(tau) = phi(q(tau)), q(tau) from Phi^partial_tau(qh, ph).
 
     Returns (code, tau, E_pre, newton_iters): code 1 = collision at tau, 0 = no collision in
     (0, tau_max] (tau = tau_max), -1 = a partial step failed, -2 = the root search failed. On return
     (qt, pt, vt) hold the partial-step state at tau and E_pre its discrete energy (for R^VCI).
-    The root is located to |Delta tau| <= event_tol * h (bracketing Illinois iteration, so it
-    cannot leave the bracket); a start on the surface (g(0) <= 0, e.g. right after an impact) is
-    not a root: the search first steps forward to a point with g > 0.
+    The root is located to |Delta tau| <= event_tol * h (interior samples pick the first sign
+    change, then a bracketing Illinois iteration, which cannot leave the bracket); a start on the
+    surface (g(0) <= 0, e.g. right after an impact) is not a root: the search first steps forward
+    to a point with g > 0.
     """
     iters = 0
     it, E = partial(qh, ph, tau_max, h, t, prm, ntol, maxit, qt, pt, vt)
@@ -54,6 +57,26 @@ def collision_time(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt, v
             # moving into the constraint from the surface: the impact is at tau = 0
             it, E = partial(qh, ph, 0.0, h, t, prm, ntol, maxit, qt, pt, vt)
             return 1, 0.0, E, iters + abs(it)
+    # CollisionTime is a set: look for the FIRST sign change. A few interior samples catch an
+    # earlier root that a plain [a, b] bracket would skip (phi < 0 inside, > 0 again at b's left).
+    a0 = a
+    span = b - a
+    for j in range(1, N_SCAN):
+        c = a0 + span * j / N_SCAN
+        it, E = partial(qh, ph, c, h, t, prm, ntol, maxit, qt, pt, vt)
+        if it < 0:
+            return -1, c, E, iters - it
+        iters += it
+        gc = sys_phi(qt, prm)
+        if gc < 0.0:
+            b = c
+            gb = gc
+            break
+        if gc > 0.0:
+            a = c
+            ga = gc
+        else:
+            return 1, c, E, iters
     side = 0
     converged = False
     for _ in range(200):

@@ -7,7 +7,7 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def cva_lambda(q, pm, prm, g):
     """Nontrivial root of H(q, pm + lam g) = H(q, pm): H is quadratic in p, so
     lam = -2 g^T M^-1 pm / g^T M^-1 g (the root lam = 0 is divided out)."""
@@ -27,7 +27,7 @@ def cva_lambda(q, pm, prm, g):
     return -2.0 * gWp / gWg
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def reset_cva(q, pm, E_pre, tau_rem, h, t, prm, ntol, maxit, pp):
     """R^CVA: q unchanged, pp = pm + lam grad phi, H conserved, lam != 0."""
     g = np.empty(NDOF)
@@ -39,7 +39,7 @@ def reset_cva(q, pm, E_pre, tau_rem, h, t, prm, ntol, maxit, pp):
     return 1, lam
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def reset_vci(q, pm, E_pre, tau_rem, h, t, prm, ntol, maxit, pp):
     """R^VCI: pp = pm + lam grad phi with the discrete energy conserved across the impact,
     -D3 Ld(q_prev, q, tau_pre) = E_pre = -D3 Ld(q, q_next, tau_rem), pp = -D1 Ld(q, q_next, tau_rem),
@@ -51,11 +51,27 @@ def reset_vci(q, pm, E_pre, tau_rem, h, t, prm, ntol, maxit, pp):
     lam0 = cva_lambda(q, pm, prm, g)
     if lam0 == 0.0 or not math.isfinite(lam0):
         return -1, lam0
+    # Newton from the R^CVA reflection; near the fold (tiny normal velocity) it can fall onto the
+    # non-reflecting root, so retry from larger reflections before giving up
+    total = 0
+    for scale in (1.0, 2.0, 4.0, 8.0, 0.5):
+        it, lam = _vci_newton(q, pm, E_pre, tau_rem, t, prm, ntol, maxit, g, scale * lam0, pp)
+        total += abs(it)
+        if it > 0 and lam * lam0 > 0.0 and abs(lam) >= 1e-3 * abs(lam0):
+            for i in range(NDOF):
+                pp[i] = pm[i] + lam * g[i]
+            return total, lam
+    return -total, lam0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _vci_newton(q, pm, E_pre, tau_rem, t, prm, ntol, maxit, g, lam_start, pp):
+    """Newton on (w, lam) for eq. (33) from lam_start; returns (iterations or -iterations, lam)."""
     w = np.empty(NDOF)
     for i in range(NDOF):
-        pp[i] = pm[i] + lam0 * g[i]
+        pp[i] = pm[i] + lam_start * g[i]
     velocity_guess(q, pp, prm, w)
-    lam = lam0
+    lam = lam_start
     m = NDOF + 1
     F = np.empty(m)
     JJ = np.empty((m, m))
@@ -64,6 +80,7 @@ def reset_vci(q, pm, E_pre, tau_rem, h, t, prm, ntol, maxit, pp):
     ev = np.empty(NDOF)
     it = 0
     ok = False
+    dprev = np.inf
     while it < maxit:
         it += 1
         ld_PmJ(VCI_STAGE, q, w, tau_rem, t, prm, r, J)
@@ -92,13 +109,14 @@ def reset_vci(q, pm, E_pre, tau_rem, h, t, prm, ntol, maxit, pp):
         if dn <= ntol * (1.0 + xn):
             ok = True
             break
-    if not ok or lam * lam0 <= 0.0 or abs(lam) < 1e-3 * abs(lam0):
-        return -it, lam
-    for i in range(NDOF):
-        pp[i] = pm[i] + lam * g[i]
-    return it, lam
+        # (issue 8) round-off floor, as in explicit_step (vcirun/maps/steps.py)
+        if it >= 3 and dn >= dprev and dn <= math.sqrt(ntol) * (1.0 + xn):
+            ok = True
+            break
+        dprev = dn
+    return (it if ok else -it), lam
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def no_modified_energy(q, p, h, prm):
     return np.nan

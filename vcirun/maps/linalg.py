@@ -6,7 +6,7 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def solve_small(A, b, n):
     """Solve A x = b in place (x returned in b) by Gaussian elimination with partial pivoting.
     A (n, n) is destroyed. Returns False if A is singular to working precision."""
@@ -42,7 +42,7 @@ def solve_small(A, b, n):
     return True
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def norm_inf(x):
     m = 0.0
     for i in range(x.shape[0]):

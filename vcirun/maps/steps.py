@@ -6,7 +6,7 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def velocity_guess(q, p, prm, v):
     """v = M(q)^{-1} p: the continuous velocity, Newton's starting point for every step."""
     A = np.empty((NDOF, NDOF))
@@ -18,7 +18,7 @@ def velocity_guess(q, p, prm, v):
             v[i] = 0.0
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def explicit_step(sid, q0, p0, h, t, prm, newton_tol, max_iter, v, q1, p1):
     """One step of explicit discrete Lagrangian `sid`: solve Pm(q0, v, h) = p0 for the step velocity v
     (v holds the initial guess on entry) by Newton with the analytic Jacobian, then q1 = q0 + h v,
@@ -27,6 +27,7 @@ def explicit_step(sid, q0, p0, h, t, prm, newton_tol, max_iter, v, q1, p1):
     J = np.empty((NDOF, NDOF))
     it = 0
     converged = False
+    dprev = np.inf
     while it < max_iter:
         it += 1
         ld_PmJ(sid, q0, v, h, t, prm, r, J)
@@ -45,13 +46,23 @@ def explicit_step(sid, q0, p0, h, t, prm, newton_tol, max_iter, v, q1, p1):
         if dn <= newton_tol * (1.0 + vn):
             converged = True
             break
+        # (issue 8) round-off floor: past the quadratic phase (it >= 3) a correction that no longer
+        # decreases, yet is below sqrt(newton_tol) relative, is rounding noise. With an
+        # ill-conditioned Jacobian (nearly singular M, cond ~ 1e4 and up) that floor lies above
+        # newton_tol; Newton used to cycle between two neighbouring floats until max_iter and
+        # report newton_failed on a regular step (double pendulum with m1 = 1e-4, cart-pendulum
+        # with m2/m1 = 1e4).
+        if it >= 3 and dn >= dprev and dn <= math.sqrt(newton_tol) * (1.0 + vn):
+            converged = True
+            break
+        dprev = dn
     for i in range(NDOF):
         q1[i] = q0[i] + h * v[i]
     ld_Pp(sid, q0, v, h, t, prm, p1)
     return it if converged else -it
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def ld_step(q0, p0, h, t, prm, newton_tol, max_iter, q1, p1, vlast):
     """Phi_h of the scene's discrete Lagrangian (a composition of explicit stages, e.g. SVA =
     SE1 then SE2 half steps). Returns (iterations >= 0, or < 0 on failure, discrete energy -D3 Ld).
@@ -85,7 +96,7 @@ def ld_step(q0, p0, h, t, prm, newton_tol, max_iter, q1, p1, vlast):
     return total, Ed
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def hamiltonian(q, p, prm):
     """H(q, p) = 1/2 p^T M(q)^{-1} p + V(q)."""
     A = np.empty((NDOF, NDOF))
@@ -98,13 +109,13 @@ def hamiltonian(q, p, prm):
     return 0.5 * s + sys_V(q, prm)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def ld_partial(q0, p0, tau, h, t, prm, newton_tol, max_iter, q1, p1, vlast):
     """Phi^partial = Phi^full_tau (CVA, VCI): the same discrete Lagrangian at step tau."""
     return ld_step(q0, p0, tau, t, prm, newton_tol, max_iter, q1, p1, vlast)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def hamilton_rhs(y, prm, out):
     """Hamilton's equations (6)-(7) on y = (q, p): qdot = M^-1 p, pdot = -dH/dq."""
     q = y[:NDOF]

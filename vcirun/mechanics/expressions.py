@@ -17,6 +17,7 @@ from __future__ import annotations
 import ast
 import math
 import numbers
+import operator
 import re
 
 import sympy
@@ -33,9 +34,13 @@ __all__ = [
 
 MAX_LENGTH = 10_000  # characters; bounds parse time and memory
 MAX_DEPTH = 100  # nesting levels of the syntax tree; keeps the walker's recursion shallow
-# Exact integers/rationals are capped so "9**9**9" cannot eat the machine; 10_000 bits
-# (~3000 digits) also stays below Python's 4300-digit int->str limit, so results print.
-_MAX_INT_BITS = 10_000
+# Exact integers/rationals are capped so "9**9**9" (or sympy's root extraction on huge
+# integers) cannot eat the machine; 1024 bits (~308 digits) is far beyond physical needs.
+_MAX_INT_BITS = 1024
+# sympy expands exact powers eagerly ((2*x)**n -> 2**n * x**n, 3**(p/q) -> 3**(p//q), and
+# (re + I*im)**n when asked whether x**n is real), so exact exponents stay small (numerator
+# and denominator); a float exponent (x**250.0) is never expanded.
+_MAX_EXPONENT = 100
 _MAX_TOKEN_CHARS = 60  # offending tokens are shortened so messages stay one readable line
 
 ALLOWED_FUNCTIONS: dict[str, object] = {
@@ -55,6 +60,8 @@ ALLOWED_FUNCTIONS: dict[str, object] = {
     "abs": sympy.Abs,
 }
 _ARITY = {name: 1 for name in ALLOWED_FUNCTIONS} | {"atan2": 2}
+_ARITHMETIC = {"+": operator.add, "-": operator.sub, "*": operator.mul,
+               "/": operator.truediv, "**": operator.pow}
 
 ALLOWED_CONSTANTS: dict[str, sympy.Expr] = {"pi": sympy.pi, "E": sympy.E}
 
@@ -95,6 +102,33 @@ class ExpressionError(ValueError):
         self.reason = reason
         # One line, whatever the inputs hold, so it reads well in CLI/log output.
         super().__init__(" ".join(f"{field}: {reason}".split()))
+
+
+def _number_problem(value) -> str | None:
+    """Why a sympy number is out of the safe range, or None if it is fine."""
+    if getattr(value, "is_Rational", False) and (
+            max(abs(value.p).bit_length(), value.q.bit_length()) > _MAX_INT_BITS):
+        return f"exact number over {_MAX_INT_BITS} bits (write it as a float, e.g. 1e300)"
+    if getattr(value, "is_Float", False) and math.isinf(float(value)):
+        return "number beyond the floating-point range (~1.8e308)"
+    return None
+
+
+def _constant_problem(value: sympy.Expr) -> str | None:
+    """Like _number_problem, for a symbol-free expression such as cosh(1e3) or pi**40.
+
+    sympy keeps these unevaluated but evaluates them numerically when asked about their sign,
+    and f(g(huge)) then needs astronomically many digits; keeping every constant inside the
+    double range (and real) keeps every later evaluation cheap.
+    """
+    try:
+        re_part, im_part = value.evalf(15).as_real_imag()
+    except Exception:  # noqa: BLE001 - any sympy failure means we cannot vouch for it
+        return "constant that cannot be evaluated"
+    problem = _number_problem(re_part) or _number_problem(im_part)
+    if not problem and im_part.is_Number and im_part != 0:
+        problem = "complex value (only real expressions are allowed)"
+    return problem
 
 
 def _short(token: str) -> str:
@@ -140,7 +174,7 @@ class _Builder:
         # bool is a subclass of int, so it must be rejected before the int branch.
         if isinstance(value, bool):
             raise self.fail(tok, f"boolean {tok!r} is not allowed; write 1 or 0")
-        if isinstance(value, int):
+        if isinstance(value, int):  # e.g. a long hex literal
             return self.checked(sympy.Integer(value), tok)
         if isinstance(value, float):
             if not math.isfinite(value):  # e.g. 1e999 overflows to inf
@@ -190,26 +224,42 @@ class _Builder:
             right = self.walk(op_node.right, depth + 1)
             if sym == "**":
                 self.check_power(acc, right, tok)
-            try:
-                acc = {"+": acc.__add__, "-": acc.__sub__, "*": acc.__mul__,
-                       "/": acc.__truediv__, "**": acc.__pow__}[sym](right)
-            except (ArithmeticError, TypeError, ValueError) as exc:  # defensive: sympy failure
-                raise self.fail(tok, f"cannot build {tok!r}: {exc}") from None
-            acc = self.checked(acc, tok)
+            acc = self.apply(_ARITHMETIC[sym], (acc, right), tok)
         return acc
 
     def check_power(self, base: sympy.Expr, exponent: sympy.Expr, tok: str) -> None:
-        # sympy evaluates exact powers eagerly; estimate the size before computing.
-        if base.is_Rational and exponent.is_Integer and (abs(base.p) > 1 or base.q > 1):
-            bits = abs(int(exponent)) * max(abs(base.p).bit_length(), base.q.bit_length())
+        """Refuse exact powers sympy would expand into huge numbers, before computing them."""
+        if not getattr(exponent, "is_Rational", False):
+            return
+        if max(abs(exponent.p), exponent.q) > _MAX_EXPONENT:
+            raise self.fail(tok, f"exact exponent in {tok!r} is too large (limit "
+                                 f"{_MAX_EXPONENT}); use a float exponent, e.g. x**250.0")
+        coeff = base.as_coeff_Mul()[0] if isinstance(base, sympy.Expr) else None
+        if getattr(coeff, "is_Rational", False) and coeff not in (0, 1, -1):
+            bits = abs(float(exponent)) * max(math.log2(abs(coeff.p)), math.log2(coeff.q))
             if bits > _MAX_INT_BITS:
                 raise self.fail(tok, f"exact power {tok!r} is too large (over {_MAX_INT_BITS} "
-                                     "bits); use a float such as 10.0**400")
+                                     "bits); write it as a float, e.g. 1e300")
+
+    def apply(self, fn, args, tok: str) -> sympy.Expr:
+        """Build ``fn(*args)`` with sympy, keeping numeric results within safe bounds."""
+        try:
+            value = fn(*args)
+        except Exception as exc:  # noqa: BLE001 - sympy may fail in many ways on odd input
+            raise self.fail(tok, f"cannot evaluate {tok!r} ({type(exc).__name__})") from None
+        return self.checked(value, tok)
 
     def checked(self, value: sympy.Expr, tok: str) -> sympy.Expr:
-        if getattr(value, "is_Rational", False) and max(abs(value.p).bit_length(), value.q.bit_length()) > _MAX_INT_BITS:
-            raise self.fail(tok, f"exact number in {tok!r} is too large (over {_MAX_INT_BITS} "
-                                 "bits); use a float literal")
+        # Bounded numbers at every step mean no later step can blow up (10.0**10.0**10.0**10.0
+        # would otherwise make mpmath build a 10**10-digit exponent). The numeric factor of a
+        # product counts too: (2*x)**n puts 2**n there.
+        if not isinstance(value, sympy.Expr):
+            return value
+        problem = _number_problem(value.as_coeff_Mul()[0])
+        if not problem and value.is_number and not value.is_Number:
+            problem = _constant_problem(value)
+        if problem:
+            raise self.fail(tok, f"{problem} in {tok!r}")
         return value
 
     def unaryop(self, node: ast.UnaryOp, depth: int) -> sympy.Expr:
@@ -248,7 +298,7 @@ class _Builder:
             raise self.fail(name, f"{name} takes {want} argument{'s' * (want > 1)}, got "
                                   f"{len(node.args)} in {tok!r}")
         args = [self.walk(arg, depth + 1) for arg in node.args]
-        return ALLOWED_FUNCTIONS[name](*args)
+        return self.apply(ALLOWED_FUNCTIONS[name], args, tok)
 
 
 def _syntax_error(text: str, lead: str, exc: SyntaxError, field: str) -> ExpressionError:
@@ -317,6 +367,13 @@ def parse_expression(text: str, symbols: dict[str, sympy.Symbol], field: str) ->
         tok = _short(stripped)
         raise ExpressionError(field, tok, f"expression {tok!r} is undefined or infinite "
                                           "(division by zero?)")
+    # sympy folds numbers inside sums (x + 2**1023 + 2**1023) past the per-step checks.
+    problems = (_number_problem(n) for n in expr.atoms(sympy.Number)) \
+        if isinstance(expr, sympy.Basic) else ()
+    problem = next((p for p in problems if p), None)
+    if problem:
+        tok = _short(stripped)
+        raise ExpressionError(field, tok, f"{problem} in {tok!r}")
     return expr
 
 

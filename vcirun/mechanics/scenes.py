@@ -1,6 +1,6 @@
 """Built-in scenes: the paper's vertical cart-pendulum, a double pendulum against a wall (Figure 1),
-a harmonic oscillator against a wall (closed-form oracle), an n-link pendulum (scaling) and a
-linearly damped oscillator (forced DEL check)."""
+a harmonic oscillator against a wall (closed-form oracle), an n-link pendulum (scaling), a
+linearly damped oscillator (forced DEL check) and a bouncing ball with drag (impact accumulation)."""
 from __future__ import annotations
 
 import functools
@@ -79,6 +79,22 @@ def damped_oscillator(**overrides) -> MechanicalSystem:
         description="linearly damped harmonic oscillator (forced DEL)")
 
 
+def bouncing_ball(**overrides) -> MechanicalSystem:
+    """A ball of mass m above the floor y = 0 under gravity with linear air drag f = -c ydot (forced
+    DEL) and elastic impacts: phi = y. With c > 0 the bounces shrink until impacts are denser than
+    any grid (the accumulation case of the stress suite, vcirun.stress); with c = 0 it bounces
+    forever to the same height (closed form, vcirun.stress.ball_exact). beta = drop height."""
+    params = _merge({"m": 1.0, "g": 10.0, "c": 0.0}, overrides)
+    y, yd = sp.Symbol("y"), sp.Symbol("y_dot")
+    m, g, c = sp.symbols("m g c")
+    return MechanicalSystem(
+        name="bouncing_ball", q=[y], qd=[yd], params=params, M=sp.Matrix([[m]]), V=m * g * y, phi=y,
+        forcing=sp.Matrix([-c * yd]),
+        ic_map=lambda beta: (np.array([beta]), np.array([0.0])),
+        default_q0=np.array([1.0]), default_p0=np.array([0.0]),
+        description="ball on the floor y = 0 with linear drag c (forced DEL); impacts accumulate if c > 0")
+
+
 def n_pendulum(n: int = 2, **overrides) -> MechanicalSystem:
     """n-link planar pendulum (absolute angles, unit point masses at the joints) whose tip cannot
     pass the wall x = w. Used to measure how symbolic and numeric cost grow with the dimension."""
@@ -106,6 +122,7 @@ BUILTIN_SCENES = {
     "double_pendulum": double_pendulum,
     "oscillator_wall": oscillator_wall,
     "damped_oscillator": damped_oscillator,
+    "bouncing_ball": bouncing_ball,
     "n_pendulum": n_pendulum,
 }
 

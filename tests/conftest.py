@@ -1,0 +1,31 @@
+"""Shared fixtures: compiled modules per (system, method) and a seeded random generator.
+
+Compiled modules are cached in-process by vcirun.codegen.build and on disk under
+$VCIRUN_CACHE_DIR (default ~/.cache/vcirun): a cold run pays numba's compile time once per
+(system, kernel set); set VCIRUN_CACHE_DIR to an empty directory to measure a cold run.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+
+def _compiled(system, method):
+    """(MechanicalSystem, compiled module, parameter vector) for a built-in name or a system."""
+    from vcirun.codegen.build import load_module
+    from vcirun.mechanics import get_scene
+    from vcirun.methods import resolve_method
+
+    s = get_scene(system) if isinstance(system, str) else system
+    return s, load_module(s, resolve_method(method).kernel_set()), s.param_values()
+
+
+@pytest.fixture(scope="session")
+def compiled():
+    """compiled(system, method) -> (system, module, prm); modules are memoised by vcirun itself."""
+    return _compiled
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(20140527)

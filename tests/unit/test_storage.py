@@ -1,0 +1,316 @@
+"""HDF5 results storage: round trips, plain-h5py layout, incomplete groups, atomic commits, locking,
+and the metrics/figures/tables built on stored runs (synthetic trajectories; no integrator runs)."""
+from __future__ import annotations
+
+import json
+import math
+
+import h5py
+import numpy as np
+import pytest
+from scipy import stats
+
+from vcirun.experiments import metrics, storage
+from vcirun.experiments.storage import ResultsWriter, StorageError
+from vcirun.trajectory import Trajectory
+
+KEY = "k" * 64
+
+
+def make_traj(*, N=40, n=2, h=0.01, with_hmod=True, n_imp=2, status="ok", beta=3.2, seed=0) -> Trajectory:
+    rng = np.random.default_rng(seed)
+    t = h * np.arange(N + 1)
+    imp_step = np.zeros(N, bool)
+    imp_step[[k for k in (5, 17)[:n_imp] if k < N]] = True
+    return Trajectory(
+        method="MCVAC" if with_hmod else "CVA", system="synthetic", h=h, T=N * h, t=t,
+        q=rng.normal(size=(N + 1, n)), p=rng.normal(size=(N + 1, n)), H=10 + 0.01 * rng.normal(size=N + 1),
+        Ed=10 + 0.02 * rng.normal(size=N + 1), impacts=np.sort(rng.uniform(0, N * h, n_imp)),
+        impact_q=rng.normal(size=(n_imp, n)), impact_p_minus=rng.normal(size=(n_imp, n)),
+        impact_p_plus=rng.normal(size=(n_imp, n)), impact_step=imp_step,
+        partial_steps=rng.uniform(0, h, 2 * n_imp), newton_iters=rng.integers(1, 5, N),
+        status=status, message="" if status == "ok" else "newton_failed in step 3 (t = 0.03)",
+        fail_step=-1 if status == "ok" else 3, fail_time=math.nan if status == "ok" else 0.03,
+        Hmod=10 + 1e-6 * rng.normal(size=N + 1) if with_hmod else None, beta=beta, wall_time=1.25e-3,
+        tolerances={"newton_tol": 1e-12, "event_tol": 1e-13}, options={"params": {"m1": 1.0}, "constrained": True})
+
+
+def run_attrs(traj, label, h, beta, index=0, ic_key=None):
+    attrs, arrays = storage.trajectory_payload(traj)
+    attrs.update(run_id=None, label=label, method=label, method_index=index, ic_key=ic_key or f"beta={beta:g}",
+                 ic_index=0, beta=beta, l2_error=1e-3 * h, method_spec={"name": label})
+    return attrs, arrays
+
+
+def assert_same_traj(a: Trajectory, b: Trajectory):
+    for name in ("t", "q", "p", "H", "Ed", "impacts", "impact_q", "impact_p_minus", "impact_p_plus",
+                 "impact_step", "partial_steps", "newton_iters"):
+        x, y = getattr(a, name), getattr(b, name)
+        assert np.asarray(x).shape == np.asarray(y).shape, name
+        np.testing.assert_array_equal(x, y, err_msg=name)
+    assert (a.Hmod is None) == (b.Hmod is None)
+    if a.Hmod is not None:
+        np.testing.assert_array_equal(a.Hmod, b.Hmod)
+    for name in ("method", "system", "h", "T", "status", "message", "fail_step", "beta", "wall_time",
+                 "tolerances", "options"):
+        assert getattr(a, name) == getattr(b, name), name
+    assert (math.isnan(a.fail_time) and math.isnan(b.fail_time)) or a.fail_time == b.fail_time
+
+
+def write(path, runs, *, key=KEY, refs=(), root=None):
+    with ResultsWriter(path, root_attrs=root or {"name": "t"}, config_key=key) as w:
+        for rid, (attrs, arrays) in runs.items():
+            w.add_run(rid, {**attrs, "run_id": rid}, arrays)
+        for k, (attrs, arrays) in dict(refs).items():
+            w.add_reference(k, attrs, arrays)
+        w.finish("complete")
+    return path
+
+
+@pytest.mark.parametrize("with_hmod", [True, False])
+def test_round_trip_preserves_every_field(tmp_path, with_hmod):
+    tr = make_traj(with_hmod=with_hmod)
+    path = write(tmp_path / "r.h5", {"abc": run_attrs(tr, "MCVAC", tr.h, 3.2)})
+    back = storage.load_trajectory(path, "abc")
+    assert_same_traj(tr, back)
+    assert back.impact_step.dtype == bool
+
+
+def test_failed_run_and_missing_beta_round_trip(tmp_path):
+    tr = make_traj(status="newton_failed", beta=None, N=3)
+    path = write(tmp_path / "r.h5", {"f": run_attrs(tr, "CVA", tr.h, None, ic_key="state=0")})
+    back = storage.load_trajectory(path, "f")
+    assert_same_traj(tr, back)
+    res = storage.read_results(path)
+    a = res.runs[0].attrs
+    assert a["status"] == "newton_failed" and "step 3" in a["message"]
+    assert math.isnan(a["beta"]) and res.runs[0].beta_or_none is None
+
+
+def test_without_trajectories_keeps_impacts_and_scalars(tmp_path):
+    tr = make_traj()
+    attrs, arrays = storage.trajectory_payload(tr, store_arrays=False)
+    assert set(arrays) == set(storage.IMPACT_ARRAYS)
+    path = write(tmp_path / "r.h5", {"x": ({**attrs, "label": "CVA", "method_index": 0}, arrays)})
+    back = storage.load_trajectory(path, "x")
+    np.testing.assert_array_equal(back.impacts, tr.impacts)
+    assert back.q.shape == (0, 2) and back.t.size == 0 and back.Hmod is None
+    a = storage.read_results(path).runs[0].attrs
+    assert a["has_trajectory"] is False and a["n_steps"] == 40 and a["n_impacts"] == 2
+
+
+def test_layout_is_readable_with_plain_h5py(tmp_path):
+    tr = make_traj()
+    ref_arrays = {"t": np.linspace(0, 1, 11), "q": np.zeros((11, 2)), "impacts": np.array([0.5])}
+    path = write(tmp_path / "r.h5", {"r1": run_attrs(tr, "MCVAC", tr.h, 3.2)},
+                 refs={"beta=3.2": ({"kind": "exact", "accuracy": 1e-11, "beta": 3.2}, ref_arrays)},
+                 root={"name": "t", "tolerances": {"newton_tol": 1e-12}, "config_yaml": "name: t\n"})
+    with h5py.File(path, "r") as f:
+        assert f.attrs["format"] == "vcirun-sweep" and f.attrs["schema_version"] == 1
+        assert f.attrs["config_key"] == KEY and f.attrs["config_yaml"] == "name: t\n"
+        assert json.loads(f.attrs["tolerances"]) == {"newton_tol": 1e-12}
+        hist = json.loads(f.attrs["history"])
+        assert hist[-1]["status"] == "complete" and hist[-1]["computed"] == 1
+        g = f["runs/r1"]
+        assert g.attrs["complete"] == True  # noqa: E712 - numpy bool
+        assert g["q"].shape == (41, 2) and g["impact_step"].dtype == np.uint8
+        assert g.attrs["status"] == "ok" and g.attrs["label"] == "MCVAC"
+        assert json.loads(g.attrs["options"])["constrained"] is True
+        r = f["references/beta=3.2"]
+        assert r.attrs["complete"] == True and r.attrs["accuracy"] == 1e-11  # noqa: E712
+        np.testing.assert_array_equal(r["impacts"][()], [0.5])
+
+
+def test_incomplete_groups_are_ignored_by_readers_and_dropped_on_resume(tmp_path):
+    tr = make_traj()
+    path = write(tmp_path / "r.h5", {"good": run_attrs(tr, "CVA", tr.h, 3.2)})
+    # What a writer killed between its data and its marker would leave (e.g. another tool).
+    with h5py.File(path, "a") as f:
+        g = f.create_group("runs/half")
+        g["q"] = np.zeros((3, 2))
+        g.attrs["status"] = "ok"
+        f.create_group("references/beta=9")
+    res = storage.read_results(path)
+    assert [r.run_id for r in res.runs] == ["good"]
+    assert sorted(res.incomplete) == ["references/beta=9", "runs/half"]
+
+    w = ResultsWriter(path, root_attrs={"name": "t"}, config_key=KEY).acquire()
+    try:
+        assert set(w.complete_runs) == {"good"}
+        assert sorted(w.incomplete) == ["references/beta=9", "runs/half"]
+        w.start()  # the first commit deletes them
+    finally:
+        w.close()
+    with h5py.File(path, "r") as f:
+        assert set(f["runs"]) == {"good"} and "beta=9" not in f["references"]
+    hist = storage.read_results(path).attrs["history"]
+    assert len(hist) == 2  # both sessions recorded
+
+
+def test_resume_refuses_a_file_from_another_config(tmp_path):
+    path = write(tmp_path / "r.h5", {"a": run_attrs(make_traj(), "CVA", 0.01, 3.2)})
+    with pytest.raises(StorageError, match="different configuration.*--force"):
+        ResultsWriter(path, root_attrs={}, config_key="other").acquire()
+    # --force replaces it (and only once the new file is committed)
+    with ResultsWriter(path, root_attrs={"name": "n"}, config_key="other", force=True) as w:
+        w.finish("complete")
+    res = storage.read_results(path)
+    assert res.runs == [] and res.attrs["config_key"] == "other"
+
+
+@pytest.mark.parametrize("content,match", [(b"not hdf5 at all", "not a readable HDF5"), (None, "not a vcirun")])
+def test_unusable_files_are_reported(tmp_path, content, match):
+    path = tmp_path / "x.h5"
+    if content is None:
+        with h5py.File(path, "w") as f:
+            f["data"] = [1, 2, 3]
+    else:
+        path.write_bytes(content)
+    with pytest.raises(StorageError, match=match):
+        storage.read_results(path)
+    with pytest.raises(StorageError, match=match):
+        ResultsWriter(path, root_attrs={}, config_key=KEY).acquire()
+    with pytest.raises(StorageError, match="file not found"):
+        storage.read_results(tmp_path / "missing.h5")
+
+
+def test_failed_commit_leaves_previous_file_intact(tmp_path, monkeypatch):
+    path = write(tmp_path / "r.h5", {"a": run_attrs(make_traj(), "CVA", 0.01, 3.2)})
+    before = path.read_bytes()
+    w = ResultsWriter(path, root_attrs={"name": "t"}, config_key=KEY).acquire()
+    calls = []
+
+    def boom(f, grp, attrs, arrays):
+        calls.append(grp)
+        raise OSError("disk full (simulated)")
+
+    monkeypatch.setattr(storage, "_write_group", boom)
+    w.add_run("b", *run_attrs(make_traj(seed=1), "CVA", 0.01, 3.7))
+    with pytest.raises(StorageError, match="cannot write results .*disk full .*committed before"):
+        w.commit()
+    assert calls == ["runs/b"]
+    assert path.read_bytes() == before  # the live file was never touched
+    assert not w.tmp_path.exists()
+    monkeypatch.undo()
+    w.commit()  # the queue survived the failure
+    w.close()
+    assert {r.run_id for r in storage.read_results(path).runs} == {"a", "b"}
+
+
+def test_second_writer_is_locked_out_and_stale_partial_copy_is_removed(tmp_path):
+    path = write(tmp_path / "r.h5", {"a": run_attrs(make_traj(), "CVA", 0.01, 3.2)})
+    w1 = ResultsWriter(path, root_attrs={}, config_key=KEY).acquire()
+    try:
+        with pytest.raises(StorageError, match="another vcirun sweep"):
+            ResultsWriter(path, root_attrs={}, config_key=KEY).acquire()
+        assert storage.read_results(path).runs  # readers are never locked out
+    finally:
+        w1.close()
+    assert not w1.lock_path.exists()
+    w1.tmp_path.write_bytes(b"half a copy from a killed commit")
+    w2 = ResultsWriter(path, root_attrs={}, config_key=KEY).acquire()
+    w2.close()
+    assert not w2.tmp_path.exists()
+
+
+def test_a_fresh_writer_creates_nothing_until_started(tmp_path):
+    path = tmp_path / "sub" / "r.h5"
+    w = ResultsWriter(path, root_attrs={}, config_key=KEY).acquire()
+    w.close()
+    assert not path.exists()  # an aborted sweep (e.g. a rejected method) leaves no output
+
+
+def test_forget_runs_for_retry(tmp_path):
+    path = write(tmp_path / "r.h5", {"a": run_attrs(make_traj(), "CVA", 0.01, 3.2),
+                                     "b": run_attrs(make_traj(status="newton_failed"), "CVA", 0.01, 3.7)})
+    with ResultsWriter(path, root_attrs={}, config_key=KEY) as w:
+        assert set(w.complete_runs) == {"a", "b"}
+        w.forget_runs([r for r, a in w.complete_runs.items() if a["status"] != "ok"])
+        w.finish("complete")
+    assert [r.run_id for r in storage.read_results(path).runs] == ["a"]
+
+
+# --- metrics on synthetic data -----------------------------------------------------------------------
+def test_energy_summary_masks_impact_steps():
+    tr = make_traj()
+    tr.Ed[:] = 5.0
+    tr.Ed[5] = 1e3   # trial step that hit the constraint: must not count
+    tr.Ed[17] = -1e3
+    tr.Ed[30] = 5.5
+    tr.H[:] = 2.0
+    tr.H[7] = 2.25
+    s = metrics.energy_summary(tr)
+    assert s["Ed_range"] == pytest.approx(0.5)
+    assert s["max_abs_dH"] == pytest.approx(0.25) and s["H_range"] == pytest.approx(0.25) and s["H0"] == 2.0
+    assert math.isfinite(s["Hmod_range"])
+    assert math.isnan(metrics.energy_summary(make_traj(with_hmod=False))["Hmod_range"])
+
+
+def test_mean_ci_matches_scipy_t_interval():
+    x = np.random.default_rng(3).normal(2.0, 0.3, size=51)
+    mean, half, n = metrics.mean_ci(x)
+    lo, hi = stats.t.interval(0.95, len(x) - 1, loc=x.mean(), scale=stats.sem(x))
+    assert n == 51 and mean == pytest.approx(x.mean()) and half == pytest.approx((hi - lo) / 2)
+    m1, h1, n1 = metrics.mean_ci([1.0, float("nan")])
+    assert (m1, n1) == (1.0, 1) and math.isnan(h1)
+
+
+# --- figures and tables from a synthetic results file ---------------------------------------------------
+def synthetic_results(tmp_path):
+    runs = {}
+    rng = np.random.default_rng(7)
+    for mi, label in enumerate(["CVA", "MCVAA"]):
+        for h in (3.2e-2, 1e-2):
+            for bi, beta in enumerate(np.linspace(3.2, 5.2, 5)):
+                tr = make_traj(with_hmod=label == "MCVAA", beta=float(beta), seed=bi)
+                tr.wall_time = float(rng.uniform(1e-3, 2e-3))
+                attrs, arrays = run_attrs(tr, label, h, float(beta), index=mi)
+                attrs["h"] = h
+                attrs["has_Hmod"] = label == "MCVAA"
+                runs[f"{label}-{h}-{bi}"] = (attrs, arrays)
+    # Figure 1 pair: the same method with and without the constraint
+    for rid, constrained in (("dp-c", None), ("dp-free", False)):
+        tr = make_traj(with_hmod=False, beta=None, n_imp=2 if constrained is None else 0)
+        attrs, arrays = run_attrs(tr, "DP-CVA" if constrained is None else "DP-CVA (no impacts)", 0.01, None,
+                                  index=2 if constrained is None else 3, ic_key="default")
+        attrs["method_spec"] = {"name": "CVA", **({} if constrained is None else {"constrained": False})}
+        runs[rid] = (attrs, arrays)
+    return write(tmp_path / "syn.h5", runs, root={"name": "syn", "system": "synthetic", "T": 0.4,
+                                                   "h_values": [3.2e-2, 1e-2]})
+
+
+def test_figures_and_tables_from_stored_runs(tmp_path):
+    from vcirun.experiments import figures, tables
+
+    path = synthetic_results(tmp_path)
+    res = storage.read_results(path)
+    written, skipped = figures.make_figures(res, tmp_path / "fig")
+    names = {p.name for p in written}
+    for stem in ("fig4_l2_error_vs_beta", "fig3_energy_evolution", "fig1_energy_with_without_impacts",
+                 "work_precision"):
+        assert {f"{stem}.png", f"{stem}.pdf"} <= names, (stem, skipped)
+    assert all(p.stat().st_size > 1000 for p in written)
+    t2 = tables.table2(res)
+    assert t2.columns == ["Method", "h = 0.032", "h = 0.01"]
+    assert [r[0] for r in t2.rows] == ["CVA", "MCVAA", "DP-CVA", "DP-CVA (no impacts)"]
+    assert t2.rows[2][1] == ""  # the double-pendulum runs exist at h = 0.01 only
+    cva = next(s for s in metrics.timing_stats(res.runs) if s.label == "CVA" and s.h == 1e-2)
+    assert cva.n == 5 and cva.halfwidth > 0
+    paths = tables.write_table(t2, tmp_path / "fig", "table2_timing")
+    csv_text = paths[0].read_text()
+    assert csv_text.splitlines()[0] == "method,h,n,mean_s,ci_halfwidth_s,std_s,n_failed,level"
+    md = paths[1].read_text()
+    assert "| Method | h = 0.032 | h = 0.01 |" in md and "±" in md
+
+
+def test_figures_explain_what_they_cannot_draw(tmp_path):
+    from vcirun.experiments import figures
+
+    tr = make_traj(with_hmod=False)
+    attrs, arrays = storage.trajectory_payload(tr, store_arrays=False)
+    attrs.update(label="CVA", method_index=0, ic_key="default", beta=None, l2_error=None)
+    path = write(tmp_path / "one.h5", {"x": (attrs, arrays)})
+    written, skipped = figures.make_figures(storage.read_results(path), tmp_path / "fig")
+    assert written == []
+    assert set(skipped) == {"fig4", "fig3", "fig1", "work_precision"}
+    assert "beta" in skipped["fig4"] and "store_trajectories" in skipped["fig3"]

@@ -1,0 +1,298 @@
+"""The `vcirun` command line: thin wrappers over plain functions in vcirun.experiments.
+
+Expected failures (bad config, unusable results file, bad option values) print one line
+`error: ...` on stderr and exit with status 1; an interrupted sweep exits 130 (SIGINT) or 143
+(SIGTERM) after saving every finished run. Unexpected exceptions keep their traceback (bugs).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+app = typer.Typer(
+    name="vcirun",
+    help="Event-driven variational collision integrators (Pekarek & Murphey 2014): single runs, "
+         "parallel resumable sweeps stored in HDF5, and the paper's figures and tables.",
+    no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False,
+)
+
+# A scene without a default state starts from its initial-condition map at this beta
+# (the paper's Figure 3 setting for the cart-pendulum).
+DEFAULT_BETA = {"cart_pendulum": 3.2}
+
+
+class CliError(Exception):
+    """An expected failure: reported as one line on stderr, exit status 1."""
+
+
+def _fail(message: str, code: int = 1):
+    typer.echo(f"error: {' '.join(str(message).split())}", err=True)
+    raise typer.Exit(code)
+
+
+def _console(stderr: bool = False):
+    from rich.console import Console
+
+    return Console(stderr=stderr, highlight=False, soft_wrap=False)
+
+
+def _expected_errors():
+    """The exception types that are user errors, not bugs."""
+    from vcirun.experiments.config import ConfigError
+    from vcirun.experiments.storage import StorageError
+    from vcirun.experiments.sweep import SweepError
+
+    return (ConfigError, StorageError, SweepError, CliError)
+
+
+# --- simulate ---------------------------------------------------------------------------------------
+def _parse_params(items: list[str]) -> dict:
+    out = {}
+    for item in items or []:
+        name, sep, value = item.partition("=")
+        if not sep or not name.strip():
+            raise CliError(f"--param: expected NAME=VALUE (got {item!r})")
+        try:
+            out[name.strip()] = float(value)
+        except ValueError:
+            raise CliError(f"--param {name.strip()}: value must be a number (got {value!r})") from None
+    return out
+
+
+def simulate_once(system: str, method: str, *, h: float, T: float, beta: float | None = None, ld=None,
+                  mh_order=None, flow_order=None, params: dict | None = None, constrained: bool | None = None,
+                  newton_tol=None, event_tol=None):
+    """One run through `vcirun.simulate`; bad input becomes CliError. Returns (trajectory, seconds)."""
+    import time
+
+    import vcirun
+
+    kw = {k: v for k, v in dict(ld=ld, mh_order=mh_order, flow_order=flow_order, params=params or None,
+                                constrained=constrained, newton_tol=newton_tol, event_tol=event_tol).items()
+          if v is not None}
+    if beta is None and system in DEFAULT_BETA:
+        beta = DEFAULT_BETA[system]
+    t0 = time.perf_counter()
+    try:
+        traj = vcirun.simulate(system, method, h=h, T=T, beta=beta, **kw)
+    except ValueError as e:
+        raise CliError(str(e)) from None
+    return traj, time.perf_counter() - t0
+
+
+def summary_lines(traj, total_seconds: float) -> list[tuple[str, str]]:
+    """The facts `vcirun simulate` prints about a run."""
+    import numpy as np
+
+    rows = [("run", f"{traj.system}  {traj.method}  h = {traj.h:g}  T = {traj.T:g}"
+             + (f"  beta = {traj.beta:g}" if traj.beta is not None else ""))]
+    rows.append(("steps", f"{traj.n_steps}"))
+    imp = ", ".join(f"{t:.4g}" for t in traj.impacts[:8]) + (" ..." if len(traj.impacts) > 8 else "")
+    rows.append(("impacts", f"{len(traj.impacts)}" + (f" at t = {imp}" if len(traj.impacts) else "")))
+    rows.append(("status", traj.status + (f" ({traj.message})" if traj.message else "")))
+    H = np.asarray(traj.H, float)
+    if H.size and np.isfinite(H[0]):
+        dH = float(np.nanmax(np.abs(H - H[0])))
+        rel = f" (relative {dH / abs(H[0]):.2e})" if H[0] != 0 else ""
+        rows.append(("max |H - H0|", f"{dH:.3e}{rel}"))
+    if traj.Hmod is not None and len(traj.Hmod) and np.isfinite(traj.Hmod[0]):
+        rows.append(("max |Hmod - Hmod0|", f"{float(np.nanmax(np.abs(traj.Hmod - traj.Hmod[0]))):.3e}"))
+    rows.append(("wall time", f"{traj.wall_time:.4g} s integrating, {total_seconds:.3g} s in total "
+                              "(includes kernel loading/compilation)"))
+    return rows
+
+
+@app.command(epilog="Examples:\n\n"
+             "  vcirun simulate\n\n"
+             "  vcirun simulate --system cart_pendulum --method MCVAA --h 0.01 --T 5 --beta 3.2\n\n"
+             "  vcirun simulate --method MCVA --ld SVC --mh-order 3 --flow-order 4\n\n"
+             "  vcirun simulate --system double_pendulum --method CVA --unconstrained")
+def simulate(
+    system: str = typer.Option("cart_pendulum", "--system", "-s",
+                               help="Built-in scene (cart_pendulum, double_pendulum, oscillator_wall, ...) "
+                                    "or a YAML system file."),
+    method: str = typer.Option("CVA", "--method", "-m",
+                               help="CVA, VCI, MCVAA, MCVAC, MCVA (with --ld, --mh-order), or a discrete "
+                                    "Lagrangian (SE1 SE2 SVA SVB SVC midpoint) ignoring the constraint."),
+    h: float = typer.Option(1e-2, "--h", help="Step size."),
+    T: float = typer.Option(5.0, "--T", "-T", help="Final time."),
+    beta: Optional[float] = typer.Option(None, "--beta", "-b",
+                                         help="Initial-condition parameter of the scene's map "
+                                              "(default: the scene's default state; 3.2 for cart_pendulum)."),
+    ld: Optional[str] = typer.Option(None, "--ld", help="Discrete Lagrangian of the generalized MCVA."),
+    mh_order: Optional[int] = typer.Option(None, "--mh-order", help="Modified-Hamiltonian truncation order."),
+    flow_order: Optional[int] = typer.Option(None, "--flow-order", help="Gauss partial-flow order (4 or 6)."),
+    param: List[str] = typer.Option([], "--param", "-p", help="Parameter override NAME=VALUE (repeatable)."),
+    unconstrained: bool = typer.Option(False, "--unconstrained", help="Ignore the impact constraint."),
+    newton_tol: Optional[float] = typer.Option(None, "--newton-tol", help="Newton tolerance."),
+    event_tol: Optional[float] = typer.Option(None, "--event-tol", help="Collision-time tolerance."),
+):
+    """Simulate one run and print a summary (steps, impacts, status, energy error, wall time)."""
+    try:
+        traj, total = simulate_once(system, method, h=h, T=T, beta=beta, ld=ld, mh_order=mh_order,
+                                    flow_order=flow_order, params=_parse_params(param),
+                                    constrained=False if unconstrained else None, newton_tol=newton_tol,
+                                    event_tol=event_tol)
+    except CliError as e:
+        _fail(str(e))
+    from rich.table import Table
+
+    t = Table(show_header=False, box=None, pad_edge=False)
+    t.add_column(style="bold")
+    t.add_column()
+    for k, v in summary_lines(traj, total):
+        t.add_row(k, v)
+    _console().print(t)
+    if traj.status != "ok":
+        _fail(f"run ended with status {traj.status}: {traj.message}")
+
+
+# --- sweep ------------------------------------------------------------------------------------------
+@app.command(epilog="Examples:\n\n"
+             "  vcirun sweep configs/quick.yaml\n\n"
+             "  vcirun sweep configs/fig4.yaml --output results/fig4-rerun.h5 --workers 2\n\n"
+             "Interrupted? Run the same command again: only missing runs are computed.")
+def sweep(
+    config: Path = typer.Argument(..., help="YAML sweep config.", show_default=False),
+    output: Optional[Path] = typer.Option(None, "--output", "-o", help="Results file (overrides the config)."),
+    force: bool = typer.Option(False, "--force", help="Recompute everything (replaces the results file)."),
+    workers: Optional[int] = typer.Option(None, "--workers", "-j", min=1,
+                                          help="Worker processes (default: the config's, else every core)."),
+    retry_failed: bool = typer.Option(False, "--retry-failed", help="Also recompute stored runs that failed."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress output."),
+):
+    """Run every method x h x initial condition of CONFIG in parallel into one HDF5 file; resumable."""
+    from vcirun.experiments.sweep import sweep_file
+
+    try:
+        summary = sweep_file(config, output=output, force=force, workers=workers, retry_failed=retry_failed,
+                             console=_console(stderr=True), progress=not quiet)
+    except _expected_errors() as e:
+        _fail(str(e))
+    except KeyboardInterrupt:  # before the first run started (e.g. while compiling kernels)
+        _fail("interrupted before any run was computed", 130)
+    done = summary.skipped + summary.computed
+    if summary.interrupted:
+        code = 130 if summary.interrupted == "SIGINT" else 143
+        _fail(f"interrupted by {summary.interrupted}: {done} of {summary.total} runs are saved in "
+              f"{summary.path}; run the same command again to resume", code)
+    counts = ", ".join(f"{n} {s}" for s, n in sorted(summary.status_counts.items()))
+    typer.echo(f"{summary.path}: {summary.total} runs ({summary.computed} computed, {summary.skipped} already "
+               f"stored; {counts or 'none'}) in {summary.wall_time:.1f} s")
+    if summary.computed and summary.failed:
+        typer.echo(f"note: {summary.failed} run(s) did not finish with status ok; `vcirun info {summary.path}` "
+                   "lists their messages")
+    typer.echo(f"next: vcirun plot {summary.path}")
+
+
+# --- plot -------------------------------------------------------------------------------------------
+@app.command(epilog="Examples:\n\n"
+             "  vcirun plot                      (the newest results file under results/)\n\n"
+             "  vcirun plot results/fig4.h5\n\n"
+             "  vcirun plot results/fig4.h5 --out paper-figures/")
+def plot(
+    results: Optional[Path] = typer.Argument(None, help="Results file (default: newest *.h5 under results/).",
+                                             show_default=False),
+    out: Optional[Path] = typer.Option(None, "--out", help="Output folder (default: <results dir>/figures/<name>)."),
+):
+    """Write the figures (PNG and PDF) and tables (CSV and Markdown) a results file supports."""
+    from vcirun.experiments.figures import plot_results
+    from vcirun.experiments.tables import print_table
+
+    try:
+        report = plot_results(results, outdir=out)
+    except _expected_errors() as e:
+        _fail(str(e))
+    console = _console()
+    for table in report.tables:
+        print_table(table, console)
+    typer.echo(f"figures and tables for {report.results_path}:")
+    for p in report.paths:
+        typer.echo(f"  {p}")
+    for name, why in report.skipped.items():
+        typer.echo(f"  (skipped {name}: {why})")
+
+
+# --- validate -----------------------------------------------------------------------------------------
+@app.command(epilog="Example:\n\n  vcirun validate configs/fig4.yaml")
+def validate(config: Path = typer.Argument(..., help="YAML sweep config.", show_default=False)):
+    """Check a sweep config without running it (schema, system, methods, initial conditions)."""
+    from vcirun.experiments.config import load_config
+    from vcirun.experiments.sweep import expand
+
+    try:
+        cfg = load_config(config)
+    except _expected_errors() as e:
+        _fail(str(e))
+    ics = cfg.initial_conditions()
+    typer.echo(f"{config}: ok")
+    typer.echo(f"  name      {cfg.name}")
+    typer.echo(f"  system    {cfg.system_label()}")
+    typer.echo(f"  methods   {', '.join(m.display for m in cfg.methods)}")
+    typer.echo(f"  h         {', '.join(f'{h:g}' for h in cfg.h)}")
+    if cfg.beta is not None:
+        b = cfg.beta.values()
+        typer.echo(f"  beta      {len(b)} value(s) in [{min(b):g}, {max(b):g}]")
+    else:
+        typer.echo(f"  initial   {len(ics)} state(s)")
+    typer.echo(f"  T         {cfg.T:g}")
+    ref = cfg.reference
+    typer.echo(f"  reference {ref.kind}" + (f" (rtol {ref.rtol:g})" if ref.kind == "exact" else
+                                            f" ({ref.method} at h = {ref.h:g})" if ref.kind == "method" else ""))
+    typer.echo(f"  runs      {len(expand(cfg))}")
+    typer.echo(f"  output    {cfg.output_path()}")
+
+
+# --- info ---------------------------------------------------------------------------------------------
+@app.command(epilog="Examples:\n\n  vcirun info results/quick.h5\n\n  vcirun info results/fig4.h5 --failed")
+def info(
+    results: Path = typer.Argument(..., help="Results file.", show_default=False),
+    failed: bool = typer.Option(False, "--failed", help="Only runs whose status is not ok."),
+):
+    """Summarize a results file: provenance, then a table of runs (method, h, beta, status, impacts,
+    L2 error, wall time) and the messages of failed runs."""
+    from vcirun.experiments.storage import read_results
+    from vcirun.experiments.tables import print_table, runs_table
+
+    try:
+        res = read_results(results)
+    except _expected_errors() as e:
+        _fail(str(e))
+    a = res.attrs
+    console = _console()
+    expected = a.get("n_runs_expected", "?")
+    _print = console.print
+
+    def say(text):  # long provenance lines are better unwrapped than broken mid-word
+        _print(text, soft_wrap=True)
+
+    say(f"[bold]{res.name}[/bold]  {results}")
+    say(f"  system {a.get('system', '?')}, T = {a.get('T', '?')}, reference {a.get('reference_kind', '?')}")
+    say(f"  {len(res.runs)} of {expected} runs stored"
+                  + (f", {len(res.incomplete)} incomplete group(s) ignored" if res.incomplete else ""))
+    say(f"  created {a.get('created', '?')}, updated {a.get('updated', '?')}; vcirun "
+                  f"{a.get('vcirun_version', '?')}, git {str(a.get('git_commit', ''))[:10] or 'n/a'}"
+                  + (" (dirty)" if a.get("git_dirty") == "yes" else ""))
+    hist = a.get("history") or []
+    if hist:
+        last = hist[-1]
+        say(f"  sessions: {len(hist)}; last {last.get('status', '?')} at {last.get('updated', '?')} "
+                      f"({last.get('computed', 0)} runs computed)")
+    table = runs_table(res, only_failed=failed)
+    print_table(table, console)
+    bad = [r for r in res.runs if r.attrs.get("status") != "ok"]
+    for r in bad[:50]:
+        typer.echo(f"  {r.run_id} {r.attrs.get('label')} h={r.attrs.get('h'):g}: {r.attrs.get('status')}: "
+                   f"{r.attrs.get('message', '')}")
+    if len(bad) > 50:
+        typer.echo(f"  ... and {len(bad) - 50} more failed runs")
+
+
+def main() -> None:  # pragma: no cover - console entry point alternative
+    app()
+
+
+if __name__ == "__main__":
+    app()

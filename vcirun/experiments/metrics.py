@@ -1,0 +1,118 @@
+"""Metrics of runs: L2 trajectory error, energy variation, timing statistics.
+
+Pure numpy/scipy (no sympy): used by the sweep workers and by the figure and table builders.
+"""
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["l2_error", "energy_summary", "masked_discrete_energy", "mean_ci", "TimingStat", "timing_stats",
+           "l2_series"]
+
+
+def l2_error(traj, ref) -> float:
+    """sqrt(h * sum_k |q_k - q_ref(t_k)|^2) over the run's grid: `vcirun.l2_error`, the one definition."""
+    import vcirun
+
+    return float(vcirun.l2_error(traj, ref))
+
+
+def masked_discrete_energy(traj) -> np.ndarray:
+    """-D3 Ld per grid point, NaN where the step from that point contained an impact (there the
+    recorded value belongs to the rejected trial step, not to the step taken)."""
+    Ed = np.array(traj.Ed, dtype=float, copy=True)
+    imp = np.asarray(traj.impact_step, bool)
+    k = min(len(imp), len(Ed))
+    Ed[:k][imp[:k]] = np.nan
+    return Ed
+
+
+def _finite_range(x) -> float:
+    x = np.asarray(x, float)
+    x = x[np.isfinite(x)]
+    return float(x.max() - x.min()) if x.size else math.nan
+
+
+def energy_summary(traj) -> dict:
+    """H0, max |H - H0|, and the ranges (max - min over the run) of H, of -D3 Ld with impact steps
+    masked, and of the truncated modified Hamiltonian (NaN where not defined)."""
+    H = np.asarray(traj.H, float)
+    H0 = float(H[0]) if H.size else math.nan
+    return {
+        "H0": H0,
+        "max_abs_dH": float(np.nanmax(np.abs(H - H0))) if H.size and np.isfinite(H0) else math.nan,
+        "H_range": _finite_range(H),
+        "Ed_range": _finite_range(masked_discrete_energy(traj)) if len(traj.Ed) else math.nan,
+        "Hmod_range": _finite_range(traj.Hmod) if traj.Hmod is not None else math.nan,
+    }
+
+
+def mean_ci(values, level: float = 0.95) -> tuple[float, float, int]:
+    """(mean, half-width of the Student-t confidence interval at `level`, n). Half-width is NaN for n < 2."""
+    from scipy import stats
+
+    x = np.asarray([v for v in values if v is not None and np.isfinite(v)], float)
+    n = int(x.size)
+    if n == 0:
+        return math.nan, math.nan, 0
+    mean = float(x.mean())
+    if n < 2:
+        return mean, math.nan, n
+    half = float(stats.t.ppf(0.5 + level / 2, n - 1) * x.std(ddof=1) / math.sqrt(n))
+    return mean, half, n
+
+
+@dataclass
+class TimingStat:
+    label: str
+    method_index: int
+    h: float
+    n: int
+    mean: float
+    halfwidth: float
+    std: float
+    n_failed: int
+
+
+def timing_stats(runs, level: float = 0.95) -> list[TimingStat]:
+    """Computation time per (method, h) over the initial conditions: mean and t-interval of
+    `wall_time` (the core's integration time) over runs that finished with status ok."""
+    groups: dict[tuple, list] = defaultdict(list)
+    failed: dict[tuple, int] = defaultdict(int)
+    index: dict[str, int] = {}
+    for r in runs:
+        key = (r.attrs["label"], float(r.attrs["h"]))
+        index[key[0]] = int(r.attrs.get("method_index", 0))
+        if r.attrs.get("status") == "ok" and r.attrs.get("wall_time") is not None:
+            groups[key].append(float(r.attrs["wall_time"]))
+        else:
+            failed[key] += 1
+            groups.setdefault(key, [])
+    out = []
+    for (label, h), xs in groups.items():
+        mean, half, n = mean_ci(xs, level)
+        std = float(np.std(xs, ddof=1)) if len(xs) > 1 else math.nan
+        out.append(TimingStat(label, index[label], h, n, mean, half, std, failed[(label, h)]))
+    out.sort(key=lambda s: (s.method_index, -s.h))
+    return out
+
+
+def l2_series(runs) -> dict[tuple, tuple[np.ndarray, np.ndarray]]:
+    """{(label, h): (betas, l2 errors)} sorted by beta, over runs with a finite beta. Runs without an
+    L2 error (failed, or no reference) appear as NaN so gaps stay visible."""
+    acc: dict[tuple, list] = defaultdict(list)
+    for r in runs:
+        beta = r.attrs.get("beta")
+        if beta is None or not np.isfinite(beta):
+            continue
+        l2 = r.attrs.get("l2_error")
+        acc[(r.attrs["label"], float(r.attrs["h"]))].append((float(beta), math.nan if l2 is None else float(l2)))
+    out = {}
+    for key, pts in acc.items():
+        pts.sort()
+        out[key] = (np.array([p[0] for p in pts]), np.array([p[1] for p in pts]))
+    return out

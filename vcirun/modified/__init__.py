@@ -1,0 +1,44 @@
+"""Backward error analysis from the discrete Lagrangian and the MCVA family (Sections 3.4, 4.3-4.4).
+
+- `series.py`: the symplectic-Euler backward-error functionals H_i[K], derived from the
+  Hamilton-Jacobi equation (every VI is symplectic Euler applied to eta, eq. 23-24).
+- `derive.py`: eta as a stationary value, its exact derivatives (implicit function theorem on a DAG
+  of symbolic nodes) and the generated kernels of H~^{O(h^s)} and its gradient.
+- `numeric.py`: numba unit with gauss_partial, reset_mcva, mh_energy (compiled into the scene's
+  module by vcirun.codegen).
+
+`generalized_mcva(ld, mh_order, flow_order)` returns the Method of Section 4.4; MCVAA and MCVAC
+(Section 5.2) are entries of vcirun.methods.METHODS.
+"""
+from __future__ import annotations
+
+from ..discrete.lagrangians import LIBRARY
+
+SUPPORTED_MH_ORDERS = (1, 2, 3, 4)
+FLOW_ORDERS = (4, 6)
+
+
+def generalized_mcva(ld: str = "SVC", mh_order: int = 3, flow_order: int = 4, **unknown):
+    """Generalized MCVA (Section 4.4): full steps of discrete Lagrangian `ld`, partial steps by the
+    `flow_order` Gauss collocation flow of the truncated modified Hamiltonian H~^{O(h^mh_order)},
+    reset R^MCVA conserving that truncation. Raises ValueError naming the offending field."""
+    from ..methods import Method
+
+    if unknown:
+        raise ValueError(f"options: {sorted(unknown)[0]!r} is not an option of method MCVA "
+                         "(use ld=, mh_order=, flow_order=)")
+    if not isinstance(ld, str) or ld not in LIBRARY:
+        raise ValueError(f"ld: unknown discrete Lagrangian {ld!r} (choose one of {', '.join(LIBRARY)})")
+    if isinstance(mh_order, bool) or not isinstance(mh_order, int) or mh_order not in SUPPORTED_MH_ORDERS:
+        raise ValueError(f"mh_order: {mh_order!r} is not supported (choose one of "
+                         f"{', '.join(map(str, SUPPORTED_MH_ORDERS))}: the truncation H~^{{O(h^s)}} = eta + ... + "
+                         "h^(s-1) H_s)")
+    if isinstance(flow_order, bool) or not isinstance(flow_order, int) or flow_order not in FLOW_ORDERS:
+        raise ValueError(f"flow_order: {flow_order!r} is not supported (choose one of "
+                         f"{', '.join(map(str, FLOW_ORDERS))}: 2- or 3-stage Gauss collocation)")
+    if flow_order < mh_order:
+        raise ValueError(f"flow_order: {flow_order} is below mh_order {mh_order} (the partial flow must "
+                         "solve the modified equations to at least the truncation's order)")
+    return Method(f"MCVA[{ld},s={mh_order},g{flow_order}]", ld=ld, partial="gauss", reset="mcva",
+                  mh_order=mh_order, flow_order=flow_order,
+                  properties={"conserves_mh": True, "symplectic": True, "explicit_ld": LIBRARY[ld].explicit})

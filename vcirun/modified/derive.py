@@ -1,0 +1,349 @@
+"""Modified Hamiltonians from the discrete Lagrangian (Sections 3.2-3.4, Appendix A) as compiled kernels.
+
+eta as a stationary value
+-------------------------
+eta(q, p) = p . (qbar - q)/h - Ld(q, qbar, h)/h with qbar implicit, D2 Ld(q, qbar, h) = p (eqs. 22, 24).
+In the velocity parametrisation qbar = q + h vbar this is a partial Legendre transform in the
+velocity,  eta(q, p) = stat_v [p . v - ell(q, v)],  ell(q, v) = Ld(q, q + h v, h) / h,  regular as h -> 0
+(ell -> L, eta -> H). For a composition Ld (SVA = SE1 then SE2 half steps, SVB the reverse; the
+composition is the definition we trust, see discrete/lagrangians.py) the interior nodes are
+stationary too, so with u = (w_1, ..., w_K) the stage velocities (q_{i+1} = q_i + f_i h w_i,
+v(u) = sum f_i w_i) we have in every case
+
+    eta(q, p) = G(q, p, u*),   G(q, p, u) = p . v(u) - ell(q, u),   F(q, p, u*) = dG/du = 0.
+
+The stationarity in u gives the envelope identities D_q eta = -ell_q = -(p + D1 Ld)/h and
+D_p eta = v(u*) = vbar (Appendix A step 3, verified), and with A = dF/du = -ell_uu, W = A^{-1}:
+
+    du/dz = -W dF/dz,    dW/dz = -W (dA/dz) W       (implicit function theorem; z = (q, p)).
+
+Higher derivatives of eta come from applying the total derivative
+    d/dz_j = partial_j + sum_k du_k/dz_j partial_{u_k} + sum_ab dW_ab/dz_j partial_{W_ab}
+repeatedly, on a DAG of small named nodes (forward-mode differentiation done symbolically, so the
+expressions never swell): partial derivatives of ell are the leaves ("primitives", explicit sympy
+expressions, one CSE pass), every other node is a short polynomial in earlier nodes, u and W. At run
+time u* is found by Newton on F and W = A^{-1} numerically (vcirun/modified/numeric.py).
+This replaces Appendix A step 2: its printed second derivatives of qbar are not used anywhere.
+
+Modified Hamiltonian
+--------------------
+H~^{O(h^s)} = sum_{i=1..s} h^{i-1} H_i[eta] with H_i the symplectic-Euler series of vcirun/modified/
+series.py (derived there from the Hamilton-Jacobi equation). H_i needs derivatives of eta up to
+order i-1, its gradient up to order i.
+"""
+from __future__ import annotations
+
+import time
+from functools import lru_cache
+
+import sympy as sp
+
+from ..discrete.lagrangians import LIBRARY, get_ld, ld_expression
+from . import FLOW_ORDERS, SUPPORTED_MH_ORDERS
+from .series import modified_series, pdiff
+DERIVE_LOG: list[dict] = []  # timings of each derivation (for reports/benchmarks)
+
+_P = "mh_"  # prefix of every generated name
+
+
+class StationaryEta:
+    """eta(q, p) = stat_u [p . v(u) - ell(q, u)] for discrete Lagrangian `ld_name` of `system`."""
+
+    def __init__(self, system, ld_name: str):
+        if system.is_forced:
+            raise ValueError(f"method: the MCVA family needs a conservative system (a modified Hamiltonian "
+                             f"exists only without forcing); system {system.name} is forced")
+        ld = get_ld(ld_name)
+        n = system.n
+        self.n = n
+        self.h = sp.Symbol("hh")
+        self.q = list(system.q)
+        self.p = [sp.Symbol(f"{_P}p{i}") for i in range(n)]
+        self.stages = tuple(ld.stages)
+        self.m = len(self.stages) * n
+        m = self.m
+        self.u = [sp.Symbol(f"{_P}u{k}") for k in range(m)]
+        h = self.h
+        qs = list(self.q)
+        ell = 0
+        C = [[0] * n for _ in range(m)]  # C[k][j] = d v_j / d u_k
+        for st, (name, frac) in enumerate(self.stages):
+            f = sp.nsimplify(frac)
+            w = self.u[st * n:(st + 1) * n]
+            qn = [a + f * h * b for a, b in zip(qs, w)]
+            ell += ld_expression(system, LIBRARY[name], qs, qn, f * h)
+            for j in range(n):
+                C[st * n + j][j] = f
+            qs = qn
+        ell = sp.expand(ell / h)
+        if any(pw.base == h and pw.exp.is_negative for pw in ell.atoms(sp.Pow)) or ell.has(sp.zoo, sp.nan):
+            raise ValueError(f"ld: {ld_name} is not regular as h -> 0 in the velocity parametrisation")
+        self.ell = ell
+        self.C = C
+        self.v = [sum(C[k][j] * self.u[k] for k in range(m)) for j in range(n)]
+        self.params = system.param_symbols
+        self.xvars = self.q + self.u  # variables of the primitives ell_alpha
+        self.F = [sum(C[k][j] * self.p[j] for j in range(n)) - sp.diff(ell, self.u[k]) for k in range(m)]
+        self.A = sp.Matrix(m, m, lambda a, b: -sp.diff(ell, self.u[a], self.u[b]))
+
+
+class DerivativeDag:
+    """Symbolic forward-mode total derivatives d/dz_j of eta on a DAG of named nodes."""
+
+    def __init__(self, st: StationaryEta):
+        self.st = st
+        n, m = st.n, st.m
+        self.n, self.m = n, m
+        self.W = [[sp.Symbol(f"{_P}W{min(a, b)}_{max(a, b)}") for b in range(m)] for a in range(m)]
+        self.kind: dict = {}
+        for i, s in enumerate(st.q):
+            self.kind[s] = ("z", i)
+        for i, s in enumerate(st.p):
+            self.kind[s] = ("z", n + i)
+        for k, s in enumerate(st.u):
+            self.kind[s] = ("u", k)
+        for a in range(m):
+            for b in range(a, m):
+                self.kind[self.W[a][b]] = ("W", a, b)
+        self.prim_expr: dict = {(): st.ell}   # alpha -> explicit expression
+        self.prim_sym: dict = {}              # alpha -> symbol (or constant)
+        self.defs: dict = {}                  # node symbol -> expression (creation order = topological)
+        self._dmemo: dict = {}
+        self._E: dict = {}
+        self._count = 0
+
+    # -- leaves: partial derivatives of ell in (q, u) -------------------------------------------
+    def L(self, alpha):
+        alpha = tuple(sorted(alpha))
+        if alpha in self.prim_sym:
+            return self.prim_sym[alpha]
+        if alpha not in self.prim_expr:
+            parent = self.prim_expr.get(alpha[:-1])
+            if parent is None:
+                self.L(alpha[:-1])
+                parent = self.prim_expr[alpha[:-1]]
+            self.prim_expr[alpha] = sp.diff(parent, self.st.xvars[alpha[-1]])
+        e = self.prim_expr[alpha]
+        if e.is_number:
+            self.prim_sym[alpha] = e
+        else:
+            s = sp.Symbol(f"{_P}L" + "_".join(map(str, alpha)))
+            self.kind[s] = ("prim", alpha)
+            self.prim_sym[alpha] = s
+        return self.prim_sym[alpha]
+
+    def _node(self, e):
+        """Name e unless it is trivial (number, symbol, or a number times a symbol)."""
+        e = sp.sympify(e)
+        if e.is_number or e.is_Symbol:
+            return e
+        if e.is_Mul and len(e.args) == 2 and e.args[0].is_number and e.args[1].is_Symbol:
+            return e
+        self._count += 1
+        s = sp.Symbol(f"{_P}n{self._count}")
+        self.kind[s] = ("node",)
+        self.defs[s] = e
+        return s
+
+    # -- total derivatives ------------------------------------------------------------------------
+    def Du(self, k, j):
+        n, m, W = self.n, self.m, self.W
+        key = ("u", k, j)
+        if key not in self._dmemo:
+            if j < n:   # dF_l/dq_j = -ell_{u_l q_j}
+                e = sum(W[k][l] * self.L((n + l, j)) for l in range(m))
+            else:       # dF_l/dp_j = C[l][j]
+                e = -sum(W[k][l] * self.st.C[l][j - n] for l in range(m))
+            self._dmemo[key] = self._node(e)
+        return self._dmemo[key]
+
+    def DW(self, a, b, j):
+        n, m, W = self.n, self.m, self.W
+        a, b = min(a, b), max(a, b)
+        key = ("W", a, b, j)
+        if key not in self._dmemo:
+            e = 0
+            for c in range(m):
+                for d in range(m):
+                    dl = self.Dsym(self.L((n + c, n + d)), j)  # dA/dz = -d ell_uu/dz; dW = -W dA W
+                    if dl != 0:
+                        e += W[a][c] * W[d][b] * dl
+            self._dmemo[key] = self._node(e)
+        return self._dmemo[key]
+
+    def Dsym(self, s, j):
+        if s.is_number:
+            return sp.S.Zero
+        k = self.kind.get(s)
+        if k is None:   # h, parameters
+            return sp.S.Zero
+        key = (s, j)
+        if key in self._dmemo:
+            return self._dmemo[key]
+        tag = k[0]
+        if tag == "z":
+            r = sp.S.One if k[1] == j else sp.S.Zero
+        elif tag == "u":
+            r = self.Du(k[1], j)
+        elif tag == "W":
+            r = self.DW(k[1], k[2], j)
+        elif tag == "prim":
+            alpha = k[1]
+            e = self.L(alpha + (j,)) if j < self.n else 0
+            for kk in range(self.m):
+                du = self.Du(kk, j)
+                if du != 0:
+                    lk = self.L(alpha + (self.n + kk,))
+                    if lk != 0:
+                        e += lk * du
+            r = self._node(e)
+        else:
+            r = self._node(self.D(self.defs[s], j))
+        self._dmemo[key] = r
+        return r
+
+    def D(self, e, j):
+        e = sp.sympify(e)
+        out = sp.S.Zero
+        for s in e.free_symbols:
+            ds = self.Dsym(s, j)
+            if ds != 0:
+                out += sp.diff(e, s) * ds
+        return out
+
+    # -- derivatives of eta -----------------------------------------------------------------------
+    def E(self, alpha):
+        """d^|alpha| eta / dz_alpha for a sorted multi-index alpha over z = (q, p)."""
+        alpha = tuple(sorted(alpha))
+        if alpha in self._E:
+            return self._E[alpha]
+        n = self.n
+        if not alpha:    # eta = G(q, p, u*)
+            r = self._node(sum(pj * vj for pj, vj in zip(self.st.p, self.st.v)) - self.L(()))
+        elif len(alpha) == 1:  # envelope identities: eta_q = -ell_q, eta_p = v(u*)
+            j = alpha[0]
+            r = self._node(-self.L((j,)) if j < n else self.st.v[j - n])
+        else:
+            r = self._node(self.D(self.E(alpha[1:]), alpha[0]))
+        self._E[alpha] = r
+        return r
+
+    def poly_expr(self, poly):
+        out = sp.S.Zero
+        for mono, c in poly.items():
+            t = sp.Rational(c.numerator, c.denominator)
+            for jt in mono:
+                t = t * self.E(jt)
+            out += t
+        return out
+
+
+@lru_cache(maxsize=None)
+def _derive(system, ld_name: str, mh_order: int):
+    """(StationaryEta, DerivativeDag, outputs) for one (system, Ld, s); cached per process."""
+    t0 = time.perf_counter()
+    st = StationaryEta(system, ld_name)
+    dag = DerivativeDag(st)
+    n, h = st.n, st.h
+    H = modified_series(n, mh_order)
+    terms = [dag.poly_expr(Hi) for Hi in H]
+    value = sum(h ** i * t for i, t in enumerate(terms))
+    grad = [sum(h ** i * dag.poly_expr(pdiff(Hi, j)) for i, Hi in enumerate(H)) for j in range(2 * n)]
+    hess = [[dag.E((i, j)) for j in range(2 * n)] for i in range(2 * n)]
+    DERIVE_LOG.append({"system": system.name, "ld": ld_name, "mh_order": mh_order,
+                       "derive_s": time.perf_counter() - t0, "nodes": len(dag.defs), "primitives": len(dag.prim_sym)})
+    return st, dag, {"terms": terms, "value": value, "grad": grad, "hess": hess}
+
+
+# --------------------------------------------------------------------------------------------------
+# emission
+# --------------------------------------------------------------------------------------------------
+def _closure(dag: DerivativeDag, exprs) -> set:
+    """All symbols the expressions depend on, through node definitions."""
+    seen: set = set()
+    stack = [s for e in exprs for s in sp.sympify(e).free_symbols]
+    while stack:
+        s = stack.pop()
+        if s in seen:
+            continue
+        seen.add(s)
+        if s in dag.defs:
+            stack.extend(dag.defs[s].free_symbols)
+    return seen
+
+
+def _emit_dag_kernel(name: str, st: StationaryEta, dag: DerivativeDag, outs: list, ret=None) -> str:
+    """numba source of `name(q, p, u, W, h, prm, <out arrays>)`: unpack inputs, the primitives (one
+    CSE pass), the DAG nodes in creation (= topological) order, then the outputs. outs =
+    [(array name, [(index text, expr), ...])]; ret = scalar expression returned (or None)."""
+    from ..codegen.kernels import _code, _id
+
+    exprs = [e for _, items in outs for _, e in items] + ([ret] if ret is not None else [])
+    used = _closure(dag, exprs)
+    prim = [(s, dag.prim_expr[dag.kind[s][1]]) for s in dag.prim_sym.values()
+            if isinstance(s, sp.Symbol) and s in used]
+    for _, e in prim:
+        used |= e.free_symbols
+    sig = ["q", "p", "u", "W", "h", "prm"] + [o for o, _ in outs]
+    lines = ['@njit(cache=True, nogil=True, error_model="numpy")', f"def {name}({', '.join(sig)}):"]
+    body = []
+    for arr, syms in (("q", st.q), ("p", st.p), ("u", st.u)):
+        for i, s in enumerate(syms):
+            if s in used:
+                body.append(f"{_id(s)} = {arr}[{i}]")
+    for a in range(st.m):
+        for b in range(a, st.m):
+            if dag.W[a][b] in used:
+                body.append(f"{_id(dag.W[a][b])} = W[{a}, {b}]")
+    if st.h in used:
+        body.append(f"{_id(st.h)} = h")
+    for i, s in enumerate(st.params):
+        if s in used:
+            body.append(f"{_id(s)} = prm[{i}]")
+    if prim:
+        repl, reduced = sp.cse([e for _, e in prim], symbols=sp.numbered_symbols(f"{_P}c"), order="none")
+        tmp = {s for s, _ in repl}
+        for s, e in repl:
+            body.append(f"{s.name} = {_code(e, tmp)}")
+        for (s, _), e in zip(prim, reduced):
+            body.append(f"{_id(s)} = {_code(e, tmp)}")
+    for s, e in dag.defs.items():
+        if s in used:
+            body.append(f"{_id(s)} = {_code(e)}")
+    for arr, items in outs:
+        for idx, e in items:
+            body.append(f"{arr}[{idx}] = {_code(e)}")
+    body.append(f"return {_code(ret)}" if ret is not None else "return 0")
+    return "\n".join(lines + ["    " + b for b in body]) + "\n"
+
+
+def modified_kernels_source(system, ks) -> str:
+    """Generated source for the MCVA family of `ks.modified = (ld, mh_order, flow_order)`:
+    constants, mh_FA (Newton residual/Jacobian for u), mh_value (H~ and its terms), mh_grad (H~, its
+    gradient and the Hessian of eta)."""
+    from ..codegen.kernels import Kernel
+
+    ld_name, s, flow = ks.modified
+    if s not in SUPPORTED_MH_ORDERS:
+        raise ValueError(f"mh_order: {s} is not supported (choose one of {SUPPORTED_MH_ORDERS})")
+    if flow not in FLOW_ORDERS:
+        raise ValueError(f"flow_order: {flow} is not supported (choose one of {FLOW_ORDERS})")
+    if tuple(get_ld(ld_name).stages) != tuple(ks.full_stages):
+        raise ValueError(f"ld: the modified Hamiltonian's Ld {ld_name} must be the full step's")
+    st, dag, out = _derive(system, ld_name, s)
+    t0 = time.perf_counter()
+    n, m = st.n, st.m
+    parts = [f"MH_ORDER = {s}", f"MH_M = {m}", f"MH_NSTAGE = {len(st.stages)}", f"MH_FLOW_S = {flow // 2}", ""]
+    fa = Kernel(f"{_P}FA", [("q", st.q), ("p", st.p), ("u", st.u), ("h", st.h)],
+                [("F", sp.Matrix(st.F)), ("A", st.A)], st.params)
+    parts.append(fa.emit())
+    parts.append(_emit_dag_kernel(f"{_P}value", st, dag,
+                                  [("terms", [(str(i), t) for i, t in enumerate(out["terms"])])], ret=out["value"]))
+    nz = 2 * n
+    parts.append(_emit_dag_kernel(
+        f"{_P}grad", st, dag,
+        [("grad", [(str(j), g) for j, g in enumerate(out["grad"])]),
+         ("hess", [(f"{i}, {j}", out["hess"][i][j]) for i in range(nz) for j in range(nz)])],
+        ret=out["value"]))
+    DERIVE_LOG.append({"system": system.name, "ld": ld_name, "mh_order": s, "emit_s": time.perf_counter() - t0})
+    return "\n\n".join(parts) + "\n"

@@ -1,0 +1,274 @@
+# numba source unit: the MCVA family (Sections 4.3-4.4): the truncated modified Hamiltonian
+# H~^{O(h^s)} of the scene's discrete Lagrangian, the Gauss collocation partial flow of its Hamilton
+# equations, and the reset R^MCVA (eq. 34).
+# Requires from the generated module: NDOF, MH_ORDER, MH_M, MH_NSTAGE, MH_FLOW_S, mh_FA, mh_value,
+# mh_grad (vcirun/modified/derive.py), velocity_guess, solve_small, cva_lambda.
+import math
+
+import numpy as np
+from numba import njit
+
+# Gauss-Legendre collocation tableaux (Hairer-Wanner II, Table IV.5.1/5.2). D = b^T A^{-1}: the
+# update y1 = y0 + sum_i D_i Z_i needs no extra evaluation of the vector field.
+_S3 = math.sqrt(3.0)
+_S15 = math.sqrt(15.0)
+if MH_FLOW_S == 2:
+    GAUSS_A = np.array([[0.25, 0.25 - _S3 / 6.0], [0.25 + _S3 / 6.0, 0.25]])
+    GAUSS_B = np.array([0.5, 0.5])
+    GAUSS_C = np.array([0.5 - _S3 / 6.0, 0.5 + _S3 / 6.0])
+else:
+    GAUSS_A = np.array([[5.0 / 36.0, 2.0 / 9.0 - _S15 / 15.0, 5.0 / 36.0 - _S15 / 30.0],
+                        [5.0 / 36.0 + _S15 / 24.0, 2.0 / 9.0, 5.0 / 36.0 - _S15 / 24.0],
+                        [5.0 / 36.0 + _S15 / 30.0, 2.0 / 9.0 + _S15 / 15.0, 5.0 / 36.0]])
+    GAUSS_B = np.array([5.0 / 18.0, 4.0 / 9.0, 5.0 / 18.0])
+    GAUSS_C = np.array([0.5 - _S15 / 10.0, 0.5, 0.5 + _S15 / 10.0])
+GAUSS_D = np.linalg.solve(GAUSS_A.T, GAUSS_B)
+MH_U_TOL = 1e-10   # Newton on u stops after a step this small (relative): the error is then ~1e-20
+MH_U_MAXIT = 50
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def mh_solve(q, p, h, prm, warm, u, W):
+    """Stationary stage velocities u* of G(q, p, u) = p . v(u) - ell(q, u) (so qbar = q + h v(u*)) by
+    Newton from u (warm) or from M(q)^{-1} p in every stage; W = (dF/du)^{-1} at u*. Returns the
+    number of iterations, < 0 on failure."""
+    F = np.empty(MH_M)
+    A = np.empty((MH_M, MH_M))
+    B = np.empty((MH_M, MH_M))
+    x = np.empty(MH_M)
+    if not warm:
+        v = np.empty(NDOF)
+        velocity_guess(q, p, prm, v)
+        for st in range(MH_NSTAGE):
+            for i in range(NDOF):
+                u[st * NDOF + i] = v[i]
+    it = 0
+    small = False
+    while True:
+        mh_FA(q, p, u, h, prm, F, A)
+        if small:
+            break
+        if it >= MH_U_MAXIT:
+            return -it
+        it += 1
+        for a in range(MH_M):
+            for b in range(MH_M):
+                B[a, b] = A[a, b]
+        if not solve_small(B, F, MH_M):
+            return -it
+        dn = 0.0
+        un = 0.0
+        for k in range(MH_M):
+            u[k] -= F[k]
+            dn = max(dn, abs(F[k]))
+            un = max(un, abs(u[k]))
+        if not math.isfinite(dn):
+            return -it
+        small = dn <= MH_U_TOL * (1.0 + un)
+    # A is at the final u: W = A^{-1} column by column
+    for c in range(MH_M):
+        for a in range(MH_M):
+            x[a] = 1.0 if a == c else 0.0
+            for b in range(MH_M):
+                B[a, b] = A[a, b]
+        if not solve_small(B, x, MH_M):
+            return -it
+        for a in range(MH_M):
+            W[a, c] = x[a]
+    return it
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def mh_terms(q, p, h, prm, out):
+    """out[i] = H_{i+1}(q, p) (out[0] = eta) for i < MH_ORDER, NaN beyond; returns H~^{O(h^s)}."""
+    u = np.empty(MH_M)
+    W = np.empty((MH_M, MH_M))
+    for i in range(out.shape[0]):
+        out[i] = np.nan
+    if mh_solve(q, p, h, prm, False, u, W) < 0:
+        return np.nan
+    terms = np.empty(MH_ORDER)
+    val = mh_value(q, p, u, W, h, prm, terms)
+    for i in range(min(MH_ORDER, out.shape[0])):
+        out[i] = terms[i]
+    return val
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def mh_energy(q, p, h, prm):
+    """H~^{O(h^s)}(q, p) = eta + h H2 + ... + h^{s-1} H_s (NaN if eta's stationary point is not found)."""
+    u = np.empty(MH_M)
+    W = np.empty((MH_M, MH_M))
+    if mh_solve(q, p, h, prm, False, u, W) < 0:
+        return np.nan
+    terms = np.empty(MH_ORDER)
+    return mh_value(q, p, u, W, h, prm, terms)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def mh_gradient(q, p, h, prm, warm, u, W, grad, hess):
+    """(iterations (< 0 on failure), H~): grad = (dH~/dq, dH~/dp), hess = Hessian of eta in (q, p)."""
+    it = mh_solve(q, p, h, prm, warm, u, W)
+    if it < 0:
+        return it, np.nan
+    return it, mh_grad(q, p, u, W, h, prm, grad, hess)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def mh_field(y, h, prm, warm, u, W, grad, hess, f):
+    """f = (dH~/dp, -dH~/dq) at y = (q, p). Returns the Newton iterations spent on u (< 0: failure)."""
+    q = y[:NDOF]
+    p = y[NDOF:]
+    it, val = mh_gradient(q, p, h, prm, warm, u, W, grad, hess)
+    for i in range(NDOF):
+        f[i] = grad[NDOF + i]
+        f[NDOF + i] = -grad[i]
+    if it >= 0 and not math.isfinite(val):
+        return -1
+    return it
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def gauss_partial(q0, p0, tau, h, t, prm, ntol, maxit, q1, p1, vlast):
+    """One step of length tau of the s-stage Gauss collocation method (order 2s; s = MH_FLOW_S) on
+    Hamilton's equations of H~^{O(h^s)}(q, p; h) (h: the full step, a parameter of H~).
+
+    Stage equations Z_i = tau sum_j a_ij f(y0 + Z_j) solved by simplified Newton with the fixed matrix
+    I - tau (A x J0), J0 = the Jacobian of eta's Hamiltonian field at y0 (= that of H~ up to O(h)),
+    so each iteration contracts by O(tau (h + tau)); start Z_i = c_i tau f(y0). Stops when the
+    update is below ntol (1 + |y|). Returns (Newton iterations, or < 0 on failure, NaN: the flow has
+    no discrete energy). tau = 0 returns the input state."""
+    nz = 2 * NDOF
+    s = MH_FLOW_S
+    for i in range(NDOF):
+        q1[i] = q0[i]
+        p1[i] = p0[i]
+    if tau == 0.0:
+        return 0, np.nan
+    y0 = np.empty(nz)
+    for i in range(NDOF):
+        y0[i] = q0[i]
+        y0[NDOF + i] = p0[i]
+    U = np.empty((s, MH_M))
+    W = np.empty((MH_M, MH_M))
+    grad = np.empty(nz)
+    hess = np.empty((nz, nz))
+    f0 = np.empty(nz)
+    it0 = mh_field(y0, h, prm, False, U[0], W, grad, hess, f0)
+    if it0 < 0:
+        return -1, np.nan
+    for k in range(1, s):
+        U[k, :] = U[0, :]
+    # J0 = d/dy (H_p, -H_q) with eta's Hessian
+    J0 = np.empty((nz, nz))
+    for i in range(NDOF):
+        for j in range(nz):
+            J0[i, j] = hess[NDOF + i, j]
+            J0[NDOF + i, j] = -hess[i, j]
+    m = s * nz
+    N = np.empty((m, m))
+    for a in range(s):
+        for b in range(s):
+            for i in range(nz):
+                for j in range(nz):
+                    N[a * nz + i, b * nz + j] = -tau * GAUSS_A[a, b] * J0[i, j] + (1.0 if (a == b and i == j) else 0.0)
+    NN = np.empty((m, m))
+    Z = np.empty((s, nz))
+    for a in range(s):
+        for i in range(nz):
+            Z[a, i] = GAUSS_C[a] * tau * f0[i]
+    Fs = np.empty((s, nz))
+    Y = np.empty(nz)
+    R = np.empty(m)
+    ynorm = 0.0
+    for i in range(nz):
+        ynorm = max(ynorm, abs(y0[i]))
+    it = 0
+    ok = False
+    while it < maxit:
+        it += 1
+        for a in range(s):
+            for i in range(nz):
+                Y[i] = y0[i] + Z[a, i]
+            if mh_field(Y, h, prm, True, U[a], W, grad, hess, Fs[a]) < 0:
+                return -it, np.nan
+        for a in range(s):
+            for i in range(nz):
+                acc = 0.0
+                for b in range(s):
+                    acc += GAUSS_A[a, b] * Fs[b, i]
+                R[a * nz + i] = tau * acc - Z[a, i]
+        NN[:, :] = N
+        if not solve_small(NN, R, m):
+            return -it, np.nan
+        dn = 0.0
+        for a in range(s):
+            for i in range(nz):
+                Z[a, i] += R[a * nz + i]
+                dn = max(dn, abs(R[a * nz + i]))
+        if not math.isfinite(dn):
+            return -it, np.nan
+        if dn <= ntol * (1.0 + ynorm):
+            ok = True
+            break
+    for i in range(nz):
+        acc = y0[i]
+        for a in range(s):
+            acc += GAUSS_D[a] * Z[a, i]
+        if i < NDOF:
+            q1[i] = acc
+        else:
+            p1[i - NDOF] = acc
+    for i in range(NDOF):
+        vlast[i] = Fs[s - 1, i]
+    return (it if ok else -it), np.nan
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def reset_mcva(q, pm, E_pre, tau_rem, h, t, prm, ntol, maxit, pp):
+    """R^MCVA (eq. 34): pp = pm + lam grad phi(q) with H~^{O(h^s)}(q, pp) = H~^{O(h^s)}(q, pm), lam != 0.
+    Newton on F(lam) = [H~(q, pm + lam g) - H~(q, pm)] / lam, whose root set excludes the trivial
+    root lam = 0 (F(0) = dH~/dp . g, the normal velocity, is nonzero at a transversal impact);
+    F'(lam) = (dH~/dp . g - F) / lam. Start: the R^CVA reflection (exact for H, H~ = H + O(h))."""
+    g = np.empty(NDOF)
+    lam0 = cva_lambda(q, pm, prm, g)
+    if lam0 == 0.0 or not math.isfinite(lam0):
+        return -1, lam0
+    nz = 2 * NDOF
+    u = np.empty(MH_M)
+    W = np.empty((MH_M, MH_M))
+    grad = np.empty(nz)
+    hess = np.empty((nz, nz))
+    it0, E0 = mh_gradient(q, pm, h, prm, False, u, W, grad, hess)
+    if it0 < 0 or not math.isfinite(E0):
+        return -1, lam0
+    lam = lam0
+    it = 0
+    ok = False
+    warm = False
+    while it < maxit:
+        it += 1
+        for i in range(NDOF):
+            pp[i] = pm[i] + lam * g[i]
+        itu, E = mh_gradient(q, pp, h, prm, warm, u, W, grad, hess)
+        warm = True
+        if itu < 0 or not math.isfinite(E):
+            break
+        dE = E - E0
+        Fl = dE / lam
+        gp = 0.0
+        for i in range(NDOF):
+            gp += grad[NDOF + i] * g[i]
+        dF = (gp - Fl) / lam
+        if dF == 0.0 or not math.isfinite(dF):
+            break
+        step = Fl / dF
+        lam -= step
+        if abs(step) <= ntol * (1.0 + abs(lam)):
+            ok = True
+            break
+    if not ok or not (lam * lam0 > 0.0) or abs(lam) < 1e-3 * abs(lam0):
+        return -it, lam
+    for i in range(NDOF):
+        pp[i] = pm[i] + lam * g[i]
+    return it, lam
