@@ -94,8 +94,6 @@ def test_non_positive_definite_mass_matrix_at_q0_is_a_clear_error(tmp_path):
         vcirun.simulate(str(path), "SVC", h=0.1, T=1.0, q0=[-2.0, 0.0], p0=[0.0, 1.0])
 
 
-@pytest.mark.xfail(strict=True, reason="vcirun/mechanics/system.py:137,142 format q0 as {list(q)}, which under "
-                   "numpy 2 prints '[np.float64(0.0), np.float64(0.0)]' instead of '[0.0, 0.0]'")
 def test_positive_definiteness_error_prints_q0_as_plain_numbers():
     system = load_system_yaml(yaml.safe_load(NOT_PD_YAML))
     with pytest.raises(ValueError) as err:

@@ -134,12 +134,12 @@ class MechanicalSystem:
         """The Legendre transform must be invertible: M(q) symmetric positive definite."""
         Mq = self.mass_matrix(q, params)
         if not np.all(np.isfinite(Mq)):
-            raise ValueError(f"system {self.name}: mass_matrix is not finite at q0={list(q)}")
+            raise ValueError(f"system {self.name}: mass_matrix is not finite at q0={np.asarray(q, float).tolist()}")
         try:
             np.linalg.cholesky(0.5 * (Mq + Mq.T))
         except np.linalg.LinAlgError:
             ev = np.linalg.eigvalsh(0.5 * (Mq + Mq.T))
-            raise ValueError(f"system {self.name}: mass_matrix is not positive definite at q0={list(q)} "
+            raise ValueError(f"system {self.name}: mass_matrix is not positive definite at q0={np.asarray(q, float).tolist()} "
                              f"(eigenvalues {ev}); the Lagrangian must be hyperregular") from None
 
     def legendre(self, q, qdot, params=None):
