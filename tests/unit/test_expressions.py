@@ -1,6 +1,7 @@
 """Unit tests for the whitelist expression parser (vcirun.mechanics.expressions)."""
 
 import builtins
+import time
 
 import pytest
 import sympy
@@ -137,6 +138,43 @@ def test_empty_text_rejected(text):
         parse(text)
 
 
+@pytest.mark.parametrize(
+    "text",
+    [
+        "9**9**9",  # exact power with ~10**8 digits
+        "(2*x)**(3**600)",  # sympy would distribute the power onto the 2
+        "x**(1/1000)",  # exact exponents are kept small
+        "10.0**10.0**10.0**10.0",  # float with a 10**10-digit exponent
+        "exp(exp(exp(100.0)))",
+        "cosh(cosh(1000))",  # symbolic constant far beyond the double range
+        "1e-300**2",  # underflows the double range
+        "x + 2**1023 + 2**1023",  # folded by sympy after the per-step checks
+        "x*1e308*10",
+        "sqrt(-1)",  # complex constants are refused like complex literals
+        "log(0)",
+        "x/0",
+    ],
+)
+def test_numeric_bombs_rejected_quickly(text):
+    start = time.perf_counter()
+    with pytest.raises(ExpressionError, match=f"^{FIELD}: "):
+        parse(text)
+    assert time.perf_counter() - start < 5.0
+
+
+def test_big_but_reasonable_numbers_accepted():
+    assert parse("2**1023") == sympy.Integer(2) ** 1023
+    assert parse("10**-6*x") == x / 10**6
+    assert parse("x**250.0") == x ** sympy.Float(250.0)
+    assert parse("1e308*x") == sympy.Float(1e308) * x
+    assert parse("0.0") == sympy.Float(0.0)
+
+
+def test_error_position_counts_leading_whitespace():
+    with pytest.raises(ExpressionError, match="column 4 near '\\)'"):
+        parse("  x)")
+
+
 def test_too_long_and_too_deep_rejected():
     with pytest.raises(ExpressionError, match="limit is 10000"):
         parse("x" * 10_001)
@@ -152,6 +190,10 @@ def test_non_string_rejected():
         parse_expression(["x"], SYMBOLS, FIELD)
     with pytest.raises(ExpressionError, match="boolean"):
         parse_expression(True, SYMBOLS, FIELD)
+    with pytest.raises(ExpressionError, match="over 1024 bits"):
+        parse_expression(10**400, SYMBOLS, FIELD)
+    with pytest.raises(ExpressionError, match="not finite"):
+        parse_expression(float("nan"), SYMBOLS, FIELD)
 
 
 def test_nothing_is_executed(tmp_path, monkeypatch):

@@ -66,9 +66,8 @@ _ARITHMETIC = {"+": operator.add, "-": operator.sub, "*": operator.mul,
 ALLOWED_CONSTANTS: dict[str, sympy.Expr] = {"pi": sympy.pi, "E": sympy.E}
 
 _FUNCS_HINT = "allowed functions: " + ", ".join(ALLOWED_FUNCTIONS)
-_GRAMMAR_HINT = (
-    "only numbers, declared names, pi, E, + - * / **, parentheses and calls like sin(x) are allowed"
-)
+_GRAMMAR_HINT = ("only numbers, declared names, pi, E, + - * / **, parentheses and calls "
+                 "like sin(x) are allowed")
 _BINOP_SYMBOLS = {
     ast.Add: "+", ast.Sub: "-", ast.Mult: "*", ast.Div: "/", ast.Pow: "**",
     ast.FloorDiv: "//", ast.Mod: "%", ast.MatMult: "@", ast.LShift: "<<",
@@ -109,8 +108,12 @@ def _number_problem(value) -> str | None:
     if getattr(value, "is_Rational", False) and (
             max(abs(value.p).bit_length(), value.q.bit_length()) > _MAX_INT_BITS):
         return f"exact number over {_MAX_INT_BITS} bits (write it as a float, e.g. 1e300)"
-    if getattr(value, "is_Float", False) and math.isinf(float(value)):
-        return "number beyond the floating-point range (~1.8e308)"
+    if getattr(value, "is_Number", False) and value.is_finite:
+        as_float = float(value)
+        if math.isinf(as_float):
+            return "number beyond the floating-point range (~1.8e308)"
+        if as_float == 0.0 and not value.is_zero:  # e.g. 1e-300**2: sympy would chase its digits
+            return "nonzero number below the floating-point range (~1e-308)"
     return None
 
 
@@ -126,7 +129,7 @@ def _constant_problem(value: sympy.Expr) -> str | None:
     except Exception:  # noqa: BLE001 - any sympy failure means we cannot vouch for it
         return "constant that cannot be evaluated"
     problem = _number_problem(re_part) or _number_problem(im_part)
-    if not problem and im_part.is_Number and im_part != 0:
+    if not problem and im_part.is_Number and not im_part.is_zero:
         problem = "complex value (only real expressions are allowed)"
     return problem
 
@@ -231,9 +234,12 @@ class _Builder:
         """Refuse exact powers sympy would expand into huge numbers, before computing them."""
         if not getattr(exponent, "is_Rational", False):
             return
-        if max(abs(exponent.p), exponent.q) > _MAX_EXPONENT:
-            raise self.fail(tok, f"exact exponent in {tok!r} is too large (limit "
-                                 f"{_MAX_EXPONENT}); use a float exponent, e.g. x**250.0")
+        # Integer powers of plain numbers (10**-6, 2**64) are bounded by the size check below.
+        plain = getattr(base, "is_Rational", False) and exponent.is_Integer
+        if not plain and max(abs(exponent.p), exponent.q) > _MAX_EXPONENT:
+            raise self.fail(tok, f"exact exponent in {tok!r} is too large (numerator and "
+                                 f"denominator at most {_MAX_EXPONENT}); use a float exponent, "
+                                 "e.g. x**250.0")
         coeff = base.as_coeff_Mul()[0] if isinstance(base, sympy.Expr) else None
         if getattr(coeff, "is_Rational", False) and coeff not in (0, 1, -1):
             bits = abs(float(exponent)) * max(math.log2(abs(coeff.p)), math.log2(coeff.q))
@@ -322,13 +328,20 @@ def _syntax_error(text: str, lead: str, exc: SyntaxError, field: str) -> Express
 
 
 def _number(value, field: str) -> sympy.Expr:
+    """A number given directly (e.g. by YAML) instead of as text, under the same bounds."""
+    tok = _short(repr(value))
     if isinstance(value, bool):  # bool is an Integral; True in a config is a mistake
-        raise ExpressionError(field, repr(value), f"boolean {value!r} is not a number; write 1 or 0")
+        raise ExpressionError(field, tok, f"boolean {tok} is not a number; write 1 or 0")
     if isinstance(value, numbers.Integral):
-        return sympy.Integer(int(value))
-    if not math.isfinite(float(value)):
-        raise ExpressionError(field, repr(value), f"number {value!r} is not finite")
-    return sympy.Float(float(value))
+        number = sympy.Integer(int(value))
+    elif math.isfinite(float(value)):
+        number = sympy.Float(float(value))
+    else:
+        raise ExpressionError(field, tok, f"number {tok} is not finite")
+    problem = _number_problem(number)
+    if problem:
+        raise ExpressionError(field, tok, f"{problem}: {tok}")
+    return number
 
 
 def parse_expression(text: str, symbols: dict[str, sympy.Symbol], field: str) -> sympy.Expr:
@@ -346,8 +359,9 @@ def parse_expression(text: str, symbols: dict[str, sympy.Symbol], field: str) ->
         raise ExpressionError(field, type(text).__name__,
                               f"expected an expression string, got {type(text).__name__}")
     if len(text) > MAX_LENGTH:
-        raise ExpressionError(field, _short(text), f"expression is {len(text)} characters long; "
-                                                   f"the limit is {MAX_LENGTH}")
+        tok = _short(text)
+        raise ExpressionError(field, tok, f"expression {tok!r} is {len(text)} characters "
+                                          f"long; the limit is {MAX_LENGTH}")
     stripped = text.strip()
     if not stripped:
         raise ExpressionError(field, "", "expression is empty; write e.g. 0 or m*g*y")
@@ -395,8 +409,8 @@ def parse_matrix(entries, symbols: dict[str, sympy.Symbol], field: str) -> sympy
                                   f"row {_short(repr(row))} must be a list of {n} entries")
         if len(row) != n:
             raise ExpressionError(where, _short(repr(row)),
-                                  f"row {_short(repr(row))} has {len(row)} entr{'y' if len(row) == 1 else 'ies'} but the matrix has {n} rows; "
-                                  f"it must be square ({n} x {n})")
+                                  f"row {_short(repr(row))} has {len(row)} entries but the "
+                                  f"matrix has {n} rows; it must be square ({n} x {n})")
         parsed = []
         for j, value in enumerate(row):
             at = f"{where}[{j}]"
