@@ -101,7 +101,7 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     if status != tr.OK:
         message = (f"{status} in step {fail} (t = {t0 + fail * h:.6g}) from q = {out['Q'][fail].tolist()}, "
                    f"p = {out['P'][fail].tolist()}")
-        cause = _failure_cause(mod, status, out["Q"][fail], out["P"][fail], t0 + fail * h, h, prm, tol,
+        cause = _failure_cause(mod, status, out["Q"][: fail + 1], out["P"][fail], t0, fail, h, prm, tol,
                                float(out["Hs"][0]), out["imp_t"][:n_imp])
         if cause:
             message += f"; cause: {cause}"
@@ -131,10 +131,30 @@ def accumulation_onset(impacts, h) -> float:
     return float(imp[k])
 
 
-def _failure_cause(mod, status, q, p, t, h, prm, tol, H0, impacts) -> str:
-    """A short diagnosis of a failed run from the last grid state; "" if nothing specific is found
-    (the status itself then says what failed). Never raises."""
+def _fastest_mode(mod, q, p, prm) -> float:
+    """Largest |eigenvalue| of the linearized Hamilton's equations at (q, p) (central differences): the
+    fastest local time scale 1/omega of the motion (a nearly singular M makes some modes fast)."""
+    n = q.shape[0]
+    y = np.concatenate([q, p])
+    J = np.empty((2 * n, 2 * n))
+    fa, fb = np.empty(2 * n), np.empty(2 * n)
+    for j in range(2 * n):
+        e = 1e-6 * max(1.0, abs(y[j]))
+        ya, yb = y.copy(), y.copy()
+        ya[j] += e
+        yb[j] -= e
+        mod.hamilton_rhs(ya, prm, fa)
+        mod.hamilton_rhs(yb, prm, fb)
+        J[:, j] = (fa - fb) / (2 * e)
+    return float(np.max(np.abs(np.linalg.eigvals(J))))
+
+
+def _failure_cause(mod, status, Q, p, t0, fail, h, prm, tol, H0, impacts) -> str:
+    """A short diagnosis of a failed run from its grid states Q[0..fail] (p: momentum at Q[fail]);
+    "" if nothing specific is found (the status itself then says what failed). Never raises."""
     try:
+        q = Q[-1]
+        t = t0 + fail * h
         n = q.shape[0]
         causes = []
         if status == tr.ACCUMULATION:
@@ -142,37 +162,60 @@ def _failure_cause(mod, status, q, p, t, h, prm, tol, H0, impacts) -> str:
             k = int(np.sum(impacts >= onset)) if np.isfinite(onset) else 0
             last = float(impacts[-1] - impacts[-2]) if len(impacts) > 1 else float("nan")
             return (f"impacts accumulate: accumulation began at t = {onset:.9g} ({k} impacts since, each less "
-                    f"than one step h after the previous, the last {last:.3g} apart); an event-driven scheme "
-                    f"cannot follow impacts denser than its grid (the motion is settling into contact)")
+                    f"than one step h after the previous, the last {last:.3g} apart; limit: more than "
+                    f"max_impacts_step = {int(tol['max_impacts_step'])} impacts in one step or such a run "
+                    f"longer than max_impacts_step steps); an event-driven scheme cannot follow impacts denser "
+                    f"than its grid (the motion is settling into contact)")
         if status == tr.EVENT_FAILED:
             return "the collision-time search did not bracket the root to event_tol * h within 200 iterations"
         A = np.empty((n, n))
-        mod.sys_M(q, prm, A)
-        if np.all(np.isfinite(A)):
-            cond = float(np.linalg.cond(A))
-            if not cond < 1e8:
-                causes.append(f"mass matrix nearly singular at this state (cond(M) = {cond:.3g})")
+        worst, t_worst = 0.0, t
+        idx = np.union1d(np.linspace(0, len(Q) - 1, 2000).astype(int), np.arange(max(0, len(Q) - 200), len(Q)))
+        for k in idx:  # conditioning of M along the motion
+            mod.sys_M(Q[k], prm, A)
+            c = float(np.linalg.cond(A)) if np.all(np.isfinite(A)) else np.inf
+            if not c <= worst:
+                worst, t_worst = c, t0 + k * h
+        if not worst < 1e4:  # built-in scenes at default parameters: cond(M) < 30
+            causes.append(f"mass matrix nearly singular along the motion (cond(M) = {worst:.3g} at t = {t_worst:.6g})")
         H = float(mod.hamiltonian(q, p, prm))
         if not np.isfinite(H) or abs(H - H0) > 10.0 * max(1.0, abs(H0)):
             causes.append(f"the discrete motion had diverged (H = {H:.4g}, H(0) = {H0:.4g}): step h too large")
+        elif status in (tr.NEWTON_FAILED, tr.NONFINITE):
+            w = _fastest_mode(mod, q, p, prm)
+            if h * w > 2.0:
+                causes.append(f"step h too large for the fastest local mode of the motion (h * omega = {h * w:.3g} "
+                              f"> 2, the stability limit of the Verlet-type maps)")
         if status == tr.RESET_FAILED and not causes:
             qt, pt, vt = np.empty(n), np.empty(n), np.empty(n)
-            code, _, _, _ = mod.collision_time(q, p, h, h, t, prm, float(tol["newton_tol"]), int(tol["max_iter"]),
-                                               float(tol["event_tol"]), qt, pt, vt)
+            code, _, E_pre, _ = mod.collision_time(q, p, h, h, t, prm, float(tol["newton_tol"]), int(tol["max_iter"]),
+                                                   float(tol["event_tol"]), qt, pt, vt)
             if code == 1:
                 g = np.empty(n)
                 mod.sys_dphi(qt, prm, g)
                 mod.sys_M(qt, prm, A)
-                v = np.linalg.solve(A, pt)
-                vn = float(g @ v) / max(float(np.linalg.norm(g)), 1e-300)
-                speed = float(np.linalg.norm(v))
-                if abs(vn) <= 1e-6 * speed or vn == 0.0:
-                    causes.append(f"zero normal velocity at the contact ({vn:.3g}; grazing or resting contact): "
-                                  "no elastic reset exists")
+                Wg = np.linalg.solve(A, g)
+                vn = float(Wg @ pt)                       # d phi / dt before the impact
+                gWg = float(g @ Wg)
+                ke_n = 0.5 * vn * vn / gWg if gWg > 0 else 0.0   # kinetic energy of the normal motion
+                speed = float(np.linalg.norm(np.linalg.solve(A, pt)) * np.linalg.norm(g))
+                mismatch = abs(E_pre - float(mod.hamiltonian(qt, pt, prm)))
+                w = _fastest_mode(mod, qt, pt, prm)
+                if abs(vn) <= 1e-6 * speed:
+                    causes.append(f"zero normal velocity at the contact (d phi/dt = {vn:.3g}; grazing or resting "
+                                  "contact): no elastic reset exists")
+                elif ke_n < 10 * mismatch:
+                    causes.append(f"no reflecting root of the reset equations: the normal kinetic energy "
+                                  f"{ke_n:.3g} (d phi/dt = {vn:.3g}, effective mass 1/(g^T M^-1 g) = {1 / gWg:.3g}) "
+                                  f"is not large against the energy error the reset must absorb (pre-impact "
+                                  f"discrete energy - H = {mismatch:.3g}): a grazing contact or a tiny effective mass")
+                elif h * w > 2.0:
+                    causes.append(f"no reflecting root of the reset equations: step h too large for the fastest "
+                                  f"local mode at the impact (h * omega = {h * w:.3g} > 2)")
                 else:
-                    causes.append(f"the reset equations have no reflecting root at normal velocity {vn:.3g} "
-                                  "(R^VCI: the discrete-energy mismatch of the pre- and post-impact steps exceeds "
-                                  "the normal kinetic energy, a nearly grazing impact)")
+                    causes.append(f"Newton found no reflecting root of the reset equations (cond(M) at the impact "
+                                  f"= {np.linalg.cond(A):.3g}, h * omega = {h * w:.3g}, normal kinetic energy "
+                                  f"{ke_n:.3g})")
         if status == tr.NONFINITE and not causes:
             causes.append("the state overflowed")
         return "; ".join(causes)

@@ -219,10 +219,29 @@ def test_method_names_match_the_core():
             assert resolve_method(name) is not None
 
 
-@pytest.mark.parametrize("path", sorted((ROOT / "configs").glob("*.yaml")), ids=lambda p: p.name)
-def test_shipped_configs_validate(path):
-    cfg = load_config(path)
-    assert len(expand(cfg)) >= 1
+# The sweep configs the README and `make reproduce` use (other YAML files in configs/ may feed other
+# tools, e.g. the stress study's extremes.yaml).
+SWEEP_CONFIGS = {"quick": 40, "fig1": 4, "fig3": 2, "fig4": 408, "table2": 204}
+
+
+@pytest.mark.parametrize("name", sorted(SWEEP_CONFIGS))
+def test_shipped_configs_validate(name):
+    cfg = load_config(ROOT / "configs" / f"{name}.yaml")
+    assert cfg.name == name and str(cfg.output_path()) == f"results/{name}.h5"
+    assert len(expand(cfg)) == SWEEP_CONFIGS[name]
+
+
+def test_paper_settings_in_the_shipped_configs():
+    """Section 5.2: h = 3.2e-2 and 1e-2, 51 betas on [3.2, 5.2], T = 5; Figure 3 at beta 3.2, h 1e-2."""
+    fig4 = load_config(ROOT / "configs" / "fig4.yaml")
+    assert fig4.h == [3.2e-2, 1e-2] and fig4.T == 5 and [m.name for m in fig4.methods] == ["CVA", "VCI", "MCVAA",
+                                                                                            "MCVAC"]
+    betas = fig4.beta.values()
+    assert len(betas) == 51 and betas[0] == 3.2 and betas[-1] == 5.2
+    fig3 = load_config(ROOT / "configs" / "fig3.yaml")
+    assert fig3.h == [1e-2] and fig3.beta.values() == [3.2] and fig3.store_trajectories
+    fig1 = load_config(ROOT / "configs" / "fig1.yaml")
+    assert [m.options.constrained for m in fig1.methods] == [None, False]
 
 
 # --- the run grid -------------------------------------------------------------------------------------

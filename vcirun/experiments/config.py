@@ -9,7 +9,7 @@ A sweep is the grid  methods x h x initial conditions  on one system over [0, T]
     h: [3.2e-2, 1.0e-2]
     beta: {start: 3.2, stop: 5.2, num: 5}   # or a list of betas, or initial_states: [{q0: [...], p0: [...]}]
     T: 5
-    reference: {kind: exact, rtol: 1.0e-12}  # or {kind: method, method: CVA, h: 1.0e-4}, or {kind: none}
+    reference: {kind: exact, rtol: 1.0e-13}  # or {kind: method, method: CVA, h: 1.0e-4}, or {kind: none}
     tolerances: {newton_tol: 1.0e-12, event_tol: 1.0e-13}
     output: results/quick.h5
     workers: 2                        # default: every core
@@ -221,7 +221,7 @@ class InitialState(_Model):
 class ExactReference(_Model):
     """DOP853 with event location and the exact elastic reset (`vcirun.reference`)."""
     kind: Literal["exact"]
-    rtol: float = Field(default=1e-12, gt=0, lt=1e-3)
+    rtol: float = Field(default=1e-13, ge=2.3e-14, lt=1e-3)
 
 
 class MethodReference(_Model):
@@ -549,7 +549,7 @@ def _pydantic_message(err: dict) -> tuple[tuple, str]:
         return loc, "must not be empty" if ctx.get("min_length") == 1 else err["msg"]
     if typ == "union_tag_not_found" or typ == "union_tag_invalid":
         if "reference" in raw:
-            return loc, ("needs kind: exact, method or none (e.g. {kind: exact, rtol: 1.0e-12})"
+            return loc, ("needs kind: exact, method or none (e.g. {kind: exact, rtol: 1.0e-13})"
                          if typ == "union_tag_not_found" else
                          f"kind must be exact, method or none (got {_describe(ctx.get('tag'))})")
         return loc, err["msg"]

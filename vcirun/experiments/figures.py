@@ -83,7 +83,7 @@ def figure4(results: storage.Results, outdir: Path) -> list[Path]:
     plt = _pyplot()
     labels = _method_order(results.runs)
     hs = sorted({h for _, h in series}, reverse=True)
-    fig, ax = plt.subplots(figsize=(6.0, 4.0))
+    fig, ax = plt.subplots(figsize=(6.4, 4.6), layout="constrained")
     for (label, h), (b, e) in sorted(series.items(), key=lambda kv: (labels.index(kv[0][0]), -kv[0][1])):
         i, j = labels.index(label), hs.index(h)
         ax.semilogy(b, e, color=_COLORS[i % len(_COLORS)], linestyle=_STYLES[j % len(_STYLES)],
@@ -96,7 +96,9 @@ def figure4(results: storage.Results, outdir: Path) -> list[Path]:
     ax.set_xlabel(r"$\beta$")
     ax.set_ylabel(r"$L^2$ error")
     ax.grid(True, which="both", linewidth=0.3, alpha=0.5)
-    ax.legend(ncol=2, frameon=False)
+    # below the axes: the curves fill the whole plot, so any inside position hides some of them
+    fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncol=min(4, len(series)),
+               frameon=False)
     ax.set_title(f"{results.attrs.get('system', '')}, T = {results.attrs.get('T', '')}", fontsize=9)
     return _save(fig, outdir, "fig4_l2_error_vs_beta")
 
@@ -125,7 +127,7 @@ def figure3(results: storage.Results, outdir: Path) -> list[Path]:
                             "methods MCVAA, MCVAC or MCVA)")
     runs = [r for r in results.runs if want(r) and float(r.attrs["h"]) == h and r.attrs["ic_key"] == ic]
     plt = _pyplot()
-    fig, axes = plt.subplots(1, len(runs), figsize=(3.4 * len(runs), 3.0), squeeze=False)
+    fig, axes = plt.subplots(1, len(runs), figsize=(3.4 * len(runs), 3.0), squeeze=False, layout="constrained")
     for ax, r in zip(axes[0], runs):
         tr = storage.load_trajectory(results.path, r.run_id)
         ax.plot(tr.t, tr.H, color=_COLORS[0], label=r"$H$")
@@ -165,7 +167,7 @@ def figure1(results: storage.Results, outdir: Path) -> list[Path]:
     pairs.sort(key=lambda p: (-float(p[0].attrs["h"]), p[0].attrs.get("method_index", 0)))
     pairs = pairs[:4]
     plt = _pyplot()
-    fig, axes = plt.subplots(len(pairs), 1, figsize=(6.0, 2.6 * len(pairs)), squeeze=False)
+    fig, axes = plt.subplots(len(pairs), 1, figsize=(6.0, 2.6 * len(pairs)), squeeze=False, layout="constrained")
     for ax, (rc, rf) in zip(axes[:, 0], pairs):
         tc = storage.load_trajectory(results.path, rc.run_id)
         tf = storage.load_trajectory(results.path, rf.run_id)
@@ -173,10 +175,15 @@ def figure1(results: storage.Results, outdir: Path) -> list[Path]:
         ax.plot(tc.t, tc.H, color=_COLORS[1], label="with impacts")
         for ti in tc.impacts:
             ax.axvline(ti, color="0.4", linestyle=(0, (4, 3)), linewidth=0.7)
-        H0 = tc.H[0]
+        # |H0| can be 0 (it depends on the zero of V), so the jump is compared with the range of H's
+        # smooth oscillation in the run without impacts, the scale Figure 1 sets it against.
         jump = _largest_impact_jump(tc)
-        txt = f"largest change of H over an impact step: {100 * jump / abs(H0):.2g}% of |H0|" if H0 else ""
-        ax.text(0.01, 0.03, txt, transform=ax.transAxes, fontsize=7, color="0.3")
+        smooth = float(np.nanmax(tf.H) - np.nanmin(tf.H)) if len(tf.H) else float("nan")
+        txt = f"largest change of H over an impact step: {jump:.2g}"
+        if smooth > 0:
+            txt += f" = {jump / smooth:.2g} x the range of H without impacts ({smooth:.2g})"
+        ax.text(0.01, 0.03, txt, transform=ax.transAxes, fontsize=7, color="0.3",
+                bbox={"facecolor": "white", "edgecolor": "none", "alpha": 0.8, "pad": 1})
         ax.set_ylabel(r"$H$ [J]")
         ax.set_title(f"{rc.attrs['label']}, h = {_fmt_h(float(rc.attrs['h']))}", fontsize=9)
         ax.grid(True, linewidth=0.3, alpha=0.5)
@@ -208,7 +215,7 @@ def work_precision(results: storage.Results, outdir: Path) -> list[Path]:
         raise FigureSkipped("work-precision needs L2 errors and timings at two or more h")
     plt = _pyplot()
     labels = _method_order(results.runs)
-    fig, ax = plt.subplots(figsize=(5.0, 3.8))
+    fig, ax = plt.subplots(figsize=(5.0, 3.8), layout="constrained")
     for label in labels:
         pts = sorted(points.get(label, []))
         if not pts:
@@ -216,6 +223,14 @@ def work_precision(results: storage.Results, outdir: Path) -> list[Path]:
         i = labels.index(label)
         ax.loglog([p[0] for p in pts], [p[1] for p in pts], color=_COLORS[i % len(_COLORS)],
                   marker=_MARKERS[i % len(_MARKERS)], markersize=4, label=label)
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+    # a log axis spanning less than a decade: label 1, 2, 5 x 10^k instead of colliding minor labels
+    ax.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: f"{x:g}"))
+    ax.xaxis.set_minor_formatter(NullFormatter())
+    hs = sorted({p[2] for v in points.values() for p in v}, reverse=True)
+    ax.set_title("one point per h: " + ", ".join(_fmt_h(h) for h in hs) + " (larger h: less time)", fontsize=8)
     ax.set_xlabel("mean computation time per run [s]")
     ax.set_ylabel(r"median $L^2$ error")
     ax.grid(True, which="both", linewidth=0.3, alpha=0.5)

@@ -25,6 +25,7 @@ class Table:
     csv_columns: list[str]      # machine-readable long format
     csv_rows: list[list]
     caption: str = ""
+    left_columns: int = 1       # leading text columns; the rest (numbers) are right-aligned
 
 
 def _mark(value) -> str:
@@ -95,9 +96,14 @@ def table2(results: storage.Results, level: float = 0.95) -> Table:
     return Table(f"Table II: computation time [{unit}], mean ± {int(level * 100)}% confidence interval",
                  ["Method"] + [f"h = {h:g}" for h in hs], rows,
                  ["method", "h", "n", "mean_s", "ci_halfwidth_s", "std_s", "n_failed", "level"], csv_rows,
-                 caption=f"{results.name}: wall time of the integration per run (kernel loading excluded), "
-                         f"over n = {', '.join(map(str, ns))} initial conditions per cell; runs that failed are "
-                         "excluded from the statistics.")
+                 caption=f"{results.name}: wall time of the integration per run ({_repeats(results)}kernel "
+                         f"loading excluded), over n = {', '.join(map(str, ns))} initial conditions per cell; runs "
+                         "that failed are excluded from the statistics.")
+
+
+def _repeats(results) -> str:
+    k = results.attrs.get("timing_repeats")
+    return f"fastest of {k} identical integrations, " if isinstance(k, int) and k > 1 else ""
 
 
 def to_markdown(table: Table) -> str:
@@ -131,7 +137,7 @@ def print_table(table: Table, console) -> None:
     t = RichTable(title=escape(table.title), caption=escape(table.caption) if table.caption else None,
                   title_justify="left", caption_justify="left")
     for i, c in enumerate(table.columns):
-        t.add_column(escape(c), justify="left" if i <= 1 else "right", no_wrap=i == 0)
+        t.add_column(escape(c), justify="left" if i < table.left_columns else "right", no_wrap=i == 0)
     for r in table.rows:
         t.add_row(*(escape(str(c)) for c in r))
     console.print(t)
@@ -157,4 +163,4 @@ def runs_table(results: storage.Results, only_failed: bool = False) -> Table:
     title = f"{results.name}: {len(rows)} run{'s' * (len(rows) != 1)}" + (" not ok" if only_failed else "")
     return Table(title, ["run", "method", "h", "beta", "status", "impacts", "L2 error", "wall time [ms]"], rows,
                  ["run_id", "label", "h", "beta", "ic_key", "status", "n_impacts", "l2_error", "wall_time_s"],
-                 csv_rows)
+                 csv_rows, left_columns=2)

@@ -13,17 +13,20 @@ v(u) = sum f_i w_i) we have in every case
     eta(q, p) = G(q, p, u*),   G(q, p, u) = p . v(u) - ell(q, u),   F(q, p, u*) = dG/du = 0.
 
 The stationarity in u gives the envelope identities D_q eta = -ell_q = -(p + D1 Ld)/h and
-D_p eta = v(u*) = vbar (Appendix A step 3, verified), and with A = dF/du = -ell_uu, W = A^{-1}:
+D_p eta = v(u*) = vbar (Appendix A step 3, verified), so eta's derivatives need u*'s. These come from
+the implicit function theorem applied to F(z, u*(z)) = 0, z = (q, p), A = dF/du = -ell_uu, W = A^{-1}:
+writing D^beta F = A u_beta + R_beta (R_beta free of the top-order derivative u_beta),
 
-    du/dz = -W dF/dz,    dW/dz = -W (dA/dz) W       (implicit function theorem; z = (q, p)).
+    u_beta = -W R_beta,   R_(j) = dF/dz_j (partial),   R_(beta + i) = (D_i A) u_beta + D_i R_beta,
 
-Higher derivatives of eta come from applying the total derivative
-    d/dz_j = partial_j + sum_k du_k/dz_j partial_{u_k} + sum_ab dW_ab/dz_j partial_{W_ab}
-repeatedly, on a DAG of small named nodes (forward-mode differentiation done symbolically, so the
-expressions never swell): partial derivatives of ell are the leaves ("primitives", explicit sympy
-expressions, one CSE pass), every other node is a short polynomial in earlier nodes, u and W. At run
-time u* is found by Newton on F and W = A^{-1} numerically (vcirun/modified/numeric.py).
-This replaces Appendix A step 2: its printed second derivatives of qbar are not used anywhere.
+with D_i the total derivative d/dz_i = partial_i + sum_k u_{k,(i)} partial_{u_k} (+ u_{k,beta+i} for
+u_{k,beta}). W stays a leaf that is never differentiated. Everything is forward-mode differentiation
+done symbolically on a DAG of small named nodes, so expressions never swell: the partial derivatives
+of ell in (q, u) are the leaves ("primitives", explicit sympy expressions, one CSE pass), every other
+node is a short polynomial in earlier nodes, u and W. At run time u* is found by Newton on F and
+W = A^{-1} numerically (vcirun/modified/numeric.py). This replaces Appendix A step 2, whose printed
+second derivatives of qbar are not used (D_pp qbar and D_qp qbar are printed with the wrong sign,
+see tests/convergence/test_modified_series.py).
 
 Modified Hamiltonian
 --------------------
@@ -41,6 +44,7 @@ import sympy as sp
 from ..discrete.lagrangians import LIBRARY, get_ld, ld_expression
 from . import FLOW_ORDERS, SUPPORTED_MH_ORDERS
 from .series import modified_series, pdiff
+
 DERIVE_LOG: list[dict] = []  # timings of each derivation (for reports/benchmarks)
 
 _P = "mh_"  # prefix of every generated name
@@ -146,29 +150,54 @@ class DerivativeDag:
         return s
 
     # -- total derivatives ------------------------------------------------------------------------
-    def Du(self, k, j):
-        n, m, W = self.n, self.m, self.W
-        key = ("u", k, j)
+    # Derivatives of u* come from differentiating F(z, u*(z)) = 0: with A = dF/du and
+    # D^beta F = A u_beta + R_beta (R_beta free of the top-order u_beta),
+    #     u_beta = -W R_beta,   R_{(j)} = dF/dz_j (partial),   R_{beta+i} = (D_i A) u_beta + D_i R_beta,
+    # so W is a leaf that is never differentiated (no dW = -W dA W expansions: they cost m^4 terms).
+    def R(self, beta):
+        """R_beta (m entries) for a sorted multi-index beta over z."""
+        beta = tuple(sorted(beta))
+        key = ("R", beta)
         if key not in self._dmemo:
-            if j < n:   # dF_l/dq_j = -ell_{u_l q_j}
-                e = sum(W[k][l] * self.L((n + l, j)) for l in range(m))
-            else:       # dF_l/dp_j = C[l][j]
-                e = -sum(W[k][l] * self.st.C[l][j - n] for l in range(m))
-            self._dmemo[key] = self._node(e)
+            n, m = self.n, self.m
+            if len(beta) == 1:
+                j = beta[0]
+                if j < n:   # dF_l/dq_j = -ell_{u_l q_j}
+                    r = [self._node(-self.L((n + l, j))) for l in range(m)]
+                else:       # dF_l/dp_j = C[l][j]
+                    r = [sp.sympify(self.st.C[l][j - n]) for l in range(m)]
+            else:
+                i, rest = beta[0], beta[1:]
+                r = []
+                for l in range(m):
+                    e = self.D(self.R(rest)[l], i)
+                    for k in range(m):
+                        uk = self.U(k, rest)
+                        if uk != 0:
+                            dA = self.Dsym(self.L((n + l, n + k)), i)   # D_i A_lk = -D_i ell_{u_l u_k}
+                            if dA != 0:
+                                e -= dA * uk
+                    r.append(self._node(e))
+            self._dmemo[key] = r
         return self._dmemo[key]
 
-    def DW(self, a, b, j):
-        n, m, W = self.n, self.m, self.W
-        a, b = min(a, b), max(a, b)
-        key = ("W", a, b, j)
+    def U(self, k, beta):
+        """d^|beta| u*_k / dz_beta: always a named symbol (its derivative is U(k, beta + i)) or 0."""
+        beta = tuple(sorted(beta))
+        if not beta:
+            return self.st.u[k]
+        key = ("U", k, beta)
         if key not in self._dmemo:
-            e = 0
-            for c in range(m):
-                for d in range(m):
-                    dl = self.Dsym(self.L((n + c, n + d)), j)  # dA/dz = -d ell_uu/dz; dW = -W dA W
-                    if dl != 0:
-                        e += W[a][c] * W[d][b] * dl
-            self._dmemo[key] = self._node(e)
+            e = -sum(self.W[k][l] * r for l, r in enumerate(self.R(beta)))
+            e = sp.sympify(e)
+            if e == 0:
+                self._dmemo[key] = sp.S.Zero
+            else:
+                self._count += 1
+                sym = sp.Symbol(f"{_P}n{self._count}")
+                self.kind[sym] = ("U", k, beta)
+                self.defs[sym] = e
+                self._dmemo[key] = sym
         return self._dmemo[key]
 
     def Dsym(self, s, j):
@@ -184,14 +213,16 @@ class DerivativeDag:
         if tag == "z":
             r = sp.S.One if k[1] == j else sp.S.Zero
         elif tag == "u":
-            r = self.Du(k[1], j)
+            r = self.U(k[1], (j,))
+        elif tag == "U":
+            r = self.U(k[1], k[2] + (j,))
         elif tag == "W":
-            r = self.DW(k[1], k[2], j)
+            raise AssertionError("W = A^{-1} is a leaf: it must never be differentiated")
         elif tag == "prim":
             alpha = k[1]
             e = self.L(alpha + (j,)) if j < self.n else 0
             for kk in range(self.m):
-                du = self.Du(kk, j)
+                du = self.U(kk, (j,))
                 if du != 0:
                     lk = self.L(alpha + (self.n + kk,))
                     if lk != 0:
@@ -246,9 +277,31 @@ def _derive(system, ld_name: str, mh_order: int):
     dag = DerivativeDag(st)
     n, h = st.n, st.h
     H = modified_series(n, mh_order)
-    terms = [dag.poly_expr(Hi) for Hi in H]
+    terms = [dag._node(dag.poly_expr(Hi)) for Hi in H]
     value = sum(h ** i * t for i, t in enumerate(terms))
-    grad = [sum(h ** i * dag.poly_expr(pdiff(Hi, j)) for i, Hi in enumerate(H)) for j in range(2 * n)]
+    # gradient by reverse mode on the series polynomial P = sum_i h^{i-1} H_i(E):
+    # dP/dz_j = sum_alpha (dP/dE_alpha) E_{alpha + j}; the adjoints dP/dE_alpha are shared by all j.
+    adj: dict = {}
+    for i, Hi in enumerate(H):
+        for mono, c in Hi.items():
+            coef = sp.Rational(c.numerator, c.denominator) * h ** i
+            for k, al in enumerate(mono):
+                if al in mono[:k]:
+                    continue
+                rest = list(mono)
+                rest.remove(al)
+                t = coef * mono.count(al)
+                for jt in rest:
+                    t = t * dag.E(jt)
+                adj[al] = adj.get(al, 0) + t
+    grad = []
+    for j in range(2 * n):
+        g = sp.S.Zero
+        for al, a in adj.items():
+            e = dag.E(al + (j,))
+            if e != 0 and a != 0:
+                g += dag._node(a) * e
+        grad.append(g)
     hess = [[dag.E((i, j)) for j in range(2 * n)] for i in range(2 * n)]
     DERIVE_LOG.append({"system": system.name, "ld": ld_name, "mh_order": mh_order,
                        "derive_s": time.perf_counter() - t0, "nodes": len(dag.defs), "primitives": len(dag.prim_sym)})
@@ -307,13 +360,30 @@ def _emit_dag_kernel(name: str, st: StationaryEta, dag: DerivativeDag, outs: lis
             body.append(f"{s.name} = {_code(e, tmp)}")
         for (s, _), e in zip(prim, reduced):
             body.append(f"{_id(s)} = {_code(e, tmp)}")
-    for s, e in dag.defs.items():
-        if s in used:
-            body.append(f"{_id(s)} = {_code(e)}")
-    for arr, items in outs:
-        for idx, e in items:
-            body.append(f"{arr}[{idx}] = {_code(e)}")
-    body.append(f"return {_code(ret)}" if ret is not None else "return 0")
+    # nodes and outputs: a second CSE pass (products of nodes recur across the DAG: ~40% fewer
+    # operations, and numba's compile time grows with them); a temporary is emitted just before its
+    # first use, where every node it reads is already defined (nodes are in topological order).
+    targets = [(_id(s), e) for s, e in dag.defs.items() if s in used]
+    targets += [(f"{arr}[{idx}]", e) for arr, items in outs for idx, e in items]
+    if ret is not None:
+        targets.append(("return", ret))
+    repl, reduced = sp.cse([e for _, e in targets], symbols=sp.numbered_symbols(f"{_P}d"), order="none")
+    tdef = dict(repl)
+    tnames = set(tdef)
+    done: set = set()
+
+    def emit_temps(e):
+        for x in sorted(e.free_symbols & tnames - done, key=lambda y: int(y.name[len(_P) + 1:])):
+            if x not in done:
+                emit_temps(tdef[x])
+                done.add(x)
+                body.append(f"{x.name} = {_code(tdef[x], tnames)}")
+
+    for (tgt, _), e in zip(targets, reduced):
+        emit_temps(e)
+        body.append(f"return {_code(e, tnames)}" if tgt == "return" else f"{tgt} = {_code(e, tnames)}")
+    if ret is None:
+        body.append("return 0")
     return "\n".join(lines + ["    " + b for b in body]) + "\n"
 
 

@@ -25,23 +25,29 @@ else:
 GAUSS_D = np.linalg.solve(GAUSS_A.T, GAUSS_B)
 MH_U_TOL = 1e-10   # Newton on u stops after a step this small (relative): the error is then ~1e-20
 MH_U_MAXIT = 50
+MH_RESET_ETOL = 8.0 * 2.220446049250313e-16  # R^MCVA accepts lam once H~ is conserved to this (relative)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def mh_solve(q, p, h, prm, warm, u, W):
+def mh_guess(q, p, prm, u):
+    """Newton's start for u: the continuous velocity M(q)^{-1} p in every stage."""
+    v = np.empty(NDOF)
+    velocity_guess(q, p, prm, v)
+    for st in range(MH_NSTAGE):
+        for i in range(NDOF):
+            u[st * NDOF + i] = v[i]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def mh_solve(q, p, h, prm, u, W):
     """Stationary stage velocities u* of G(q, p, u) = p . v(u) - ell(q, u) (so qbar = q + h v(u*)) by
-    Newton from u (warm) or from M(q)^{-1} p in every stage; W = (dF/du)^{-1} at u*. Returns the
-    number of iterations, < 0 on failure."""
+    Newton from the u given (mh_guess or a nearby solution); W = (dF/du)^{-1} at u*. Returns the
+    number of iterations, < 0 on failure. (No flag arguments: a literal argument would make numba
+    compile the whole call chain once more.)"""
     F = np.empty(MH_M)
     A = np.empty((MH_M, MH_M))
     B = np.empty((MH_M, MH_M))
     x = np.empty(MH_M)
-    if not warm:
-        v = np.empty(NDOF)
-        velocity_guess(q, p, prm, v)
-        for st in range(MH_NSTAGE):
-            for i in range(NDOF):
-                u[st * NDOF + i] = v[i]
     it = 0
     small = False
     while True:
@@ -85,7 +91,8 @@ def mh_terms(q, p, h, prm, out):
     W = np.empty((MH_M, MH_M))
     for i in range(out.shape[0]):
         out[i] = np.nan
-    if mh_solve(q, p, h, prm, False, u, W) < 0:
+    mh_guess(q, p, prm, u)
+    if mh_solve(q, p, h, prm, u, W) < 0:
         return np.nan
     terms = np.empty(MH_ORDER)
     val = mh_value(q, p, u, W, h, prm, terms)
@@ -99,27 +106,29 @@ def mh_energy(q, p, h, prm):
     """H~^{O(h^s)}(q, p) = eta + h H2 + ... + h^{s-1} H_s (NaN if eta's stationary point is not found)."""
     u = np.empty(MH_M)
     W = np.empty((MH_M, MH_M))
-    if mh_solve(q, p, h, prm, False, u, W) < 0:
+    mh_guess(q, p, prm, u)
+    if mh_solve(q, p, h, prm, u, W) < 0:
         return np.nan
     terms = np.empty(MH_ORDER)
     return mh_value(q, p, u, W, h, prm, terms)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def mh_gradient(q, p, h, prm, warm, u, W, grad, hess):
-    """(iterations (< 0 on failure), H~): grad = (dH~/dq, dH~/dp), hess = Hessian of eta in (q, p)."""
-    it = mh_solve(q, p, h, prm, warm, u, W)
+def mh_gradient(q, p, h, prm, u, W, grad, hess):
+    """(iterations (< 0 on failure), H~): grad = (dH~/dq, dH~/dp), hess = Hessian of eta in (q, p).
+    u: Newton's start on entry, the stationary stage velocities on exit."""
+    it = mh_solve(q, p, h, prm, u, W)
     if it < 0:
         return it, np.nan
     return it, mh_grad(q, p, u, W, h, prm, grad, hess)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def mh_field(y, h, prm, warm, u, W, grad, hess, f):
+def mh_field(y, h, prm, u, W, grad, hess, f):
     """f = (dH~/dp, -dH~/dq) at y = (q, p). Returns the Newton iterations spent on u (< 0: failure)."""
     q = y[:NDOF]
     p = y[NDOF:]
-    it, val = mh_gradient(q, p, h, prm, warm, u, W, grad, hess)
+    it, val = mh_gradient(q, p, h, prm, u, W, grad, hess)
     for i in range(NDOF):
         f[i] = grad[NDOF + i]
         f[NDOF + i] = -grad[i]
@@ -154,11 +163,13 @@ def gauss_partial(q0, p0, tau, h, t, prm, ntol, maxit, q1, p1, vlast):
     grad = np.empty(nz)
     hess = np.empty((nz, nz))
     f0 = np.empty(nz)
-    it0 = mh_field(y0, h, prm, False, U[0], W, grad, hess, f0)
+    mh_guess(q0, p0, prm, U[0])
+    it0 = mh_field(y0, h, prm, U[0], W, grad, hess, f0)
     if it0 < 0:
         return -1, np.nan
     for k in range(1, s):
-        U[k, :] = U[0, :]
+        for i in range(MH_M):
+            U[k, i] = U[0, i]
     # J0 = d/dy (H_p, -H_q) with eta's Hessian
     J0 = np.empty((nz, nz))
     for i in range(NDOF):
@@ -190,7 +201,7 @@ def gauss_partial(q0, p0, tau, h, t, prm, ntol, maxit, q1, p1, vlast):
         for a in range(s):
             for i in range(nz):
                 Y[i] = y0[i] + Z[a, i]
-            if mh_field(Y, h, prm, True, U[a], W, grad, hess, Fs[a]) < 0:
+            if mh_field(Y, h, prm, U[a], W, grad, hess, Fs[a]) < 0:
                 return -it, np.nan
         for a in range(s):
             for i in range(nz):
@@ -198,7 +209,9 @@ def gauss_partial(q0, p0, tau, h, t, prm, ntol, maxit, q1, p1, vlast):
                 for b in range(s):
                     acc += GAUSS_A[a, b] * Fs[b, i]
                 R[a * nz + i] = tau * acc - Z[a, i]
-        NN[:, :] = N
+        for i in range(m):  # (explicit loops: numba's slice assignment costs seconds of compile time)
+            for j in range(m):
+                NN[i, j] = N[i, j]
         if not solve_small(NN, R, m):
             return -it, np.nan
         dn = 0.0
@@ -239,22 +252,26 @@ def reset_mcva(q, pm, E_pre, tau_rem, h, t, prm, ntol, maxit, pp):
     W = np.empty((MH_M, MH_M))
     grad = np.empty(nz)
     hess = np.empty((nz, nz))
-    it0, E0 = mh_gradient(q, pm, h, prm, False, u, W, grad, hess)
+    mh_guess(q, pm, prm, u)
+    it0, E0 = mh_gradient(q, pm, h, prm, u, W, grad, hess)
     if it0 < 0 or not math.isfinite(E0):
         return -1, lam0
     lam = lam0
     it = 0
     ok = False
-    warm = False
     while it < maxit:
         it += 1
         for i in range(NDOF):
             pp[i] = pm[i] + lam * g[i]
-        itu, E = mh_gradient(q, pp, h, prm, warm, u, W, grad, hess)
-        warm = True
+        if it == 1:
+            mh_guess(q, pp, prm, u)  # later iterates start from the previous stationary point
+        itu, E = mh_gradient(q, pp, h, prm, u, W, grad, hess)
         if itu < 0 or not math.isfinite(E):
             break
         dE = E - E0
+        if abs(dE) <= MH_RESET_ETOL * max(1.0, abs(E0)):
+            ok = True  # conserved to round-off (a small lam pins F = dE / lam only to ~eps |E| / lam)
+            break
         Fl = dE / lam
         gp = 0.0
         for i in range(NDOF):
