@@ -153,7 +153,9 @@ def simulate(
 @app.command(epilog="Examples:\n\n"
              "  vcirun sweep configs/quick.yaml\n\n"
              "  vcirun sweep configs/fig4.yaml --output results/fig4-rerun.h5 --workers 2\n\n"
-             "Interrupted? Run the same command again: only missing runs are computed.")
+             "  vcirun sweep configs/fig4.yaml --scheduler tcp://10.0.0.5:8786\n\n"
+             "Interrupted? Run the same command again: only missing runs are computed "
+             "(on any executor).")
 def sweep(
     config: Path = typer.Argument(..., help="YAML sweep config.", show_default=False),
     output: Optional[Path] = typer.Option(None, "--output", "-o", help="Results file (overrides the config)."),
@@ -162,13 +164,26 @@ def sweep(
                                           help="Worker processes (default: the config's, else every core)."),
     retry_failed: bool = typer.Option(False, "--retry-failed", help="Also recompute stored runs that failed."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress output."),
+    scheduler: Optional[str] = typer.Option(
+        None, "--scheduler", metavar="tcp://HOST:PORT",
+        help="Run on the Dask cluster of this scheduler (needs the optional dask extra; wins over the "
+             "config's executor). "
+             "'local' forces the local process pool."),
+    task_size: Optional[int] = typer.Option(None, "--task-size", min=1,
+                                            help="Runs per task (default: automatic on Dask, one initial "
+                                                 "condition locally)."),
+    worker_cache_dir: Optional[str] = typer.Option(
+        None, "--worker-cache-dir", metavar="DIR",
+        help="Kernel cache of the Dask workers (their VCIRUN_CACHE_DIR), e.g. one on a shared filesystem."),
 ):
-    """Run every method x h x initial condition of CONFIG in parallel into one HDF5 file; resumable."""
+    """Run every method x h x initial condition of CONFIG in parallel into one HDF5 file; resumable.
+    Locally by default; on a Dask cluster with --scheduler."""
     from vcirun.experiments.sweep import sweep_file
 
     try:
         summary = sweep_file(config, output=output, force=force, workers=workers, retry_failed=retry_failed,
-                             console=_console(stderr=True), progress=not quiet)
+                             console=_console(stderr=True), progress=not quiet, scheduler=scheduler,
+                             task_size=task_size, worker_cache_dir=worker_cache_dir)
     except _expected_errors() as e:
         _fail(str(e))
     except KeyboardInterrupt:  # before the first run started (e.g. while compiling kernels)

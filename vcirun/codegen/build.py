@@ -29,7 +29,9 @@ UNITS_BASE = ["maps/linalg.py", "maps/steps.py", "collision/events.py", "collisi
               "collision/algorithm1.py"]
 # files whose text changes the generated code: hashed into the key
 _GENERATOR_FILES = ["codegen/kernels.py", "codegen/printer.py", "codegen/build.py", "codegen/derive.py",
-                    "discrete/lagrangians.py", "mechanics/system.py", "modified/derive.py", "modified/series.py"]
+                    "discrete/lagrangians.py", "mechanics/system.py"]
+# ... and, only for the MCVA family's modules (so that editing them does not invalidate CVA/VCI caches)
+_MODIFIED_GENERATOR_FILES = ["modified/derive.py", "modified/series.py"]
 
 _loaded: dict[str, object] = {}
 BUILD_LOG: list[dict] = []  # (key, symbolic seconds, write seconds, cached?) for benchmarks
@@ -85,7 +87,10 @@ def _module_key(system, ks: KernelSet) -> str:
     h.update(system.fingerprint().encode())
     h.update(ks.key_text().encode())
     h.update(f"{__version__}|{numba.__version__}|{sys.version_info[:2]}".encode())
-    for rel in sorted(set(_units(ks)) | set(_GENERATOR_FILES)):
+    files = set(_units(ks)) | set(_GENERATOR_FILES)
+    if ks.modified is not None:
+        files |= set(_MODIFIED_GENERATOR_FILES)
+    for rel in sorted(files):
         p = _PKG / rel
         if p.exists():
             h.update(p.read_bytes())

@@ -13,6 +13,7 @@ A sweep is the grid  methods x h x initial conditions  on one system over [0, T]
     tolerances: {newton_tol: 1.0e-12, event_tol: 1.0e-13}
     output: results/quick.h5
     workers: 2                        # default: every core
+    executor: {kind: dask, address: tcp://10.0.0.5:8786}   # optional; default the local process pool
     store_trajectories: true
     timing_repeats: 3                 # wall_time = fastest of 3 identical runs
 
@@ -39,7 +40,7 @@ import yaml
 from pydantic import (BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationError, field_validator,
                       model_validator)
 
-__all__ = ["ConfigError", "SweepConfig", "MethodSpec", "InitialCondition", "load_config", "parse_config",
+__all__ = ["ConfigError", "SweepConfig", "MethodSpec", "InitialCondition", "ExecutorSpec", "load_config", "parse_config",
            "COLLISION_METHODS", "SMOOTH_METHODS", "DISCRETE_LAGRANGIANS", "yaml_load"]
 
 # Names `vcirun.simulate` accepts (tests/unit/test_config.py checks these against the core).
@@ -246,6 +247,40 @@ class Tolerances(_Model):
     max_impacts_step: int | None = Field(default=None, ge=1, le=100_000)
 
 
+# --- executor ------------------------------------------------------------------------------------------
+_ADDRESS_RE = re.compile(r"^[a-z][a-z0-9+]*://\S+$|^[^\s/:]+:\d{1,5}$")
+
+
+def check_scheduler_address(address: str) -> str:
+    """A Dask scheduler address: tcp://HOST:PORT, tls://HOST:PORT or HOST:PORT (ValueError otherwise)."""
+    a = str(address).strip()
+    if not a or not _ADDRESS_RE.match(a):
+        raise ValueError(f"expected a Dask scheduler address such as tcp://HOST:8786 (got {address!r})")
+    return a
+
+
+class ExecutorSpec(_Model):
+    """Where the runs are computed. Not part of the results: the same sweep on the local pool or on a
+    Dask cluster gives the same file (see vcirun.experiments.executors)."""
+    kind: Literal["local", "dask"] = "local"
+    address: str | None = None       # Dask scheduler, e.g. tcp://10.0.0.5:8786 (`--scheduler` wins)
+    task_size: int | None = Field(default=None, ge=1, le=1_000_000)  # runs per task; default automatic
+    cache_dir: str | None = Field(default=None, min_length=1)  # VCIRUN_CACHE_DIR set on Dask workers
+
+    @field_validator("address")
+    @classmethod
+    def _address(cls, v):
+        return None if v is None else check_scheduler_address(v)
+
+    @model_validator(mode="after")
+    def _dask_only(self):
+        if self.kind == "local":
+            for key in ("address", "cache_dir"):
+                if getattr(self, key) is not None:
+                    raise ValueError(f"{key} is only for kind: dask")
+        return self
+
+
 # --- the sweep ------------------------------------------------------------------------------------------
 class InitialCondition(BaseModel):
     """One point of the initial-condition axis; `key` names its reference group in the results file."""
@@ -280,6 +315,7 @@ class SweepConfig(_Model):
     tolerances: Tolerances = Field(default_factory=Tolerances)
     output: str | None = None
     workers: int | None = Field(default=None, ge=1, le=4096)
+    executor: ExecutorSpec | None = None
     store_trajectories: bool = True
     # Each run is integrated this many times (the integrator is deterministic, so the results are
     # identical) and its wall_time is the fastest: other processes preempting a worker would
@@ -361,8 +397,9 @@ class SweepConfig(_Model):
         return Path(self.output) if self.output else Path("results") / f"{self.name}.h5"
 
     def canonical(self) -> dict:
-        """Everything that determines the results (not where they go or how many processes compute them)."""
-        return self.model_dump(mode="json", by_alias=True, exclude={"output", "workers", "description"})
+        """Everything that determines the results (not where they go, nor how many processes or which
+        executor compute them)."""
+        return self.model_dump(mode="json", by_alias=True, exclude={"output", "workers", "executor", "description"})
 
     def canonical_sha256(self) -> str:
         return hashlib.sha256(json.dumps(self.canonical(), sort_keys=True).encode()).hexdigest()

@@ -182,7 +182,7 @@ def figure1(results: storage.Results, outdir: Path) -> list[Path]:
         txt = f"largest change of H over an impact step: {jump:.2g}"
         if smooth > 0:
             txt += f" = {jump / smooth:.2g} x the range of H without impacts ({smooth:.2g})"
-        ax.text(0.01, 0.03, txt, transform=ax.transAxes, fontsize=7, color="0.3",
+        ax.text(0.01, 0.97, txt, transform=ax.transAxes, fontsize=7, color="0.3", va="top",
                 bbox={"facecolor": "white", "edgecolor": "none", "alpha": 0.8, "pad": 1})
         ax.set_ylabel(r"$H$ [J]")
         ax.set_title(f"{rc.attrs['label']}, h = {_fmt_h(float(rc.attrs['h']))}", fontsize=9)

@@ -4,7 +4,8 @@ The grid is methods x h x initial conditions. Each run has a stable id: a short 
 that determines its result (system, T, tolerances, method and options, h, initial condition), so
 rerunning a sweep recomputes only the ids missing from the results file.
 
-Execution: a `ProcessPoolExecutor` (spawn context; `workers` processes, default every core). Each
+Execution: a `ProcessPoolExecutor` (fork context; `workers` processes, default every core), or a Dask
+cluster (`executor` in the config, `--scheduler` on the command line; see `executors`). Each
 worker imports vcirun once, builds the system once, and keeps compiled kernels and reference
 solutions across its tasks. A task is the pending runs of one initial condition (split further
 only when there are too few initial conditions to keep every worker busy), so the reference for
@@ -78,6 +79,9 @@ class SweepSummary:
     wall_time: float = 0.0
     status_counts: dict = field(default_factory=dict)
     workers: int = 1
+    executor: str = "local"    # "local" | "dask"
+    executor_stats: dict = field(default_factory=dict)  # task sizes, measured costs (executors.*.stats)
+    write_time: float = 0.0    # seconds the client spent storing results (the serial part of a sweep)
 
     @property
     def ok(self) -> bool:
@@ -303,9 +307,10 @@ def _execute_run(st: _WorkerState, spec: RunSpec, ref) -> dict:
     return {"run_id": spec.run_id, "attrs": attrs, "arrays": arrays}
 
 
-def _execute(task: Task) -> dict:
-    """Worker entry point: the reference (if this task stores it) and every run of the task."""
-    st = _STATE
+def _execute(task: Task, st: _WorkerState | None = None) -> dict:
+    """Worker entry point: the reference (if this task stores it) and every run of the task
+    (state: this process's, or `st` given by the Dask executor)."""
+    st = st or _STATE
     if st is None:  # pragma: no cover - initializer always runs first
         raise RuntimeError("worker not initialised")
     ref = None
@@ -453,28 +458,36 @@ def _terminate_pool(executor: cf.ProcessPoolExecutor) -> None:
 def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=None, output=None,
               force: bool = False, workers: int | None = None, retry_failed: bool = False,
               console=None, progress: bool = True, argv: list | None = None,
-              start_method: str | None = None) -> SweepSummary:
+              start_method: str | None = None, scheduler: str | None = None, task_size: int | None = None,
+              worker_cache_dir: str | None = None) -> SweepSummary:
     """Compute every run of `cfg` missing from its results file; returns counts.
 
     output: results path (default cfg.output, else results/<name>.h5); force: start a new file;
-    workers: processes (default cfg.workers, else every core; 1 computes in this process);
+    workers: local processes (default cfg.workers, else every core; 1 computes in this process);
     retry_failed: recompute stored runs whose status is not ok; start_method: multiprocessing start
-    method of the pool (default fork where available, else spawn). Raises SweepError (unusable file,
-    a method the core rejects, a worker that died) and storage.StorageError.
+    method of the pool (default fork where available, else spawn). scheduler: a Dask scheduler address
+    (or "local"), winning over cfg.executor; task_size: runs per task (default automatic);
+    worker_cache_dir: VCIRUN_CACHE_DIR of the Dask workers. Raises SweepError (unusable file, a method
+    the core rejects, a worker that died, a lost scheduler) and storage.StorageError.
     """
+    from . import executors
+
     t_start = time.monotonic()
     path = Path(output) if output else cfg.output_path()
     workers = int(workers or cfg.workers or default_workers())
+    ex_spec = executors.resolve_spec(cfg.executor, scheduler=scheduler, task_size=task_size,
+                                     cache_dir=worker_cache_dir)
     specs = expand(cfg)
     if config_text is None:
         import yaml
 
         config_text = yaml.safe_dump(cfg.model_dump(mode="json", by_alias=True, exclude_none=True), sort_keys=False)
-    summary = SweepSummary(path=path, total=len(specs), workers=workers)
+    summary = SweepSummary(path=path, total=len(specs), workers=workers, executor=ex_spec.kind)
     session = {"argv": list(argv if argv is not None else sys.argv), "workers": workers, "pid": os.getpid()}
     writer = storage.ResultsWriter(path, root_attrs=_root_attrs(cfg, config_text, config_path, specs),
                                    config_key=cfg.canonical_sha256(), force=force, session=session)
     writer.acquire()
+    executor = None
     try:
         known = {s.run_id for s in specs}
         if retry_failed:
@@ -492,11 +505,14 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
             summary.wall_time = time.monotonic() - t_start
             return summary
         _preflight(cfg, pending)
+        executor = executors.make_executor(ex_spec, workers=workers, start_method=start_method)
+        executor.connect()  # a Dask cluster: reached (or a one-line error) before the file is created
+        summary.workers = executor.workers
+        writer.session.update(workers=executor.workers, executor=executor.session_info())
         writer.start()
         needs_ref = not isinstance(cfg.reference, NoReference)
-        tasks = make_tasks(pending, workers, set(writer.references), needs_ref)
-        reporter = _Reporter(console, len(pending), f"{cfg.name}: {len(pending)} runs on {workers} worker"
-                             f"{'s' * (workers > 1)}", progress)
+        reporter = _Reporter(console, len(pending), f"{cfg.name}: {len(pending)} runs on {executor.describe()}",
+                             progress)
         if summary.skipped:
             reporter.log(f"resuming {path}: {summary.skipped} of {len(specs)} runs already stored"
                          + (f", {summary.deleted_incomplete} incomplete groups discarded"
@@ -505,9 +521,9 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
         status, broken = "complete", ""
         on_main = threading.current_thread() is threading.main_thread()
         old_term = signal.signal(signal.SIGTERM, _raise_terminated) if on_main else None
-        executor = None
 
         def take(result: dict) -> None:
+            t0 = time.perf_counter()
             if result.get("reference") is not None:
                 writer.add_reference(result["ic_key"], *result["reference"])
             failed = 0
@@ -519,53 +535,47 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
             writer.maybe_commit()
             reporter.advance(len(result["runs"]), failed, len(writer.complete_runs),
                              f"{result['ic_key']}: {len(result['runs'])} run{'s' * (len(result['runs']) > 1)}")
+            summary.write_time += time.perf_counter() - t0
 
         try:
-            if workers == 1:
-                _init_worker(cfg, ref_T, ref_h, in_pool=False)
-                reporter.start()
-                for task in tasks:
-                    # run by run, so an interruption loses at most one run (the reference is cached)
-                    for j, spec in enumerate(task.runs):
-                        take(_execute(Task(task.ic, [spec], task.want_reference and j == 0)))
-            else:
-                method = start_method or _default_start_method()
-                ctx = mp.get_context(method)
-                executor = cf.ProcessPoolExecutor(
-                    max_workers=min(workers, len(tasks)), mp_context=ctx, initializer=_init_worker,
-                    initargs=(cfg, ref_T, ref_h, None if method == "forkserver" else os.getpid()))
-                # With fork, every worker is created by the first submit: before the progress thread
-                # starts, and after _preflight compiled the kernels, which the workers inherit.
-                futures = [executor.submit(_execute, t) for t in tasks]
-                reporter.start()
-                for fut in cf.as_completed(futures):
-                    take(fut.result())
-                executor.shutdown(wait=True)
-                executor = None
+            # The local pool forks its workers in start(): before the progress thread starts.
+            executor.start(cfg, pending, set(writer.references), needs_ref, ref_T, ref_h)
+            reporter.start()
+            for result in executor.results():
+                take(result)
         except KeyboardInterrupt as e:
             status = "interrupted"
             summary.interrupted = "SIGTERM" if isinstance(e, _Terminated) else "SIGINT"
-        except cf.process.BrokenProcessPool as e:
-            status = "worker_died"
-            broken = _one_line(e)
+        except executors.ExecutorError as e:  # a dead worker, a lost scheduler, a task that kept failing
+            status = e.status
+            broken = e
         except BaseException:
             status = "failed"  # a bug: recorded in the file's history, then re-raised with its traceback
             raise
         finally:
             with _signals_deferred(on_main):
-                if executor is not None:
-                    _terminate_pool(executor)
+                summary.executor_stats = executor.stats()
+                executor.close()
+                writer.session["executor"] = {**executor.session_info(), **summary.executor_stats}
                 reporter.stop()
                 writer.finish(status)  # every finished run is committed, whatever happened
             if on_main:
                 signal.signal(signal.SIGTERM, old_term)
-        if status == "worker_died":
-            raise SweepError(f"a worker process died unexpectedly ({broken}); {len(writer.complete_runs)} runs "
-                             f"are saved in {path}; rerun the same command to resume")
+        if broken:
+            saved = f"{len(writer.complete_runs)} of {len(specs)} runs are saved in {path}"
+            if isinstance(broken, executors.SchedulerLost):
+                raise SweepError(f"lost the Dask scheduler at {ex_spec.address} ({_one_line(broken)}); {saved}; "
+                                 "rerun the same command to resume (--scheduler local finishes on this machine)")
+            if isinstance(broken, executors.WorkerDied):
+                raise SweepError(f"a worker process died unexpectedly ({_one_line(broken)}); {saved}; "
+                                 "rerun the same command to resume")
+            raise SweepError(f"{_one_line(broken)}; {saved}; rerun the same command to resume")
         summary.status_counts = _status_counts(writer)
         summary.wall_time = time.monotonic() - t_start
         return summary
     finally:
+        if executor is not None:
+            executor.close()
         writer.close()
 
 
@@ -594,11 +604,13 @@ def _status_counts(writer: storage.ResultsWriter) -> dict:
 
 def sweep_file(config_path, *, output=None, force: bool = False, workers: int | None = None,
                retry_failed: bool = False, console=None, progress: bool = True,
-               argv: list | None = None) -> SweepSummary:
+               argv: list | None = None, scheduler: str | None = None, task_size: int | None = None,
+               worker_cache_dir: str | None = None) -> SweepSummary:
     """`vcirun sweep CONFIG`: load and validate the config file, then `run_sweep` it."""
     from .config import config_text, load_config
 
     cfg = load_config(config_path)
     return run_sweep(cfg, config_text=config_text(config_path), config_path=config_path, output=output,
                      force=force, workers=workers, retry_failed=retry_failed, console=console,
-                     progress=progress, argv=argv)
+                     progress=progress, argv=argv, scheduler=scheduler, task_size=task_size,
+                     worker_cache_dir=worker_cache_dir)

@@ -7,8 +7,21 @@
 - `numeric.py`: numba unit with gauss_partial, reset_mcva, mh_energy (compiled into the scene's
   module by vcirun.codegen).
 
+- `evaluate.py`: the same generated module executed uncompiled (tests, exploration).
+
 `generalized_mcva(ld, mh_order, flow_order)` returns the Method of Section 4.4; MCVAA and MCVAC
 (Section 5.2) are entries of vcirun.methods.METHODS.
+
+What checking the paper found (tests/convergence/test_modified_series.py):
+- H4 does NOT vanish for SVA (Section 5.2 claims it does). The eta-based series depends on h through
+  eta itself, so the symmetric method's vanishing h^3 coefficient is shared between eta, H2, H3 and
+  H4: H4[eta_SVA] -> H4[H] (SE1's h^3 term, ~6.5 at a generic cart-pendulum state) as h -> 0. Without
+  H4 the SVA truncation is conserved to order 3, with it to order 4; MCVAA keeps H4.
+- In n > 1 dimensions the mixed term of H3 is 4 sum_ij K_{q_i p_j} K_{p_i} K_{q_j} (the q-slot takes
+  K_p); Appendix A's D1D2 eta (D1 eta, D2 eta) read literally contracts the other way (same for n = 1).
+- Appendix A step 2 prints D_pp qbar and D_qp qbar with the wrong sign (finite differences decide);
+  D_q qbar, D_p qbar and D_qq qbar (given the corrected D_qp qbar) are right. Nothing here uses them.
+- mh_order = 1 (eta alone) makes every impact cost O(h): the reset conserves eta = H + O(h).
 """
 from __future__ import annotations
 

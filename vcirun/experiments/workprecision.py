@@ -1,0 +1,527 @@
+"""The work-precision study (issue 7): what accuracy a method buys for what time, beside solve_ivp.
+
+A study config (YAML; `configs/work_precision.yaml`, `configs/work_precision_double.yaml`,
+`configs/long_horizon.yaml`) has its own schema, because its grid holds methods that are not vcirun
+methods (scipy's solve_ivp at a tolerance, see `vcirun.experiments.baselines`):
+
+    study: work_precision            # or long_horizon
+    name: work_precision
+    system: cart_pendulum            # built-in name (params: {...} optional)
+    beta: {start: 3.2, stop: 5.2, num: 5}    # or a list
+    T: 5                             # long_horizon: a list of horizons, e.g. [1000, 10000]
+    methods: [CVA, VCI, MCVAA, MCVAC]        # as in a sweep config (MCVA with ld/mh_order/flow_order)
+    h: [1.0e-1, 3.2e-2, 1.0e-2, 3.2e-3, 1.0e-3, 3.2e-4, 1.0e-4]
+    baselines: {DOP853: [1.0e-3, ..., 1.0e-12], Radau: [1.0e-3, ..., 1.0e-10]}
+    baseline_h: null                 # output grid of solve_ivp; null: every h of the methods (matched grids)
+    baseline_max_T: {Radau: 1000}    # skip a solver on longer horizons
+    repeats: 7                       # timing repeats per run (vcirun); medians are reported
+    baseline_repeats: 5
+    reference_rtol: 1.0e-13          # exact reference (work_precision only)
+    max_steps: 2000000               # skip (method, h, T) with more grid steps
+    baseline_time_limit: 60          # seconds; a solve_ivp run past it is stopped (status time_limit)
+    output: results/work_precision.json
+
+Protocol. Everything runs in ONE process, serially (one core; the other may be busy: the machine
+is shared). Kernels are compiled and every (method, h) is warmed up before any timing. Timing
+repeats are interleaved: pass r times every run once, so a slow spell of the machine spreads over
+all runs instead of hitting one method. Reported per run: the median over repeats of the compiled
+loop time (`traj.wall_time`; for solve_ivp the solve loop) and of the whole call (`simulate()` /
+`solve_ivp_run()`), the L2 error against the exact reference (work_precision) or max |H - H0| and,
+for the MCVA family, max |Hmod - Hmod0| (long_horizon). Per (method, h) or (solver, rtol, grid) the
+study takes the median over initial conditions of errors and times.
+
+Speed ratio at matched accuracy. For each vcirun point (error e, time t) and each solver, the
+solver's Pareto front on the same output grid (its runs sorted by time, keeping each that is more
+accurate than every cheaper one) is interpolated linearly in (log error, log time) at e:
+ratio = t_solver(e) / t. Outside the front the ratio is a bound, and says so: e above the front's
+largest error means the solver's cheapest run is already more accurate (ratio <= t_cheapest / t);
+e below its smallest error means the solver did not reach e at any tolerance tried (ratio >=
+t_tightest / t). A point is *competitive* where the ratio against the best solver is > 1. Computed
+on the medians over initial conditions and, separately, per initial condition.
+
+`python -m vcirun.experiments.workprecision CONFIG [--quick]` runs a study and prints its tables;
+`vcirun.experiments.wp_figures.plot_study(JSON)` draws it.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import statistics
+import sys
+import time
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal, Union
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from .baselines import BASELINES, solve_ivp_run
+from .config import ConfigError, MethodSpec, yaml_load
+
+__all__ = ["StudyConfig", "load_study", "run_study", "summarize", "matched_ratios", "print_tables", "main"]
+
+
+# --- config ------------------------------------------------------------------------------------------
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, frozen=True)
+
+
+class BetaRange(_Model):
+    start: float
+    stop: float
+    num: int = Field(ge=1, le=1000)
+
+
+class StudyConfig(_Model):
+    study: Literal["work_precision", "long_horizon"]
+    name: str = Field(min_length=1)
+    description: str = ""
+    system: str = Field(min_length=1)
+    params: dict[str, float] = Field(default_factory=dict)
+    beta: Union[list[float], BetaRange]
+    T: Union[float, list[float]]
+    methods: list[Union[str, dict]] = Field(min_length=1)
+    h: list[float] = Field(min_length=1)
+    baselines: dict[str, list[float]] = Field(default_factory=dict)
+    baseline_h: Union[float, None] = None
+    baseline_max_T: dict[str, float] = Field(default_factory=dict)
+    repeats: int = Field(default=7, ge=1, le=1000)
+    baseline_repeats: int = Field(default=5, ge=1, le=1000)
+    reference_rtol: float = Field(default=1e-13, gt=0)
+    max_steps: int = Field(default=2_000_000, ge=1)
+    baseline_time_limit: float = Field(default=60.0, gt=0)
+    output: str = "results/work_precision.json"
+
+    def betas(self) -> list[float]:
+        if isinstance(self.beta, BetaRange):
+            return [float(b) for b in np.linspace(self.beta.start, self.beta.stop, self.beta.num)]
+        return [float(b) for b in self.beta]
+
+    def horizons(self) -> list[float]:
+        return [float(t) for t in (self.T if isinstance(self.T, list) else [self.T])]
+
+    def method_specs(self) -> list[MethodSpec]:
+        return [MethodSpec.model_validate({"name": m} if isinstance(m, str) else m) for m in self.methods]
+
+    def baseline_grids(self) -> list[float]:
+        return [float(self.baseline_h)] if self.baseline_h is not None else sorted(set(self.h), reverse=True)
+
+
+def load_study(path) -> StudyConfig:
+    """Read a study config; every problem is a one-line ConfigError naming the file and field."""
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError("file not found", source=str(path))
+    data = yaml_load(p.read_text(encoding="utf-8"))
+    try:
+        cfg = StudyConfig.model_validate(data)
+        cfg.method_specs()
+    except ValidationError as e:
+        err = e.errors(include_url=False)[0]
+        raise ConfigError(err["msg"], source=str(path), field=".".join(str(x) for x in err["loc"])) from None
+    for b in cfg.baselines:
+        if b not in BASELINES:
+            raise ConfigError(f"unknown solver {b!r} (choose from {', '.join(BASELINES)})", source=str(path),
+                              field="baselines")
+    return cfg
+
+
+# --- running ----------------------------------------------------------------------------------------
+@dataclass
+class _Run:
+    kind: str            # "vcirun" | "baseline"
+    label: str
+    method: str
+    kwargs: dict         # method options (vcirun) or {"rtol": ...} (baseline)
+    h: float             # grid step (baseline: output grid)
+    T: float
+    beta: float
+    record: dict
+
+
+def _machine() -> dict:
+    try:
+        load = os.getloadavg()
+    except OSError:
+        load = (math.nan,) * 3
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except AttributeError:
+        cpus = os.cpu_count()
+    import numba
+    import scipy
+
+    return {"cpus": cpus, "loadavg_start": list(load), "python": platform.python_version(), "numpy": np.__version__,
+            "scipy": scipy.__version__, "numba": numba.__version__, "platform": platform.platform(),
+            "processor": platform.processor()}
+
+
+def _energy(traj) -> tuple[float, float]:
+    H = np.asarray(traj.H, float)
+    dH = float(np.nanmax(np.abs(H - H[0]))) if H.size and np.isfinite(H[0]) else math.nan
+    dHm = math.nan
+    if traj.Hmod is not None and len(traj.Hmod) and np.isfinite(traj.Hmod[0]):
+        dHm = float(np.nanmax(np.abs(np.asarray(traj.Hmod, float) - traj.Hmod[0])))
+    return dH, dHm
+
+
+def _call(run: _Run, system, params, time_limit):
+    import vcirun
+
+    t0 = time.perf_counter()
+    if run.kind == "vcirun":
+        traj = vcirun.simulate(system, run.method, h=run.h, T=run.T, beta=run.beta, params=params, **run.kwargs)
+    else:
+        traj = solve_ivp_run(system, run.method, h=run.h, T=run.T, beta=run.beta, params=params,
+                             time_limit=time_limit, energies=(run.record.get("need_energy", False)), **run.kwargs)
+    return traj, time.perf_counter() - t0
+
+
+def run_study(cfg: StudyConfig, *, quick: bool = False, log=print) -> dict:
+    """Run every run of the study (see the module docstring) and return the JSON-able result."""
+    import vcirun
+
+    t_study = time.perf_counter()
+    system = cfg.system
+    params = dict(cfg.params) or None
+    betas = cfg.betas()
+    horizons = cfg.horizons()
+    specs = cfg.method_specs()
+    repeats, brepeats = cfg.repeats, cfg.baseline_repeats
+    if quick:
+        betas = betas[:1]
+        repeats, brepeats = min(repeats, 3), min(brepeats, 2)
+    lh = cfg.study == "long_horizon"
+    out = {"study": cfg.study, "name": cfg.name, "description": cfg.description, "config": cfg.model_dump(),
+           "quick": quick, "machine": _machine(), "started": time.strftime("%Y-%m-%d %H:%M:%S"),
+           "protocol": {"repeats": repeats, "baseline_repeats": brepeats, "statistic": "median over repeats, "
+                        "then median over initial conditions", "interleaved": True, "process": "one, serial"}}
+    # references (work_precision): exact, on the longest grid end of every run
+    refs, ref_info = {}, []
+    if not lh:
+        for T in horizons:
+            T_ref = max([T] + [round(T / h) * h for h in cfg.h + cfg.baseline_grids()])
+            for b in betas:
+                t0 = time.perf_counter()
+                ref = vcirun.reference(system, T=T_ref, beta=b, params=params, rtol=cfg.reference_rtol)
+                refs[(T, b)] = ref
+                ref_info.append({"T": T, "beta": b, "impacts": len(ref.impacts), "accuracy": float(ref.accuracy),
+                                 "seconds": time.perf_counter() - t0})
+        out["references"] = ref_info
+        log(f"references: {len(ref_info)} (impacts {min(r['impacts'] for r in ref_info)}.."
+            f"{max(r['impacts'] for r in ref_info)}, self-reported accuracy <= "
+            f"{max(r['accuracy'] for r in ref_info):.2g})")
+    runs: list[_Run] = []
+    for T in horizons:
+        for spec in specs:
+            kw = spec.simulate_kwargs()
+            for h in cfg.h:
+                if round(T / h) > cfg.max_steps:
+                    continue
+                for b in betas:
+                    runs.append(_Run("vcirun", spec.display, spec.name, kw, float(h), T, b, {}))
+        for solver, rtols in cfg.baselines.items():
+            if T > cfg.baseline_max_T.get(solver, math.inf):
+                continue
+            for hg in cfg.baseline_grids():
+                if round(T / hg) > cfg.max_steps:
+                    continue
+                for rtol in rtols:
+                    for b in betas:
+                        runs.append(_Run("baseline", solver, solver, {"rtol": float(rtol)}, hg, T, b,
+                                         {"need_energy": lh}))
+    # warm up: compile every kernel set and touch every (method, h) once, untimed
+    warm = set()
+    for r in runs:
+        if r.kind == "vcirun" and (r.label, r.h) not in warm:
+            warm.add((r.label, r.h))
+            vcirun.simulate(system, r.method, h=r.h, T=min(r.T, 20 * r.h), beta=r.beta, params=params, **r.kwargs)
+        elif r.kind == "baseline" and r.label not in warm:
+            warm.add(r.label)
+            solve_ivp_run(system, r.method, h=r.h, T=min(r.T, 1.0), beta=r.beta, params=params, rtol=1e-6)
+    log(f"{len(runs)} runs x repeats ({repeats} vcirun, {brepeats} solve_ivp), interleaved")
+    stopped = set()  # (solver, rtol, T): a run hit the time limit; the remaining ones are skipped
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        for rep in range(max(repeats, brepeats)):
+            for r in runs:
+                nrep = repeats if r.kind == "vcirun" else brepeats
+                if rep >= nrep:
+                    continue
+                key = (r.label, r.kwargs.get("rtol"), r.T, r.h)
+                if r.kind == "baseline" and key in stopped:
+                    continue
+                if rep > 0 and r.record.get("status") not in ("ok",):
+                    continue  # failures are not worth timing again
+                traj, call = _call(r, system, params, cfg.baseline_time_limit)
+                rec = r.record
+                rec.setdefault("walls", []).append(float(traj.wall_time))
+                rec.setdefault("calls", []).append(float(call))
+                if rep == 0:
+                    rec.update(status=traj.status, message=traj.message[:300], n_steps=int(traj.n_steps),
+                               n_impacts=int(len(traj.impacts)))
+                    if traj.status == "time_limit":
+                        stopped.add(key)
+                    if r.kind == "baseline":
+                        rec["nfev"] = int(traj.options.get("nfev", 0))
+                    if lh:
+                        rec["dH"], rec["dHmod"] = _energy(traj)
+                        if r.kind == "baseline" and traj.status != "ok":
+                            rec["dH"] = math.nan
+                    else:
+                        ref = refs[(r.T, r.beta)]
+                        rec["l2"] = float(vcirun.l2_error(traj, ref)) if traj.status == "ok" else math.nan
+                        rec["dH"], rec["dHmod"] = _energy(traj)
+                    del traj
+            log(f"  pass {rep + 1}/{max(repeats, brepeats)} done ({time.perf_counter() - t_study:.0f} s)")
+    recs = []
+    for r in runs:
+        rec = dict(r.record)
+        rec.pop("need_energy", None)
+        rec.update(kind=r.kind, label=r.label, method=r.method, options={k: v for k, v in r.kwargs.items()},
+                   rtol=r.kwargs.get("rtol"), h=r.h, T=r.T, beta=r.beta,
+                   wall=statistics.median(rec["walls"]) if rec.get("walls") else math.nan,
+                   call=statistics.median(rec["calls"]) if rec.get("calls") else math.nan)
+        recs.append(rec)
+    out["runs"] = recs
+    out["summary"] = summarize(recs, metric="dH" if lh else "l2")
+    if not lh:
+        out["ratios"] = matched_ratios(recs, out["summary"])
+    else:
+        out["ratios"] = matched_ratios(recs, out["summary"], metric="dH")
+    out["machine"]["loadavg_end"] = list(os.getloadavg())
+    out["seconds"] = time.perf_counter() - t_study
+    return out
+
+
+# --- analysis ---------------------------------------------------------------------------------------
+def _median(xs):
+    xs = [x for x in xs if x is not None and np.isfinite(x)]
+    return statistics.median(xs) if xs else math.nan
+
+
+def summarize(recs: list[dict], metric: str = "l2") -> list[dict]:
+    """One point per (T, kind, label, h, rtol): medians over initial conditions (NaN if any run failed:
+    a point must hold for every initial condition)."""
+    groups: dict = {}
+    for r in recs:
+        groups.setdefault((r["T"], r["kind"], r["label"], r["h"], r["rtol"]), []).append(r)
+    pts = []
+    for (T, kind, label, h, rtol), rs in groups.items():
+        ok = all(r.get("status") == "ok" for r in rs)
+        err = [r.get(metric, math.nan) for r in rs]
+        p = {"T": T, "kind": kind, "label": label, "h": h, "rtol": rtol, "n": len(rs), "all_ok": ok,
+             "statuses": sorted({r.get("status", "?") for r in rs}),
+             "err": _median(err) if ok else math.nan, "err_max": max(err) if ok else math.nan,
+             "wall": _median([r["wall"] for r in rs]), "call": _median([r["call"] for r in rs]),
+             "impacts": _median([r.get("n_impacts", math.nan) for r in rs])}
+        if metric == "dH":
+            p["dHmod"] = _median([r.get("dHmod", math.nan) for r in rs]) if ok else math.nan
+        pts.append(p)
+    return pts
+
+
+def _front(points):
+    """Pareto front [(time, err)] sorted by time: each point more accurate than every cheaper one."""
+    pts = sorted((t, e) for t, e in points if np.isfinite(t) and np.isfinite(e) and e > 0 and t > 0)
+    front = []
+    for t, e in pts:
+        if not front or e < front[-1][1]:
+            front.append((t, e))
+    return front
+
+
+def time_at_error(front, e) -> tuple[float, str]:
+    """(solver time to reach error e, how): 'interpolated', 'cheapest_more_accurate' (upper bound),
+    'not_reached' (lower bound: the tightest tolerance's time), or 'none'."""
+    if not front or not (e > 0 and np.isfinite(e)):
+        return math.nan, "none"
+    if e >= front[0][1]:
+        return front[0][0], "cheapest_more_accurate"
+    if e < front[-1][1]:
+        return front[-1][0], "not_reached"
+    for (t0, e0), (t1, e1) in zip(front[:-1], front[1:]):
+        if e1 <= e <= e0:
+            if e0 == e1:
+                return t0, "interpolated"
+            w = (math.log(e) - math.log(e0)) / (math.log(e1) - math.log(e0))
+            return math.exp(math.log(t0) + w * (math.log(t1) - math.log(t0))), "interpolated"
+    return math.nan, "none"
+
+
+def matched_ratios(recs: list[dict], summary: list[dict], metric: str = "l2") -> list[dict]:
+    """Speed ratio solver time / vcirun time at the vcirun point's error, per (T, method, h), for the
+    compiled-loop time ('wall') and the whole call ('call'); on the medians and per initial condition."""
+    out = []
+    solvers = sorted({p["label"] for p in summary if p["kind"] == "baseline"})
+    for p in summary:
+        if p["kind"] != "vcirun" or not np.isfinite(p["err"]):
+            continue
+        row = {"T": p["T"], "label": p["label"], "h": p["h"], "err": p["err"], "wall": p["wall"], "call": p["call"]}
+        for timing in ("wall", "call"):
+            best = (math.inf, "none", None)
+            for s in solvers:
+                grid = [q for q in summary if q["kind"] == "baseline" and q["label"] == s and q["T"] == p["T"]]
+                hs = sorted({q["h"] for q in grid}, key=lambda x: abs(math.log(x / p["h"])))
+                if not hs:
+                    continue
+                same = [q for q in grid if q["h"] == hs[0]]   # the same output grid (or the nearest)
+                t, how = time_at_error(_front([(q[timing], q["err"]) for q in same]), p["err"])
+                ratio = t / p[timing] if np.isfinite(t) else math.nan
+                row[f"{s}_{timing}_ratio"] = ratio
+                row[f"{s}_{timing}_how"] = how
+                row[f"{s}_grid_h"] = hs[0]
+                if np.isfinite(ratio) and ratio < best[0]:
+                    best = (ratio, how, s)
+            row[f"best_{timing}_ratio"] = best[0] if np.isfinite(best[0]) else math.nan
+            row[f"best_{timing}_how"] = best[1]
+            row[f"best_{timing}_solver"] = best[2]
+        # per initial condition (wall time), against the best solver
+        per = []
+        for b in sorted({r["beta"] for r in recs}):
+            mine = [r for r in recs if r["kind"] == "vcirun" and r["label"] == p["label"] and r["h"] == p["h"]
+                    and r["T"] == p["T"] and r["beta"] == b]
+            if not mine or mine[0].get("status") != "ok":
+                continue
+            e, w = mine[0].get(metric, math.nan), mine[0]["wall"]
+            best_b = math.inf
+            for s in solvers:
+                theirs = [r for r in recs if r["kind"] == "baseline" and r["label"] == s and r["T"] == p["T"]
+                          and r["beta"] == b and r.get("status") == "ok"]
+                if not theirs:
+                    continue
+                hg = min({r["h"] for r in theirs}, key=lambda x: abs(math.log(x / p["h"])))
+                t, how = time_at_error(_front([(r["wall"], r.get(metric, math.nan)) for r in theirs
+                                               if r["h"] == hg]), e)
+                if np.isfinite(t) and how == "interpolated":
+                    best_b = min(best_b, t / w)
+            if np.isfinite(best_b):
+                per.append(best_b)
+        row["per_ic_wall_ratio_median"] = statistics.median(per) if per else math.nan
+        row["per_ic_wall_ratio_min"] = min(per) if per else math.nan
+        row["per_ic_n"] = len(per)
+        row["competitive"] = bool(np.isfinite(row["best_wall_ratio"]) and row["best_wall_ratio"] > 1.0)
+        out.append(row)
+    return out
+
+
+# --- printing ---------------------------------------------------------------------------------------
+def _g(x, fmt=".3g"):
+    return "-" if x is None or (isinstance(x, float) and not np.isfinite(x)) else format(x, fmt)
+
+
+_HOW = {"interpolated": "", "cheapest_more_accurate": "<=", "not_reached": ">=", "none": "?"}
+
+
+def print_tables(res: dict, file=sys.stdout) -> None:
+    lh = res["study"] == "long_horizon"
+    metric = "max|H-H0|" if lh else "L2 error"
+    pr = lambda s="": print(s, file=file)  # noqa: E731
+    pr(f"== {res['name']}: {res['description']}")
+    pr(f"   machine: {res['machine']['cpus']} cpus, load {res['machine']['loadavg_start'][0]:.2f} at start; "
+       f"protocol: {res['protocol']['statistic']}, {res['protocol']['repeats']} / "
+       f"{res['protocol']['baseline_repeats']} repeats, interleaved")
+    for T in sorted({p["T"] for p in res["summary"]}):
+        pr(f"-- T = {T:g}: median over {len({r['beta'] for r in res['runs']})} initial conditions")
+        hdr = f"{'method':22s} {'h / rtol':>9s} {'grid h':>8s} {metric:>11s} "
+        if lh:
+            hdr += f"{'max|Hm-Hm0|':>11s} "
+        hdr += f"{'loop ms':>10s} {'call ms':>10s} {'impacts':>7s}  status"
+        pr(hdr)
+        for p in sorted([q for q in res["summary"] if q["T"] == T],
+                        key=lambda q: (q["kind"] != "vcirun", q["label"], -(q["rtol"] or 0), -q["h"])):
+            par = _g(p["rtol"], ".0e") if p["kind"] == "baseline" else _g(p["h"], ".2g")
+            line = (f"{p['label']:22s} {par:>9s} {_g(p['h'], '.2g'):>8s} {_g(p['err'], '.3e'):>11s} ")
+            if lh:
+                line += f"{_g(p.get('dHmod'), '.3e'):>11s} "
+            line += (f"{_g(p['wall'] * 1e3, '.4g'):>10s} {_g(p['call'] * 1e3, '.4g'):>10s} "
+                     f"{_g(p['impacts'], '.0f'):>7s}  {','.join(p['statuses'])}")
+            pr(line)
+        rows = [r for r in res.get("ratios", []) if r["T"] == T]
+        if rows:
+            solvers = sorted({k.split("_")[0] for r in rows for k in r if k.endswith("_wall_ratio")} - {"best"})
+            pr(f"-- speed ratio solve_ivp / vcirun at matched {metric} (same output grid; <= : solve_ivp's cheapest "
+               "run is already more accurate, >= : not reached by solve_ivp)")
+            pr(f"{'method':22s} {'h':>8s} {metric:>11s} " + " ".join(f"{s + ' loop':>12s} {s + ' call':>12s}"
+                                                                      for s in solvers)
+               + f" {'best loop':>10s} {'per-IC med/min':>15s} competitive")
+            for r in rows:
+                cells = []
+                for s in solvers:
+                    for tm in ("wall", "call"):
+                        cells.append(f"{_HOW[r.get(f'{s}_{tm}_how', 'none')] + _g(r.get(f'{s}_{tm}_ratio'), '.3g'):>12s}")
+                best = _HOW[r["best_wall_how"]] + _g(r["best_wall_ratio"], ".3g")
+                per = f"{_g(r['per_ic_wall_ratio_median'], '.3g')}/{_g(r['per_ic_wall_ratio_min'], '.3g')}"
+                pr(f"{r['label']:22s} {_g(r['h'], '.2g'):>8s} {_g(r['err'], '.3e'):>11s} " + " ".join(cells)
+                   + f" {best:>10s} {per:>15s} {'yes' if r['competitive'] else 'no'}")
+    pr(f"   study wall time {res['seconds']:.0f} s")
+
+
+def _jsonable(x):
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, (np.floating, float)):
+        return float(x) if np.isfinite(x) else None
+    if isinstance(x, np.integer):
+        return int(x)
+    return x
+
+
+def save(res: dict, path) -> Path:
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    p.write_text(json.dumps(_jsonable(res), indent=1))
+    return p
+
+
+def load(path) -> dict:
+    """A saved study (None -> NaN in numeric fields)."""
+    def fix(x):
+        if isinstance(x, dict):
+            return {k: fix(v) for k, v in x.items()}
+        if isinstance(x, list):
+            return [fix(v) for v in x]
+        return x
+    res = fix(json.loads(Path(path).read_text()))
+    for coll in ("runs", "summary", "ratios"):
+        for r in res.get(coll, []):
+            for k, v in list(r.items()):
+                if v is None and k not in ("rtol", "message") and not k.endswith(("_how", "_solver")):
+                    r[k] = math.nan
+    return res
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m vcirun.experiments.workprecision",
+                                 description="Run a work-precision / long-horizon study and print its tables.")
+    ap.add_argument("config")
+    ap.add_argument("--output", "-o", default=None)
+    ap.add_argument("--quick", action="store_true", help="one initial condition, fewer repeats")
+    ap.add_argument("--plot", action="store_true", help="also draw the figure (vcirun.experiments.wp_figures)")
+    a = ap.parse_args(argv)
+    try:
+        cfg = load_study(a.config)
+    except ConfigError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
+    res = run_study(cfg, quick=a.quick, log=lambda s: print(s, file=sys.stderr, flush=True))
+    path = save(res, a.output or cfg.output)
+    print_tables(load(path))
+    print(f"saved {path}")
+    if a.plot:
+        from .wp_figures import plot_study
+
+        for p in plot_study(path):
+            print(f"  {p}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
