@@ -588,7 +588,7 @@ def mass_ratio_case(method, ratio, *, hs, T, beta=3.2) -> dict:
     return out
 
 
-def singular_mass_case(method, m1, *, hs, T, q0=None, p0=None) -> dict:
+def singular_mass_case(method, m1, *, hs, T, q0=None, p0=None, with_reference=True) -> dict:
     """Double pendulum with a nearly massless middle joint: M = [[(m1 + m2) l1^2, m2 l1 l2 c],
     [m2 l1 l2 c, m2 l2^2]], det = m1 m2 l1^2 l2^2 at c = cos(th1 - th2) = 1, so the default release
     (both links horizontal) has cond(M) = 4/m1 at t = 0. m1 = 0 is rejected up front (not
@@ -604,9 +604,10 @@ def singular_mass_case(method, m1, *, hs, T, q0=None, p0=None) -> dict:
         return out
     out["cond0"] = float(np.linalg.cond(s.mass_matrix(q0_, prm)))
     ref = None
-    try:
-        ref = reference("double_pendulum", T=T, q0=q0_, p0=p0_, params=params)
-        out.update(ref_impacts=int(len(ref.impacts)), ref_accuracy=ref.accuracy)
+    try:  # (stiff: DOP853 needs ~90 s for m1 = 1e-8)
+        if with_reference:
+            ref = reference("double_pendulum", T=T, q0=q0_, p0=p0_, params=params)
+            out.update(ref_impacts=int(len(ref.impacts)), ref_accuracy=ref.accuracy)
     except Exception as e:  # the reference may fail too on a degenerate Lagrangian
         out["ref_error"] = f"{type(e).__name__}: {e}"
     for h in hs:
@@ -769,6 +770,203 @@ def _short(status, cause=""):
     return f"**{status}**" + (f" ({c})" if c else "")
 
 
+def _overview(res: dict) -> list:
+    """The summary table (per method: stable h per scene, drift slopes, outcome of each hard case)."""
+    methods = res.get("methods", [])
+    if not methods:
+        return []
+
+    def pick(section, **kw):
+        return [r for r in res.get(section, []) if all(r.get(k) == v for k, v in kw.items())]
+
+    def stable(m, scene):
+        r = pick("step_limit", method=m, system=scene)
+        if not r:
+            return "-"
+        r = r[0]
+        if r.get("h_past") is None or not np.isfinite(r["h_past"]):
+            return f"<= {r['h_max']:g} (no failure)"
+        return f"<= {_g(r['h_limit'], '.3g')}, then {r['status_past']}"
+
+    def graze(m):
+        rs = pick("grazing", method=m)
+        if not rs:
+            return "-"
+        ok = sum(1 for r in rs if r["status"] == "ok" and r.get("err", np.inf) <= r.get("bound", -1))
+        return f"{ok}/{len(rs)} ok within bound" if ok == len(rs) else f"{ok}/{len(rs)} ok; " + ", ".join(
+            sorted({r["status"] for r in rs if r["status"] != "ok"}))
+
+    def boundary(m):
+        rs = pick("boundary", method=m)
+        vs = [v for r in rs for v in r["variants"].values()]
+        if not vs:
+            return "-"
+        ok = [v for v in vs if v.get("status") == "ok" and v.get("impacts") == v.get("ref_impacts")]
+        dt = max((abs(v["dt_first"]) for v in ok), default=np.nan)
+        return f"{len(ok)}/{len(vs)} ok, impact at k h to {_g(dt, '.0e')}"
+
+    def dense(m):
+        out = []
+        for r in pick("dense", method=m):
+            sc = "cart" if r["system"] == "cart_pendulum" else "ball"
+            if r["status"] == "ok":
+                out.append(f"{sc}: ok {r.get('impacts')}/{r.get('ref_impacts')} impacts")
+            else:
+                out.append(f"{sc}: {r['status'].split(':')[0]}")
+        return "; ".join(out) or "-"
+
+    def surface(m):
+        rs = pick("surface", method=m)
+        if not rs:
+            return "-"
+        ok = [r for r in rs if r["status"] == "ok" and r.get("impacts") == r.get("ref_impacts")]
+        other = sorted({f"{r['kind']}: {r['status']}" for r in rs if r not in ok})
+        return f"{len(ok)}/{len(rs)} ok" + ("; " + ", ".join(other) if other else "")
+
+    def accum(m):
+        rs = pick("accumulation", method=m)
+        if not rs:
+            return "-"
+        r = rs[0]
+        if r["status"] == "accumulation":
+            return f"accumulation, onset {_g(r.get('onset'), '.3g')} (exact {_g(r['exact_onset'], '.3g')}), h = {r['h']:g}"
+        if r["status"] == "ok":
+            return f"ok: settles, err {_g(r.get('err_after_onset'))} after onset, h = {r['h']:g}"
+        return r["status"].split(":")[0] + (" (forced system)" if "forced" in r["status"] else "")
+
+    def energy(m):
+        r = next((x for x in pick("energy", method=m) if x["beta"] == max(y["beta"] for y in res["energy"])), None)
+        if r is None:
+            return "-"
+        last = r["runs"][-1]
+        return (f"L2 {_g(last.get('l2'))} at h = {last['h']:g}" + (f", order {last['order']:.2f}" if "order" in last
+                                                                   else "")) if "l2" in last else last["status"]
+
+    def ratio(m):
+        rs = pick("mass_ratio", method=m)
+        if not rs:
+            return "-"
+        conv = [r["ratio"] for r in rs if all(x["status"] == "ok" for x in r["runs"][1:])
+                and r["runs"][-1].get("order", 0) > 1.8]
+        hard = [r for r in rs if r["ratio"] not in conv]
+        out = [f"order 2 for {', '.join(f'{x:g}' for x in conv)}"] if conv else []
+        for r in hard:
+            ok = [x for x in r["runs"] if x["status"] == "ok"]
+            fails = sorted({x["status"] for x in r["runs"] if x["status"] != "ok"})
+            best = min(ok, key=lambda x: x["h"]) if ok else None
+            out.append(f"{r['ratio']:g}: " + (f"L2 {_g(best.get('l2'))} at h = {best['h']:g}" if best else "no ok run")
+                       + (f", {'/'.join(fails)} at larger h (cause named)" if fails else ""))
+        return "; ".join(out)
+
+    def singular(m):
+        rs = pick("singular_mass", method=m)
+        if not rs:
+            return "-"
+        parts = []
+        for r in rs:
+            tag = f"{r['m1']:g}" if r["m1"] else "0 (non-aligned)"
+            if "input_error" in r:
+                parts.append(f"0 (aligned): ValueError at input")
+                continue
+            ok = [x for x in r["runs"] if x["status"] == "ok"]
+            named = all(x["cause"] for x in r["runs"] if x["status"] != "ok")
+            txt = f"{tag}: " + (f"ok for h <= {max(x['h'] for x in ok):g}" if ok else "stops")
+            if any(x["status"] != "ok" for x in r["runs"]):
+                txt += ", stops above" * bool(ok) + (" (cause named)" if named else " (a failure without cause)")
+            bad = [x for x in ok if x.get("dH", 0) > 3.0]   # 10 % of the scene's energy scale, 29 J
+            if bad:
+                txt += f"; ok runs with max abs(H - H0) up to {_g(max(x['dH'] for x in bad))}"
+            parts.append(txt)
+        return "; ".join(parts)
+
+    def hyg(m):
+        cs = [c for c in res.get("hygiene", {}).get("cases", []) if c["method"] == m]
+        if not cs:
+            return "-"
+        ok = sum(1 for c in cs if c["status"] == "ok")
+        return "clean" if ok == len(cs) else f"{ok}/{len(cs)} clean"
+
+    def long(m):
+        r = next(iter(pick("long_horizon", method=m)), None)
+        if r is None:
+            return "-", "-"
+        return _g(r.get("slope_H"), ".1e"), _g(r.get("slope_Hmod"), ".1e")
+
+    L = ["## Overview\n", "Per method: the stable step range (every run ok from h = 1e-5 up to the limit, T = 5), the "
+         "drift slopes over 1e6 steps of the cart-pendulum (J/s), and the outcome of each hard case (details and "
+         "bounds in the sections below).\n"]
+    cols = ["method", "stable h, cart-pendulum", "stable h, double pendulum", "dH/dt", "dHmod/dt", "grazing",
+            "impact at a grid point", "several impacts per step", "start on the surface", "accumulation",
+            "beta = 100", "mass ratio m2/m1", "nearly singular M (m1)", "FP hygiene"]
+    L.append("| " + " | ".join(cols) + " |")
+    L.append("|" + "---|" * len(cols))
+    for m in methods:
+        sH, sM = long(m)
+        L.append("| " + " | ".join([m, stable(m, "cart_pendulum"), stable(m, "double_pendulum"), sH, sM, graze(m),
+                                    boundary(m), dense(m), surface(m), accum(m), energy(m), ratio(m), singular(m),
+                                    hyg(m)]) + " |")
+    L.append("")
+    L += _findings(res)
+    return L
+
+
+def _findings(res: dict) -> list:
+    """What the tables say, with the numbers read from the results."""
+    L = ["### What it shows\n"]
+
+    def lr(m, key):
+        r = next((x for x in res.get("long_horizon", []) if x["method"] == m), None)
+        return r.get(key) if r else None
+
+    L.append("- **Never a crash, never a hang.** Every run of the study returns a status; failures carry "
+             "step, time, state and (vcirun.api) a cause: `mass matrix nearly singular along the motion (cond(M) = "
+             "..)`, `the discrete motion had diverged (H = ..)`, `step h too large for the fastest local mode (h * "
+             "omega = ..)`, `zero normal velocity at the contact (grazing or resting contact)`, `no reflecting root "
+             "of the reset equations: ..`, `impacts accumulate: accumulation began at t = ..`. Bad input (a mass "
+             "matrix that is not positive definite at q0, forcing for the MCVA family) raises ValueError naming it.")
+    L.append("- **Step size.** The Newton limit is not monotone in h and is not an accuracy limit: the cart-pendulum "
+             "with CVA returns `ok` up to h = 2 with energy errors of 100 % and more; compare the column with the 10 % "
+             "energy criterion. Past the limit the status is `newton_failed`.")
+    if res.get("long_horizon"):
+        d = {m: lr(m, "maxdev_Hmod") for m in res["methods"]}
+        parts = []
+        for m in ("MCVAA", "MCVAC"):
+            if d.get(m):
+                v = list(d[m].values())
+                parts.append(f"{m} {_g(v[-2])} -> {_g(v[-1])} J from 1e5 to 1e6 steps (slope {_g(lr(m, 'slope_Hmod'), '.1e')} J/s)")
+        L.append("- **Long horizon.** CVA and VCI drift in H (slopes above; max abs(H - H0) grows with the horizon). "
+                 "Truncated modified Hamiltonian: " + "; ".join(parts) + ". MCVAA's error grows sub-linearly "
+                 "(bounded to 1e-5 of H0); MCVAC's drifts like its H, about h^3 H0 per impact: the truncation's "
+                 "per-impact error has a sign (a finding for the MCVA family, pinned by a strict xfail test).")
+    L.append("- **Grazing.** A contact whose normal velocity is below ~ phi'' h is invisible to the grid (the dip lies "
+             "between grid points) and is missed; the error is then that of a missed reflection, 2 vn (T - t*), "
+             "which vanishes with the depth. No grazing case fails.")
+    L.append("- **Impact at a grid point.** phi of the grid state < 0, == 0.0 or > 0 by round-off gives the same "
+             "impact (to 1e-16 for CVA/VCI, to the partial flow's local error for MCVA); R^VCI's post-impact "
+             "momentum jumps by O(h^2) across the grid point (the pre- and post-impact step lengths swap).")
+    L.append("- **Several impacts per step.** CVA and the MCVA family resolve them (partial steps between impacts); "
+             "R^VCI balances a short pre-impact step against a post-impact step over the rest of the step, which "
+             "fails (cart) or loses bounces (ball): VCI is not suited to impacts denser than the grid.")
+    L.append("- **Accumulation** is reported when more than `max_impacts_step` impacts fall in one step or when "
+             "impacts less than one step apart continue for more than `max_impacts_step` steps; the onset is the "
+             "first impact of that run (`vcirun.api.accumulation_onset`, in the message). With linear drag the "
+             "exact flights shrink like 3 m / (c n): the impact rate grows without bound, so the ball must be "
+             "stopped. CVA stops there; VCI's discrete ball instead settles into an h-scale bounce whose height "
+             "is within the stated O(h^2) bound of the exact (resting) motion. A conservative bounce denser than "
+             "the grid for more than max_impacts_step steps is also reported (raise max_impacts_step to continue).")
+    L.append("- **Energies and parameters.** Second order holds up to beta = 100 and for m2/m1 = 1e-4 .. 1e2. "
+             "m2/m1 = 1e4 and m1 -> 0 make the mass matrix ill-conditioned and some local modes fast (omega ~ 3e6 "
+             "for the cart at theta = pi/2): large steps stop with the cause named, small steps run. Known gap: "
+             "m1 = 0 from a non-aligned start at h <= 1e-4 steps across the singular configuration (no exact "
+             "continuation exists) and returns ok with a large energy error: simulate checks hyperregularity only at "
+             "q0 (a strict xfail test pins it).")
+    L.append("- **Floating point.** With numpy errors raised, the whole loop (uncompiled) and the Python side pass on "
+             "the normal scenes; the exact reference needs `under=\"ignore\"` only because scipy's solve_ivp takes "
+             "the subnormal nextafter(0, inf) at t = 0.")
+    L.append("")
+    return L
+
+
 def render_markdown(res: dict, command: str) -> str:
     """docs/extremes.md from the study results."""
     L = []
@@ -778,6 +976,7 @@ def render_markdown(res: dict, command: str) -> str:
              f"`results/extremes.json`); {res.get('started', '')}, {res.get('wall_time', 0):.0f} s on this machine. "
              "Methods: " + ", ".join(methods) + ". Every hard case below is also a test in `tests/extremes/` "
              "(fast, or `@pytest.mark.slow`).\n")
+    L += _overview(res)
     if "step_limit" in res:
         L.append("## Step size: stable range and what happens just past it\n")
         L.append("h scanned from 1e-5 (4 points per decade up to h = 2, every point run; T = 5), then bisected to "

@@ -147,8 +147,8 @@ def test_gradient_and_eta_hessian_against_finite_differences(ld):
 
 def test_appendix_a_qbar_derivatives():
     """Appendix A step 2 for SVC: D_q qbar, D_p qbar as printed are right; the printed second
-    derivatives D_pp qbar and D_qp qbar have the wrong sign. The implicit function theorem on
-    D2 Ld(q, qbar) = p gives D_pp qbar (v1, v2) = -(D22)^-1 D222 ((D22)^-1 v1, (D22)^-1 v2) and
+    derivatives D_pp qbar and D_qp qbar have the wrong sign (D_qq qbar is right once D_qp is).
+    The implicit function theorem on D2 Ld(q, qbar) = p gives D_pp qbar (v1, v2) = -(D22)^-1 D222 ((D22)^-1 v1, (D22)^-1 v2) and
     D_qp qbar = -(D22)^-1 [D122 (., D_p qbar) + D222 (D_q qbar ., D_p qbar .)]; finite differences of
     qbar = q + h eta_p (our exact eta derivatives) decide."""
     h = 0.1
@@ -160,6 +160,7 @@ def test_appendix_a_qbar_derivatives():
     D12 = sp.lambdify(args, [[sp.diff(Ld, b, a) for a in qa] for b in qb])           # [b, a]
     D222 = sp.lambdify(args, [[[sp.diff(Ld, a, b, c) for c in qb] for b in qb] for a in qb])
     D122 = sp.lambdify(args, [[[sp.diff(Ld, d, a, e) for e in qb] for a in qa] for d in qb])  # [d, a, e]
+    D112 = sp.lambdify(args, [[[sp.diff(Ld, d, i, j) for j in qa] for i in qa] for d in qb])  # [d, i, j]
 
     def qbar(q, p):
         return q + h * _grad(mod, q, p, h)[1][2:]
@@ -176,7 +177,14 @@ def test_appendix_a_qbar_derivatives():
     pp_true = -np.einsum("cd,def,ea,fb->cab", Ai, T3, Pq, Pq)
     qp_true = -np.einsum("cd,dae,eb->cab", Ai, Y, Pq) - np.einsum("cd,def,ea,fb->cab", Ai, T3, Qq, Pq)
     d = 1e-3
+    # printed D1D1 qbar (v1, v2) = -D1D2 qbar (D1D2 Ld v1, v2) - (D22)^-1 D1D1D2 Ld (v1, v2)
+    #                              - (D22)^-1 D2D1D2 Ld (v1, D1 qbar v2), with D1D2 qbar corrected
+    X = np.array(D12(x, PRM), float)
+    Z = np.array(D112(x, PRM), float)
+    qq_printed = (-np.einsum("cjb,bi->cij", qp_true, X) - np.einsum("cd,dij->cij", Ai, Z)
+                  - np.einsum("cd,die,ej->cij", Ai, Y, Qq))
     fd_p, fd_q, fd_pp, fd_qp = (np.empty((2, 2)), np.empty((2, 2)), np.empty((2, 2, 2)), np.empty((2, 2, 2)))
+    fd_qq = np.empty((2, 2, 2))
     for a in range(2):
         ea = np.eye(2)[a] * d
         fd_p[:, a] = (qbar(q, p + ea) - qbar(q, p - ea)) / (2 * d)
@@ -187,12 +195,16 @@ def test_appendix_a_qbar_derivatives():
                               + qbar(q, p - ea - eb)) / (4 * d * d)
             fd_qp[:, a, b] = (qbar(q + ea, p + eb) - qbar(q + ea, p - eb) - qbar(q - ea, p + eb)
                               + qbar(q - ea, p - eb)) / (4 * d * d)
+            fd_qq[:, a, b] = (qbar(q + ea + eb, p) - qbar(q + ea - eb, p) - qbar(q - ea + eb, p)
+                              + qbar(q - ea - eb, p)) / (4 * d * d)
     np.testing.assert_allclose(fd_p, Pq, atol=1e-6)   # O(d^2) differences
     np.testing.assert_allclose(fd_q, Qq, atol=1e-6)
     scale_pp, scale_qp = np.abs(pp_true).max(), np.abs(qp_true).max()
     assert scale_pp > 1e-4 and scale_qp > 1e-4
     assert np.abs(fd_pp - pp_true).max() < 1e-3 * scale_pp
     assert np.abs(fd_qp - qp_true).max() < 1e-3 * scale_qp
+    scale_qq = np.abs(qq_printed).max()
+    assert scale_qq > 1e-4 and np.abs(fd_qq - qq_printed).max() < 1e-3 * scale_qq
     # the printed formulas (same terms, + sign) are off by twice their size
     assert np.abs(fd_pp - (-pp_true)).max() > scale_pp
     assert np.abs(fd_qp - (-qp_true)).max() > scale_qp

@@ -57,7 +57,6 @@ def test_uncompiled_loop_raises_nothing_cva_vci():
             assert c["l2"] < 0.05
 
 
-@pytest.mark.slow
 def test_uncompiled_loop_raises_nothing_mcva():
     cases = [{"system": s, "method": m, "h": 0.02, "T": T, "kw": kw}
              for s, T, kw in (("cart_pendulum", 1.5, {"beta": 3.2}), ("double_pendulum", 2.5, {}))

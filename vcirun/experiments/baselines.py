@@ -29,7 +29,7 @@ import numpy as np
 
 from .. import trajectory as tr
 
-__all__ = ["BASELINES", "solve_ivp_run", "is_baseline"]
+__all__ = ["BASELINES", "solve_ivp_run", "is_baseline", "hamiltonian_on_grid"]
 
 BASELINES = ("DOP853", "Radau")
 SOLVER_FAILED = "solver_failed"
@@ -262,3 +262,15 @@ def solve_ivp_run(system, method: str = "DOP853", *, h, T, rtol, atol=None, beta
         wall_time=wall, tolerances={"rtol": rtol, "atol": float(atol)},
         options={"params": dict(zip(sysm.params, np.asarray(prm).tolist())), "solver": method, "kernels": kernels,
                  "nfev": nfev, "impacts": int(imps.size)})
+
+
+def hamiltonian_on_grid(system, q, p, params=None, kernels: str = "compiled") -> np.ndarray:
+    """H(q_k, p_k) for the rows of q, p (what `energies=True` computes, callable outside a timed run)."""
+    from ..api import resolve_system
+
+    sysm = resolve_system(system)
+    prm = sysm.param_values(params)
+    model = _model(sysm, prm, kernels)
+    q, p = np.ascontiguousarray(q, float), np.ascontiguousarray(p, float)
+    with np.errstate(all="ignore"):
+        return np.array([model.hamiltonian(q[i], p[i]) for i in range(q.shape[0])])

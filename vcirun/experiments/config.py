@@ -315,7 +315,7 @@ class SweepConfig(_Model):
     tolerances: Tolerances = Field(default_factory=Tolerances)
     output: str | None = None
     workers: int | None = Field(default=None, ge=1, le=4096)
-    executor: ExecutorSpec | None = None
+    executor: Union[ExecutorSpec, None] = None  # typing.Union: the unknown-key hint unwraps it
     store_trajectories: bool = True
     # Each run is integrated this many times (the integrator is deterministic, so the results are
     # identical) and its wall_time is the fastest: other processes preempting a worker would

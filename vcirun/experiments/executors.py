@@ -313,6 +313,20 @@ def _noop(x=None):
     return x
 
 
+def task_payload(cfg, ref_T: float, ref_h: float, *, cache_dir: str | None = None, fingerprint: str = "") -> dict:
+    """What every Dask task carries besides its runs: plain data, a few kB pickled (no sympy object;
+    the worker builds the system and loads the kernels itself)."""
+    from .config import FileSystem
+
+    ship = cfg
+    if isinstance(cfg.system, FileSystem):  # workers resolve the file from their own working directory
+        ship = cfg.model_copy(update={"system": FileSystem(file=str(Path(cfg.system.file).resolve()),
+                                                           params=cfg.system.params)})
+    key = hashlib.sha256(f"{ship.canonical_sha256()}|{ref_T!r}|{ref_h!r}|{ship.system!r}".encode()).hexdigest()
+    return {"cfg": ship, "ref_T": ref_T, "ref_h": ref_h, "cache_dir": cache_dir, "key": key,
+            "fingerprint": fingerprint}
+
+
 # --- Dask: client side -----------------------------------------------------------------------------------
 class _QuietDistributed(logging.Filter):
     """Drop distributed's and tornado's log records while a sweep's client runs: the sweep reports what
@@ -342,13 +356,13 @@ class DaskExecutor:
     kind = "dask"
 
     def __init__(self, address: str, *, task_size: int | None = None, cache_dir: str | None = None,
-                 retries: int = 2, connect_timeout: float = 30.0, workers_timeout: float = 120.0,
+                 retries: int = 2, connect_timeout: float | None = None, workers_timeout: float = 120.0,
                  overhead_probes: int = 7):
         self.address = address
         self.task_size = task_size
         self.cache_dir = str(Path(cache_dir).expanduser()) if cache_dir else None
         self.retries = int(retries)
-        self.connect_timeout = connect_timeout
+        self.connect_timeout = connect_timeout  # None: Dask's distributed.comm.timeouts.connect (30 s)
         self.workers_timeout = workers_timeout
         self.overhead_probes = overhead_probes
         self.client = None
@@ -369,7 +383,7 @@ class DaskExecutor:
         self._pids: set = set()
         self._n_done = 0
         self._payload = None
-        self._next_refresh = 0.0
+        self._no_workers_since = None
         self._fingerprint = ""
 
     # -- connect
@@ -380,7 +394,8 @@ class DaskExecutor:
         self._quiet = _quiet_logs()
         self._quiet.__enter__()
         try:
-            self.client = distributed.Client(self.address, timeout=self.connect_timeout, set_as_default=False)
+            kw = {} if self.connect_timeout is None else {"timeout": self.connect_timeout}
+            self.client = distributed.Client(self.address, set_as_default=False, **kw)
         except (OSError, TimeoutError) as e:
             self.close()
             raise SweepError(f"cannot connect to the Dask scheduler at {self.address} ({_one_line(e)}); start "
@@ -408,6 +423,13 @@ class DaskExecutor:
             return max(1, sum(self.client.nthreads().values()))
         except Exception:  # noqa: BLE001 - keep the last count; a lost scheduler is noticed elsewhere
             return max(1, self.workers)
+
+    def _cached_threads(self) -> int | None:
+        """Worker threads from the client's periodic scheduler-info update (no call to the scheduler,
+        so a lost scheduler cannot block here)."""
+        info = getattr(self.client, "_scheduler_identity", None) or {}
+        n = info.get("total_threads") if hasattr(info, "get") else None
+        return n if isinstance(n, int) else None
 
     def measure_overhead(self, n: int = 7) -> float:
         """Median round trip of an empty task (submit -> result in this process), seconds."""
@@ -443,15 +465,7 @@ class DaskExecutor:
     def start(self, cfg, pending, stored_refs, needs_reference, ref_T, ref_h) -> None:
         from distributed import as_completed
 
-        from .config import FileSystem
-
-        ship = cfg
-        if isinstance(cfg.system, FileSystem):  # workers resolve the file from their own working directory
-            ship = cfg.model_copy(update={"system": FileSystem(file=str(Path(cfg.system.file).resolve()),
-                                                               params=cfg.system.params)})
-        key = hashlib.sha256(f"{ship.canonical_sha256()}|{ref_T!r}|{ref_h!r}|{ship.system!r}".encode()).hexdigest()
-        self._payload = {"cfg": ship, "ref_T": ref_T, "ref_h": ref_h, "cache_dir": self.cache_dir,
-                         "key": key, "fingerprint": self._fingerprint}
+        self._payload = task_payload(cfg, ref_T, ref_h, cache_dir=self.cache_dir, fingerprint=self._fingerprint)
         groups: OrderedDict[str, list] = OrderedDict()
         for s in pending:
             groups.setdefault(s.ic.key, []).append(s)
@@ -492,10 +506,9 @@ class DaskExecutor:
         return tasks
 
     def _fill(self) -> None:
-        now = time.monotonic()
-        if now >= self._next_refresh:  # workers may join or leave (adaptive clusters, batch jobs)
-            self.workers = self._count_threads()
-            self._next_refresh = now + 5.0
+        n = self._cached_threads()  # workers may join or leave (adaptive clusters, batch jobs)
+        if n:
+            self.workers = n
         window = max(2, IN_FLIGHT_PER_WORKER * self.workers)
         while self._queue and len(self._inflight) < window:
             k = self._next_size()
@@ -515,10 +528,17 @@ class DaskExecutor:
         ac = self._ac
         lost_since = None
         while not ac.has_ready():
+            now = time.monotonic()
             if self._lost():
-                lost_since = lost_since or time.monotonic()
-                if time.monotonic() - lost_since > 2.0:  # cancelled futures arrive at once; don't hang
+                lost_since = lost_since or now
+                if now - lost_since > 2.0:  # cancelled futures arrive at once; don't hang
                     raise SchedulerLost(f"the client lost its connection (status {self.client.status})")
+            if self._cached_threads() == 0:  # every worker gone: the tasks would wait forever
+                self._no_workers_since = self._no_workers_since or now
+                if now - self._no_workers_since > self.workers_timeout:
+                    raise WorkerDied(f"the cluster has had no workers for {self.workers_timeout:g} s")
+            else:
+                self._no_workers_since = None
             with ac.thread_condition:
                 ac.thread_condition.wait(timeout=0.1)
         return next(ac)
@@ -529,8 +549,10 @@ class DaskExecutor:
         while self._inflight or self._queue:
             fut, res = self._next_completed()
             n = self._inflight.pop(fut, 0)
+            # Classify by what as_completed gathered: the future's status may have changed since (a lost
+            # scheduler marks every future of the client, finished ones included).
             status = fut.status
-            if status == "finished":
+            if isinstance(res, dict) and "results" in res:
                 self._record(res)
                 self._fill()
                 for r in res["results"]:
@@ -539,7 +561,8 @@ class DaskExecutor:
                         r = {**r, "runs": [x for x in r["runs"] if x["run_id"] not in self._seen]}
                     self._seen.update(ids)
                     yield r
-            elif status == "cancelled" or isinstance(res, (FutureCancelledError, cf.CancelledError)):
+            elif isinstance(res, (FutureCancelledError, cf.CancelledError)) or (
+                    status == "cancelled" and not isinstance(res, tuple)):
                 # Only the client's reconnection cancels our futures (close() ends the iteration first).
                 text = str(res) if isinstance(res, BaseException) else ""
                 raise SchedulerLost("the client lost its connection" if "connection-lost" in text
@@ -548,6 +571,8 @@ class DaskExecutor:
                 exc = res[1] if isinstance(res, tuple) and len(res) >= 2 else res
                 name = type(exc).__name__
                 msg = f"{name}: {_one_line(exc)}"
+                if self._lost():  # the task erred because the cluster went away
+                    raise SchedulerLost(f"the client lost its connection; {msg}")
                 if name == "KilledWorker":
                     raise WorkerDied(msg)
                 raise TaskFailed(f"a task of {n} run{'s' * (n != 1)} failed after {self.retries} "

@@ -81,7 +81,7 @@ class SweepSummary:
     workers: int = 1
     executor: str = "local"    # "local" | "dask"
     executor_stats: dict = field(default_factory=dict)  # task sizes, measured costs (executors.*.stats)
-    write_time: float = 0.0    # seconds the client spent storing results (the serial part of a sweep)
+    write_time: float = 0.0    # seconds the client spent storing results, final commit included (serial)
 
     @property
     def ok(self) -> bool:
@@ -558,7 +558,9 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
                 executor.close()
                 writer.session["executor"] = {**executor.session_info(), **summary.executor_stats}
                 reporter.stop()
+                t0 = time.perf_counter()
                 writer.finish(status)  # every finished run is committed, whatever happened
+                summary.write_time += time.perf_counter() - t0
             if on_main:
                 signal.signal(signal.SIGTERM, old_term)
         if broken:

@@ -26,7 +26,9 @@ is shared). Kernels are compiled and every (method, h) is warmed up before any t
 repeats are interleaved: pass r times every run once, so a slow spell of the machine spreads over
 all runs instead of hitting one method. Reported per run: the median over repeats of the compiled
 loop time (`traj.wall_time`; for solve_ivp the solve loop) and of the whole call (`simulate()` /
-`solve_ivp_run()`), the L2 error against the exact reference (work_precision) or max |H - H0| and,
+`solve_ivp_run()`) and the CPU time of the whole call (`time.thread_time`: on a loaded machine a long
+run is preempted and its wall time inflated, a sub-millisecond one rarely is; CPU time is immune to
+that bias, so ratios are reported on all three), the L2 error against the exact reference (work_precision) or max |H - H0| and,
 for the MCVA family, max |Hmod - Hmod0| (long_horizon). Per (method, h) or (solver, rtol, grid) the
 study takes the median over initial conditions of errors and times.
 
@@ -36,7 +38,9 @@ accurate than every cheaper one) is interpolated linearly in (log error, log tim
 ratio = t_solver(e) / t. Outside the front the ratio is a bound, and says so: e above the front's
 largest error means the solver's cheapest run is already more accurate (ratio <= t_cheapest / t);
 e below its smallest error means the solver did not reach e at any tolerance tried (ratio >=
-t_tightest / t). A point is *competitive* where the ratio against the best solver is > 1. Computed
+t_tightest / t). A point is *competitive* ("yes") where the interpolated ratio against the best solver is > 1 (or no
+solver run reached its accuracy); "faster, less accurate" where it is cheaper than every solver run
+but less accurate than the cheapest one (the ratio is then only bounded above); "no" otherwise. Computed
 on the medians over initial conditions and, separately, per initial condition.
 
 `python -m vcirun.experiments.workprecision CONFIG [--quick]` runs a study and prints its tables;
@@ -60,7 +64,7 @@ from typing import Literal, Union
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from .baselines import BASELINES, solve_ivp_run
+from .baselines import BASELINES, hamiltonian_on_grid, solve_ivp_run
 from .config import ConfigError, MethodSpec, yaml_load
 
 __all__ = ["StudyConfig", "load_study", "run_study", "summarize", "matched_ratios", "print_tables", "main"]
@@ -174,12 +178,13 @@ def _call(run: _Run, system, params, time_limit):
     import vcirun
 
     t0 = time.perf_counter()
+    c0 = time.thread_time()
     if run.kind == "vcirun":
         traj = vcirun.simulate(system, run.method, h=run.h, T=run.T, beta=run.beta, params=params, **run.kwargs)
     else:
         traj = solve_ivp_run(system, run.method, h=run.h, T=run.T, beta=run.beta, params=params,
-                             time_limit=time_limit, energies=(run.record.get("need_energy", False)), **run.kwargs)
-    return traj, time.perf_counter() - t0
+                             time_limit=time_limit, energies=False, **run.kwargs)
+    return traj, time.perf_counter() - t0, time.thread_time() - c0
 
 
 def run_study(cfg: StudyConfig, *, quick: bool = False, log=print) -> dict:
@@ -258,10 +263,11 @@ def run_study(cfg: StudyConfig, *, quick: bool = False, log=print) -> dict:
                     continue
                 if rep > 0 and r.record.get("status") not in ("ok",):
                     continue  # failures are not worth timing again
-                traj, call = _call(r, system, params, cfg.baseline_time_limit)
+                traj, call, cpu = _call(r, system, params, cfg.baseline_time_limit)
                 rec = r.record
                 rec.setdefault("walls", []).append(float(traj.wall_time))
                 rec.setdefault("calls", []).append(float(call))
+                rec.setdefault("cpus", []).append(float(cpu))
                 if rep == 0:
                     rec.update(status=traj.status, message=traj.message[:300], n_steps=int(traj.n_steps),
                                n_impacts=int(len(traj.impacts)))
@@ -269,6 +275,8 @@ def run_study(cfg: StudyConfig, *, quick: bool = False, log=print) -> dict:
                         stopped.add(key)
                     if r.kind == "baseline":
                         rec["nfev"] = int(traj.options.get("nfev", 0))
+                    if r.kind == "baseline" and lh:   # H on the grid, outside the timed call
+                        traj.H = hamiltonian_on_grid(system, traj.q, traj.p, params)
                     if lh:
                         rec["dH"], rec["dHmod"] = _energy(traj)
                         if r.kind == "baseline" and traj.status != "ok":
@@ -286,7 +294,8 @@ def run_study(cfg: StudyConfig, *, quick: bool = False, log=print) -> dict:
         rec.update(kind=r.kind, label=r.label, method=r.method, options={k: v for k, v in r.kwargs.items()},
                    rtol=r.kwargs.get("rtol"), h=r.h, T=r.T, beta=r.beta,
                    wall=statistics.median(rec["walls"]) if rec.get("walls") else math.nan,
-                   call=statistics.median(rec["calls"]) if rec.get("calls") else math.nan)
+                   call=statistics.median(rec["calls"]) if rec.get("calls") else math.nan,
+                   cpu=statistics.median(rec["cpus"]) if rec.get("cpus") else math.nan)
         recs.append(rec)
     out["runs"] = recs
     out["summary"] = summarize(recs, metric="dH" if lh else "l2")
@@ -319,6 +328,7 @@ def summarize(recs: list[dict], metric: str = "l2") -> list[dict]:
              "statuses": sorted({r.get("status", "?") for r in rs}),
              "err": _median(err) if ok else math.nan, "err_max": max(err) if ok else math.nan,
              "wall": _median([r["wall"] for r in rs]), "call": _median([r["call"] for r in rs]),
+             "cpu": _median([r["cpu"] for r in rs]),
              "impacts": _median([r.get("n_impacts", math.nan) for r in rs])}
         if metric == "dH":
             p["dHmod"] = _median([r.get("dHmod", math.nan) for r in rs]) if ok else math.nan
@@ -362,8 +372,9 @@ def matched_ratios(recs: list[dict], summary: list[dict], metric: str = "l2") ->
     for p in summary:
         if p["kind"] != "vcirun" or not np.isfinite(p["err"]):
             continue
-        row = {"T": p["T"], "label": p["label"], "h": p["h"], "err": p["err"], "wall": p["wall"], "call": p["call"]}
-        for timing in ("wall", "call"):
+        row = {"T": p["T"], "label": p["label"], "h": p["h"], "err": p["err"], "wall": p["wall"], "call": p["call"],
+               "cpu": p["cpu"]}
+        for timing in ("wall", "call", "cpu"):
             best = (math.inf, "none", None)
             for s in solvers:
                 grid = [q for q in summary if q["kind"] == "baseline" and q["label"] == s and q["T"] == p["T"]]
@@ -405,7 +416,15 @@ def matched_ratios(recs: list[dict], summary: list[dict], metric: str = "l2") ->
         row["per_ic_wall_ratio_median"] = statistics.median(per) if per else math.nan
         row["per_ic_wall_ratio_min"] = min(per) if per else math.nan
         row["per_ic_n"] = len(per)
-        row["competitive"] = bool(np.isfinite(row["best_wall_ratio"]) and row["best_wall_ratio"] > 1.0)
+        r_, how_ = row["best_wall_ratio"], row["best_wall_how"]
+        if not np.isfinite(r_):
+            row["competitive"] = "no solver data"
+        elif how_ == "interpolated":
+            row["competitive"] = "yes" if r_ > 1.0 else "no"
+        elif how_ == "not_reached":
+            row["competitive"] = "yes"          # no solve_ivp run reached this accuracy
+        else:                                   # solve_ivp's cheapest run is more accurate
+            row["competitive"] = "faster, less accurate" if r_ > 1.0 else "no"
         out.append(row)
     return out
 
@@ -431,7 +450,7 @@ def print_tables(res: dict, file=sys.stdout) -> None:
         hdr = f"{'method':22s} {'h / rtol':>9s} {'grid h':>8s} {metric:>11s} "
         if lh:
             hdr += f"{'max|Hm-Hm0|':>11s} "
-        hdr += f"{'loop ms':>10s} {'call ms':>10s} {'impacts':>7s}  status"
+        hdr += f"{'loop ms':>10s} {'call ms':>10s} {'call CPU ms':>11s} {'impacts':>7s}  status"
         pr(hdr)
         for p in sorted([q for q in res["summary"] if q["T"] == T],
                         key=lambda q: (q["kind"] != "vcirun", q["label"], -(q["rtol"] or 0), -q["h"])):
@@ -440,6 +459,7 @@ def print_tables(res: dict, file=sys.stdout) -> None:
             if lh:
                 line += f"{_g(p.get('dHmod'), '.3e'):>11s} "
             line += (f"{_g(p['wall'] * 1e3, '.4g'):>10s} {_g(p['call'] * 1e3, '.4g'):>10s} "
+                     f"{_g(p.get('cpu', math.nan) * 1e3, '.4g'):>11s} "
                      f"{_g(p['impacts'], '.0f'):>7s}  {','.join(p['statuses'])}")
             pr(line)
         rows = [r for r in res.get("ratios", []) if r["T"] == T]
@@ -447,18 +467,18 @@ def print_tables(res: dict, file=sys.stdout) -> None:
             solvers = sorted({k.split("_")[0] for r in rows for k in r if k.endswith("_wall_ratio")} - {"best"})
             pr(f"-- speed ratio solve_ivp / vcirun at matched {metric} (same output grid; <= : solve_ivp's cheapest "
                "run is already more accurate, >= : not reached by solve_ivp)")
-            pr(f"{'method':22s} {'h':>8s} {metric:>11s} " + " ".join(f"{s + ' loop':>12s} {s + ' call':>12s}"
-                                                                      for s in solvers)
+            pr(f"{'method':22s} {'h':>8s} {metric:>11s} " + " ".join(f"{s + ' loop':>12s} {s + ' call':>12s} "
+                                                                      f"{s + ' CPU':>12s}" for s in solvers)
                + f" {'best loop':>10s} {'per-IC med/min':>15s} competitive")
             for r in rows:
                 cells = []
                 for s in solvers:
-                    for tm in ("wall", "call"):
+                    for tm in ("wall", "call", "cpu"):
                         cells.append(f"{_HOW[r.get(f'{s}_{tm}_how', 'none')] + _g(r.get(f'{s}_{tm}_ratio'), '.3g'):>12s}")
                 best = _HOW[r["best_wall_how"]] + _g(r["best_wall_ratio"], ".3g")
                 per = f"{_g(r['per_ic_wall_ratio_median'], '.3g')}/{_g(r['per_ic_wall_ratio_min'], '.3g')}"
                 pr(f"{r['label']:22s} {_g(r['h'], '.2g'):>8s} {_g(r['err'], '.3e'):>11s} " + " ".join(cells)
-                   + f" {best:>10s} {per:>15s} {'yes' if r['competitive'] else 'no'}")
+                   + f" {best:>10s} {per:>15s} {r['competitive']}")
     pr(f"   study wall time {res['seconds']:.0f} s")
 
 
@@ -467,6 +487,10 @@ def _jsonable(x):
         return {str(k): _jsonable(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
         return [_jsonable(v) for v in x]
+    if isinstance(x, (bool, np.bool_)):
+        return bool(x)
+    if isinstance(x, np.ndarray):
+        return _jsonable(x.tolist())
     if isinstance(x, (np.floating, float)):
         return float(x) if np.isfinite(x) else None
     if isinstance(x, np.integer):

@@ -43,11 +43,12 @@ import sympy as sp
 
 from ..discrete.lagrangians import LIBRARY, get_ld, ld_expression
 from . import FLOW_ORDERS, SUPPORTED_MH_ORDERS
-from .series import modified_series, pdiff
+from .series import modified_series
 
 DERIVE_LOG: list[dict] = []  # timings of each derivation (for reports/benchmarks)
 
 _P = "mh_"  # prefix of every generated name
+_CSE2_MAX_TARGETS = 1200  # second CSE pass (over the DAG's nodes) only up to this many nodes
 
 
 class StationaryEta:
@@ -367,7 +368,10 @@ def _emit_dag_kernel(name: str, st: StationaryEta, dag: DerivativeDag, outs: lis
     targets += [(f"{arr}[{idx}]", e) for arr, items in outs for idx, e in items]
     if ret is not None:
         targets.append(("return", ret))
-    repl, reduced = sp.cse([e for _, e in targets], symbols=sp.numbered_symbols(f"{_P}d"), order="none")
+    if len(targets) <= _CSE2_MAX_TARGETS:
+        repl, reduced = sp.cse([e for _, e in targets], symbols=sp.numbered_symbols(f"{_P}d"), order="none")
+    else:  # sympy's cse is superlinear: on very large DAGs (n >= 3, s = 4) it costs more than it saves
+        repl, reduced = [], [e for _, e in targets]
     tdef = dict(repl)
     tnames = set(tdef)
     done: set = set()

@@ -242,7 +242,10 @@ def reset_mcva(q, pm, E_pre, tau_rem, h, t, prm, ntol, maxit, pp):
     """R^MCVA (eq. 34): pp = pm + lam grad phi(q) with H~^{O(h^s)}(q, pp) = H~^{O(h^s)}(q, pm), lam != 0.
     Newton on F(lam) = [H~(q, pm + lam g) - H~(q, pm)] / lam, whose root set excludes the trivial
     root lam = 0 (F(0) = dH~/dp . g, the normal velocity, is nonzero at a transversal impact);
-    F'(lam) = (dH~/dp . g - F) / lam. Start: the R^CVA reflection (exact for H, H~ = H + O(h))."""
+    F'(lam) = (dH~/dp . g - F) / lam. Start: the R^CVA reflection (exact for H, H~ = H + O(h)).
+    Converged when the Newton step is below ntol (1 + |lam|), or when H~ is already conserved to
+    8 eps (relative): at small lam, F = dE / lam is only known to ~eps |H~| / lam. Failure (< 0) when
+    Newton does not converge or lam has not the sign of the reflection (then lam is returned too)."""
     g = np.empty(NDOF)
     lam0 = cva_lambda(q, pm, prm, g)
     if lam0 == 0.0 or not math.isfinite(lam0):
@@ -284,7 +287,9 @@ def reset_mcva(q, pm, E_pre, tau_rem, h, t, prm, ntol, maxit, pp):
         if abs(step) <= ntol * (1.0 + abs(lam)):
             ok = True
             break
-    if not ok or not (lam * lam0 > 0.0) or abs(lam) < 1e-3 * abs(lam0):
+    if not ok or not (lam * lam0 > 0.0):
+        # no reflection: lam of the other sign means the modified dynamics already leaves the wall
+        # (possible at grazing, |normal velocity| ~ h); lam = 0 cannot be returned as a success
         return -it, lam
     for i in range(NDOF):
         pp[i] = pm[i] + lam * g[i]

@@ -1,0 +1,71 @@
+"""Subprocess probe of bench_all.py: one fresh process, timed from its first line.
+
+    python bench/_probe.py '{"mode": "build", "system": "cart_pendulum", "method": "CVA", ...}'
+
+mode "build": import vcirun, run one simulation (the first one compiles or loads the kernels),
+  report import time, time to the first finished simulation, the symbolic/write time of the cache
+  miss (build.BUILD_LOG), whether any symbolic module was imported, and optionally the
+  microseconds per step (CPU time of the call, wall beside) of a longer run with the constraint
+  ignored, in the same process (warm kernels).
+mode "derive": time `vcirun.codegen.derive.module_source` alone (no numba), and the source size.
+Prints one JSON line.
+"""
+import time
+
+T_START = time.perf_counter()
+import json  # noqa: E402
+import sys  # noqa: E402
+
+
+def main():
+    a = json.loads(sys.argv[1])
+    import vcirun
+    from vcirun.codegen import build
+    from vcirun.mechanics.scenes import get_scene
+    from vcirun.methods import resolve_method
+
+    t_import = time.perf_counter() - T_START
+    mopts = a.get("method_options", {})
+    out = {"args": a, "import_s": t_import}
+    if a["mode"] == "derive":
+        s = get_scene(a["system"])
+        ks = resolve_method(a["method"], **mopts).kernel_set()
+        t0 = time.perf_counter()
+        from vcirun.codegen.derive import module_source
+
+        text = module_source(s, ks, [(build._PKG / u).read_text() for u in build._units(ks)])
+        out.update(derive_s=time.perf_counter() - t0, source_chars=len(text), source_lines=text.count("\n"))
+        print(json.dumps(out))
+        return
+    kw = dict(h=a.get("h", 1e-2), T=a.get("T", 5.0), **mopts)
+    if a.get("beta") is not None:
+        kw["beta"] = a["beta"]
+    if a.get("constrained") is not None:
+        kw["constrained"] = a["constrained"]
+    t0 = time.perf_counter()
+    tr = vcirun.simulate(a["system"], a["method"], **kw)
+    t1 = time.perf_counter()
+    log = build.BUILD_LOG[-1] if build.BUILD_LOG else {}
+    out.update(first_sim_s=t1 - t0, to_first_sim_s=t1 - T_START, cached=bool(log.get("cached")),
+               generate_s=float(log.get("generate_s", float("nan"))), status=tr.status,
+               derive_imported="vcirun.codegen.derive" in sys.modules,
+               modified_derive_imported="vcirun.modified.derive" in sys.modules,
+               sympy_imported="sympy" in sys.modules, n_impacts=int(len(tr.impacts)))
+    m = a.get("measure_steps")
+    if m:
+        import statistics
+
+        h = a.get("measure_h", 1e-3)
+        walls, cpus = [], []
+        for _ in range(a.get("measure_repeats", 5)):
+            c0 = time.thread_time()
+            r = vcirun.simulate(a["system"], a["method"], h=h, T=m * h, constrained=False, beta=a.get("beta"), **mopts)
+            cpus.append((time.thread_time() - c0) / m * 1e6)
+            walls.append(r.wall_time / m * 1e6)
+        out.update(us_per_step=statistics.median(cpus), us_per_step_wall=statistics.median(walls),
+                   us_per_step_all=cpus, measure_status=r.status, measure_newton_iters=float(r.newton_iters.mean()))
+    print(json.dumps(out))
+
+
+if __name__ == "__main__":
+    main()

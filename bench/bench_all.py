@@ -1,0 +1,538 @@
+"""The full benchmark of issue 7 (`make bench`): printed as tables, saved as JSON; never asserted.
+
+Sections (`--only a,b,...` to pick; `--quick` for a short smoke run):
+  steps     microseconds per smooth step: SVC and SVA with the constraint ignored, and every method
+            in its constrained loop before the first impact (cart-pendulum, beta = 3.2, t < 0.729)
+  sim5      ms per 5-second cart-pendulum simulation (beta = 3.2, three impacts) at h = 1e-2, 3.2e-2:
+            compiled loop (`traj.wall_time`) and whole `simulate()` call; the paper's Table II beside
+  impact    cost of one impact, instrumented: one grid step containing an impact minus one smooth
+            step, both run by the compiled loop (`integrate`, N = 1) from the real grid states of a
+            trajectory, called from a compiled driver (no Python overhead in the difference)
+  build     kernel build per method, cold (fresh cache dir, new process) and warm (second process):
+            import, time to the first finished simulation, symbolic seconds, symbolic modules imported
+  sweep     `vcirun sweep configs/fig4.yaml` (408 runs + 51 references) cold and warm, subprocess,
+            separate output file, --force, every core
+  yardstick the same work by a plain numpy/scipy CVA (bench/plain_numpy.py, same trajectory) and by
+            solve_ivp (DOP853 / Radau, compiled or numpy right-hand side) at matched L2 error
+  scaling   cost against T, the number of impacts, 1/h, mh_order (generalized MCVA, cold builds) and
+            the degrees of freedom (n-link pendulum, n = 1, 2, 4, 8: symbolic, numba build, us/step),
+            with fitted exponents
+  wp        the work-precision studies (configs/work_precision.yaml, work_precision_double.yaml,
+            long_horizon.yaml) through vcirun.experiments.workprecision, with their figures
+
+The machine is shared with other sessions: every timing is a median over repeats, the load average
+is recorded at start and end, and ratios are formed from timings taken in this one run.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import vcirun  # noqa: E402
+
+METHODS = ["CVA", "VCI", "MCVAA", "MCVAC"]
+PAPER_TABLE2 = {"MCVAA": {3.2e-2: (2.71, 0.61), 1e-2: (2.40, 0.39)},
+                "MCVAC": {3.2e-2: (1.55, 0.33), 1e-2: (1.85, 0.22)}}   # seconds, mean +- 95% CI, T = 5
+TARGETS = {"svc_step_us": 2.0, "cva_vci_5s_ms": 0.7, "mcva_5s_ms": 10.0, "fig4_warm_s": 15.0, "ratio": 10.0,
+           "warm_start_s": 1.0}
+QUICK = False
+
+
+def log(msg=""):
+    print(msg, flush=True)
+
+
+def fit_exponent(x, y) -> float:
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    m = np.isfinite(x) & np.isfinite(y) & (x > 0) & (y > 0)
+    if m.sum() < 2:
+        return math.nan
+    return float(np.polyfit(np.log(x[m]), np.log(y[m]), 1)[0])
+
+
+def median_walls(fn, repeats):
+    """(median compiled-loop wall time, median call wall time, median call CPU time, last result)."""
+    walls, calls, cpus = [], [], []
+    for _ in range(repeats):
+        t0, c0 = time.perf_counter(), time.thread_time()
+        tr = fn()
+        cpus.append(time.thread_time() - c0)
+        calls.append(time.perf_counter() - t0)
+        walls.append(tr.wall_time)
+    return statistics.median(walls), statistics.median(calls), statistics.median(cpus), tr
+
+
+def probe(args: dict, cache_dir, timeout=1800) -> dict:
+    """Run bench/_probe.py in a fresh process with VCIRUN_CACHE_DIR=cache_dir; also its outside wall."""
+    env = dict(os.environ, VCIRUN_CACHE_DIR=str(cache_dir))
+    t0 = time.perf_counter()
+    try:
+        r = subprocess.run([sys.executable, str(ROOT / "bench" / "_probe.py"), json.dumps(args)], env=env,
+                           capture_output=True, text=True, timeout=timeout, cwd=ROOT)
+    except subprocess.TimeoutExpired:
+        return {"args": args, "timeout_s": timeout, "error": f"timed out after {timeout} s"}
+    wall = time.perf_counter() - t0
+    if r.returncode != 0:
+        return {"args": args, "error": r.stderr.strip().splitlines()[-1] if r.stderr.strip() else f"exit {r.returncode}"}
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    out["process_wall_s"] = wall
+    return out
+
+
+# --- steps ------------------------------------------------------------------------------------------
+def section_steps(res):
+    log("== microseconds per smooth step (cart-pendulum, median of 7; CPU time of long runs, wall beside)")
+    out = {}
+    N = 20_000 if QUICK else 100_000
+    for ld in ["SVC", "SVA"]:
+        vcirun.simulate("cart_pendulum", ld, h=1e-3, T=0.01, beta=3.2, constrained=False)
+        w, _, c, tr = median_walls(lambda: vcirun.simulate("cart_pendulum", ld, h=1e-3, T=N * 1e-3, beta=3.2,
+                                                           constrained=False), 7)
+        out[ld] = {"us": c / N * 1e6, "us_wall": w / N * 1e6, "newton_iters": float(tr.newton_iters.mean()),
+                   "context": "constraint ignored, h=1e-3"}
+        log(f"  {ld:6s} (constraint ignored, h = 1e-3)          {c / N * 1e6:7.3f} us CPU ({w / N * 1e6:7.3f} wall)"
+            f"   Newton iters/step {tr.newton_iters.mean():.2f}")
+    h, T = 1e-5, 0.7   # first impact at t = 0.729
+    Nc = int(round(T / h))
+    for m in METHODS:
+        vcirun.simulate("cart_pendulum", m, h=h, T=10 * h, beta=3.2)
+        w, _, c, tr = median_walls(lambda: vcirun.simulate("cart_pendulum", m, h=h, T=T, beta=3.2), 3 if QUICK else 7)
+        assert len(tr.impacts) == 0
+        out[m] = {"us": c / Nc * 1e6, "us_wall": w / Nc * 1e6, "newton_iters": float(tr.newton_iters.mean()),
+                  "context": "constrained loop, before the first impact, h=1e-5"}
+        log(f"  {m:6s} (constrained loop, no impact, h = 1e-5) {c / Nc * 1e6:7.3f} us CPU ({w / Nc * 1e6:7.3f} wall)"
+            f"   Newton iters/step {tr.newton_iters.mean():.2f}")
+    res["smooth_step_us"] = out
+
+
+# --- sim5 -------------------------------------------------------------------------------------------
+def section_sim5(res):
+    log("== ms per 5-second simulation (cart-pendulum, beta = 3.2, median of 21)")
+    out = {}
+    log(f"  {'method':6s} {'h':>7s} {'loop ms':>9s} {'call ms':>9s} {'call CPU':>9s} {'impacts':>7s} {'steps':>6s}"
+        "   paper Table II (s), paper / ours")
+    for m in METHODS:
+        for h in [1e-2, 3.2e-2]:
+            vcirun.simulate("cart_pendulum", m, h=h, T=5, beta=3.2)
+            w, c, cpu, tr = median_walls(lambda: vcirun.simulate("cart_pendulum", m, h=h, T=5, beta=3.2),
+                                         7 if QUICK else 21)
+            paper = PAPER_TABLE2.get(m, {}).get(h)
+            out[f"{m}@{h:g}"] = {"loop_ms": w * 1e3, "call_ms": c * 1e3, "call_cpu_ms": cpu * 1e3,
+                                 "impacts": int(len(tr.impacts)), "steps": tr.n_steps, "paper_s": paper}
+            ps = f"{paper[0]:.2f} +- {paper[1]:.2f} (x{paper[0] / w:,.0f})" if paper else ""
+            log(f"  {m:6s} {h:7g} {w * 1e3:9.3f} {c * 1e3:9.3f} {cpu * 1e3:9.3f} {len(tr.impacts):7d} {tr.n_steps:6d}   {ps}")
+    res["sim_5s"] = out
+
+
+# --- impact -----------------------------------------------------------------------------------------
+def _impact_driver(mod):
+    from numba import njit
+
+    integ = mod.integrate
+
+    @njit
+    def drive(K, q0, p0, t0, h, prm, ntol, maxit, etol, mis, Q, P, Hs, Eds, Hm, it, iq, ipm, ipp, ist, pl, il, info):
+        for _ in range(K):
+            integ(q0, p0, t0, h, 1, prm, True, ntol, maxit, etol, mis, Q, P, Hs, Eds, Hm, it, iq, ipm, ipp, ist, pl,
+                  il, info)
+        return info[2]
+
+    return drive
+
+
+def section_impact(res):
+    from vcirun.api import resolve_system
+    from vcirun.codegen.build import load_module
+    from vcirun.methods import METHODS as MT
+
+    log("== cost of one impact (instrumented: compiled loop over one impact step vs one smooth step; CPU time; "
+        "an N = 1 call of the loop also allocates its work arrays and evaluates the energies of the end state)")
+    s = resolve_system("cart_pendulum")
+    prm = s.param_values(None)
+    out = {}
+    K = 2000 if QUICK else 20000
+    for m in METHODS:
+        mod = load_module(s, MT[m].kernel_set())
+        drive = _impact_driver(mod)
+        for h in [1e-2, 1e-3]:
+            tr = vcirun.simulate("cart_pendulum", m, h=h, T=5, beta=3.2)
+            ks = np.flatnonzero(tr.impact_step)
+            n = s.n
+            buf = dict(Q=np.zeros((2, n)), P=np.zeros((2, n)), Hs=np.zeros(2), Eds=np.zeros(2), Hm=np.zeros(2),
+                       it=np.zeros(64), iq=np.zeros((64, n)), ipm=np.zeros((64, n)), ipp=np.zeros((64, n)),
+                       ist=np.zeros(1, np.bool_), pl=np.zeros(160), il=np.zeros(1, np.int64), info=np.zeros(5, np.int64))
+            args = (1e-12, 50, 1e-13, 64)
+            per_imp, per_smooth = [], []
+            for k in ks:
+                ksm = k - 3   # a smooth step shortly before
+                for kk, acc in ((k, per_imp), (ksm, per_smooth)):
+                    q0, p0 = tr.q[kk].copy(), tr.p[kk].copy()
+                    drive(10, q0, p0, kk * h, h, prm, *args, *buf.values())
+                    ts = []
+                    for _ in range(7):
+                        t0 = time.thread_time()
+                        drive(K, q0, p0, kk * h, h, prm, *args, *buf.values())
+                        ts.append((time.thread_time() - t0) / K)
+                    acc.append(statistics.median(ts))
+                    if kk == k:
+                        assert buf["info"][2] == 1, "expected one impact in the step"
+            imp = statistics.median(per_imp) * 1e6
+            smo = statistics.median(per_smooth) * 1e6
+            out[f"{m}@{h:g}"] = {"impact_step_us": imp, "smooth_step_us": smo, "impact_cost_us": imp - smo,
+                                 "n_impacts_sampled": len(ks), "newton_iters_impact_steps": tr.newton_iters[ks].tolist()}
+            log(f"  {m:6s} h = {h:<6g} impact step {imp:7.2f} us, smooth step {smo:6.3f} us -> one impact costs "
+                f"{imp - smo:6.2f} us ({(imp - smo) / smo:.0f} smooth steps); Newton iterations in the impact steps "
+                f"{tr.newton_iters[ks].tolist()}")
+    res["impact"] = out
+
+
+# --- build ------------------------------------------------------------------------------------------
+def section_build(res):
+    log("== kernel build, cold (fresh cache, new process) and warm (second process, same cache)")
+    out = {}
+    methods = ["CVA"] if QUICK else METHODS
+    log(f"  {'method':6s} {'cold first sim':>14s} {'symbolic':>9s} {'numba':>7s} | {'warm import':>11s} "
+        f"{'first sim':>9s} {'process':>8s}  symbolic modules on warm start")
+    for m in methods:
+        with tempfile.TemporaryDirectory(prefix="vcirun_bench_") as d:
+            a = {"mode": "build", "system": "cart_pendulum", "method": m, "h": 1e-2, "T": 5.0, "beta": 3.2}
+            cold = probe(a, d)
+            warm = probe(a, d)
+        out[m] = {"cold": cold, "warm": warm}
+        if "error" in cold or "error" in warm:
+            log(f"  {m}: {cold.get('error') or warm.get('error')}")
+            continue
+        numba_s = cold["first_sim_s"] - cold["generate_s"]
+        out[m]["numba_s"] = numba_s
+        sym = [k for k in ("derive_imported", "modified_derive_imported") if warm[k]]
+        log(f"  {m:6s} {cold['first_sim_s']:13.2f}s {cold['generate_s']:8.2f}s {numba_s:6.2f}s | "
+            f"{warm['import_s']:10.3f}s {warm['first_sim_s']:8.3f}s {warm['process_wall_s']:7.2f}s  "
+            f"{'none' if not sym else ', '.join(sym)} (cached: {warm['cached']})")
+    res["build"] = out
+
+
+# --- sweep ------------------------------------------------------------------------------------------
+def section_sweep(res):
+    log("== `vcirun sweep configs/fig4.yaml` (408 runs + 51 references), subprocess, --force, every core")
+    out = {}
+    exe = str(Path(sys.executable).with_name("vcirun"))
+    with tempfile.TemporaryDirectory(prefix="vcirun_sweep_") as d:
+        env = dict(os.environ, VCIRUN_CACHE_DIR=str(Path(d) / "cache"))
+        for phase in (["cold", "warm"] if not QUICK else ["warm0", "warm"]):
+            cmd = [exe, "sweep", "configs/fig4.yaml", "--output", str(Path(d) / "fig4_bench.h5"), "--force", "--quiet"]
+            t0 = time.perf_counter()
+            r = subprocess.run(cmd, env=env, cwd=ROOT, capture_output=True, text=True, timeout=3600)
+            wall = time.perf_counter() - t0
+            line = (r.stdout.strip().splitlines() or [""])[0]
+            out[phase] = {"wall_s": wall, "returncode": r.returncode, "summary": line}
+            log(f"  {phase:5s} {wall:7.2f} s (process)   {line}")
+    res["fig4_sweep"] = out
+
+
+# --- yardsticks -------------------------------------------------------------------------------------
+def section_yardstick(res):
+    from plain_numpy import PlainCVA
+
+    from vcirun.experiments.baselines import solve_ivp_run
+    from vcirun.experiments.workprecision import _front, time_at_error
+
+    log("== the same work by plain numpy/scipy and by solve_ivp, at matched accuracy (beta = 3.2, T = 5)")
+    out = {}
+    ref = vcirun.reference("cart_pendulum", T=5.0, beta=3.2)
+    P = PlainCVA()
+    q0, p0 = P.s.initial_state(beta=3.2)
+    # plain numpy step and CVA simulation (the same trajectory as vcirun's CVA)
+    rows = {}
+    for h in [1e-2, 3.2e-2]:
+        N = int(round(5 / h))
+        ts, cs = [], []
+        for _ in range(3 if QUICK else 5):
+            t0, c0 = time.perf_counter(), time.thread_time()
+            Q, imp = P.simulate(q0, p0, h, N)
+            cs.append(time.thread_time() - c0)
+            ts.append(time.perf_counter() - t0)
+        tr = vcirun.simulate("cart_pendulum", "CVA", h=h, T=5, beta=3.2)
+        w, c, cpu, _ = median_walls(lambda: vcirun.simulate("cart_pendulum", "CVA", h=h, T=5, beta=3.2), 21)
+        pw, pc = statistics.median(ts), statistics.median(cs)
+        rows[h] = {"plain_ms": pw * 1e3, "plain_cpu_ms": pc * 1e3, "vcirun_loop_ms": w * 1e3, "vcirun_call_ms": c * 1e3,
+                   "vcirun_call_cpu_ms": cpu * 1e3, "max_abs_diff_q": float(np.max(np.abs(Q - tr.q))),
+                   "ratio_loop": pw / w, "ratio_call": pw / c, "ratio_cpu": pc / cpu}
+        log(f"  plain numpy/scipy CVA, h = {h:<6g}: {pw * 1e3:8.2f} ms ({pc * 1e3:.2f} CPU) vs vcirun {w * 1e3:.3f} ms"
+            f" loop / {c * 1e3:.3f} ms call ({cpu * 1e3:.3f} CPU) -> x{pw / w:.0f} / x{pw / c:.0f} (CPU x{pc / cpu:.0f}) "
+            f"(same trajectory: max |dq| = {rows[h]['max_abs_diff_q']:.1e})")
+    out["plain_cva"] = rows
+    # solve_ivp curves on the same grids
+    rtols = [10.0 ** -k for k in range(1, 13)]
+    curves = {}
+    for solver, kern in [("DOP853", "compiled"), ("DOP853", "numpy"), ("Radau", "compiled")]:
+        for h in [1e-2, 3.2e-2]:
+            pts = []
+            for rtol in rtols:
+                if solver == "Radau" and rtol < 1e-10:
+                    continue
+                b = solve_ivp_run("cart_pendulum", solver, h=h, T=5, beta=3.2, rtol=rtol, kernels=kern, energies=False)
+                ws, cs, us = [], [], []
+                for _ in range(3 if QUICK else (5 if solver == "DOP853" else 3)):
+                    t0, c0 = time.perf_counter(), time.thread_time()
+                    bb = solve_ivp_run("cart_pendulum", solver, h=h, T=5, beta=3.2, rtol=rtol, kernels=kern,
+                                       energies=False)
+                    us.append(time.thread_time() - c0)
+                    cs.append(time.perf_counter() - t0)
+                    ws.append(bb.wall_time)
+                e = vcirun.l2_error(b, ref) if b.status == "ok" else math.nan
+                pts.append({"rtol": rtol, "l2": e, "loop_ms": statistics.median(ws) * 1e3,
+                            "call_ms": statistics.median(cs) * 1e3, "cpu_ms": statistics.median(us) * 1e3,
+                            "nfev": b.options["nfev"]})
+            curves[f"{solver}/{kern}@{h:g}"] = pts
+    out["solve_ivp_curves"] = curves
+    log(f"  solve_ivp L2 error and loop ms over rtol 1e-1..1e-12 on the h = 1e-2 grid:")
+    for key in ("DOP853/compiled@0.01", "DOP853/numpy@0.01", "Radau/compiled@0.01"):
+        log(f"    {key:22s} " + "  ".join(f"{p['rtol']:.0e}:{p['l2']:.1e}/{p['loop_ms']:.1f}" for p in curves[key]))
+    matched = {}
+    log(f"  {'method':6s} {'h':>6s} {'L2 error':>9s} {'vcirun ms':>9s} {'CPU ms':>7s} | solve_ivp loop ms at that error "
+        "(ratio of loop times; of CPU times): DOP853 compiled rhs, DOP853 numpy rhs, Radau compiled rhs")
+    for m in METHODS:
+        for h in [1e-2, 3.2e-2]:
+            tr = vcirun.simulate("cart_pendulum", m, h=h, T=5, beta=3.2)
+            e = vcirun.l2_error(tr, ref)
+            w, c, cpu, _ = median_walls(lambda: vcirun.simulate("cart_pendulum", m, h=h, T=5, beta=3.2), 21)
+            row = {"l2": e, "loop_ms": w * 1e3, "call_ms": c * 1e3, "cpu_ms": cpu * 1e3}
+            cells = []
+            for key in ("DOP853/compiled", "DOP853/numpy", "Radau/compiled"):
+                pts = curves[f"{key}@{h:g}"]
+                t, how = time_at_error(_front([(p["loop_ms"], p["l2"]) for p in pts]), e)
+                tc, howc = time_at_error(_front([(p["cpu_ms"], p["l2"]) for p in pts]), e)
+                row[key] = {"ms": t, "how": how, "ratio_loop": t / (w * 1e3), "cpu_ms": tc, "how_cpu": howc,
+                            "ratio_cpu": tc / (cpu * 1e3)}
+                mark = "<=" if how == "cheapest_more_accurate" else ">=" if how == "not_reached" else ""
+                cells.append(f"{t:7.2f} ({mark}x{t / (w * 1e3):.1f}; x{tc / (cpu * 1e3):.1f})")
+            matched[f"{m}@{h:g}"] = row
+            log(f"  {m:6s} {h:6g} {e:9.2e} {w * 1e3:9.3f} {cpu * 1e3:7.3f} | " + "  ".join(cells))
+    out["matched"] = matched
+    res["yardstick"] = out
+
+
+# --- scaling ----------------------------------------------------------------------------------------
+def section_scaling(res):
+    out = {}
+    log("== scaling")
+    # T
+    Ts = [5, 50, 500] if QUICK else [5, 50, 500, 5000]
+    rowsT = {}
+    for m in ["CVA", "MCVAC"]:
+        ws = []
+        for T in Ts:
+            _, _, w, tr = median_walls(lambda: vcirun.simulate("cart_pendulum", m, h=1e-2, T=T, beta=3.2),
+                                       5 if T < 5000 else 3)
+            ws.append(w)
+            rowsT.setdefault(m, []).append({"T": T, "cpu_s": w, "impacts": int(len(tr.impacts)), "status": tr.status})
+        log(f"  cost vs T, {m} h = 1e-2 (CPU per call): " + ", ".join(f"T={T}: {w * 1e3:.3g} ms" for T, w in zip(Ts, ws))
+            + f"  -> exponent {fit_exponent(Ts, ws):.3f}")
+        rowsT[m + "_exponent"] = fit_exponent(Ts, ws)
+    out["T"] = rowsT
+    # 1/h
+    hs = [1e-1, 3.2e-2, 1e-2, 3.2e-3, 1e-3, 3.2e-4, 1e-4]
+    rowsh = {}
+    for m in METHODS:
+        ws, st = [], []
+        for h in hs:
+            vcirun.simulate("cart_pendulum", m, h=h, T=10 * h, beta=3.2)
+            _, _, w, tr = median_walls(lambda: vcirun.simulate("cart_pendulum", m, h=h, T=5, beta=3.2), 5)
+            ws.append(w)
+            st.append(tr.status)
+        inv = [1 / h for h in hs]
+        rowsh[m] = {"h": hs, "cpu_s": ws, "status": st, "exponent": fit_exponent(inv, ws),
+                    "exponent_h<=1e-2": fit_exponent(inv[2:], ws[2:])}
+        log(f"  cost vs 1/h, {m}, T = 5 (CPU per call): " + ", ".join(f"{w * 1e3:.3g}" for w in ws) + " ms  -> exponent "
+            f"{rowsh[m]['exponent']:.3f} (h <= 1e-2: {rowsh[m]['exponent_h<=1e-2']:.3f})")
+    out["inv_h"] = rowsh
+    # impacts: oscillator against a wall at fixed N (h = 1e-2, T = 100), the wall moved towards the turning
+    # point x = 1 so that the bounces get shorter: 24 .. ~1100 impacts
+    ds = [0.5, 0.0, -0.5, -0.9, -0.97, -0.99, -0.997, -0.999]
+    rowsi = {}
+    for m in METHODS:
+        ws, ni = [], []
+        for d in ds:
+            kw = dict(h=1e-2, T=100.0, q0=np.array([1.0]), p0=np.array([0.0]), params={"d": d})
+            vcirun.simulate("oscillator_wall", m, **{**kw, "T": 0.01})
+            _, _, w, tr = median_walls(lambda: vcirun.simulate("oscillator_wall", m, **kw), 5)
+            ws.append(w)
+            ni.append(len(tr.impacts) if tr.status == "ok" else math.nan)
+        ni_a, ws_a = np.array(ni, float), np.array(ws)
+        ok = np.isfinite(ni_a)
+        slope, icpt = np.polyfit(ni_a[ok], ws_a[ok], 1)
+        rowsi[m] = {"d": ds, "impacts": ni, "cpu_s": ws, "us_per_impact": slope * 1e6, "smooth_ms": icpt * 1e3,
+                    "exponent_extra_vs_impacts": fit_exponent(ni_a[ok], ws_a[ok] - icpt)}
+        log(f"  cost vs impacts, {m}, oscillator, h = 1e-2, 1e4 steps (CPU per call): impacts {[int(x) if np.isfinite(x) else 'fail' for x in ni]}"
+            f" -> {', '.join(f'{w * 1e3:.3g}' for w in ws)} ms; linear fit {slope * 1e6:.2f} us per impact + "
+            f"{icpt * 1e3:.3g} ms (exponent of the impact part {rowsi[m]['exponent_extra_vs_impacts']:.2f})")
+    out["impacts"] = rowsi
+    # mh_order: generalized MCVA on SVC, flow_order 4, cold builds
+    orders = [1, 2, 3] if QUICK else [1, 2, 3, 4]
+    rowsm = []
+    for s in orders:
+        mo = {"ld": "SVC", "mh_order": s, "flow_order": 4}
+        with tempfile.TemporaryDirectory(prefix="vcirun_bench_") as d:
+            a = {"mode": "build", "system": "cart_pendulum", "method": "MCVA", "method_options": mo, "h": 1e-2,
+                 "T": 5.0, "beta": 3.2, "measure_steps": 20000, "measure_h": 1e-3}
+            cold = probe(a, d, timeout=1800)
+            warm = probe(a, d)
+        row = {"mh_order": s, "cold": cold, "warm": warm}
+        if "error" not in cold and "error" not in warm:
+            row.update(symbolic_s=cold["generate_s"], numba_s=cold["first_sim_s"] - cold["generate_s"],
+                       us_per_step=warm["us_per_step"])
+            log(f"  MCVA[SVC, s={s}, p=4]: symbolic {cold['generate_s']:.2f} s, numba {row['numba_s']:.1f} s, "
+                f"{warm['us_per_step']:.3f} us per smooth step (status {cold['status']})")
+        else:
+            log(f"  MCVA[SVC, s={s}]: {cold.get('error') or warm.get('error')}")
+        rowsm.append(row)
+    ok = [r for r in rowsm if "us_per_step" in r]
+    if len(ok) >= 2:
+        out["mh_order_exponents"] = {k: fit_exponent([r["mh_order"] for r in ok], [r[k] for r in ok])
+                                     for k in ("symbolic_s", "numba_s", "us_per_step")}
+        log(f"  exponents vs mh_order: {out['mh_order_exponents']}")
+    out["mh_order"] = rowsm
+    # degrees of freedom: n-link pendulum against a wall
+    Ks = [1, 2, 4] if QUICK else [1, 2, 4, 8]
+    rowsk = {}
+    for m in ["CVA", "MCVAC"]:
+        rows = []
+        for K in Ks:
+            with tempfile.TemporaryDirectory(prefix="vcirun_bench_") as d:
+                a = {"mode": "build", "system": f"n_pendulum_{K}", "method": m, "h": 1e-3, "T": 0.01,
+                     "measure_steps": 20000, "measure_h": 1e-3}
+                cold = probe(a, d, timeout=2400)
+                warm = probe(a, d) if "error" not in cold else {"error": "cold build failed"}
+            row = {"K": K, "cold": cold, "warm": warm}
+            if "error" not in cold and "error" not in warm:
+                row.update(symbolic_s=cold["generate_s"], numba_s=cold["first_sim_s"] - cold["generate_s"],
+                           us_per_step=warm["us_per_step"], newton_iters=warm["measure_newton_iters"])
+                log(f"  n_pendulum_{K} {m}: symbolic {row['symbolic_s']:.2f} s, numba {row['numba_s']:.1f} s, "
+                    f"{row['us_per_step']:.3f} us per smooth step (h = 1e-3, {row['newton_iters']:.1f} Newton iters)")
+            else:
+                log(f"  n_pendulum_{K} {m}: {cold.get('error') or warm.get('error')}")
+            rows.append(row)
+        ok = [r for r in rows if "us_per_step" in r]
+        exps = {k: fit_exponent([r["K"] for r in ok], [r[k] for r in ok]) for k in ("symbolic_s", "numba_s", "us_per_step")}
+        rowsk[m] = {"rows": rows, "exponents": exps}
+        log(f"  exponents vs n ({m}): " + ", ".join(f"{k} {v:.2f}" for k, v in exps.items()))
+    out["dof"] = rowsk
+    res["scaling"] = out
+
+
+# --- work-precision ----------------------------------------------------------------------------------
+def section_wp(res):
+    out = {}
+    for cfg in ["configs/work_precision.yaml", "configs/work_precision_double.yaml", "configs/long_horizon.yaml"]:
+        log(f"== work-precision study {cfg}")
+        cmd = [sys.executable, "-m", "vcirun.experiments.workprecision", cfg, "--plot"] + (["--quick"] if QUICK else [])
+        if QUICK:
+            cmd += ["--output", f"results/{Path(cfg).stem}_quick.json"]
+        t0 = time.perf_counter()
+        r = subprocess.run(cmd, cwd=ROOT, text=True, capture_output=True)
+        log(r.stdout.rstrip())
+        if r.returncode:
+            log(r.stderr.strip()[-2000:])
+        out[cfg] = {"returncode": r.returncode, "seconds": time.perf_counter() - t0}
+    res["work_precision"] = out
+
+
+def print_targets(res):
+    log("== targets of issue 7 (measured in this run)")
+    rows = []
+    st = res.get("smooth_step_us", {})
+    if "SVC" in st:
+        rows.append(("smooth SVC step (constraint ignored)", f"{st['SVC']['us']:.3f} us", "<= 2 us",
+                     st["SVC"]["us"] <= TARGETS["svc_step_us"]))
+    if "CVA" in st:
+        rows.append(("smooth CVA step in the constrained loop", f"{st['CVA']['us']:.3f} us", "<= 2 us",
+                     st["CVA"]["us"] <= TARGETS["svc_step_us"]))
+    s5 = res.get("sim_5s", {})
+    for m in METHODS:
+        k = f"{m}@0.01"
+        if k in s5:
+            lim = TARGETS["cva_vci_5s_ms"] if m in ("CVA", "VCI") else TARGETS["mcva_5s_ms"]
+            rows.append((f"5 s {m} simulation, h = 1e-2 (loop / call)",
+                         f"{s5[k]['loop_ms']:.3f} / {s5[k]['call_ms']:.3f} ms", f"<= {lim:g} ms",
+                         s5[k]["call_ms"] <= lim))
+    sw = res.get("fig4_sweep", {})
+    if "warm" in sw:
+        rows.append(("fig4 sweep warm, 2 cores", f"{sw['warm']['wall_s']:.2f} s", "< 15 s",
+                     sw["warm"]["wall_s"] < TARGETS["fig4_warm_s"]))
+    b = res.get("build", {})
+    if "CVA" in b and "process_wall_s" in b["CVA"].get("warm", {}):
+        w = b["CVA"]["warm"]
+        sym = w["derive_imported"] or w["modified_derive_imported"]
+        rows.append(("warm start to the first finished simulation (process)",
+                     f"{w['to_first_sim_s']:.3f} s in-process, {w['process_wall_s']:.2f} s with interpreter start; "
+                     f"symbolic: {'yes' if sym else 'no'}", "< 1 s, no symbolic work",
+                     w["process_wall_s"] < 1.0 and not sym))
+    y = res.get("yardstick", {}).get("matched", {})
+    for k, r in y.items():
+        c = r.get("DOP853/compiled", {})
+        if c:
+            rows.append((f"{k}: DOP853 (compiled rhs) / vcirun at matched L2", f"{'<=' if c['how'] == 'cheapest_more_accurate' else ''}"
+                         f"x{c['ratio_loop']:.1f}", ">= x10", c["ratio_loop"] >= 10 and c["how"] == "interpolated"))
+    for name, val, tgt, ok in rows:
+        log(f"  {name:58s} {val:48s} target {tgt:24s} {'MET' if ok else 'not met'}")
+    res["targets"] = [{"what": a, "measured": b_, "target": c, "met": bool(d)} for a, b_, c, d in rows]
+
+
+SECTIONS = {"steps": section_steps, "sim5": section_sim5, "impact": section_impact, "build": section_build,
+            "sweep": section_sweep, "yardstick": section_yardstick, "scaling": section_scaling, "wp": section_wp}
+
+
+def main(argv=None):
+    global QUICK
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", default=",".join(SECTIONS), help="comma-separated sections: " + ", ".join(SECTIONS))
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--output", default=None)
+    a = ap.parse_args(argv)
+    QUICK = a.quick
+    os.chdir(ROOT)
+    res = {"machine": {"cpus": len(os.sched_getaffinity(0)), "python": sys.version.split()[0],
+                       "loadavg_start": list(os.getloadavg()), "started": time.strftime("%Y-%m-%d %H:%M:%S"),
+                       "cache_dir": os.environ.get("VCIRUN_CACHE_DIR", "")},
+           "quick": QUICK, "note": "shared machine: medians over repeats; ratios from timings of this run"}
+    log(f"vcirun benchmark: {res['machine']['cpus']} cpus, load average {res['machine']['loadavg_start'][0]:.2f} "
+        f"(shared machine: medians over repeats)")
+    t0 = time.perf_counter()
+    for name in a.only.split(","):
+        name = name.strip()
+        if name not in SECTIONS:
+            raise SystemExit(f"unknown section {name!r} (choose from {', '.join(SECTIONS)})")
+        SECTIONS[name](res)
+    print_targets(res)
+    res["machine"]["loadavg_end"] = list(os.getloadavg())
+    res["seconds"] = time.perf_counter() - t0
+    out = Path(a.output or ("results/bench_all_quick.json" if QUICK else "results/bench_all.json"))
+    out.parent.mkdir(exist_ok=True)
+    from vcirun.experiments.workprecision import _jsonable
+
+    if out.exists() and a.only != ",".join(SECTIONS):   # a partial run updates the saved sections only
+        try:
+            old = json.loads(out.read_text())
+            old.update(_jsonable(res))
+            res = old
+        except ValueError:
+            pass
+    out.write_text(json.dumps(_jsonable(res), indent=1))
+    log(f"saved {out} ({res['seconds']:.0f} s)")
+
+
+if __name__ == "__main__":
+    main()
