@@ -176,7 +176,7 @@ def test_many_problems_are_counted_on_the_one_line(tmp_path):
 def test_good_config_defaults_and_yaml_floats(tmp_path):
     cfg = load_config(write(tmp_path, GOOD))
     assert cfg.h == [0.032, 0.01]  # 1e-2 without a dot is a float here (YAML 1.1 would say string)
-    assert cfg.reference.kind == "exact" and cfg.reference.rtol == 1e-12
+    assert cfg.reference.kind == "exact" and cfg.reference.rtol == 1e-13
     assert cfg.store_trajectories is True and cfg.workers is None
     assert str(cfg.output_path()) == "results/t.h5"
     assert [ic.key for ic in cfg.initial_conditions()] == ["beta=3.2", "beta=3.7", "beta=4.2"]

@@ -35,8 +35,8 @@ def integrate(q0, p0, t0, h, N, prm, constrained, ntol, maxit, event_tol, max_im
     qh = np.empty(NDOF)
     ph = np.empty(NDOF)
     pp = np.empty(NDOF)
-    Q[0, :] = q
-    P[0, :] = p
+    set_row(Q, 0, q)
+    set_row(P, 0, p)
     n_imp = 0
     n_par = 0
     status = ST_OK
@@ -65,12 +65,12 @@ def integrate(q0, p0, t0, h, N, prm, constrained, ntol, maxit, event_tol, max_im
             break
         iters = it
         if (not constrained) or sys_phi(qt, prm) > 0.0:
-            q[:] = qt
-            p[:] = pt
+            copy_into(q, qt)
+            copy_into(p, pt)
         else:
             imp_step[i] = True
-            qh[:] = q
-            ph[:] = p
+            copy_into(qh, q)
+            copy_into(ph, p)
             tau_max = h
             tc = t
             k_imp = 0
@@ -104,30 +104,30 @@ def integrate(q0, p0, t0, h, N, prm, constrained, ntol, maxit, event_tol, max_im
                         status = ST_ACCUMULATION
                         break
                     imp_t[n_imp] = tc + dtau
-                    imp_q[n_imp, :] = qt
-                    imp_pm[n_imp, :] = pt
-                    imp_pp[n_imp, :] = pp
+                    set_row(imp_q, n_imp, qt)
+                    set_row(imp_pm, n_imp, pt)
+                    set_row(imp_pp, n_imp, pp)
                     n_imp += 1
-                    qh[:] = qt
-                    ph[:] = pp
+                    copy_into(qh, qt)
+                    copy_into(ph, pp)
                     tau_max = tau_rem
                     tc += dtau
                 else:
-                    qh[:] = qt
-                    ph[:] = pt
+                    copy_into(qh, qt)
+                    copy_into(ph, pt)
                     tau_max = 0.0
             if status != ST_OK:
                 fail = i
                 break
-            q[:] = qh
-            p[:] = ph
+            copy_into(q, qh)
+            copy_into(p, ph)
         if not (_finite(q) and _finite(p)):
             status = ST_NONFINITE
             fail = i
             break
         iters_log[i] = iters
-        Q[i + 1, :] = q
-        P[i + 1, :] = p
+        set_row(Q, i + 1, q)
+        set_row(P, i + 1, p)
         i += 1
     steps = i
     if status == ST_OK:

@@ -50,3 +50,17 @@ def norm_inf(x):
         if a > m or a != a:  # NaN propagates as failure
             m = a if a == a else np.inf
     return m
+
+
+# Element loops instead of slice assignment: numba compiles `a[:] = b` through a generic path
+# that pulls in string formatting and costs seconds of compile time per module.
+@njit(cache=True, nogil=True, error_model="numpy")
+def copy_into(dst, src):
+    for i in range(src.shape[0]):
+        dst[i] = src[i]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def set_row(M, k, src):
+    for i in range(src.shape[0]):
+        M[k, i] = src[i]

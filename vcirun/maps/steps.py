@@ -71,7 +71,7 @@ def ld_step(q0, p0, h, t, prm, newton_tol, max_iter, q1, p1, vlast):
     if FULL_STAGES.shape[0] == 1:  # explicit Ld: no intermediate nodes to copy
         velocity_guess(q0, p0, prm, v)
         it = explicit_step(FULL_STAGES[0], q0, p0, h, t, prm, newton_tol, max_iter, v, q1, p1)
-        vlast[:] = v
+        copy_into(vlast, v)
         if it < 0:
             return it, np.nan
         return it, ld_Ed(FULL_STAGES[0], q0, v, h, prm)
@@ -90,9 +90,9 @@ def ld_step(q0, p0, h, t, prm, newton_tol, max_iter, q1, p1, vlast):
         # D3 of a composition: sum of fraction * D3 of the stages (interior nodes are stationary)
         Ed += FULL_FRACS[s] * ld_Ed(FULL_STAGES[s], qa, v, hs, prm)
         ts += hs
-        qa[:] = q1
-        pa[:] = p1
-    vlast[:] = v
+        copy_into(qa, q1)
+        copy_into(pa, p1)
+    copy_into(vlast, v)
     return total, Ed
 
 
