@@ -7,6 +7,7 @@ mode "build": import vcirun, run one simulation (the first one compiles or loads
   miss (build.BUILD_LOG), whether any symbolic module was imported, and optionally the
   microseconds per step (CPU time of the call, wall beside) of a longer run with the constraint
   ignored, in the same process (warm kernels).
+  With measure_sim, also the median loop and CPU time of the first simulation's settings.
 mode "derive": time `vcirun.codegen.derive.module_source` alone (no numba), and the source size.
 Prints one JSON line.
 """
@@ -64,6 +65,17 @@ def main():
             walls.append(r.wall_time / m * 1e6)
         out.update(us_per_step=statistics.median(cpus), us_per_step_wall=statistics.median(walls),
                    us_per_step_all=cpus, measure_status=r.status, measure_newton_iters=float(r.newton_iters.mean()))
+    if a.get("measure_sim"):
+        import statistics
+
+        walls, cpus = [], []
+        for _ in range(a.get("measure_sim_repeats", 11)):
+            c0 = time.thread_time()
+            r = vcirun.simulate(a["system"], a["method"], **kw)
+            cpus.append(time.thread_time() - c0)
+            walls.append(r.wall_time)
+        out.update(sim_loop_ms=statistics.median(walls) * 1e3, sim_cpu_ms=statistics.median(cpus) * 1e3,
+                   sim_status=r.status, sim_impacts=int(len(r.impacts)))
     print(json.dumps(out))
 
 

@@ -17,6 +17,8 @@ Sections (`--only a,b,...` to pick; `--quick` for a short smoke run):
   scaling   cost against T, the number of impacts, 1/h, mh_order (generalized MCVA, cold builds) and
             the degrees of freedom (n-link pendulum, n = 1, 2, 4, 8: symbolic, numba build, us/step),
             with fitted exponents
+  tensor    the per-slot tensor prototype of the step (bench/tensor_prototype.py): symbolic and numba
+            time and us per step against vcirun's generated step, n-link pendulum n = 1, 2, 4, 8
   wp        the work-precision studies (configs/work_precision.yaml, work_precision_double.yaml,
             long_horizon.yaml) through vcirun.experiments.workprecision, with their figures
 
@@ -387,23 +389,25 @@ def section_scaling(res):
         mo = {"ld": "SVC", "mh_order": s, "flow_order": 4}
         with tempfile.TemporaryDirectory(prefix="vcirun_bench_") as d:
             a = {"mode": "build", "system": "cart_pendulum", "method": "MCVA", "method_options": mo, "h": 1e-2,
-                 "T": 5.0, "beta": 3.2, "measure_steps": 20000, "measure_h": 1e-3}
+                 "T": 5.0, "beta": 3.2, "measure_steps": 20000, "measure_h": 1e-3, "measure_sim": True}
             cold = probe(a, d, timeout=1800)
             warm = probe(a, d)
         row = {"mh_order": s, "cold": cold, "warm": warm}
         if "error" not in cold and "error" not in warm:
             row.update(symbolic_s=cold["generate_s"], numba_s=cold["first_sim_s"] - cold["generate_s"],
-                       us_per_step=warm["us_per_step"])
+                       us_per_step=warm["us_per_step"], sim5_cpu_ms=warm["sim_cpu_ms"], sim5_loop_ms=warm["sim_loop_ms"])
             log(f"  MCVA[SVC, s={s}, p=4]: symbolic {cold['generate_s']:.2f} s, numba {row['numba_s']:.1f} s, "
-                f"{warm['us_per_step']:.3f} us per smooth step (status {cold['status']})")
+                f"{warm['us_per_step']:.3f} us per smooth step (constraint ignored); 5 s simulation at h = 1e-2 "
+                f"{warm['sim_loop_ms']:.3f} ms loop, {warm['sim_cpu_ms']:.3f} ms CPU per call, {warm['sim_impacts']} impacts, "
+                f"status {warm['sim_status']}")
         else:
             log(f"  MCVA[SVC, s={s}]: {cold.get('error') or warm.get('error')}")
         rowsm.append(row)
     ok = [r for r in rowsm if "us_per_step" in r]
     if len(ok) >= 2:
         out["mh_order_exponents"] = {k: fit_exponent([r["mh_order"] for r in ok], [r[k] for r in ok])
-                                     for k in ("symbolic_s", "numba_s", "us_per_step")}
-        log(f"  exponents vs mh_order: {out['mh_order_exponents']}")
+                                     for k in ("symbolic_s", "numba_s", "us_per_step", "sim5_cpu_ms")}
+        log("  exponents vs mh_order: " + ", ".join(f"{k} {v:.2f}" for k, v in out["mh_order_exponents"].items()))
     out["mh_order"] = rowsm
     # degrees of freedom: n-link pendulum against a wall
     Ks = [1, 2, 4] if QUICK else [1, 2, 4, 8]
@@ -491,8 +495,21 @@ def print_targets(res):
     res["targets"] = [{"what": a, "measured": b_, "target": c, "met": bool(d)} for a, b_, c, d in rows]
 
 
+def section_tensor(res):
+    log("== per-slot tensor prototype (bench/tensor_prototype.py): symbolic, numba and us per SVC step")
+    r = subprocess.run([sys.executable, str(ROOT / "bench" / "tensor_prototype.py")] + (["cart_pendulum", "1", "2", "4"]
+                       if QUICK else []), cwd=ROOT, text=True, capture_output=True, timeout=7200)
+    log(r.stdout.rstrip())
+    if r.returncode:
+        log(r.stderr.strip()[-2000:])
+    try:
+        res["tensor_prototype"] = json.loads((ROOT / "results" / "tensor_prototype.json").read_text())
+    except (OSError, ValueError):
+        pass
+
+
 SECTIONS = {"steps": section_steps, "sim5": section_sim5, "impact": section_impact, "build": section_build,
-            "sweep": section_sweep, "yardstick": section_yardstick, "scaling": section_scaling, "wp": section_wp}
+            "sweep": section_sweep, "yardstick": section_yardstick, "scaling": section_scaling, "tensor": section_tensor, "wp": section_wp}
 
 
 def main(argv=None):

@@ -69,9 +69,10 @@ WORKERS = (1, 2, 4, 8, 16, 32, 64, 128, 256, 512)
 
 
 def projection(c: float, o_rt: float, o_task: float, s_client: float, runs: int, startup: float,
-               workers=WORKERS) -> list[dict]:
+               group: int = 1, workers=WORKERS) -> list[dict]:
     """Time of a `runs`-run sweep on N worker threads (docs/scaling_out.md):
-      k    = choose_task_size(c, o_rt, runs, N)          the runner's rule (o_rt: empty-task round trip)
+      k    = choose_task_size(c, o_rt, runs, N, group)   the runner's rule (o_rt: empty-task round trip,
+                                                         group: runs per initial condition)
       rate = min(N / (c + o_task / k),                   workers: a run, plus its share of a task's overhead
                  k / o_task,                             scheduler: one task per o_task, serially
                  1 / s_client)                           client: receives and writes every run, serially
@@ -80,7 +81,7 @@ def projection(c: float, o_rt: float, o_task: float, s_client: float, runs: int,
 
     rows = []
     for n in workers:
-        k = choose_task_size(c, o_rt, runs, n)
+        k = choose_task_size(c, o_rt, runs, n, group)
         bounds = {"workers": n / (c + o_task / k), "scheduler": k / o_task, "client": 1.0 / s_client}
         bound = min(bounds, key=bounds.get)
         rate = bounds[bound]
@@ -158,6 +159,10 @@ def main() -> None:
                                                  for k, v in report["dask_fixed_task_size"].items()))
         print(f"  client: writes {1e3 * dk['client_write_s_per_run']:.2f} ms/run, CPU {1e3 * dk['client_cpu_s_per_run']:.2f} "
               f"ms/run (receive + write + preflight)")
+        busy = st["worker_compute_s"] / (dk["workers"] * dk["wall_s"])
+        report["dask_worker_busy_fraction"] = busy
+        print(f"  workers computing {100 * busy:.0f}% of the sweep's wall time (the client and the scheduler share "
+              f"the {report['cores']} cores with them here)")
 
         # --- projection (docs/scaling_out.md)
         c = st["per_run_cost_s"]
@@ -165,16 +170,19 @@ def main() -> None:
         o_task = et["batch_s_per_task"]  # amortized cost of a task when many are queued
         s_client = dk["client_cpu_s_per_run"]
         startup = report["dask_startup_s"]
-        rows = projection(c, o_rt, o_task, s_client, dk["runs"], startup)
-        big = projection(c, o_rt, o_task, s_client, 100 * dk["runs"], startup)
+        runs = dk["runs"]
+        scenarios = {"fig4": (c, runs), "fig4_x100_runs": (c, 100 * runs), "fig4_x100_longer_runs": (100 * c, runs)}
+        group = len(cfg.methods) * len(cfg.h)
+        proj = {name: projection(cc, o_rt, o_task, s_client, rr, startup, group)
+                for name, (cc, rr) in scenarios.items()}
         report["model"] = {"per_run_cost_s": c, "task_round_trip_s": o_rt, "per_task_overhead_s": o_task,
-                           "client_s_per_run": s_client, "startup_s": startup, "fig4": rows, "fig4_x100": big}
+                           "client_s_per_run": s_client, "startup_s": startup, "projection": proj}
         print(f"projection (c = {1e3 * c:.2f} ms/run, round trip {1e3 * o_rt:.2f} ms, o = {1e3 * o_task:.2f} ms/task, "
-              f"client {1e3 * s_client:.2f} ms/run, startup {startup:.2f} s):")
-        print("  N workers | fig4 (408 runs): k, s, runs/s | 100x fig4 (40800 runs): k, s, runs/s, bound")
-        for a, b in zip(rows, big):
-            print(f"  {a['workers']:9d} | {a['task_size']:4d} {a['sweep_s']:7.2f} {a['runs_per_s']:8.1f} | "
-                  f"{b['task_size']:5d} {b['sweep_s']:8.1f} {b['runs_per_s']:8.1f} {b['bound']}")
+              f"client {1e3 * s_client:.2f} ms/run, startup {startup:.2f} s); sweep seconds (task size, bound):")
+        print(f"  {'N':>4} | {'fig4, 408 runs':>24} | {'100x the runs':>24} | {'runs 100x longer':>24}")
+        for i, n in enumerate(WORKERS):
+            cells = [f"{p[i]['sweep_s']:9.2f} s ({p[i]['task_size']:3d}, {p[i]['bound'][:6]:>6})" for p in proj.values()]
+            print(f"  {n:4d} | " + " | ".join(f"{x:>24}" for x in cells))
         report["loadavg_end"] = list(os.getloadavg())
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

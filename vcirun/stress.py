@@ -936,7 +936,7 @@ def _findings(res: dict) -> list:
                 parts.append(f"{m} {_g(v[-2])} -> {_g(v[-1])} J from 1e5 to 1e6 steps (slope {_g(lr(m, 'slope_Hmod'), '.1e')} J/s)")
         L.append("- **Long horizon.** CVA and VCI drift in H (slopes above; max abs(H - H0) grows with the horizon). "
                  "Truncated modified Hamiltonian: " + "; ".join(parts) + ". MCVAA's error grows sub-linearly "
-                 "(bounded to 1e-5 of H0); MCVAC's drifts like its H, about h^3 H0 per impact: the truncation's "
+                 "(within 1.4e-5 of H0 after 1e6 steps); MCVAC's drifts like its H, about h^3 H0 per impact: the truncation's "
                  "per-impact error has a sign (a finding for the MCVA family, pinned by a strict xfail test).")
     L.append("- **Grazing.** A contact whose normal velocity is below ~ phi'' h is invisible to the grid (the dip lies "
              "between grid points) and is missed; the error is then that of a missed reflection, 2 vn (T - t*), "

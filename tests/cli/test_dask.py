@@ -225,6 +225,10 @@ def test_task_size_model():
     assert executors.choose_task_size(5.0, 1e-2, remaining=1000, workers=2) == 1
     assert executors.choose_task_size(1e-3, 10.0, remaining=10**9, workers=1) == 60_000
     assert executors.choose_task_size(1e-3, 1e-2, remaining=3, workers=8) == 1
+    # whole initial conditions (8 runs each) when enough tasks remain; the overhead may ask for more
+    assert executors.choose_task_size(2e-2, 1e-2, remaining=400, workers=2, group=8) == 10
+    assert executors.choose_task_size(2e-2, 1e-3, remaining=400, workers=2, group=8) == 8
+    assert executors.choose_task_size(2e-2, 1e-3, remaining=40, workers=2, group=8) == 5
 
 
 def test_tasks_ship_plain_data_only(tmp_path):

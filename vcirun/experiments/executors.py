@@ -30,8 +30,9 @@ Task size (automatic unless given): the client keeps about two tasks per worker 
 sizes each new task from what it has measured: the per-task overhead o (median round trip of an
 empty task, measured at connect) and the per-run cost c (the workers' compute time per run, warm
 tasks only; the first tasks are single runs until one is measured). The size is the smallest that
-keeps o under 5% of a task (o / (0.05 c)), capped so that at least 4 tasks per worker remain (load
-balance, and a dead worker loses little) and a task stays under a minute.
+keeps o under 5% of a task (o / (0.05 c)) and holds at least one whole initial condition, capped so
+that at least 4 tasks per worker remain (load balance, and a dead worker loses little) and a task
+stays under a minute.
 
 Faults: a worker that dies mid-task has its task rerun elsewhere by the scheduler (up to Dask's
 `distributed.scheduler.allowed-failures` deaths, then KilledWorker ends the sweep like a dead local
@@ -159,14 +160,15 @@ def split_tasks(tasks: list, task_size: int) -> list:
     return out
 
 
-def choose_task_size(run_cost: float, overhead: float, remaining: int, workers: int) -> int:
-    """Runs per task: the fewest that keep the per-task overhead under 5% of the task, capped so that at
-    least 4 tasks per worker remain and a task takes at most a minute."""
+def choose_task_size(run_cost: float, overhead: float, remaining: int, workers: int, group: int = 1) -> int:
+    """Runs per task: the fewest that keep the per-task overhead under 5% of the task, and at least one
+    initial condition's `group` of runs (its reference is then computed once, by one worker, as in the
+    local pool); capped so that at least 4 tasks per worker remain and a task takes at most a minute."""
     run_cost = max(float(run_cost), 1e-7)
     k_amortize = math.ceil(max(float(overhead), 0.0) / (MAX_OVERHEAD_FRACTION * run_cost))
     k_balance = max(1, int(remaining) // (MIN_TASKS_PER_WORKER * max(1, int(workers))))
     k_time = max(1, int(MAX_TASK_SECONDS / run_cost))
-    return max(1, min(k_amortize, k_balance, k_time))
+    return max(1, min(max(k_amortize, int(group)), k_balance, k_time))
 
 
 def source_fingerprint(cached: bool = True) -> str:
@@ -384,6 +386,7 @@ class DaskExecutor:
         self._n_done = 0
         self._payload = None
         self._no_workers_since = None
+        self._compute_total = 0.0          # s, summed over the workers' tasks
         self._fingerprint = ""
 
     # -- connect
@@ -458,7 +461,8 @@ class DaskExecutor:
         mode = max(set(sizes), key=sizes.count) if sizes else None
         return {"tasks": len(sizes), "task_size_mode": mode, "task_size_max": max(sizes) if sizes else None,
                 "task_size_fixed": self.task_size, "per_task_overhead_s": self.overhead,
-                "per_run_cost_s": self.run_cost(), "worker_threads": self.workers,
+                "per_run_cost_s": self.run_cost(), "worker_compute_s": self._compute_total,
+                "worker_threads": self.workers,
                 "worker_hosts": len(self._hosts), "worker_processes_used": len(self._pids)}
 
     # -- run
@@ -483,7 +487,8 @@ class DaskExecutor:
         c = self.run_cost()
         if c is None or not self._warm_runs:
             return 1  # measure first
-        return choose_task_size(c, self.overhead, self._remaining() + sum(self._inflight.values()), self.workers)
+        return choose_task_size(c, self.overhead, self._remaining() + sum(self._inflight.values()), self.workers,
+                                group=len(self._queue[0][1]) if self._queue else 1)
 
     def _next_unit(self, k: int) -> list:
         """Up to k runs from the queue: whole initial conditions while they fit, else part of one."""
@@ -584,6 +589,7 @@ class DaskExecutor:
         self._n_done += n
         self._pids.add((res.get("host"), res.get("pid")))
         self._hosts.add(res.get("host"))
+        self._compute_total += float(res.get("init_s", 0.0)) + float(res["compute_s"])
         if res.get("cold"):
             self._cold_costs.append(res["compute_s"] / n)
         else:
