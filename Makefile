@@ -4,7 +4,7 @@ VENV    := .venv
 BIN     := $(VENV)/bin
 export VCIRUN_CACHE_DIR ?= $(CURDIR)/.vcirun_cache
 
-.PHONY: run test test-all bench reproduce clean install
+.PHONY: run test test-all bench reproduce extremes clean install
 
 $(BIN)/vcirun: pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -30,6 +30,10 @@ test-all: install
 # BENCH_ARGS="--only steps,sim5" for some sections): tables on stdout, JSON and figures in results/.
 bench: install
 	$(BIN)/python bench/bench_all.py $(BENCH_ARGS)
+
+# The stability study at the extremes (about 6 minutes): docs/extremes.md, results/extremes.json.
+extremes: install
+	$(BIN)/python bench/extremes_study.py
 
 # Every figure and table of the paper into results/.
 reproduce: install

@@ -170,7 +170,7 @@ def _failure_cause(mod, status, Q, p, t0, fail, h, prm, tol, H0, impacts) -> str
             return "the collision-time search did not bracket the root to event_tol * h within 200 iterations"
         A = np.empty((n, n))
         worst, t_worst = 0.0, t
-        idx = np.union1d(np.linspace(0, len(Q) - 1, 2000).astype(int), np.arange(max(0, len(Q) - 200), len(Q)))
+        idx = np.union1d(np.linspace(0, len(Q) - 1, 500).astype(int), np.arange(max(0, len(Q) - 100), len(Q)))
         for k in idx:  # conditioning of M along the motion
             mod.sys_M(Q[k], prm, A)
             c = float(np.linalg.cond(A)) if np.all(np.isfinite(A)) else np.inf

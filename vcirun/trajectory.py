@@ -10,7 +10,7 @@ OK = "ok"
 NEWTON_FAILED = "newton_failed"          # a full/partial step or reset solve did not converge
 EVENT_FAILED = "event_failed"            # the collision-time search did not converge
 RESET_FAILED = "reset_failed"            # the reset map found no nontrivial root
-ACCUMULATION = "accumulation"            # impacts accumulate (too many in one step)
+ACCUMULATION = "accumulation"            # impacts denser than the grid for > max_impacts_step steps (or in one step)
 NONFINITE = "nonfinite"                  # a state became inf/NaN
 STATUS_CODES = {0: OK, 1: NEWTON_FAILED, 2: EVENT_FAILED, 3: RESET_FAILED, 4: ACCUMULATION, 5: NONFINITE}
 
