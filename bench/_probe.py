@@ -8,6 +8,7 @@ mode "build": import vcirun, run one simulation (the first one compiles or loads
   microseconds per step (CPU time of the call, wall beside) of a longer run with the constraint
   ignored, in the same process (warm kernels).
   With measure_sim, also the median loop and CPU time of the first simulation's settings.
+mode "floor": the warm-start floor (see `floor`).
 mode "derive": time `vcirun.codegen.derive.module_source` alone (no numba), and the source size.
 Prints one JSON line.
 """
@@ -18,8 +19,40 @@ import json  # noqa: E402
 import sys  # noqa: E402
 
 
+def floor(a):
+    """The warm-start floor: numpy + numba + the cached kernel module loaded by path (no sympy, no
+    scipy, no vcirun import), then one 5-s cart-pendulum CVA run through its compiled loop."""
+    import importlib.util
+
+    import numpy as np
+
+    t_np = time.perf_counter() - T_START
+    import numba  # noqa: F401
+
+    t_nb = time.perf_counter() - T_START
+    spec = importlib.util.spec_from_file_location(a["module_name"], a["module_path"])
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[a["module_name"]] = mod
+    spec.loader.exec_module(mod)
+    t_mod = time.perf_counter() - T_START
+    N, n, cap = 500, 2, 141
+    q0, p0 = np.array([3.2, 0.0]), np.array([0.0, 0.2 * 2.0 ** 2 * (3.5 - 0.18 * 3.2)])  # Xi(3.2): p = M(q0) qdot0
+    prm = np.array([1.0, 0.2, 2.0, 10.0])
+    out = [np.zeros((N + 1, n)), np.zeros((N + 1, n)), np.zeros(N + 1), np.zeros(N + 1), np.zeros(N + 1), np.zeros(cap),
+           np.zeros((cap, n)), np.zeros((cap, n)), np.zeros((cap, n)), np.zeros(N, np.bool_), np.zeros(2 * cap + 16),
+           np.zeros(N, np.int64), np.zeros(5, np.int64)]
+    mod.integrate(q0, p0, 0.0, 1e-2, N, prm, True, 1e-12, 50, 1e-13, 64, *out)
+    t_sim = time.perf_counter() - T_START
+    print(json.dumps({"args": a, "numpy_s": t_np, "numba_s": t_nb, "module_exec_s": t_mod, "to_first_sim_s": t_sim,
+                      "impacts": int(out[-1][2]), "sympy_imported": "sympy" in sys.modules,
+                      "scipy_imported": "scipy" in sys.modules}))
+
+
 def main():
     a = json.loads(sys.argv[1])
+    if a["mode"] == "floor":
+        floor(a)
+        return
     import vcirun
     from vcirun.codegen import build
     from vcirun.mechanics.scenes import get_scene

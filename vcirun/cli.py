@@ -196,6 +196,12 @@ def sweep(
     counts = ", ".join(f"{n} {s}" for s, n in sorted(summary.status_counts.items()))
     typer.echo(f"{summary.path}: {summary.total} runs ({summary.computed} computed, {summary.skipped} already "
                f"stored; {counts or 'none'}) in {summary.wall_time:.1f} s")
+    st = summary.executor_stats
+    if summary.executor == "dask" and summary.computed and st.get("tasks"):
+        cost = st.get("per_run_cost_s")
+        typer.echo(f"dask: {st['tasks']} tasks of up to {st.get('task_size_max')} runs on {summary.workers} worker "
+                   f"threads" + (f"; measured {1e3 * cost:.3g} ms per run" if cost else "")
+                   + f", {1e3 * st.get('per_task_overhead_s', float('nan')):.3g} ms per empty task")
     if summary.computed and summary.failed:
         typer.echo(f"note: {summary.failed} run(s) did not finish with status ok; `vcirun info {summary.path}` "
                    "lists their messages")

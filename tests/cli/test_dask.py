@@ -270,6 +270,7 @@ def test_dask_sweep_matches_the_local_pool_bit_for_bit(tmp_path, monkeypatch, cl
                   "--output", "dask.h5")
     assert dask.exit_code == 0, dask.output
     assert "12 runs (12 computed, 0 already stored; 12 ok)" in dask.stdout
+    assert "on 2 worker threads; measured" in dask.stdout  # tasks, task size and measured costs
 
     a, b = storage.read_results("local.h5"), storage.read_results("dask.h5")
     assert [r.run_id for r in a.runs] == [r.run_id for r in b.runs] == [s.run_id for s in expand(load_config(cfg))]
@@ -294,11 +295,18 @@ def test_dask_sweep_matches_the_local_pool_bit_for_bit(tmp_path, monkeypatch, cl
     # resume on the cluster: nothing left to compute
     again = invoke("sweep", cfg, "--scheduler", cl.scheduler_address, "--output", "dask.h5", "--quiet")
     assert again.exit_code == 0 and "0 computed, 12 already stored" in again.stdout
+    # workers running other vcirun code than the client are refused before anything is written
+    monkeypatch.setattr(executors, "source_fingerprint", lambda cached=True: "0" * 16)
+    r = invoke("sweep", cfg, "--scheduler", cl.scheduler_address, "--output", "other.h5")
+    assert_one_line_error(r, "runs a different vcirun than this client", "restart them")
+    assert not Path("other.h5").exists()
 
 
 def test_a_killed_worker_has_its_runs_retried_elsewhere(tmp_path, monkeypatch, cluster):
     cl, client = cluster
-    cfg = write_config(tmp_path, num=10, output=str(tmp_path / "kill.h5"))  # 40 runs
+    # 40 runs, one per task; the executor from the config this time
+    cfg = write_config(tmp_path, num=10, output=str(tmp_path / "kill.h5"),
+                       extra=f"executor: {{kind: dask, address: '{cl.scheduler_address}', task_size: 1}}\n")
     victim = min(worker_pids(client).items())  # (address, pid)
     killed = []
 
@@ -308,8 +316,7 @@ def test_a_killed_worker_has_its_runs_retried_elsewhere(tmp_path, monkeypatch, c
         killed.append(len(busy))
 
     hook = FirstResult(monkeypatch, kill)
-    summary = run_sweep(load_config(cfg), output=tmp_path / "kill.h5", scheduler=cl.scheduler_address,
-                        task_size=1, progress=False)
+    summary = run_sweep(load_config(cfg), progress=False)
     hook.join()
     assert killed and killed[0] > 0, "the worker was not killed while it held tasks"
     assert summary.ok and summary.computed == 40 and summary.executor == "dask"

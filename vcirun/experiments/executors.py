@@ -54,6 +54,7 @@ import socket
 import statistics
 import threading
 import time
+import uuid
 from collections import OrderedDict, deque
 from pathlib import Path
 
@@ -388,6 +389,7 @@ class DaskExecutor:
         self._no_workers_since = None
         self._compute_total = 0.0          # s, summed over the workers' tasks
         self._fingerprint = ""
+        self._token = uuid.uuid4().hex[:8]  # task keys are global on a cluster: unique per sweep session
 
     # -- connect
     def connect(self) -> None:
@@ -409,6 +411,18 @@ class DaskExecutor:
             self.close()
             raise SweepError(f"the Dask scheduler at {self.address} has no workers after "
                              f"{self.workers_timeout:g} s; start some with `dask worker {self.address}`") from None
+        try:
+            self._set_up()
+        except SweepError:
+            raise
+        except Exception as e:  # noqa: BLE001 - a worker without vcirun, a scheduler gone meanwhile, ...
+            self.close()
+            raise SweepError(f"setting up the Dask workers at {self.address} failed ({type(e).__name__}: "
+                             f"{_one_line(e)}); the workers need the same vcirun as this client") from None
+
+    def _set_up(self) -> None:
+        from .sweep import SweepError
+
         hello = self.client.run(_worker_hello, self.cache_dir)
         mine = self._fingerprint = source_fingerprint(cached=False)
         for addr, h in hello.items():
@@ -520,7 +534,7 @@ class DaskExecutor:
             unit = self._next_unit(k)
             n = sum(len(t.runs) for t in unit)
             fut = self.client.submit(_run_unit, self._payload, unit, pure=False, retries=self.retries,
-                                     key=f"vcirun-{unit[0].runs[0].run_id}-{len(self._sizes)}")
+                                     key=f"vcirun-{unit[0].runs[0].run_id}-{self._token}-{len(self._sizes)}")
             self._inflight[fut] = n
             self._sizes.append(n)
             self._ac.add(fut)
