@@ -215,7 +215,10 @@ def run_study(cfg: StudyConfig, *, quick: bool = False, log=print) -> dict:
                 t0 = time.perf_counter()
                 ref = vcirun.reference(system, T=T_ref, beta=b, params=params, rtol=cfg.reference_rtol)
                 refs[(T, b)] = ref
+                tt = np.linspace(0.0, T, 20001)
+                qn = float(np.sqrt((tt[1] - tt[0]) * np.sum(np.asarray(ref(tt)) ** 2)))   # ||q_ref||_L2
                 ref_info.append({"T": T, "beta": b, "impacts": len(ref.impacts), "accuracy": float(ref.accuracy),
+                                 "q_norm": qn,
                                  "seconds": time.perf_counter() - t0})
         out["references"] = ref_info
         log(f"references: {len(ref_info)} (impacts {min(r['impacts'] for r in ref_info)}.."
@@ -462,6 +465,11 @@ def print_tables(res: dict, file=sys.stdout) -> None:
                      f"{_g(p.get('cpu', math.nan) * 1e3, '.4g'):>11s} "
                      f"{_g(p['impacts'], '.0f'):>7s}  {','.join(p['statuses'])}")
             pr(line)
+        norms = [x["q_norm"] for x in res.get("references", []) if x["T"] == T and "q_norm" in x]
+        if norms:
+            pr(f"   scale: median ||q_ref||_L2 = {statistics.median(norms):.3g}; an L2 error above ~10 % of it "
+               f"({0.1 * statistics.median(norms):.2g}) means the run has lost the motion (marked * below)")
+        lost = 0.1 * statistics.median(norms) if norms else math.inf
         rows = [r for r in res.get("ratios", []) if r["T"] == T]
         if rows:
             solvers = sorted({k.split("_")[0] for r in rows for k in r if k.endswith("_wall_ratio")} - {"best"})
@@ -477,7 +485,8 @@ def print_tables(res: dict, file=sys.stdout) -> None:
                         cells.append(f"{_HOW[r.get(f'{s}_{tm}_how', 'none')] + _g(r.get(f'{s}_{tm}_ratio'), '.3g'):>12s}")
                 best = _HOW[r["best_wall_how"]] + _g(r["best_wall_ratio"], ".3g")
                 per = f"{_g(r['per_ic_wall_ratio_median'], '.3g')}/{_g(r['per_ic_wall_ratio_min'], '.3g')}"
-                pr(f"{r['label']:22s} {_g(r['h'], '.2g'):>8s} {_g(r['err'], '.3e'):>11s} " + " ".join(cells)
+                star = "*" if r["err"] > lost else " "
+                pr(f"{r['label']:22s} {_g(r['h'], '.2g'):>8s} {_g(r['err'], '.3e'):>10s}{star} " + " ".join(cells)
                    + f" {best:>10s} {per:>15s} {r['competitive']}")
     pr(f"   study wall time {res['seconds']:.0f} s")
 
