@@ -20,8 +20,7 @@ def system_kernels(system) -> list[Kernel]:
     q = system.q
     prm = system.param_symbols
     x = list(sp.symbols(f"xm0:{n}"))
-    xv = sp.Matrix(x)
-    dHq = sp.Matrix([-(xv.T * sp.diff(system.M, s) * xv)[0, 0] / 2 + sp.diff(system.V, s) for s in q])
+    dHq = system.dH_dq_at(x)
     return [
         Kernel("sys_M", [("q", q)], [("out", system.M)], prm),
         Kernel("sys_V", [("q", q)], [("V", system.V)], prm),

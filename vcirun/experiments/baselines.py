@@ -80,21 +80,11 @@ class _NumpyModel:
     phi and grad phi, numpy solves."""
 
     def __init__(self, sysm, prm):
-        import sympy as sp
-
         n = sysm.n
         self.n = n
-        q = list(sysm.q)
-        ps = list(sysm.param_symbols)
-        x = list(sp.symbols(f"xm0:{n}"))
-        xv = sp.Matrix(x)
-        dHq = sp.Matrix([-(xv.T * sp.diff(sysm.M, s) * xv)[0, 0] / 2 + sp.diff(sysm.V, s) for s in q])
         prm = [float(v) for v in prm]
-        Mf = sp.lambdify((q, ps), sysm.M, "numpy")
-        dHf = sp.lambdify((q, x, ps), dHq, "numpy")
-        Vf = sp.lambdify((q, ps), sysm.V, "numpy")
-        phif = sp.lambdify((q, ps), sysm.phi, "numpy")
-        gf = sp.lambdify((q, ps), sysm.grad_phi, "numpy")
+        # lambdified in the mechanics layer: the runner never touches sympy itself
+        Mf, dHf, Vf, phif, gf = (sysm.numpy_functions()[k] for k in ("M", "dHq", "V", "phi", "grad_phi"))
         self.M = lambda qq: np.asarray(Mf(qq, prm), float)
         self.V = lambda qq: float(Vf(qq, prm))
         self.grad = lambda qq: np.asarray(gf(qq, prm), float).ravel()

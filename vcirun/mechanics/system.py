@@ -122,6 +122,26 @@ class MechanicalSystem:
             self._lam = (sp.lambdify(args, self.M, "numpy"), sp.lambdify(args, self.phi, "numpy"))
         return self._lam
 
+    def dH_dq_at(self, x) -> sp.Matrix:
+        """dH/dq at fixed x = M(q)^-1 p: -1/2 x^T dM/dq_i x + dV/dq_i (no symbolic inverse of M)."""
+        xv = sp.Matrix(list(x))
+        return sp.Matrix([-(xv.T * sp.diff(self.M, s) * xv)[0, 0] / 2 + sp.diff(self.V, s) for s in self.q])
+
+    def numpy_functions(self) -> dict:
+        """Plain numpy callables (sympy.lambdify), as a numpy/scipy user would write the model:
+        M(q, prm), dHq(q, x, prm) = dH/dq at x = M^-1 p, V(q, prm), phi(q, prm), grad_phi(q, prm).
+        For baselines and checks; the integrators use the compiled kernels instead."""
+        if not hasattr(self, "_npf"):
+            q, ps = list(self.q), self.param_symbols
+            x = list(sp.symbols(f"xm0:{self.n}"))
+            dHq = self.dH_dq_at(x)
+            self._npf = {"M": sp.lambdify((q, ps), self.M, "numpy"),
+                         "dHq": sp.lambdify((q, x, ps), dHq, "numpy"),
+                         "V": sp.lambdify((q, ps), self.V, "numpy"),
+                         "phi": sp.lambdify((q, ps), self.phi, "numpy"),
+                         "grad_phi": sp.lambdify((q, ps), self.grad_phi, "numpy")}
+        return self._npf
+
     def mass_matrix(self, q, params=None) -> np.ndarray:
         prm = self.param_values() if params is None else np.asarray(params, float)
         return np.array(self._lambdas()[0](list(q), list(prm)), dtype=float)
