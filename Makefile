@@ -35,12 +35,12 @@ bench: install
 extremes: install
 	$(BIN)/python bench/extremes_study.py
 
-# Every figure and table of the paper into results/.
+# Every figure and table of the paper into results/, recomputed from scratch (--force).
 reproduce: install
-	$(BIN)/vcirun sweep configs/fig4.yaml
-	$(BIN)/vcirun sweep configs/fig3.yaml
-	$(BIN)/vcirun sweep configs/fig1.yaml
-	$(BIN)/vcirun sweep configs/table2.yaml
+	$(BIN)/vcirun sweep --force configs/fig4.yaml
+	$(BIN)/vcirun sweep --force configs/fig3.yaml
+	$(BIN)/vcirun sweep --force configs/fig1.yaml
+	$(BIN)/vcirun sweep --force configs/table2.yaml
 	$(BIN)/vcirun plot results/fig4.h5
 	$(BIN)/vcirun plot results/fig3.h5
 	$(BIN)/vcirun plot results/fig1.h5
