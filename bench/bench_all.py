@@ -19,6 +19,8 @@ Sections (`--only a,b,...` to pick; `--quick` for a short smoke run):
             with fitted exponents
   tensor    the per-slot tensor prototype of the step (bench/tensor_prototype.py): symbolic and numba
             time and us per step against vcirun's generated step, n-link pendulum n = 1, 2, 4, 8
+  composition  the two work-precision studies again with CVA beside CVA on 4th- and 6th-order
+            Yoshida compositions of SVC (a prototype registered at run time; see composition_methods)
   wp        the work-precision studies (configs/work_precision.yaml, work_precision_double.yaml,
             long_horizon.yaml) through vcirun.experiments.workprecision, with their figures
 
@@ -510,6 +512,53 @@ def print_targets(res):
     res["targets"] = [{"what": a, "measured": b_, "target": c, "met": bool(d)} for a, b_, c, d in rows]
 
 
+def composition_methods():
+    """Prototype (not in the core): CVA on Yoshida compositions of SVC steps, SVC4 (3 stages, order 4)
+    and SVC6 (7 stages, order 6, Yoshida's solution A), registered in the discrete-Lagrangian library
+    at run time. The kernel set already carries stage fractions (as for SVA = SE1, SE2 halves), so
+    Algorithm 1, the partial map (the same composition over tau) and R^CVA apply unchanged."""
+    from vcirun.discrete import lagrangians as L
+    from vcirun.methods import Method
+
+    a1 = 1 / (2 - 2 ** (1 / 3))
+    s4 = (a1, 1 - 2 * a1, a1)
+    w1, w2, w3 = -1.17767998417887, 0.235573213359357, 0.784513610477560
+    w0 = 1 - 2 * (w1 + w2 + w3)
+    s6 = (w3, w2, w1, w0, w1, w2, w3)
+    L.LIBRARY.setdefault("SVC4", L.CompositeLd("SVC4", order=4, symmetric=True, stages=tuple(("SVC", w) for w in s4)))
+    L.LIBRARY.setdefault("SVC6", L.CompositeLd("SVC6", order=6, symmetric=True, stages=tuple(("SVC", w) for w in s6)))
+    return {"CVA4 (SVC x3, proto)": Method("CVA4", ld="SVC4", reset="cva"),
+            "CVA6 (SVC x7, proto)": Method("CVA6", ld="SVC6", reset="cva")}
+
+
+def section_composition(res):
+    """The work-precision studies again with CVA beside the composition prototypes (one run, DOP853)."""
+    from vcirun.experiments import workprecision as wp
+    from vcirun.experiments.wp_figures import plot_study
+
+    out = {}
+    extra = composition_methods()
+    for cfgp in ["configs/work_precision.yaml", "configs/work_precision_double.yaml"]:
+        cfg = wp.load_study(cfgp)
+        name = cfg.name + "_composition"
+        cfg = cfg.model_copy(update={"methods": ["CVA"], "h": [1e-1, 3.2e-2, 1e-2, 3.2e-3, 1e-3],
+                                     "baselines": {"DOP853": cfg.baselines["DOP853"]}, "name": name,
+                                     "description": cfg.description + "; CVA on SVC compositions (prototype)",
+                                     "output": f"results/{name}.json"})
+        log(f"== composition prototype: {name}")
+        r = wp.run_study(cfg, quick=QUICK, extra_methods=extra, log=lambda m: None)
+        path = wp.save(r, cfg.output)
+        import io
+
+        buf = io.StringIO()
+        wp.print_tables(wp.load(path), file=buf)
+        log("\n".join(line for line in buf.getvalue().splitlines() if not line.startswith("DOP853 ")))
+        figs = plot_study(path)
+        log("  " + ", ".join(str(p) for p in figs if p.suffix == ".png"))
+        out[name] = {"path": str(path), "ratios": r["ratios"]}
+    res["composition"] = out
+
+
 def section_tensor(res):
     log("== per-slot tensor prototype (bench/tensor_prototype.py): symbolic, numba and us per SVC step")
     r = subprocess.run([sys.executable, str(ROOT / "bench" / "tensor_prototype.py")] + (["cart_pendulum", "1", "2", "4"]
@@ -524,7 +573,8 @@ def section_tensor(res):
 
 
 SECTIONS = {"steps": section_steps, "sim5": section_sim5, "impact": section_impact, "build": section_build,
-            "sweep": section_sweep, "yardstick": section_yardstick, "scaling": section_scaling, "tensor": section_tensor, "wp": section_wp}
+            "sweep": section_sweep, "yardstick": section_yardstick, "scaling": section_scaling, "tensor": section_tensor, "wp": section_wp,
+            "composition": section_composition}
 
 
 def main(argv=None):
@@ -548,20 +598,24 @@ def main(argv=None):
         if name not in SECTIONS:
             raise SystemExit(f"unknown section {name!r} (choose from {', '.join(SECTIONS)})")
         SECTIONS[name](res)
-    print_targets(res)
     res["machine"]["loadavg_end"] = list(os.getloadavg())
     res["seconds"] = time.perf_counter() - t0
     out = Path(a.output or ("results/bench_all_quick.json" if QUICK else "results/bench_all.json"))
     out.parent.mkdir(exist_ok=True)
     from vcirun.experiments.workprecision import _jsonable
 
+    res = _jsonable(res)
     if out.exists() and a.only != ",".join(SECTIONS):   # a partial run updates the saved sections only
         try:
             old = json.loads(out.read_text())
-            old.update(_jsonable(res))
+            res["partial_runs"] = old.get("partial_runs", []) + [{"sections": a.only, "machine": res["machine"]}]
+            res["machine"] = old.get("machine", res["machine"])
+            old.update(res)
             res = old
+            log("(targets below combine this run's sections with the saved ones)")
         except ValueError:
             pass
+    print_targets(res)
     out.write_text(json.dumps(_jsonable(res), indent=1))
     log(f"saved {out} ({res['seconds']:.0f} s)")
 

@@ -187,8 +187,10 @@ def _call(run: _Run, system, params, time_limit):
     return traj, time.perf_counter() - t0, time.thread_time() - c0
 
 
-def run_study(cfg: StudyConfig, *, quick: bool = False, log=print) -> dict:
-    """Run every run of the study (see the module docstring) and return the JSON-able result."""
+def run_study(cfg: StudyConfig, *, quick: bool = False, log=print, extra_methods: dict | None = None) -> dict:
+    """Run every run of the study (see the module docstring) and return the JSON-able result.
+    extra_methods: {label: vcirun.methods.Method} run beside the config's methods (prototypes that
+    have no name in the method registry, e.g. from bench/)."""
     import vcirun
 
     t_study = time.perf_counter()
@@ -233,6 +235,12 @@ def run_study(cfg: StudyConfig, *, quick: bool = False, log=print) -> dict:
                     continue
                 for b in betas:
                     runs.append(_Run("vcirun", spec.display, spec.name, kw, float(h), T, b, {}))
+        for label, meth in (extra_methods or {}).items():
+            for h in cfg.h:
+                if round(T / h) > cfg.max_steps:
+                    continue
+                for b in betas:
+                    runs.append(_Run("vcirun", label, meth, {}, float(h), T, b, {}))
         for solver, rtols in cfg.baselines.items():
             if T > cfg.baseline_max_T.get(solver, math.inf):
                 continue
@@ -294,7 +302,8 @@ def run_study(cfg: StudyConfig, *, quick: bool = False, log=print) -> dict:
     for r in runs:
         rec = dict(r.record)
         rec.pop("need_energy", None)
-        rec.update(kind=r.kind, label=r.label, method=r.method, options={k: v for k, v in r.kwargs.items()},
+        rec.update(kind=r.kind, label=r.label, method=r.method if isinstance(r.method, str) else repr(r.method),
+                   options={k: v for k, v in r.kwargs.items()},
                    rtol=r.kwargs.get("rtol"), h=r.h, T=r.T, beta=r.beta,
                    wall=statistics.median(rec["walls"]) if rec.get("walls") else math.nan,
                    call=statistics.median(rec["calls"]) if rec.get("calls") else math.nan,
