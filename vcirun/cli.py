@@ -214,14 +214,22 @@ def sweep(
              "  vcirun plot results/fig4.h5\n\n"
              "  vcirun plot results/fig4.h5 --out paper-figures/")
 def plot(
-    results: Optional[Path] = typer.Argument(None, help="Results file (default: newest *.h5 under results/).",
+    results: Optional[Path] = typer.Argument(None, help="Results file (default: newest *.h5 under results/), or a work-precision study JSON.",
                                              show_default=False),
     out: Optional[Path] = typer.Option(None, "--out", help="Output folder (default: <results dir>/figures/<name>)."),
 ):
     """Write the figures (PNG and PDF) and tables (CSV and Markdown) a results file supports."""
     from vcirun.experiments.figures import plot_results
     from vcirun.experiments.tables import print_table
+    from vcirun.experiments.wp_figures import is_study_file, plot_study, print_study_tables
 
+    if results is not None and is_study_file(results):
+        # a work-precision or long-horizon study (results/work_precision*.json, long_horizon.json)
+        print_study_tables(results)
+        typer.echo(f"figures for {results}:")
+        for p in plot_study(results, out):
+            typer.echo(f"  {p}")
+        return
     try:
         report = plot_results(results, outdir=out)
     except _expected_errors() as e:
