@@ -127,15 +127,23 @@ def long_horizon_figure(res: dict, outdir: Path, timing: str = "cpu") -> list[Pa
             if hm:
                 ax.loglog([tkey(p) for p in hm], [p["dHmod"] for p in hm], color=col, marker=mk, markersize=4,
                           markerfacecolor="none", linestyle=":", label=f"{label} max|Hmod-Hmod0|")
+        mine_err = [p["err"] for p in pts if p["kind"] == "vcirun" and np.isfinite(p["err"])]
+        ytop = 100.0 * max(mine_err) if mine_err else math.inf
         for s, (col, mk, ls) in _BASE_STYLE.items():
             theirs = sorted([p for p in pts if p["kind"] == "baseline" and p["label"] == s and np.isfinite(p["err"])],
                             key=lambda p: -p["rtol"])
             if theirs:
-                ax.loglog([tkey(p) for p in theirs], [p["err"] for p in theirs], color=col, marker=mk, linestyle=ls,
-                          markersize=5, label=f"solve_ivp {s} max|H-H0|")
-                for p in theirs:
-                    ax.annotate(f"{p['rtol']:.0e}", (tkey(p), p["err"]), fontsize=5, color=col, xytext=(3, -7),
-                                textcoords="offset points")
+                ys = [min(p["err"], ytop) for p in theirs]
+                ax.loglog([tkey(p) for p in theirs], ys, color=col, marker=mk, linestyle=ls,
+                          markersize=5, label=f"solve_ivp {s} max|H-H0| (at the top: lost the motion)")
+                for p, y in zip(theirs, ys):
+                    lost = p["err"] > ytop
+                    ax.annotate(f"{p['rtol']:.0e}" + (f": {p['err']:.0e}" if lost else ""), (tkey(p), y), fontsize=5,
+                                color=col, xytext=(3, -7), textcoords="offset points")
+            timed_out = [p for p in pts if p["kind"] == "baseline" and p["label"] == s and "time_limit" in p["statuses"]]
+            if timed_out:
+                ax.annotate(f"{s}: rtol " + ", ".join(f"{p['rtol']:.0e}" for p in sorted(timed_out, key=lambda p: -p["rtol"]))
+                            + " stopped at the time limit", (0.01, 0.01), xycoords="axes fraction", fontsize=6, color=col)
         ax.set_title(f"T = {T:g}", fontsize=9)
         ax.set_xlabel("median CPU time per call [s]" if timing == "cpu" else "median compiled-loop time [s]")
         ax.grid(True, which="both", linewidth=0.3, alpha=0.5)
