@@ -33,6 +33,19 @@ def resolve_system(system, params: dict | None = None) -> MechanicalSystem:
     raise ValueError(f"system: expected a built-in name, a YAML path or a MechanicalSystem, got {type(system).__name__}")
 
 
+def grid_steps(h, T) -> tuple[float, float, int]:
+    """Validated (h, T, N) of the grid t_k = k h, k = 0..N, N = round(T / h)."""
+    h, T = float(h), float(T)
+    if not (h > 0 and np.isfinite(h)):
+        raise ValueError(f"h: must be a positive finite step (got {h})")
+    if not (T > 0 and np.isfinite(T)):
+        raise ValueError(f"T: must be a positive finite time (got {T})")
+    N = int(round(T / h))
+    if N < 1:
+        raise ValueError(f"T: must be at least one step h (got T={T}, h={h})")
+    return h, T, N
+
+
 def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, constrained=None,
              t0=0.0, **options) -> tr.Trajectory:
     """Simulate `system` with `method` on the grid t_k = t0 + k h, k = 0..N, N = round(T / h).
@@ -54,15 +67,7 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
         raise ValueError(f"options: unknown option {sorted(unknown)[0]!r} (known: "
                          f"{', '.join(sorted(set(DEFAULT_TOLERANCES) | _METHOD_OPTIONS | {'params', 'constrained'}))})")
     tol = DEFAULT_TOLERANCES | options
-    h = float(h)
-    T = float(T)
-    if not (h > 0 and np.isfinite(h)):
-        raise ValueError(f"h: must be a positive finite step (got {h})")
-    if not (T > 0 and np.isfinite(T)):
-        raise ValueError(f"T: must be a positive finite time (got {T})")
-    N = int(round(T / h))
-    if N < 1:
-        raise ValueError(f"T: must be at least one step h (got T={T}, h={h})")
+    h, T, N = grid_steps(h, T)
     sysm = resolve_system(system)
     meth = resolve_method(method, **mopts)
     prm = sysm.param_values(params)

@@ -137,20 +137,14 @@ def solve_ivp_run(system, method: str = "DOP853", *, h, T, rtol, atol=None, beta
     grid after the timed part)."""
     from scipy.integrate import solve_ivp
 
-    from ..api import resolve_system
+    from ..api import grid_steps, resolve_system
 
     if method not in BASELINES:
         raise ValueError(f"method: expected one of {', '.join(BASELINES)} (got {method!r})")
-    h, T, rtol = float(h), float(T), float(rtol)
-    if not (h > 0 and np.isfinite(h)):
-        raise ValueError(f"h: must be a positive finite step (got {h})")
-    if not (T > 0 and np.isfinite(T)):
-        raise ValueError(f"T: must be a positive finite time (got {T})")
+    h, T, N = grid_steps(h, T)
+    rtol = float(rtol)
     if not (rtol > 0 and np.isfinite(rtol)):
         raise ValueError(f"rtol: must be positive (got {rtol})")
-    N = int(round(T / h))
-    if N < 1:
-        raise ValueError(f"T: must be at least one step h (got T={T}, h={h})")
     sysm = resolve_system(system)
     prm = sysm.param_values(params)
     q0, p0 = sysm.initial_state(beta=beta, q0=q0, p0=p0, params=prm)
