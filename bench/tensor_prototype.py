@@ -24,7 +24,8 @@ the tensor step against vcirun's SVC step (same q1, p1 to round-off) before timi
 
 It also tries a cheaper Newton start (linear extrapolation of the last two step velocities).
 
-    python bench/tensor_prototype.py [cart_pendulum] [K ...]   (prints a table; JSON to results/)
+    python bench/tensor_prototype.py [--output=PATH] [cart_pendulum] [K ...]
+                                     (prints a table; JSON to results/tensor_prototype.json)
 """
 from __future__ import annotations
 
@@ -261,6 +262,10 @@ def measure(K, cache):
 
 
 def main(argv):
+    out = ROOT / "results" / "tensor_prototype.json"
+    if argv and argv[0].startswith("--output="):
+        out = Path(argv[0].split("=", 1)[1])
+        argv = argv[1:]
     Ks = [int(a) if a.isdigit() else a for a in argv] or ["cart_pendulum", 1, 2, 4, 8]
     rows = []
     with tempfile.TemporaryDirectory(prefix="vcirun_tensor_") as d:
@@ -273,7 +278,6 @@ def main(argv):
                   f"with H, Ed {r['vcirun_svc_us_per_step']:.3f} us/step | tensor + extrapolated Newton guess "
                   f"{r['tensor_extrapolated_guess_us_per_step']:.3f} us ({r['tensor_extrapolated_guess_newton_iters']:.2f} it.) | step agrees to {r['max_diff_vs_vcirun_step']:.1e}",
                   flush=True)
-    out = ROOT / "results" / "tensor_prototype.json"
     out.write_text(json.dumps(rows, indent=1))
     print(f"saved {out}")
     return rows

@@ -114,6 +114,17 @@ def test_oscillator_against_the_closed_form():
     assert np.max(np.abs(b.impacts - t_imp)) < 1e-8
 
 
+def test_restart_steps_off_the_surface_so_no_impact_is_missed():
+    # A naive restart right after the reset starts the event function at phi ~ -1e-17; solve_ivp then
+    # sees no crossing when the next hop is shorter than its first step, and the cart falls through
+    # the floor (observed at rtol 1e-3 after 26 impacts). The escape micro step prevents that.
+    kw = dict(h=1e-2, T=300.0, beta=3.2, rtol=1e-3, energies=False)
+    naive = solve_ivp_run("cart_pendulum", "DOP853", escape=False, **kw)
+    fixed = solve_ivp_run("cart_pendulum", "DOP853", **kw)
+    assert naive.q[:, 0].min() < -100.0                   # the documented failure of the naive restart
+    assert fixed.status == "ok" and fixed.q[:, 0].min() > -0.5 and len(fixed.impacts) > 200
+
+
 def test_bad_input_raises_naming_the_field():
     for kw, field in [({"method": "RK45"}, "method"), ({"h": 0.0}, "h"), ({"T": -1.0}, "T"), ({"rtol": 0.0}, "rtol")]:
         args = dict(method="DOP853", h=H, T=T, beta=BETA, rtol=1e-6) | kw
@@ -121,3 +132,57 @@ def test_bad_input_raises_naming_the_field():
         with pytest.raises(ValueError, match=f"^{field}:"):
             solve_ivp_run("cart_pendulum", method, **args)
     assert set(BASELINES) == {"DOP853", "Radau"}
+
+
+# --- the work-precision study around the baselines (vcirun.experiments.workprecision) ----------------
+
+def test_shipped_study_configs_load():
+    from pathlib import Path
+
+    from vcirun.experiments.workprecision import load_study
+
+    root = Path(__file__).resolve().parents[2]
+    for name, study in [("work_precision", "work_precision"), ("work_precision_double", "work_precision"),
+                        ("long_horizon", "long_horizon")]:
+        cfg = load_study(root / "configs" / f"{name}.yaml")
+        assert cfg.study == study and cfg.name == name
+        assert set(cfg.baselines) <= set(BASELINES)
+        if study == "work_precision":   # issue 7: at least 6 steps from 1e-1 down to 1e-4, rtol 1e-3 .. 1e-12
+            assert len(cfg.h) >= 6 and max(cfg.h) >= 1e-1 and min(cfg.h) <= 1e-4
+            assert min(cfg.baselines["DOP853"]) <= 1e-12 and max(cfg.baselines["DOP853"]) >= 1e-3
+        else:
+            assert min(cfg.horizons()) >= 1000
+
+
+def test_matching_on_the_pareto_front():
+    from vcirun.experiments.workprecision import _front, time_at_error
+
+    # (time, error): the slower, less accurate run is not on the front
+    front = _front([(1.0, 1e-2), (2.0, 1e-4), (1.5, 1e-1), (4.0, 1e-6)])
+    assert front == [(1.0, 1e-2), (2.0, 1e-4), (4.0, 1e-6)]
+    t, how = time_at_error(front, 1e-3)          # halfway in log error -> halfway in log time
+    assert how == "interpolated" and t == pytest.approx(np.sqrt(2.0))
+    assert time_at_error(front, 1e-1) == (1.0, "cheapest_more_accurate")
+    assert time_at_error(front, 1e-8) == (4.0, "not_reached")
+
+
+def test_a_tiny_study_runs_end_to_end(tmp_path):
+    from vcirun.experiments import workprecision as wp
+
+    cfg = wp.StudyConfig(study="work_precision", name="tiny", system="cart_pendulum", beta=[3.2], T=1.0,
+                         methods=["CVA"], h=[1e-2, 5e-3], baselines={"DOP853": [1e-4, 1e-8]}, repeats=1,
+                         baseline_repeats=1, output=str(tmp_path / "tiny.json"))
+    res = wp.run_study(cfg, log=lambda m: None)
+    path = wp.save(res, cfg.output)
+    back = wp.load(path)
+    cva = [p for p in back["summary"] if p["label"] == "CVA"]
+    assert len(cva) == 2 and all(p["all_ok"] and p["err"] > 0 for p in cva)
+    assert cva[0]["err"] / cva[1]["err"] == pytest.approx(4.0, rel=0.3)    # second order, one impact
+    assert {r["label"] for r in back["ratios"]} == {"CVA"}
+    assert all(r["DOP853_wall_how"] in ("interpolated", "cheapest_more_accurate", "not_reached")
+               for r in back["ratios"])
+    from vcirun.experiments.wp_figures import is_study_file, plot_study
+
+    assert is_study_file(path)
+    written = plot_study(path, tmp_path / "fig")
+    assert {p.suffix for p in written} == {".png", ".pdf", ".md"} and all(p.stat().st_size > 0 for p in written)

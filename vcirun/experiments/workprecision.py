@@ -32,6 +32,11 @@ that bias, so ratios are reported on all three), the L2 error against the exact 
 for the MCVA family, max |Hmod - Hmod0| (long_horizon). Per (method, h) or (solver, rtol, grid) the
 study takes the median over initial conditions of errors and times.
 
+Lost motion. An error above 10 % of the median ||q_ref||_L2 (work_precision) or of |H0| (long_horizon)
+means the run has lost the motion (e.g. solve_ivp at a loose tolerance misses an impact and the cart
+falls through the floor). Such solver runs are not candidates for the matching below, and such vcirun
+points are marked rather than rated.
+
 Speed ratio at matched accuracy. For each vcirun point (error e, time t) and each solver, the
 solver's Pareto front on the same output grid (its runs sorted by time, keeping each that is more
 accurate than every cheaper one) is interpolated linearly in (log error, log time) at e:
@@ -204,7 +209,7 @@ def run_study(cfg: StudyConfig, *, quick: bool = False, log=print, extra_methods
         betas = betas[:1]
         repeats, brepeats = min(repeats, 3), min(brepeats, 2)
     lh = cfg.study == "long_horizon"
-    out = {"study": cfg.study, "name": cfg.name, "description": cfg.description, "config": cfg.model_dump(),
+    out = {"study": cfg.study, "name": cfg.name + ("_quick" if quick else ""), "description": cfg.description, "config": cfg.model_dump(),
            "quick": quick, "machine": _machine(), "started": time.strftime("%Y-%m-%d %H:%M:%S"),
            "protocol": {"repeats": repeats, "baseline_repeats": brepeats, "statistic": "median over repeats, "
                         "then median over initial conditions", "interleaved": True, "process": "one, serial"}}
@@ -310,17 +315,42 @@ def run_study(cfg: StudyConfig, *, quick: bool = False, log=print, extra_methods
                    cpu=statistics.median(rec["cpus"]) if rec.get("cpus") else math.nan)
         recs.append(rec)
     out["runs"] = recs
-    out["summary"] = summarize(recs, metric="dH" if lh else "l2")
-    if not lh:
-        out["ratios"] = matched_ratios(recs, out["summary"])
-    else:
-        out["ratios"] = matched_ratios(recs, out["summary"], metric="dH")
+    ics = []
+    from ..api import resolve_system
+
+    sysm = resolve_system(system)
+    for b in betas:
+        q0, p0 = sysm.initial_state(beta=b, params=sysm.param_values(params))
+        ics.append({"beta": b, "H0": float(hamiltonian_on_grid(system, q0[None, :], p0[None, :], params)[0])})
+    out["initial_conditions"] = ics
+    analyze(out)
     out["machine"]["loadavg_end"] = list(os.getloadavg())
     out["seconds"] = time.perf_counter() - t_study
     return out
 
 
 # --- analysis ---------------------------------------------------------------------------------------
+def lost_threshold(res: dict) -> float:
+    """The error beyond which a run has lost the motion: 10 % of the median ||q_ref||_L2 (work_precision)
+    or of the median |H0| (long_horizon); inf if unknown. Solver runs beyond it are left out of the
+    matched-accuracy comparison (a solve_ivp run that missed an impact is not a cheap, inaccurate
+    answer but a wrong one), and vcirun points beyond it are marked, not rated."""
+    if res["study"] == "work_precision":
+        v = [x["q_norm"] for x in res.get("references", []) if x.get("q_norm")]
+    else:
+        v = [abs(x["H0"]) for x in res.get("initial_conditions", []) if x.get("H0")]
+    return 0.1 * statistics.median(v) if v else math.inf
+
+
+def analyze(res: dict) -> dict:
+    """(Re)compute the summary and the matched-accuracy ratios of a study from its runs."""
+    metric = "dH" if res["study"] == "long_horizon" else "l2"
+    res["lost_threshold"] = lost_threshold(res)
+    res["summary"] = summarize(res["runs"], metric=metric)
+    res["ratios"] = matched_ratios(res["runs"], res["summary"], metric=metric, lost=res["lost_threshold"])
+    return res
+
+
 def _median(xs):
     xs = [x for x in xs if x is not None and np.isfinite(x)]
     return statistics.median(xs) if xs else math.nan
@@ -376,10 +406,13 @@ def time_at_error(front, e) -> tuple[float, str]:
     return math.nan, "none"
 
 
-def matched_ratios(recs: list[dict], summary: list[dict], metric: str = "l2") -> list[dict]:
+def matched_ratios(recs: list[dict], summary: list[dict], metric: str = "l2", lost: float = math.inf) -> list[dict]:
     """Speed ratio solver time / vcirun time at the vcirun point's error, per (T, method, h), for the
-    compiled-loop time ('wall') and the whole call ('call'); on the medians and per initial condition."""
+    compiled-loop time ('wall'), the whole call ('call') and its CPU time ('cpu'); on the medians and
+    per initial condition. Solver runs with an error above `lost` are not candidates."""
     out = []
+    if not (lost > 0):
+        lost = math.inf
     solvers = sorted({p["label"] for p in summary if p["kind"] == "baseline"})
     for p in summary:
         if p["kind"] != "vcirun" or not np.isfinite(p["err"]):
@@ -394,7 +427,7 @@ def matched_ratios(recs: list[dict], summary: list[dict], metric: str = "l2") ->
                 if not hs:
                     continue
                 same = [q for q in grid if q["h"] == hs[0]]   # the same output grid (or the nearest)
-                t, how = time_at_error(_front([(q[timing], q["err"]) for q in same]), p["err"])
+                t, how = time_at_error(_front([(q[timing], q["err"]) for q in same if q["err"] <= lost]), p["err"])
                 ratio = t / p[timing] if np.isfinite(t) else math.nan
                 row[f"{s}_{timing}_ratio"] = ratio
                 row[f"{s}_{timing}_how"] = how
@@ -420,7 +453,7 @@ def matched_ratios(recs: list[dict], summary: list[dict], metric: str = "l2") ->
                     continue
                 hg = min({r["h"] for r in theirs}, key=lambda x: abs(math.log(x / p["h"])))
                 t, how = time_at_error(_front([(r["wall"], r.get(metric, math.nan)) for r in theirs
-                                               if r["h"] == hg]), e)
+                                               if r["h"] == hg and r.get(metric, math.nan) <= lost]), e)
                 if np.isfinite(t) and how == "interpolated":
                     best_b = min(best_b, t / w)
             if np.isfinite(best_b):
@@ -429,7 +462,9 @@ def matched_ratios(recs: list[dict], summary: list[dict], metric: str = "l2") ->
         row["per_ic_wall_ratio_min"] = min(per) if per else math.nan
         row["per_ic_n"] = len(per)
         r_, how_ = row["best_wall_ratio"], row["best_wall_how"]
-        if not np.isfinite(r_):
+        if p["err"] > lost:
+            row["competitive"] = "lost the motion"
+        elif not np.isfinite(r_):
             row["competitive"] = "no solver data"
         elif how_ == "interpolated":
             row["competitive"] = "yes" if r_ > 1.0 else "no"
@@ -474,11 +509,12 @@ def print_tables(res: dict, file=sys.stdout) -> None:
                      f"{_g(p.get('cpu', math.nan) * 1e3, '.4g'):>11s} "
                      f"{_g(p['impacts'], '.0f'):>7s}  {','.join(p['statuses'])}")
             pr(line)
-        norms = [x["q_norm"] for x in res.get("references", []) if x["T"] == T and "q_norm" in x]
-        if norms:
-            pr(f"   scale: median ||q_ref||_L2 = {statistics.median(norms):.3g}; an L2 error above ~10 % of it "
-               f"({0.1 * statistics.median(norms):.2g}) means the run has lost the motion (marked * below)")
-        lost = 0.1 * statistics.median(norms) if norms else math.inf
+        lost = res.get("lost_threshold", math.inf)
+        lost = lost if lost is not None and np.isfinite(lost) else math.inf
+        if np.isfinite(lost):
+            what = "||q_ref||_L2" if not lh else "|H0|"
+            pr(f"   lost the motion: an error above 10 % of the median {what} ({lost:.2g}); such solve_ivp runs are "
+               "left out of the matching, such vcirun points are marked *")
         rows = [r for r in res.get("ratios", []) if r["T"] == T]
         if rows:
             solvers = sorted({k.split("_")[0] for r in rows for k in r if k.endswith("_wall_ratio")} - {"best"})
@@ -532,12 +568,12 @@ def load(path) -> dict:
             return [fix(v) for v in x]
         return x
     res = fix(json.loads(Path(path).read_text()))
-    for coll in ("runs", "summary", "ratios"):
+    for coll in ("runs",):
         for r in res.get(coll, []):
             for k, v in list(r.items()):
                 if v is None and k not in ("rtol", "message") and not k.endswith(("_how", "_solver")):
                     r[k] = math.nan
-    return res
+    return analyze(res)   # summary and ratios from the stored runs (the analysis may be newer than the file)
 
 
 def main(argv=None) -> int:
