@@ -205,9 +205,12 @@ def run_study(cfg: StudyConfig, *, quick: bool = False, log=print, extra_methods
     horizons = cfg.horizons()
     specs = cfg.method_specs()
     repeats, brepeats = cfg.repeats, cfg.baseline_repeats
-    if quick:
+    if quick:   # a smoke run: one initial condition, the shortest horizon, fewer repeats and tolerances
         betas = betas[:1]
+        horizons = horizons[:1]
         repeats, brepeats = min(repeats, 3), min(brepeats, 2)
+        cfg = cfg.model_copy(update={"baselines": {k: v[::3] for k, v in cfg.baselines.items()},
+                                     "baseline_time_limit": min(cfg.baseline_time_limit, 10.0)})
     lh = cfg.study == "long_horizon"
     out = {"study": cfg.study, "name": cfg.name + ("_quick" if quick else ""), "description": cfg.description, "config": cfg.model_dump(),
            "quick": quick, "machine": _machine(), "started": time.strftime("%Y-%m-%d %H:%M:%S"),
