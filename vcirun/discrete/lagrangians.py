@@ -16,8 +16,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import sympy as sp
-
 
 @dataclass(frozen=True)
 class ExplicitLd:
@@ -95,6 +93,8 @@ def ld_expression(system, ld: ExplicitLd, q0, q1, h):
 
 def slot_symbols(n: int):
     """Symbols used by generated step kernels: q0, v (step velocity), q1, h, t."""
+    import sympy as sp  # imported here: the library of Lds is read on every warm start, sympy is not
+
     q0 = sp.symbols(f"qa0:{n}")
     v = sp.symbols(f"va0:{n}")
     q1 = sp.symbols(f"qb0:{n}")
@@ -112,6 +112,8 @@ def step_expressions(system, ld: ExplicitLd, need_jacobian=True, need_energy=Tru
       Ed_v = dEd/dv                   (for the VCI reset)
     Only what is asked for is derived (a scene compiles only the derivatives its methods need).
     """
+    import sympy as sp
+
     n = system.n
     q0, v, q1, h, t = slot_symbols(n)
     Ld = ld_expression(system, ld, q0, q1, h)
