@@ -50,6 +50,12 @@ METHODS = {
                     properties=_props(True, True, False)),
     "MCVAC": Method("MCVAC", ld="SVC", partial="gauss", reset="mcva", mh_order=3, flow_order=4,
                     properties=_props(True, True, True)),
+    # Beyond the paper (issue 7): CVA on higher-order symmetric compositions of SVC (Suzuki s5 order 4,
+    # Kahan & Li s9 order 6 and s17 order 8; vcirun.discrete.lagrangians). Same partial map (the
+    # composition over tau) and R^CVA: the collision time and the state at impact inherit the order.
+    "CVA4": Method("CVA4", ld="SVC4", reset="cva", properties=_props(False, False, False)),
+    "CVA6": Method("CVA6", ld="SVC6", reset="cva", properties=_props(False, False, False)),
+    "CVA8": Method("CVA8", ld="SVC8", reset="cva", properties=_props(False, False, False)),
 }
 
 
@@ -61,7 +67,20 @@ def resolve_method(method, **options) -> Method:
     if not isinstance(method, str):
         raise ValueError(f"method: expected a method name, got {type(method).__name__}")
     if method in METHODS:
-        return METHODS[method]
+        base = METHODS[method]
+        if not options:
+            return base
+        if method in ("CVA", "VCI") and set(options) == {"ld"}:
+            ld = get_ld(options["ld"])  # raises naming the field
+            if method == "VCI" and not ld.explicit:
+                raise ValueError(f"ld: VCI needs an explicit discrete Lagrangian (its reset conserves the "
+                                 f"energy of one explicit step); {ld.name} is a composition - use CVA, or "
+                                 f"one of {', '.join(k for k, v in LIBRARY.items() if v.explicit)}")
+            return Method(f"{method}[{ld.name}]", ld=ld.name, reset=base.reset,
+                          properties=_props(False, base.properties["symplectic"], ld.explicit))
+        bad = sorted(options)[0]
+        hint = "ld (CVA, VCI)" if method in ("CVA", "VCI") else "none: use method 'MCVA' for ld/mh_order/flow_order"
+        raise ValueError(f"{bad}: option not accepted by method {method} (accepted: {hint})")
     if method in LIBRARY:
         return Method(method, ld=method, reset=None, properties=_props(False, "exact", LIBRARY[method].explicit))
     if method == "MCVA":

@@ -14,6 +14,7 @@ import pytest
 import vcirun
 import vcirun.api
 from vcirun.discrete.lagrangians import LIBRARY
+from vcirun.modified import MH_LDS
 from vcirun.methods import METHODS, resolve_method
 from vcirun.modified import generalized_mcva
 from vcirun.modified.evaluate import python_module_for
@@ -31,7 +32,7 @@ def _short_state():
 
 
 @pytest.mark.parametrize("s", [1, 2, 3])
-@pytest.mark.parametrize("ld", list(LIBRARY))
+@pytest.mark.parametrize("ld", MH_LDS)
 def test_generalized_mcva_runs_uncompiled(uncompiled, ld, s):
     q0, p0 = _short_state()
     tr = vcirun.simulate("cart_pendulum", "MCVA", ld=ld, mh_order=s, flow_order=4, h=0.02, T=0.5, q0=q0, p0=p0)
@@ -85,7 +86,7 @@ def test_refuses_a_forced_system():
 
 @pytest.mark.slow
 @pytest.mark.parametrize("s", [1, 2, 3])
-@pytest.mark.parametrize("ld", list(LIBRARY))
+@pytest.mark.parametrize("ld", MH_LDS)
 def test_generalized_mcva_compiled_figure3_setting(ld, s):
     """Every (Ld, s) runs compiled on the Figure 3 setting and its impact steps conserve the truncation.
     Accuracy needs a second-order Ld and s >= 2: with s = 1 the reset conserves eta = H + O(h) and the

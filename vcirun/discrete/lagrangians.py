@@ -70,6 +70,30 @@ def _midpoint(L, q0, q1, h):
     return h * L([(a + b) / 2 for a, b in zip(q0, q1)], v)
 
 
+# Symmetric compositions of the symmetric, second-order SVC step (Hairer, Lubich & Wanner, Geometric
+# Numerical Integration, Sec. V.3): Phi^SVCp_h = Phi^SVC_{g_s h} o ... o Phi^SVC_{g_1 h}. A composition
+# of discrete Lagrangian maps is the map of the composed Ld (the sum of the stage Lds, stationary in
+# the interior nodes), so these are variational integrators of order p; inside Algorithm 1 the
+# partial map is the same composition over tau and R^CVA applies unchanged. The stages with negative
+# g step backwards in time: the SVC kernels are regular for any sign of h.
+_S4 = 1.0 / (4.0 - 4.0 ** (1.0 / 3.0))
+# Suzuki's 5-stage order 4 (smaller error constant than the 3-stage triple jump at 5/3 the cost)
+SVC4_WEIGHTS = (_S4, _S4, 1.0 - 4.0 * _S4, _S4, _S4)
+# Kahan & Li s9odr6a (GNI eq. V.3.11)
+_K6 = (0.39216144400731413927925056, 0.33259913678935943859974864, -0.70624617255763935980996482,
+       0.08221359629355080023149045)
+SVC6_WEIGHTS = _K6 + (1.0 - 2.0 * sum(_K6),) + _K6[::-1]
+# Kahan & Li s17odr8a (GNI eq. V.3.11)
+_K8 = (0.13020248308889008087881763, 0.56116298177510838456196441, -0.38947496264484728640807860,
+       0.15884190655515560089621075, -0.39590389413323757733623154, 0.18453964097831570709183254,
+       0.25837438768632204729397911, 0.29501172360931029887096624)
+SVC8_WEIGHTS = _K8 + (1.0 - 2.0 * sum(_K8),) + _K8[::-1]
+
+
+def _svc_composition(name, order, weights):
+    return CompositeLd(name, order=order, symmetric=True, stages=tuple(("SVC", float(w)) for w in weights))
+
+
 LIBRARY = {
     "SE1": ExplicitLd("SE1", order=1, symmetric=False, build=_se1, forcing_weights=(1.0, 0.0)),
     "SE2": ExplicitLd("SE2", order=1, symmetric=False, build=_se2, forcing_weights=(0.0, 1.0)),
@@ -77,6 +101,9 @@ LIBRARY = {
     "midpoint": ExplicitLd("midpoint", order=2, symmetric=True, build=_midpoint),
     "SVA": CompositeLd("SVA", order=2, symmetric=True, stages=(("SE1", 0.5), ("SE2", 0.5))),
     "SVB": CompositeLd("SVB", order=2, symmetric=True, stages=(("SE2", 0.5), ("SE1", 0.5))),
+    "SVC4": _svc_composition("SVC4", 4, SVC4_WEIGHTS),
+    "SVC6": _svc_composition("SVC6", 6, SVC6_WEIGHTS),
+    "SVC8": _svc_composition("SVC8", 8, SVC8_WEIGHTS),
 }
 
 

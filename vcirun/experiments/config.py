@@ -44,11 +44,12 @@ __all__ = ["ConfigError", "SweepConfig", "MethodSpec", "InitialCondition", "Exec
            "COLLISION_METHODS", "SMOOTH_METHODS", "DISCRETE_LAGRANGIANS", "yaml_load"]
 
 # Names `vcirun.simulate` accepts (tests/unit/test_config.py checks these against the core).
-COLLISION_METHODS = ("CVA", "VCI", "MCVAA", "MCVAC", "MCVA")
-DISCRETE_LAGRANGIANS = ("SE1", "SE2", "SVA", "SVB", "SVC", "midpoint")
+COLLISION_METHODS = ("CVA", "VCI", "MCVAA", "MCVAC", "MCVA", "CVA4", "CVA6", "CVA8")
+DISCRETE_LAGRANGIANS = ("SE1", "SE2", "SVA", "SVB", "SVC", "midpoint", "SVC4", "SVC6", "SVC8")
 SMOOTH_METHODS = DISCRETE_LAGRANGIANS  # a bare Ld name integrates the smooth dynamics, constraint ignored
-MethodName = Literal["CVA", "VCI", "MCVAA", "MCVAC", "MCVA", "SE1", "SE2", "SVA", "SVB", "SVC", "midpoint"]
-LdName = Literal["SE1", "SE2", "SVA", "SVB", "SVC", "midpoint"]
+MethodName = Literal["CVA", "VCI", "MCVAA", "MCVAC", "MCVA", "CVA4", "CVA6", "CVA8",
+                     "SE1", "SE2", "SVA", "SVB", "SVC", "midpoint", "SVC4", "SVC6", "SVC8"]
+LdName = Literal["SE1", "SE2", "SVA", "SVB", "SVC", "midpoint", "SVC4", "SVC6", "SVC8"]
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]*$")
 
 
@@ -127,7 +128,8 @@ class MethodOptions(_Model):
 
 
 class MethodSpec(_Model):
-    """One method of the sweep. For the generalized MCVA give `ld` and `mh_order` (and `flow_order`)."""
+    """One method of the sweep. For the generalized MCVA give `ld` and `mh_order` (and `flow_order`);
+    CVA and VCI accept `ld` (the discrete Lagrangian of their full and partial steps, default SVC)."""
     name: MethodName
     ld: LdName | None = None
     mh_order: int | None = Field(default=None, ge=1, le=4)
@@ -139,8 +141,11 @@ class MethodSpec(_Model):
     def _generalized_only(self):
         if self.name != "MCVA":
             for key in ("ld", "mh_order", "flow_order"):
+                if key == "ld" and self.name in ("CVA", "VCI"):
+                    continue
                 if getattr(self, key) is not None:
-                    raise ValueError(f"{key} is only for the generalized method (name: MCVA); {self.name} fixes it")
+                    raise ValueError(f"{key} is only for the generalized method (name: MCVA)"
+                                     + (" and, for ld, CVA and VCI" if key == "ld" else "") + f"; {self.name} fixes it")
         else:
             for key, example in (("ld", "SVC"), ("mh_order", "3")):
                 if getattr(self, key) is None:
@@ -154,6 +159,8 @@ class MethodSpec(_Model):
             return self.label
         if self.name == "MCVA":
             s = f"MCVA[{self.ld},s={self.mh_order}" + (f",p={self.flow_order}" if self.flow_order else "") + "]"
+        elif self.ld is not None:
+            s = f"{self.name}[{self.ld}]"
         else:
             s = self.name
         if self.options.constrained is False:

@@ -28,6 +28,9 @@ from __future__ import annotations
 from ..discrete.lagrangians import LIBRARY
 
 SUPPORTED_MH_ORDERS = (1, 2, 3, 4)
+# The discrete Lagrangians of the paper. The high-order SVC compositions (SVC4/6/8: 5, 9, 17 stages)
+# would make eta a stationary value over 4-16 interior nodes; their MCVA is not derived.
+MH_LDS = ("SE1", "SE2", "SVA", "SVB", "SVC", "midpoint")
 FLOW_ORDERS = (4, 6)
 
 
@@ -42,6 +45,9 @@ def generalized_mcva(ld: str = "SVC", mh_order: int = 3, flow_order: int = 4, **
                          "(use ld=, mh_order=, flow_order=)")
     if not isinstance(ld, str) or ld not in LIBRARY:
         raise ValueError(f"ld: unknown discrete Lagrangian {ld!r} (choose one of {', '.join(LIBRARY)})")
+    if ld not in MH_LDS:
+        raise ValueError(f"ld: the modified Hamiltonian of {ld} (a {len(LIBRARY[ld].stages)}-stage composition) "
+                         f"is not derived; MCVA takes one of {', '.join(MH_LDS)} (for {ld} with impacts use CVA)")
     if isinstance(mh_order, bool) or not isinstance(mh_order, int) or mh_order not in SUPPORTED_MH_ORDERS:
         raise ValueError(f"mh_order: {mh_order!r} is not supported (choose one of "
                          f"{', '.join(map(str, SUPPORTED_MH_ORDERS))}: the truncation H~^{{O(h^s)}} = eta + ... + "
