@@ -1,11 +1,45 @@
 """vcirun: event-driven variational collision integrators (Pekarek & Murphey) as an experiment runner.
 
 Python API: `simulate`, `reference`, `l2_error`; command line: `vcirun --help`.
+
+The API names are loaded on first use (PEP 562), so `import vcirun` costs next to nothing and a warm
+`vcirun.simulate` imports neither sympy nor scipy.integrate (issue 7).
 """
+import sys as _sys
+import types as _types
+
 __version__ = "0.1.0"
 
-from .api import simulate  # noqa: E402
-from .reference import l2_error, reference  # noqa: E402
-from .trajectory import Trajectory  # noqa: E402
-
 __all__ = ["simulate", "reference", "l2_error", "Trajectory", "__version__"]
+
+_LAZY = {"simulate": ("api", "simulate"), "reference": ("reference", "reference"),
+         "l2_error": ("reference", "l2_error"), "Trajectory": ("trajectory", "Trajectory")}
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+
+        module, attr = _LAZY[name]
+        value = getattr(importlib.import_module(f".{module}", __name__), attr)
+        globals()[name] = value  # later look-ups skip this function
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))
+
+
+class _Package(_types.ModuleType):
+    """`vcirun.reference` is the function, as it was when this file imported it eagerly: importing the
+    submodule vcirun.reference (e.g. `from vcirun.reference import oscillator_wall_exact`) makes the
+    import system bind the package attribute of the same name to the submodule; keep the function."""
+
+    def __setattr__(self, name, value):
+        if name == "reference" and isinstance(value, _types.ModuleType) and hasattr(value, "reference"):
+            value = value.reference
+        super().__setattr__(name, value)
+
+
+_sys.modules[__name__].__class__ = _Package

@@ -1,29 +1,37 @@
 """The Python API: `simulate`, `reference`, `l2_error`. The CLI and the sweep runner go through these."""
 from __future__ import annotations
 
+import hashlib
 import time
 from pathlib import Path
 
 import numpy as np
 
 from . import trajectory as tr
+from .codegen import build
 from .codegen.build import load_module
-from .mechanics.system import MechanicalSystem
 from .methods import resolve_method
+from .scenedata import SystemData, scene_args, scene_data
 
 DEFAULT_TOLERANCES = {"newton_tol": 1e-12, "event_tol": 1e-13, "max_iter": 50, "max_impacts_step": 64}
 _METHOD_OPTIONS = {"ld", "mh_order", "flow_order"}
 
 
-def resolve_system(system, params: dict | None = None) -> MechanicalSystem:
-    """A MechanicalSystem from a built-in name, a YAML file path, or an instance."""
+def _is_yaml_source(s: str) -> bool:
+    return s.endswith((".yaml", ".yml")) or Path(s).is_file()
+
+
+def resolve_system(system, params: dict | None = None):
+    """A MechanicalSystem from a built-in name, a YAML file path, or an instance (symbolic: imports sympy)."""
+    from .mechanics.system import MechanicalSystem
+
     if isinstance(system, MechanicalSystem):
         if params:
             system.param_values(params)  # validates the names
         return system
     if isinstance(system, (str, Path)):
         s = str(system)
-        if s.endswith((".yaml", ".yml")) or Path(s).is_file():
+        if _is_yaml_source(s):
             from .mechanics.loader import load_system_yaml
 
             return load_system_yaml(s)
@@ -31,6 +39,145 @@ def resolve_system(system, params: dict | None = None) -> MechanicalSystem:
 
         return get_scene(s)
     raise ValueError(f"system: expected a built-in name, a YAML path or a MechanicalSystem, got {type(system).__name__}")
+
+
+# --- warm start (issue 7): a system given by name or file without the symbolic system ----------------
+
+def _warmable(system) -> bool:
+    """A built-in scene name or an existing file: something the warm index may know."""
+    if not isinstance(system, (str, Path)):
+        return False
+    s = str(system)
+    return Path(s).is_file() if _is_yaml_source(s) else scene_args(s) is not None
+
+
+def _warm_ident(system):
+    """(("scene", name) or ("yaml", sha256 of the file), file bytes or None) for a system the warm index
+    can serve, else (None, None) (instances, unknown names, missing files: the symbolic path decides)."""
+    if not isinstance(system, (str, Path)):
+        return None, None
+    s = str(system)
+    if _is_yaml_source(s):
+        try:
+            data = Path(s).read_bytes()
+        except OSError:
+            return None, None
+        return ("yaml", hashlib.sha256(data).hexdigest()), data
+    if scene_args(s) is None:
+        return None, None
+    return ("scene", s), None
+
+
+def _data_from_entry(ident, entry) -> SystemData | None:
+    """The numeric system of a warm index entry (None if it does not fit: then the symbolic path runs)."""
+    try:
+        names = [k for k, _ in entry["params"]]
+        if ident[0] == "scene":
+            d = scene_data(ident[1])
+            if d.name != entry["name"] or d.n != entry["n"] or list(d.params) != names:
+                return None
+            return d
+        n = int(entry["n"])
+        vec = lambda v: None if v is None else np.array(v, dtype=float)  # noqa: E731
+        d = SystemData(name=str(entry["name"]), n=n, params={k: v for k, v in entry["params"]},
+                       default_q0=vec(entry["default_q0"]), default_p0=vec(entry["default_p0"]),
+                       description=str(entry.get("description", "")))
+        if entry.get("ic_map") or any(a is not None and a.shape != (n,) for a in (d.default_q0, d.default_p0)):
+            return None
+        return d
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
+def _entry_data(sysm) -> dict:
+    """What the warm index stores about a symbolic system (built-in scenes take the rest from
+    vcirun.scenedata; YAML systems have no initial-condition map)."""
+    vec = lambda a: None if a is None else np.asarray(a, float).tolist()  # noqa: E731
+    return {"name": sysm.name, "n": sysm.n, "params": [[k, v] for k, v in sysm.params.items()],
+            "default_q0": vec(sysm.default_q0), "default_p0": vec(sysm.default_p0),
+            "description": sysm.description, "ic_map": sysm.ic_map is not None}
+
+
+def resolve_numeric(system, ks: build.KernelSet):
+    """(SystemData, loader, symbolic system or None) for `system` (built-in name, YAML path or
+    MechanicalSystem) and kernel set `ks`; loader() returns the compiled module.
+
+    A built-in name or a YAML file whose (identity, ks) is in the warm index is served from it:
+    no symbolic system, no sympy. Otherwise (and always for a MechanicalSystem instance) the
+    symbolic system is built and its module loaded or generated; names and files are then indexed.
+    A substitute for `load_module` (tests monkeypatch it to run modules uncompiled) is always used:
+    it turns the warm index off."""
+    genuine = load_module is build.load_module
+    ident, raw = _warm_ident(system) if genuine else (None, None)
+    if ident is not None:
+        entry = build.warm_lookup(ident, ks)
+        d = _data_from_entry(ident, entry) if entry is not None else None
+        if d is not None:
+            return d, lambda: build.load_cached_module(entry["module"], d.name, ks), None
+    sysm = resolve_system(system)
+    d = SystemData.of(sysm)
+
+    def load():
+        mod = load_module(sysm, ks)
+        if ident is not None and (raw is None or _warm_ident(system)[1] == raw):  # the file we hashed
+            build.warm_record(ident, ks, build.module_key(sysm, ks), _entry_data(sysm))
+        return mod
+
+    return d, load, sysm
+
+
+def _start_state(d: SystemData, beta, q0, p0, prm, sysm=None):
+    """Validate the requested initial state before any kernel is loaded: ("state", q0, p0) or
+    ("legendre", q0, qdot0) (p0 = M(q0) qdot0 is computed by `_initial_state` with the compiled M).
+    Same rules and messages as MechanicalSystem.initial_state; with the symbolic system at hand
+    (cold path) the hyperregularity check runs here, before anything is generated or compiled."""
+    if q0 is not None or p0 is not None:
+        if q0 is None or p0 is None:
+            raise ValueError("initial state: give both q0 and p0 (or beta)")
+        q0, p0 = np.asarray(q0, float).ravel(), np.asarray(p0, float).ravel()
+        kind = "state"
+    elif beta is not None:
+        if d.ic_map is None:
+            raise ValueError(f"beta: system {d.name} has no initial-condition map; give q0 and p0")
+        qq, qdot = d.ic_map(float(beta))
+        q0, p0 = np.array(qq, dtype=float), np.array(qdot, dtype=float)
+        kind = "legendre"
+    elif d.default_q0 is not None:
+        q0, p0 = np.array(d.default_q0, float), np.array(d.default_p0, float)
+        kind = "state"
+    else:
+        raise ValueError(f"initial state: system {d.name} needs q0 and p0 (or beta)")
+    if q0.shape != (d.n,) or p0.shape != (d.n,):
+        raise ValueError(f"initial state: q0 and p0 must have length {d.n}")
+    if sysm is not None:
+        sysm.check_hyperregular(q0, prm)
+    return kind, q0, p0, sysm is not None
+
+
+def _mass_matrix(mod, q, prm) -> np.ndarray:
+    A = np.zeros((q.shape[0], q.shape[0]))
+    mod.sys_M(np.ascontiguousarray(q, dtype=float), prm, A)
+    return A
+
+
+def _initial_state(d: SystemData, mod, start, prm):
+    """(q0, p0) from `_start_state`. The Legendre transform uses the module's compiled M(q) on every
+    path, so warm and cold starts compute the same bits; on the warm path the hyperregularity check
+    uses it too."""
+    kind, q0, p0, checked = start
+    if kind == "legendre":
+        p0 = _mass_matrix(mod, q0, prm) @ p0
+    if not checked:
+        Mq = _mass_matrix(mod, q0, prm)
+        if not np.all(np.isfinite(Mq)):
+            raise ValueError(f"system {d.name}: mass_matrix is not finite at q0={q0.tolist()}")
+        try:
+            np.linalg.cholesky(0.5 * (Mq + Mq.T))
+        except np.linalg.LinAlgError:
+            ev = np.linalg.eigvalsh(0.5 * (Mq + Mq.T))
+            raise ValueError(f"system {d.name}: mass_matrix is not positive definite at q0={q0.tolist()} "
+                             f"(eigenvalues {ev}); the Lagrangian must be hyperregular") from None
+    return q0, p0
 
 
 def grid_steps(h, T) -> tuple[float, float, int]:
@@ -60,6 +207,10 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     options: newton_tol, event_tol, max_iter, max_impacts_step.
     Numerical failure is returned as the trajectory's status (never raised); bad input raises
     ValueError naming the field.
+
+    A built-in scene or YAML file whose kernel module is cached and indexed starts without any
+    symbolic work (see `resolve_numeric`); the initial state's Legendre transform uses the compiled
+    mass matrix on every path, so warm and cold starts give the same bits.
     """
     mopts = {k: options.pop(k) for k in list(options) if k in _METHOD_OPTIONS}
     unknown = set(options) - set(DEFAULT_TOLERANCES)
@@ -68,14 +219,17 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
                          f"{', '.join(sorted(set(DEFAULT_TOLERANCES) | _METHOD_OPTIONS | {'params', 'constrained'}))})")
     tol = DEFAULT_TOLERANCES | options
     h, T, N = grid_steps(h, T)
-    sysm = resolve_system(system)
+    if not _warmable(system):
+        system = resolve_system(system)  # bad names and files raise here, before a bad method does
     meth = resolve_method(method, **mopts)
-    prm = sysm.param_values(params)
-    q0, p0 = sysm.initial_state(beta=beta, q0=q0, p0=p0, params=prm)
+    sysd, load, sysm = resolve_numeric(system, meth.kernel_set())
+    prm = sysd.param_values(params)
+    start = _start_state(sysd, beta, q0, p0, prm, sysm)
     if constrained is None:
         constrained = meth.constrained
-    mod = load_module(sysm, meth.kernel_set())
-    n = sysm.n
+    mod = load()
+    q0, p0 = _initial_state(sysd, mod, start, prm)
+    n = sysd.n
     cap_imp = max(64, N // 4 + 16)
     t_start = time.perf_counter()
     while True:
@@ -111,7 +265,7 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
         if cause:
             message += f"; cause: {cause}"
     return tr.Trajectory(
-        method=meth.name, system=sysm.name, h=h, T=N * h, t=t[:K], q=out["Q"][:K], p=out["P"][:K], H=out["Hs"][:K],
+        method=meth.name, system=sysd.name, h=h, T=N * h, t=t[:K], q=out["Q"][:K], p=out["P"][:K], H=out["Hs"][:K],
         Ed=out["Eds"][:K], Hmod=out["Hm"][:K] if meth.reset == "mcva" else None,
         impacts=out["imp_t"][:n_imp].copy(), impact_q=out["imp_q"][:n_imp].copy(),
         impact_p_minus=out["imp_pm"][:n_imp].copy(), impact_p_plus=out["imp_pp"][:n_imp].copy(),
@@ -119,7 +273,7 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
         newton_iters=out["iters_log"][:steps].copy(), status=status, message=message,
         fail_step=fail, fail_time=(t0 + fail * h) if fail >= 0 else float("nan"), beta=beta, wall_time=wall,
         tolerances={k: tol[k] for k in ("newton_tol", "event_tol", "max_iter", "max_impacts_step")},
-        options={"params": dict(zip(sysm.params, prm.tolist())), "constrained": bool(constrained), **mopts})
+        options={"params": dict(zip(sysd.params, prm.tolist())), "constrained": bool(constrained), **mopts})
 
 
 # --- failure causes (issue 8: every stop names its cause) ----------------------------------------

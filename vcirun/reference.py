@@ -12,7 +12,6 @@ oscillator against a wall.
 from __future__ import annotations
 
 import numpy as np
-from scipy.integrate import solve_ivp
 
 from .codegen.build import load_module
 from .methods import METHODS
@@ -48,6 +47,8 @@ class Reference:
 
 
 def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000):
+    from scipy.integrate import solve_ivp  # here, not at module level: `import vcirun` stays light
+
     mod = load_module(system, METHODS["CVA"].kernel_set())  # system kernels + Hamilton's equations
     n = system.n
     buf = np.empty(2 * n)

@@ -9,11 +9,21 @@ a compiled loop calling compiled kernels is what makes a 500-step simulation tak
 Cache key = hash(system's symbolic content, kernel set, source of the units and of this package's
 code generator, vcirun and numba versions). A warm start finds the file by key before any symbolic
 work is done.
+
+Warm index (issue 7): the key needs the symbolic system (its fingerprint), and building that imports
+sympy. So next to the modules, `wi_<warm key>.json` maps a system *given by name or file* -- a
+built-in scene name or the bytes of a YAML system file -- plus the kernel set to the module key and
+the numeric data `vcirun.simulate` needs (n, parameter names and defaults, default state). The
+warm key hashes everything the module key hashes except the fingerprint (kernel set, units,
+generator files, versions) plus the files that turn a name or a YAML file into a symbolic system,
+so an entry goes stale whenever the module key could change. Any miss (no entry, unreadable entry,
+module file gone) takes the symbolic path, which writes the entry again.
 """
 from __future__ import annotations
 
 import hashlib
 import importlib.util
+import json
 import os
 import sys
 import time
@@ -29,9 +39,12 @@ UNITS_BASE = ["maps/linalg.py", "maps/steps.py", "collision/events.py", "collisi
               "collision/algorithm1.py"]
 # files whose text changes the generated code: hashed into the key
 _GENERATOR_FILES = ["codegen/kernels.py", "codegen/printer.py", "codegen/build.py", "codegen/derive.py",
-                    "discrete/lagrangians.py", "mechanics/system.py"]
+                    "codegen/tensor.py", "discrete/lagrangians.py", "mechanics/system.py"]
 # ... and, only for the MCVA family's modules (so that editing them does not invalidate CVA/VCI caches)
 _MODIFIED_GENERATOR_FILES = ["modified/derive.py", "modified/series.py"]
+# ... and, for the warm index only: the files that turn a scene name or a YAML file into a symbolic system
+_SYSTEM_FILES = ["scenedata.py", "mechanics/scenes.py", "mechanics/loader.py", "mechanics/expressions.py"]
+WARM_FORMAT = 1
 
 _loaded: dict[str, object] = {}
 BUILD_LOG: list[dict] = []  # (key, symbolic seconds, write seconds, cached?) for benchmarks
@@ -82,19 +95,40 @@ def module_key(system, ks: KernelSet) -> str:
     return _keys[memo]
 
 
+def _key_files(ks: KernelSet) -> set:
+    files = set(_units(ks)) | set(_GENERATOR_FILES)
+    if ks.modified is not None:
+        files |= set(_MODIFIED_GENERATOR_FILES)
+    return files
+
+
+def _versions() -> bytes:
+    return f"{__version__}|{numba.__version__}|{sys.version_info[:2]}".encode()
+
+
 def _module_key(system, ks: KernelSet) -> str:
     h = hashlib.sha256()
     h.update(system.fingerprint().encode())
     h.update(ks.key_text().encode())
-    h.update(f"{__version__}|{numba.__version__}|{sys.version_info[:2]}".encode())
-    files = set(_units(ks)) | set(_GENERATOR_FILES)
-    if ks.modified is not None:
-        files |= set(_MODIFIED_GENERATOR_FILES)
-    for rel in sorted(files):
+    h.update(_versions())
+    for rel in sorted(_key_files(ks)):
         p = _PKG / rel
         if p.exists():
             h.update(p.read_bytes())
     return h.hexdigest()[:20]
+
+
+def _exec_module(key: str, path: Path, system_name: str, ks: KernelSet, cached: bool, generate_s: float,
+                 warm_index: bool):
+    name = f"vcirun_kernels_{key}"
+    spec = importlib.util.spec_from_file_location(name, path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[name] = mod
+    spec.loader.exec_module(mod)
+    BUILD_LOG.append({"key": key, "system": system_name, "kernels": ks.key_text(), "cached": cached,
+                      "generate_s": generate_s, "warm_index": warm_index})
+    _loaded[key] = mod
+    return mod
 
 
 def load_module(system, ks: KernelSet):
@@ -112,13 +146,61 @@ def load_module(system, ks: KernelSet):
         tmp = path.with_suffix(f".tmp{os.getpid()}")
         tmp.write_text(text)
         os.replace(tmp, path)  # atomic: parallel workers never import a half-written file
-    t1 = time.perf_counter()
-    name = f"vcirun_kernels_{key}"
-    spec = importlib.util.spec_from_file_location(name, path)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[name] = mod
-    spec.loader.exec_module(mod)
-    BUILD_LOG.append({"key": key, "system": system.name, "kernels": ks.key_text(), "cached": cached,
-                      "generate_s": t1 - t0})
-    _loaded[key] = mod
-    return mod
+    return _exec_module(key, path, system.name, ks, cached, time.perf_counter() - t0, False)
+
+
+# --- warm index: name or YAML file -> module key and numeric data, without the symbolic system ----
+
+def warm_key(ident: tuple, ks: KernelSet) -> str:
+    """Index key of a system identity (("scene", name) or ("yaml", sha256 of the file's bytes)) with
+    a kernel set: everything of the module key but the fingerprint, plus the system-defining files."""
+    h = hashlib.sha256()
+    h.update(f"warm index {WARM_FORMAT}|{ident!r}|{ks.key_text()}|".encode())
+    h.update(_versions())
+    for rel in sorted(_key_files(ks) | set(_SYSTEM_FILES)):
+        p = _PKG / rel
+        if p.exists():
+            h.update(f"|{rel}|".encode())
+            h.update(p.read_bytes())
+    return h.hexdigest()[:24]
+
+
+def _index_path(ident: tuple, ks: KernelSet) -> Path:
+    return cache_dir() / f"wi_{warm_key(ident, ks)}.json"
+
+
+def warm_lookup(ident: tuple, ks: KernelSet) -> dict | None:
+    """The index entry of (ident, ks) whose module file exists, or None (never raises on a bad entry)."""
+    try:
+        entry = json.loads(_index_path(ident, ks).read_text())
+        key = entry["module"]
+        if (entry.get("format") != WARM_FORMAT or entry.get("ident") != list(ident)
+                or entry.get("kernels") != ks.key_text() or not isinstance(key, str)
+                or len(key) != 20 or any(c not in "0123456789abcdef" for c in key)):
+            return None
+        if key not in _loaded and not (cache_dir() / f"vk_{key}.py").is_file():
+            return None
+        return entry
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None
+
+
+def warm_record(ident: tuple, ks: KernelSet, key: str, data: dict) -> None:
+    """Write the index entry of (ident, ks) -> module `key` with numeric `data` (atomic; best effort:
+    a read-only or full cache only costs the next process the symbolic path)."""
+    entry = {"format": WARM_FORMAT, "ident": list(ident), "kernels": ks.key_text(), "module": key} | data
+    try:
+        path = _index_path(ident, ks)
+        tmp = path.with_suffix(f".tmp{os.getpid()}")
+        tmp.write_text(json.dumps(entry))
+        os.replace(tmp, path)
+    except (OSError, TypeError, ValueError):
+        pass
+
+
+def load_cached_module(key: str, system_name: str, ks: KernelSet):
+    """The module with this key from memory or from the disk cache (no generation; the caller has
+    checked that the file exists, see `warm_lookup`)."""
+    if key in _loaded:
+        return _loaded[key]
+    return _exec_module(key, cache_dir() / f"vk_{key}.py", system_name, ks, True, 0.0, True)

@@ -1,0 +1,145 @@
+"""The numeric side of a system, without sympy: sizes, parameter defaults, initial-condition maps.
+
+`SystemData` is what `vcirun.simulate` needs besides the compiled kernel module: n, the parameter
+names and default values, the scene's initial-condition map beta -> (q0, qdot0), a default state,
+a description. The built-in scenes' numeric parts live here (`vcirun.mechanics.scenes` builds the
+symbolic M, V, phi on top of them), so that a warm start (kernel module cached, see
+`vcirun.codegen.build.warm_lookup`) resolves a scene by name without importing sympy.
+
+This module is outside `vcirun.mechanics` on purpose: that package imports sympy on import.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(eq=False)
+class SystemData:
+    """name, n, params (ordered name -> default value), ic_map (beta -> (q0, qdot0)) or None,
+    default_q0 / default_p0 or None, description."""
+
+    name: str
+    n: int
+    params: dict
+    ic_map: object = None
+    default_q0: np.ndarray | None = None
+    default_p0: np.ndarray | None = None
+    description: str = ""
+
+    def param_values(self, overrides: dict | None = None) -> np.ndarray:
+        """Parameter vector in declaration order, with overrides applied (unknown names rejected).
+        Same semantics and messages as `MechanicalSystem.param_values`."""
+        vals = dict(self.params)
+        for k, v in (overrides or {}).items():
+            if k not in vals:
+                raise ValueError(f"params.{k}: unknown parameter of system {self.name} (known: {', '.join(vals)})")
+            vals[k] = float(v)
+        return np.array([float(vals[k]) for k in self.params], dtype=float)
+
+    @classmethod
+    def of(cls, system) -> "SystemData":
+        """The numeric view of a `MechanicalSystem` (or of anything with the same attributes)."""
+        return cls(name=system.name, n=system.n, params=dict(system.params), ic_map=system.ic_map,
+                   default_q0=system.default_q0, default_p0=system.default_p0, description=system.description)
+
+
+def merge_params(defaults: dict, overrides: dict) -> dict:
+    unknown = set(overrides) - set(defaults)
+    if unknown:
+        raise ValueError(f"params.{sorted(unknown)[0]}: unknown parameter (known: {', '.join(defaults)})")
+    return {k: float(overrides.get(k, v)) for k, v in defaults.items()}
+
+
+# --- the built-in scenes' numeric parts (symbolic parts: vcirun.mechanics.scenes) ------------------
+
+def _cart_ic(beta):
+    return np.array([beta, 0.0]), np.array([0.0, 3.5 - 0.18 * beta])
+
+
+def cart_pendulum(**overrides) -> SystemData:
+    return SystemData(
+        name="cart_pendulum", n=2, params=merge_params({"m1": 1.0, "m2": 0.2, "L": 2.0, "g": 10.0}, overrides),
+        ic_map=_cart_ic, description="vertical cart-pendulum with impacts on y = 0 (paper Section 5.1)")
+
+
+def double_pendulum(**overrides) -> SystemData:
+    q0 = np.array([-np.pi / 2, -np.pi / 2])
+    return SystemData(
+        name="double_pendulum", n=2,
+        params=merge_params({"m1": 1.0, "m2": 1.0, "l1": 1.0, "l2": 1.0, "g": 9.81, "w": 1.2}, overrides),
+        ic_map=lambda beta: (beta * q0 / (np.pi / 2), np.zeros(2)),
+        default_q0=q0, default_p0=np.zeros(2),
+        description="double pendulum whose second tip cannot pass the wall x = w (paper Figure 1)")
+
+
+def _ic_1d(beta):
+    return np.array([beta]), np.array([0.0])
+
+
+def oscillator_wall(**overrides) -> SystemData:
+    return SystemData(
+        name="oscillator_wall", n=1, params=merge_params({"m": 1.0, "k": 1.0, "d": 0.5}, overrides),
+        ic_map=_ic_1d, default_q0=np.array([1.0]), default_p0=np.array([0.0]),
+        description="harmonic oscillator against a wall at x = -d (exact oracle)")
+
+
+def damped_oscillator(**overrides) -> SystemData:
+    return SystemData(
+        name="damped_oscillator", n=1, params=merge_params({"m": 1.0, "k": 1.0, "c": 0.1, "d": 100.0}, overrides),
+        default_q0=np.array([1.0]), default_p0=np.array([0.0]),
+        description="linearly damped harmonic oscillator (forced DEL)")
+
+
+def bouncing_ball(**overrides) -> SystemData:
+    return SystemData(
+        name="bouncing_ball", n=1, params=merge_params({"m": 1.0, "g": 10.0, "c": 0.0}, overrides),
+        ic_map=_ic_1d, default_q0=np.array([1.0]), default_p0=np.array([0.0]),
+        description="ball on the floor y = 0 with linear drag c (forced DEL); impacts accumulate if c > 0")
+
+
+def n_pendulum(n: int = 2, **overrides) -> SystemData:
+    n = int(n)
+    defaults = {"g": 9.81, "w": 0.8 * n} | {f"m{i + 1}": 1.0 for i in range(n)} | {f"l{i + 1}": 1.0 for i in range(n)}
+    q0 = np.full(n, -np.pi / 2)
+    return SystemData(
+        name=f"n_pendulum_{n}", n=n, params=merge_params(defaults, overrides),
+        default_q0=q0, default_p0=np.zeros(n),
+        ic_map=lambda beta: (beta * q0 / (np.pi / 2), np.zeros(n)),
+        description=f"{n}-link pendulum against the wall x = w")
+
+
+BUILTIN_SCENE_DATA = {
+    "cart_pendulum": cart_pendulum,
+    "double_pendulum": double_pendulum,
+    "oscillator_wall": oscillator_wall,
+    "damped_oscillator": damped_oscillator,
+    "bouncing_ball": bouncing_ball,
+    "n_pendulum": n_pendulum,
+}
+
+
+def scene_args(name: str):
+    """(factory name, positional args) of a built-in scene name (`n_pendulum_K` -> ('n_pendulum', (K,))),
+    or None if `name` is not a built-in scene."""
+    if not isinstance(name, str):
+        return None
+    if name.startswith("n_pendulum_") and name[len("n_pendulum_"):].isdigit():
+        return "n_pendulum", (int(name[len("n_pendulum_"):]),)
+    if name in BUILTIN_SCENE_DATA:
+        return name, ()
+    return None
+
+
+def unknown_scene_error(name) -> ValueError:
+    return ValueError(f"system: unknown built-in system {name!r} (choose one of {', '.join(BUILTIN_SCENE_DATA)}, "
+                      "or give a YAML file path)")
+
+
+def scene_data(name: str, **params) -> SystemData:
+    """The numeric part of a built-in scene by name (no sympy)."""
+    args = scene_args(name)
+    if args is None:
+        raise unknown_scene_error(name)
+    return BUILTIN_SCENE_DATA[args[0]](*args[1], **params)
