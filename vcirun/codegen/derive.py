@@ -63,7 +63,9 @@ def module_source(system, ks, unit_texts: list[str]) -> str:
     parts = [HEADER, f"NDOF = {system.n}",
              f"FULL_STAGES = np.array({[sid[s] for s, _ in ks.full_stages]}, dtype=np.int64)",
              f"FULL_FRACS = np.array({[float(f) for _, f in ks.full_stages]}, dtype=np.float64)",
-             f"VCI_STAGE = {sid.get(ks.vci_stage, -1)}", ""]
+             f"VCI_STAGE = {sid.get(ks.vci_stage, -1)}",
+             # Algorithm 1 reuses the full step as the collision search's first partial step
+             f"PARTIAL_IS_FULL = {ks.partial == 'ld'}", ""]
     for k in system_kernels(system):
         parts.append(k.emit())
     for nm in names:

@@ -74,9 +74,13 @@ def integrate(q0, p0, t0, h, N, prm, constrained, ntol, maxit, event_tol, max_im
             tau_max = h
             tc = t
             k_imp = 0
+            # (qt, pt) hold the full step from (qh, ph): when the partial map is the full map the
+            # search starts from it instead of recomputing it
+            have_end = PARTIAL_IS_FULL
             while tau_max > 0.0:
-                code, dtau, Epre, itc = collision_time(qh, ph, tau_max, h, tc, prm, ntol, maxit, event_tol,
-                                                       qt, pt, vt)
+                code, dtau, Epre, itc = search_collision(qh, ph, tau_max, h, tc, prm, ntol, maxit, event_tol,
+                                                         qt, pt, vt, have_end)
+                have_end = False
                 iters += itc
                 if code < 0:
                     status = ST_NEWTON if code == -1 else ST_EVENT

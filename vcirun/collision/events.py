@@ -1,11 +1,76 @@
 # numba source unit: CollisionTime[Phi^partial, q, p] (Algorithm 1, line 8).
-# Requires: NDOF, partial, sys_phi.
+# Requires: NDOF, partial, sys_phi, sys_dphi, sys_M, solve_small.
 import math
 
 import numpy as np
 from numba import njit
 
-N_SCAN = 4  # interior samples of the initial bracket (first-root search)
+N_SCAN = 4  # interior samples of the initial bracket (first-root search), when the cubic model is unsure
+N_MODEL = 32  # samples of the cubic Hermite model of g on the bracket (no partial steps: free)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def gdot(q, p, prm):
+    """d/dtau phi(q(tau)) along the continuous flow through (q, p): grad phi(q) . M(q)^{-1} p. The
+    partial map's own tau-derivative differs by O(tau^r) relatively (r its order): a model, never a
+    decision (the bracket keeps the root search safe)."""
+    A = np.empty((NDOF, NDOF))
+    x = p.copy()
+    sys_M(q, prm, A)
+    if not solve_small(A, x, NDOF):
+        return np.nan
+    g = np.empty(NDOF)
+    sys_dphi(q, prm, g)
+    s = 0.0
+    for i in range(NDOF):
+        s += g[i] * x[i]
+    return s
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _hermite(s, ga, da, gb, db, H):
+    s2 = s * s
+    s3 = s2 * s
+    return ((2.0 * s3 - 3.0 * s2 + 1.0) * ga + (s3 - 2.0 * s2 + s) * H * da
+            + (3.0 * s2 - 2.0 * s3) * gb + (s3 - s2) * H * db)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _model_first_root(a, ga, da, b, gb, db):
+    """First root in (a, b) of the cubic Hermite model of g (values and slopes at both ends), or -1
+    if the model shows more than one sign change (an earlier root may hide: scan instead) or is not
+    finite. With ga > 0 > gb the model has at least one root."""
+    H = b - a
+    if not (math.isfinite(da) and math.isfinite(db) and H > 0.0):
+        return -1.0
+    changes = 0
+    lo = 0.0
+    hi = 1.0
+    prev = ga
+    for j in range(1, N_MODEL + 1):
+        sj = j / N_MODEL
+        v = _hermite(sj, ga, da, gb, db, H) if j < N_MODEL else gb
+        if (prev > 0.0) != (v > 0.0):
+            changes += 1
+            if changes == 1:
+                lo = (j - 1) / N_MODEL
+                hi = sj
+        prev = v
+    if changes != 1:
+        return -1.0
+    # bisection on the model (no partial steps), to far below the tolerance of the real search
+    glo = _hermite(lo, ga, da, gb, db, H)
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        gm = _hermite(mid, ga, da, gb, db, H)
+        if (gm > 0.0) == (glo > 0.0):
+            lo = mid
+            glo = gm
+        else:
+            hi = mid
+        if hi - lo < 1e-15:
+            break
+    return a + 0.5 * (lo + hi) * H
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -15,24 +80,47 @@ def collision_time(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt, v
     Returns (code, tau, E_pre, newton_iters): code 1 = collision at tau, 0 = no collision in
     (0, tau_max] (tau = tau_max), -1 = a partial step failed, -2 = the root search failed. On return
     (qt, pt, vt) hold the partial-step state at tau and E_pre its discrete energy (for R^VCI).
-    The root is located to |Delta tau| <= event_tol * h (interior samples pick the first sign
-    change, then a bracketing Illinois iteration, which cannot leave the bracket); a start on the
-    surface (g(0) <= 0, e.g. right after an impact) is not a root: the search first steps forward
-    to a point with g > 0.
+    The root is located to |Delta tau| <= event_tol * h; a start on the surface (g(0) <= 0, e.g.
+    right after an impact) is not a root: the search first steps forward to a point with g > 0.
+    See search_collision for the method."""
+    return search_collision(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt, vt, False)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def search_collision(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt, vt, have_end):
+    """collision_time; have_end: (qt, pt) already hold Phi^partial_{tau_max}(qh, ph) (Algorithm 1's
+    full step, when the partial map is the full one), so it is not recomputed.
+
+    Method. g(0) > 0 > g(tau_max) brackets a root; CollisionTime is a set and the FIRST root is
+    wanted. The cubic Hermite model of g from the values and the flow's slopes (gdot) at both ends
+    locates it when the model has a single sign change (a resolved motion); otherwise interior
+    samples of the partial map pick the first sign change. From the model's root the iteration is
+    secant on the partial map's own g (Newton with gdot for the first correction), safeguarded by the
+    bracket: a step that leaves it, or a bracket that stops shrinking, falls back to Illinois /
+    bisection. It stops when the correction is below event_tol * h, at an evaluated point (so the
+    returned state is that of the returned tau). Typically 2-3 partial steps per impact, against
+    10-12 for bracketing alone.
     """
     iters = 0
-    it, E = partial(qh, ph, tau_max, h, t, prm, ntol, maxit, qt, pt, vt)
-    if it < 0:
-        return -1, tau_max, E, -it
-    iters += it
+    E = np.nan
+    if not have_end:
+        it, E = partial(qh, ph, tau_max, h, t, prm, ntol, maxit, qt, pt, vt)
+        if it < 0:
+            return -1, tau_max, E, -it
+        iters += it
     gb = sys_phi(qt, prm)
     if not math.isfinite(gb):
         return -1, tau_max, E, iters
     if gb >= 0.0:
+        if have_end:  # the caller's full step knows E; recompute only when asked for the state's energy
+            it, E = partial(qh, ph, tau_max, h, t, prm, ntol, maxit, qt, pt, vt)
+            iters += abs(it)
         return 0, tau_max, E, iters
+    db = gdot(qt, pt, prm)
     b = tau_max
     a = 0.0
     ga = sys_phi(qh, prm)
+    da = gdot(qh, ph, prm)
     tol = event_tol * h
     if ga <= 0.0:
         # On (or numerically just past) the surface: the trivial root at 0 is not a collision.
@@ -49,45 +137,53 @@ def collision_time(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt, v
             if gs > 0.0:
                 a = s
                 ga = gs
+                da = gdot(qt, pt, prm)
                 found = True
                 break
             b = s
             gb = gs
+            db = gdot(qt, pt, prm)
         if not found:
             # moving into the constraint from the surface: the impact is at tau = 0
             it, E = partial(qh, ph, 0.0, h, t, prm, ntol, maxit, qt, pt, vt)
             return 1, 0.0, E, iters + abs(it)
-    # CollisionTime is a set: look for the FIRST sign change. A few interior samples catch an
-    # earlier root that a plain [a, b] bracket would skip (phi < 0 inside, > 0 again at b's left).
-    a0 = a
-    span = b - a
-    for j in range(1, N_SCAN):
-        c = a0 + span * j / N_SCAN
-        it, E = partial(qh, ph, c, h, t, prm, ntol, maxit, qt, pt, vt)
-        if it < 0:
-            return -1, c, E, iters - it
-        iters += it
-        gc = sys_phi(qt, prm)
-        if gc < 0.0:
-            b = c
-            gb = gc
-            break
-        if gc > 0.0:
-            a = c
-            ga = gc
-        else:
-            return 1, c, E, iters
-    side = 0
-    converged = False
-    for _ in range(200):
+    c = _model_first_root(a, ga, da, b, gb, db)
+    if c < 0.0:
+        # the model is unsure (several sign changes, or no slopes): sample the bracket for the first
+        # sign change, as a plain bracket would skip an earlier root
+        a0 = a
+        span = b - a
+        for j in range(1, N_SCAN):
+            c = a0 + span * j / N_SCAN
+            it, E = partial(qh, ph, c, h, t, prm, ntol, maxit, qt, pt, vt)
+            if it < 0:
+                return -1, c, E, iters - it
+            iters += it
+            gc = sys_phi(qt, prm)
+            if gc < 0.0:
+                b = c
+                gb = gc
+                break
+            if gc > 0.0:
+                a = c
+                ga = gc
+            else:
+                return 1, c, E, iters
         c = (a * gb - b * ga) / (gb - ga)
-        if not (c > a and c < b):
-            c = 0.5 * (a + b)
+    if not (c > a and c < b):
+        c = 0.5 * (a + b)
+    xp = np.nan  # previous evaluated point (secant)
+    gp = np.nan
+    side = 0
+    width = b - a
+    for k in range(200):
         it, E = partial(qh, ph, c, h, t, prm, ntol, maxit, qt, pt, vt)
         if it < 0:
             return -1, c, E, iters - it
         iters += it
         gc = sys_phi(qt, prm)
+        if not math.isfinite(gc):
+            return -1, c, E, iters
         if gc > 0.0:
             a = c
             ga = gc
@@ -101,16 +197,32 @@ def collision_time(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt, v
                 ga *= 0.5
             side = -1
         else:
-            a = c
-            b = c
+            return 1, c, E, iters
+        if math.isfinite(xp) and gc != gp:
+            step = gc * (c - xp) / (gc - gp)        # secant on the partial map's g
+        else:
+            step = gc / gdot(qt, pt, prm)           # first correction: Newton with the flow's slope
+        if math.isfinite(step) and abs(step) <= 0.1 * tol:
+            # converged at an evaluated point (a tenth of the tolerance: the superlinear steps rarely
+            # land between, and it keeps |phi| at the reported state near round-off)
+            return 1, c, E, iters
+        xn = c - step
+        if k % 3 == 2:
+            if b - a > 0.5 * width:                 # not shrinking: bisect
+                xn = 0.5 * (a + b)
+            width = b - a
+        if not (math.isfinite(xn) and xn > a and xn < b):
+            xn = (a * gb - b * ga) / (gb - ga)      # Illinois (false position) inside the bracket
+            if not (xn > a and xn < b):
+                xn = 0.5 * (a + b)
         if b - a <= tol:
-            converged = True
-            break
-    if not converged:
-        return -2, b, E, iters
-    # report the bracket end closer to the surface; the state must be that end's
-    tau = a if abs(ga) < abs(gb) else b
-    if tau != c:
-        it, E = partial(qh, ph, tau, h, t, prm, ntol, maxit, qt, pt, vt)
-        iters += abs(it)
-    return 1, tau, E, iters
+            # bracket collapsed: report the end closer to the surface, with its state
+            tau = a if abs(ga) < abs(gb) else b
+            if tau != c:
+                it, E = partial(qh, ph, tau, h, t, prm, ntol, maxit, qt, pt, vt)
+                iters += abs(it)
+            return 1, tau, E, iters
+        xp = c
+        gp = gc
+        c = xn
+    return -2, c, E, iters

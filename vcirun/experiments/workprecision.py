@@ -11,7 +11,7 @@ methods (scipy's solve_ivp at a tolerance, see `vcirun.experiments.baselines`):
     T: 5                             # long_horizon: a list of horizons, e.g. [1000, 10000]
     methods: [CVA, VCI, MCVAA, MCVAC]        # as in a sweep config (MCVA with ld/mh_order/flow_order)
     h: [1.0e-1, 3.2e-2, 1.0e-2, 3.2e-3, 1.0e-3, 3.2e-4, 1.0e-4]
-    baselines: {DOP853: [1.0e-3, ..., 1.0e-12], Radau: [1.0e-3, ..., 1.0e-10]}
+    baselines: {DOP853: [1.0e-3, ..., 1.0e-12], Radau: [1.0e-3, ..., 1.0e-10]}   # "DOP853/numpy": numpy rhs
     baseline_h: null                 # output grid of solve_ivp; null: every h of the methods (matched grids)
     baseline_max_T: {Radau: 1000}    # skip a solver on longer horizons
     repeats: 7                       # timing repeats per run (vcirun); medians are reported
@@ -134,8 +134,10 @@ def load_study(path) -> StudyConfig:
         err = e.errors(include_url=False)[0]
         raise ConfigError(err["msg"], source=str(path), field=".".join(str(x) for x in err["loc"])) from None
     for b in cfg.baselines:
-        if b not in BASELINES:
-            raise ConfigError(f"unknown solver {b!r} (choose from {', '.join(BASELINES)})", source=str(path),
+        solver, _, rhs = b.partition("/")
+        if solver not in BASELINES or rhs not in ("", "numpy"):
+            raise ConfigError(f"unknown solver {b!r} (choose from {', '.join(BASELINES)}; append '/numpy' for a "
+                              "lambdified numpy right-hand side, e.g. DOP853/numpy)", source=str(path),
                               field="baselines")
     return cfg
 
@@ -257,8 +259,10 @@ def run_study(cfg: StudyConfig, *, quick: bool = False, log=print, extra_methods
                     continue
                 for rtol in rtols:
                     for b in betas:
-                        runs.append(_Run("baseline", solver, solver, {"rtol": float(rtol)}, hg, T, b,
-                                         {"need_energy": lh}))
+                        # "DOP853/numpy": the same solver on a lambdified numpy model (what a user writes)
+                        base, _, rhs = solver.partition("/")
+                        kw = {"rtol": float(rtol)} | ({"kernels": rhs} if rhs else {})
+                        runs.append(_Run("baseline", solver, base, kw, hg, T, b, {"need_energy": lh}))
     # warm up: compile every kernel set and touch every (method, h) once, untimed
     warm = set()
     for r in runs:
@@ -267,7 +271,8 @@ def run_study(cfg: StudyConfig, *, quick: bool = False, log=print, extra_methods
             vcirun.simulate(system, r.method, h=r.h, T=min(r.T, 20 * r.h), beta=r.beta, params=params, **r.kwargs)
         elif r.kind == "baseline" and r.label not in warm:
             warm.add(r.label)
-            solve_ivp_run(system, r.method, h=r.h, T=min(r.T, 1.0), beta=r.beta, params=params, rtol=1e-6)
+            solve_ivp_run(system, r.method, h=r.h, T=min(r.T, 1.0), beta=r.beta, params=params, rtol=1e-6,
+                          **{k: v for k, v in r.kwargs.items() if k == "kernels"})
     log(f"{len(runs)} runs x repeats ({repeats} vcirun, {brepeats} solve_ivp), interleaved")
     stopped = set()  # (solver, rtol, T): a run hit the time limit; the remaining ones are skipped
     with warnings.catch_warnings():

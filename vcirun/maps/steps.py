@@ -46,6 +46,14 @@ def explicit_step(sid, q0, p0, h, t, prm, newton_tol, max_iter, v, q1, p1):
         if dn <= newton_tol * (1.0 + vn):
             converged = True
             break
+        # Quadratic phase (exact Jacobian): with contraction theta = dn / dprev, the error left after
+        # this correction is at most theta / (1 - theta) * dn (the bound under mere linear
+        # convergence, so it is conservative). Stopping on it saves the one extra iteration that
+        # would only confirm a correction far below the tolerance (a third of a smooth step).
+        theta = dn / dprev  # (dprev = inf on the first iteration: no rate known, theta = 0 ignored)
+        if it >= 2 and theta < 0.1 and theta / (1.0 - theta) * dn <= newton_tol * (1.0 + vn):
+            converged = True
+            break
         # (issue 8) round-off floor: past the quadratic phase (it >= 3) a correction that no longer
         # decreases, yet is below sqrt(newton_tol) relative, is rounding noise. With an
         # ill-conditioned Jacobian (nearly singular M, cond ~ 1e4 and up) that floor lies above
@@ -77,13 +85,25 @@ def ld_step(q0, p0, h, t, prm, newton_tol, max_iter, q1, p1, vlast):
         return it, ld_Ed(FULL_STAGES[0], q0, v, h, prm)
     qa = q0.copy()
     pa = p0.copy()
+    vprev = np.empty(NDOF)
     total = 0
     Ed = 0.0
     ts = t
+    hprev = 0.0
     for s in range(FULL_STAGES.shape[0]):
         hs = FULL_FRACS[s] * h
         velocity_guess(qa, pa, prm, v)
+        if s > 0 and hprev != 0.0:
+            # The stage's mean velocity is ~ qdot(t_s + hs / 2). v = M^-1 p is qdot at the stage
+            # start and the previous stage's mean velocity is qdot half a previous stage back, so
+            # v + hs / hprev (v - vprev) is a second-order guess (any sign of hs, hprev): about one
+            # Newton iteration less per stage of a many-stage composition (SVC6: 9 stages).
+            r = hs / hprev
+            for i in range(NDOF):
+                v[i] += r * (v[i] - vprev[i])
         it = explicit_step(FULL_STAGES[s], qa, pa, hs, ts, prm, newton_tol, max_iter, v, q1, p1)
+        copy_into(vprev, v)
+        hprev = hs
         if it < 0:
             return it - total, np.nan
         total += it
