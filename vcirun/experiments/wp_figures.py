@@ -31,7 +31,8 @@ from .figures import _COLORS, _MARKERS, _fmt_h, _pyplot, _save
 
 __all__ = ["plot_study", "work_precision_figure", "long_horizon_figure", "print_study_tables", "is_study_file"]
 
-_BASE_STYLE = {"DOP853": ("#000000", "x", "--"), "Radau": ("#777777", "+", ":")}
+_BASE_STYLE = {"DOP853": ("#000000", "x", "--"), "Radau": ("#777777", "+", ":"),
+               "DOP853/numpy": ("#8c564b", "1", "-.")}  # numpy rhs: what a user writes
 
 
 def is_study_file(path) -> bool:
