@@ -356,6 +356,7 @@ def analyze(res: dict) -> dict:
     res["lost_threshold"] = lost_threshold(res)
     res["summary"] = summarize(res["runs"], metric=metric)
     res["ratios"] = matched_ratios(res["runs"], res["summary"], metric=metric, lost=res["lost_threshold"])
+    res["front"] = vcirun_front(res["ratios"], lost=res["lost_threshold"], floor=_reference_floor(res))
     return res
 
 
@@ -492,6 +493,33 @@ def _g(x, fmt=".3g"):
 _HOW = {"interpolated": "", "cheapest_more_accurate": "<=", "not_reached": ">=", "none": "?"}
 
 
+def vcirun_front(ratios: list[dict], timing: str = "call", lost: float | None = math.inf,
+                 floor: float = 0.0) -> list[dict]:
+    """vcirun's work-precision front: over every method and h (median rows of `ratios`, motion not
+    lost), sorted by `timing` ('call': the whole simulate() call, what a user waits for), each point
+    more accurate than every cheaper one. This is the curve a user choosing the best vcirun method
+    for an accuracy gets; issue 7's "at every accuracy level ... at least 10 times faster" is read on
+    it. Each entry keeps the point's ratios against every solver (same output grid). Errors at or
+    below `floor` (the exact reference's own accuracy, times 3) are not resolved: only the cheapest
+    such point is kept."""
+    lost = lost if lost is not None and np.isfinite(lost) else math.inf
+    out = []
+    for T in sorted({r["T"] for r in ratios}):
+        pts = sorted((r for r in ratios if r["T"] == T and r["err"] is not None and np.isfinite(r["err"])
+                      and r["err"] <= lost), key=lambda r: r[timing])
+        best = math.inf
+        for r in pts:
+            if r["err"] < best and best > floor:
+                best = r["err"]
+                out.append(r | {"front_timing": timing, "at_reference_floor": bool(r["err"] <= floor)})
+    return out
+
+
+def _reference_floor(res: dict) -> float:
+    acc = [r.get("accuracy") for r in res.get("references") or [] if r.get("accuracy") is not None]
+    return 3.0 * max(acc) if acc else 0.0
+
+
 def print_tables(res: dict, file=sys.stdout) -> None:
     lh = res["study"] == "long_horizon"
     metric = "max|H-H0|" if lh else "L2 error"
@@ -541,6 +569,18 @@ def print_tables(res: dict, file=sys.stdout) -> None:
                 star = "*" if r["err"] > lost else " "
                 pr(f"{r['label']:22s} {_g(r['h'], '.2g'):>8s} {_g(r['err'], '.3e'):>10s}{star} " + " ".join(cells)
                    + f" {best:>10s} {per:>15s} {r['competitive']}")
+        front = [r for r in res.get("front") or vcirun_front(res.get("ratios", []), lost=lost,
+                                                             floor=_reference_floor(res)) if r["T"] == T]
+        if front and not lh:
+            solvers = sorted({k.split("_")[0] for r in front for k in r if k.endswith("_call_ratio")} - {"best"})
+            pr("-- vcirun's front (best method at each accuracy, whole-call time) against solve_ivp, ratio of "
+               "whole-call times (loop times in brackets)")
+            pr(f"{'method':22s} {'h':>8s} {metric:>11s} {'call ms':>9s} " + " ".join(f"{s:>22s}" for s in solvers))
+            for r in front:
+                cells = [f"{_HOW[r.get(f'{s}_call_how', 'none')] + _g(r.get(f'{s}_call_ratio'), '.3g')} "
+                         f"({_g(r.get(f'{s}_wall_ratio'), '.3g')})" for s in solvers]
+                pr(f"{r['label']:22s} {_g(r['h'], '.2g'):>8s} {_g(r['err'], '.3e'):>11s} {r['call'] * 1e3:9.3f} "
+                   + " ".join(f"{c:>22s}" for c in cells))
     pr(f"   study wall time {res['seconds']:.0f} s")
 
 
