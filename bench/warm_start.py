@@ -94,7 +94,8 @@ print(json.dumps({"to_first_sim_s": time.perf_counter() - T0, "impacts": int(out
 
 def run(cmd, env) -> tuple[float, dict]:
     t0 = time.perf_counter()
-    r = subprocess.run(cmd, env=env, cwd=ROOT, capture_output=True, text=True)
+    # not cwd=ROOT: `python -c` puts the working directory first on sys.path, ahead of the snapshot
+    r = subprocess.run(cmd, env=env, cwd=env.get("VCIRUN_BENCH_CWD", ROOT), capture_output=True, text=True)
     wall = time.perf_counter() - t0
     if r.returncode != 0:
         raise RuntimeError(f"{cmd[:3]} failed ({r.returncode}): {r.stderr[-2000:]}")
@@ -125,6 +126,7 @@ def main():
         src = Path(tmp.name) / "src"
         shutil.copytree(ROOT / "vcirun", src / "vcirun", ignore=shutil.ignore_patterns("__pycache__"))
         base["PYTHONPATH"] = os.pathsep.join([str(src)] + ([base["PYTHONPATH"]] if base.get("PYTHONPATH") else []))
+        base["VCIRUN_BENCH_CWD"] = tmp.name
     envs = {"as configured": base,
             "bytecode cache": {k: v for k, v in base.items() if k != "PYTHONDONTWRITEBYTECODE"}
             | {"PYTHONPYCACHEPREFIX": str(Path(tmp.name) / "pyc")}}
@@ -144,6 +146,9 @@ def main():
             run(variants["yaml"](), env)
             run(variants["cli"](), env)
     key = info["module_key"]
+    pkg = subprocess.run([PY, "-c", "import vcirun; print(vcirun.__file__)"], env=base, capture_output=True, text=True,
+                         cwd=base.get("VCIRUN_BENCH_CWD", ROOT)).stdout.strip()
+    print(f"vcirun imported from {pkg}", flush=True)
     mod_path = str(Path(cache) / "kernels" / f"vk_{key}.py")
     variants["floor"] = lambda: [PY, "-c", FLOOR, mod_path, f"vcirun_kernels_{key}"]
     run(variants["floor"](), base)
@@ -187,7 +192,7 @@ def main():
             flags = ", ".join(f"{f}={s[f]}" for f in ("sympy", "scipy_integrate", "scipy", "warm_index") if f in s)
             print(f"{e:16s} {v:7s} {s['process_wall_s']['median']:12.3f} {s['process_wall_s']['min']:7.3f} "
                   f"{med(s, 'import_s'):>13s} {med(s, 'to_first_sim_s'):>14s}  {flags}")
-    out = {"repeats": a.repeats, "cache_dir": cache, "snapshot": not a.no_snapshot, "module_key": key, "loadavg_end": os.getloadavg(),
+    out = {"repeats": a.repeats, "cache_dir": cache, "snapshot": not a.no_snapshot, "vcirun_file": pkg, "module_key": key, "loadavg_end": os.getloadavg(),
            "summary": summary, "raw": res}
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     Path(a.out).write_text(json.dumps(out, indent=1))

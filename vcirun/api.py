@@ -82,7 +82,9 @@ def _data_from_entry(ident, entry) -> SystemData | None:
         d = SystemData(name=str(entry["name"]), n=n, params={k: v for k, v in entry["params"]},
                        default_q0=vec(entry["default_q0"]), default_p0=vec(entry["default_p0"]),
                        description=str(entry.get("description", "")))
-        if entry.get("ic_map") or any(a is not None and a.shape != (n,) for a in (d.default_q0, d.default_p0)):
+        if (entry.get("ic_map") or (d.default_q0 is None) != (d.default_p0 is None)
+                or any(a is not None and a.shape != (n,) for a in (d.default_q0, d.default_p0))
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in d.params.values())):
             return None
         return d
     except (KeyError, TypeError, ValueError):

@@ -150,6 +150,12 @@ def test_warm_key_follows_the_hashed_files(tmp_path, monkeypatch):
         assert build.warm_key(ident, ks) != k0, rel
         f.write_text(text)
         assert build.warm_key(ident, ks) == k0
+    # sympy (its srepr makes the fingerprint) and PyYAML versions
+    stamp = build._dependency_stamp()
+    assert b"no sympy" not in stamp and b"no yaml" not in stamp
+    monkeypatch.setattr(build, "_dependency_stamp", lambda: stamp + b"|other sympy")
+    assert build.warm_key(ident, ks) != k0
+    monkeypatch.setattr(build, "_dependency_stamp", lambda: stamp)
     # the kernel module of the MCVA family also hashes vcirun/modified: so does its index key
     mk = METHODS["MCVAC"].kernel_set()
     m0 = build.warm_key(ident, mk)

@@ -15,12 +15,13 @@ sympy. So next to the modules, `wi_<warm key>.json` maps a system *given by name
 built-in scene name or the bytes of a YAML system file -- plus the kernel set to the module key and
 the numeric data `vcirun.simulate` needs (n, parameter names and defaults, default state). The
 warm key hashes everything the module key hashes except the fingerprint (kernel set, units,
-generator files, versions) plus the files that turn a name or a YAML file into a symbolic system,
-so an entry goes stale whenever the module key could change. Any miss (no entry, unreadable entry,
+generator files, versions) plus the files that turn a name or a YAML file into a symbolic system
+and the sympy and PyYAML versions, so an entry goes stale whenever the module key could change. Any miss (no entry, unreadable entry,
 module file gone) takes the symbolic path, which writes the entry again.
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib.util
 import json
@@ -151,12 +152,28 @@ def load_module(system, ks: KernelSet):
 
 # --- warm index: name or YAML file -> module key and numeric data, without the symbolic system ----
 
+@functools.lru_cache(maxsize=None)
+def _dependency_stamp() -> bytes:
+    """The versions of sympy and PyYAML, found without importing them: the fingerprint (sympy's srepr)
+    and the YAML parse depend on them."""
+    out = []
+    for name, rel in (("sympy", "release.py"), ("yaml", "__init__.py")):
+        try:
+            spec = importlib.util.find_spec(name)
+            out.append(hashlib.sha256((Path(spec.origin).parent / rel).read_bytes()).hexdigest())
+        except (ImportError, AttributeError, TypeError, ValueError, OSError):
+            out.append(f"no {name}")
+    return "|".join(out).encode()
+
+
 def warm_key(ident: tuple, ks: KernelSet) -> str:
     """Index key of a system identity (("scene", name) or ("yaml", sha256 of the file's bytes)) with
-    a kernel set: everything of the module key but the fingerprint, plus the system-defining files."""
+    a kernel set: everything of the module key but the fingerprint, plus the system-defining files
+    and the sympy and PyYAML versions."""
     h = hashlib.sha256()
     h.update(f"warm index {WARM_FORMAT}|{ident!r}|{ks.key_text()}|".encode())
     h.update(_versions())
+    h.update(_dependency_stamp())
     for rel in sorted(_key_files(ks) | set(_SYSTEM_FILES)):
         p = _PKG / rel
         if p.exists():
