@@ -1,5 +1,22 @@
-"""Symbolic derivation of a module's kernels (the only place sympy work happens on a cache miss)."""
+"""Symbolic derivation of a module's kernels (the only place sympy work happens on a cache miss).
+
+Two kernel paths generate the explicit step kernels <LD>_PmJ, <LD>_Pp, <LD>_Ed, <LD>_Edv (same
+signatures and semantics, so the numeric units and the dispatchers below do not care which):
+
+- "tensor" (default): vcirun.codegen.tensor derives only M, dM/dq, dV (d2M, d2V for interior
+  quadrature nodes) in one CSE'd kernel and writes the slot derivatives as small numba contractions;
+  the symbolic work grows like the number of nonzero tensor entries (issue 7, scaling). Explicit Lds
+  that are not quadrature rules h sum_i W_i L(q0 + C_i h v, v) fall back to the expanded path.
+- "expanded": the expanded sympy expressions of step_expressions, one CSE pass per kernel.
+
+Select with the environment variable VCIRUN_KERNEL_PATH=tensor|expanded (read when a module is
+generated) or the argument `kernel_path` of module_source (`path` of ld_kernels_source); the default is the
+module constant DEFAULT_KERNEL_PATH. Forced systems stay on the chosen path: the tensor path emits a
+kernel of f(q, qdot, t) and df/dqdot (tsr_force) for the trapezoidal discrete forces.
+"""
 from __future__ import annotations
+
+import os
 
 import sympy as sp
 
@@ -30,6 +47,19 @@ def system_kernels(system) -> list[Kernel]:
     ]
 
 
+DEFAULT_KERNEL_PATH = "tensor"
+KERNEL_PATH_ENV = "VCIRUN_KERNEL_PATH"
+KERNEL_PATHS = ("tensor", "expanded")
+
+
+def kernel_path(path: str | None = None) -> str:
+    """The step-kernel path: `path` if given, else $VCIRUN_KERNEL_PATH, else DEFAULT_KERNEL_PATH."""
+    p = path or os.environ.get(KERNEL_PATH_ENV) or DEFAULT_KERNEL_PATH
+    if p not in KERNEL_PATHS:
+        raise ValueError(f"{KERNEL_PATH_ENV}: unknown kernel path {p!r} (choose one of {', '.join(KERNEL_PATHS)})")
+    return p
+
+
 def ld_kernels(system, name: str, sid: int, need_edv: bool) -> list[Kernel]:
     ld = get_ld(name)
     ex = step_expressions(system, ld, need_jacobian=True, need_energy=True, need_energy_grad=need_edv)
@@ -46,6 +76,22 @@ def ld_kernels(system, name: str, sid: int, need_edv: bool) -> list[Kernel]:
     return ks
 
 
+def ld_kernels_source(system, names, vci_stage=None, path: str | None = None) -> str:
+    """Source of the explicit step kernels of `names` (<LD>_Edv only for vci_stage) on the chosen path."""
+    parts = []
+    handled = []
+    if kernel_path(path) == "tensor":
+        from .tensor import tensor_ld_source
+
+        text, handled = tensor_ld_source(system, list(names), {vci_stage} if vci_stage else set())
+        parts.append(text)
+    for sid, nm in enumerate(names):
+        if nm not in handled:
+            for k in ld_kernels(system, nm, sid, need_edv=(nm == vci_stage)):
+                parts.append(k.emit())
+    return "\n\n".join(parts)
+
+
 def _dispatch(fname: str, sig: str, call: str, names: list[str], returns: bool) -> str:
     """ld_X(sid, ...) -> NAME_X(...) by stage id: a branch on an int is free next to the kernel."""
     lines = ['@njit(cache=True, nogil=True, error_model="numpy")', f"def {fname}(sid, {sig}):"]
@@ -57,7 +103,9 @@ def _dispatch(fname: str, sig: str, call: str, names: list[str], returns: bool) 
     return "\n".join(lines) + "\n"
 
 
-def module_source(system, ks, unit_texts: list[str]) -> str:
+def module_source(system, ks, unit_texts: list[str], kernel_path: str | None = None) -> str:
+    """The module text of (system, kernel set); kernel_path: "tensor" or "expanded" (default: see
+    the module docstring)."""
     names = list(ks.explicit_names)
     sid = {nm: i for i, nm in enumerate(names)}
     parts = [HEADER, f"NDOF = {system.n}",
@@ -68,9 +116,7 @@ def module_source(system, ks, unit_texts: list[str]) -> str:
              f"PARTIAL_IS_FULL = {ks.partial == 'ld'}", ""]
     for k in system_kernels(system):
         parts.append(k.emit())
-    for nm in names:
-        for k in ld_kernels(system, nm, sid[nm], need_edv=(nm == ks.vci_stage)):
-            parts.append(k.emit())
+    parts.append(ld_kernels_source(system, names, ks.vci_stage, kernel_path))
     parts.append(_dispatch("ld_PmJ", "q0, v, h, t, prm, r, J", "PmJ", names, False))
     parts.append(_dispatch("ld_Pp", "q0, v, h, t, prm, out", "Pp", names, False))
     parts.append(_dispatch("ld_Ed", "q0, v, h, prm", "Ed", names, True))

@@ -1,0 +1,196 @@
+"""Step kernels from per-slot tensors (vcirun.codegen.tensor, the default kernel path) against the
+expanded slot expressions (vcirun.discrete.lagrangians.step_expressions), issue 7 (scaling).
+
+1. Kernel by kernel (Pm, J = dPm/dv, Pp, Ed, dEd/dv), executed as plain Python (no numba compile):
+   the two paths agree to ~1e-12 relative at random (q0, v, t) and step lengths h including 0 and
+   negative h (stages of compositions with negative fractions), for every explicit Ld and four
+   scenes (one of them forced).
+2. J and dEd/dv of the tensor path against central differences of its own Pm and Ed.
+3. Whole compiled simulations (CVA, VCI, SVA, midpoint) agree with the expanded path to round-off.
+"""
+from __future__ import annotations
+
+import importlib.util
+import sys
+import types
+
+import numpy as np
+import pytest
+
+from vcirun.codegen import derive
+from vcirun.codegen.build import _PKG, _units
+from vcirun.codegen.tensor import quadrature_nodes
+from vcirun.discrete.lagrangians import LIBRARY, ExplicitLd
+from vcirun.mechanics import get_scene
+
+SYSTEMS = ("cart_pendulum", "double_pendulum", "n_pendulum_3", "damped_oscillator")
+LDS = ("SE1", "SE2", "SVC", "midpoint")
+STEPS = (0.0, 0.013, 0.2, -0.07, -0.31)  # h = 0 (partial step at an impact) and negative stages
+RTOL_PATHS = 1e-12
+RTOL_FD = 1e-6
+
+
+def _njit(*args, **kwargs):
+    if args and callable(args[0]):
+        return args[0]
+    return lambda f: f
+
+
+def _python_kernels(system, ld: str, path: str):
+    """The step kernels of `ld` (with <ld>_Edv) on `path`, executed as plain Python."""
+    text = "import math\nimport numpy as np\n\n" + derive.ld_kernels_source(system, [ld], ld, path)
+    mod = types.ModuleType(f"tensor_test_{system.name}_{ld}_{path}")
+    mod.__dict__["njit"] = _njit
+    exec(compile(text, mod.__name__, "exec"), mod.__dict__)
+    return mod
+
+
+def _evaluate(mod, ld, n, q0, v, h, t, prm):
+    r, J, pp, ev = np.empty(n), np.empty((n, n)), np.empty(n), np.empty(n)
+    getattr(mod, f"{ld}_PmJ")(q0, v, h, t, prm, r, J)
+    getattr(mod, f"{ld}_Pp")(q0, v, h, t, prm, pp)
+    E = getattr(mod, f"{ld}_Ed")(q0, v, h, prm)
+    getattr(mod, f"{ld}_Edv")(q0, v, h, prm, ev)
+    return {"Pm": r, "J": J, "Pp": pp, "Ed": np.array([E]), "Edv": ev}
+
+
+def rel_err(a, b):
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    return float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300))
+
+
+@pytest.fixture(scope="module")
+def kernel_pairs():
+    cache = {}
+
+    def get(system_name, ld):
+        if (system_name, ld) not in cache:
+            s = get_scene(system_name)
+            cache[system_name, ld] = (s, _python_kernels(s, ld, "tensor"), _python_kernels(s, ld, "expanded"))
+        return cache[system_name, ld]
+
+    return get
+
+
+def test_quadrature_nodes_of_the_library():
+    assert quadrature_nodes(LIBRARY["SE1"]) == ((0.0, 1.0),)
+    assert quadrature_nodes(LIBRARY["SE2"]) == ((1.0, 1.0),)
+    assert quadrature_nodes(LIBRARY["SVC"]) == ((0.0, 0.5), (1.0, 0.5))
+    assert quadrature_nodes(LIBRARY["midpoint"]) == ((0.5, 1.0),)
+    assert quadrature_nodes(LIBRARY["SVA"]) is None  # a composition: its stages are the explicit Lds
+
+    def not_a_rule(L, q0, q1, h):  # h L(q0, v)^2 / h: no quadrature rule -> expanded fallback
+        v = [(b - a) / h for a, b in zip(q0, q1)]
+        return L(q0, v) ** 2
+
+    assert quadrature_nodes(ExplicitLd("sq", 1, False, not_a_rule)) is None
+
+
+def test_kernel_path_selection(monkeypatch):
+    monkeypatch.delenv(derive.KERNEL_PATH_ENV, raising=False)
+    assert derive.kernel_path() == derive.DEFAULT_KERNEL_PATH == "tensor"
+    monkeypatch.setenv(derive.KERNEL_PATH_ENV, "expanded")
+    assert derive.kernel_path() == "expanded"
+    assert derive.kernel_path("tensor") == "tensor"
+    s = get_scene("cart_pendulum")
+    assert "vcirun.codegen.tensor" not in derive.ld_kernels_source(s, ["SVC"])
+    monkeypatch.setenv(derive.KERNEL_PATH_ENV, "fancy")
+    with pytest.raises(ValueError, match="VCIRUN_KERNEL_PATH"):
+        derive.kernel_path()
+
+
+@pytest.mark.parametrize("system_name", SYSTEMS)
+@pytest.mark.parametrize("ld", LDS)
+def test_tensor_kernels_equal_expanded_kernels(system_name, ld, kernel_pairs, rng):
+    system, tens, expd = kernel_pairs(system_name, ld)
+    n = system.n
+    prm = system.param_values()
+    worst = {}
+    for h in STEPS:
+        for _ in range(3):
+            q0, v, t = rng.uniform(-1.2, 1.2, n), rng.uniform(-1.5, 1.5, n), rng.uniform(0.0, 2.0)
+            a = _evaluate(tens, ld, n, q0, v, h, t, prm)
+            b = _evaluate(expd, ld, n, q0, v, h, t, prm)
+            for k in a:
+                assert np.all(np.isfinite(a[k])), (k, h)
+                worst[k] = max(worst.get(k, 0.0), rel_err(a[k], b[k]))
+    bad = {k: e for k, e in worst.items() if not e < RTOL_PATHS}
+    assert not bad, f"{system_name}/{ld}: tensor vs expanded relative differences above {RTOL_PATHS}: {bad}"
+
+
+@pytest.mark.parametrize("system_name", SYSTEMS)
+@pytest.mark.parametrize("ld", LDS)
+def test_tensor_jacobians_match_finite_differences(system_name, ld, kernel_pairs, rng):
+    system, tens, _ = kernel_pairs(system_name, ld)
+    n = system.n
+    prm = system.param_values()
+    worst = {"J": 0.0, "Edv": 0.0}
+    for h in (0.0, 0.2, -0.07):
+        q0, v, t = rng.uniform(-1.2, 1.2, n), rng.uniform(-1.5, 1.5, n), rng.uniform(0.0, 2.0)
+        a = _evaluate(tens, ld, n, q0, v, h, t, prm)
+        steps = 1e-6 * np.maximum(1.0, np.abs(v))
+        Jfd, Efd = np.empty((n, n)), np.empty(n)
+        for j in range(n):
+            e = np.zeros(n)
+            e[j] = steps[j]
+            up, dn = _evaluate(tens, ld, n, q0, v + e, h, t, prm), _evaluate(tens, ld, n, q0, v - e, h, t, prm)
+            Jfd[:, j] = (up["Pm"] - dn["Pm"]) / (2 * steps[j])
+            Efd[j] = (up["Ed"][0] - dn["Ed"][0]) / (2 * steps[j])
+        worst["J"] = max(worst["J"], rel_err(a["J"], Jfd))
+        worst["Edv"] = max(worst["Edv"], rel_err(a["Edv"], Efd))
+    bad = {k: e for k, e in worst.items() if not e < RTOL_FD}
+    assert not bad, f"{system_name}/{ld}: analytic vs finite-difference relative errors above {RTOL_FD}: {bad}"
+
+
+# --- whole simulations, compiled --------------------------------------------------------------
+SIMS = [  # (system, method, method options, simulate keywords): impacts with SVC (CVA, VCI) and SVA
+    # (SE1 and SE2 stages); a forced smooth run with the midpoint rule (second derivatives)
+    ("cart_pendulum", "CVA", {}, {"beta": 3.2, "h": 1e-2, "T": 3.0}),
+    ("double_pendulum", "VCI", {}, {"h": 1e-2, "T": 2.0}),
+    ("n_pendulum_3", "CVA", {"ld": "SVA"}, {"h": 1e-2, "T": 2.0}),
+    ("damped_oscillator", "midpoint", {}, {"h": 5e-2, "T": 5.0}),
+]
+
+
+def _compiled_expanded(system, ks, directory):
+    """The module of (system, ks) on the expanded path, compiled from its own file (the kernel cache
+    key does not know the kernel path, so the cache is bypassed)."""
+    text = derive.module_source(system, ks, [(_PKG / u).read_text() for u in _units(ks)], kernel_path="expanded")
+    name = f"vcirun_expanded_{system.name}_{abs(hash(ks.key_text()))}"
+    path = directory / f"{name}.py"
+    path.write_text(text)
+    spec = importlib.util.spec_from_file_location(name, path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.mark.parametrize("system_name, method, mopts, kw", SIMS,
+                         ids=[f"{s}-{m}" + "".join(f"-{v}" for v in o.values()) for s, m, o, _ in SIMS])
+def test_simulation_agrees_with_expanded_path(system_name, method, mopts, kw, tmp_path, monkeypatch):
+    import vcirun
+    import vcirun.api as api
+    from vcirun.codegen.build import load_module
+    from vcirun.methods import resolve_method
+
+    monkeypatch.delenv(derive.KERNEL_PATH_ENV, raising=False)
+    system = get_scene(system_name)
+    ks = resolve_method(method, **mopts).kernel_set()
+    tens_mod = load_module(system, ks)
+    for stage, _ in ks.full_stages:  # the default path is the tensor path
+        kernel = getattr(tens_mod, f"{stage}_PmJ")
+        assert "vcirun.codegen.tensor" in getattr(kernel, "py_func", kernel).__doc__
+    a = vcirun.simulate(system, method, **mopts, **kw)
+    exp_mod = _compiled_expanded(system, ks, tmp_path)
+    monkeypatch.setattr(api, "load_module", lambda s, k: exp_mod)
+    b = vcirun.simulate(system, method, **mopts, **kw)
+    assert a.status == b.status == "ok"
+    assert len(a.impacts) == len(b.impacts)
+    if method != "midpoint":
+        assert len(a.impacts) > 0  # the comparison covers resets and partial steps
+    scale = max(1.0, float(np.max(np.abs(b.p))), float(np.max(np.abs(b.q))))
+    assert np.max(np.abs(a.q - b.q)) <= 1e-11 * scale
+    assert np.max(np.abs(a.p - b.p)) <= 1e-11 * scale
+    assert np.nanmax(np.abs(a.Ed - b.Ed)) <= 1e-11 * max(1.0, float(np.nanmax(np.abs(b.Ed))))
+    assert np.max(np.abs(a.impacts - b.impacts), initial=0.0) <= 1e-11
