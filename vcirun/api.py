@@ -100,6 +100,9 @@ def _entry_data(sysm) -> dict:
             "description": sysm.description, "ic_map": sysm.ic_map is not None}
 
 
+_WARM_HITS: dict = {}
+
+
 def resolve_numeric(system, ks: build.KernelSet):
     """(SystemData, loader, symbolic system or None) for `system` (built-in name, YAML path or
     MechanicalSystem) and kernel set `ks`; loader() returns the compiled module.
@@ -112,10 +115,15 @@ def resolve_numeric(system, ks: build.KernelSet):
     genuine = load_module is build.load_module
     ident, raw = _warm_ident(system) if genuine else (None, None)
     if ident is not None:
+        hit = _WARM_HITS.get((ident, ks))
+        if hit is not None:   # this process has read the entry already: no file access per call
+            return hit
         entry = build.warm_lookup(ident, ks)
         d = _data_from_entry(ident, entry) if entry is not None else None
         if d is not None:
-            return d, lambda: build.load_cached_module(entry["module"], d.name, ks), None
+            hit = (d, lambda: build.load_cached_module(entry["module"], d.name, ks), None)
+            _WARM_HITS[(ident, ks)] = hit
+            return hit
     sysm = resolve_system(system)
     d = SystemData.of(sysm)
 
