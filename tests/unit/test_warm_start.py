@@ -166,6 +166,7 @@ def test_warm_key_follows_the_hashed_files(tmp_path, monkeypatch):
 def test_corrupt_or_stale_index_entries_fall_back_to_the_symbolic_path():
     ks = METHODS["CVA"].kernel_set()
     ident = ("scene", "cart_pendulum")
+    api._WARM_HITS.clear()
     d, load, sysm = api.resolve_numeric("cart_pendulum", ks)
     load()
     path = build._index_path(ident, ks)
@@ -180,12 +181,14 @@ def test_corrupt_or_stale_index_entries_fall_back_to_the_symbolic_path():
                    json.dumps({k: v for k, v in entry.items() if k != "module"})]
     for bad in bad_entries:
         path.write_text(bad)
+        api._WARM_HITS.clear()  # a new process: the per-process memo of index hits is empty
         d, load, sysm = api.resolve_numeric("cart_pendulum", ks)
         assert sysm is not None, bad  # the symbolic path
         tr = vcirun.simulate("cart_pendulum", "CVA", h=2e-2, T=2.0, beta=3.2)
         assert np.array_equal(tr.q, ref.q) and np.array_equal(tr.p, ref.p)
         assert json.loads(path.read_text())["module"] == entry["module"]  # rewritten by the fallback
     path.unlink()
+    api._WARM_HITS.clear()
     tr = vcirun.simulate("cart_pendulum", "CVA", h=2e-2, T=2.0, beta=3.2)
     assert np.array_equal(tr.q, ref.q) and path.is_file()
 

@@ -166,7 +166,6 @@ def _dependency_stamp() -> bytes:
     return "|".join(out).encode()
 
 
-@functools.lru_cache(maxsize=4096)  # hashing the source files costs ~0.3 ms: once per process
 def warm_key(ident: tuple, ks: KernelSet) -> str:
     """Index key of a system identity (("scene", name) or ("yaml", sha256 of the file's bytes)) with
     a kernel set: everything of the module key but the fingerprint, plus the system-defining files
