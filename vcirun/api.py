@@ -204,7 +204,7 @@ def grid_steps(h, T) -> tuple[float, float, int]:
 
 
 def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, constrained=None,
-             t0=0.0, **options) -> tr.Trajectory:
+             t0=0.0, energies=True, **options) -> tr.Trajectory:
     """Simulate `system` with `method` on the grid t_k = t0 + k h, k = 0..N, N = round(T / h).
 
     system : built-in name ('cart_pendulum', 'double_pendulum', 'oscillator_wall', ...), YAML path,
@@ -215,6 +215,9 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     beta   : the scene's initial-condition map (Xi(beta) for the cart-pendulum); or give q0 and p0.
     params : parameter overrides; constrained: False ignores the constraint (default: per method).
     options: newton_tol, event_tol, max_iter, max_impacts_step.
+    energies: False skips H (and the MCVA family's Hmod) along the grid, leaving NaN after t0 (Ed is
+             still recorded: it comes with the step); for runs that only need the trajectory, e.g.
+             timing against solve_ivp, which does not evaluate H either.
     Numerical failure is returned as the trajectory's status (never raised); bad input raises
     ValueError naming the field.
 
@@ -253,7 +256,7 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
         # with NUMBA_DISABLE_JIT=1 the caller's np.errstate(all="raise") must reach the numerics
         # (the floating-point hygiene check of tests/extremes runs the whole loop that way).
         mod.integrate(q0, p0, float(t0), h, N, prm, bool(constrained), float(tol["newton_tol"]), int(tol["max_iter"]),
-                      float(tol["event_tol"]), int(tol["max_impacts_step"]), *out.values())
+                      float(tol["event_tol"]), int(tol["max_impacts_step"]), *out.values(), bool(energies))
         # (issue 8) the loop reports ST_ACCUMULATION also when the impact record is full; that is a
         # buffer size, not impacts accumulating: rerun with room for every impact the caps allow.
         full_record = int(out["info"][2]) >= cap_imp

@@ -24,9 +24,12 @@ def _finite(x):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def integrate(q0, p0, t0, h, N, prm, constrained, ntol, maxit, event_tol, max_impacts_step,
-              Q, P, Hs, Eds, Hm, imp_t, imp_q, imp_pm, imp_pp, imp_step, partial_log, iters_log, info):
+              Q, P, Hs, Eds, Hm, imp_t, imp_q, imp_pm, imp_pp, imp_step, partial_log, iters_log, info,
+              energies=True):
     """Run N grid steps of Algorithm 1 from (q0, p0) at t0. Output arrays are preallocated by the
-    caller; info receives [status, fail_step, n_impacts, n_partial, steps_done]."""
+    caller; info receives [status, fail_step, n_impacts, n_partial, steps_done]. energies=False
+    skips H and the modified energy along the grid (H[0], Hm[0] are still set; Ed comes with the
+    step anyway): a run that only needs the trajectory saves their per-step cost."""
     q = q0.copy()
     p = p0.copy()
     qt = np.empty(NDOF)
@@ -56,9 +59,10 @@ def integrate(q0, p0, t0, h, N, prm, constrained, ntol, maxit, event_tol, max_im
     while i < N:
         t = t0 + i * h
         it, Ed = full(q, p, h, t, prm, ntol, maxit, qt, pt, vt)
-        Hs[i] = hamiltonian(q, p, prm)
+        if energies or i == 0:
+            Hs[i] = hamiltonian(q, p, prm)
+            Hm[i] = modified_energy(q, p, h, prm)
         Eds[i] = Ed
-        Hm[i] = modified_energy(q, p, h, prm)
         if it < 0:
             status = ST_NEWTON
             fail = i
@@ -134,7 +138,7 @@ def integrate(q0, p0, t0, h, N, prm, constrained, ntol, maxit, event_tol, max_im
         set_row(P, i + 1, p)
         i += 1
     steps = i
-    if status == ST_OK:
+    if status == ST_OK and energies:
         # energies at the last grid state (its discrete energy from one more trial step)
         it, Ed = full(q, p, h, t0 + N * h, prm, ntol, maxit, qt, pt, vt)
         Hs[N] = hamiltonian(q, p, prm)
