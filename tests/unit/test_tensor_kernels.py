@@ -142,6 +142,26 @@ def test_tensor_jacobians_match_finite_differences(system_name, ld, kernel_pairs
     assert not bad, f"{system_name}/{ld}: analytic vs finite-difference relative errors above {RTOL_FD}: {bad}"
 
 
+@pytest.mark.parametrize("system_name", SYSTEMS)
+def test_tensor_dhq_equals_expanded(system_name, rng):
+    """sys_dHq (dH/dq at fixed x = M^-1 p) from the tensors equals system.dH_dq_at, expanded."""
+    system = get_scene(system_name)
+    n = system.n
+    mods = {}
+    for path in ("tensor", "expanded"):
+        text = "import math\nimport numpy as np\n\n" + derive.system_kernels_source(system, path)
+        mods[path] = types.ModuleType(f"dhq_test_{system_name}_{path}")
+        mods[path].__dict__["njit"] = _njit
+        exec(compile(text, mods[path].__name__, "exec"), mods[path].__dict__)
+    prm = system.param_values()
+    for _ in range(5):
+        q, x = rng.uniform(-1.2, 1.2, n), rng.uniform(-1.5, 1.5, n)
+        a, b = np.empty(n), np.empty(n)
+        mods["tensor"].sys_dHq(q, x, prm, a)
+        mods["expanded"].sys_dHq(q, x, prm, b)
+        assert rel_err(a, b) < RTOL_PATHS, (a, b)
+
+
 # --- whole simulations, compiled --------------------------------------------------------------
 SIMS = [  # (system, method, method options, simulate keywords): impacts with SVC (CVA, VCI) and SVA
     # (SE1 and SE2 stages); a forced smooth run with the midpoint rule (second derivatives)

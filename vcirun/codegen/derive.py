@@ -30,21 +30,34 @@ from numba import njit
 """
 
 
-def system_kernels(system) -> list[Kernel]:
+def system_kernels(system, with_dhq: bool = True) -> list[Kernel]:
     """M(q), V(q), phi(q), grad phi(q) and dH/dq at fixed x = M^-1 p (so H and its gradient need
-    no symbolic inverse of M: the solve happens numerically)."""
+    no symbolic inverse of M: the solve happens numerically). with_dhq=False leaves sys_dHq out
+    (the tensor path emits it from the tensors: vcirun.codegen.tensor.dhq_source)."""
     n = system.n
     q = system.q
     prm = system.param_symbols
-    x = list(sp.symbols(f"xm0:{n}"))
-    dHq = system.dH_dq_at(x)
-    return [
+    ks = [
         Kernel("sys_M", [("q", q)], [("out", system.M)], prm),
         Kernel("sys_V", [("q", q)], [("V", system.V)], prm),
         Kernel("sys_phi", [("q", q)], [("phi", system.phi)], prm),
         Kernel("sys_dphi", [("q", q)], [("out", system.grad_phi)], prm),
-        Kernel("sys_dHq", [("q", q), ("x", x)], [("out", dHq)], prm),
     ]
+    if with_dhq:
+        x = list(sp.symbols(f"xm0:{n}"))
+        ks.append(Kernel("sys_dHq", [("q", q), ("x", x)], [("out", system.dH_dq_at(x))], prm))
+    return ks
+
+
+def system_kernels_source(system, path: str | None = None) -> str:
+    """Source of the system kernels on the chosen kernel path (sys_dHq from the tensors on "tensor")."""
+    tensor = kernel_path(path) == "tensor"
+    parts = [k.emit() for k in system_kernels(system, with_dhq=not tensor)]
+    if tensor:
+        from .tensor import dhq_source
+
+        parts.append(dhq_source(system))
+    return "\n\n".join(parts)
 
 
 DEFAULT_KERNEL_PATH = "tensor"
@@ -114,8 +127,7 @@ def module_source(system, ks, unit_texts: list[str], kernel_path: str | None = N
              f"VCI_STAGE = {sid.get(ks.vci_stage, -1)}",
              # Algorithm 1 reuses the full step as the collision search's first partial step
              f"PARTIAL_IS_FULL = {ks.partial == 'ld'}", ""]
-    for k in system_kernels(system):
-        parts.append(k.emit())
+    parts.append(system_kernels_source(system, kernel_path))
     parts.append(ld_kernels_source(system, names, ks.vci_stage, kernel_path))
     parts.append(_dispatch("ld_PmJ", "q0, v, h, t, prm, r, J", "PmJ", names, False))
     parts.append(_dispatch("ld_Pp", "q0, v, h, t, prm, out", "Pp", names, False))

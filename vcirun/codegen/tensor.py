@@ -55,6 +55,7 @@ code has no allocation, and numba compiles it like the expanded kernels (only sm
 from __future__ import annotations
 
 import re
+import weakref
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -150,7 +151,22 @@ def _template(exprs, system, qdot=False, time=False) -> Template:
     return Template(lines, zero)
 
 
+_TD_MEMO: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
 def tensor_data(system, second: bool) -> dict:
+    """tensor_data_uncached, memoised per system (the system kernels and the step kernels of one
+    module share one derivation; a second-order entry serves first-order requests)."""
+    memo = _TD_MEMO.setdefault(system, {})
+    fp = system.fingerprint()
+    for sec in ((True,) if second else (False, True)):
+        if (fp, sec) in memo:
+            return memo[fp, sec]
+    memo[fp, second] = tensor_data_uncached(system, second)
+    return memo[fp, second]
+
+
+def tensor_data_uncached(system, second: bool) -> dict:
     """Entries and sparsity pattern of the tensors of `system`, and their CSE'd templates:
       g1 = [M_ij (i <= j: MI, MJ)] + [dM_ij/dq_k, structural nonzeros (DI, DJ, DK)] + [dV_k]
       g0 = [M_ij (i <= j)] + [V]                                   (Ed needs no derivative)
@@ -234,13 +250,13 @@ class _Gen:
     def __call__(self, line: str):
         self.lines.append("    " + line)
 
-    def prologue(self):
-        """Parameters and inputs as locals (unused ones cost nothing after LLVM)."""
+    def prologue(self, q0="q0", v="v"):
+        """Parameters and inputs (arrays named q0, v) as locals q0_a, v_a (unused ones cost nothing)."""
         for i, s in enumerate(self.system.param_symbols):
             self(f"s_{''.join(c if c.isalnum() else '_' for c in s.name)} = prm[{i}]")
         for a in range(self.n):
-            self(f"q0_{a} = q0[{a}]")
-            self(f"v_{a} = v[{a}]")
+            self(f"q0_{a} = {q0}[{a}]")
+            self(f"v_{a} = {v}[{a}]")
 
     def coords(self, i: int, c: float) -> list:
         """Names of node i's coordinates x = q0 + C h v."""
@@ -411,7 +427,7 @@ def _pp_source(system, td, name, nodes, fb) -> str:
         e(f"# node {i}: C = {c!r}, W = {w!r}")
         tag = f"n{i}"
         xs = e.coords(i, c)
-        e.tensors("T1", tag, xs)  # (C = 0 needs M only: LLVM drops the unused derivatives)
+        e.tensors("T1" if c != 0.0 else "T0", tag, xs)  # C = 0: M only (T0 and T1 start with M)
         mv = e.Mv(tag)
         for a in range(n):
             out[a].append((1, f"{_f(w)} * {mv[a]}"))
@@ -483,6 +499,23 @@ def _edv_source(system, td, name, nodes) -> str:
     e("return 0")
     doc = f"dEd/dv = sum_i W_i [M_i v + C_i h (1/2 v^T dM/dq(x_i) v + dV(x_i))], (C, W) = {list(nodes)}."
     return _header(f"{name}_Edv", "q0, v, h, prm, out", doc) + e.body()
+
+
+def dhq_source(system) -> str:
+    """sys_dHq(q, x, prm, out): dH/dq at fixed x = M(q)^-1 p, which is -dL/dq(q, x) = -(1/2 x^T dM/dq
+    x - dV/dq): the first-order tensor template and the contraction of the step kernels (the same
+    numbers as system.dH_dq_at without expanding x^T dM/dq_k x symbolically)."""
+    n = system.n
+    td = tensor_data(system, False)
+    e = _Gen(system, td)
+    e.prologue("q", "x")
+    e.tensors("T1", "n0", [f"q0_{a}" for a in range(n)])
+    gl = e.gL("n0", e.T("n0"))
+    for a in range(n):
+        e(f"out[{a}] = -{gl[a]}")
+    e("return 0")
+    doc = "dH/dq at fixed x = M^-1 p: -(1/2 x^T dM/dq x - dV/dq) (vcirun.codegen.tensor)."
+    return _header("sys_dHq", "q, x, prm, out", doc) + e.body()
 
 
 def tensor_ld_source(system, names, edv_names=()) -> tuple[str, list]:
