@@ -23,11 +23,31 @@ from vcirun.codegen.tensor import quadrature_nodes
 from vcirun.discrete.lagrangians import LIBRARY, ExplicitLd
 from vcirun.mechanics import get_scene
 
-SYSTEMS = ("cart_pendulum", "double_pendulum", "n_pendulum_3", "damped_oscillator")
+SYSTEMS = ("cart_pendulum", "double_pendulum", "n_pendulum_3", "damped_oscillator", "forced_2dof")
 LDS = ("SE1", "SE2", "SVC", "midpoint")
 STEPS = (0.0, 0.013, 0.2, -0.07, -0.31)  # h = 0 (partial step at an impact) and negative stages
 RTOL_PATHS = 1e-12
 RTOL_FD = 1e-6
+
+
+def _forced_2dof():
+    """A 2-DOF system whose mass matrix depends on both coordinates and whose force depends on q,
+    qdot and t (the built-in forced scenes are 1-DOF with f = -c qdot)."""
+    import sympy as sp
+
+    from vcirun.mechanics.system import MechanicalSystem
+
+    x, y, xd, yd, t = sp.symbols("x y x_dot y_dot t")
+    a, b, c, k = sp.symbols("a b c k")
+    M = sp.Matrix([[2 + a * sp.cos(y), b * sp.sin(x) * y], [b * sp.sin(x) * y, 1 + x ** 2]])
+    return MechanicalSystem(
+        name="forced_2dof", q=[x, y], qd=[xd, yd], t=t, params={"a": 0.5, "b": 0.3, "c": 0.2, "k": 1.5},
+        M=M, V=k * (x ** 2 + y ** 4) / 2 + x * y, phi=x + 3,
+        forcing=sp.Matrix([-c * xd + sp.sin(t) * y, -c * x * yd ** 2 + sp.cos(t + xd)]))
+
+
+def _system(name):
+    return _forced_2dof() if name == "forced_2dof" else get_scene(name)
 
 
 def _njit(*args, **kwargs):
@@ -65,7 +85,7 @@ def kernel_pairs():
 
     def get(system_name, ld):
         if (system_name, ld) not in cache:
-            s = get_scene(system_name)
+            s = _system(system_name)
             cache[system_name, ld] = (s, _python_kernels(s, ld, "tensor"), _python_kernels(s, ld, "expanded"))
         return cache[system_name, ld]
 
@@ -145,7 +165,7 @@ def test_tensor_jacobians_match_finite_differences(system_name, ld, kernel_pairs
 @pytest.mark.parametrize("system_name", SYSTEMS)
 def test_tensor_dhq_equals_expanded(system_name, rng):
     """sys_dHq (dH/dq at fixed x = M^-1 p) from the tensors equals system.dH_dq_at, expanded."""
-    system = get_scene(system_name)
+    system = _system(system_name)
     n = system.n
     mods = {}
     for path in ("tensor", "expanded"):

@@ -37,7 +37,7 @@ negative fractions). Second derivatives enter only dPm/dv of an Ld with an inter
 (midpoint), and only then are they derived; dEd/dv (R^VCI) needs first derivatives only.
 
 Symbolic work: the upper triangle of M, the structurally nonzero entries of dM (d2M), dV (d2V) --
-each the derivative of one small entry -- go through ONE CSE pass (`tensor_templates`); nothing of
+each the derivative of one small entry -- go through ONE CSE pass (`tensor_data`); nothing of
 the step (no q0 + h v, no slot derivative) is ever a sympy expression. Emission: each of
 `<LD>_PmJ(q0, v, h, t, prm, r, J)`, `<LD>_Pp(q0, v, h, t, prm, out)`, `<LD>_Ed(q0, v, h, prm)` and
 `<LD>_Edv(q0, v, h, prm, out)` (the signatures and semantics of the expanded kernels) is ONE numba
@@ -107,9 +107,10 @@ def needs_second_derivatives(nodes) -> bool:
 
 
 # --- symbolic tensors: one CSE pass each, with placeholder names --------------------------------
-_QP = "TQ"   # coordinate placeholders TQ0.. (printed s_TQ0..), qdot placeholders TV0.., time TT
-_TMP = "TC"  # CSE temporaries TC0..
-_OUT = "TG"  # outputs TG0..
+# (names no system symbol plausibly has: a parameter printed s_vcTQ0 would be renamed)
+_QP = "vcTQ"   # coordinate placeholders vcTQ0.. (printed s_vcTQ0..); qdot vcTV0..; time vcTT
+_TMP = "vcTC"  # CSE temporaries vcTC0..
+_OUT = "vcTG"  # outputs vcTG0..
 
 
 @dataclass
@@ -125,9 +126,9 @@ class Template:
                 (re.compile(rf"\b{_TMP}(\d+)\b"), lambda m: f"{tag}c{m.group(1)}"),
                 (re.compile(rf"\b{_OUT}(\d+)\b"), lambda m: f"{tag}_{m.group(1)}")]
         if qdots is not None:
-            subs.append((re.compile(r"\bs_TV(\d+)\b"), lambda m: qdots[int(m.group(1))]))
+            subs.append((re.compile(r"\bs_vcTV(\d+)\b"), lambda m: qdots[int(m.group(1))]))
         if t is not None:
-            subs.append((re.compile(r"\bs_TT\b"), lambda m: t))
+            subs.append((re.compile(r"\bs_vcTT\b"), lambda m: t))
         out = []
         for ln in self.lines:
             for rx, fn in subs:
@@ -139,9 +140,9 @@ class Template:
 def _template(exprs, system, qdot=False, time=False) -> Template:
     sub = {s: sp.Symbol(f"{_QP}{a}") for a, s in enumerate(system.q)}
     if qdot:
-        sub |= {s: sp.Symbol(f"TV{a}") for a, s in enumerate(system.qd)}
+        sub |= {s: sp.Symbol(f"vcTV{a}") for a, s in enumerate(system.qd)}
     if time:
-        sub[system.t] = sp.Symbol("TT")
+        sub[system.t] = sp.Symbol("vcTT")
     exprs = [sp.sympify(e).xreplace(sub) for e in exprs]
     zero = {k for k, e in enumerate(exprs) if e == 0}
     repl, red = sp.cse(exprs, symbols=sp.numbered_symbols(_TMP), order="none")
