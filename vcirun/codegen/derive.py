@@ -1,18 +1,22 @@
 """Symbolic derivation of a module's kernels (the only place sympy work happens on a cache miss).
 
 Two kernel paths generate the explicit step kernels <LD>_PmJ, <LD>_Pp, <LD>_Ed, <LD>_Edv (same
-signatures and semantics, so the numeric units and the dispatchers below do not care which):
+signatures and semantics, so the numeric units and the dispatchers below do not care which) and the
+system kernel sys_dHq:
 
-- "tensor" (default): vcirun.codegen.tensor derives only M, dM/dq, dV (d2M, d2V for interior
-  quadrature nodes) in one CSE'd kernel and writes the slot derivatives as small numba contractions;
-  the symbolic work grows like the number of nonzero tensor entries (issue 7, scaling). Explicit Lds
-  that are not quadrature rules h sum_i W_i L(q0 + C_i h v, v) fall back to the expanded path.
-- "expanded": the expanded sympy expressions of step_expressions, one CSE pass per kernel.
+- "tensor" (default): vcirun.codegen.tensor derives only M, dM/dq, dV (d2M, d2V when an Ld has an
+  interior quadrature node, i.e. midpoint) in one CSE pass and writes the slot derivatives as
+  straight-line contractions over their structural nonzeros; the symbolic work grows like the
+  number of nonzero tensor entries (issue 7, scaling). Forced systems stay on this path (f and
+  df/dqdot are derived once, the trapezoidal discrete forces of step_expressions are kept). Explicit
+  Lds that are not quadrature rules h sum_i W_i L(q0 + C_i h v, v) fall back to the expanded path.
+- "expanded": the expanded sympy expressions of step_expressions (and system.dH_dq_at), one CSE
+  pass per kernel. Kept for comparison (tests/unit/test_tensor_kernels.py).
 
 Select with the environment variable VCIRUN_KERNEL_PATH=tensor|expanded (read when a module is
-generated) or the argument `kernel_path` of module_source (`path` of ld_kernels_source); the default is the
-module constant DEFAULT_KERNEL_PATH. Forced systems stay on the chosen path: the tensor path emits a
-kernel of f(q, qdot, t) and df/dqdot (tsr_force) for the trapezoidal discrete forces.
+generated) or the argument `kernel_path` of module_source (`path` of ld_kernels_source and
+system_kernels_source); the default is the module constant DEFAULT_KERNEL_PATH. The kernel cache
+key (vcirun.codegen.build) does not record the path: use a separate VCIRUN_CACHE_DIR per path.
 """
 from __future__ import annotations
 
