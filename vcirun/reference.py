@@ -46,6 +46,43 @@ class Reference:
         return self.state(t)[:, self.n:]
 
 
+def _first_root(g, a, b, samples=64):
+    """First sign change of g on [a, b] (g(a) >= 0 > g(b)): dense samples bracket it, brentq refines."""
+    from scipy.optimize import brentq
+
+    ts = np.linspace(a, b, samples + 1)
+    prev = ts[0]
+    for s in ts[1:]:
+        if g(s) < 0.0:
+            return float(brentq(g, prev, s, xtol=1e-15, rtol=4 * np.finfo(float).eps))
+        prev = s
+    return float(b)
+
+
+def _rk4(f, t, y, dt):
+    k1 = f(t, y)
+    k2 = f(t + dt / 2, y + dt / 2 * k1)
+    k3 = f(t + dt / 2, y + dt / 2 * k2)
+    k4 = f(t + dt, y + dt * k3)
+    return y + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+
+
+class _HermiteSegment:
+    """Dense output of the escape micro step: cubic Hermite on [t0, t1], called like an OdeSolution."""
+
+    def __init__(self, t0, y0, f0, t1, y1, f1):
+        self.t0, self.d = t0, t1 - t0
+        self.c = (np.array(y0, float), np.array(f0, float) * self.d, np.array(y1, float),
+                  np.array(f1, float) * self.d)
+
+    def __call__(self, t):
+        s = (np.atleast_1d(np.asarray(t, float)) - self.t0) / self.d
+        y0, m0, y1, m1 = self.c
+        h00, h10 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s
+        h01, h11 = -2 * s**3 + 3 * s**2, s**3 - s**2
+        return np.outer(y0, h00) + np.outer(m0, h10) + np.outer(y1, h01) + np.outer(m1, h11)
+
+
 def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000):
     from scipy.integrate import solve_ivp  # here, not at module level: `import vcirun` stays light
 
@@ -62,18 +99,38 @@ def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000):
 
     event.terminal = True
     event.direction = -1.0
+
+    def dip(t, y):  # d phi / dt: crosses 0 upwards at every local minimum of phi along the flow
+        return mod.gdot(y[:n], y[n:], prm)
+
+    dip.terminal = False  # recorded, checked after the solve (a terminal event at a minimum would
+    dip.direction = 1.0   # restart where d phi/dt = 0 and fire again at once)
     y = np.concatenate([q0, p0])
     t = 0.0
     segments, impacts = [], []
     atol = rtol * max(1.0, float(np.max(np.abs(y))))
     while t < T:
-        sol = solve_ivp(rhs, (t, T), y, method="DOP853", rtol=rtol, atol=atol, events=event, dense_output=True)
+        sol = solve_ivp(rhs, (t, T), y, method="DOP853", rtol=rtol, atol=atol, events=(event, dip),
+                        dense_output=True)
         if sol.status < 0:
             raise RuntimeError(f"reference: DOP853 failed at t={sol.t[-1]:.6g}: {sol.message}")
-        segments.append((t, sol.t[-1], sol.sol))
+        te = None
         if sol.status == 1 and sol.t_events[0].size:
             te = float(sol.t_events[0][0])
             ye = sol.y_events[0][0].copy()
+        # Minima of phi: solve_ivp sees a crossing only where phi changes sign between two of its
+        # steps, so a dip below the surface shorter than one step (a near-grazing impact) goes
+        # unnoticed; its minimum is then negative. The first such minimum before the detected
+        # impact means an earlier, missed impact: its first root on the dense output replaces it.
+        for tm, ym in zip(sol.t_events[1], sol.y_events[1]):
+            if te is not None and tm >= te:
+                break
+            if mod.sys_phi(ym[:n], prm) < 0.0:
+                te = _first_root(lambda s: mod.sys_phi(sol.sol(s)[:n], prm), t, float(tm))
+                ye = sol.sol(te).copy()
+                break
+        segments.append((t, sol.t[-1] if te is None else te, sol.sol))
+        if te is not None:
             g = np.empty(n)
             lam = mod.cva_lambda(ye[:n], ye[n:], prm, g)
             if lam == 0.0:
@@ -83,6 +140,21 @@ def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000):
             if len(impacts) > max_impacts:
                 raise RuntimeError(f"reference: more than {max_impacts} impacts (accumulation?) by t={te:.6g}")
             t, y = te, ye
+            # Step off the surface before restarting: right after the reset phi is ~0 (often -1e-17)
+            # and solve_ivp only sees a crossing from a start value >= 0, so a hop shorter than its
+            # first step would go unnoticed. One RK4 micro step (<= 1e-9, local error ~1e-45) to
+            # phi > 0, covered by a cubic Hermite segment (error ~delta^4 times the 4th derivative).
+            delta = min(1e-9, 0.5 * (T - t))
+            for _ in range(40):
+                if delta <= 0.0:
+                    break
+                y1 = _rk4(rhs, t, y, delta)
+                if mod.sys_phi(y1[:n], prm) > 0.0:
+                    segments.append((t, t + delta, _HermiteSegment(t, y, rhs(t, y), t + delta, y1,
+                                                                   rhs(t + delta, y1))))
+                    t, y = t + delta, y1
+                    break
+                delta *= 0.5
         else:
             t = T
     return segments, impacts, float(mod.hamiltonian(q0, p0, prm))
