@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import hashlib
+import os
 import time
 from pathlib import Path
 
@@ -115,14 +116,15 @@ def resolve_numeric(system, ks: build.KernelSet):
     genuine = load_module is build.load_module
     ident, raw = _warm_ident(system) if genuine else (None, None)
     if ident is not None:
-        hit = _WARM_HITS.get((ident, ks))
+        memo = (ident, ks, os.environ.get("VCIRUN_KERNEL_PATH", ""))
+        hit = _WARM_HITS.get(memo)
         if hit is not None:   # this process has read the entry already: no file access per call
             return hit
         entry = build.warm_lookup(ident, ks)
         d = _data_from_entry(ident, entry) if entry is not None else None
         if d is not None:
             hit = (d, lambda: build.load_cached_module(entry["module"], d.name, ks), None)
-            _WARM_HITS[(ident, ks)] = hit
+            _WARM_HITS[memo] = hit
             return hit
     sysm = resolve_system(system)
     d = SystemData.of(sysm)

@@ -90,7 +90,7 @@ _keys: dict = {}
 
 
 def module_key(system, ks: KernelSet) -> str:
-    memo = (id(system), system.fingerprint(), ks)
+    memo = (id(system), system.fingerprint(), ks, os.environ.get("VCIRUN_KERNEL_PATH", ""))
     if memo not in _keys:
         _keys[memo] = _module_key(system, ks)
     return _keys[memo]
@@ -104,7 +104,9 @@ def _key_files(ks: KernelSet) -> set:
 
 
 def _versions() -> bytes:
-    return f"{__version__}|{numba.__version__}|{sys.version_info[:2]}".encode()
+    # + the step-kernel path (codegen.derive: tensor or expanded), so the two never share a module
+    path = os.environ.get("VCIRUN_KERNEL_PATH", "")
+    return f"{__version__}|{numba.__version__}|{sys.version_info[:2]}|kernels={path}".encode()
 
 
 def _module_key(system, ks: KernelSet) -> str:
