@@ -41,7 +41,7 @@ def floor(a):
     out = [np.zeros((N + 1, n)), np.zeros((N + 1, n)), np.zeros(N + 1), np.zeros(N + 1), np.zeros(N + 1), np.zeros(cap),
            np.zeros((cap, n)), np.zeros((cap, n)), np.zeros((cap, n)), np.zeros(N, np.bool_), np.zeros(2 * cap + 16),
            np.zeros(N, np.int64), np.zeros(5, np.int64)]
-    mod.integrate(q0, p0, 0.0, 1e-2, N, prm, True, 1e-12, 50, 1e-13, 64, *out)
+    mod.integrate(q0, p0, 0.0, 1e-2, N, prm, True, 1e-12, 50, 1e-13, 64, *out, True)  # the signature simulate compiled
     t_sim = time.perf_counter() - T_START
     print(json.dumps({"args": a, "numpy_s": t_np, "numba_s": t_nb, "module_exec_s": t_mod, "to_first_sim_s": t_sim,
                       "impacts": int(out[-1][2]), "sympy_imported": "sympy" in sys.modules,
@@ -55,13 +55,14 @@ def main():
         return
     import vcirun
     from vcirun.codegen import build
-    from vcirun.mechanics.scenes import get_scene
-    from vcirun.methods import resolve_method
 
     t_import = time.perf_counter() - T_START
     mopts = a.get("method_options", {})
     out = {"args": a, "import_s": t_import}
     if a["mode"] == "derive":
+        from vcirun.mechanics.scenes import get_scene  # symbolic: imported only in this mode
+        from vcirun.methods import resolve_method
+
         s = get_scene(a["system"])
         ks = resolve_method(a["method"], **mopts).kernel_set()
         t0 = time.perf_counter()

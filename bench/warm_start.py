@@ -86,7 +86,7 @@ p0 = A @ np.array([0.0, 3.5 - 0.18 * 3.2])
 out = [np.zeros((N + 1, n)), np.zeros((N + 1, n)), np.zeros(N + 1), np.zeros(N + 1), np.zeros(N + 1), np.zeros(cap),
        np.zeros((cap, n)), np.zeros((cap, n)), np.zeros((cap, n)), np.zeros(N, np.bool_), np.zeros(2 * cap + 16),
        np.zeros(N, np.int64), np.zeros(5, np.int64)]
-mod.integrate(q0, p0, 0.0, 1e-2, N, prm, True, 1e-12, 50, 1e-13, 64, *out)
+mod.integrate(q0, p0, 0.0, 1e-2, N, prm, True, 1e-12, 50, 1e-13, 64, *out, True)  # simulate's signature
 print(json.dumps({"to_first_sim_s": time.perf_counter() - T0, "impacts": int(out[-1][2]),
                   "sympy": "sympy" in sys.modules, "scipy": "scipy" in sys.modules}))
 """

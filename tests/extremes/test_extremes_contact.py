@@ -8,7 +8,6 @@ Numbers in comments are the measured values (bench/extremes_study.py).
 """
 from __future__ import annotations
 
-import threading
 
 import numpy as np
 import pytest
@@ -16,27 +15,13 @@ import pytest
 import vcirun
 from vcirun import stress
 from vcirun.api import accumulation_onset
+from guards import guarded
 
 METHODS = ["CVA", "VCI", "MCVAA", "MCVAC"]
 
 
 def _guarded(fn, timeout=120.0):
-    """Run fn in a daemon thread (the compiled loop releases the GIL): nothing may loop forever."""
-    box = {}
-
-    def target():
-        try:
-            box["value"] = fn()
-        except BaseException as e:
-            box["error"] = e
-
-    th = threading.Thread(target=target, daemon=True)
-    th.start()
-    th.join(timeout)
-    assert not th.is_alive(), f"did not return within {timeout} s (endless loop?)"
-    if "error" in box:
-        raise box["error"]
-    return box["value"]
+    return guarded(fn, timeout)
 
 
 # --- grazing ------------------------------------------------------------------------------------

@@ -13,7 +13,6 @@ GIL) and fails the test if it does not return within 60 s: nothing here may loop
 """
 from __future__ import annotations
 
-import threading
 
 import numpy as np
 import pytest
@@ -25,6 +24,7 @@ from vcirun.codegen.build import load_module
 from vcirun.mechanics.system import MechanicalSystem
 from vcirun.methods import METHODS
 from vcirun.reference import oscillator_wall_exact
+from guards import guarded
 
 D = 0.5
 NTOL, MAXIT, ETOL = 1e-12, 50, 1e-13
@@ -41,21 +41,7 @@ ZERO_STEP_BUG = (
 
 
 def _guarded(fn, timeout=60.0):
-    box = {}
-
-    def target():
-        try:
-            box["value"] = fn()
-        except BaseException as e:  # re-raised in the test thread
-            box["error"] = e
-
-    th = threading.Thread(target=target, daemon=True)
-    th.start()
-    th.join(timeout)
-    assert not th.is_alive(), f"did not return within {timeout} s (endless loop?)"
-    if "error" in box:
-        raise box["error"]
-    return box["value"]
+    return guarded(fn, timeout)
 
 
 def _sim(method, h, T, x0, v0, **kw):
