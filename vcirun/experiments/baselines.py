@@ -198,14 +198,15 @@ def solve_ivp_run(system, method: str = "DOP853", *, h, T, rtol, atol=None, beta
             status, message = TIME_LIMIT, f"stopped at the time limit of {time_limit:g} s (t = {t:.9g})"
             break
         nfev += int(sol.nfev)
-        m = sol.t.size
+        # scipy leaves sol.t / sol.y as (empty) lists when the solver fails before its first output
+        m = int(np.size(sol.t))
         if m:
-            Y[k:k + m] = sol.y.T
+            Y[k:k + m] = np.asarray(sol.y).T
             k += m
         if sol.status < 0:
             status, message = SOLVER_FAILED, f"{method} failed at t = {t:.9g}: {sol.message}"
             break
-        if m and not np.all(np.isfinite(sol.y[:, -1])):
+        if m and not np.all(np.isfinite(np.asarray(sol.y)[:, -1])):
             status, message = tr.NONFINITE, f"{method}: the state overflowed by t = {sol.t[-1]:.9g}"
             break
         if sol.status == 1 and sol.t_events[0].size:
