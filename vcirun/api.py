@@ -217,9 +217,9 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     beta   : the scene's initial-condition map (Xi(beta) for the cart-pendulum); or give q0 and p0.
     params : parameter overrides; constrained: False ignores the constraint (default: per method).
     options: newton_tol, event_tol, max_iter, max_impacts_step.
-    energies: False skips H (and the MCVA family's Hmod) along the grid, leaving NaN after t0 (Ed is
-             still recorded: it comes with the step); for runs that only need the trajectory, e.g.
-             timing against solve_ivp, which does not evaluate H either.
+    energies: False skips H, Ed (and the MCVA family's Hmod) along the grid, leaving NaN after t0;
+             for runs that only need the trajectory, e.g. timing against solve_ivp, which does
+             not evaluate H either.
     Numerical failure is returned as the trajectory's status (never raised); bad input raises
     ValueError naming the field.
 

@@ -28,8 +28,8 @@ def integrate(q0, p0, t0, h, N, prm, constrained, ntol, maxit, event_tol, max_im
               energies=True):
     """Run N grid steps of Algorithm 1 from (q0, p0) at t0. Output arrays are preallocated by the
     caller; info receives [status, fail_step, n_impacts, n_partial, steps_done]. energies=False
-    skips H and the modified energy along the grid (H[0], Hm[0] are still set; Ed comes with the
-    step anyway): a run that only needs the trajectory saves their per-step cost."""
+    skips H, the discrete energy Ed and the modified energy along the grid (set at t0 only): a run
+    that only needs the trajectory saves their per-step cost."""
     q = q0.copy()
     p = p0.copy()
     qt = np.empty(NDOF)
@@ -58,7 +58,7 @@ def integrate(q0, p0, t0, h, N, prm, constrained, ntol, maxit, event_tol, max_im
     i = 0
     while i < N:
         t = t0 + i * h
-        it, Ed = full(q, p, h, t, prm, ntol, maxit, qt, pt, vt)
+        it, Ed = full(q, p, h, t, prm, ntol, maxit, qt, pt, vt, energies or i == 0)
         if energies or i == 0:
             Hs[i] = hamiltonian(q, p, prm)
             Hm[i] = modified_energy(q, p, h, prm)
