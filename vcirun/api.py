@@ -231,7 +231,7 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     unknown = set(options) - set(DEFAULT_TOLERANCES)
     if unknown:
         raise ValueError(f"options: unknown option {sorted(unknown)[0]!r} (known: "
-                         f"{', '.join(sorted(set(DEFAULT_TOLERANCES) | _METHOD_OPTIONS | {'params', 'constrained'}))})")
+                         f"{', '.join(sorted(set(DEFAULT_TOLERANCES) | _METHOD_OPTIONS | {'params', 'constrained', 'energies'}))})")
     tol = DEFAULT_TOLERANCES | options
     h, T, N = grid_steps(h, T)
     if not _warmable(system):
