@@ -352,6 +352,11 @@ def _failure_cause(mod, status, Q, p, t0, fail, h, prm, tol, H0, impacts) -> str
                 worst, t_worst = c, t0 + k * h
         if not worst < 1e4:  # built-in scenes at default parameters: cond(M) < 30
             causes.append(f"mass matrix nearly singular along the motion (cond(M) = {worst:.3g} at t = {t_worst:.6g})")
+        elif status == tr.NEWTON_FAILED and worst >= 1e3 and t_worst >= t - 100 * h:
+            # conditioning still moderate on the grid but worst right before the failure: the step
+            # that failed was heading into a singular configuration between grid points
+            causes.append(f"mass matrix approaching singularity at the failure (cond(M) = {worst:.3g} at "
+                          f"t = {t_worst:.6g}, the largest along the motion)")
         H = float(mod.hamiltonian(q, p, prm))
         if not np.isfinite(H) or abs(H - H0) > 10.0 * max(1.0, abs(H0)):
             causes.append(f"the discrete motion had diverged (H = {H:.4g}, H(0) = {H0:.4g}): step h too large")
