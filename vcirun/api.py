@@ -12,7 +12,7 @@ from . import trajectory as tr
 from .codegen import build
 from .codegen.build import load_module
 from .methods import resolve_method
-from .scenedata import SystemData, scene_args, scene_data
+from .scenedata import SystemData, check_mass_matrix, scene_args, scene_data
 
 DEFAULT_TOLERANCES = {"newton_tol": 1e-12, "event_tol": 1e-13, "max_iter": 50, "max_impacts_step": 64}
 _METHOD_OPTIONS = {"ld", "mh_order", "flow_order"}
@@ -177,18 +177,12 @@ def _initial_state(d: SystemData, mod, start, prm):
     path, so warm and cold starts compute the same bits; on the warm path the hyperregularity check
     uses it too."""
     kind, q0, p0, checked = start
-    if kind == "legendre":
-        p0 = _mass_matrix(mod, q0, prm) @ p0
-    if not checked:
-        Mq = _mass_matrix(mod, q0, prm)
-        if not np.all(np.isfinite(Mq)):
-            raise ValueError(f"system {d.name}: mass_matrix is not finite at q0={q0.tolist()}")
-        try:
-            np.linalg.cholesky(0.5 * (Mq + Mq.T))
-        except np.linalg.LinAlgError:
-            ev = np.linalg.eigvalsh(0.5 * (Mq + Mq.T))
-            raise ValueError(f"system {d.name}: mass_matrix is not positive definite at q0={q0.tolist()} "
-                             f"(eigenvalues {ev}); the Lagrangian must be hyperregular") from None
+    if kind == "legendre" or not checked:
+        Mq = _mass_matrix(mod, q0, prm)   # once, for the Legendre transform and the check
+        if not checked:
+            check_mass_matrix(d.name, q0, Mq)
+        if kind == "legendre":
+            p0 = Mq @ p0
     return q0, p0
 
 

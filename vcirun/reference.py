@@ -59,7 +59,9 @@ def _first_root(g, a, b, samples=64):
     return float(b)
 
 
-def _rk4(f, t, y, dt):
+def rk4_step(f, t, y, dt):
+    """One classical RK4 step (the escape micro step off the surface after a reset; also used by the
+    solve_ivp baseline)."""
     k1 = f(t, y)
     k2 = f(t + dt / 2, y + dt / 2 * k1)
     k3 = f(t + dt / 2, y + dt / 2 * k2)
@@ -148,7 +150,7 @@ def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000):
             for _ in range(40):
                 if delta <= 0.0:
                     break
-                y1 = _rk4(rhs, t, y, delta)
+                y1 = rk4_step(rhs, t, y, delta)
                 if mod.sys_phi(y1[:n], prm) > 0.0:
                     segments.append((t, t + delta, _HermiteSegment(t, y, rhs(t, y), t + delta, y1,
                                                                    rhs(t + delta, y1))))

@@ -29,20 +29,39 @@ class SystemData:
     description: str = ""
 
     def param_values(self, overrides: dict | None = None) -> np.ndarray:
-        """Parameter vector in declaration order, with overrides applied (unknown names rejected).
-        Same semantics and messages as `MechanicalSystem.param_values`."""
-        vals = dict(self.params)
-        for k, v in (overrides or {}).items():
-            if k not in vals:
-                raise ValueError(f"params.{k}: unknown parameter of system {self.name} (known: {', '.join(vals)})")
-            vals[k] = float(v)
-        return np.array([float(vals[k]) for k in self.params], dtype=float)
+        """Parameter vector in declaration order, with overrides applied (unknown names rejected)."""
+        return param_vector(self.name, self.params, overrides)
 
     @classmethod
     def of(cls, system) -> "SystemData":
         """The numeric view of a `MechanicalSystem` (or of anything with the same attributes)."""
         return cls(name=system.name, n=system.n, params=dict(system.params), ic_map=system.ic_map,
                    default_q0=system.default_q0, default_p0=system.default_p0, description=system.description)
+
+
+def param_vector(name: str, params: dict, overrides: dict | None = None) -> np.ndarray:
+    """Parameter vector in declaration order, with overrides applied (unknown names rejected);
+    shared by SystemData and MechanicalSystem."""
+    vals = dict(params)
+    for k, v in (overrides or {}).items():
+        if k not in vals:
+            raise ValueError(f"params.{k}: unknown parameter of system {name} (known: {', '.join(vals)})")
+        vals[k] = float(v)
+    return np.array([float(vals[k]) for k in params], dtype=float)
+
+
+def check_mass_matrix(name: str, q, Mq) -> None:
+    """The Legendre transform must be invertible: M(q) finite, symmetric positive definite (the
+    hyperregularity check of MechanicalSystem and of the warm path)."""
+    q = np.asarray(q, float).tolist()
+    if not np.all(np.isfinite(Mq)):
+        raise ValueError(f"system {name}: mass_matrix is not finite at q0={q}")
+    S = 0.5 * (Mq + Mq.T)
+    try:
+        np.linalg.cholesky(S)
+    except np.linalg.LinAlgError:
+        raise ValueError(f"system {name}: mass_matrix is not positive definite at q0={q} "
+                         f"(eigenvalues {np.linalg.eigvalsh(S)}); the Lagrangian must be hyperregular") from None
 
 
 def merge_params(defaults: dict, overrides: dict) -> dict:

@@ -274,6 +274,22 @@ class _Gen:
         for ln in self.td[key].instantiate(tag, coords):
             self(ln)
 
+    def node(self, i: int, c: float, w: float, key: str = "T1") -> tuple:
+        """Open quadrature node i (x = q0 + C h v): its coordinates and tensor template `key`, as
+        locals named n<i>_*. Returns (tag, coordinate names)."""
+        self(f"# node {i}: C = {c!r}, W = {w!r}")
+        tag = f"n{i}"
+        xs = self.coords(i, c)
+        self.tensors(key, tag, xs)
+        return tag, xs
+
+    def add_weighted_Mv(self, tag, w, out: dict):
+        """out[a] += W (M(x) v)_a for node `tag`; returns the M v locals."""
+        mv = self.Mv(tag)
+        for a in range(self.n):
+            out[a].append((1, f"{_f(w)} * {mv[a]}"))
+        return mv
+
     def M(self, tag, a, b) -> str | None:
         k = self.midx[min(a, b), max(a, b)]
         return None if k in self.td["T1"].zero else f"{tag}_{k}"
@@ -365,15 +381,11 @@ def _pmj_source(system, td, name, nodes, fa) -> str:
     r_terms = {a: [] for a in range(n)}
     J_terms = {(a, b): [] for a in range(n) for b in range(n)}
     for i, (c, w) in enumerate(nodes):
-        e(f"# node {i}: C = {c!r}, W = {w!r}")
-        tag = f"n{i}"
-        xs = e.coords(i, c)
-        e.tensors("T1", tag, xs)
+        tag, xs = e.node(i, c, w)
         T = e.T(tag)
-        mv = e.Mv(tag)
+        e.add_weighted_Mv(tag, w, r_terms)
         wf = _f(w)
         for a in range(n):
-            r_terms[a].append((1, f"{wf} * {mv[a]}"))
             for b in range(n):
                 if (m := e.M(tag, a, b)):
                     J_terms[a, b].append((1, f"{wf} * {m}"))
@@ -425,13 +437,8 @@ def _pp_source(system, td, name, nodes, fb) -> str:
     e.prologue()
     out = {a: [] for a in range(n)}
     for i, (c, w) in enumerate(nodes):
-        e(f"# node {i}: C = {c!r}, W = {w!r}")
-        tag = f"n{i}"
-        xs = e.coords(i, c)
-        e.tensors("T1" if c != 0.0 else "T0", tag, xs)  # C = 0: M only (T0 and T1 start with M)
-        mv = e.Mv(tag)
-        for a in range(n):
-            out[a].append((1, f"{_f(w)} * {mv[a]}"))
+        tag, _ = e.node(i, c, w, "T1" if c != 0.0 else "T0")  # C = 0: M only (T0 and T1 start with M)
+        e.add_weighted_Mv(tag, w, out)
         if c != 0.0:
             e(f"hc{i} = {_f(w * c)} * h")
             gl = e.gL(tag, e.T(tag))
@@ -481,13 +488,8 @@ def _edv_source(system, td, name, nodes) -> str:
     e.prologue()
     out = {a: [] for a in range(n)}
     for i, (c, w) in enumerate(nodes):
-        e(f"# node {i}: C = {c!r}, W = {w!r}")
-        tag = f"n{i}"
-        xs = e.coords(i, c)
-        e.tensors("T1", tag, xs)
-        mv = e.Mv(tag)
-        for a in range(n):
-            out[a].append((1, f"{_f(w)} * {mv[a]}"))
+        tag, _ = e.node(i, c, w)
+        e.add_weighted_Mv(tag, w, out)
         if c != 0.0:  # C h (1/2 v^T dM/dq_a v + dV_a)
             e(f"hc{i} = {_f(w * c)} * h")
             vtv = e.vTv(tag, e.T(tag))

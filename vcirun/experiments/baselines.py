@@ -28,6 +28,7 @@ import time
 import numpy as np
 
 from .. import trajectory as tr
+from ..reference import rk4_step
 
 __all__ = ["BASELINES", "solve_ivp_run", "is_baseline", "hamiltonian_on_grid"]
 
@@ -109,14 +110,6 @@ class _NumpyModel:
 
     def hamiltonian(self, q, p) -> float:
         return 0.5 * float(p @ np.linalg.solve(self.M(q), p)) + self.V(q)
-
-
-def _rk4(f, t, y, dt):
-    k1 = f(t, y)
-    k2 = f(t + dt / 2, y + dt / 2 * k1)
-    k3 = f(t + dt / 2, y + dt / 2 * k2)
-    k4 = f(t + dt, y + dt * k3)
-    return y + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
 
 
 _MODELS: dict = {}
@@ -239,7 +232,7 @@ def solve_ivp_run(system, method: str = "DOP853", *, h, T, rtol, atol=None, beta
                 nxt = float(tgrid[k]) if k <= N else T_end
                 delta = min(escape_step, 0.5 * (nxt - t))
                 for _ in range(40):
-                    y1 = _rk4(rhs, t, y, delta)
+                    y1 = rk4_step(rhs, t, y, delta)
                     if model.phi(t + delta, y1) > 0.0:
                         t, y = t + delta, y1
                         break

@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import sympy as sp
 
+from ..scenedata import check_mass_matrix, param_vector
+
 
 @dataclass(eq=False)
 class MechanicalSystem:
@@ -68,12 +70,7 @@ class MechanicalSystem:
 
     def param_values(self, overrides: dict | None = None) -> np.ndarray:
         """Parameter vector in declaration order, with overrides applied (unknown names rejected)."""
-        vals = dict(self.params)
-        for k, v in (overrides or {}).items():
-            if k not in vals:
-                raise ValueError(f"params.{k}: unknown parameter of system {self.name} (known: {', '.join(vals)})")
-            vals[k] = float(v)
-        return np.array([float(vals[k]) for k in self.params], dtype=float)
+        return param_vector(self.name, self.params, overrides)
 
     # --- derived symbolic objects ------------------------------------------------------------
     def lagrangian(self, q=None, qd=None):
@@ -152,15 +149,7 @@ class MechanicalSystem:
 
     def check_hyperregular(self, q, params=None) -> None:
         """The Legendre transform must be invertible: M(q) symmetric positive definite."""
-        Mq = self.mass_matrix(q, params)
-        if not np.all(np.isfinite(Mq)):
-            raise ValueError(f"system {self.name}: mass_matrix is not finite at q0={np.asarray(q, float).tolist()}")
-        try:
-            np.linalg.cholesky(0.5 * (Mq + Mq.T))
-        except np.linalg.LinAlgError:
-            ev = np.linalg.eigvalsh(0.5 * (Mq + Mq.T))
-            raise ValueError(f"system {self.name}: mass_matrix is not positive definite at q0={np.asarray(q, float).tolist()} "
-                             f"(eigenvalues {ev}); the Lagrangian must be hyperregular") from None
+        check_mass_matrix(self.name, q, self.mass_matrix(q, params))
 
     def legendre(self, q, qdot, params=None):
         """FL: (q, qdot) -> (q, p = M(q) qdot)."""
