@@ -2,7 +2,7 @@
 # H~^{O(h^s)} of the scene's discrete Lagrangian, the Gauss collocation partial flow of its Hamilton
 # equations, and the reset R^MCVA (eq. 34).
 # Requires from the generated module: NDOF, MH_ORDER, MH_M, MH_NSTAGE, MH_FLOW_S, mh_FA, mh_value,
-# mh_grad (vcirun/modified/derive.py), velocity_guess, solve_small, cva_lambda.
+# mh_grad, mh_hess (vcirun/modified/derive.py), velocity_guess, solve_small, cva_lambda.
 import math
 
 import numpy as np
@@ -115,12 +115,15 @@ def mh_energy(q, p, h, prm):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def mh_gradient(q, p, h, prm, u, W, grad, hess):
-    """(iterations (< 0 on failure), H~): grad = (dH~/dq, dH~/dp), hess = Hessian of eta in (q, p).
-    u: Newton's start on entry, the stationary stage velocities on exit."""
+    """(iterations (< 0 on failure), H~): grad = (dH~/dq, dH~/dp), hess = Hessian of eta in (q, p)
+    unless hess is empty (shape (0, 0): the Gauss flow needs it once per partial step, the reset
+    never). u: Newton's start on entry, the stationary stage velocities on exit."""
     it = mh_solve(q, p, h, prm, u, W)
     if it < 0:
         return it, np.nan
-    return it, mh_grad(q, p, u, W, h, prm, grad, hess)
+    if hess.shape[0] > 0:
+        mh_hess(q, p, u, W, h, prm, hess)
+    return it, mh_grad(q, p, u, W, h, prm, grad)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -189,6 +192,7 @@ def gauss_partial(q0, p0, tau, h, t, prm, ntol, maxit, q1, p1, vlast):
         for i in range(nz):
             Z[a, i] = GAUSS_C[a] * tau * f0[i]
     Fs = np.empty((s, nz))
+    nohess = np.empty((0, 0))  # J0 above is the only use of eta's Hessian
     Y = np.empty(nz)
     R = np.empty(m)
     ynorm = 0.0
@@ -201,7 +205,7 @@ def gauss_partial(q0, p0, tau, h, t, prm, ntol, maxit, q1, p1, vlast):
         for a in range(s):
             for i in range(nz):
                 Y[i] = y0[i] + Z[a, i]
-            if mh_field(Y, h, prm, U[a], W, grad, hess, Fs[a]) < 0:
+            if mh_field(Y, h, prm, U[a], W, grad, nohess, Fs[a]) < 0:
                 return -it, np.nan
         for a in range(s):
             for i in range(nz):
@@ -254,7 +258,7 @@ def reset_mcva(q, pm, E_pre, tau_rem, h, t, prm, ntol, maxit, pp):
     u = np.empty(MH_M)
     W = np.empty((MH_M, MH_M))
     grad = np.empty(nz)
-    hess = np.empty((nz, nz))
+    hess = np.empty((0, 0))  # not needed by the reset
     mh_guess(q, pm, prm, u)
     it0, E0 = mh_gradient(q, pm, h, prm, u, W, grad, hess)
     if it0 < 0 or not math.isfinite(E0):
