@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import time
 from functools import lru_cache
+from itertools import product
 
 import sympy as sp
 
@@ -72,36 +73,137 @@ class StationaryEta:
         m = self.m
         self.u = [sp.Symbol(f"{_P}u{k}") for k in range(m)]
         h = self.h
-        qs = list(self.q)
-        ell = 0
         C = [[0] * n for _ in range(m)]  # C[k][j] = d v_j / d u_k
         for st, (name, frac) in enumerate(self.stages):
-            f = sp.nsimplify(frac)
-            w = self.u[st * n:(st + 1) * n]
-            qn = [a + f * h * b for a, b in zip(qs, w)]
-            ell += ld_expression(system, LIBRARY[name], qs, qn, f * h)
             for j in range(n):
-                C[st * n + j][j] = f
-            qs = qn
-        ell = sp.expand(ell / h)
-        if any(pw.base == h and pw.exp.is_negative for pw in ell.atoms(sp.Pow)) or ell.has(sp.zoo, sp.nan):
-            raise ValueError(f"ld: {ld_name} is not regular as h -> 0 in the velocity parametrisation")
-        self.ell = ell
+                C[st * n + j][j] = sp.nsimplify(frac)
         self.C = C
         self.v = [sum(C[k][j] * self.u[k] for k in range(m)) for j in range(n)]
         self.params = system.param_symbols
         self.xvars = self.q + self.u  # variables of the primitives ell_alpha
-        # partial derivatives of ell in x = (q, u), each the derivative of its parent (one diff of a
-        # small expression, not of ell): shared by F, A and the DAG's primitives
-        self.prim_expr: dict = {(): ell}
+        self.prim_expr: dict = {}
+        self.tensor_def: dict = {}    # node-tensor symbol -> explicit expression in (q, u, h, prm)
+        self._nodes = self._quadrature(system)
+        if self._nodes is None:  # not a quadrature rule of L: differentiate ell itself
+            qs = list(self.q)
+            ell = 0
+            for st, (name, frac) in enumerate(self.stages):
+                f = sp.nsimplify(frac)
+                qn = [a + f * h * b for a, b in zip(qs, self.u[st * n:(st + 1) * n])]
+                ell += ld_expression(system, LIBRARY[name], qs, qn, f * h)
+                qs = qn
+            ell = sp.expand(ell / h)
+            if any(pw.base == h and pw.exp.is_negative for pw in ell.atoms(sp.Pow)) or ell.has(sp.zoo, sp.nan):
+                raise ValueError(f"ld: {ld_name} is not regular as h -> 0 in the velocity parametrisation")
+            self.prim_expr[()] = ell
+        self.ell = self.prim(())
         self.F = [sum(C[k][j] * self.p[j] for j in range(n)) - self.prim((n + k,)) for k in range(m)]
         self.A = sp.Matrix(m, m, lambda a, b: -self.prim((n + a, n + b)))
 
+    # -- primitives from per-node tensors ---------------------------------------------------------
+    # Every Ld of MH_LDS is a quadrature rule of L in each stage (vcirun.codegen.tensor), so
+    #     ell(q, u) = sum_N c_N L(x_N, w_s(N)),   x_N = q + h sum_t beta_Nt w_t,
+    # (c_N = f_s W_i, beta_Nt = f_t for t < s, C_i f_s for t = s). A y = (q, u) derivative of L(x_N, w)
+    # is a sum over the choices x- or w-derivative for each index, and L = 1/2 w^T M(x) w - V(x) is
+    # quadratic in w, so every primitive is a short sum of the node tensors d^A M_bc (x_N), d^A V(x_N)
+    # (each the derivative of ONE entry, at the node) times u's: no diff of ell, whose size grows as n^2.
+    def _quadrature(self, system):
+        from ..codegen.tensor import quadrature_nodes
+
+        nodes = []
+        for s_, (name, frac) in enumerate(self.stages):
+            qn = quadrature_nodes(LIBRARY[name])
+            if qn is None:
+                return None
+            f = sp.nsimplify(frac)
+            for c, w in qn:
+                c = sp.nsimplify(c)
+                beta = {t: sp.nsimplify(self.stages[t][1]) for t in range(s_)}
+                beta[s_] = c * f
+                beta = {t: b for t, b in beta.items() if b != 0}
+                nodes.append((f * sp.nsimplify(w), s_, beta))
+        self._M = system.M
+        self._V = system.V
+        self._dmemo: dict = {}
+        return nodes
+
+    def _d(self, kind, A, b=0, c=0):
+        """d^A M_bc (kind 'M', b <= c) or d^A V (kind 'V') as an expression in q (memoised)."""
+        key = (kind, A, b, c)
+        if key not in self._dmemo:
+            if not A:
+                self._dmemo[key] = sp.sympify(self._M[b, c] if kind == "M" else self._V)
+            else:
+                self._dmemo[key] = sp.diff(self._d(kind, A[:-1], b, c), self.q[A[-1]])
+        return self._dmemo[key]
+
+    def _tensor(self, N, kind, A, b=0, c=0):
+        """Symbol of d^A M_bc or d^A V at node N (0 if structurally zero); defined in tensor_def."""
+        A = tuple(sorted(A))
+        b, c = min(b, c), max(b, c)
+        e = self._d(kind, A, b, c)
+        if e == 0:
+            return sp.S.Zero
+        sym = sp.Symbol(f"{_P}T{N}{kind}_{b}_{c}_" + "_".join(map(str, A)) if kind == "M"
+                        else f"{_P}T{N}V_" + "_".join(map(str, A)))
+        if sym not in self.tensor_def:
+            _, s_, beta = self._nodes[N]
+            h, n = self.h, self.n
+            x = {qa: qa + h * sum(bt * self.u[t * n + a] for t, bt in beta.items()) for a, qa in enumerate(self.q)}
+            self.tensor_def[sym] = e.xreplace(x) if beta else e
+        return sym
+
+    def _tensor_prim(self, alpha):
+        n = self.n
+        h = self.h
+        total = sp.S.Zero
+        for N, (cN, s_, beta) in enumerate(self._nodes):
+            w = self.u[s_ * n:(s_ + 1) * n]
+            # each y index -> [(coefficient, 'x' | 'w', component)]
+            choices = []
+            for j in alpha:
+                if j < n:
+                    choices.append([(sp.S.One, "x", j)])
+                else:
+                    t, b = divmod(j - n, n)
+                    opts = [(h * beta[t], "x", b)] if t in beta else []
+                    if t == s_:
+                        opts.append((sp.S.One, "w", b))
+                    choices.append(opts)
+            terms: dict = {}
+            for combo in product(*choices):
+                A = tuple(sorted(c[2] for c in combo if c[1] == "x"))
+                B = tuple(sorted(c[2] for c in combo if c[1] == "w"))
+                if len(B) > 2:
+                    continue
+                coef = sp.Mul(*[c[0] for c in combo])
+                terms[A, B] = terms.get((A, B), 0) + coef
+            for (A, B), coef in terms.items():
+                if coef == 0:
+                    continue
+                if len(B) == 2:
+                    val = self._tensor(N, "M", A, *B)
+                elif len(B) == 1:
+                    val = sp.Add(*[self._tensor(N, "M", A, B[0], c) * w[c] for c in range(n)])
+                else:
+                    val = sp.Rational(1, 2) * sp.Add(*[self._tensor(N, "M", A, b, c) * w[b] * w[c]
+                                                       for b in range(n) for c in range(n)]) - self._tensor(N, "V", A)
+                total += cN * coef * val
+        return total
+
+    def explicit(self, e):
+        """e with the node-tensor symbols replaced by their definitions (explicit in q, u, h, prm)."""
+        return sp.sympify(e).xreplace(self.tensor_def) if self.tensor_def else sp.sympify(e)
+
     def prim(self, alpha):
-        """d^|alpha| ell / dx_alpha, x = (q, u), for a multi-index alpha (explicit expression)."""
+        """d^|alpha| ell / dx_alpha, x = (q, u), for a multi-index alpha: an expression in the node
+        tensors (quadrature Lds) or explicit in (q, u) (otherwise)."""
         alpha = tuple(sorted(alpha))
         if alpha not in self.prim_expr:
-            self.prim_expr[alpha] = sp.diff(self.prim(alpha[:-1]), self.xvars[alpha[-1]])
+            if self._nodes is not None:
+                self.prim_expr[alpha] = self._tensor_prim(alpha)
+            else:
+                self.prim_expr[alpha] = sp.diff(self.prim(alpha[:-1]), self.xvars[alpha[-1]])
         return self.prim_expr[alpha]
 
 
@@ -312,6 +414,29 @@ def _closure(dag: DerivativeDag, exprs) -> set:
     return seen
 
 
+def _prim_program(st: StationaryEta, dag: DerivativeDag, used: set) -> list:
+    """[(symbol, expr)] computing the primitives in `used` (and the node tensors they read) in order:
+    one CSE pass over the node tensors' definitions, one over the primitives. `used` is extended by
+    every symbol the program reads (inputs included)."""
+    prim = [(s, dag.prim_expr[dag.kind[s][1]]) for s in dag.prim_sym.values()
+            if isinstance(s, sp.Symbol) and s in used]
+    for _, e in prim:
+        used |= e.free_symbols
+    tens = [(s, e) for s, e in st.tensor_def.items() if s in used]
+    prog = []
+    for items, tag in ((tens, "e"), (prim, "c")):
+        if not items:
+            continue
+        for _, e in items:
+            used |= e.free_symbols
+        repl, red = sp.cse([e for _, e in items], symbols=sp.numbered_symbols(f"{_P}{tag}"), order="none")
+        prog += list(repl) + [(s, e) for (s, _), e in zip(items, red)]
+    used |= {s for s, _ in prog}
+    for _, e in prog:
+        used |= e.free_symbols
+    return prog
+
+
 def _emit_dag_kernel(name: str, st: StationaryEta, dag: DerivativeDag, outs: list, ret=None) -> str:
     """numba source of `name(q, p, u, W, h, prm, <out arrays>)`: unpack inputs, the primitives (one
     CSE pass), the DAG nodes in creation (= topological) order, then the outputs. outs =
@@ -320,10 +445,7 @@ def _emit_dag_kernel(name: str, st: StationaryEta, dag: DerivativeDag, outs: lis
 
     exprs = [e for _, items in outs for _, e in items] + ([ret] if ret is not None else [])
     used = _closure(dag, exprs)
-    prim = [(s, dag.prim_expr[dag.kind[s][1]]) for s in dag.prim_sym.values()
-            if isinstance(s, sp.Symbol) and s in used]
-    for _, e in prim:
-        used |= e.free_symbols
+    prog = _prim_program(st, dag, used)
     sig = ["q", "p", "u", "W", "h", "prm"] + [o for o, _ in outs]
     lines = ['@njit(cache=True, nogil=True, error_model="numpy")', f"def {name}({', '.join(sig)}):"]
     body = []
@@ -340,13 +462,7 @@ def _emit_dag_kernel(name: str, st: StationaryEta, dag: DerivativeDag, outs: lis
     for i, s in enumerate(st.params):
         if s in used:
             body.append(f"{_id(s)} = prm[{i}]")
-    if prim:
-        repl, reduced = sp.cse([e for _, e in prim], symbols=sp.numbered_symbols(f"{_P}c"), order="none")
-        tmp = {s for s, _ in repl}
-        for s, e in repl:
-            body.append(f"{s.name} = {_code(e, tmp)}")
-        for (s, _), e in zip(prim, reduced):
-            body.append(f"{_id(s)} = {_code(e, tmp)}")
+    body += [f"{_id(s)} = {_code(e)}" for s, e in prog]
     # nodes and outputs: a second CSE pass (products of nodes recur across the DAG: ~40% fewer
     # operations, and numba's compile time grows with them); a temporary is emitted just before its
     # first use, where every node it reads is already defined (nodes are in topological order).
@@ -408,10 +524,7 @@ def _emit_grad_kernel(name: str, st: StationaryEta, dag: DerivativeDag, value) -
     L2 = {k: v for k, v in L2.items() if v != 0}
     val = sp.Symbol(f"{_P}val")
     used = _closure(dag, [value] + list(L3.values()) + list(L2.values()))
-    prim = [(s, dag.prim_expr[dag.kind[s][1]]) for s in dag.prim_sym.values()
-            if isinstance(s, sp.Symbol) and s in used]
-    repl, reduced = sp.cse([e for _, e in prim], symbols=sp.numbered_symbols(f"{_P}c"), order="none")
-    prog = list(repl) + [(s, e) for (s, _), e in zip(prim, reduced)]
+    prog = _prim_program(st, dag, used)
     prog += [(s, e) for s, e in dag.defs.items() if s in used]
     prog.append((val, sp.sympify(value)))
     # adjoint sweep (prog is topologically ordered: when y is reached backwards, its adjoint is final)
@@ -496,7 +609,7 @@ def modified_kernels_source(system, ks) -> str:
     n, m = st.n, st.m
     parts = [f"MH_ORDER = {s}", f"MH_M = {m}", f"MH_NSTAGE = {len(st.stages)}", f"MH_FLOW_S = {flow // 2}", ""]
     fa = Kernel(f"{_P}FA", [("q", st.q), ("p", st.p), ("u", st.u), ("h", st.h)],
-                [("F", sp.Matrix(st.F)), ("A", st.A)], st.params)
+                [("F", sp.Matrix([st.explicit(e) for e in st.F])), ("A", st.A.applyfunc(st.explicit))], st.params)
     parts.append(fa.emit())
     parts.append(_emit_dag_kernel(f"{_P}value", st, dag,
                                   [("terms", [(str(i), t) for i, t in enumerate(out["terms"])])], ret=out["value"]))
