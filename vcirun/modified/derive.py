@@ -56,9 +56,10 @@ _CSE2_MAX_TARGETS = 1200  # second CSE pass (over the DAG's nodes) only up to th
 
 
 class StationaryEta:
-    """eta(q, p) = stat_u [p . v(u) - ell(q, u)] for discrete Lagrangian `ld_name` of `system`."""
+    """eta(q, p) = stat_u [p . v(u) - ell(q, u)] for discrete Lagrangian `ld_name` of `system`.
+    per_node=False: primitives by differentiating ell itself (the reference the tests compare to)."""
 
-    def __init__(self, system, ld_name: str):
+    def __init__(self, system, ld_name: str, per_node: bool = True):
         if system.is_forced:
             raise ValueError(f"method: the MCVA family needs a conservative system (a modified Hamiltonian "
                              f"exists only without forcing); system {system.name} is forced")
@@ -83,8 +84,8 @@ class StationaryEta:
         self.xvars = self.q + self.u  # variables of the primitives ell_alpha
         self.prim_expr: dict = {}
         self.tensor_def: dict = {}    # node-tensor symbol -> explicit expression in (q, u, h, prm)
-        self._nodes = self._quadrature(system)
-        if self._nodes is None:  # not a quadrature rule of L: differentiate ell itself
+        self._nodes = self._quadrature(system) if per_node else None
+        if self._nodes is None:  # not a quadrature rule of L (or asked for): differentiate ell itself
             qs = list(self.q)
             ell = 0
             for st, (name, frac) in enumerate(self.stages):

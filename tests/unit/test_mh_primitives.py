@@ -1,0 +1,69 @@
+"""The modified Hamiltonian's building blocks (vcirun.modified.derive) at n > 2.
+
+- Primitives from per-node tensors (d^A M_bc, d^A V at the quadrature nodes of each stage) equal the
+  derivatives of ell(q, u) = Ld(q, q + h v(u), h) / h taken directly, for every Ld of MH_LDS.
+- The gradient of H~ by reverse mode (plus the implicit-function closure) against central
+  differences of H~ itself, on a 3-link pendulum (the cart-pendulum case is in
+  tests/convergence/test_modified_series.py).
+"""
+from __future__ import annotations
+
+from itertools import combinations_with_replacement
+
+import numpy as np
+import pytest
+import sympy as sp
+
+from vcirun.mechanics import get_scene
+from vcirun.modified import MH_LDS
+from vcirun.modified.derive import StationaryEta
+from vcirun.modified.evaluate import python_module
+
+
+def _numeric(st, e, point):
+    f = sp.lambdify(st.q + st.u + [st.h] + list(st.params), st.explicit(e), "math")
+    return float(f(*point))
+
+
+@pytest.mark.parametrize("scene, lds", [("double_pendulum", MH_LDS), ("n_pendulum_3", ("SVA", "SVC", "midpoint"))])
+def test_per_node_primitives_equal_derivatives_of_ell(scene, lds):
+    system = get_scene(scene)
+    rng = np.random.default_rng(11)
+    for ld in lds:
+        st = StationaryEta(system, ld)
+        ref = StationaryEta(system, ld, per_node=False)
+        assert st.tensor_def and not ref.tensor_def  # the two paths really differ
+        dim = st.n + st.m
+        point = list(rng.uniform(-1.5, 1.5, dim)) + [0.07] + list(system.param_values())
+        checked = 0
+        for order in range(4):
+            for alpha in combinations_with_replacement(range(dim), order):
+                a, b = st.prim(alpha), ref.prim(alpha)
+                if a == 0 and b == 0:
+                    continue
+                va, vb = _numeric(st, a, point), _numeric(ref, b, point)
+                assert va == pytest.approx(vb, rel=1e-12, abs=1e-12), (ld, alpha)
+                checked += 1
+        assert checked > 20
+
+
+def test_reverse_mode_gradient_against_differences_three_links():
+    system = get_scene("n_pendulum_3")
+    prm = system.param_values()
+    mod = python_module(system, "SVA", 4, 4)
+    h = 0.04
+    rng = np.random.default_rng(5)
+    q, p = rng.uniform(-0.8, 0.8, 3), rng.uniform(-1.5, 1.5, 3)
+    z = np.r_[q, p]
+    u, W = np.empty(mod.MH_M), np.empty((mod.MH_M, mod.MH_M))
+    g, He = np.empty(6), np.empty((0, 0))
+    mod.mh_guess(q, p, prm, u)
+    it, val = mod.mh_gradient(q, p, h, prm, u, W, g, He)
+    assert it >= 0 and val == pytest.approx(mod.mh_energy(q, p, h, prm), rel=1e-13)
+    f = lambda y: mod.mh_energy(y[:3].copy(), y[3:].copy(), h, prm)  # noqa: E731
+    d = 1e-4
+    for j in range(6):
+        e = np.zeros(6)
+        e[j] = d
+        fd = (-f(z + 2 * e) + 8 * f(z + e) - 8 * f(z - e) + f(z - 2 * e)) / (12 * d)
+        assert g[j] == pytest.approx(fd, rel=1e-8, abs=1e-8)
