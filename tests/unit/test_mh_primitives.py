@@ -67,3 +67,35 @@ def test_reverse_mode_gradient_against_differences_three_links():
         e[j] = d
         fd = (-f(z + 2 * e) + 8 * f(z + e) - 8 * f(z - e) + f(z - 2 * e)) / (12 * d)
         assert g[j] == pytest.approx(fd, rel=1e-8, abs=1e-8)
+
+
+@pytest.mark.parametrize("n", [2, 3])
+def test_directional_series_equals_index_series(n):
+    """The index-free series (contraction trees as directional derivatives along A = (0, K_q) and
+    B = (K_p, 0)) equals the n-dimensional jet polynomial of series.modified_series on random jets."""
+    from itertools import permutations
+
+    from vcirun.modified.series import directional_series, evaluate, modified_series
+
+    rng = np.random.default_rng(n)
+    N = 2 * n
+    T = {0: rng.normal(), 1: rng.normal(size=N)}
+    for k in (2, 3):
+        X = rng.normal(size=(N,) * k)
+        T[k] = sum(np.transpose(X, pm) for pm in permutations(range(k))) / len(list(permutations(range(k))))
+    D = {"A": np.r_[np.zeros(n), T[1][:n]], "B": np.r_[T[1][n:], np.zeros(n)]}
+
+    def jet(dirs, free=None):
+        t = T[len(dirs) + (free is not None)]
+        for d in dirs:
+            t = t @ D[d]
+        return t if free is None else t[free]
+
+    def value(desc):
+        if desc[0] == "jet":
+            return jet(desc[1]) if desc[1] else T[0]
+        return sum(jet(desc[1], j) * jet(desc[2], n + j) for j in range(n))
+
+    for Hi, Ti in zip(modified_series(n, 4), directional_series(4)):
+        dense = evaluate(Hi, lambda al: T[len(al)][tuple(al)] if al else T[0])
+        assert sum(float(c) * value(d) for c, d in Ti) == pytest.approx(dense, rel=1e-13, abs=1e-14)

@@ -47,7 +47,7 @@ import sympy as sp
 
 from ..discrete.lagrangians import LIBRARY, get_ld, ld_expression
 from . import FLOW_ORDERS, SUPPORTED_MH_ORDERS
-from .series import modified_series
+from .series import directional_series
 
 DERIVE_LOG: list[dict] = []  # timings of each derivation (for reports/benchmarks)
 
@@ -226,6 +226,15 @@ class DerivativeDag:
         for a in range(m):
             for b in range(a, m):
                 self.kind[self.W[a][b]] = ("W", a, b)
+        # directions A = (0, eta_q), B = (eta_p, 0) of the index-free series (series.directional_series):
+        # z-indices 2n (A) and 2n + 1 (B). Their components are frozen symbols for the forward
+        # derivatives (kind "dir") and ordinary program variables (defs) for the reverse sweep.
+        self.dirsym = {2 * n: [sp.Symbol(f"{_P}dA{j}") for j in range(n)],
+                       2 * n + 1: [sp.Symbol(f"{_P}dB{j}") for j in range(n)]}
+        for syms in self.dirsym.values():
+            for x in syms:
+                self.kind[x] = ("dir",)
+        self._dirs_defined = False
         self.prim_expr = st.prim_expr         # alpha -> explicit expression (shared with st)
         self.prim_sym: dict = {}              # alpha -> symbol (or constant)
         self.defs: dict = {}                  # node symbol -> expression (creation order = topological)
@@ -275,8 +284,14 @@ class DerivativeDag:
                 j = beta[0]
                 if j < n:   # dF_l/dq_j = -ell_{u_l q_j}
                     r = [self._node(-self.L((n + l, j))) for l in range(m)]
-                else:       # dF_l/dp_j = C[l][j]
+                elif j < 2 * n:       # dF_l/dp_j = C[l][j]
                     r = [sp.sympify(self.st.C[l][j - n]) for l in range(m)]
+                elif j == 2 * n:      # along A = (0, dA): sum_j dA_j C[l][j]
+                    d = self.directions()[j]
+                    r = [self._node(sum(self.st.C[l][i] * d[i] for i in range(n))) for l in range(m)]
+                else:                 # along B = (dB, 0): -sum_j dB_j ell_{u_l q_j}
+                    d = self.directions()[j]
+                    r = [self._node(-sum(d[i] * self.L((n + l, i)) for i in range(n))) for l in range(m)]
             else:
                 i, rest = beta[0], beta[1:]
                 r = []
@@ -321,8 +336,14 @@ class DerivativeDag:
         if key in self._dmemo:
             return self._dmemo[key]
         tag = k[0]
+        if tag == "dir":
+            return sp.S.Zero
         if tag == "z":
-            r = sp.S.One if k[1] == j else sp.S.Zero
+            if j < 2 * self.n:
+                r = sp.S.One if k[1] == j else sp.S.Zero
+            else:  # component of the direction: A moves p only, B moves q only
+                i = k[1] - (self.n if j == 2 * self.n else 0)
+                r = self.directions()[j][i] if 0 <= i < self.n and (k[1] >= self.n) == (j == 2 * self.n) else sp.S.Zero
         elif tag == "u":
             r = self.U(k[1], (j,))
         elif tag == "U":
@@ -331,7 +352,12 @@ class DerivativeDag:
             raise AssertionError("W = A^{-1} is a leaf: it must never be differentiated")
         elif tag == "prim":
             alpha = k[1]
-            e = self.L(alpha + (j,)) if j < self.n else 0
+            if j < self.n:
+                e = self.L(alpha + (j,))
+            elif j == 2 * self.n + 1:  # along B: the q-part of the direction
+                e = sum(di * self.L(alpha + (i,)) for i, di in enumerate(self.directions()[j]))
+            else:
+                e = 0
             for kk in range(self.m):
                 du = self.U(kk, (j,))
                 if du != 0:
@@ -364,11 +390,40 @@ class DerivativeDag:
             r = self._node(sum(pj * vj for pj, vj in zip(self.st.p, self.st.v)) - self.L(()))
         elif len(alpha) == 1:  # envelope identities: eta_q = -ell_q, eta_p = v(u*)
             j = alpha[0]
-            r = self._node(-self.L((j,)) if j < n else self.st.v[j - n])
+            if j < 2 * n:
+                r = self._node(-self.L((j,)) if j < n else self.st.v[j - n])
+            else:  # D_A eta = dA . eta_p, D_B eta = dB . eta_q
+                d = self.directions()[j]
+                r = self._node(sum(d[i] * (self.st.v[i] if j == 2 * n else -self.L((i,))) for i in range(n)))
         else:
             r = self._node(self.D(self.E(alpha[1:]), alpha[0]))
         self._E[alpha] = r
         return r
+
+    def directions(self) -> dict:
+        """{2n: dA, 2n + 1: dB} with dA = eta_q, dB = eta_p, defined (in defs) on first use."""
+        if not self._dirs_defined:
+            self._dirs_defined = True
+            for j in range(self.n):
+                self.defs[self.dirsym[2 * self.n][j]] = -self.L((j,))
+                self.defs[self.dirsym[2 * self.n + 1][j]] = self.st.v[j]
+        return self.dirsym
+
+    def directional_expr(self, terms):
+        """sum c * value(descriptor) of series.directional_series: ('jet', dirs) = D_dirs eta,
+        ('pair', du, dv) = sum_j D_du eta_{q_j} D_dv eta_{p_j}."""
+        n = self.n
+        idx = {"A": 2 * n, "B": 2 * n + 1}
+        out = sp.S.Zero
+        for c, d in terms:
+            coef = sp.Rational(c.numerator, c.denominator)
+            if d[0] == "jet":
+                out += coef * self.E(tuple(idx[x] for x in d[1]))
+            else:
+                du = tuple(idx[x] for x in d[1])
+                dv = tuple(idx[x] for x in d[2])
+                out += coef * sum(self.E((j,) + du) * self.E((n + j,) + dv) for j in range(n))
+        return out
 
     def poly_expr(self, poly):
         out = sp.S.Zero
@@ -389,8 +444,7 @@ def _derive(system, ld_name: str, mh_order: int):
     st = StationaryEta(system, ld_name)
     dag = DerivativeDag(st)
     n, h = st.n, st.h
-    H = modified_series(n, mh_order)
-    terms = [dag._node(dag.poly_expr(Hi)) for Hi in H]
+    terms = [dag._node(dag.directional_expr(Ti)) for Ti in directional_series(mh_order)]
     value = sum(h ** i * t for i, t in enumerate(terms))
     hess = [[dag.E((i, j)) for j in range(2 * n)] for i in range(2 * n)]
     DERIVE_LOG.append({"system": system.name, "ld": ld_name, "mh_order": mh_order,

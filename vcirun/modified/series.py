@@ -150,3 +150,98 @@ def evaluate(poly: dict, K) -> float:
             t *= K(jt)
         s += t
     return s
+
+
+# --------------------------------------------------------------------------------------------------
+# index-free form: each monomial as a contraction tree, evaluated by directional derivatives
+# --------------------------------------------------------------------------------------------------
+# In n dimensions every monomial of H_i is a tree of i jets of K whose edges pair a q-slot of one jet
+# with a p-slot of another (the HJ recursion contracts D_q of H~ with D_p of S, factors of different
+# jets). For i <= 4 each typed one-dimensional monomial (e.g. K_q K_qp K_qp K_p) admits exactly one
+# such tree up to isomorphism (checked by enumeration below), and its coefficient is the n = 1 one.
+# Every tree of <= 4 nodes is a star or a "double star" (two adjacent centres and their leaves), and
+# a leaf K_q (K_p) contracted with a p-slot (q-slot) is a directional derivative along
+#     A = (0, K_q)  (a p-direction)   or   B = (K_p, 0)  (a q-direction),
+# so with the direction frozen:
+#     star        ('jet', dirs)            = D_dirs K
+#     double star ('pair', du, t, dv)      = sum_j D_du K_{t_j} * D_dv K_{tbar_j}
+# (t = the type of the first centre's slot on the shared edge, tbar the other type). The value of
+# H~^{O(h^s)} then needs O(n) directional jets of order <= s - 1 instead of all O(n^(s-1)) jets.
+def _trees(mono):
+    """Canonical descriptors of the q/p contraction trees on the typed jets of an n = 1 monomial."""
+    jets = [tuple("q" if j == 0 else "p" for j in jt) for jt in mono]
+    slots = [(k, t) for k, jt in enumerate(jets) for t in jt]
+    qs = [i for i, s in enumerate(slots) if s[1] == "q"]
+    ps = [i for i, s in enumerate(slots) if s[1] == "p"]
+    N = len(jets)
+    found = set()
+    from itertools import permutations
+
+    for perm in permutations(ps):
+        edges = [(slots[a][0], slots[b][0], a, b) for a, b in zip(qs, perm)]
+        if any(u == v for u, v, _, _ in edges):
+            continue
+        pairs = {frozenset((u, v)) for u, v, _, _ in edges}
+        if len(pairs) != len(edges) or len(edges) != N - 1:
+            continue  # a double edge (cycle) or not a tree
+        adj = {k: set() for k in range(N)}
+        for u, v, _, _ in edges:
+            adj[u].add(v)
+            adj[v].add(u)
+        seen, stack = {0}, [0]
+        while stack:
+            for w in adj[stack.pop()] - seen:
+                seen.add(w)
+                stack.append(w)
+        if len(seen) != N:
+            continue
+        found.add(_describe(jets, slots, edges, adj))
+    return found
+
+
+def _describe(jets, slots, edges, adj):
+    N = len(jets)
+    if N == 1:
+        return ("jet", ())
+    leaf = {k for k in range(N) if len(jets[k]) == 1}
+
+    def dirs_of(center, skip=None):
+        # each slot of `center` paired with a leaf: its own type picks the direction (p-slot <- K_q: A)
+        out = []
+        for u, v, a, b in edges:
+            for me, other, myslot in ((u, v, a), (v, u, b)):
+                if me == center and other != skip and other in leaf:
+                    out.append("A" if slots[myslot][1] == "p" else "B")
+        return tuple(sorted(out))
+
+    for c in range(N):  # star: every other node is a leaf adjacent to c
+        if adj[c] == set(range(N)) - {c} and all(k in leaf for k in adj[c]):
+            if N == 2 and len(jets[c]) == 1 and jets[c][0] == "p":
+                continue  # the one-edge tree K_q K_p: take the K_q end as the centre (canonical)
+            return ("jet", dirs_of(c))
+    for u, v, a, b in edges:  # double star on the edge (u, v)
+        others = set(range(N)) - {u, v}
+        if all(k in leaf and (k in adj[u] or k in adj[v]) for k in others):
+            tu = slots[a][1] if slots[a][0] == u else slots[b][1]
+            du, dv = dirs_of(u, v), dirs_of(v, u)
+            # canonical orientation: the half whose shared slot is q first
+            return ("pair", du, dv) if tu == "q" else ("pair", dv, du)
+    raise NotImplementedError("modified Hamiltonian: a contraction tree of diameter > 3 (mh_order > 4)")
+
+
+@lru_cache(maxsize=None)
+def directional_series(order: int) -> tuple:
+    """(T_1, ..., T_order): T_i = [(coefficient, descriptor)] with H_i = sum c * value(descriptor):
+    ('jet', dirs): D_dirs K;  ('pair', du, dv): sum_j D_du K_{q_j} * D_dv K_{p_j}; directions 'A' =
+    (0, K_q), 'B' = (K_p, 0), frozen. Raises if a monomial's tree is not unique."""
+    out = []
+    for Hi in modified_series(1, order):
+        terms: dict = {}
+        for mono, c in Hi.items():
+            trees = _trees(mono)
+            if len(trees) != 1:
+                raise NotImplementedError(f"modified Hamiltonian: monomial {mono} has {len(trees)} contraction trees")
+            d = trees.pop()
+            terms[d] = terms.get(d, 0) + c
+        out.append(tuple((c, d) for d, c in terms.items() if c != 0))
+    return tuple(out)
