@@ -492,6 +492,46 @@ def _prim_program(st: StationaryEta, dag: DerivativeDag, used: set) -> list:
     return prog
 
 
+_LOOP_M = 4  # above this many stage velocities, u*'s derivatives U_beta = -W R_beta are numba loops
+
+
+def _u_groups(dag: DerivativeDag, entries: list, m: int):
+    """Replace the DAG's U nodes (U(k, beta) = -sum_l W_kl R_beta,l) by one ('group', g) entry per
+    beta, at the first one's place (R_beta is complete before any U(., beta) exists). Returns
+    (entries, groups: [(beta, {k: symbol}, R_beta)]). Unrolled, the m^2 products per beta (and as
+    many adjoint terms of W) made most of the source at n = 8; as loops they are O(m) lines."""
+    if m <= _LOOP_M:
+        return entries, []
+    out, groups, gid = [], [], {}
+    for ent in entries:
+        k = dag.kind.get(ent[0]) if isinstance(ent[0], sp.Symbol) else None
+        if k is not None and k[0] == "U":
+            beta = k[2]
+            if beta not in gid:
+                gid[beta] = len(groups)
+                groups.append((beta, {}, dag._dmemo[("R", beta)]))
+                out.append(("group", gid[beta]))
+            groups[gid[beta]][1][k[1]] = ent[0]
+            continue
+        out.append(ent)
+    return out, groups
+
+
+def _group_forward(g: int, group, m: int) -> list:
+    from ..codegen.kernels import _code, _id
+
+    beta, syms, R = group
+    lines = [f"RV[{g}, {l}] = {_code(R[l])}" for l in range(m)]
+    lines += [f"for k in range({m}):", "    acc = 0.0", f"    for l in range({m}):",
+              f"        acc += (W[k, l] if k <= l else W[l, k]) * RV[{g}, l]", f"    UV[{g}, k] = -acc"]
+    lines += [f"{_id(x)} = UV[{g}, {k}]" for k, x in sorted(syms.items())]
+    return lines
+
+
+def _group_arrays(groups, m: int) -> list:
+    return [f"RV = np.empty(({len(groups)}, {m}))", f"UV = np.empty(({len(groups)}, {m}))"] if groups else []
+
+
 def _emit_dag_kernel(name: str, st: StationaryEta, dag: DerivativeDag, outs: list, ret=None) -> str:
     """numba source of `name(q, p, u, W, h, prm, <out arrays>)`: unpack inputs, the primitives (one
     CSE pass), the DAG nodes in creation (= topological) order, then the outputs. outs =
@@ -521,14 +561,19 @@ def _emit_dag_kernel(name: str, st: StationaryEta, dag: DerivativeDag, outs: lis
     # nodes and outputs: a second CSE pass (products of nodes recur across the DAG: ~40% fewer
     # operations, and numba's compile time grows with them); a temporary is emitted just before its
     # first use, where every node it reads is already defined (nodes are in topological order).
-    targets = [(_id(s), e) for s, e in dag.defs.items() if s in used]
+    entries, groups = _u_groups(dag, [(s, e) for s, e in dag.defs.items() if s in used], st.m)
+    body += _group_arrays(groups, st.m)
+    targets = [(_id(s), e) if s != "group" else ("group", e) for s, e in entries]
     targets += [(f"{arr}[{idx}]", e) for arr, items in outs for idx, e in items]
     if ret is not None:
         targets.append(("return", ret))
+    exprs = [e for t, e in targets if t != "group"]
     if len(targets) <= _CSE2_MAX_TARGETS:
-        repl, reduced = sp.cse([e for _, e in targets], symbols=sp.numbered_symbols(f"{_P}d"), order="none")
+        repl, reduced = sp.cse(exprs, symbols=sp.numbered_symbols(f"{_P}d"), order="none")
     else:  # sympy's cse is superlinear: on very large DAGs (n >= 3, s = 4) it costs more than it saves
-        repl, reduced = [], [e for _, e in targets]
+        repl, reduced = [], exprs
+    reduced = iter(reduced)
+    reduced = [e if t == "group" else next(reduced) for t, e in targets]
     tdef = dict(repl)
     tnames = set(tdef)
     done: set = set()
@@ -541,6 +586,9 @@ def _emit_dag_kernel(name: str, st: StationaryEta, dag: DerivativeDag, outs: lis
                 body.append(f"{x.name} = {_code(tdef[x], tnames)}")
 
     for (tgt, _), e in zip(targets, reduced):
+        if tgt == "group":
+            body += _group_forward(e, groups[e], st.m)
+            continue
         emit_temps(e)
         body.append(f"return {_code(e, tnames)}" if tgt == "return" else f"{tgt} = {_code(e, tnames)}")
     if ret is None:
@@ -599,25 +647,50 @@ def _emit_grad_kernel(name: str, st: StationaryEta, dag: DerivativeDag, value) -
     val = sp.Symbol(f"{_P}val")
     used = _closure(dag, [value] + list(L3.values()) + list(L2.values()))
     prog = _prim_program(st, dag, used)
-    prog += [(s, e) for s, e in dag.defs.items() if s in used]
+    nodes, groups = _u_groups(dag, [(s, e) for s, e in dag.defs.items() if s in used], m)
+    prog += nodes
     prog.append((val, sp.sympify(value)))
     # adjoint sweep (prog is topologically ordered: when y is reached backwards, its adjoint is final)
     wsyms = {dag.W[a][b] for a in range(m) for b in range(a, m)}
     inputs = set(st.q) | set(st.p) | set(st.u) | wsyms
-    targets = {y for y, _ in prog}
+    targets = {y for y, _ in prog if y != "group"}
+    for _, syms, _ in groups:
+        targets |= set(syms.values())
     adj: dict = {val: [sp.S.One]}
-    rev = []
+    rev = []  # (symbol, expr) or a raw code line (str)
+
+    def propagate(e, b):
+        for x, d in _partials(e).items():
+            if (x in targets or x in inputs) and d != 0:
+                adj.setdefault(x, []).append(b * d)
+
     for k, (y, e) in enumerate(reversed(prog)):
+        if y == "group":  # U_beta = -W R_beta: RB = -W^T UB, WB -= UB R_beta^T
+            beta, syms, R = groups[e]
+            for kk in range(m):
+                parts = adj.pop(syms[kk], None) if kk in syms else None
+                rev.append(f"UB[{e}, {kk}] = {_code(sp.Add(*parts)) if parts else '0.0'}")
+            rev += [f"for l in range({m}):", "    acc = 0.0", f"    for k in range({m}):",
+                    f"        acc += (W[k, l] if k <= l else W[l, k]) * UB[{e}, k]",
+                    f"        WB[k, l] -= UB[{e}, k] * RV[{e}, l]", f"    RB[{e}, l] = -acc"]
+            for l in range(m):
+                if not sp.sympify(R[l]).is_number:
+                    rb = sp.Symbol(f"{_P}rb{e}_{l}")
+                    rev.append((rb, sp.Symbol(f"RB[{e}, {l}]")))
+                    propagate(R[l], rb)
+            continue
         parts = adj.pop(y, None)
         if not parts:
             continue
         b = sp.Symbol(f"{_P}b{k}")
         rev.append((b, sp.Add(*parts)))
-        for x, d in _partials(e).items():
-            if (x in targets or x in inputs) and d != 0:
-                adj.setdefault(x, []).append(b * d)
+        propagate(e, b)
     bar = lambda x: sp.Add(*adj.get(x, []))  # noqa: E731
-    used_in = set().union(*(e.free_symbols for _, e in prog + rev)) | set(L3.values()) | set(L2.values())
+    assert not (groups and any(w in adj for w in wsyms)), "W outside the U loops"
+    used_in = set().union(*(e.free_symbols for y, e in prog if y != "group"),
+                          *(r[1].free_symbols for r in rev if not isinstance(r, str)),
+                          *(sp.sympify(R[l]).free_symbols for _, _, R in groups for l in range(m)))
+    used_in |= set(L3.values()) | set(L2.values())
     sig = "q, p, u, W, h, prm, grad"
     lines = ['@njit(cache=True, nogil=True, error_model="numpy")', f"def {name}({sig}):",
              '    """H~ and grad = dH~/d(q, p) (reverse mode; see vcirun.modified.derive._emit_grad_kernel)."""']
@@ -628,14 +701,28 @@ def _emit_grad_kernel(name: str, st: StationaryEta, dag: DerivativeDag, value) -
     if st.h in used_in:
         body.append(f"{_id(st.h)} = h")
     body += [f"{_id(x)} = prm[{i}]" for i, x in enumerate(st.params) if x in used_in]
-    body += [f"{_id(y)} = {_code(e)}" for y, e in prog]
-    body += [f"{_id(y)} = {_code(e)}" for y, e in rev]
-    # S = Wb symmetrised; G = W S W
+    body += _group_arrays(groups, m)
+    if groups:
+        body += [f"UB = np.empty(({len(groups)}, {m}))", f"RB = np.empty(({len(groups)}, {m}))",
+                 f"WB = np.zeros(({m}, {m}))"]
+    for y, e in prog:
+        body += _group_forward(e, groups[e], m) if y == "group" else [f"{_id(y)} = {_code(e)}"]
+    for r in rev:
+        if isinstance(r, str):
+            body.append(r)
+        elif r[1].is_Symbol and r[1].name.startswith("RB["):
+            body.append(f"{_id(r[0])} = {r[1].name}")
+        else:
+            body.append(f"{_id(r[0])} = {_code(r[1])}")
+    # S = Wb symmetrised (the W symbols of unrolled U nodes, or WB of the loops); G = W S W
     body.append(f"S = np.empty(({m}, {m}))")
     for a in range(m):
         for b in range(a, m):
             e = bar(dag.W[a][b])
-            body.append(f"S[{a}, {b}] = {_code(e if a == b else e / 2)}")
+            if groups:  # W enters through the loops only
+                body.append(f"S[{a}, {b}] = " + (f"WB[{a}, {a}]" if a == b else f"0.5 * (WB[{a}, {b}] + WB[{b}, {a}])"))
+            else:
+                body.append(f"S[{a}, {b}] = {_code(e if a == b else e / 2)}")
             if a != b:
                 body.append(f"S[{b}, {a}] = S[{a}, {b}]")
     body += [f"T = np.zeros(({m}, {m}))", f"for a in range({m}):", f"    for b in range({m}):",
