@@ -22,20 +22,34 @@ writing D^beta F = A u_beta + R_beta (R_beta free of the top-order derivative u_
 with D_i the total derivative d/dz_i = partial_i + sum_k u_{k,(i)} partial_{u_k} (+ u_{k,beta+i} for
 u_{k,beta}). W stays a leaf that is never differentiated. Everything is forward-mode differentiation
 done symbolically on a DAG of small named nodes, so expressions never swell: the partial derivatives
-of ell in (q, u) are the leaves ("primitives", explicit sympy expressions, one CSE pass), every other
-node is a short polynomial in earlier nodes, u and W. At run time u* is found by Newton on F and
-W = A^{-1} numerically (vcirun/modified/numeric.py). This replaces Appendix A step 2, whose printed
-second derivatives of qbar are not used (D_pp qbar and D_qp qbar are printed with the wrong sign,
-see tests/convergence/test_modified_series.py).
+of ell in (q, u) are the leaves ("primitives", one CSE pass), every other node is a short polynomial
+in earlier nodes, u and W. At run time u* is found by Newton on F and W = A^{-1} numerically
+(vcirun/modified/numeric.py). This replaces Appendix A step 2, whose printed second derivatives of
+qbar are not used (D_pp qbar and D_qp qbar are printed with the wrong sign, see
+tests/convergence/test_modified_series.py).
 
 Modified Hamiltonian
 --------------------
 H~^{O(h^s)} = sum_{i=1..s} h^{i-1} H_i[eta] with H_i the symplectic-Euler series of vcirun/modified/
-series.py (derived there from the Hamilton-Jacobi equation). H_i needs derivatives of eta up to
-order i-1; its gradient would need order i, so it is not formed from jets: the generated value
-program is differentiated in reverse mode, and the implicit node and W = A^{-1} are closed by the
-implicit function theorem (`_emit_grad_kernel`). Measured on the n-link pendulum (MCVAC, n = 8):
-symbolic 20 -> 13 s, source 1148 -> 524 kB, gradients equal to round-off (2e-16 .. 6e-16 relative).
+series.py (derived there from the Hamilton-Jacobi equation).
+
+What keeps the symbolic work small as n grows (issue 7; the first version formed every jet of eta
+up to order s entry by entry: n^2.9 symbolic, 1.1 MB of source for MCVAC at n = 8):
+- Primitives from per-node tensors: every Ld the MCVA family takes is a quadrature rule of L in
+  each stage, so each derivative of ell is a short sum of d^A M_bc and d^A V at the nodes (one
+  entry's derivative each) times stage velocities (`StationaryEta._tensor_prim`); ell itself, whose
+  size grows as n^2, is never differentiated.
+- The value from the index-free series (`series.directional_series`): each monomial of H_2..H_4 is
+  a q/p contraction tree, i.e. a derivative of eta along the frozen directions A = (0, eta_q),
+  B = (eta_p, 0), or a sum over j of two such with one free index: O(n) jets of order <= s - 1,
+  not all O(n^(s-1)) of them.
+- The gradient by reverse mode over the value's program, closed by the implicit function theorem
+  for u* and W (`_emit_grad_kernel`): no jets of order s at all.
+- Above 4 stage velocities, U_beta = -W R_beta and its adjoint are numba loops, not m^2 unrolled
+  products.
+Every step was checked against the previous kernels (values, gradients, Hessians equal to
+6e-16 relative on the cart-pendulum, the double pendulum and a 3-link pendulum, for every Ld and
+s), and by tests/unit/test_mh_primitives.py. Measurements: docs/performance.md (Scaling).
 """
 from __future__ import annotations
 
