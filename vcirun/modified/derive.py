@@ -249,7 +249,7 @@ class DerivativeDag:
             for x in syms:
                 self.kind[x] = ("dir",)
         self._dirs_defined = False
-        self.prim_expr = st.prim_expr         # alpha -> explicit expression (shared with st)
+        self.prim_expr = st.prim_expr         # alpha -> expression (shared with st)
         self.prim_sym: dict = {}              # alpha -> symbol (or constant)
         self.defs: dict = {}                  # node symbol -> expression (creation order = topological)
         self._dmemo: dict = {}
@@ -395,7 +395,8 @@ class DerivativeDag:
 
     # -- derivatives of eta -----------------------------------------------------------------------
     def E(self, alpha):
-        """d^|alpha| eta / dz_alpha for a sorted multi-index alpha over z = (q, p)."""
+        """d^|alpha| eta / dz_alpha for a sorted multi-index alpha over z = (q, p) and the frozen
+        directions (index 2n: A, 2n + 1: B)."""
         alpha = tuple(sorted(alpha))
         if alpha in self._E:
             return self._E[alpha]
@@ -439,21 +440,11 @@ class DerivativeDag:
                 out += coef * sum(self.E((j,) + du) * self.E((n + j,) + dv) for j in range(n))
         return out
 
-    def poly_expr(self, poly):
-        out = sp.S.Zero
-        for mono, c in poly.items():
-            t = sp.Rational(c.numerator, c.denominator)
-            for jt in mono:
-                t = t * self.E(jt)
-            out += t
-        return out
-
-
 @lru_cache(maxsize=None)
 def _derive(system, ld_name: str, mh_order: int):
     """(StationaryEta, DerivativeDag, outputs) for one (system, Ld, s); cached per process.
-    Only the jets of eta that the VALUE of H~^{O(h^s)} needs (order <= s - 1, and the Hessian) are
-    derived: the gradient is the reverse-mode adjoint of the value's program (`_emit_grad_kernel`)."""
+    Only the directional jets of eta that the VALUE of H~^{O(h^s)} needs (order <= s - 1) and eta's
+    Hessian are derived: the gradient is the reverse-mode adjoint of the value's program."""
     t0 = time.perf_counter()
     st = StationaryEta(system, ld_name)
     dag = DerivativeDag(st)
