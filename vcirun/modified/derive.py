@@ -440,6 +440,7 @@ class DerivativeDag:
                 out += coef * sum(self.E((j,) + du) * self.E((n + j,) + dv) for j in range(n))
         return out
 
+
 @lru_cache(maxsize=None)
 def _derive(system, ld_name: str, mh_order: int):
     """(StationaryEta, DerivativeDag, outputs) for one (system, Ld, s); cached per process.
