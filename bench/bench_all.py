@@ -16,7 +16,8 @@ Sections (`--only a,b,...` to pick; `--quick` for a short smoke run):
             solve_ivp (DOP853 / Radau, compiled or numpy right-hand side) at matched L2 error
   scaling   cost against T, the number of impacts, 1/h, mh_order (generalized MCVA, cold builds) and
             the degrees of freedom (n-link pendulum, n = 1, 2, 4, 8: symbolic, numba build, us/step),
-            with fitted exponents
+            with fitted exponents (CVA, MCVAC, MCVAA)
+  dof       only the degrees-of-freedom part of `scaling`
   tensor    the per-slot tensor prototype of the step (bench/tensor_prototype.py): symbolic and numba
             time and us per step against vcirun's generated step, n-link pendulum n = 1, 2, 4, 8
   wp        the work-precision studies (configs/work_precision.yaml, work_precision_double.yaml,
@@ -430,10 +431,21 @@ def section_scaling(res):
                                      for k in ("symbolic_s", "numba_s", "us_per_step", "sim5_cpu_ms")}
         log("  exponents vs mh_order: " + ", ".join(f"{k} {v:.2f}" for k, v in out["mh_order_exponents"].items()))
     out["mh_order"] = rowsm
-    # degrees of freedom: n-link pendulum against a wall
+    out["dof"] = dof_rows()
+    res["scaling"] = out
+
+
+def section_dof(res):
+    """The degrees-of-freedom part of `scaling` alone (saved as res["scaling_dof"])."""
+    log("== scaling with the degrees of freedom")
+    res["scaling_dof"] = dof_rows()
+
+
+def dof_rows() -> dict:
+    """n-link pendulum against a wall, n = 1, 2, 4, 8: cold builds (symbolic, numba), us per step."""
     Ks = [1, 2, 4] if QUICK else [1, 2, 4, 8]
     rowsk = {}
-    for m in ["CVA", "MCVAC"]:
+    for m in ["CVA", "MCVAC", "MCVAA"]:
         rows = []
         for K in Ks:
             with tempfile.TemporaryDirectory(prefix="vcirun_bench_") as d:
@@ -454,8 +466,7 @@ def section_scaling(res):
         exps = {k: fit_exponent([r["K"] for r in ok], [r[k] for r in ok]) for k in ("symbolic_s", "numba_s", "us_per_step")}
         rowsk[m] = {"rows": rows, "exponents": exps}
         log(f"  exponents vs n ({m}): " + ", ".join(f"{k} {v:.2f}" for k, v in exps.items()))
-    out["dof"] = rowsk
-    res["scaling"] = out
+    return rowsk
 
 
 # --- work-precision ----------------------------------------------------------------------------------
@@ -539,7 +550,8 @@ def section_tensor(res):
 
 
 SECTIONS = {"steps": section_steps, "sim5": section_sim5, "impact": section_impact, "build": section_build,
-            "sweep": section_sweep, "yardstick": section_yardstick, "scaling": section_scaling, "tensor": section_tensor, "wp": section_wp}
+            "sweep": section_sweep, "yardstick": section_yardstick, "scaling": section_scaling, "dof": section_dof,
+            "tensor": section_tensor, "wp": section_wp}
 
 
 def main(argv=None):
