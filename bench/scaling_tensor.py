@@ -14,7 +14,7 @@ exponents are least-squares slopes of log(quantity) against log(n) over the n-li
 
 With --mcvac, also the symbolic split of MCVAC's module (in this process, no numba): system + step
 kernels (tensor path) against the modified-Hamiltonian kernels (vcirun.modified.derive, not changed
-by the tensor path), with their source sizes.
+by the tensor path; their own scaling: bench/scaling_mh.py), with their source sizes.
 
     python bench/scaling_tensor.py [--quick] [--mcvac] [--output=PATH]
                                    (JSON to results/scaling_tensor.json)
