@@ -29,7 +29,7 @@ from __future__ import annotations
 
 from fractions import Fraction
 from functools import lru_cache
-from itertools import product
+from itertools import permutations, product
 
 ONE = {(): Fraction(1)}
 
@@ -164,8 +164,8 @@ def evaluate(poly: dict, K) -> float:
 #     A = (0, K_q)  (a p-direction)   or   B = (K_p, 0)  (a q-direction),
 # so with the direction frozen:
 #     star        ('jet', dirs)            = D_dirs K
-#     double star ('pair', du, t, dv)      = sum_j D_du K_{t_j} * D_dv K_{tbar_j}
-# (t = the type of the first centre's slot on the shared edge, tbar the other type). The value of
+#     double star ('pair', du, dv)         = sum_j D_du K_{q_j} * D_dv K_{p_j}
+# (the centre whose slot on the shared edge is a q-slot first). The value of
 # H~^{O(h^s)} then needs O(n) directional jets of order <= s - 1 instead of all O(n^(s-1)) jets.
 def _trees(mono):
     """Canonical descriptors of the q/p contraction trees on the typed jets of an n = 1 monomial."""
@@ -175,8 +175,6 @@ def _trees(mono):
     ps = [i for i, s in enumerate(slots) if s[1] == "p"]
     N = len(jets)
     found = set()
-    from itertools import permutations
-
     for perm in permutations(ps):
         edges = [(slots[a][0], slots[b][0], a, b) for a, b in zip(qs, perm)]
         if any(u == v for u, v, _, _ in edges):
