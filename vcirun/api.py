@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import hashlib
+import math
 import os
 import time
 from pathlib import Path
@@ -19,7 +20,9 @@ _METHOD_OPTIONS = {"ld", "mh_order", "flow_order"}
 
 
 def _is_yaml_source(s: str) -> bool:
-    return s.endswith((".yaml", ".yml")) or Path(s).is_file()
+    """A YAML system file: a name ending in .yaml/.yml, or an existing file that is not a built-in
+    scene's name (a built-in name always means the scene: no file-system lookup per call)."""
+    return s.endswith((".yaml", ".yml")) or (scene_args(s) is None and Path(s).is_file())
 
 
 def resolve_system(system, params: dict | None = None):
@@ -189,9 +192,9 @@ def _initial_state(d: SystemData, mod, start, prm):
 def grid_steps(h, T) -> tuple[float, float, int]:
     """Validated (h, T, N) of the grid t_k = k h, k = 0..N, N = round(T / h)."""
     h, T = float(h), float(T)
-    if not (h > 0 and np.isfinite(h)):
+    if not (h > 0 and math.isfinite(h)):
         raise ValueError(f"h: must be a positive finite step (got {h})")
-    if not (T > 0 and np.isfinite(T)):
+    if not (T > 0 and math.isfinite(T)):
         raise ValueError(f"T: must be a positive finite time (got {T})")
     N = int(round(T / h))
     if N < 1:

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 from .codegen.build import KernelSet
 from .discrete.lagrangians import LIBRARY, get_ld
@@ -22,18 +23,24 @@ class Method:
     properties: dict = field(default_factory=dict, compare=False)
 
     def kernel_set(self) -> KernelSet:
-        ld = get_ld(self.ld)
-        return KernelSet(
-            full_stages=tuple(ld.stages),
-            partial=self.partial,
-            reset=self.reset or "cva",
-            vci_stage=self.ld if self.reset == "vci" else None,
-            modified=(self.ld, self.mh_order, self.flow_order) if self.reset == "mcva" else None,
-        )
+        return _kernel_set(self)
 
     @property
     def constrained(self) -> bool:
         return self.reset is not None
+
+
+@lru_cache(maxsize=256)
+def _kernel_set(method: Method) -> KernelSet:
+    """The kernel set of a method (memoised: simulate asks for it on every call)."""
+    ld = get_ld(method.ld)
+    return KernelSet(
+        full_stages=tuple(ld.stages),
+        partial=method.partial,
+        reset=method.reset or "cva",
+        vci_stage=method.ld if method.reset == "vci" else None,
+        modified=(method.ld, method.mh_order, method.flow_order) if method.reset == "mcva" else None,
+    )
 
 
 def _props(mh, sympl, explicit):

@@ -57,8 +57,10 @@ def _njit(*args, **kwargs):
 
 
 def _python_kernels(system, ld: str, path: str):
-    """The step kernels of `ld` (with <ld>_Edv) on `path`, executed as plain Python."""
-    text = "import math\nimport numpy as np\n\n" + derive.ld_kernels_source(system, [ld], ld, path)
+    """The step kernels of `ld` (with <ld>_Edv) on `path`, executed as plain Python, with the system
+    kernels they call (the node data sys_node of the cached kernels <ld>_PmJc, <ld>_Ppc)."""
+    text = (f"import math\nimport numpy as np\n\nNDOF = {system.n}\n\n" + derive.system_kernels_source(system, path)
+            + "\n\n" + derive.ld_kernels_source(system, [ld], ld, path))
     mod = types.ModuleType(f"tensor_test_{system.name}_{ld}_{path}")
     mod.__dict__["njit"] = _njit
     exec(compile(text, mod.__name__, "exec"), mod.__dict__)
@@ -160,6 +162,39 @@ def test_tensor_jacobians_match_finite_differences(system_name, ld, kernel_pairs
         worst["Edv"] = max(worst["Edv"], rel_err(a["Edv"], Efd))
     bad = {k: e for k, e in worst.items() if not e < RTOL_FD}
     assert not bad, f"{system_name}/{ld}: analytic vs finite-difference relative errors above {RTOL_FD}: {bad}"
+
+
+@pytest.mark.parametrize("system_name", SYSTEMS)
+@pytest.mark.parametrize("ld", LDS)
+@pytest.mark.parametrize("path", ["tensor", "expanded"])
+def test_node_data_handoff(system_name, ld, path, kernel_pairs, rng):
+    """The full step keeps node data (vcirun.maps.steps): <ld>_Ppc must hand over exactly (bit for bit)
+    sys_node at q1 = q0 + h v, the start of the next stage, and the cached kernels with c =
+    sys_node(q0) must give exactly what the plain ones give; sys_node_M must rebuild M(q)."""
+    system, tens, expd = kernel_pairs(system_name, ld)
+    mod = tens if path == "tensor" else expd
+    n = system.n
+    prm = system.param_values()
+    for h in STEPS:
+        q0, v, t = rng.uniform(-1.2, 1.2, n), rng.uniform(-1.5, 1.5, n), rng.uniform(0.0, 2.0)
+        c, cn, want = np.full(mod.NODE_LEN, np.nan), np.full(mod.NODE_LEN, np.nan), np.full(mod.NODE_LEN, np.nan)
+        mod.sys_node(q0, prm, c)
+        pp, pp_plain = np.empty(n), np.empty(n)
+        getattr(mod, f"{ld}_Ppc")(q0, v, h, t, prm, c, pp, cn)
+        getattr(mod, f"{ld}_Pp")(q0, v, h, t, prm, pp_plain)
+        q1 = np.array([q0[a] + h * v[a] for a in range(n)])
+        mod.sys_node(q1, prm, want)
+        written = ~np.isnan(want)  # structural zeros of the tensors are never written nor read
+        assert written.any() and np.array_equal(cn[written], want[written]), (h, cn, want)
+        assert np.array_equal(pp, pp_plain)
+        r, J, r2, J2 = np.empty(n), np.empty((n, n)), np.empty(n), np.empty((n, n))
+        getattr(mod, f"{ld}_PmJc")(q0, v, h, t, prm, c, r, J)
+        getattr(mod, f"{ld}_PmJ")(q0, v, h, t, prm, r2, J2)
+        assert np.array_equal(r, r2) and np.array_equal(J, J2)
+        A, M = np.empty((n, n)), np.empty((n, n))
+        mod.sys_node_M(c, A)
+        mod.sys_M(q0, prm, M)
+        assert rel_err(A, M) < RTOL_PATHS
 
 
 @pytest.mark.parametrize("system_name", SYSTEMS)

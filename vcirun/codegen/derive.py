@@ -58,10 +58,51 @@ def system_kernels_source(system, path: str | None = None) -> str:
     tensor = kernel_path(path) == "tensor"
     parts = [k.emit() for k in system_kernels(system, with_dhq=not tensor)]
     if tensor:
-        from .tensor import dhq_source
+        from .tensor import dhq_source, node_source
 
-        parts.append(dhq_source(system))
+        parts += [dhq_source(system), node_source(system)]
+    else:
+        parts.append(_EXPANDED_NODE.format(n=system.n))
     return "\n\n".join(parts)
+
+
+# Node data on the expanded path: M(q) only (row-major), enough for the velocity guess; the
+# expanded kernels ignore it (their <LD>_PmJc / <LD>_Ppc wrappers are _EXPANDED_CACHED_WRAPPERS).
+_EXPANDED_NODE = """NODE_LEN = {n} * {n}
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def sys_node(q, prm, c):
+    A = np.empty((NDOF, NDOF))
+    sys_M(q, prm, A)
+    for i in range(NDOF):
+        for j in range(NDOF):
+            c[i * NDOF + j] = A[i, j]
+    return 0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def sys_node_M(c, A):
+    for i in range(NDOF):
+        for j in range(NDOF):
+            A[i, j] = c[i * NDOF + j]
+    return 0
+"""
+
+_EXPANDED_CACHED_WRAPPERS = """@njit(cache=True, nogil=True, error_model="numpy")
+def {name}_PmJc(q0, v, h, t, prm, c, r, J):
+    return {name}_PmJ(q0, v, h, t, prm, r, J)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def {name}_Ppc(q0, v, h, t, prm, c, out, cn):
+    {name}_Pp(q0, v, h, t, prm, out)
+    x = np.empty(NDOF)
+    for i in range(NDOF):
+        x[i] = q0[i] + h * v[i]
+    sys_node(x, prm, cn)
+    return 0
+"""
 
 
 DEFAULT_KERNEL_PATH = "tensor"
@@ -106,12 +147,16 @@ def ld_kernels_source(system, names, vci_stage=None, path: str | None = None) ->
         if nm not in handled:
             for k in ld_kernels(system, nm, sid, need_edv=(nm == vci_stage)):
                 parts.append(k.emit())
+            parts.append(_EXPANDED_CACHED_WRAPPERS.format(name=nm))
     return "\n\n".join(parts)
 
 
-def _dispatch(fname: str, sig: str, call: str, names: list[str], returns: bool) -> str:
-    """ld_X(sid, ...) -> NAME_X(...) by stage id: a branch on an int is free next to the kernel."""
-    lines = ['@njit(cache=True, nogil=True, error_model="numpy")', f"def {fname}(sid, {sig}):"]
+def _dispatch(fname: str, sig: str, call: str, names: list[str], returns: bool, inline: bool = False) -> str:
+    """ld_X(sid, ...) -> NAME_X(...) by stage id: a branch on an int is free next to the kernel.
+    inline: numba inlines the dispatcher into its caller (the hot ones: a jitted function that is not
+    a leaf keeps NRT reference counting of its array arguments, two atomic calls per array per call)."""
+    deco = '@njit(cache=True, nogil=True, error_model="numpy"' + (', inline="always")' if inline else ")")
+    lines = [deco, f"def {fname}(sid, {sig}):"]
     for i, nm in enumerate(names):
         kw = "if" if i == 0 else "elif"
         lines.append(f"    {kw} sid == {i}:")
@@ -135,6 +180,8 @@ def module_source(system, ks, unit_texts: list[str], kernel_path: str | None = N
     parts.append(ld_kernels_source(system, names, ks.vci_stage, kernel_path))
     parts.append(_dispatch("ld_PmJ", "q0, v, h, t, prm, r, J", "PmJ", names, False))
     parts.append(_dispatch("ld_Pp", "q0, v, h, t, prm, out", "Pp", names, False))
+    parts.append(_dispatch("ld_PmJc", "q0, v, h, t, prm, c, r, J", "PmJc", names, False, inline=True))
+    parts.append(_dispatch("ld_Ppc", "q0, v, h, t, prm, c, out, cn", "Ppc", names, False, inline=True))
     parts.append(_dispatch("ld_Ed", "q0, v, h, prm", "Ed", names, True))
     if ks.vci_stage:  # only R^VCI needs dEd/dv, and only of its own stage
         parts.append('@njit(cache=True, nogil=True, error_model="numpy")\ndef ld_Edv(sid, q0, v, h, prm, out):\n'

@@ -252,12 +252,14 @@ class _Gen:
         self.lines.append("    " + line)
 
     def prologue(self, q0="q0", v="v"):
-        """Parameters and inputs (arrays named q0, v) as locals q0_a, v_a (unused ones cost nothing)."""
+        """Parameters and inputs (arrays named q0, v; v=None: no velocity) as locals q0_a, v_a
+        (unused ones cost nothing)."""
         for i, s in enumerate(self.system.param_symbols):
             self(f"s_{''.join(c if c.isalnum() else '_' for c in s.name)} = prm[{i}]")
         for a in range(self.n):
             self(f"q0_{a} = {q0}[{a}]")
-            self(f"v_{a} = {v}[{a}]")
+            if v is not None:
+                self(f"v_{a} = {v}[{a}]")
 
     def coords(self, i: int, c: float) -> list:
         """Names of node i's coordinates x = q0 + C h v."""
@@ -274,14 +276,31 @@ class _Gen:
         for ln in self.td[key].instantiate(tag, coords):
             self(ln)
 
-    def node(self, i: int, c: float, w: float, key: str = "T1") -> tuple:
+    def node(self, i: int, c: float, w: float, key: str = "T1", cached: str | None = None) -> tuple:
         """Open quadrature node i (x = q0 + C h v): its coordinates and tensor template `key`, as
-        locals named n<i>_*. Returns (tag, coordinate names)."""
-        self(f"# node {i}: C = {c!r}, W = {w!r}")
+        locals named n<i>_*; with `cached` (C = 0 only) the first-order tensors are read from that
+        node-data array (sys_node at q0) instead of computed. Returns (tag, coordinate names)."""
+        self(f"# node {i}: C = {c!r}, W = {w!r}" + (f" (tensors from {cached})" if cached else ""))
         tag = f"n{i}"
         xs = self.coords(i, c)
-        self.tensors(key, tag, xs)
+        if cached is not None:
+            assert c == 0.0
+            self.load(tag, cached)
+        else:
+            self.tensors(key, tag, xs)
         return tag, xs
+
+    def load(self, tag: str, arr: str):
+        """<tag>_k = arr[k] for the structural nonzeros k of template T1 (the node-data layout)."""
+        for k in range(self.td["n_g1"]):
+            if k not in self.td["T1"].zero:
+                self(f"{tag}_{k} = {arr}[{k}]")
+
+    def store(self, tag: str, arr: str):
+        """arr[k] = <tag>_k: the node data of a node whose T1 tensors are open as <tag>_*."""
+        for k in range(self.td["n_g1"]):
+            if k not in self.td["T1"].zero:
+                self(f"{arr}[{k}] = {tag}_{k}")
 
     def add_weighted_Mv(self, tag, w, out: dict):
         """out[a] += W (M(x) v)_a for node `tag`; returns the M v locals."""
@@ -381,7 +400,7 @@ def _pmj_source(system, td, name, nodes, fa) -> str:
     r_terms = {a: [] for a in range(n)}
     J_terms = {(a, b): [] for a in range(n) for b in range(n)}
     for i, (c, w) in enumerate(nodes):
-        tag, xs = e.node(i, c, w)
+        tag, xs = e.node(i, c, w, cached="c" if c == 0.0 else None)
         T = e.T(tag)
         e.add_weighted_Mv(tag, w, r_terms)
         wf = _f(w)
@@ -426,9 +445,9 @@ def _pmj_source(system, td, name, nodes, fa) -> str:
     e("return 0")
     doc = (f"Pm = -D1 Ld - f^- and J = dPm/dv; Ld = h sum_i W_i L(q0 + C_i h v, v), (C, W) = {list(nodes)}:\n"
            f"    Pm = sum_i W_i [M_i v - h (1 - C_i) gL_i] - {fa!r} h f(q0, v, t),\n"
-           f"    J = sum_i W_i [M_i + C_i h T_i - h (1 - C_i) (T_i^T + C_i h S_i)] - {fa!r} h df/dqdot\n"
-           f"    (vcirun.codegen.tensor).")
-    return _header(f"{name}_PmJ", "q0, v, h, t, prm, r, J", doc) + e.body()
+           f"    J = sum_i W_i [M_i + C_i h T_i - h (1 - C_i) (T_i^T + C_i h S_i)] - {fa!r} h df/dqdot;\n"
+           f"    c = sys_node(q0): a node at C = 0 costs nothing per Newton iteration (vcirun.codegen.tensor).")
+    return _header(f"{name}_PmJc", "q0, v, h, t, prm, c, r, J", doc) + e.body()
 
 
 def _pp_source(system, td, name, nodes, fb) -> str:
@@ -436,27 +455,76 @@ def _pp_source(system, td, name, nodes, fb) -> str:
     e = _Gen(system, td)
     e.prologue()
     out = {a: [] for a in range(n)}
+    end = None  # tag of the tensors at q1 = q0 + h v
     for i, (c, w) in enumerate(nodes):
-        tag, _ = e.node(i, c, w, "T1" if c != 0.0 else "T0")  # C = 0: M only (T0 and T1 start with M)
+        tag, _ = e.node(i, c, w, cached="c" if c == 0.0 else None)  # C = 0: only M is used
         e.add_weighted_Mv(tag, w, out)
         if c != 0.0:
             e(f"hc{i} = {_f(w * c)} * h")
             gl = e.gL(tag, e.T(tag))
             for a in range(n):
                 out[a].append((1, f"hc{i} * {gl[a]}"))
+        if c == 1.0:
+            end = tag
+    q1 = [f"x{len(nodes)}_{a}" for a in range(n)]
+    if end is None or (system.is_forced and fb != 0.0):
+        e.coords(len(nodes), 1.0)
+    if end is None:  # no node at q1 (SE1, midpoint): its tensors cost one extra node here
+        e.tensors("T1", "ne", q1)
+        end = "ne"
     if system.is_forced and fb != 0.0:  # f^+ = FB h f(q1, v, t + h), q1 = q0 + h v
         e(f"# f^+ = {fb!r} h f(q0 + h v, v, t + h)")
-        fo = e.force(e.coords(len(nodes), 1.0), "(t + h)")
+        fo = e.force(q1, "(t + h)")
         e(f"fh = {_f(fb)} * h")
         for a in range(n):
             if fo[a]:
                 out[a].append((1, f"fh * {fo[a]}"))
     for a in range(n):
         e(f"out[{a}] = {_sum(out[a])}")
+    e.store(end, "cn")
     e("return 0")
     doc = (f"Pp = D2 Ld + f^+ = sum_i W_i [M_i v + h C_i gL_i] + {fb!r} h f(q0 + h v, v, t + h),\n"
-           f"    (C, W) = {list(nodes)} (vcirun.codegen.tensor).")
-    return _header(f"{name}_Pp", "q0, v, h, t, prm, out", doc) + e.body()
+           f"    (C, W) = {list(nodes)}; c = sys_node(q0) in, cn = sys_node(q0 + h v) out (the same bits:\n"
+           f"    the next stage of a composition starts there) (vcirun.codegen.tensor).")
+    return _header(f"{name}_Ppc", "q0, v, h, t, prm, c, out, cn", doc) + e.body()
+
+
+def node_source(system) -> str:
+    """NODE_LEN, sys_node(q, prm, c) and sys_node_M(c, A): the node data of a point q, i.e. the
+    first-order tensors of template T1 (M_ij for i <= j, the structural nonzeros of dM, dV) in their
+    template order, and M(q) rebuilt from it. The full step (vcirun.maps.steps) keeps the node data
+    of each stage's start point: the C = 0 node of Pm, J and Pp reads it instead of recomputing
+    it every Newton iteration, Pp hands over the data of its end point to the next stage, and the
+    velocity guess takes M from it."""
+    n = system.n
+    td = tensor_data(system, False)
+    e = _Gen(system, td)
+    e.prologue("q", None)
+    e.tensors("T1", "n0", [f"q0_{a}" for a in range(n)])
+    e.store("n0", "c")
+    e("return 0")
+    src = f"NODE_LEN = {td['n_g1']}\n\n\n"
+    src += _header("sys_node", "q, prm, c", "Node data of q: the T1 tensors (vcirun.codegen.tensor.node_source).")
+    src += e.body() + "\n\n"
+    body = []
+    for a in range(n):
+        for b in range(n):
+            k = e.midx[min(a, b), max(a, b)]
+            body.append(f"    A[{a}, {b}] = " + ("0.0" if k in td["T1"].zero else f"c[{k}]"))
+    src += _header("sys_node_M", "c, A", "M(q) from the node data c of q.") + "\n".join(body) + "\n    return 0\n"
+    return src
+
+
+def _wrapper_source(name) -> str:
+    """<LD>_PmJ and <LD>_Pp with the plain signatures (no node data: one sys_node call first), for
+    callers outside the full step and for the tests."""
+    return (_header(f"{name}_PmJ", "q0, v, h, t, prm, r, J",
+                    f"{name}_PmJc with the node data of q0 computed here (vcirun.codegen.tensor).")
+            + f"    c = np.empty(NODE_LEN)\n    sys_node(q0, prm, c)\n    return {name}_PmJc(q0, v, h, t, prm, c, r, J)\n\n\n"
+            + _header(f"{name}_Pp", "q0, v, h, t, prm, out",
+                      f"{name}_Ppc with the node data of q0 computed here (vcirun.codegen.tensor).")
+            + f"    c = np.empty(NODE_LEN)\n    cn = np.empty(NODE_LEN)\n    sys_node(q0, prm, c)\n"
+            f"    return {name}_Ppc(q0, v, h, t, prm, c, out, cn)\n")
 
 
 def _ed_source(system, td, name, nodes) -> str:
@@ -545,6 +613,7 @@ def tensor_ld_source(system, names, edv_names=()) -> tuple[str, list]:
         fa, fb = (float(x) for x in lds[nm].forcing_weights)
         parts.append(_pmj_source(system, td, nm, nodes[nm], fa))
         parts.append(_pp_source(system, td, nm, nodes[nm], fb))
+        parts.append(_wrapper_source(nm))
         parts.append(_ed_source(system, td, nm, nodes[nm]))
         if nm in edv_names:
             parts.append(_edv_source(system, td, nm, nodes[nm]))

@@ -78,12 +78,14 @@ def _vci_newton(q, pm, E_pre, tau_rem, t, prm, ntol, maxit, g, lam_start, pp):
     r = np.empty(NDOF)
     J = np.empty((NDOF, NDOF))
     ev = np.empty(NDOF)
+    c = np.empty(NODE_LEN)
+    sys_node(q, prm, c)  # q is fixed: its node data once, not per iteration
     it = 0
     ok = False
     dprev = np.inf
     while it < maxit:
         it += 1
-        ld_PmJ(VCI_STAGE, q, w, tau_rem, t, prm, r, J)
+        ld_PmJc(VCI_STAGE, q, w, tau_rem, t, prm, c, r, J)
         E = ld_Ed(VCI_STAGE, q, w, tau_rem, prm)
         ld_Edv(VCI_STAGE, q, w, tau_rem, prm, ev)
         for i in range(NDOF):

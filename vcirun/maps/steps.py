@@ -1,5 +1,12 @@
 # numba source unit: the full step Phi_h of a discrete Lagrangian on (q, p).
-# Requires from the generated module: NDOF, FULL_STAGES, FULL_FRACS, ld_PmJ, ld_Pp, ld_Ed, sys_M.
+# Requires from the generated module: NDOF, NODE_LEN, FULL_STAGES, FULL_FRACS, ld_PmJc, ld_Ppc, ld_Ed,
+# sys_M, sys_node, sys_node_M.
+#
+# Node data (vcirun.codegen: sys_node): the tensors of a point that a step kernel needs at a node
+# there. A step keeps the node data of its start point q0, so the node at q0 (C = 0) costs nothing
+# per Newton iteration; Pp writes the data of its end point, which is the start point of the next
+# stage of a composition (the same bits). SVC stages: 3 node evaluations instead of 7, and the work
+# arrays are allocated once per step, not per stage.
 import math
 
 import numpy as np
@@ -18,19 +25,30 @@ def velocity_guess(q, p, prm, v):
             v[i] = 0.0
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def explicit_step(sid, q0, p0, h, t, prm, newton_tol, max_iter, v, q1, p1):
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def guess_from_node(c, p, v, A):
+    """v = M(q)^{-1} p with M(q) from the node data c of q (A: n x n scratch, overwritten)."""
+    sys_node_M(c, A)
+    for i in range(NDOF):
+        v[i] = p[i]
+    if not solve_small(A, v, NDOF):
+        for i in range(NDOF):
+            v[i] = 0.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def explicit_step(sid, q0, p0, h, t, prm, newton_tol, max_iter, v, q1, p1, c, cn, r, J):
     """One step of explicit discrete Lagrangian `sid`: solve Pm(q0, v, h) = p0 for the step velocity v
     (v holds the initial guess on entry) by Newton with the analytic Jacobian, then q1 = q0 + h v,
-    p1 = Pp(q0, v, h). Returns the number of iterations, or -iterations if Newton did not converge."""
-    r = np.empty(NDOF)
-    J = np.empty((NDOF, NDOF))
+    p1 = Pp(q0, v, h). c holds the node data of q0 (sys_node), cn receives that of q1; r (n) and
+    J (n x n) are work arrays. Returns the number of iterations, or -iterations if Newton did not
+    converge."""
     it = 0
     converged = False
     dprev = np.inf
     while it < max_iter:
         it += 1
-        ld_PmJ(sid, q0, v, h, t, prm, r, J)
+        ld_PmJc(sid, q0, v, h, t, prm, c, r, J)
         for i in range(NDOF):
             r[i] -= p0[i]
         if not solve_small(J, r, NDOF):
@@ -69,7 +87,7 @@ def explicit_step(sid, q0, p0, h, t, prm, newton_tol, max_iter, v, q1, p1):
         dprev = dn
     for i in range(NDOF):
         q1[i] = q0[i] + h * v[i]
-    ld_Pp(sid, q0, v, h, t, prm, p1)
+    ld_Ppc(sid, q0, v, h, t, prm, c, p1, cn)
     return it if converged else -it
 
 
@@ -80,9 +98,14 @@ def ld_step(q0, p0, h, t, prm, newton_tol, max_iter, q1, p1, vlast, want_E=True)
     NaN with want_E=False, which saves one kernel call per stage: 17 per SVC8 step).
     vlast receives the last stage's step velocity."""
     v = np.empty(NDOF)
+    c = np.empty(NODE_LEN)
+    cn = np.empty(NODE_LEN)
+    r = np.empty(NDOF)
+    J = np.empty((NDOF, NDOF))
+    sys_node(q0, prm, c)
+    guess_from_node(c, p0, v, J)  # (J as scratch: PmJc overwrites it)
     if FULL_STAGES.shape[0] == 1:  # explicit Ld: no intermediate nodes to copy
-        velocity_guess(q0, p0, prm, v)
-        it = explicit_step(FULL_STAGES[0], q0, p0, h, t, prm, newton_tol, max_iter, v, q1, p1)
+        it = explicit_step(FULL_STAGES[0], q0, p0, h, t, prm, newton_tol, max_iter, v, q1, p1, c, cn, r, J)
         copy_into(vlast, v)
         if it < 0 or not want_E:
             return it, np.nan
@@ -96,16 +119,17 @@ def ld_step(q0, p0, h, t, prm, newton_tol, max_iter, q1, p1, vlast, want_E=True)
     hprev = 0.0
     for s in range(FULL_STAGES.shape[0]):
         hs = FULL_FRACS[s] * h
-        velocity_guess(qa, pa, prm, v)
-        if s > 0 and hprev != 0.0:
-            # The stage's mean velocity is ~ qdot(t_s + hs / 2). v = M^-1 p is qdot at the stage
-            # start and the previous stage's mean velocity is qdot half a previous stage back, so
-            # v + hs / hprev (v - vprev) is a second-order guess (any sign of hs, hprev): about one
-            # Newton iteration less per stage of a many-stage composition (SVC6: 9 stages).
-            r = hs / hprev
-            for i in range(NDOF):
-                v[i] += r * (v[i] - vprev[i])
-        it = explicit_step(FULL_STAGES[s], qa, pa, hs, ts, prm, newton_tol, max_iter, v, q1, p1)
+        if s > 0:
+            guess_from_node(c, pa, v, J)
+            if hprev != 0.0:
+                # The stage's mean velocity is ~ qdot(t_s + hs / 2). v = M^-1 p is qdot at the stage
+                # start and the previous stage's mean velocity is qdot half a previous stage back, so
+                # v + hs / hprev (v - vprev) is a second-order guess (any sign of hs, hprev): about one
+                # Newton iteration less per stage of a many-stage composition (SVC6: 9 stages).
+                rr = hs / hprev
+                for i in range(NDOF):
+                    v[i] += rr * (v[i] - vprev[i])
+        it = explicit_step(FULL_STAGES[s], qa, pa, hs, ts, prm, newton_tol, max_iter, v, q1, p1, c, cn, r, J)
         copy_into(vprev, v)
         hprev = hs
         if it < 0:
@@ -119,6 +143,7 @@ def ld_step(q0, p0, h, t, prm, newton_tol, max_iter, q1, p1, vlast, want_E=True)
         ts += hs
         copy_into(qa, q1)
         copy_into(pa, p1)
+        c, cn = cn, c  # the end point's node data is the next stage's start
     copy_into(vlast, v)
     return total, Ed
 
