@@ -169,20 +169,16 @@ def _start_state(d: SystemData, beta, q0, p0, prm, sysm=None):
     return kind, q0, p0, sysm is not None
 
 
-def _mass_matrix(mod, q, prm) -> np.ndarray:
-    A = np.zeros((q.shape[0], q.shape[0]))
-    mod.sys_M(np.ascontiguousarray(q, dtype=float), prm, A)
-    return A
-
-
 def _initial_state(d: SystemData, mod, start, prm):
     """(q0, p0) from `_start_state`. The Legendre transform uses the module's compiled M(q) on every
     path, so warm and cold starts compute the same bits; on the warm path the hyperregularity check
-    uses it too."""
+    uses it too (compiled: mass_matrix_ok; numpy's check then only words the error)."""
     kind, q0, p0, checked = start
     if kind == "legendre" or not checked:
-        Mq = _mass_matrix(mod, q0, prm)   # once, for the Legendre transform and the check
-        if not checked:
+        q0 = np.ascontiguousarray(q0, dtype=float)
+        Mq = np.empty((q0.shape[0], q0.shape[0]))
+        ok = mod.mass_matrix_ok(q0, prm, Mq)   # M(q0) once, for the check and the Legendre transform
+        if not checked and not ok:
             check_mass_matrix(d.name, q0, Mq)
         if kind == "legendre":
             p0 = Mq @ p0
@@ -245,11 +241,13 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     cap_imp = max(64, N // 4 + 16)
     t_start = time.perf_counter()
     while True:
+        # (np.empty where the loop writes every entry that is read back: rows up to the last
+        # step reached, impacts and partial steps up to their counts, info)
         out = dict(
-            Q=np.zeros((N + 1, n)), P=np.zeros((N + 1, n)), Hs=np.full(N + 1, np.nan), Eds=np.full(N + 1, np.nan),
-            Hm=np.full(N + 1, np.nan), imp_t=np.zeros(cap_imp), imp_q=np.zeros((cap_imp, n)),
-            imp_pm=np.zeros((cap_imp, n)), imp_pp=np.zeros((cap_imp, n)), imp_step=np.zeros(N, dtype=np.bool_),
-            partial_log=np.zeros(2 * cap_imp + 16), iters_log=np.zeros(N, dtype=np.int64),
+            Q=np.empty((N + 1, n)), P=np.empty((N + 1, n)), Hs=np.full(N + 1, np.nan), Eds=np.full(N + 1, np.nan),
+            Hm=np.full(N + 1, np.nan), imp_t=np.empty(cap_imp), imp_q=np.empty((cap_imp, n)),
+            imp_pm=np.empty((cap_imp, n)), imp_pp=np.empty((cap_imp, n)), imp_step=np.zeros(N, dtype=np.bool_),
+            partial_log=np.empty(2 * cap_imp + 16), iters_log=np.zeros(N, dtype=np.int64),
             info=np.zeros(5, dtype=np.int64))
         # (issue 8) no np.errstate here: the compiled loop never touches numpy's error state, and
         # with NUMBA_DISABLE_JIT=1 the caller's np.errstate(all="raise") must reach the numerics
@@ -264,7 +262,7 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
         cap_imp = min(4 * cap_imp, N * int(tol["max_impacts_step"]) + 16)
     wall = time.perf_counter() - t_start
     info = out["info"]
-    status_code, fail, n_imp, n_par, steps = (int(x) for x in info)
+    status_code, fail, n_imp, n_par, steps = info.tolist()
     status = tr.STATUS_CODES[status_code]
     K = steps + 1  # grid points actually reached
     t = t0 + h * np.arange(N + 1)

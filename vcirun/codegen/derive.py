@@ -1,8 +1,10 @@
 """Symbolic derivation of a module's kernels (the only place sympy work happens on a cache miss).
 
-Two kernel paths generate the explicit step kernels <LD>_PmJ, <LD>_Pp, <LD>_Ed, <LD>_Edv (same
-signatures and semantics, so the numeric units and the dispatchers below do not care which) and the
-system kernel sys_dHq:
+Two kernel paths generate the explicit step kernels <LD>_PmJ, <LD>_Pp, <LD>_Ed, <LD>_Edv, the
+node-data forms <LD>_PmJc, <LD>_Ppc that the full step calls (the same numbers given the node data
+c = sys_node(q0) of the step's start; <LD>_Ppc also writes that of its end point), with the same
+signatures and semantics on both paths, so the numeric units and the dispatchers below do not care
+which, and the system kernels sys_dHq, sys_node, sys_node_M:
 
 - "tensor" (default): vcirun.codegen.tensor derives only M, dM/dq, dV (d2M, d2V when an Ld has an
   interior quadrature node, i.e. midpoint) in one CSE pass and writes the slot derivatives as
@@ -11,7 +13,8 @@ system kernel sys_dHq:
   df/dqdot are derived once, the trapezoidal discrete forces of step_expressions are kept). Explicit
   Lds that are not quadrature rules h sum_i W_i L(q0 + C_i h v, v) fall back to the expanded path.
 - "expanded": the expanded sympy expressions of step_expressions (and system.dH_dq_at), one CSE
-  pass per kernel. Kept for comparison (tests/unit/test_tensor_kernels.py).
+  pass per kernel; its node data is M(q) alone (for the velocity guess) and <LD>_PmJc, <LD>_Ppc
+  are wrappers that ignore it. Kept for comparison (tests/unit/test_tensor_kernels.py).
 
 Select with the environment variable VCIRUN_KERNEL_PATH=tensor|expanded (read when a module is
 generated) or the argument `kernel_path` of module_source (`path` of ld_kernels_source and

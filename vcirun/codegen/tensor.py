@@ -39,12 +39,19 @@ negative fractions). Second derivatives enter only dPm/dv of an Ld with an inter
 Symbolic work: the upper triangle of M, the structurally nonzero entries of dM (d2M), dV (d2V) --
 each the derivative of one small entry -- go through ONE CSE pass (`tensor_data`); nothing of
 the step (no q0 + h v, no slot derivative) is ever a sympy expression. Emission: each of
-`<LD>_PmJ(q0, v, h, t, prm, r, J)`, `<LD>_Pp(q0, v, h, t, prm, out)`, `<LD>_Ed(q0, v, h, prm)` and
-`<LD>_Edv(q0, v, h, prm, out)` (the signatures and semantics of the expanded kernels) is ONE numba
-function of straight-line scalar code: for each node the CSE'd tensor code is instantiated with the
-node's coordinates x_i (a renaming, no sympy), then the contractions are written out over the
-structural nonzeros only (the n-link pendulum's dM has 2 n (n - 1) nonzeros of n^3). Its size is
-O(tensor kernel + nnz(dM) + n^2) per node.
+`<LD>_PmJc(q0, v, h, t, prm, c, r, J)`, `<LD>_Ppc(q0, v, h, t, prm, c, out, cn)`, `<LD>_Ed(q0, v, h,
+prm)` and `<LD>_Edv(q0, v, h, prm, out)` is ONE numba function of straight-line scalar code: for each
+node the CSE'd tensor code is instantiated with the node's coordinates x_i (a renaming, no sympy),
+then the contractions are written out over the structural nonzeros only (the n-link pendulum's dM
+has 2 n (n - 1) nonzeros of n^3). Its size is O(tensor kernel + nnz(dM) + n^2) per node.
+
+Node data (`node_source`): c = sys_node(q) holds the first-order tensors of q (template T1). A node
+at C = 0 sits at the step's start q0 and does not move with v, so PmJc and Ppc read its tensors
+from c (computed once per step or stage) instead of once per Newton iteration, and Ppc writes cn =
+sys_node(q0 + h v), bit for bit the data of the next stage's start (the full step swaps c and cn;
+the velocity guess takes M from c). An SVC stage thus costs 3 node evaluations (2 Newton
+iterations + Pp) instead of 7. <LD>_PmJ and <LD>_Pp keep the plain signatures (the expanded
+kernels'), as wrappers that compute c first.
 
 Why this form (measured, n = 2 and 8, against the expanded kernels): a generic numba routine
 parameterised by arrays (C, W) behind per-Ld wrappers, and loops over constant sparsity arrays,
