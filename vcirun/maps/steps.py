@@ -13,27 +13,29 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def velocity_guess(q, p, prm, v):
-    """v = M(q)^{-1} p: the continuous velocity, Newton's starting point for every step."""
-    A = np.empty((NDOF, NDOF))
-    sys_M(q, prm, A)
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _velocity_from(A, p, v):
+    """v = A^{-1} p for A = M(q) (destroyed); v = 0 if A is singular (Newton then starts from rest)."""
     for i in range(NDOF):
         v[i] = p[i]
     if not solve_small(A, v, NDOF):
         for i in range(NDOF):
             v[i] = 0.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def velocity_guess(q, p, prm, v):
+    """v = M(q)^{-1} p: the continuous velocity, Newton's starting point for every step."""
+    A = np.empty((NDOF, NDOF))
+    sys_M(q, prm, A)
+    _velocity_from(A, p, v)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def guess_from_node(c, p, v, A):
     """v = M(q)^{-1} p with M(q) from the node data c of q (A: n x n scratch, overwritten)."""
     sys_node_M(c, A)
-    for i in range(NDOF):
-        v[i] = p[i]
-    if not solve_small(A, v, NDOF):
-        for i in range(NDOF):
-            v[i] = 0.0
+    _velocity_from(A, p, v)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
