@@ -393,9 +393,9 @@ def boundary_start(system, method, q_imp, p_imp, k, h, *, params=None, max_nudge
     # exact cancellation is a matter of trials. Seeded random nudges of every component around the
     # start with the smallest |phi_k| so far, of widths 1 .. 256 ulps drawn per trial: the search
     # walks down to the last representable values around 0 and then samples them densely. (Uniform
-    # +-256-ulp nudges around x0 alone hit 0.0 with probability ~1/20000 per trial on the
-    # cart-pendulum, so whether 60000 trials found it depended on the platform's last bits; this
-    # search found it within ~10^4 trials, 1 s for MCVAA.)
+    # +-256-ulp nudges around x0 alone spread phi_k over ~2e4 representable values on the
+    # cart-pendulum (MCVAA; no zero in 3000 trials), so whether 60000 trials hit 0.0 depended on the
+    # platform's last bits; this search hit it after ~10^4 trials, 0.8 s.)
     rng = np.random.default_rng(20140527)
     best, fbest = x0, phi_k(x0)
     for _ in range(max_trials):
@@ -963,8 +963,8 @@ def _findings(res: dict) -> list:
                  "ulp anywhere (initial state, kernel path, Newton stopping) gives another realization. MCVAA over "
                  "eight realizations: 5.1e-4 .. 2.6e-3 J after 1e6 steps, x2.1 .. x4.7 from 1e5 steps: sub-linear. "
                  "MCVAC: x5 (-9.7e-6 J/s, first session), x2.3 (-5.0e-7 J/s, the realizations of 2026-11-23), x12 "
-                 "(-2.0e-5 J/s, 0.19 J, 2026-12-01): its third-order truncation H~^{O(h^3)} does not keep a bounded error in every "
-                 "realization, so sub-linear growth is not claimed for MCVAC; its error stays below 1 % of H0.")
+                 "(-2.0e-5 J/s, 0.19 J, 2026-12-01): its third-order truncation H~^{O(h^3)} drifted in that realization, "
+                 "so sub-linear growth is not claimed for MCVAC; every realization stayed below 1 % of H0.")
     L.append("- **Grazing.** A contact whose normal velocity is below ~ phi'' h is invisible to the grid (the dip lies "
              "between grid points) and is missed; the error is then that of a missed reflection, 2 vn (T - t*), "
              "which vanishes with the depth. No grazing case fails.")
