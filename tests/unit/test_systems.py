@@ -106,3 +106,28 @@ def test_asymmetric_mass_matrix_is_a_clear_error():
             "potential": "x**2", "constraint": "z"}
     with pytest.raises(ValueError, match="mass_matrix must be symmetric"):
         load_system_yaml(data)
+
+
+def test_warm_path_checks_the_mass_matrix_at_q0_compiled(monkeypatch):
+    """A built-in scene served from the warm index never builds the symbolic system, so the
+    hyperregularity check at q0 is the module's compiled mass_matrix_ok (a Cholesky attempt); numpy's
+    check_mass_matrix then words the error. Cart-pendulum M = [[m1 + m2, m2 L sin], [., m2 L^2]]."""
+    from vcirun import api
+
+    vcirun.simulate("cart_pendulum", "CVA", h=0.1, T=0.2, beta=3.2)  # compiles and indexes the module
+
+    def no_symbolic(*a, **k):
+        raise AssertionError("the warm path must not build the symbolic system")
+
+    monkeypatch.setattr(api, "resolve_system", no_symbolic)
+    ok = vcirun.simulate("cart_pendulum", "CVA", h=0.1, T=0.2, beta=3.2)
+    assert ok.status == "ok"
+    for m1 in (-1.5, -0.2):  # M[0, 0] = m1 + m2 < 0 (indefinite) and = 0 (singular; m2 = 0.2)
+        with pytest.raises(ValueError, match="mass_matrix is not positive definite at q0"):
+            vcirun.simulate("cart_pendulum", "CVA", h=0.1, T=0.2, beta=3.2, params={"m1": m1})
+    with pytest.raises(ValueError, match="mass_matrix is not finite at q0"):
+        vcirun.simulate("cart_pendulum", "CVA", h=0.1, T=0.2, q0=[1.0, np.nan], p0=[0.0, 0.0])
+    # just positive definite: m1 + m2 = 1e-9 > 0 with the pendulum hanging (sin theta = 0) is accepted
+    tr = vcirun.simulate("cart_pendulum", "CVA", h=1e-3, T=2e-3, q0=[1.0, 0.0], p0=[0.0, 0.0],
+                         params={"m1": -0.2 + 1e-9})
+    assert tr.q.shape == (3, 2)
