@@ -85,7 +85,7 @@ def _data_from_entry(ident, entry) -> SystemData | None:
         vec = lambda v: None if v is None else np.array(v, dtype=float)  # noqa: E731
         d = SystemData(name=str(entry["name"]), n=n, params={k: v for k, v in entry["params"]},
                        default_q0=vec(entry["default_q0"]), default_p0=vec(entry["default_p0"]),
-                       description=str(entry.get("description", "")))
+                       description=str(entry.get("description", "")), coordinates=entry.get("coordinates"))
         if (entry.get("ic_map") or (d.default_q0 is None) != (d.default_p0 is None)
                 or any(a is not None and a.shape != (n,) for a in (d.default_q0, d.default_p0))
                 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in d.params.values())):
@@ -101,7 +101,8 @@ def _entry_data(sysm) -> dict:
     vec = lambda a: None if a is None else np.asarray(a, float).tolist()  # noqa: E731
     return {"name": sysm.name, "n": sysm.n, "params": [[k, v] for k, v in sysm.params.items()],
             "default_q0": vec(sysm.default_q0), "default_p0": vec(sysm.default_p0),
-            "description": sysm.description, "ic_map": sysm.ic_map is not None}
+            "description": sysm.description, "ic_map": sysm.ic_map is not None,
+            "coordinates": [str(c) for c in sysm.q]}
 
 
 _WARM_HITS: dict = {}
@@ -185,22 +186,45 @@ def _initial_state(d: SystemData, mod, start, prm):
     return q0, p0
 
 
+class GridWarning(UserWarning):
+    """T is not a multiple of h: the grid ends at N h < T (said once per (T, h))."""
+
+
 def grid_steps(h, T) -> tuple[float, float, int]:
-    """Validated (h, T, N) of the grid t_k = k h, k = 0..N, N = round(T / h)."""
+    """Validated (h, T, N) of the grid t_k = k h, k = 0..N, N = floor(T / h) as in the paper (to a
+    relative 1e-9, so T = 5, h = 1e-3 gives N = 5000 despite 5 / 1e-3 = 4999.999...)."""
     h, T = float(h), float(T)
     if not (h > 0 and math.isfinite(h)):
         raise ValueError(f"h: must be a positive finite step (got {h})")
     if not (T > 0 and math.isfinite(T)):
         raise ValueError(f"T: must be a positive finite time (got {T})")
-    N = int(round(T / h))
+    N = grid_count(h, T)
     if N < 1:
         raise ValueError(f"T: must be at least one step h (got T={T}, h={h})")
     return h, T, N
 
 
+def grid_count(h: float, T: float) -> int:
+    """N = floor(T / h) up to a relative 1e-9 (the one rule for the grid's length)."""
+    r = T / h
+    return int(math.floor(r + 1e-9 * max(1.0, r)))
+
+
+def grid_note(h: float, T: float) -> str:
+    """'' if T is a multiple of h, else the sentence that says where the grid ends."""
+    N = grid_count(h, T)
+    if abs(N * h - T) <= 1e-9 * max(1.0, abs(T)):
+        return ""
+    return (f"T = {T:g} is not a multiple of h = {h:g}: the grid ends at N h = {N * h:.12g} "
+            f"(N = floor(T / h) = {N}, as in the paper); the trajectory's T is that end time")
+
+
+_FIRST_CALLS: set = set()
+
+
 def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, constrained=None,
              t0=0.0, energies=True, **options) -> tr.Trajectory:
-    """Simulate `system` with `method` on the grid t_k = t0 + k h, k = 0..N, N = round(T / h).
+    """Simulate `system` with `method` on the grid t_k = t0 + k h, k = 0..N, N = floor(T / h).
 
     system : built-in name ('cart_pendulum', 'double_pendulum', 'oscillator_wall', ...), YAML path,
              or MechanicalSystem.
@@ -238,6 +262,18 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     mod = load()
     q0, p0 = _initial_state(sysd, mod, start, prm)
     n = sysd.n
+    note = grid_note(h, T)
+    if note:
+        import warnings
+
+        warnings.warn(note, GridWarning, stacklevel=2)  # Python shows each distinct note once
+    if mod.__name__ not in _FIRST_CALLS:
+        # numba's first call of the loop (load from its cache, or compile) is not integration: one
+        # untimed step with arguments of the same types, so wall_time measures the integration only
+        _FIRST_CALLS.add(mod.__name__)
+        t_first = time.perf_counter()
+        _one_step(mod, q0, p0, t0, h, prm, constrained, tol, energies)
+        build.note_first_call(mod, time.perf_counter() - t_first)
     cap_imp = max(64, N // 4 + 16)
     t_start = time.perf_counter()
     while True:
@@ -283,7 +319,18 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
         newton_iters=out["iters_log"][:steps].copy(), status=status, message=message,
         fail_step=fail, fail_time=(t0 + fail * h) if fail >= 0 else float("nan"), beta=beta, wall_time=wall,
         tolerances={k: tol[k] for k in ("newton_tol", "event_tol", "max_iter", "max_impacts_step")},
-        options={"params": dict(zip(sysd.params, prm.tolist())), "constrained": bool(constrained), **mopts})
+        options={"params": dict(zip(sysd.params, prm.tolist())), "constrained": bool(constrained), **mopts},
+        coordinates=getattr(sysd, "coordinates", None), dynamics=tr._dynamics(mod, prm))
+
+
+def _one_step(mod, q0, p0, t0, h, prm, constrained, tol, energies) -> None:
+    """One step of the compiled loop on throw-away buffers (the types of simulate's call)."""
+    n, c = q0.shape[0], 64
+    mod.integrate(q0, p0, float(t0), h, 1, prm, bool(constrained), float(tol["newton_tol"]), int(tol["max_iter"]),
+                  float(tol["event_tol"]), int(tol["max_impacts_step"]), np.empty((2, n)), np.empty((2, n)),
+                  np.full(2, np.nan), np.full(2, np.nan), np.full(2, np.nan), np.empty(c), np.empty((c, n)),
+                  np.empty((c, n)), np.empty((c, n)), np.zeros(1, dtype=np.bool_), np.empty(2 * c + 16),
+                  np.zeros(1, dtype=np.int64), np.zeros(5, dtype=np.int64), bool(energies))
 
 
 # --- failure causes (issue 8: every stop names its cause) ----------------------------------------
