@@ -18,7 +18,10 @@ from .methods import METHODS
 
 
 class Reference:
-    """Callable reference solution: ref(t) -> q (len(t), n); ref.p(t); ref.impacts; ref.accuracy."""
+    """Callable reference solution on [t_start, T]: ref(t) -> q, shape (n,) for a scalar t and
+    (len(t), n) for an array; ref.p(t), ref.state(t) likewise; ref.impacts; ref.accuracy.
+    Right-continuous at impacts (the post-impact momentum at t = tau). A time outside [t_start, T]
+    raises ValueError (no extrapolation)."""
 
     def __init__(self, segments, n, impacts, H0, T, accuracy=np.nan, kind="exact"):
         self.segments = segments  # list of (t_start, t_end, dense OdeSolution)
@@ -29,21 +32,33 @@ class Reference:
         self.accuracy = accuracy
         self.kind = kind
 
+    def __repr__(self) -> str:
+        acc = "" if not np.isfinite(self.accuracy) else f", accuracy={self.accuracy:.1e}"
+        return (f"Reference(kind={self.kind!r}, n={self.n}, t=[{self.segments[0][0]:g}, {self.T:g}], "
+                f"impacts={len(self.impacts)}, H0={self.H0:.6g}{acc})")
+
     def state(self, t) -> np.ndarray:
-        t = np.atleast_1d(np.asarray(t, float))
+        scalar = np.ndim(t) == 0
+        t = np.atleast_1d(np.asarray(t, float)).ravel()
+        t_start = self.segments[0][0]
+        tol = 1e-12 * max(1.0, abs(self.T))  # grids end at N h, which may exceed T by round-off
+        bad = ~((t >= t_start - tol) & (t <= self.T + tol))
+        if bad.any():
+            raise ValueError(f"t: {t[bad][0]:.17g} is outside the reference's interval [{t_start:g}, T = {self.T:g}]; "
+                             "compute the reference with a larger T")
         out = np.empty((t.size, 2 * self.n))
         starts = np.array([s[0] for s in self.segments])
         idx = np.clip(np.searchsorted(starts, t, side="right") - 1, 0, len(self.segments) - 1)
         for j in np.unique(idx):
             m = idx == j
             out[m] = self.segments[j][2](t[m]).T
-        return out
+        return out[0] if scalar else out
 
     def __call__(self, t) -> np.ndarray:
-        return self.state(t)[:, : self.n]
+        return self.state(t)[..., : self.n]
 
     def p(self, t) -> np.ndarray:
-        return self.state(t)[:, self.n:]
+        return self.state(t)[..., self.n:]
 
 
 def _first_root(g, a, b, samples=64):
