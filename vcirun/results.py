@@ -3,7 +3,8 @@
 Dimensions: `method` (the config's labels, in config order), `h` (the config's steps) and the
 initial-condition axis: `beta` (its values) when the config sweeps beta, else `initial_condition`
 (the run groups' ic keys: `state=0`, ..., or `default`). Every scalar a run records is a variable
-over (method, h, <ic>): l2_error, wall_time, wall_time_call, n_steps, n_impacts, n_partial_steps,
+over (method, h, <ic>) (select a method with `.sel({"method": "MCVAA"})`: xarray reserves the
+keyword `method`): l2_error, wall_time, wall_time_call, n_steps, n_impacts, n_partial_steps,
 newton_iters_total, H0, max_abs_dH, H_range, Ed_range, Hmod_range, fail_step, fail_time, t_end (the
 grid's end N h), and the strings status, message, l2_note, run_id. Per initial condition: q0, p0
 (over `coordinate`, named from the system), reference_accuracy, reference_n_impacts.
@@ -173,8 +174,13 @@ def open_results(path):
     every scalar metric of every run (see the module docstring). Example::
 
         ds = vcirun.open_results("results/fig4.h5")
-        ds.l2_error.sel(method="MCVAA", h=0.01)            # the Figure 4 curve, over beta
+        ds.l2_error.sel({"method": "MCVAA", "h": 0.01})    # the Figure 4 curve, over beta
+        ds.l2_error.loc["MCVAA", 0.01]                     # the same, by position of the dims
         ds.wall_time.mean("beta").to_pandas()              # Table II's means, method x h
+
+    `method` is a keyword of xarray's own `.sel(..., method="nearest")` (inexact matching), so the
+    method dimension is selected with the dict form `.sel({"method": ...})`: `.sel(method="MCVAA")`
+    would be read by xarray as a fill method and fails ("Invalid fill method").
     """
     import xarray as xr
 
