@@ -134,6 +134,10 @@ def resolve_numeric(system, ks: build.KernelSet):
     d = SystemData.of(sysm)
 
     def load():
+        if genuine:
+            from .cache import announce_if_cold
+
+            announce_if_cold(sysm, ks)  # "compiling kernels for <scene>/<family> (first time, about N s)"
         mod = load_module(sysm, ks)
         if ident is not None and (raw is None or _warm_ident(system)[1] == raw):  # the file we hashed
             build.warm_record(ident, ks, build.module_key(sysm, ks), _entry_data(sysm))
@@ -273,7 +277,9 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
         _FIRST_CALLS.add(mod.__name__)
         t_first = time.perf_counter()
         _one_step(mod, q0, p0, t0, h, prm, constrained, tol, energies)
-        build.note_first_call(mod, time.perf_counter() - t_first)
+        from .cache import note_first_call
+
+        note_first_call(mod, meth.kernel_set(), time.perf_counter() - t_first)
     cap_imp = max(64, N // 4 + 16)
     t_start = time.perf_counter()
     while True:

@@ -195,6 +195,40 @@ class Trajectory:
         df.attrs.update(system=self.system, method=self.method, h=self.h, status=self.status)
         return df
 
+    def save(self, path) -> "Path":
+        """Write the run to `path` by its suffix: .h5/.hdf5 (group `trajectory`, the layout of a results
+        file's run group; read back with `vcirun.trajectory.read_trajectory`), .nc (netCDF via
+        `to_xarray`, needs h5netcdf or netCDF4), .csv (`to_dataframe`), .npz (numpy arrays)."""
+        from pathlib import Path
+
+        path = Path(path)
+        suffix = path.suffix.lower()
+        if suffix not in (".h5", ".hdf5", ".nc", ".csv", ".npz"):
+            raise ValueError(f"output: unknown format {path.suffix or '(none)'!r} of {path}; use .h5, .nc, .csv or .npz")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if suffix in (".h5", ".hdf5"):
+            import h5py
+
+            from .experiments import storage
+
+            attrs, arrays = storage.trajectory_payload(self)
+            attrs["coordinates"] = self.coordinate_names
+            with h5py.File(path, "w") as f:
+                f.attrs["format"] = "vcirun-trajectory"
+                storage._write_group(f, "trajectory", {k: v for k, v in attrs.items() if k != "coordinates"}, arrays)
+                f["trajectory"].attrs["coordinates"] = np.array(self.coordinate_names, dtype=h5py.string_dtype())
+        elif suffix == ".nc":
+            self.to_xarray().to_netcdf(path)
+        elif suffix == ".csv":
+            self.to_dataframe().to_csv(path, index=False)
+        else:
+            arrays = {k: np.asarray(getattr(self, k)) for k in ("t", "q", "p", "H", "Ed", "impacts", "impact_q",
+                                                                "impact_p_minus", "impact_p_plus", "impact_step")}
+            if self.Hmod is not None:
+                arrays["Hmod"] = self.Hmod
+            np.savez(path, coordinates=np.array(self.coordinate_names), **arrays)
+        return path
+
     def plot(self, dense: bool = True, samples_per_step: int = 8):
         """A matplotlib Figure: each coordinate against time (the dense output as a line when the
         dynamics are available, grid states as dots), impacts as dashed lines, and H (and Hmod).
@@ -210,6 +244,22 @@ class Trajectory:
     def __repr__(self) -> str:
         return (f"Trajectory(method={self.method!r}, system={self.system!r}, h={self.h:g}, T={self.T:g}, "
                 f"steps={self.n_steps}, impacts={len(self.impacts)}, status={self.status!r})")
+
+
+def read_trajectory(path) -> Trajectory:
+    """A Trajectory saved by `Trajectory.save(... .h5)` (dense output re-attaches for built-in scenes)."""
+    import h5py
+
+    from .experiments import storage
+
+    with h5py.File(path, "r") as f:
+        if "trajectory" not in f:
+            raise ValueError(f"{path}: no 'trajectory' group (written by Trajectory.save / vcirun simulate --output?)")
+        tr = storage.trajectory_from_group(f["trajectory"])
+        c = f["trajectory"].attrs.get("coordinates")
+        if c is not None:
+            tr.coordinates = [x.decode() if isinstance(x, bytes) else str(x) for x in c]
+    return tr
 
 
 def _dynamics(mod, prm):

@@ -51,18 +51,8 @@ _loaded: dict[str, object] = {}
 BUILD_LOG: list[dict] = []  # (key, symbolic seconds, write seconds, cached?) for benchmarks
 
 
-def cache_root() -> Path:
-    """The one kernel cache of every entry point (API, CLI, Makefile, tests): $VCIRUN_CACHE_DIR, else
-    $XDG_CACHE_HOME/vcirun, else ~/.cache/vcirun."""
-    env = os.environ.get("VCIRUN_CACHE_DIR")
-    if env:
-        return Path(env)
-    xdg = os.environ.get("XDG_CACHE_HOME")
-    return (Path(xdg) if xdg else Path.home() / ".cache") / "vcirun"
-
-
 def cache_dir() -> Path:
-    d = cache_root() / "kernels"
+    d = Path(os.environ.get("VCIRUN_CACHE_DIR", Path.home() / ".cache" / "vcirun")) / "kernels"
     d.mkdir(parents=True, exist_ok=True)
     return d
 
@@ -138,7 +128,6 @@ def _exec_module(key: str, path: Path, system_name: str, ks: KernelSet, cached: 
     mod = importlib.util.module_from_spec(spec)
     sys.modules[name] = mod
     spec.loader.exec_module(mod)
-    mod._vcirun_build = {"system": system_name, "family": family(ks), "cached": cached, "generate_s": generate_s}
     BUILD_LOG.append({"key": key, "system": system_name, "kernels": ks.key_text(), "cached": cached,
                       "generate_s": generate_s, "warm_index": warm_index})
     _loaded[key] = mod
@@ -154,7 +143,6 @@ def load_module(system, ks: KernelSet):
     t0 = time.perf_counter()
     cached = path.exists()
     if not cached:
-        announce_compile(system.name, ks, system.n)
         from .derive import module_source  # sympy work happens only here, on a cache miss
 
         text = module_source(system, ks, [(_PKG / u).read_text() for u in _units(ks)])
@@ -235,69 +223,3 @@ def load_cached_module(key: str, system_name: str, ks: KernelSet):
     if key in _loaded:
         return _loaded[key]
     return _exec_module(key, cache_dir() / f"vk_{key}.py", system_name, ks, True, 0.0, True)
-
-
-# --- cold builds: say so, and how long they took (issue 19) -----------------------------------------
-
-COMPILE_CALLBACKS: list = []   # f(message) on a cache miss; the CLI prints the message on stderr
-_log = __import__("logging").getLogger("vcirun.build")
-_TIMES_FILE = "build_times.json"
-# first estimates before this cache has timed a build (measured on a 2-core machine: CVA 9 s,
-# MCVAC 14-20 s for the cart-pendulum)
-_DEFAULT_S = {"CVA": 10.0, "VCI": 10.0, "MCVA": 20.0}
-
-
-def family(ks: KernelSet) -> str:
-    """Short name of a kernel set: CVA[SVC], VCI[SVC], MCVA[SVA,s=4], CVA[SVC x5] ..."""
-    if ks.modified is not None:
-        return f"MCVA[{ks.modified[0]},s={ks.modified[1]}]"
-    names = [s for s, _ in ks.full_stages]
-    stages = names[0] if len(set(names)) == 1 and len(names) == 1 else (
-        f"{names[0]} x{len(names)}" if len(set(names)) == 1 else ",".join(names))
-    return f"{ks.reset.upper()}[{stages}]"
-
-
-def _times() -> dict:
-    try:
-        return json.loads((cache_root() / _TIMES_FILE).read_text())
-    except (OSError, ValueError):
-        return {}
-
-
-def estimate_compile_s(ks: KernelSet, n: int) -> float:
-    """Seconds a cold build of (ks, n) is expected to take: this cache's last build of the same family
-    and size, else of the same family at any size (scaled linearly in n), else a first estimate."""
-    times, fam = _times(), family(ks)
-    if f"{fam}|{n}" in times:
-        return float(times[f"{fam}|{n}"])
-    same = [(int(k.rsplit("|", 1)[1]), float(v)) for k, v in times.items() if k.rsplit("|", 1)[0] == fam]
-    if same:
-        m, v = max(same)
-        return v * max(1.0, n / m)
-    return _DEFAULT_S.get(ks.reset.upper(), 15.0) * max(1.0, n / 2)
-
-
-def announce_compile(system_name: str, ks: KernelSet, n: int) -> None:
-    msg = (f"compiling kernels for {system_name}/{family(ks)} (first time, about "
-           f"{estimate_compile_s(ks, n):.0f} s; cached in {cache_root()})")
-    _log.info(msg)
-    for cb in list(COMPILE_CALLBACKS):
-        cb(msg)
-
-
-def note_first_call(mod, seconds: float) -> None:
-    """Record how long a module generated in this process took to build: generation plus numba's
-    first call (the estimate of the next cold build of its family)."""
-    b = getattr(mod, "_vcirun_build", None)
-    if not b or b["cached"]:
-        return
-    try:
-        n = int(getattr(mod, "NDOF"))
-        times = _times()
-        times[f"{b['family']}|{n}"] = round(float(b["generate_s"]) + float(seconds), 2)
-        path = cache_root() / _TIMES_FILE
-        tmp = path.with_suffix(f".tmp{os.getpid()}")
-        tmp.write_text(json.dumps(times, sort_keys=True))
-        os.replace(tmp, path)
-    except (OSError, TypeError, ValueError, AttributeError):
-        pass

@@ -207,7 +207,7 @@ def figure4(results) -> "Figure":
     # below the axes: the curves fill the whole plot, so any inside position hides some of them
     fig.legend(handles=allh, loc="outside lower center", ncol=min(4, max(1, len(handles))) if not failed_handles
                else 2, frameon=False)
-    ax.set_title(f"{results.attrs.get('system', '')}, T = {results.attrs.get('T', '')}; {reference_note(results)}",
+    ax.set_title(f"{results.attrs.get('system', '')}, T = {results.attrs.get('T', '')}\n{reference_note(results)}",
                  fontsize=8)
     return fig
 
