@@ -388,6 +388,11 @@ def validate(config: Path = typer.Argument(..., help="YAML sweep config.", show_
     else:
         typer.echo(f"  initial   {len(ics)} state(s)")
     typer.echo(f"  T         {cfg.T:g}")
+    from vcirun.api import grid_note
+
+    for h in cfg.h:
+        if grid_note(h, cfg.T):
+            typer.echo(f"  note      {grid_note(h, cfg.T)}")
     ref = cfg.reference
     typer.echo(f"  reference {ref.kind}" + (f" (rtol {ref.rtol:g})" if ref.kind == "exact" else
                                             f" ({ref.method} at h = {ref.h:g})" if ref.kind == "method" else ""))
