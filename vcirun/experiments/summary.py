@@ -55,12 +55,20 @@ def _write_group(f: h5py.File, tab) -> None:
         g.attrs[k] = v
 
 
-def write_summary(path) -> Path:
-    """(Re)write the summary group of the results file at `path` atomically; returns the path.
-    StorageError if the file cannot be read or written (the file is then unchanged)."""
+def write_summary(path, if_missing: bool = False) -> Path:
+    """(Re)write the summary group of the results file at `path` atomically (with `if_missing`, only
+    if the file has none); returns the path. StorageError if the file cannot be read or written (the
+    file is then unchanged)."""
     from vcirun.results import collect
 
     path = Path(path)
+    if if_missing:
+        try:
+            with h5py.File(path, "r") as f:
+                if GROUP in f:
+                    return path
+        except OSError as e:
+            raise storage.StorageError(f"{path}: not a readable HDF5 file ({' '.join(str(e).split())})") from None
     res = storage.read_results(path)
     tab = collect(res)
     tmp = path.with_name(f".{path.name}.summary-partial")

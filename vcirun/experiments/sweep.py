@@ -504,9 +504,10 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
         summary.skipped = len(specs) - len(pending)
         summary.deleted_incomplete = len(writer.incomplete)
         if not pending:
-            if writer.has_changes():
+            changed = writer.has_changes()
+            if changed:
                 writer.finish("complete")
-            _finalize(path, summary)
+            _finalize(path, summary, if_missing=not changed)  # a no-op resume leaves the file untouched
             summary.status_counts = _status_counts(writer)
             summary.wall_time = time.monotonic() - t_start
             return summary
@@ -595,13 +596,13 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
         writer.close()
 
 
-def _finalize(path: Path, summary: SweepSummary) -> None:
+def _finalize(path: Path, summary: SweepSummary, if_missing: bool = False) -> None:
     """Write the file's summary group (vcirun.experiments.summary); a failure there is reported in
     the summary, never allowed to cost the runs."""
     from .summary import write_summary
 
     try:
-        write_summary(path)
+        write_summary(path, if_missing=if_missing)
     except storage.StorageError as e:
         summary.summary_error = _one_line(e)
 
