@@ -290,7 +290,9 @@ def sweep(
         _fail(f"interrupted by {summary.interrupted}: {done} of {summary.total} runs are saved in "
               f"{summary.path}; run the same command again to resume", code)
     counts = ", ".join(f"{n} {s}" for s, n in sorted(summary.status_counts.items()))
-    prep = (f", of which {summary.prepare_time:.1f} s loading or compiling kernels before the first run"
+    what = (f"compiling kernels for {summary.compiled} method famil{'ies' if summary.compiled > 1 else 'y'} (first "
+            "time; cached now)" if summary.compiled else "loading kernels")
+    prep = (f", of which {summary.prepare_time:.1f} s {what} before the first run"
             if summary.prepare_time >= 0.05 * max(summary.wall_time, 1e-9) and summary.prepare_time >= 1.0 else "")
     typer.echo(f"{summary.path}: {summary.total} runs ({summary.computed} computed, {summary.skipped} already "
                f"stored; {counts or 'none'}) in {summary.wall_time:.1f} s{prep}")

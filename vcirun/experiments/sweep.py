@@ -83,6 +83,7 @@ class SweepSummary:
     executor_stats: dict = field(default_factory=dict)  # task sizes, measured costs (executors.*.stats)
     write_time: float = 0.0    # seconds the client spent storing results, final commit included (serial)
     prepare_time: float = 0.0  # seconds of the preflight: loading or (cold cache) compiling the kernels
+    compiled: int = 0          # kernel modules the preflight generated and compiled (cold cache)
     summary_error: str = ""    # why the summary group could not be written ("" if it was)
 
     @property
@@ -511,9 +512,12 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
             summary.status_counts = _status_counts(writer)
             summary.wall_time = time.monotonic() - t_start
             return summary
-        t_pre = time.monotonic()
+        from vcirun.codegen.build import BUILD_LOG
+
+        t_pre, n_log = time.monotonic(), len(BUILD_LOG)
         _preflight(cfg, pending)
         summary.prepare_time = time.monotonic() - t_pre  # kernels loaded or compiled: not run time
+        summary.compiled = sum(not e["cached"] for e in BUILD_LOG[n_log:])
         executor = executors.make_executor(ex_spec, workers=workers, start_method=start_method)
         executor.connect()  # a Dask cluster: reached (or a one-line error) before the file is created
         summary.workers = executor.workers
