@@ -116,3 +116,16 @@ def test_to_xarray_and_dataframe(run):
     df = run.to_dataframe()
     assert list(df.columns[:5]) == ["t", "y", "theta", "p_y", "p_theta"]
     assert df.attrs["units"]["theta"] == "rad" and df.attrs["units"]["p_y"] == "kg m/s"
+
+
+def test_reference_class_no_extrapolation_shapes_repr(ref2):
+    assert ref2(1.0).shape == (2,) and ref2(np.array([1.0])).shape == (1, 2)
+    assert ref2.p(1.0).shape == (2,) and ref2.state(np.array([0.0, 2.0])).shape == (2, 4)
+    np.testing.assert_array_equal(ref2(1.0), ref2(np.array([1.0]))[0])
+    with pytest.raises(ValueError, match=r"t: 4 is outside the reference's interval \[0, T = 2\]"):
+        ref2(4.0)
+    with pytest.raises(ValueError, match="outside"):
+        ref2(np.array([0.5, -1e-3]))
+    ref2(2.0 * (1 + 1e-15))   # a grid's N h may exceed T by round-off
+    r = repr(ref2)
+    assert r.startswith("Reference(kind='exact', n=2, t=[0, 2], impacts=1") and "accuracy=" in r
