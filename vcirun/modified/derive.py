@@ -74,9 +74,8 @@ class StationaryEta:
     per_node=False: primitives by differentiating ell itself (the reference the tests compare to)."""
 
     def __init__(self, system, ld_name: str, per_node: bool = True):
-        if system.is_forced:
-            raise ValueError(f"method: the MCVA family needs a conservative system (a modified Hamiltonian "
-                             f"exists only without forcing); system {system.name} is forced")
+        # A forced system: eta is that of the conservative discrete Lagrangian (ell below is built
+        # from L alone); the force enters the partial flow's equations, not H~ (docs/forcing.md).
         ld = get_ld(ld_name)
         n = system.n
         self.n = n
