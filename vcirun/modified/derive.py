@@ -24,7 +24,7 @@ u_{k,beta}). W stays a leaf that is never differentiated. Everything is forward-
 done symbolically on a DAG of small named nodes, so expressions never swell: the partial derivatives
 of ell in (q, u) are the leaves ("primitives", one CSE pass), every other node is a short polynomial
 in earlier nodes, u and W. At run time u* is found by Newton on F and W = A^{-1} numerically
-(vcirun/modified/numeric.py). This replaces Appendix A step 2, whose printed second derivatives of
+(vcirun/maps/gauss.py). This replaces Appendix A step 2, whose printed second derivatives of
 qbar are not used (D_pp qbar and D_qp qbar are printed with the wrong sign, see
 tests/convergence/test_modified_series.py).
 
