@@ -3,7 +3,7 @@ output `tr(t)`, and its conversions (`to_xarray`, `to_dataframe`, `plot`).
 
 Dense output. Between grid points (and between the impacts inside a step) the states are joined by
 cubic Hermite interpolation of q and p, with the slopes (qdot, pdot) of the continuous dynamics at
-the recorded states (`_dynamics`: the compiled Hamilton equations of the run's module). An impact
+the recorded states (`_dynamics`: the compiled, forced, Hamilton equations of the run's module). An impact
 step k -> k+1 is split at its recorded impact states: [t_k, tau_1] ends in (q(tau_1), p-),
 [tau_1, ...] starts from (q(tau_1), p+), so no piece ever interpolates across a velocity jump; the
 interpolant is right-continuous at an impact (p+ at t = tau) and equals the grid state at every
@@ -264,14 +264,20 @@ def read_trajectory(path) -> Trajectory:
 
 def _dynamics(mod, prm):
     """The continuous right-hand side (t, y) -> ydot, y = (q, p), of a compiled module at parameters
-    `prm`, for dense output: the one place that chooses it (Hamilton's equations today; forced systems
-    need the forced right-hand side here)."""
+    `prm`, for dense output: the one place that chooses it. The forced Hamilton equations
+    (`dynamics_rhs`: pdot = -dH/dq + f(q, qdot, t)); `hamilton_rhs` for modules built before forcing
+    reached the continuous right-hand side."""
     prm = np.ascontiguousarray(prm, dtype=float)
-    rhs = mod.hamilton_rhs
+    forced = getattr(mod, "dynamics_rhs", None)
+    plain = mod.hamilton_rhs
 
     def f(t, y):
         out = np.empty(y.shape[0])
-        rhs(np.ascontiguousarray(y, dtype=float), prm, out)
+        y = np.ascontiguousarray(y, dtype=float)
+        if forced is not None:
+            forced(float(t), y, prm, out)
+        else:
+            plain(y, prm, out)
         return out
 
     return f

@@ -129,3 +129,16 @@ def test_reference_class_no_extrapolation_shapes_repr(ref2):
     ref2(2.0 * (1 + 1e-15))   # a grid's N h may exceed T by round-off
     r = repr(ref2)
     assert r.startswith("Reference(kind='exact', n=2, t=[0, 2], impacts=1") and "accuracy=" in r
+
+
+def test_forced_system_slopes_include_the_force():
+    """Linear damping f = -c xdot: with the force in the slopes the midpoint error is second order
+    (without it, the interpolant would be first order between grid points)."""
+    ref = vcirun.reference("damped_oscillator", T=4, params={"c": 0.5})
+    hs, errs = [0.04, 0.02, 0.01], []
+    for h in hs:
+        tr = vcirun.simulate("damped_oscillator", "CVA", h=h, T=4, params={"c": 0.5})
+        mid = tr.t[:-1] + h / 2
+        errs.append(float(np.max(np.abs(tr(mid) - ref(mid)))))
+    slopes = np.diff(np.log(errs)) / np.diff(np.log(hs))
+    assert np.all(slopes > 1.7), (errs, slopes)
