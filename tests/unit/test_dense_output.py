@@ -68,19 +68,19 @@ def test_no_piece_spans_an_impact(run):
 
 @pytest.mark.parametrize("method, order", [("CVA", 2), ("CVA4", 4)])
 def test_order_between_grid_points(ref2, method, order):
-    """Error at the midpoints t_k + h/2 (never a grid point) against the exact nonsmooth solution:
-    observed order of the method, through the impact."""
+    """Error of (q, p) at the midpoints and quarter points t_k + h/2, t_k + h/4 (never grid points)
+    against the exact nonsmooth solution: observed order of the method, through the impact."""
     hs = [0.04, 0.02, 0.01]
     errs = []
     for h in hs:
         tr = vcirun.simulate("cart_pendulum", method, h=h, T=2, beta=3.2)
         assert tr.ok and tr.impacts.size >= 1
-        mid = tr.t[:-1] + h / 2
-        errs.append(float(np.max(np.abs(tr(mid) - ref2(mid)))))
+        mid = np.concatenate([tr.t[:-1] + h / 2, tr.t[:-1] + h / 4])
+        errs.append(float(np.max(np.abs(tr.state(mid) - ref2.state(mid)))))
     slopes = np.diff(np.log(errs)) / np.diff(np.log(hs))
     assert np.all(slopes > order - 0.3), (errs, slopes)
     # and between grid points as accurate as at them (within a factor 1.5)
-    grid = float(np.max(np.abs(tr.q - ref2(tr.t))))
+    grid = float(np.max(np.abs(np.hstack([tr.q, tr.p]) - ref2.state(tr.t))))
     assert errs[-1] < 1.5 * grid
 
 
@@ -132,13 +132,14 @@ def test_reference_class_no_extrapolation_shapes_repr(ref2):
 
 
 def test_forced_system_slopes_include_the_force():
-    """Linear damping f = -c xdot: with the force in the slopes the midpoint error is second order
-    (without it, the interpolant would be first order between grid points)."""
+    """Linear damping f = -c xdot: with the force in the slopes pdot the momentum's error at the
+    quarter points t_k + h/4 is second order; with Hamilton's equations alone it was measured first
+    order (0.93, 0.97: at the midpoints the two slope errors cancel, so quarter points are used)."""
     ref = vcirun.reference("damped_oscillator", T=4, params={"c": 0.5})
     hs, errs = [0.04, 0.02, 0.01], []
     for h in hs:
         tr = vcirun.simulate("damped_oscillator", "CVA", h=h, T=4, params={"c": 0.5})
-        mid = tr.t[:-1] + h / 2
-        errs.append(float(np.max(np.abs(tr(mid) - ref(mid)))))
+        quarter = tr.t[:-1] + h / 4
+        errs.append(float(np.max(np.abs(tr.momentum(quarter) - ref.p(quarter)))))
     slopes = np.diff(np.log(errs)) / np.diff(np.log(hs))
     assert np.all(slopes > 1.7), (errs, slopes)
