@@ -622,11 +622,17 @@ def _from_validation_error(e: ValidationError, source: str) -> ConfigError:
     out = [(loc, msg + (" (that key is required)" if loc[:-1] + (_hint(msg),) in folded else ""))
            for loc, msg in unknown]
     out += [(loc, msg) for typ, (loc, msg) in items if typ != "extra_forbidden" and not (typ == "missing" and loc in folded)]
-    seen, uniq = set(), []
+    seen, uniq, lists = set(), [], set()
     for loc, msg in out:
-        if (loc, msg) not in seen:
-            seen.add((loc, msg))
-            uniq.append((loc, msg))
+        if (loc, msg) in seen:
+            continue
+        seen.add((loc, msg))
+        m = re.search(r" \(allowed: [^)]*\)", msg)
+        if m:  # several unknown keys of one mapping: its allowed keys once
+            if (loc[:-1], m.group(0)) in lists:
+                msg = msg.replace(m.group(0), "")
+            lists.add((loc[:-1], m.group(0)))
+        uniq.append((loc, msg))
     first_loc, first_msg = uniq[0]
     text = first_msg + "".join(f"; {format_loc(loc)}: {msg}" for loc, msg in uniq[1:])
     if len(uniq) > 1:
