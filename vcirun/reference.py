@@ -17,8 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .codegen.build import load_module
-from .methods import METHODS
+from .codegen.build import SYSTEM_KERNELS, load_module
+from .scenedata import start_tolerance
 
 
 class Reference:
@@ -96,7 +96,7 @@ def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000):
     system, else a callable t -> W(t) = int_0^t f . qdot (the extra state of every segment)."""
     from scipy.integrate import solve_ivp  # here, not at module level: `import vcirun` stays light
 
-    mod = load_module(system, METHODS["CVA"].kernel_set())  # system kernels + Hamilton's equations
+    mod = load_module(system, SYSTEM_KERNELS)  # system kernels + the continuous dynamics
     n = system.n
     forced = bool(mod.FORCED)
     buf = np.empty(2 * n)
@@ -201,12 +201,6 @@ def _check_start(system, q0, prm) -> None:
                          f"phi(q0) = {phi0:.6g} < 0 for phi = {system.phi}; start where phi(q0) >= 0")
 
 
-def start_tolerance(q0, grad_phi) -> float:
-    """How far below 0 a start's phi(q0) may lie and still count as on the surface: round-off of
-    phi near q0, 64 eps (1 + |q0| |grad phi|) (a state built on phi = 0 in floating point)."""
-    return 64 * np.finfo(float).eps * (1.0 + float(np.max(np.abs(q0))) * float(np.max(np.abs(grad_phi))))
-
-
 def reference(system, *, T, beta=None, q0=None, p0=None, params=None, rtol=1e-13, method="exact", h=None,
               check_accuracy=True) -> Reference:
     """The nonsmooth solution on [0, T] from (q0, p0) or the scene's initial-condition map at beta.
@@ -254,7 +248,7 @@ def reference(system, *, T, beta=None, q0=None, p0=None, params=None, rtol=1e-13
 
 def _energy_balance(system, ref, work, prm, T) -> float:
     """max over a dense grid of |H(t) - H(0) - W(t)|, W the work integral carried by the solve."""
-    mod = load_module(system, METHODS["CVA"].kernel_set())
+    mod = load_module(system, SYSTEM_KERNELS)
     tt = np.linspace(0.0, T, 2001)
     y = ref.state(tt)
     n = system.n
@@ -273,13 +267,13 @@ class _Hermite:
 
 
 def _grid_reference(system, tr, prm):
-    mod = load_module(system, METHODS["CVA"].kernel_set())
+    mod = load_module(system, SYSTEM_KERNELS)
     n = system.n
     buf = np.empty(2 * n)
     dq = np.empty_like(tr.q)
     dp = np.empty_like(tr.p)
     for k in range(len(tr.t)):
-        mod.hamilton_rhs(np.concatenate([tr.q[k], tr.p[k]]), prm, buf)
+        mod.dynamics_rhs(tr.t[k], np.concatenate([tr.q[k], tr.p[k]]), prm, buf)  # forced: the slopes include f
         dq[k], dp[k] = buf[:n], buf[n:]
     # split at impact steps so that interpolation never straddles a velocity jump
     y = np.hstack([tr.q, tr.p])

@@ -16,7 +16,7 @@ import vcirun.api
 from vcirun.discrete.lagrangians import LIBRARY
 from vcirun.modified import MH_LDS
 from vcirun.methods import METHODS, resolve_method
-from vcirun.modified import generalized_mcva
+from vcirun.methods import generalized_mcva
 from vcirun.modified.evaluate import python_module_for
 
 
@@ -55,8 +55,8 @@ def test_named_methods():
     a, c = METHODS["MCVAA"], METHODS["MCVAC"]
     assert (a.ld, a.partial, a.reset, a.mh_order, a.flow_order) == ("SVA", "gauss", "mcva", 4, 4)
     assert (c.ld, c.partial, c.reset, c.mh_order, c.flow_order) == ("SVC", "gauss", "mcva", 3, 4)
-    assert a.properties == {"conserves_mh": True, "symplectic": True, "explicit_ld": False}
-    assert c.properties == {"conserves_mh": True, "symplectic": True, "explicit_ld": True}
+    assert a.properties == {"conserves_mh": True, "symplectic": True, "explicit_ld": False, "forcing": "order 2"}
+    assert c.properties == {"conserves_mh": True, "symplectic": True, "explicit_ld": True, "forcing": "order 2"}
     m = resolve_method("MCVA", ld="midpoint", mh_order=2, flow_order=6)
     assert (m.ld, m.reset, m.partial, m.mh_order, m.flow_order) == ("midpoint", "mcva", "gauss", 2, 6)
     assert m.kernel_set().modified == ("midpoint", 2, 6)

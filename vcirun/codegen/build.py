@@ -36,11 +36,10 @@ import numba
 from .. import __version__
 
 _PKG = Path(__file__).resolve().parent.parent
-UNITS_BASE = ["maps/linalg.py", "maps/steps.py", "collision/events.py", "collision/resets.py",
-              "collision/algorithm1.py"]
 # files whose text changes the generated code: hashed into the key
 _GENERATOR_FILES = ["codegen/kernels.py", "codegen/printer.py", "codegen/build.py", "codegen/derive.py",
-                    "codegen/tensor.py", "discrete/lagrangians.py", "mechanics/system.py"]
+                    "codegen/tensor.py", "codegen/units.py", "record.py", "discrete/lagrangians.py",
+                    "mechanics/system.py"]
 # ... and, only for the MCVA family's modules (so that editing them does not invalidate CVA/VCI caches)
 _MODIFIED_GENERATOR_FILES = ["modified/derive.py", "modified/series.py"]
 # ... and, for the warm index only: the files that turn a scene name or a YAML file into a symbolic system
@@ -79,11 +78,18 @@ class KernelSet:
         return tuple(dict.fromkeys(names))
 
 
+# The system-only kernel set: the system kernels and the continuous dynamics (H, Hamilton's
+# equations with the force, phi, grad phi, d phi/dt, the elastic multiplier; vcirun/maps/dynamics.py),
+# no discrete Lagrangian and no loop. What the exact reference, the baselines, studies and verify
+# need: they load it instead of compiling a method's module.
+SYSTEM_KERNELS = KernelSet(full_stages=(), partial=None, reset=None)
+
+
 def _units(ks: KernelSet) -> list[str]:
-    units = list(UNITS_BASE)
-    if ks.modified is not None:
-        units[-1:-1] = ["maps/gauss.py", "collision/reset_mcva.py"]
-    return units
+    """The numba source units of the module of `ks`, chosen by the contract (vcirun.codegen.units)."""
+    from .units import select_units
+
+    return [u.path for u in select_units(ks)]
 
 
 _keys: dict = {}
@@ -145,7 +151,7 @@ def load_module(system, ks: KernelSet):
     if not cached:
         from .derive import module_source  # sympy work happens only here, on a cache miss
 
-        text = module_source(system, ks, [(_PKG / u).read_text() for u in _units(ks)])
+        text = module_source(system, ks)
         tmp = path.with_suffix(f".tmp{os.getpid()}")
         tmp.write_text(text)
         os.replace(tmp, path)  # atomic: parallel workers never import a half-written file

@@ -23,10 +23,9 @@ def _njit(*args, **kwargs):
 @lru_cache(maxsize=None)
 def python_module_for(system, ks):
     """The generated module of (system, kernel set) executed as plain Python."""
-    from ..codegen.build import _PKG, _units
     from ..codegen.derive import module_source
 
-    text = module_source(system, ks, [(_PKG / u).read_text() for u in _units(ks)])
+    text = module_source(system, ks)
     text = text.replace("from numba import njit", "")
     mod = types.ModuleType(f"vcirun_python_{system.name}_{abs(hash(ks))}")
     mod.__dict__["njit"] = _njit
@@ -36,7 +35,7 @@ def python_module_for(system, ks):
 
 def python_module(system, ld: str = "SVC", mh_order: int = 3, flow_order: int = 4):
     """The scene's MCVA module for (ld, mh_order, flow_order), executed as plain Python."""
-    from . import generalized_mcva
+    from ..methods import generalized_mcva
 
     if isinstance(system, str):
         from ..mechanics.scenes import get_scene
