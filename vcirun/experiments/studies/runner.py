@@ -48,9 +48,9 @@ def _check_options(cfg, source: str, *, quick: bool, only) -> None:
 
 
 def run_config(cfg, *, source: str = "<study>", output=None, quick: bool = False, only=None, plot: bool = False,
-               log=print, tables=sys.stdout, command: str | None = None) -> StudyRun:
-    """Run a validated study config (see the module docstring); `tables`: where the work-precision tables
-    are printed (None: not printed)."""
+               log=print, tables="stdout", command: str | None = None) -> StudyRun:
+    """Run a validated study config (see the module docstring); `tables`: a file where the work-precision
+    tables are printed ("stdout": sys.stdout at the time of the call; None: not printed)."""
     _check_options(cfg, source, quick=quick, only=only)
     t0 = time.perf_counter()
     if isinstance(cfg, ExtremesStudy):
@@ -60,7 +60,7 @@ def run_config(cfg, *, source: str = "<study>", output=None, quick: bool = False
     res = wp.run_study(cfg, quick=quick, log=log)
     path = wp.save(res, output or cfg.output)
     if tables is not None:
-        wp.print_tables(wp.load(path), file=tables)
+        wp.print_tables(wp.load(path), file=sys.stdout if tables == "stdout" else tables)
     figures = []
     if plot:
         from ..wp_figures import plot_study

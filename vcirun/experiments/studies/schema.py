@@ -292,18 +292,18 @@ class ExtremesStudy(_Model):
     description: str = ""
     methods: list[MethodName] = Field(min_length=1)
     output: str = "results/extremes.json"
-    report: Report | None = None
-    step_limit: StepLimit | None = None
-    long_horizon: LongHorizon | None = None
-    grazing: Grazing | None = None
-    boundary: Boundary | None = None
-    dense: Dense | None = None
-    surface: Surface | None = None
-    accumulation: Accumulation | None = None
-    energy: Energy | None = None
-    mass_ratio: MassRatio | None = None
-    singular_mass: SingularMass | None = None
-    hygiene: Hygiene | None = None
+    report: Union[Report, None] = None
+    step_limit: Union[StepLimit, None] = None
+    long_horizon: Union[LongHorizon, None] = None
+    grazing: Union[Grazing, None] = None
+    boundary: Union[Boundary, None] = None
+    dense: Union[Dense, None] = None
+    surface: Union[Surface, None] = None
+    accumulation: Union[Accumulation, None] = None
+    energy: Union[Energy, None] = None
+    mass_ratio: Union[MassRatio, None] = None
+    singular_mass: Union[SingularMass, None] = None
+    hygiene: Union[Hygiene, None] = None
 
     @model_validator(mode="after")
     def _something(self):
