@@ -21,7 +21,7 @@ Sections (`--only a,b,...` to pick; `--quick` for a short smoke run):
   tensor    the per-slot tensor prototype of the step (bench/tensor_prototype.py): symbolic and numba
             time and us per step against vcirun's generated step, n-link pendulum n = 1, 2, 4, 8
   wp        the work-precision studies (configs/work_precision.yaml, work_precision_double.yaml,
-            long_horizon.yaml) through vcirun.experiments.workprecision, with their figures; the
+            long_horizon.yaml) through `vcirun study` (vcirun.experiments.studies), with their figures; the
             10x target is read on vcirun's front (best method at each accuracy) of the two T = 5 studies
 
 The machine is shared with other sessions: every timing is a median over repeats, the load average
@@ -471,18 +471,23 @@ def dof_rows() -> dict:
 
 # --- work-precision ----------------------------------------------------------------------------------
 def section_wp(res):
+    import io
+
+    from vcirun.experiments.studies.runner import run_file
+
     out = {}
     for cfg in ["configs/work_precision.yaml", "configs/work_precision_double.yaml", "configs/long_horizon.yaml"]:
         log(f"== work-precision study {cfg}")
-        cmd = [sys.executable, "-m", "vcirun.experiments.workprecision", cfg, "--plot"] + (["--quick"] if QUICK else [])
-        if QUICK:
-            cmd += ["--output", f"results/{Path(cfg).stem}_quick.json"]
         t0 = time.perf_counter()
-        r = subprocess.run(cmd, cwd=ROOT, text=True, capture_output=True)
-        log(r.stdout.rstrip())
-        if r.returncode:
-            log(r.stderr.strip()[-2000:])
-        out[cfg] = {"returncode": r.returncode, "seconds": time.perf_counter() - t0}
+        tables = io.StringIO()
+        try:   # the study API (what `vcirun study CFG --plot [--quick]` runs), in this process
+            run = run_file(ROOT / cfg, plot=True, quick=QUICK, log=log, tables=tables,
+                           output=ROOT / "results" / (Path(cfg).stem + ("_quick" if QUICK else "") + ".json"))
+            log(tables.getvalue().rstrip())
+            out[cfg] = {"returncode": 0, "results": str(run.results), "seconds": time.perf_counter() - t0}
+        except Exception as e:  # noqa: BLE001 - one study failing must not end the benchmark
+            log(f"  failed: {type(e).__name__}: {e}")
+            out[cfg] = {"returncode": 1, "error": f"{type(e).__name__}: {e}", "seconds": time.perf_counter() - t0}
     res["work_precision"] = out
 
 
@@ -579,7 +584,7 @@ def main(argv=None):
     res["seconds"] = time.perf_counter() - t0
     out = Path(a.output or ("results/bench_all_quick.json" if QUICK else "results/bench_all.json"))
     out.parent.mkdir(exist_ok=True)
-    from vcirun.experiments.workprecision import _jsonable
+    from vcirun.experiments.studies.jsonio import to_json as _jsonable
 
     res = _jsonable(res)
     if out.exists() and a.only != ",".join(SECTIONS):   # a partial run updates the saved sections only

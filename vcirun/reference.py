@@ -10,8 +10,8 @@ least scipy's floor of ~2.2e-14). A forced system also carries the work W(t) = i
 an extra state, and `energy_balance` = max |H(t) - H(0) - W(t)| on a dense grid: a check of the
 solve that does not rest on a second solve of the same equations.
 
-Also: a fine-step method reference (the paper's choice: CVA at a small h) and the closed-form
-oscillator against a wall.
+Also: a fine-step method reference (the paper's choice: CVA at a small h). Closed forms (the
+oscillator against a wall, the bouncing ball) are in vcirun.oracles.
 """
 from __future__ import annotations
 
@@ -294,30 +294,5 @@ def l2_error(traj, ref) -> float:
     return float(np.sqrt(traj.h * np.sum(d * d)))
 
 
-def oscillator_wall_exact(t, x0, v0, m=1.0, k=1.0, d=0.5):
-    """Closed form of m x'' = -k x with an elastic wall at x = -d (phi = x + d >= 0).
-
-    Phase form x = A cos(th), v = -A w sin(th), th' = w; at an impact (x = -d, v < 0, th = th_i with
-    cos th_i = -d/A) the reflection v -> -v maps th_i to 2 pi - th_i. Returns (x, v, impact_times)."""
-    t = np.asarray(t, float)
-    w = np.sqrt(k / m)
-    A = np.hypot(x0, v0 / w)
-    if A <= d:
-        th0 = np.arctan2(-v0 / w, x0)
-        th = th0 + w * t
-        return A * np.cos(th), -A * w * np.sin(th), np.array([])
-    thi = np.arccos(-d / A)                        # impact phase in (pi/2, pi)
-    th0 = np.mod(np.arctan2(-v0 / w, x0), 2 * np.pi)  # x0 = A cos th0, v0 = -A w sin th0
-    # admissible phases: [2pi - thi, 2pi + thi) (mod 2pi); unfold into a phase that advances by 2 thi
-    # per period and wraps back
-    th0 = th0 if th0 < thi else th0 - 2 * np.pi   # now in [-(2pi - ... ), thi)
-    if th0 < -thi:
-        th0 = -thi
-    period = 2 * thi / w
-    s = (th0 + thi) / w + t                       # time since the last reflection point
-    frac = np.mod(s, period)
-    th = -thi + w * frac
-    n_imp = int(np.floor(((th0 + thi) / w + float(np.max(t, initial=0.0))) / period))
-    t_imp = np.array([(j + 1) * period - (th0 + thi) / w for j in range(n_imp)])
-    t_imp = t_imp[t_imp > 0]
-    return A * np.cos(th), -A * w * np.sin(th), t_imp
+# the closed form moved to vcirun.oracles (no compiled module needed); this name stays importable
+from .oracles import oscillator_wall_exact  # noqa: E402,F401
