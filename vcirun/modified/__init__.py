@@ -25,8 +25,6 @@ What checking the paper found (tests/convergence/test_modified_series.py):
 """
 from __future__ import annotations
 
-from ..discrete.lagrangians import LIBRARY
-
 SUPPORTED_MH_ORDERS = (1, 2, 3, 4)
 # The discrete Lagrangians of the paper. The high-order SVC compositions (SVC4/6/8: 5, 9, 17 stages)
 # would make eta a stationary value over 4-16 interior nodes; their MCVA is not derived.

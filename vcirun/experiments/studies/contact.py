@@ -15,8 +15,7 @@ import math
 import numpy as np
 
 from ...api import accumulation_onset, resolve_system
-from ...codegen.build import load_module
-from ...methods import METHODS
+from ...codegen.build import SYSTEM_KERNELS, load_module
 from ...oracles import ball_exact, ball_exact_onset, ball_position
 from ...reference import l2_error, reference
 from .outcome import cause, compiled, outcome, run
@@ -42,7 +41,7 @@ def grazing_setup(system, depth, *, beta=None, params=None, horizon=10.0) -> dic
     if name == "double_pendulum":
         base["w"] = 100.0  # out of reach: the unconstrained motion
     prm = s.param_values(base)
-    mod = load_module(s, METHODS["CVA"].kernel_set())
+    mod = load_module(s, SYSTEM_KERNELS)  # the continuous dynamics only
     q0, p0 = s.initial_state(beta=beta, params=prm)
     n = s.n
     buf = np.empty(2 * n)
@@ -291,7 +290,8 @@ def surface_state(system, kind, params=None):
 def surface_case(system, method, kind, *, h, T, params=None) -> dict:
     """Start on phi = 0 (see surface_state); ok runs are compared with the exact reference, which for
     'in' starts from the reflected state (R^CVA's exact elastic reset at t = 0)."""
-    s, prm, mod = compiled(system, "CVA", params)
+    s = resolve_system(system)
+    prm, mod = s.param_values(params), load_module(s, SYSTEM_KERNELS)
     q0, p0 = surface_state(system, kind, params)
     phi0 = float(mod.sys_phi(q0, prm))
     tr, crash = run(system, method, h=h, T=T, q0=q0, p0=p0, params=params)
