@@ -6,6 +6,7 @@ from functools import lru_cache
 
 from .codegen.build import KernelSet
 from .discrete.lagrangians import LIBRARY, get_ld
+from .modified import check_mcva_options
 
 
 @dataclass(frozen=True)
@@ -91,8 +92,16 @@ def resolve_method(method, **options) -> Method:
     if method in LIBRARY:
         return Method(method, ld=method, reset=None, properties=_props(False, "exact", LIBRARY[method].explicit))
     if method == "MCVA":
-        from .modified import generalized_mcva
-
         return generalized_mcva(**options)
     known = ", ".join(list(METHODS) + ["MCVA"] + list(LIBRARY))
     raise ValueError(f"method: unknown method {method!r} (choose one of {known})")
+
+
+def generalized_mcva(ld: str = "SVC", mh_order: int = 3, flow_order: int = 4, **unknown) -> Method:
+    """Generalized MCVA (Section 4.4): full steps of discrete Lagrangian `ld`, partial steps by the
+    `flow_order` Gauss collocation flow of the truncated modified Hamiltonian H~^{O(h^mh_order)},
+    reset R^MCVA conserving that truncation. Raises ValueError naming the offending field."""
+    ld, mh_order, flow_order = check_mcva_options(ld, mh_order, flow_order, **unknown)
+    return Method(f"MCVA[{ld},s={mh_order},g{flow_order}]", ld=ld, partial="gauss", reset="mcva",
+                  mh_order=mh_order, flow_order=flow_order,
+                  properties={"conserves_mh": True, "symplectic": True, "explicit_ld": LIBRARY[ld].explicit})

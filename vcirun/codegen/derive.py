@@ -168,9 +168,24 @@ def _dispatch(fname: str, sig: str, call: str, names: list[str], returns: bool, 
     return "\n".join(lines) + "\n"
 
 
-def module_source(system, ks, unit_texts: list[str], kernel_path: str | None = None) -> str:
+def _kernels_backend(generated: str, c_dir) -> str:
+    """The generated kernels with the chosen backend: C for the leaf kernels when c_dir is given and
+    a C compiler exists (vcirun.codegen.cc.backend()), else numba source as emitted."""
+    if c_dir is None:
+        return generated
+    from . import cc
+
+    if cc.backend() != "c":
+        return generated
+    from .c_emit import c_kernels
+
+    return c_kernels(generated, c_dir)
+
+
+def module_source(system, ks, unit_texts: list[str], kernel_path: str | None = None, c_dir=None) -> str:
     """The module text of (system, kernel set); kernel_path: "tensor" or "expanded" (default: see
-    the module docstring)."""
+    the module docstring); c_dir: where the C backend puts the shared object of the leaf kernels
+    (vcirun.codegen.c_emit; None or backend "numba": every kernel stays numba source)."""
     names = list(ks.explicit_names)
     sid = {nm: i for i, nm in enumerate(names)}
     parts = [HEADER, f"NDOF = {system.n}",
@@ -190,9 +205,10 @@ def module_source(system, ks, unit_texts: list[str], kernel_path: str | None = N
         parts.append('@njit(cache=True, nogil=True, error_model="numpy")\ndef ld_Edv(sid, q0, v, h, prm, out):\n'
                      f"    {ks.vci_stage}_Edv(q0, v, h, prm, out)\n")
     if ks.modified is not None:
-        from ..modified.derive import modified_kernels_source
+        from .mh_kernels import modified_kernels_source
 
         parts.append(modified_kernels_source(system, ks))
+    parts = [_kernels_backend("\n\n".join(parts), c_dir)]
     parts += unit_texts
     parts.append("full = ld_step")
     parts.append("partial = " + ("ld_partial" if ks.partial == "ld" else "gauss_partial"))
