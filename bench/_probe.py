@@ -84,7 +84,7 @@ def main():
     out.update(first_sim_s=t1 - t0, to_first_sim_s=t1 - T_START, cached=bool(log.get("cached")),
                generate_s=float(log.get("generate_s", float("nan"))), status=tr.status,
                derive_imported="vcirun.codegen.derive" in sys.modules,
-               modified_derive_imported="vcirun.modified.derive" in sys.modules,
+               modified_derive_imported="vcirun.modified.eta" in sys.modules,
                sympy_imported="sympy" in sys.modules, n_impacts=int(len(tr.impacts)))
     m = a.get("measure_steps")
     if m:

@@ -6,6 +6,7 @@ from functools import lru_cache
 
 from .codegen.build import KernelSet
 from .discrete.lagrangians import LIBRARY, get_ld
+from .modified import check_mcva_options
 
 
 @dataclass(frozen=True)
@@ -71,35 +72,6 @@ METHODS = {
 }
 
 
-def generalized_mcva(ld: str = "SVC", mh_order: int = 3, flow_order: int = 4, **unknown) -> Method:
-    """Generalized MCVA (Section 4.4): full steps of discrete Lagrangian `ld`, partial steps by the
-    `flow_order` Gauss collocation flow of the truncated modified Hamiltonian H~^{O(h^mh_order)},
-    reset R^MCVA conserving that truncation. Raises ValueError naming the offending field."""
-    from .modified import FLOW_ORDERS, MH_LDS, SUPPORTED_MH_ORDERS
-
-    if unknown:
-        raise ValueError(f"options: {sorted(unknown)[0]!r} is not an option of method MCVA "
-                         "(use ld=, mh_order=, flow_order=)")
-    if not isinstance(ld, str) or ld not in LIBRARY:
-        raise ValueError(f"ld: unknown discrete Lagrangian {ld!r} (choose one of {', '.join(LIBRARY)})")
-    if ld not in MH_LDS:
-        raise ValueError(f"ld: the modified Hamiltonian of {ld} (a {len(LIBRARY[ld].stages)}-stage composition) "
-                         f"is not derived; MCVA takes one of {', '.join(MH_LDS)} (for {ld} with impacts use CVA)")
-    if isinstance(mh_order, bool) or not isinstance(mh_order, int) or mh_order not in SUPPORTED_MH_ORDERS:
-        raise ValueError(f"mh_order: {mh_order!r} is not supported (choose one of "
-                         f"{', '.join(map(str, SUPPORTED_MH_ORDERS))}: the truncation H~^{{O(h^s)}} = eta + ... + "
-                         "h^(s-1) H_s)")
-    if isinstance(flow_order, bool) or not isinstance(flow_order, int) or flow_order not in FLOW_ORDERS:
-        raise ValueError(f"flow_order: {flow_order!r} is not supported (choose one of "
-                         f"{', '.join(map(str, FLOW_ORDERS))}: 2- or 3-stage Gauss collocation)")
-    if flow_order < mh_order:
-        raise ValueError(f"flow_order: {flow_order} is below mh_order {mh_order} (the partial flow must "
-                         "solve the modified equations to at least the truncation's order)")
-    return Method(f"MCVA[{ld},s={mh_order},g{flow_order}]", ld=ld, partial="gauss", reset="mcva",
-                  mh_order=mh_order, flow_order=flow_order,
-                  properties=properties(conserves_mh=True, symplectic=True, explicit_ld=LIBRARY[ld].explicit))
-
-
 def resolve_method(method, **options) -> Method:
     """A Method from a name (CVA, VCI, MCVAA, MCVAC, MCVA with ld/mh_order/flow_order, or a bare
     discrete Lagrangian name for smooth integration) or a Method instance."""
@@ -129,3 +101,13 @@ def resolve_method(method, **options) -> Method:
         return generalized_mcva(**options)
     known = ", ".join(list(METHODS) + ["MCVA"] + list(LIBRARY))
     raise ValueError(f"method: unknown method {method!r} (choose one of {known})")
+
+
+def generalized_mcva(ld: str = "SVC", mh_order: int = 3, flow_order: int = 4, **unknown) -> Method:
+    """Generalized MCVA (Section 4.4): full steps of discrete Lagrangian `ld`, partial steps by the
+    `flow_order` Gauss collocation flow of the truncated modified Hamiltonian H~^{O(h^mh_order)},
+    reset R^MCVA conserving that truncation. Raises ValueError naming the offending field."""
+    ld, mh_order, flow_order = check_mcva_options(ld, mh_order, flow_order, **unknown)
+    return Method(f"MCVA[{ld},s={mh_order},g{flow_order}]", ld=ld, partial="gauss", reset="mcva",
+                  mh_order=mh_order, flow_order=flow_order,
+                  properties=properties(conserves_mh=True, symplectic=True, explicit_ld=LIBRARY[ld].explicit))

@@ -183,13 +183,29 @@ def _dispatch(fname: str, sig: str, call: str, names: list[str], returns: bool, 
     return "\n".join(lines) + "\n"
 
 
-def module_source(system, ks, kernel_path: str | None = None) -> str:
-    """The module text of (system, kernel set): the generated part (`generated_source`) assembled with
-    the numba units and role bindings the contract selects (vcirun.codegen.units.assemble, which
-    checks both sides). kernel_path: "tensor" or "expanded" (default: see the module docstring)."""
+def _kernels_backend(generated: str, c_dir) -> str:
+    """The generated kernels with the chosen backend: C for the leaf kernels when c_dir is given and
+    a C compiler exists (vcirun.codegen.cc.backend()), else numba source as emitted."""
+    if c_dir is None:
+        return generated
+    from . import cc
+
+    if cc.backend() != "c":
+        return generated
+    from .c_emit import c_kernels
+
+    return c_kernels(generated, c_dir)
+
+
+def module_source(system, ks, kernel_path: str | None = None, c_dir=None) -> str:
+    """The module text of (system, kernel set): the generated part (`generated_source`, with the
+    kernel backend applied) assembled with the numba units and role bindings the contract selects
+    (vcirun.codegen.units.assemble, which checks both sides). kernel_path: "tensor" or "expanded"
+    (default: see the module docstring); c_dir: where the C backend puts the shared object of the leaf
+    kernels (vcirun.codegen.c_emit; None or backend "numba": every kernel stays numba source)."""
     from . import units
 
-    return units.assemble(generated_source(system, ks, kernel_path), ks)
+    return units.assemble(_kernels_backend(generated_source(system, ks, kernel_path), c_dir), ks)
 
 
 def generated_source(system, ks, kernel_path: str | None = None) -> str:
@@ -222,7 +238,7 @@ def generated_source(system, ks, kernel_path: str | None = None) -> str:
         parts.append('@njit(cache=True, nogil=True, error_model="numpy")\ndef ld_Edv(sid, q0, v, h, prm, out):\n'
                      f"    {ks.vci_stage}_Edv(q0, v, h, prm, out)\n")
     if ks.modified is not None:
-        from ..modified.derive import modified_kernels_source
+        from .mh_kernels import modified_kernels_source
 
         parts.append(modified_kernels_source(system, ks))
     return "\n\n".join(parts) + "\n"
