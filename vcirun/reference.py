@@ -75,6 +75,24 @@ def rk4_step(f, t, y, dt):
     return y + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
 
 
+def step_off_surface(rhs, phi, t, y, delta, tries=40):
+    """(t + d, y(t + d)) by one RK4 micro step of length d <= delta to a state with phi > 0, halving d
+    up to `tries` times; None if none is found (delta <= 0 or the motion stays on the surface).
+
+    After an elastic reset phi is ~0 (often -1e-17), and solve_ivp detects a crossing only from a
+    start value >= 0, so a hop shorter than its first step would go unnoticed (measured: DOP853 at
+    rtol 1e-3 over T = 300 lost the cart through the floor after 26 impacts). The micro step's local
+    error is ~d^5, negligible. Used by the exact reference and the solve_ivp baseline."""
+    for _ in range(tries):
+        if not delta > 0.0:
+            return None
+        y1 = rk4_step(rhs, t, y, delta)
+        if phi(y1) > 0.0:
+            return t + delta, y1
+        delta *= 0.5
+    return None
+
+
 class _HermiteSegment:
     """Dense output of the escape micro step: cubic Hermite on [t0, t1], called like an OdeSolution."""
 
@@ -158,17 +176,11 @@ def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000):
             # and solve_ivp only sees a crossing from a start value >= 0, so a hop shorter than its
             # first step would go unnoticed. One RK4 micro step (<= 1e-9, local error ~1e-45) to
             # phi > 0, covered by a cubic Hermite segment (error ~delta^4 times the 4th derivative).
-            delta = min(1e-9, 0.5 * (T - t))
-            for _ in range(40):
-                if delta <= 0.0:
-                    break
-                y1 = rk4_step(rhs, t, y, delta)
-                if mod.sys_phi(y1[:n], prm) > 0.0:
-                    segments.append((t, t + delta, _HermiteSegment(t, y, rhs(t, y), t + delta, y1,
-                                                                   rhs(t + delta, y1))))
-                    t, y = t + delta, y1
-                    break
-                delta *= 0.5
+            off = step_off_surface(rhs, lambda yy: mod.sys_phi(yy[:n], prm), t, y, min(1e-9, 0.5 * (T - t)))
+            if off is not None:
+                t1, y1 = off
+                segments.append((t, t1, _HermiteSegment(t, y, rhs(t, y), t1, y1, rhs(t1, y1))))
+                t, y = t1, y1
         else:
             t = T
     work = None

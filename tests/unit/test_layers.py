@@ -23,7 +23,7 @@ LAYERS = (
     ("code generation", ("codegen",)),
     ("numba units", ("maps", "collision")),
     ("methods", ("methods",)),
-    ("Python API", ("api",)),
+    ("Python API", ("api", "diagnosis")),
     ("reference", ("reference",)),
     ("analysis", ("verification", "results", "experiments", "cache")),
 )

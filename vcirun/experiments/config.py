@@ -40,16 +40,19 @@ import yaml
 from pydantic import (BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationError, field_validator,
                       model_validator)
 
+from ..discrete.lagrangians import LIBRARY
+from ..methods import METHODS
+
 __all__ = ["ConfigError", "SweepConfig", "MethodSpec", "InitialCondition", "ExecutorSpec", "load_config", "parse_config",
            "COLLISION_METHODS", "SMOOTH_METHODS", "DISCRETE_LAGRANGIANS", "yaml_load"]
 
-# Names `vcirun.simulate` accepts (tests/unit/test_config.py checks these against the core).
-COLLISION_METHODS = ("CVA", "VCI", "MCVAA", "MCVAC", "MCVA", "CVA4", "CVA6", "CVA8")
-DISCRETE_LAGRANGIANS = ("SE1", "SE2", "SVA", "SVB", "SVC", "midpoint", "SVC4", "SVC6", "SVC8")
+# Names `vcirun.simulate` accepts, read from the core's registries (vcirun.methods.METHODS,
+# vcirun.discrete.lagrangians.LIBRARY): one list each (issue 16).
+COLLISION_METHODS = tuple(METHODS) + ("MCVA",)
+DISCRETE_LAGRANGIANS = tuple(LIBRARY)
 SMOOTH_METHODS = DISCRETE_LAGRANGIANS  # a bare Ld name integrates the smooth dynamics, constraint ignored
-MethodName = Literal["CVA", "VCI", "MCVAA", "MCVAC", "MCVA", "CVA4", "CVA6", "CVA8",
-                     "SE1", "SE2", "SVA", "SVB", "SVC", "midpoint", "SVC4", "SVC6", "SVC8"]
-LdName = Literal["SE1", "SE2", "SVA", "SVB", "SVC", "midpoint", "SVC4", "SVC6", "SVC8"]
+MethodName = Literal[COLLISION_METHODS + DISCRETE_LAGRANGIANS]
+LdName = Literal[DISCRETE_LAGRANGIANS]
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]*$")
 # A config whose top level has this key is a study config (`vcirun study`, schema in
 # vcirun.experiments.studies.schema), not a sweep; `vcirun validate` dispatches on it.
@@ -76,7 +79,7 @@ PositiveFloat = Annotated[float, Field(gt=0)]
 
 # --- system ---------------------------------------------------------------------------------------
 class BuiltinSystem(_Model):
-    """A built-in scene (`vcirun.mechanics.scenes.BUILTIN_SCENES`) with optional parameter overrides."""
+    """A built-in scene (`vcirun.scenedata.BUILTIN_SCENE_DATA`) with optional parameter overrides."""
     name: str = Field(min_length=1)
     params: dict[str, float] = Field(default_factory=dict)
 
@@ -683,16 +686,17 @@ def config_text(path) -> str:
 # --- semantic checks (need the numerical core) ---------------------------------------------------------------
 def build_system(cfg: SweepConfig):
     """(system argument for vcirun.simulate/reference, parameter overrides or None, MechanicalSystem)."""
-    from vcirun.mechanics import BUILTIN_SCENES, load_system_yaml
+    from vcirun.mechanics import load_system_yaml
     from vcirun.mechanics.scenes import get_scene
+    from vcirun.scenedata import BUILTIN_SCENE_DATA, scene_args
 
     s = cfg.system
     if isinstance(s, BuiltinSystem):
-        if s.name not in BUILTIN_SCENES and not re.fullmatch(r"n_pendulum_\d+", s.name):
-            hint = difflib.get_close_matches(s.name, list(BUILTIN_SCENES), n=1)
+        if scene_args(s.name) is None:  # the one scene registry (vcirun.scenedata)
+            hint = difflib.get_close_matches(s.name, list(BUILTIN_SCENE_DATA), n=1)
             raise _Semantic("system",
                             f"unknown built-in system {s.name!r}" + (f"; did you mean {hint[0]!r}?" if hint else "")
-                            + f" (choose one of {', '.join(BUILTIN_SCENES)}, or a YAML file path)")
+                            + f" (choose one of {', '.join(BUILTIN_SCENE_DATA)}, or a YAML file path)")
         sysm = get_scene(s.name)
         return s.name, (dict(s.params) or None), sysm
     if isinstance(s, FileSystem):
