@@ -66,6 +66,36 @@ def check_mass_matrix(name: str, q, Mq) -> None:
                          f"(eigenvalues {np.linalg.eigvalsh(S)}); the Lagrangian must be hyperregular") from None
 
 
+def requested_start(d, beta=None, q0=None, p0=None) -> tuple:
+    """The one rule for a run's initial state (vcirun.simulate and MechanicalSystem.initial_state):
+    ("state", q0, p0) from explicit values or the system's default, or ("legendre", q0, qdot0) from
+    its initial-condition map at beta (p0 = M(q0) qdot0 is the caller's: compiled or symbolic M).
+    d: anything with name, n, ic_map, default_q0, default_p0. ValueError names what is missing."""
+    if q0 is not None or p0 is not None:
+        if q0 is None or p0 is None:
+            raise ValueError("initial state: give both q0 and p0 (or beta)")
+        kind, q0, p0 = "state", np.asarray(q0, float).ravel(), np.asarray(p0, float).ravel()
+    elif beta is not None:
+        if d.ic_map is None:
+            raise ValueError(f"beta: system {d.name} has no initial-condition map; give q0 and p0")
+        qq, qdot = d.ic_map(float(beta))
+        kind, q0, p0 = "legendre", np.array(qq, dtype=float), np.array(qdot, dtype=float)
+    elif d.default_q0 is not None:
+        kind, q0, p0 = "state", np.array(d.default_q0, float), np.array(d.default_p0, float)
+    else:
+        raise ValueError(f"initial state: system {d.name} needs q0 and p0 (or beta)")
+    if q0.shape != (d.n,) or p0.shape != (d.n,):
+        raise ValueError(f"initial state: q0 and p0 must have length {d.n}")
+    return kind, q0, p0
+
+
+def start_tolerance(q0, grad_phi) -> float:
+    """How far below 0 a start's phi(q0) may lie and still count as on the surface: round-off of
+    phi near q0, 64 eps (1 + |q0| |grad phi|) (a state built on phi = 0 in floating point). Used by
+    vcirun.simulate and vcirun.reference alike."""
+    return 64 * np.finfo(float).eps * (1.0 + float(np.max(np.abs(q0))) * float(np.max(np.abs(grad_phi))))
+
+
 def merge_params(defaults: dict, overrides: dict) -> dict:
     unknown = set(overrides) - set(defaults)
     if unknown:

@@ -92,15 +92,9 @@ def n_pendulum(n: int = 2, **overrides) -> MechanicalSystem:
     return _system(d, list(th), M, V, phi)
 
 
-BUILTIN_SCENES = {
-    "cart_pendulum": cart_pendulum,
-    "double_pendulum": double_pendulum,
-    "oscillator_wall": oscillator_wall,
-    "damped_oscillator": damped_oscillator,
-    "bouncing_ball": bouncing_ball,
-    "n_pendulum": n_pendulum,
-}
-assert set(BUILTIN_SCENES) == set(sd.BUILTIN_SCENE_DATA)
+# One registry of built-in scenes: the names (and numeric parts) are vcirun.scenedata's; each has its
+# symbolic part here under the same name.
+BUILTIN_SCENES = {name: globals()[name] for name in sd.BUILTIN_SCENE_DATA}
 
 
 def get_scene(name: str, **params) -> MechanicalSystem:
