@@ -180,13 +180,20 @@ def _check_admissible(d: SystemData, mod, q0, prm, phi_text) -> None:
     constraint phi_text() -- called only then: on the warm path it builds the symbolic system), not a
     run that ends later as `reset_failed` or `accumulation`; a start on the surface (to round-off)
     is allowed."""
-    phi0 = float(mod.sys_phi(q0, prm))
-    g = np.empty(d.n)
-    mod.sys_dphi(q0, prm, g)
-    if not math.isfinite(phi0) or phi0 < -start_tolerance(q0, g):
-        raise ValueError(f"initial state: q0={q0.tolist()} lies inside the constraint of system {d.name}: "
-                         f"phi(q0) = {phi0:.6g} < 0 for phi = {phi_text()}; start where phi(q0) >= 0 "
-                         "(or pass constrained=False)")
+    m = int(mod.NCON)
+    phis, G = np.empty(m), np.empty((m, d.n))
+    mod.sys_phis(q0, prm, phis)
+    mod.sys_dphis(q0, prm, G)
+    for i in range(m):
+        if not math.isfinite(phis[i]) or phis[i] < -start_tolerance(q0, G[i]):
+            raise ValueError(f"initial state: q0={q0.tolist()} lies inside the constraint of system {d.name}: "
+                             f"phi(q0) = {phis[i]:.6g} < 0 for {phi_text(i)}; start where phi(q0) >= 0 "
+                             "(or pass constrained=False)")
+
+
+def _constraint_text(sysm, i: int) -> str:
+    c = sysm.constraints[i]
+    return f"phi = {c.phi}" if sysm.m == 1 else f"constraint {c.name} (phi = {c.phi})"
 
 
 class GridWarning(UserWarning):
@@ -260,7 +267,7 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     mod = load()
     q0, p0 = _initial_state(sysd, mod, start, prm)
     if constrained:
-        _check_admissible(sysd, mod, q0, prm, lambda: str((sysm or resolve_system(system)).phi))
+        _check_admissible(sysd, mod, q0, prm, lambda i: _constraint_text(sysm or resolve_system(system), i))
     note = grid_note(h, T)
     if note:
         import warnings

@@ -277,13 +277,14 @@ def test_corner_of_three_walls(law):
 def test_a_zero_width_gap_with_different_restitutions_has_no_solution(law):
     """x between walls x >= 0 and -x >= 0 (G = [[1], [-1]], W = [[1, -1], [-1, 1]]), u- = (-1, 1),
     e = (1, 0): w_1 + w_2 = (1 + e_1) u-_1 + (1 + e_2) u-_2 = -1 < 0 for every lam (the rows of W sum
-    to 0): infeasible, code LCP_INFEASIBLE and lam = 0. At rest (u- = 0) lam = 0 is the solution."""
+    to 0): infeasible, code LCP_INFEASIBLE and lam = 0. At rest (u- = 0) every lam = (s, s) solves it
+    and 0 is the least-norm solution (LCP_MIN_NORM)."""
     W = np.array([[1.0, -1.0], [-1.0, 1.0]])
     code, lam = _solve(law, W, [-1.0, 1.0], [1.0, 0.0])
     assert code == law.LCP_INFEASIBLE and np.all(lam == 0.0)
     assert linprog(np.zeros(2), A_ub=-W, b_ub=np.array([-2.0, 1.0]), bounds=[(0, None)] * 2).status == 2
     code, lam = _solve(law, W, [0.0, 0.0], [1.0, 0.0])
-    assert code >= 0 and np.all(lam == 0.0)
+    assert code == law.LCP_MIN_NORM and np.all(lam == 0.0)  # every (s, s) solves it; 0 is the least norm
 
 
 def _least_norm_reference(W, q, lam0):
@@ -336,6 +337,24 @@ def test_random_singular_more_contacts_than_dof(law, rng):
             assert np.linalg.norm(lam) <= np.linalg.norm(ref) * (1 + 1e-9) + 1e-12
             assert np.max(np.abs(lam - ref)) <= 1e-6 * max(np.max(np.abs(lam)), 1e-300), (lam, ref)
     assert law.LCP_MIN_NORM in codes
+
+
+def test_least_norm_kernel_is_the_pseudo_inverse(law, rng):
+    """The Jacobi-based least-norm solve of step 3 against numpy's pinv, on random PSD matrices of
+    rank r < m (and full rank), restricted to a random support."""
+    for _ in range(30):
+        k = int(rng.integers(2, 8))
+        r = int(rng.integers(1, k + 1))
+        B = rng.normal(size=(r, k))
+        A = B.T @ B
+        q = rng.normal(size=k)
+        mask = int(rng.integers(1, 2 ** k))
+        S = [i for i in range(k) if (mask >> i) & 1]
+        x = np.full(k, np.nan)
+        law._lcp_pinv_support(A, q, mask, k, float(np.max(np.diag(A))), x)
+        ref = np.zeros(k)
+        ref[S] = np.linalg.pinv(A[np.ix_(S, S)], rcond=1e-11, hermitian=True) @ -q[S]
+        assert np.max(np.abs(x - ref)) <= 1e-9 * max(1.0, np.max(np.abs(ref))), (A, q, S)
 
 
 # --- bad input ------------------------------------------------------------------------------------

@@ -69,7 +69,7 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
             fail = i
             break
         iters = it
-        if (not constrained) or sys_phi(qt, prm) > 0.0:
+        if (not constrained) or step_admissible(q, p, qt, h, event_tol, prm):
             copy_into(q, qt)
             copy_into(p, pt)
         else:

@@ -78,7 +78,7 @@ def impact_law(W, um, e, lam):
     full = (1 << k) - 1
     pd = _lcp_rank_full(A, full, k, wmax)
     if qs == 0.0:
-        return LCP_UNIQUE if pd else LCP_SINGULAR_UNIQUE  # lam = 0 solves it (w = 0); W_PP: see below
+        return LCP_UNIQUE if pd else LCP_MIN_NORM  # lam = 0: w = 0, P = all, W_PP = W singular, 0 least norm
     tol_w = LCP_FEAS_TOL * qs
     # 1. a basic solution: the support S with the smallest violation among the 2^k candidates
     #    lam_S = -A_SS^-1 q_S (A_SS nonsingular). For PSD A a solvable LCP has a vertex solution, whose

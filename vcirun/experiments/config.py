@@ -98,7 +98,8 @@ class InlineSystem(_Model):
     parameters: dict[str, float] = Field(default_factory=dict)
     mass_matrix: list[list[Union[str, float]]]
     potential: Union[str, float]
-    constraint: Union[str, float]
+    constraint: Union[str, float] | None = None
+    constraints: list[Union[str, float, dict[str, Union[str, float]]]] | None = None
     forcing: list[Union[str, float]] | None = None
     q0: list[float] | None = None
     p0: list[float] | None = None
@@ -111,7 +112,7 @@ class InlineSystem(_Model):
 
 def _system_tag(v: Any) -> str | None:
     if isinstance(v, dict):
-        if "coordinates" in v or "mass_matrix" in v or "potential" in v or "constraint" in v:
+        if "coordinates" in v or "mass_matrix" in v or "potential" in v or "constraint" in v or "constraints" in v:
             return "inline"
         return "file" if "file" in v else "builtin"
     if isinstance(v, BaseModel):
