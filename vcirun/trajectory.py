@@ -83,10 +83,10 @@ class Trajectory:
         """Attach the continuous dynamics dense output needs (a trajectory read from a results file or
         unpickled has none): `system` a built-in name, YAML path or MechanicalSystem (default: this
         run's system name, which works for built-in scenes); `params` default: the run's. Returns self."""
-        from .api import resolve_numeric
-        from .methods import METHODS
+        from .codegen.build import SYSTEM_KERNELS
+        from .resolve import resolve_numeric
 
-        sysd, load, _ = resolve_numeric(self.system if system is None else system, METHODS["CVA"].kernel_set())
+        sysd, load, _ = resolve_numeric(self.system if system is None else system, SYSTEM_KERNELS)
         prm = sysd.param_values(params if params is not None else (self.options or {}).get("params"))
         self.dynamics = _dynamics(load(), prm)
         self.__dict__.pop("_dense", None)
@@ -221,7 +221,7 @@ class Trajectory:
         """A matplotlib Figure: each coordinate against time (the dense output as a line when the
         dynamics are available, grid states as dots), impacts as dashed lines, and H (and Hmod).
         The Figure is not registered with pyplot and no global matplotlib state changes."""
-        from .experiments.figures import trajectory_figure
+        from .plotting import trajectory_figure
 
         return trajectory_figure(self, dense=dense, samples_per_step=samples_per_step)
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 import vcirun
-from vcirun import api
+from vcirun import api, resolve
 from vcirun.codegen import build
 
 
@@ -33,7 +33,7 @@ def test_first_call_of_a_module_is_made_untimed(monkeypatch):
         proxies.append(_Counting(real(system, ks)))
         return proxies[-1]
 
-    monkeypatch.setattr(api, "load_module", loader)
+    monkeypatch.setattr(resolve, "load_module", loader)
     monkeypatch.setattr(api, "_FIRST_CALLS", set())
     a = vcirun.simulate("cart_pendulum", "CVA", h=1e-2, T=1, beta=3.2)
     b = vcirun.simulate("cart_pendulum", "CVA", h=1e-2, T=1, beta=3.2)

@@ -19,6 +19,7 @@ import pytest
 
 import vcirun
 import vcirun.api as api
+import vcirun.resolve as resolve
 from vcirun.codegen import build
 from vcirun.methods import METHODS
 
@@ -209,7 +210,7 @@ def test_yaml_index_entry_fields(yaml_file):
 
 
 def test_substituted_load_module_disables_the_warm_index(monkeypatch):
-    """Tests run modules uncompiled by monkeypatching vcirun.api.load_module: that must win."""
+    """Tests run modules uncompiled by monkeypatching vcirun.resolve.load_module: that must win."""
     calls = []
 
     def fake(system, ks):
@@ -218,7 +219,7 @@ def test_substituted_load_module_disables_the_warm_index(monkeypatch):
 
     ks = METHODS["CVA"].kernel_set()
     api.resolve_numeric("cart_pendulum", ks)[1]()  # indexed
-    monkeypatch.setattr(api, "load_module", fake)
+    monkeypatch.setattr(resolve, "load_module", fake)
     vcirun.simulate("cart_pendulum", "CVA", h=2e-2, T=1.0, beta=3.2)
     assert calls == ["cart_pendulum"]
 
