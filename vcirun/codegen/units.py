@@ -94,7 +94,8 @@ UNIT = {u.path: u for u in UNITS}
 # what vcirun.codegen.derive emits, per part of a kernel set
 GENERATED = {
     "system": ("NDOF", "NCON", "FORCED", "NODE_LEN", "sys_M", "sys_V", "sys_phi", "sys_dphi", "sys_phis",
-               "sys_dphis", "sys_restitution", "sys_dHq", "sys_node", "sys_node_M", "sys_force", "sys_force_jac"),
+               "sys_dphis", "sys_ddphis", "sys_Mdotv", "sys_restitution", "sys_dHq", "sys_node", "sys_node_M",
+               "sys_force", "sys_force_jac"),
     "record": tuple(ln.split(" = ")[0] for ln in record.module_constants().splitlines()),
     "steps": ("FULL_STAGES", "FULL_FRACS", "FORCE_A", "FORCE_B", "VCI_STAGE", "PARTIAL_IS_FULL", "ld_PmJ", "ld_Pp",
               "ld_PmJc", "ld_Ppc", "ld_Ed"),
@@ -110,7 +111,7 @@ MODIFIED_ENERGY = {False: "no_modified_energy", True: "mh_energy"}
 # names Python calls on a module
 SYSTEM_ENTRY = ("hamiltonian", "hamilton_rhs", "dynamics_rhs", "force_power", "gdot", "cva_lambda",
                 "mass_matrix_ok", "sys_M", "sys_phi", "sys_dphi", "sys_phis", "sys_dphis", "sys_restitution",
-                "impact_direction", "gap", "touching_mask")
+                "impact_direction", "gap", "touching_mask", "sys_ddphis", "sys_Mdotv")
 METHOD_ENTRY = SYSTEM_ENTRY + ("integrate", "collision_time", "ld_step")
 
 
