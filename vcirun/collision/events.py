@@ -116,7 +116,7 @@ def search_collision(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt,
     per impact, against 10-12 for bracketing alone.
     """
     mask = np.empty(NCON, dtype=np.int64)
-    touching_mask(qh, ph, h, event_tol, prm, mask, held)
+    masked = touching_mask(qh, ph, h, event_tol, prm, mask, held)
     iters = 0
     E = np.nan
     if not have_end:
@@ -127,7 +127,7 @@ def search_collision(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt,
     if NCON > 1:
         unmask_penetrating(qt, prm, mask, held)
     gb = gap(qt, prm, mask)
-    if not math.isfinite(gb) and (NCON == 1 or not gb > 0.0):  # (+inf: every contact masked)
+    if not math.isfinite(gb) and not (gb > 0.0 and masked > 0):  # (+inf: every contact masked or held)
         return -1, tau_max, E, iters
     if gb >= 0.0:
         if have_end:  # the caller's full step knows E; recompute only when asked for the state's energy
