@@ -1,22 +1,17 @@
 """The Python API: `simulate`, `reference`, `l2_error`. The CLI and the sweep runner go through these."""
 from __future__ import annotations
 
-import hashlib
 import math
-import os
 import time
-from pathlib import Path
 
 import numpy as np
 
 from . import record
 from . import trajectory as tr
-from .codegen import build
-from .codegen.build import load_module
 from .diagnosis import accumulation_onset, failure_cause  # noqa: F401 (accumulation_onset: public here)
 from .methods import resolve_method
 from .resolve import _warmable, resolve_numeric, resolve_system  # noqa: F401 (public here)
-from .scenedata import SystemData, check_mass_matrix, requested_start, scene_args, scene_data, start_tolerance
+from .scenedata import SystemData, check_mass_matrix, requested_start, start_tolerance
 
 DEFAULT_TOLERANCES = {"newton_tol": 1e-12, "event_tol": 1e-13, "max_iter": 50, "max_impacts_step": 64}
 _METHOD_OPTIONS = {"ld", "mh_order", "flow_order"}

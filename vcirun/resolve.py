@@ -12,7 +12,7 @@ import numpy as np
 
 from .codegen import build
 from .codegen.build import load_module
-from .scenedata import SystemData, scene_args
+from .scenedata import SystemData, scene_args, scene_data
 
 
 def _is_yaml_source(s: str) -> bool:
