@@ -97,49 +97,66 @@ def derivative_check(method, rows, n_probes) -> Check:
 # --- hyperregularity -------------------------------------------------------------------------------
 
 def hyperregularity_check(samples, lam0) -> Check:
-    """samples: list of (source, t, q, eigenvalues of M(q) or None if not finite); lam0: smallest
-    eigenvalue of M(q0)."""
+    """samples: list of (source, t, q, eigenvalues of M(q) ascending, or None if M(q) is not finite);
+    lam0: smallest eigenvalue of M(q0). Judged at the earliest time along the motion where M(q) is
+    not positive definite (fail) or nearly singular (warn); the extremes over all samples are reported."""
     if not samples:
         return skip("hyperregularity", None, "no states of the motion were available")
-    worst_lam, worst_cond = None, None
-    nonfinite = None
-    for src, t, q, ev in samples:
-        if ev is None:
-            nonfinite = nonfinite or (src, t, q)
-            continue
-        lam, cond = float(ev[0]), (float(ev[-1] / ev[0]) if ev[0] > 0 else np.inf)
-        if worst_lam is None or lam < worst_lam[0]:
-            worst_lam = (lam, src, t, q)
-        if worst_cond is None or not cond <= worst_cond[0]:
-            worst_cond = (cond, src, t, q)
-    rows = []
-    if worst_lam is not None:
-        lam, src, t, q = worst_lam
-        rows.append({"quantity": "smallest eigenvalue of M", "value": _num(lam), "ratio to M(q0)'s": _num(lam / lam0),
-                     "where": f"{src}, t = {t:.6g}, q = {_vec(q)}"})
-        c, src_c, t_c, q_c = worst_cond
-        rows.append({"quantity": "condition number of M", "value": _num(c), "ratio to M(q0)'s": "",
-                     "where": f"{src_c}, t = {t_c:.6g}, q = {_vec(q_c)}"})
     n = len(samples)
-    expected = "M(q) symmetric positive definite and well conditioned along the motion"
     thr = f"lambda_min > 0; cond(M) <= {COND_WARN:.0e} and lambda_min >= {LAMBDA_RATIO_WARN:.0e} lambda_min(M(q0))"
-    if nonfinite is not None:
-        src, t, q = nonfinite
+    expected = "M(q) symmetric positive definite and well conditioned along the motion"
+    lam = np.array([ev[0] if ev is not None else np.nan for _, _, _, ev in samples])
+    cond = np.array([ev[-1] / ev[0] if ev is not None and ev[0] > 0 else np.inf for _, _, _, ev in samples])
+    ts = np.array([t for _, t, _, _ in samples])
+
+    def where(i):
+        src, t, q, _ = samples[i]
+        return f"{src}, t = {t:.6g}, q = {_vec(q)}"
+
+    fin = np.isfinite(lam)
+    rows = []
+    if fin.any():
+        i = int(np.nanargmin(lam))
+        rows.append({"quantity": "smallest eigenvalue of M", "value": _num(lam[i]),
+                     "relative to its value at q0": _num(lam[i] / lam0), "where": where(i)})
+        pos = np.flatnonzero(fin & (lam > 0))
+        if pos.size:
+            j = int(pos[np.argmax(cond[pos])])
+            rows.append({"quantity": "condition number of M (where positive definite)", "value": _num(cond[j]),
+                         "relative to its value at q0": "", "where": where(j)})
+
+    def earliest(m):
+        idx = np.flatnonzero(m)
+        return int(idx[np.argmin(ts[idx])]) if idx.size else None
+
+    i = earliest(~fin)
+    if i is not None:
         return Check("hyperregularity", None, FAIL, float("nan"), thr, expected,
-                     f"M(q) is not finite at {src}, t = {t:.6g}, q = {_vec(q)} ({n} states sampled)", rows)
-    lam, src, t, q = worst_lam
-    if not lam > 0:
-        return Check("hyperregularity", None, FAIL, lam, thr, expected,
-                     f"M(q) is not positive definite along the motion: smallest eigenvalue {lam:.3g} at {src}, "
-                     f"t = {t:.6g}, q = {_vec(q)} (the Lagrangian is not hyperregular there; {n} states sampled)", rows)
-    c, src_c, t_c, q_c = worst_cond
-    if c > COND_WARN or lam < LAMBDA_RATIO_WARN * lam0:
-        what = (f"cond(M) = {c:.3g} at {src_c}, t = {t_c:.6g}" if c > COND_WARN else
-                f"smallest eigenvalue {lam:.3g} = {lam / lam0:.2e} x its value at q0, at {src}, t = {t:.6g}")
-        return Check("hyperregularity", None, WARN, c if c > COND_WARN else lam, thr, expected,
-                     f"M(q) nearly singular along the motion: {what} ({n} states sampled)", rows)
-    return Check("hyperregularity", None, PASS, c, thr, expected,
-                 f"smallest eigenvalue {lam:.3g} (at t = {t:.4g}), largest condition number {c:.3g} over {n} states", rows)
+                     f"M(q) is not finite at {where(i)} ({n} states sampled)", rows)
+    i = earliest(lam <= 0)
+    if i is not None:
+        first_bad = ts[i]
+        before = np.flatnonzero((ts <= first_bad) & (lam > 0))
+        hint = ""
+        if before.size:
+            j = int(before[np.argmax(cond[before])])
+            hint = f"; before that cond(M) reaches {cond[j]:.3g} (t = {ts[j]:.6g})"
+        return Check("hyperregularity", None, FAIL, float(lam[i]), thr, expected,
+                     f"M(q) loses positive definiteness along the motion: smallest eigenvalue {lam[i]:.3g} at "
+                     f"{where(i)}, the earliest such state{hint}; the Lagrangian is not hyperregular there "
+                     f"(minimum {np.min(lam):.3g}; {n} states sampled)", rows)
+    near = (cond > COND_WARN) | (lam < LAMBDA_RATIO_WARN * lam0)
+    i = earliest(near)
+    if i is not None:
+        what = (f"cond(M) = {cond[i]:.3g}" if cond[i] > COND_WARN else
+                f"smallest eigenvalue {lam[i]:.3g} = {lam[i] / lam0:.2e} x its value at q0")
+        return Check("hyperregularity", None, WARN, float(cond[i] if cond[i] > COND_WARN else lam[i]), thr, expected,
+                     f"M(q) nearly singular along the motion: {what} at {where(i)}, the earliest such state "
+                     f"(largest cond(M) {np.max(cond):.3g}; {n} states sampled)", rows)
+    j = int(np.argmax(cond))
+    return Check("hyperregularity", None, PASS, float(cond[j]), thr, expected,
+                 f"smallest eigenvalue {np.min(lam):.3g}, largest condition number {cond[j]:.3g} (t = {ts[j]:.4g}) "
+                 f"over {n} states", rows)
 
 
 def _vec(q) -> str:

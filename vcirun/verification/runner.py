@@ -219,6 +219,12 @@ def verify(system, methods=None, *, q0=None, p0=None, beta=None, T=5.0, h=None, 
     probe_src = ref if ref_ok else None
     t_probe = [T * (k + 1) / (N_PROBES + 1) for k in range(N_PROBES)]
     probes = [Probe(q0, p0, 0.0, hs[0])]
+    fallback = None
+    if probe_src is None and not smooth_ok:   # no exact solution: states of a run of the first method
+        try:
+            fallback = simulate(sysm, meths[0], h=hs[-1], T=T, q0=q0, p0=p0, params=params)
+        except ValueError:
+            fallback = None
     for t in t_probe:
         if probe_src is not None:
             y = probe_src.state([t])[0]
@@ -226,6 +232,9 @@ def verify(system, methods=None, *, q0=None, p0=None, beta=None, T=5.0, h=None, 
         elif smooth_ok:
             j = int(np.argmin(np.abs(t_smooth - t)))
             probes.append(Probe(qs_ref[j], ps_ref[j], float(t_smooth[j]), hs[0]))
+        elif fallback is not None and len(fallback.t) > N_PROBES + 1:   # spread over the part it reached
+            j = int(np.argmin(np.abs(fallback.t - t * fallback.t[-1] / T)))
+            probes.append(Probe(fallback.q[j], fallback.p[j], float(fallback.t[j]), hs[0]))
     hyper = []   # (source, t, q, eigenvalues or None)
 
     def sample_M(src, ts, Q):
