@@ -13,7 +13,8 @@ __version__ = "0.1.0"
 __all__ = ["simulate", "reference", "l2_error", "Trajectory", "__version__"]
 
 _LAZY = {"simulate": ("api", "simulate"), "reference": ("reference", "reference"),
-         "l2_error": ("reference", "l2_error"), "Trajectory": ("trajectory", "Trajectory")}
+         "l2_error": ("reference", "l2_error"), "Trajectory": ("trajectory", "Trajectory"),
+         "verify": ("verification", "verify")}
 
 
 def __getattr__(name):

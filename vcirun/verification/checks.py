@@ -103,7 +103,7 @@ def hyperregularity_check(samples, lam0) -> Check:
     if not samples:
         return skip("hyperregularity", None, "no states of the motion were available")
     n = len(samples)
-    thr = f"lambda_min > 0; cond(M) <= {COND_WARN:.0e} and lambda_min >= {LAMBDA_RATIO_WARN:.0e} lambda_min(M(q0))"
+    thr = f"lambda_min > 0; cond(M) <= {COND_WARN:.0e}, lambda_min >= {LAMBDA_RATIO_WARN:.0e} x at q0"
     expected = "M(q) symmetric positive definite and well conditioned along the motion"
     lam = np.array([ev[0] if ev is not None else np.nan for _, _, _, ev in samples])
     cond = np.array([ev[-1] / ev[0] if ev is not None and ev[0] > 0 else np.inf for _, _, _, ev in samples])
@@ -196,13 +196,24 @@ def order_check(name, method, hs, errs, theory, *, scale=1.0, tol=ORDER_TOL, one
     data = {"h": hs.tolist(), "err": errs.tolist(), "mask": np.asarray(mask).tolist(), "theory": theory,
             "slope": slope, "h_asymptotic": None}
     if not np.isfinite(slope):
-        if hs.size >= 3 and np.all(np.isfinite(errs)) and np.sum(errs > 1e4 * np.finfo(float).eps * scale) < 3:
+        listed = ", ".join(f"{e:.3g} (h = {h:.4g})" for h, e in sorted(zip(hs, errs), reverse=True)) or "none"
+        big = [e for e in errs if np.isfinite(e) and e > ASYMPTOTIC_REL * scale]
+        if excluded and not hs.size:
+            return Check(name, method, FAIL, slope, thr, expected,
+                         f"no usable run: {'; '.join(f'h = {h:.4g}: {why}' for h, why in excluded)}", rows, data)
+        if excluded or big:
+            why = [f"runs excluded at h = {', '.join(f'{h:.4g} ({w})' for h, w in excluded)}"] if excluded else []
+            if big:
+                why.append(f"the {quantity} is still {max(big) / scale:.2e} of the solution's size")
             return Check(name, method, WARN, slope, thr, expected,
-                         f"fewer than 3 points above the round-off plateau (errors {', '.join(_num(e) for e in errs)}): "
-                         "the ladder is too fine to see the order; use larger h", rows, data)
+                         f"the ladder is too coarse for the asymptotic regime: fewer than 3 usable points ({listed}); "
+                         f"{'; '.join(why)}: use smaller h", rows, data)
+        if hs.size >= 3 and np.all(np.isfinite(errs)) and np.sum(errs > NEAR_ROUND_OFF * 0.1 * EPS * scale) < 3:
+            return Check(name, method, WARN, slope, thr, expected,
+                         f"fewer than 3 points above the round-off plateau ({listed}): the ladder is too fine to see "
+                         "the order; use larger h", rows, data)
         return Check(name, method, FAIL, slope, thr, expected,
-                     f"no order fit: fewer than 3 usable points (errors {', '.join(_num(e) for e in errs) or 'none'})",
-                     rows, data)
+                     f"no order fit: fewer than 3 usable points ({listed})", rows, data)
     used_h = hs[mask]
     sl = [s for _, s in local_slopes(used_h, errs[mask])]          # coarse to fine
     # the asymptotic regime ignores points within 100x of the plateau level (round-off bends them)
@@ -292,7 +303,9 @@ def impact_energy_check(method, rows, energy_name, theory, scale) -> Check:
     change it like a smooth step, O(h^(p+1)); VCI conserves the discrete energy, so H changes by
     O(h^p)). Judged: the least-squares slope of log(jump) against log(h) over the points above the
     round-off plateau (no stall masking: the jump depends on where in the step the impact falls);
-    pass if >= p - ENERGY_TOL or if every jump is at round-off, warn if >= p - 1, fail otherwise."""
+    pass if >= p - ENERGY_TOL or if every jump is at round-off, warn if >= p - 2 ENERGY_TOL, fail otherwise
+    (O(h^(p-1)) per impact would cost the method one order). Forced systems: the change is
+    dH - W, W the work of the forces over the step (the runner computes it)."""
     rows = [r for r in rows if np.isfinite(r["jump"])]
     if not rows:
         return skip("energy across impacts", method, "no run with impacts")
@@ -317,7 +330,7 @@ def impact_energy_check(method, rows, energy_name, theory, scale) -> Check:
                      f"{', '.join(_num(j) for j in jumps)})", shown, data)
     slope = float(np.polyfit(np.log(hs[above]), np.log(jumps[above]), 1)[0])
     data["slope"] = slope
-    v = PASS if slope >= theory - ENERGY_TOL else (WARN if slope >= theory - 1 else FAIL)
+    v = PASS if slope >= theory - ENERGY_TOL else (WARN if slope >= theory - 2 * ENERGY_TOL else FAIL)
     k = int(np.argmin(hs))
     return Check("energy across impacts", method, v, slope, thr, expected,
                  f"largest change of {energy_name} over one impact step against h: slope {slope:.3g} over "
