@@ -97,66 +97,97 @@ def derivative_check(method, rows, n_probes) -> Check:
 # --- hyperregularity -------------------------------------------------------------------------------
 
 def hyperregularity_check(samples, lam0) -> Check:
-    """samples: list of (source, t, q, eigenvalues of M(q) ascending, or None if M(q) is not finite);
-    lam0: smallest eigenvalue of M(q0). Judged at the earliest time along the motion where M(q) is
-    not positive definite (fail) or nearly singular (warn); the extremes over all samples are reported."""
+    """samples: list of (source, t, q, eigenvalues of M(q) ascending or None if M(q) is not finite,
+    h) with h None for an exact solution (the nonsmooth reference, the smooth solution) and the step
+    of a method's run otherwise; lam0: smallest eigenvalue of M(q0).
+
+    Judged on the exact solutions (if there are none: on each method's finest run): fail at the
+    earliest state where M(q) is not finite or not positive definite, warn at the earliest where it is
+    nearly singular (cond(M) > COND_WARN or lambda_min < LAMBDA_RATIO_WARN lambda_min(M(q0))). Runs
+    that leave the region the exact motion stays in (coarse steps going astray) warn."""
     if not samples:
         return skip("hyperregularity", None, "no states of the motion were available")
-    n = len(samples)
     thr = f"lambda_min > 0; cond(M) <= {COND_WARN:.0e}, lambda_min >= {LAMBDA_RATIO_WARN:.0e} x at q0"
     expected = "M(q) symmetric positive definite and well conditioned along the motion"
-    lam = np.array([ev[0] if ev is not None else np.nan for _, _, _, ev in samples])
-    cond = np.array([ev[-1] / ev[0] if ev is not None and ev[0] > 0 else np.inf for _, _, _, ev in samples])
-    ts = np.array([t for _, t, _, _ in samples])
+    exact = [x for x in samples if x[4] is None]
+    if exact:
+        primary, secondary = exact, [x for x in samples if x[4] is not None]
+        basis = "the exact solutions"
+    else:
+        finest = {}
+        for x in samples:
+            finest[x[0].rsplit(" h = ", 1)[0]] = min(finest.get(x[0].rsplit(" h = ", 1)[0], np.inf), x[4])
+        primary = [x for x in samples if x[4] == finest[x[0].rsplit(" h = ", 1)[0]]]
+        secondary = [x for x in samples if x not in primary]
+        basis = "the finest run of each method (no exact solution)"
+    rows = []
 
-    def where(i):
-        src, t, q, _ = samples[i]
+    def stats(group):
+        lam = np.array([ev[0] if ev is not None else np.nan for _, _, _, ev, _ in group])
+        cond = np.array([ev[-1] / ev[0] if ev is not None and ev[0] > 0 else np.inf for _, _, _, ev, _ in group])
+        return lam, cond, np.array([t for _, t, _, _, _ in group])
+
+    def where(group, i):
+        src, t, q, _, _ = group[i]
         return f"{src}, t = {t:.6g}, q = {_vec(q)}"
 
-    fin = np.isfinite(lam)
-    rows = []
-    if fin.any():
-        i = int(np.nanargmin(lam))
-        rows.append({"quantity": "smallest eigenvalue of M", "value": _num(lam[i]),
-                     "relative to its value at q0": _num(lam[i] / lam0), "where": where(i)})
-        pos = np.flatnonzero(fin & (lam > 0))
-        if pos.size:
-            j = int(pos[np.argmax(cond[pos])])
-            rows.append({"quantity": "condition number of M (where positive definite)", "value": _num(cond[j]),
-                         "relative to its value at q0": "", "where": where(j)})
-
-    def earliest(m):
+    def earliest(ts, m):
         idx = np.flatnonzero(m)
         return int(idx[np.argmin(ts[idx])]) if idx.size else None
 
-    i = earliest(~fin)
+    lam, cond, ts = stats(primary)
+    fin = np.isfinite(lam)
+    for label, group in (("exact motion" if exact else "finest runs", primary), ("runs", secondary)):
+        if not group:
+            continue
+        l_, c_, _ = stats(group)
+        if np.isfinite(l_).any():
+            i = int(np.nanargmin(l_))
+            rows.append({"along": label, "quantity": "smallest eigenvalue of M", "value": _num(l_[i]),
+                         "relative to M(q0)'s": _num(l_[i] / lam0), "where": where(group, i)})
+            pos = np.flatnonzero(np.isfinite(l_) & (l_ > 0))
+            if pos.size:
+                j = int(pos[np.argmax(c_[pos])])
+                rows.append({"along": label, "quantity": "condition number of M", "value": _num(c_[j]),
+                             "relative to M(q0)'s": "", "where": where(group, j)})
+    n = len(primary)
+    i = earliest(ts, ~fin)
     if i is not None:
         return Check("hyperregularity", None, FAIL, float("nan"), thr, expected,
-                     f"M(q) is not finite at {where(i)} ({n} states sampled)", rows)
-    i = earliest(lam <= 0)
+                     f"M(q) is not finite at {where(primary, i)} (judged on {basis}, {n} states)", rows)
+    i = earliest(ts, lam <= 0)
     if i is not None:
-        first_bad = ts[i]
-        before = np.flatnonzero((ts <= first_bad) & (lam > 0))
+        before = np.flatnonzero((ts <= ts[i]) & (lam > 0))
         hint = ""
         if before.size:
             j = int(before[np.argmax(cond[before])])
             hint = f"; before that cond(M) reaches {cond[j]:.3g} (t = {ts[j]:.6g})"
         return Check("hyperregularity", None, FAIL, float(lam[i]), thr, expected,
                      f"M(q) loses positive definiteness along the motion: smallest eigenvalue {lam[i]:.3g} at "
-                     f"{where(i)}, the earliest such state{hint}; the Lagrangian is not hyperregular there "
-                     f"(minimum {np.min(lam):.3g}; {n} states sampled)", rows)
+                     f"{where(primary, i)}, the earliest such state{hint}; the Lagrangian is not hyperregular there "
+                     f"(judged on {basis}, {n} states)", rows)
     near = (cond > COND_WARN) | (lam < LAMBDA_RATIO_WARN * lam0)
-    i = earliest(near)
+    i = earliest(ts, near)
     if i is not None:
         what = (f"cond(M) = {cond[i]:.3g}" if cond[i] > COND_WARN else
                 f"smallest eigenvalue {lam[i]:.3g} = {lam[i] / lam0:.2e} x its value at q0")
         return Check("hyperregularity", None, WARN, float(cond[i] if cond[i] > COND_WARN else lam[i]), thr, expected,
-                     f"M(q) nearly singular along the motion: {what} at {where(i)}, the earliest such state "
-                     f"(largest cond(M) {np.max(cond):.3g}; {n} states sampled)", rows)
+                     f"M(q) nearly singular along the motion: {what} at {where(primary, i)}, the earliest such state "
+                     f"(largest cond(M) {np.max(cond):.3g}; judged on {basis}, {n} states)", rows)
     j = int(np.argmax(cond))
-    return Check("hyperregularity", None, PASS, float(cond[j]), thr, expected,
-                 f"smallest eigenvalue {np.min(lam):.3g}, largest condition number {cond[j]:.3g} (t = {ts[j]:.4g}) "
-                 f"over {n} states", rows)
+    note = (f"smallest eigenvalue {np.min(lam):.3g}, largest condition number {cond[j]:.3g} (t = {ts[j]:.4g}) over "
+            f"{n} states of {basis}")
+    if secondary:
+        l2, c2, t2 = stats(secondary)
+        bad = ~np.isfinite(l2) | (l2 <= 0) | (c2 > COND_WARN) | (l2 < LAMBDA_RATIO_WARN * lam0)
+        if bad.any():
+            k = earliest(t2, bad)
+            hs_bad = sorted({x[4] for x, b in zip(secondary, bad) if b}, reverse=True)
+            return Check("hyperregularity", None, WARN, float(l2[k]), thr, expected,
+                         note + f"; but runs at h = {', '.join(f'{h:g}' for h in hs_bad)} leave that region (smallest "
+                         f"eigenvalue {l2[k]:.3g} at {where(secondary, k)}): those steps are too coarse for this "
+                         "motion", rows)
+    return Check("hyperregularity", None, PASS, float(cond[j]), thr, expected, note, rows)
 
 
 def _vec(q) -> str:
@@ -183,14 +214,28 @@ def order_check(name, method, hs, errs, theory, *, scale=1.0, tol=ORDER_TOL, one
     expected = f"order {theory:g}" + (" or more" if one_sided else "")
     thr = (f"slope >= {theory - tol:g}" if one_sided else f"|slope - {theory:g}| <= {tol:g}")
     ls = dict(local_slopes(hs, errs))
-    try:
-        slope, mask = fit_order(hs, errs, scale=scale)
-    except OrderFitError:
-        mask = np.zeros(hs.size, bool)
-        slope = float("nan")
-    for h, e, u in sorted(zip(hs, errs, mask), reverse=True):
+    # fit_order stops at the first point whose error does not decrease; at the coarse end that is a
+    # pre-asymptotic step (e.g. a coarse run that went astray), not the plateau: drop such coarsest
+    # points until a fit exists
+    by_h = np.argsort(hs)[::-1]
+    dropped = np.zeros(hs.size, bool)
+    mask = np.zeros(hs.size, bool)
+    slope = float("nan")
+    for start in range(max(1, hs.size - 2)):
+        keep = np.zeros(hs.size, bool)
+        keep[by_h[start:]] = True
+        try:
+            s_, m_ = fit_order(hs[keep], errs[keep], scale=scale)
+        except OrderFitError:
+            continue
+        slope = s_
+        mask[np.flatnonzero(keep)[m_]] = True
+        dropped[by_h[:start]] = True
+        break
+    for h, e, u, d in sorted(zip(hs, errs, mask, dropped), reverse=True):
         rows.append({"h": f"{h:.4g}", quantity: _num(e), "local slope": _num(ls[float(h)]) if float(h) in ls else "",
-                     "used in fit": "yes" if u else "no (round-off plateau)"})
+                     "used in fit": "yes" if u else ("no (pre-asymptotic: the error stalls)" if d else
+                                                     "no (round-off plateau)")})
     for h, why in (excluded or []):
         rows.append({"h": f"{h:.4g}", quantity: "-", "local slope": "", "used in fit": f"no ({why})"})
     data = {"h": hs.tolist(), "err": errs.tolist(), "mask": np.asarray(mask).tolist(), "theory": theory,
@@ -224,6 +269,8 @@ def order_check(name, method, hs, errs, theory, *, scale=1.0, tol=ORDER_TOL, one
              f"no local slope within {tol:g} of {theory:g} on this ladder")
     local = ", ".join(_num(s) for s in sl)
     fit_ok = slope >= theory - tol if one_sided else abs(slope - theory) <= tol
+    if dropped.any():
+        span += f" (coarser h = {', '.join(f'{h:.4g}' for h in np.sort(hs[dropped])[::-1])} pre-asymptotic: dropped)"
     if fit_ok or n_asym >= 3:
         return Check(name, method, PASS, slope, thr, expected,
                      f"fit over {span} ({int(mask.sum())} points); {where}", rows, data)

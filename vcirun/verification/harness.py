@@ -62,3 +62,24 @@ def run_map(mod, prm, q0, p0, h, N, t0=0.0):
         q, p = step(mod, q, p, h, t0 + k * h, prm)
         Q[k + 1], P[k + 1] = q, p
     return Q, P
+
+
+def smooth_until_failure(mod, prm, q0, p0, T, rtol=1e-13, force=None):
+    """The smooth solution as far as DOP853 gets on [0, T] (every internal step): (t, q, message), with
+    message '' if it reached T. Where `exact_smooth` fails, this shows where and in what state."""
+    from scipy.integrate import solve_ivp
+
+    n = len(q0)
+    buf = np.empty(2 * n)
+
+    def rhs(t, y):
+        mod.hamilton_rhs(y, prm, buf)
+        out = buf.copy()
+        if force is not None:
+            out[n:] += force(y[:n], out[:n], t)
+        return out
+
+    y0 = np.concatenate([q0, p0]).astype(float)
+    atol = rtol * max(1.0, float(np.max(np.abs(y0))))
+    sol = solve_ivp(rhs, (0.0, float(T)), y0, method="DOP853", rtol=rtol, atol=atol)
+    return sol.t, sol.y[:n].T, ("" if sol.status == 0 else sol.message)

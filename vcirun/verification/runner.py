@@ -8,7 +8,7 @@ import numpy as np
 
 from . import checks as ck
 from .fd import Probe, check_kernels, map_jacobian, symplecticity_defect
-from .harness import StepFailed, exact_smooth, step
+from .harness import StepFailed, exact_smooth, smooth_until_failure, step
 
 DEFAULT_METHODS = ("CVA", "MCVAC")
 DEFAULT_H_MAX = 0.04
@@ -185,6 +185,7 @@ def verify(system, methods=None, *, q0=None, p0=None, beta=None, T=5.0, h=None, 
         smooth_ok = False
         add(ck.Check("smooth reference", None, ck.FAIL, float("nan"), "DOP853 succeeds", "a smooth solution on [0, T]",
                      str(e)))
+        partial = smooth_until_failure(base_mod, prm, q0, p0, T, force=force)
     say("exact nonsmooth reference (vcirun.reference: events + elastic reset)")
     ref, ref_ok, ref_reason = None, False, "no exact nonsmooth reference (vcirun.reference failed)"
     try:
@@ -241,21 +242,25 @@ def verify(system, methods=None, *, q0=None, p0=None, beta=None, T=5.0, h=None, 
             probes.append(Probe(fallback.q[j], fallback.p[j], float(fallback.t[j]), hs[0]))
     hyper = []   # (source, t, q, eigenvalues or None)
 
-    def sample_M(src, ts, Q):
+    def sample_M(src, ts, Q, h=None):
         for t, q in zip(ts, Q):
             A = sysm_M(q)
-            hyper.append((src, float(t), np.array(q), np.linalg.eigvalsh(0.5 * (A + A.T)) if np.all(np.isfinite(A)) else None))
+            ev = np.linalg.eigvalsh(0.5 * (A + A.T)) if np.all(np.isfinite(A)) else None
+            hyper.append((src, float(t), np.array(q), ev, h))
 
     def sysm_M(q):
         A = np.empty((n, n))
         base_mod.sys_M(np.ascontiguousarray(q, float), prm, A)
         return A
 
-    if ref_ok or ref is not None:
+    if ref is not None:
         tt = np.linspace(0.0, T, 2001)
         sample_M("exact reference", tt, ref(tt))
     if smooth_ok:
         sample_M("smooth solution (constraint ignored)", t_smooth, qs_ref)
+    else:   # as far as DOP853 got: where it stopped, and in what state of M
+        t_part, q_part, _ = partial
+        sample_M(f"smooth solution up to its failure at t = {t_part[-1]:.6g}", t_part, q_part)
 
     # --- per method -------------------------------------------------------------------------------
     for meth in meths:
@@ -283,7 +288,7 @@ def verify(system, methods=None, *, q0=None, p0=None, beta=None, T=5.0, h=None, 
         sm_h, sm_err, sm_excl = [], [], []
         for x in hs:
             tr = simulate(sysm, meth, h=x, T=T, q0=q0, p0=p0, params=params, constrained=False)
-            sample_M(f"{name} smooth run h = {x:g}", *_thin(tr))
+            sample_M(f"{name} smooth run h = {x:g}", *_thin(tr), h=x)
             if tr.status != "ok":
                 sm_excl.append((x, f"status {tr.status}"))
             elif smooth_ok:
@@ -298,12 +303,16 @@ def verify(system, methods=None, *, q0=None, p0=None, beta=None, T=5.0, h=None, 
             c = ck.skip("smooth order", name, "no smooth reference")
         add(c)
 
+        if meth.reset is None:    # a bare discrete Lagrangian: smooth integration only
+            for nm in ("L2 order through impacts", "impact times", "energy across impacts"):
+                add(ck.skip(nm, name, f"{name} integrates the smooth system (no reset): no impacts to check"))
+            continue
         say(f"{name}: runs through impacts over h = {hs[0]:g} .. {hs[-1]:g}")
         p_imp = _impact_order(meth)
         l2_h, l2, excl, ev_rows, en_rows, hm_h, hm_var, hm_scale, hm_excl = [], [], [], [], [], [], [], [], []
         for x in hs:
             tr = simulate(sysm, meth, h=x, T=T, q0=q0, p0=p0, params=params)
-            sample_M(f"{name} run h = {x:g}", *_thin(tr))
+            sample_M(f"{name} run h = {x:g}", *_thin(tr), h=x)
             if mcva:
                 if tr.status == "ok" and np.all(np.isfinite(tr.Hmod)):
                     hm_h.append(x)
@@ -355,7 +364,21 @@ def verify(system, methods=None, *, q0=None, p0=None, beta=None, T=5.0, h=None, 
         add(ck.impact_energy_check(name, en_rows, "H~" if mcva else ("H - W" if force is not None else "H"), p_imp,
                                    e_scale))
 
-    add(ck.hyperregularity_check(hyper, lam0))
+    c = ck.hyperregularity_check(hyper, lam0)
+    if not smooth_ok:
+        # the exact solution stopped: if M(q) is singular there, that is why (a motion that runs into a
+        # singular mass matrix cannot be integrated, by any method)
+        t_part, q_part, _ = partial
+        A = sysm_M(q_part[-1])
+        ev = np.linalg.eigvalsh(0.5 * (A + A.T)) if np.all(np.isfinite(A)) else None
+        if ev is None or ev[0] <= 0 or ev[-1] / ev[0] > ck.COND_WARN or ev[0] < ck.LAMBDA_RATIO_WARN * lam0:
+            c.verdict = ck.FAIL
+            what = ("not finite" if ev is None else f"smallest eigenvalue {ev[0]:.3g} ({ev[0] / lam0:.2e} x its value at "
+                    f"q0), cond(M) = {ev[-1] / ev[0]:.3g}" if ev[0] > 0 else f"smallest eigenvalue {ev[0]:.3g}")
+            c.value = float("nan") if ev is None else float(ev[0])
+            c.note = (f"the exact motion runs into a singular mass matrix: DOP853 stops at t = {t_part[-1]:.6g}, "
+                      f"q = {ck._vec(q_part[-1])}, where M(q) has {what}; " + c.note)
+    add(c)
     # system-level checks first in the report
     res.checks.sort(key=lambda c: c.method is not None)
     res.seconds = time.perf_counter() - t_start
