@@ -164,6 +164,7 @@ def test_symplecticity_defect_sees_a_dissipative_map(compiled):
 @pytest.mark.parametrize("kwargs, field", [
     (dict(h=[0.1, 0.05]), "h"), (dict(h=[0.1, -0.05, 0.02]), "h"), (dict(T=-1.0), "T"),
     (dict(methods="CVA,NOPE"), "method"), (dict(methods=""), "methods"), (dict(q0=[1.0]), "initial state"),
+    (dict(q0=[-0.7], p0=[0.0]), "q0: the start state is inside the constraint: phi\\(q0\\) = -0.2"),
 ])
 def test_bad_input_names_the_field(kwargs, field):
     args = dict(q0=[1.0], p0=[0.0]) | kwargs

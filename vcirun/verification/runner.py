@@ -143,176 +143,221 @@ def verify(system, methods=None, *, q0=None, p0=None, beta=None, T=5.0, h=None, 
     conservation order; through impacts, the L2 order and the impact-time error against the exact
     reference (vcirun.reference) and the energy change across impact steps.
 
+    Forced systems: the exact smooth solution adds the declared force to Hamilton's equations; the
+    impact checks against vcirun.reference run once it integrates the force (issue 15: it is detected,
+    until then they are skipped with that reason); the energy check balances the forces' work.
+
     Returns a VerifyResult (`.ok`, `.checks`, `.save(path)` writes the Markdown report and figure).
     Bad input raises ValueError naming the field."""
-    from ..api import resolve_system, simulate
-    from ..codegen.build import load_module
-    from ..reference import l2_error, reference
+    s = _Session(system, methods, q0, p0, beta, T, h, params, progress)
+    s.references()
+    s.choose_probes()
+    for meth in s.meths:
+        s.method_checks(meth)
+    s.add(s.hyperregularity())
+    s.res.checks.sort(key=lambda c: c.method is not None)   # system-level checks first
+    s.res.seconds = time.perf_counter() - s.t_start
+    return s.res
 
-    say = progress or (lambda msg: None)
-    t_start = time.perf_counter()
-    T = float(T)
-    if not (T > 0 and np.isfinite(T)):
-        raise ValueError(f"T: must be a positive finite time (got {T})")
-    hs = _ladder(h, T)
-    meths = _methods(methods)
-    sysm = resolve_system(system)
-    prm = sysm.param_values(params)
-    q0, p0 = sysm.initial_state(beta=beta, q0=q0, p0=p0, params=prm)
-    n = sysm.n
-    force_np = _forcing(sysm)
-    force = None if force_np is None else (lambda q, v, t: np.asarray(force_np(q, v, t, prm), float).ravel())
-    res = VerifyResult(system=sysm.name, n=n, methods=[m.name for m in meths], q0=q0, p0=p0, T=T, h=hs,
-                       params=dict(zip(sysm.params, prm.tolist())))
-    add = res.checks.append
-    Mq0 = sysm.mass_matrix(q0, prm)
-    lam0 = float(np.linalg.eigvalsh(0.5 * (Mq0 + Mq0.T))[0])
 
-    # --- references ---------------------------------------------------------------------------
-    say("exact smooth solution (DOP853, constraint ignored)")
-    from ..methods import METHODS
+class _Session:
+    """The state of one verification: the system, start state, ladder, references, and the results."""
 
-    base_mod = load_module(sysm, METHODS["CVA"].kernel_set())   # system kernels + Hamilton's equations
-    H0 = float(base_mod.hamiltonian(q0, p0, prm))
-    N0 = int(round(T / hs[0]))
-    nested = all(abs(T / x - round(T / x)) < 1e-9 * T / x and int(round(T / x)) % N0 == 0 for x in hs)
-    t_smooth = np.linspace(0.0, N0 * hs[0], N0 + 1) if nested else np.unique(np.concatenate(
-        [x * np.arange(int(round(T / x)) + 1) for x in hs]))
-    try:
-        qs_ref, ps_ref = exact_smooth(base_mod, prm, q0, p0, t_smooth, force=force)
-        smooth_ok = True
-    except RuntimeError as e:
-        smooth_ok = False
-        add(ck.Check("smooth reference", None, ck.FAIL, float("nan"), "DOP853 succeeds", "a smooth solution on [0, T]",
-                     str(e)))
-        partial = smooth_until_failure(base_mod, prm, q0, p0, T, force=force)
-    say("exact nonsmooth reference (vcirun.reference: events + elastic reset)")
-    ref, ref_ok, ref_reason = None, False, "no exact nonsmooth reference (vcirun.reference failed)"
-    try:
-        ref = reference(sysm, T=T, q0=q0, p0=p0, params=params)
-        ref_ok = True
-    except (RuntimeError, ValueError) as e:
-        add(ck.Check("reference", None, ck.FAIL, float("nan"), "vcirun.reference succeeds",
-                     "the exact nonsmooth solution on [0, T]", " ".join(str(e).split())))
-    qscale = float(np.max(np.abs(qs_ref))) if smooth_ok else 1.0
-    qscale = max(qscale, 1e-300)
-    if ref_ok:
+    def __init__(self, system, methods, q0, p0, beta, T, h, params, progress):
+        from ..api import resolve_system
+        from ..codegen.build import load_module
+        from ..methods import METHODS
+
+        self.say = progress or (lambda msg: None)
+        self.t_start = time.perf_counter()
+        T = float(T)
+        if not (T > 0 and np.isfinite(T)):
+            raise ValueError(f"T: must be a positive finite time (got {T})")
+        self.T, self.hs = T, _ladder(h, T)
+        self.meths = _methods(methods)
+        self.sysm = sysm = resolve_system(system)
+        self.params = params
+        self.prm = prm = sysm.param_values(params)
+        self.q0, self.p0 = sysm.initial_state(beta=beta, q0=q0, p0=p0, params=prm)
+        self.n = sysm.n
+        phi0 = sysm.phi_value(self.q0, prm)
+        if not phi0 >= 0:   # checked before anything is compiled
+            raise ValueError(f"q0: the start state is inside the constraint: phi(q0) = {phi0:.6g} < 0 for constraint "
+                             f"{sysm.phi} (choose q0 with phi(q0) >= 0)")
+        f = _forcing(sysm)
+        self.force = None if f is None else (lambda q, v, t: np.asarray(f(q, v, t, prm), float).ravel())
+        self.res = VerifyResult(system=sysm.name, n=self.n, methods=[m.name for m in self.meths], q0=self.q0,
+                                p0=self.p0, T=T, h=self.hs, params=dict(zip(sysm.params, prm.tolist())))
+        if self.force is not None:
+            self.res.notes.append("forced system: the exact smooth solution adds the declared generalized force to "
+                                  "Hamilton's equations (sympy.lambdify of the declaration)")
+        self.base = load_module(sysm, METHODS["CVA"].kernel_set())   # system kernels + Hamilton's equations
+        self.H0 = float(self.base.hamiltonian(self.q0, self.p0, prm))
+        Mq0 = self.M(self.q0)
+        self.lam0 = float(np.linalg.eigvalsh(0.5 * (Mq0 + Mq0.T))[0])
+        self.hyper = []   # (source, t, q, eigenvalues of M or None, h of a run or None)
+
+    def add(self, check):
+        self.res.checks.append(check)
+
+    def M(self, q):
+        A = np.empty((self.n, self.n))
+        self.base.sys_M(np.ascontiguousarray(q, float), self.prm, A)
+        return A
+
+    def sample_M(self, src, ts, Q, h=None):
+        for t, q in zip(ts, Q):
+            A = self.M(q)
+            ev = np.linalg.eigvalsh(0.5 * (A + A.T)) if np.all(np.isfinite(A)) else None
+            self.hyper.append((src, float(t), np.array(q), ev, h))
+
+    def simulate(self, meth, h, **kw):
+        from ..api import simulate
+
+        return simulate(self.sysm, meth, h=h, T=self.T, q0=self.q0, p0=self.p0, params=self.params, **kw)
+
+    # --- the exact solutions ------------------------------------------------------------------------
+    def references(self):
+        """The exact smooth solution on the coarsest grid (constraint ignored) and vcirun.reference."""
+        from ..reference import reference
+
+        T, hs = self.T, self.hs
+        self.say("exact smooth solution (DOP853, constraint ignored)")
+        self.N0 = N0 = int(round(T / hs[0]))
+        self.nested = all(abs(T / x - round(T / x)) < 1e-9 * T / x and int(round(T / x)) % N0 == 0 for x in hs)
+        self.t_smooth = np.linspace(0.0, N0 * hs[0], N0 + 1) if self.nested else np.unique(np.concatenate(
+            [x * np.arange(int(round(T / x)) + 1) for x in hs]))
+        self.partial = None
+        try:
+            self.qs_ref, self.ps_ref = exact_smooth(self.base, self.prm, self.q0, self.p0, self.t_smooth,
+                                                    force=self.force)
+            self.smooth_ok = True
+            self.qscale = max(float(np.max(np.abs(self.qs_ref))), 1e-300)
+            self.sample_M("smooth solution (constraint ignored)", self.t_smooth, self.qs_ref)
+        except RuntimeError as e:
+            self.smooth_ok, self.qscale = False, 1.0
+            self.add(ck.Check("smooth reference", None, ck.FAIL, float("nan"), "DOP853 succeeds",
+                              "a smooth solution on [0, T]", str(e)))
+            self.partial = smooth_until_failure(self.base, self.prm, self.q0, self.p0, T, force=self.force)
+            t_part, q_part, _ = self.partial   # as far as DOP853 got: where it stopped, and the state of M there
+            self.sample_M(f"smooth solution up to its failure at t = {t_part[-1]:.6g}", t_part, q_part)
+        self.say("exact nonsmooth reference (vcirun.reference: events + elastic reset)")
+        self.ref, self.ref_ok = None, False
+        self.ref_reason = "no exact nonsmooth reference (vcirun.reference failed)"
+        try:
+            self.ref = reference(self.sysm, T=T, q0=self.q0, p0=self.p0, params=self.params)
+        except (RuntimeError, ValueError) as e:
+            self.add(ck.Check("reference", None, ck.FAIL, float("nan"), "vcirun.reference succeeds",
+                              "the exact nonsmooth solution on [0, T]", " ".join(str(e).split())))
+            return
+        self.ref_ok = True
+        ref = self.ref
         tt = np.linspace(0.0, T, 2001)
-        ref_scale = float(np.max(np.abs(ref(tt))))
+        qt = ref(tt)
+        self.ref_scale = max(float(np.max(np.abs(qt))), 1e-300)
         acc = float(ref.accuracy)
         rows = [{"impacts": len(ref.impacts), "first impacts": ", ".join(f"{t:.6g}" for t in ref.impacts[:6]),
                  "accuracy (vs a 10x tighter solve)": ck._num(acc)}]
-        v = ck.PASS if acc <= 1e-8 * max(1.0, ref_scale) else ck.WARN
+        v = ck.PASS if acc <= 1e-8 * max(1.0, self.ref_scale) else ck.WARN
         note = f"{len(ref.impacts)} impacts on [0, {T:g}]; self-reported accuracy {acc:.2e}"
         # (issue 15) until vcirun.reference integrates the generalized force, a forced system's exact
-        # reference is the unforced motion: detect it against the forced smooth solve before the first impact
-        if force is not None and smooth_ok:
-            t1 = ref.impacts[0] if len(ref.impacts) else T
-            m = t_smooth < 0.9 * t1
-            if m.sum() >= 2:
-                dev = float(np.max(np.abs(ref(t_smooth[m]) - qs_ref[m])))
-                if dev > 1e-7 * max(1.0, qscale):
-                    ref_ok = False
-                    ref_reason = "vcirun.reference ignores this system's forcing (issue 15)"
-                    v = ck.WARN
-                    note = (f"vcirun.reference ignores the forcing of this system (differs from the forced smooth "
-                            f"solution by {dev:.2e} before the first impact; issue 15): impact checks skipped")
-        add(ck.Check("reference", None, v, acc, "accuracy <= 1e-8 (relative to max |q|)",
-                     "an exact reference far more accurate than the methods", note, rows))
+        # reference is the unforced motion: detected against the forced smooth solve before the first impact
+        if self.force is not None and self.smooth_ok:
+            m = self.t_smooth < 0.9 * (ref.impacts[0] if len(ref.impacts) else T)
+            dev = float(np.max(np.abs(ref(self.t_smooth[m]) - self.qs_ref[m]))) if m.sum() >= 2 else 0.0
+            if dev > 1e-7 * max(1.0, self.qscale):
+                self.ref_ok = False
+                self.ref_reason = "vcirun.reference ignores this system's forcing (issue 15)"
+                v = ck.WARN
+                note = (f"vcirun.reference ignores the forcing of this system (differs from the forced smooth "
+                        f"solution by {dev:.2e} before the first impact; issue 15): impact checks skipped")
+        if self.ref_ok:
+            self.sample_M("exact reference", tt, qt)
+        self.add(ck.Check("reference", None, v, acc, "accuracy <= 1e-8 max |q|",
+                          "an exact reference far more accurate than the methods", note, rows))
 
-    # --- probes: the start and states along the motion ---------------------------------------------
-    probe_src = ref if ref_ok else None
-    t_probe = [T * (k + 1) / (N_PROBES + 1) for k in range(N_PROBES)]
-    probes = [Probe(q0, p0, 0.0, hs[0])]
-    fallback = None
-    if probe_src is None and not smooth_ok:   # no exact solution: states of a run of the first method
-        try:
-            fallback = simulate(sysm, meths[0], h=hs[-1], T=T, q0=q0, p0=p0, params=params)
-        except ValueError:
-            fallback = None
-    for t in t_probe:
-        if probe_src is not None:
-            y = probe_src.state([t])[0]
-            probes.append(Probe(y[:n], y[n:], t, hs[0]))
-        elif smooth_ok:
-            j = int(np.argmin(np.abs(t_smooth - t)))
-            probes.append(Probe(qs_ref[j], ps_ref[j], float(t_smooth[j]), hs[0]))
-        elif fallback is not None and len(fallback.t) > N_PROBES + 1:   # spread over the part it reached
-            j = int(np.argmin(np.abs(fallback.t - t * fallback.t[-1] / T)))
-            probes.append(Probe(fallback.q[j], fallback.p[j], float(fallback.t[j]), hs[0]))
-    hyper = []   # (source, t, q, eigenvalues or None)
+    def choose_probes(self):
+        """The start state and N_PROBES states along the exact motion (or a run, if there is none)."""
+        T, n, h0 = self.T, self.n, self.hs[0]
+        self.probes = [Probe(self.q0, self.p0, 0.0, h0)]
+        run = None
+        if not self.ref_ok and not self.smooth_ok:
+            try:
+                run = self.simulate(self.meths[0], self.hs[-1])
+            except ValueError:
+                run = None
+        for k in range(N_PROBES):
+            t = T * (k + 1) / (N_PROBES + 1)
+            if self.ref_ok:
+                y = self.ref.state([t])[0]
+                self.probes.append(Probe(y[:n], y[n:], t, h0))
+            elif self.smooth_ok:
+                j = int(np.argmin(np.abs(self.t_smooth - t)))
+                self.probes.append(Probe(self.qs_ref[j], self.ps_ref[j], float(self.t_smooth[j]), h0))
+            elif run is not None and len(run.t) > N_PROBES + 1:   # spread over the part it reached
+                j = int(np.argmin(np.abs(run.t - t * run.t[-1] / T)))
+                self.probes.append(Probe(run.q[j], run.p[j], float(run.t[j]), h0))
 
-    def sample_M(src, ts, Q, h=None):
-        for t, q in zip(ts, Q):
-            A = sysm_M(q)
-            ev = np.linalg.eigvalsh(0.5 * (A + A.T)) if np.all(np.isfinite(A)) else None
-            hyper.append((src, float(t), np.array(q), ev, h))
-
-    def sysm_M(q):
-        A = np.empty((n, n))
-        base_mod.sys_M(np.ascontiguousarray(q, float), prm, A)
-        return A
-
-    if ref is not None:
-        tt = np.linspace(0.0, T, 2001)
-        sample_M("exact reference", tt, ref(tt))
-    if smooth_ok:
-        sample_M("smooth solution (constraint ignored)", t_smooth, qs_ref)
-    else:   # as far as DOP853 got: where it stopped, and in what state of M
-        t_part, q_part, _ = partial
-        sample_M(f"smooth solution up to its failure at t = {t_part[-1]:.6g}", t_part, q_part)
-
-    # --- per method -------------------------------------------------------------------------------
-    for meth in meths:
-        from ..discrete.lagrangians import LIBRARY
+    # --- one method --------------------------------------------------------------------------------
+    def method_checks(self, meth):
+        from ..codegen.build import load_module
 
         name = meth.name
         ks = meth.kernel_set()
-        say(f"{name}: loading its compiled module")
-        p_smooth = LIBRARY[meth.ld].order
-        mcva = meth.reset == "mcva"
+        self.say(f"{name}: loading its compiled module")
         try:
-            mod = load_module(sysm, ks)
+            mod = load_module(self.sysm, ks)
         except ValueError as e:   # e.g. the MCVA family on a forced system (until issue 15)
-            add(ck.skip("every check", name, f"{name} does not run on this system: {' '.join(str(e).split())}"))
-            continue
-
-        say(f"{name}: derivative checks of the generated kernels at {len(probes)} states")
-        rows = check_kernels(mod, prm, probes, force=force, full_stages=ks.full_stages)
-        add(ck.derivative_check(name, rows, len(probes)))
-
-        say(f"{name}: symplecticity defect of its one-step maps")
-        add(ck.symplecticity_check(name, _symplecticity_rows(mod, prm, probes, hs, mcva, n), force is not None))
-
-        say(f"{name}: smooth runs (constraint ignored) over h = {hs[0]:g} .. {hs[-1]:g}")
-        sm_h, sm_err, sm_excl = [], [], []
-        for x in hs:
-            tr = simulate(sysm, meth, h=x, T=T, q0=q0, p0=p0, params=params, constrained=False)
-            sample_M(f"{name} smooth run h = {x:g}", *_thin(tr), h=x)
-            if tr.status != "ok":
-                sm_excl.append((x, f"status {tr.status}"))
-            elif smooth_ok:
-                sm_h.append(x)
-                sm_err.append(_smooth_error(tr, x, T, N0, nested, t_smooth, qs_ref))
-        if smooth_ok:
-            c = ck.order_check("smooth order", name, sm_h, sm_err, p_smooth, scale=qscale, quantity="max |q - q_exact|",
-                               excluded=sm_excl)
-            c.note += f" (Ld {meth.ld}, constraint ignored)"
-            c.expected += f" (Ld {meth.ld})"
-        else:
-            c = ck.skip("smooth order", name, "no smooth reference")
-        add(c)
-
+            self.add(ck.skip("every check", name, f"{name} does not run on this system: {' '.join(str(e).split())}"))
+            return
+        mcva = meth.reset == "mcva"
+        self.say(f"{name}: derivative checks of the generated kernels at {len(self.probes)} states")
+        rows = check_kernels(mod, self.prm, self.probes, force=self.force, full_stages=ks.full_stages)
+        self.add(ck.derivative_check(name, rows, len(self.probes)))
+        self.say(f"{name}: symplecticity defect of its one-step maps")
+        rows = _symplecticity_rows(mod, self.prm, self.probes, self.hs, mcva, self.n)
+        self.add(ck.symplecticity_check(name, rows, self.force is not None))
+        self.smooth_order(meth)
         if meth.reset is None:    # a bare discrete Lagrangian: smooth integration only
             for nm in ("L2 order through impacts", "impact times", "energy across impacts"):
-                add(ck.skip(nm, name, f"{name} integrates the smooth system (no reset): no impacts to check"))
-            continue
-        say(f"{name}: runs through impacts over h = {hs[0]:g} .. {hs[-1]:g}")
-        p_imp = _impact_order(meth)
-        l2_h, l2, excl, ev_rows, en_rows, hm_h, hm_var, hm_scale, hm_excl = [], [], [], [], [], [], [], [], []
+                self.add(ck.skip(nm, name, f"{name} integrates the smooth system (no reset): no impacts to check"))
+            return
+        self.impact_checks(meth)
+
+    def smooth_order(self, meth):
+        from ..discrete.lagrangians import LIBRARY
+
+        name, hs = meth.name, self.hs
+        self.say(f"{name}: smooth runs (constraint ignored) over h = {hs[0]:g} .. {hs[-1]:g}")
+        used, errs, excl = [], [], []
         for x in hs:
-            tr = simulate(sysm, meth, h=x, T=T, q0=q0, p0=p0, params=params)
-            sample_M(f"{name} run h = {x:g}", *_thin(tr), h=x)
+            tr = self.simulate(meth, x, constrained=False)
+            self.sample_M(f"{name} smooth run h = {x:g}", *_thin(tr), h=x)
+            if tr.status != "ok":
+                excl.append((x, f"status {tr.status}"))
+            elif self.smooth_ok:
+                used.append(x)
+                errs.append(_smooth_error(tr, x, self.T, self.N0, self.nested, self.t_smooth, self.qs_ref))
+        if not self.smooth_ok:
+            self.add(ck.skip("smooth order", name, "no smooth reference"))
+            return
+        c = ck.order_check("smooth order", name, used, errs, LIBRARY[meth.ld].order, scale=self.qscale,
+                           quantity="max |q - q_exact|", excluded=excl)
+        c.note += f" (Ld {meth.ld}, constraint ignored)"
+        c.expected += f" (Ld {meth.ld})"
+        self.add(c)
+
+    def impact_checks(self, meth):
+        """Runs through impacts over the ladder: L2 order, impact times, energy across impact steps, and
+        (MCVA family) the truncated modified Hamiltonian's conservation order."""
+        name, hs, ref = meth.name, self.hs, self.ref
+        mcva = meth.reset == "mcva"
+        self.say(f"{name}: runs through impacts over h = {hs[0]:g} .. {hs[-1]:g}")
+        l2_h, l2, excl, ev_rows, en_rows = [], [], [], [], []
+        hm_h, hm_var, hm_scale, hm_excl = [], [], [], []
+        for x in hs:
+            tr = self.simulate(meth, x)
+            self.sample_M(f"{name} run h = {x:g}", *_thin(tr), h=x)
             if mcva:
                 if tr.status == "ok" and np.all(np.isfinite(tr.Hmod)):
                     hm_h.append(x)
@@ -320,72 +365,74 @@ def verify(system, methods=None, *, q0=None, p0=None, beta=None, T=5.0, h=None, 
                     hm_scale.append(float(np.mean(np.abs(tr.Hmod))))
                 else:
                     hm_excl.append((x, f"status {tr.status}"))
-            if ref_ok:
-                nimp = len(tr.impacts)
-                same = tr.status == "ok" and nimp == len(ref.impacts)
+            if self.ref_ok:
+                nimp, nref = len(tr.impacts), len(ref.impacts)
+                same = tr.status == "ok" and nimp == nref
                 terr = float(np.max(np.abs(tr.impacts - ref.impacts))) if same and nimp else float("nan")
-                ev_rows.append({"h": x, "n_impacts": nimp, "n_ref": len(ref.impacts), "time_error": terr,
-                                "status": tr.status})
+                ev_rows.append({"h": x, "n_impacts": nimp, "n_ref": nref, "time_error": terr, "status": tr.status})
                 if tr.status != "ok":
                     excl.append((x, f"status {tr.status}"))
-                elif nimp != len(ref.impacts):
-                    excl.append((x, f"{nimp} impacts, reference {len(ref.impacts)}"))
+                elif nimp != nref:
+                    excl.append((x, f"{nimp} impacts, reference {nref}"))
                 else:
+                    from ..reference import l2_error
+
                     l2_h.append(x)
                     l2.append(l2_error(tr, ref))
-            if tr.status != "ok":
-                continue
-            dE = _energy_changes(tr, base_mod, prm, force, mcva)
-            imp = np.asarray(tr.impact_step, bool)[: dE.size]
-            en_rows.append({"h": x, "jump": float(dE[imp].max()) if imp.any() else float("nan"),
-                            "smooth": float(dE[~imp].max()) if (~imp).any() else float("nan")})
+            if tr.status == "ok":
+                dE = _energy_changes(tr, self.base, self.prm, self.force, mcva)
+                imp = np.asarray(tr.impact_step, bool)[: dE.size]
+                en_rows.append({"h": x, "jump": float(dE[imp].max()) if imp.any() else float("nan"),
+                                "smooth": float(dE[~imp].max()) if (~imp).any() else float("nan")})
         if mcva:
-            if force is not None:
-                add(ck.skip("modified Hamiltonian", name, "forced system: H~ is not conserved"))
+            if self.force is not None:
+                self.add(ck.skip("modified Hamiltonian", name, "forced system: H~ is not conserved"))
             else:
-                sc = float(np.mean(hm_scale)) if hm_scale else 1.0
-                c = ck.order_check("modified Hamiltonian", name, hm_h, hm_var, meth.mh_order, scale=sc, tol=ck.MH_TOL,
+                c = ck.order_check("modified Hamiltonian", name, hm_h, hm_var, meth.mh_order,
+                                   scale=float(np.mean(hm_scale)) if hm_scale else 1.0, tol=ck.MH_TOL,
                                    quantity="max - min of H~ over [0, T]", excluded=hm_excl)
                 c.expected = f"variation ~ h^{meth.mh_order} (mh_order {meth.mh_order})"
                 c.note += " (along the runs through impacts: R^MCVA conserves H~, the smooth steps vary it)"
-                add(c)
-        e_scale = float(np.mean(hm_scale)) if (mcva and hm_scale) else abs(float(H0)) or 1.0
-        if ref_ok:
-            c = ck.order_check("L2 order through impacts", name, l2_h, l2, p_imp, scale=qscale * np.sqrt(T),
-                               quantity="L2 error", excluded=excl)
+                self.add(c)
+        p_imp = _impact_order(meth)
+        if self.ref_ok:
+            c = ck.order_check("L2 order through impacts", name, l2_h, l2, p_imp,
+                               scale=self.ref_scale * np.sqrt(self.T), quantity="L2 error", excluded=excl)
             if excl and c.verdict == ck.PASS:
                 c.verdict = ck.WARN
                 c.note = f"runs excluded: {'; '.join(f'h = {x:g}: {why}' for x, why in excl)}; " + c.note
-            add(c)
-            add(ck.impact_events_check(name, ev_rows, p_imp, T))
+            self.add(c)
+            self.add(ck.impact_events_check(name, ev_rows, p_imp, self.T))
         else:
             for nm in ("L2 order through impacts", "impact times"):
-                add(ck.skip(nm, name, ref_reason))
-        add(ck.impact_energy_check(name, en_rows, "H~" if mcva else ("H - W" if force is not None else "H"), p_imp,
-                                   e_scale))
+                self.add(ck.skip(nm, name, self.ref_reason))
+        e_scale = float(np.mean(hm_scale)) if (mcva and hm_scale) else abs(self.H0) or 1.0
+        energy = "H~" if mcva else ("H - W" if self.force is not None else "H")
+        self.add(ck.impact_energy_check(name, en_rows, energy, p_imp, e_scale))
 
-    c = ck.hyperregularity_check(hyper, lam0)
-    if not smooth_ok:
+    # --- hyperregularity ---------------------------------------------------------------------------
+    def hyperregularity(self):
+        c = ck.hyperregularity_check(self.hyper, self.lam0)
+        if self.partial is None:
+            return c
         # the exact solution stopped: if M(q) is singular there, that is why (a motion that runs into a
         # singular mass matrix cannot be integrated, by any method)
-        t_part, q_part, _ = partial
-        A = sysm_M(q_part[-1])
+        t_part, q_part, _ = self.partial
+        A = self.M(q_part[-1])
         ev = np.linalg.eigvalsh(0.5 * (A + A.T)) if np.all(np.isfinite(A)) else None
-        if ev is None or ev[0] <= 0 or ev[-1] / ev[0] > ck.COND_WARN or ev[0] < ck.LAMBDA_RATIO_WARN * lam0:
+        if ev is None or ev[0] <= 0 or ev[-1] / ev[0] > ck.COND_WARN or ev[0] < ck.LAMBDA_RATIO_WARN * self.lam0:
+            if ev is None:
+                what = "entries that are not finite"
+            elif ev[0] > 0:
+                what = (f"smallest eigenvalue {ev[0]:.3g} ({ev[0] / self.lam0:.2e} x its value at q0), "
+                        f"cond(M) = {ev[-1] / ev[0]:.3g}")
+            else:
+                what = f"smallest eigenvalue {ev[0]:.3g}"
             c.verdict = ck.FAIL
-            what = ("not finite" if ev is None else f"smallest eigenvalue {ev[0]:.3g} ({ev[0] / lam0:.2e} x its value at "
-                    f"q0), cond(M) = {ev[-1] / ev[0]:.3g}" if ev[0] > 0 else f"smallest eigenvalue {ev[0]:.3g}")
             c.value = float("nan") if ev is None else float(ev[0])
             c.note = (f"the exact motion runs into a singular mass matrix: DOP853 stops at t = {t_part[-1]:.6g}, "
                       f"q = {ck._vec(q_part[-1])}, where M(q) has {what}; " + c.note)
-    add(c)
-    # system-level checks first in the report
-    res.checks.sort(key=lambda c: c.method is not None)
-    res.seconds = time.perf_counter() - t_start
-    if force is not None:
-        res.notes.append("forced system: the exact smooth solution adds the declared generalized force to "
-                         "Hamilton's equations (sympy.lambdify of the declaration)")
-    return res
+        return c
 
 
 def _energy_changes(tr, mod, prm, force, mcva):
