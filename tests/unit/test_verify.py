@@ -114,6 +114,10 @@ def test_energy_across_impacts_verdicts():
     c = ck.impact_energy_check("X", rows(0.1 * hs), "H", 2, 1.0)   # O(h) per impact: the order is lost
     assert c.verdict == ck.FAIL and c.value == pytest.approx(1.0)
     assert ck.impact_energy_check("X", rows(np.full(4, 1e-16)), "H~", 2, 1.0).verdict == ck.PASS
+    # a noisy slope below p - 0.3, but no impact step worse than the smooth steps: the order is safe
+    noisy = [{"h": h, "jump": j, "smooth": 1e-3 * h} for h, j in zip(hs, [1e-5, 1e-6, 8e-7, 2e-7])]
+    c = ck.impact_energy_check("X", noisy, "H", 4, 1.0)
+    assert c.verdict == ck.PASS and c.value < 3.7 and "at most" in c.note
 
 
 class _Perturbed:

@@ -21,6 +21,7 @@ LAMBDA_RATIO_WARN = 1e-4  # smallest eigenvalue of M fallen below this fraction 
 ASYMPTOTIC_REL = 1e-3     # an order miss with relative errors below this is a wrong method, not a coarse ladder
 NEAR_ROUND_OFF = 1e5      # errors below this many eps (relative) are near the plateau: not used for the asymptotic h
 ENERGY_TOL = 0.3          # one-sided tolerance on the order of the energy change across impact steps
+IMPACT_RATIO = 10.0       # ... or an impact step changes the energy at most this many times a smooth step
 
 
 @dataclass
@@ -350,7 +351,9 @@ def impact_energy_check(method, rows, energy_name, theory, scale) -> Check:
     change it like a smooth step, O(h^(p+1)); VCI conserves the discrete energy, so H changes by
     O(h^p)). Judged: the least-squares slope of log(jump) against log(h) over the points above the
     round-off plateau (no stall masking: the jump depends on where in the step the impact falls);
-    pass if >= p - ENERGY_TOL or if every jump is at round-off, warn if >= p - 2 ENERGY_TOL, fail otherwise
+    pass if >= p - ENERGY_TOL, or if every jump is at round-off, or if every impact step changes the
+    energy at most IMPACT_RATIO times as much as the largest smooth step; warn if >= p - 2 ENERGY_TOL,
+    fail otherwise
     (O(h^(p-1)) per impact would cost the method one order). Forced systems: the change is
     dH - W, W the work of the forces over the step (the runner computes it)."""
     rows = [r for r in rows if np.isfinite(r["jump"])]
@@ -377,10 +380,19 @@ def impact_energy_check(method, rows, energy_name, theory, scale) -> Check:
                      f"{', '.join(_num(j) for j in jumps)})", shown, data)
     slope = float(np.polyfit(np.log(hs[above]), np.log(jumps[above]), 1)[0])
     data["slope"] = slope
-    v = PASS if slope >= theory - ENERGY_TOL else (WARN if slope >= theory - 2 * ENERGY_TOL else FAIL)
+    smooth = np.array([r["smooth"] for r in rows])
+    ratios = jumps[above] / np.maximum(smooth[above], 1e-300)
     k = int(np.argmin(hs))
-    return Check("energy across impacts", method, v, slope, thr, expected,
-                 f"largest change of {energy_name} over one impact step against h: slope {slope:.3g} over "
-                 f"{int(above.sum())} steps; at h = {hs[k]:.4g} it is {jumps[k]:.2e} "
-                 f"({jumps[k] / rows[k]['smooth']:.3g} x the largest smooth step's)" if rows[k]["smooth"] > 0 else "",
-                 shown, data)
+    note = (f"largest change of {energy_name} over one impact step against h: slope {slope:.3g} over "
+            f"{int(above.sum())} steps; at h = {hs[k]:.4g} it is {jumps[k]:.2e}"
+            + (f" ({jumps[k] / smooth[k]:.3g} x the largest smooth step's)" if smooth[k] > 0 else ""))
+    if slope >= theory - ENERGY_TOL:
+        return Check("energy across impacts", method, PASS, slope, thr, expected, note, shown, data)
+    if np.all(ratios <= IMPACT_RATIO):
+        # the impact steps change the energy no more than the smooth steps do (the jumps depend on where
+        # in the step the impact falls, which makes their slope noisy): they cannot cost an order
+        return Check("energy across impacts", method, PASS, slope, thr + f" or impact / smooth step <= {IMPACT_RATIO:g}",
+                     expected, note + f"; every impact step changes {energy_name} at most {ratios.max():.3g} x as much "
+                     "as the largest smooth step", shown, data)
+    v = WARN if slope >= theory - 2 * ENERGY_TOL else FAIL
+    return Check("energy across impacts", method, v, slope, thr, expected, note, shown, data)

@@ -96,7 +96,8 @@ def markdown(res, figure=None) -> str:
           "not judged; a forced map is reported, not judged).",
           "- energy across impacts: the largest change of H (H~ for the MCVA family; H minus the work of the forces "
           "for a forced system) over one impact step, against h: slope at least p - 0.3 (O(h^p) per impact keeps "
-          "the global order p), warn down to p - 0.6, fail below; pass if every change is at round-off.", ""]
+          "the global order p), or every impact step changing it at most 10x as much as the largest smooth "
+          "step, or every change at round-off; warn down to p - 0.6, fail below.", ""]
     return "\n".join(L)
 
 

@@ -237,7 +237,7 @@ class _Session:
         except RuntimeError as e:
             self.smooth_ok, self.qscale = False, 1.0
             self.add(ck.Check("smooth reference", None, ck.FAIL, float("nan"), "DOP853 succeeds",
-                              "a smooth solution on [0, T]", str(e)))
+                              "a smooth solution on [0, T]", _message(e, "smooth reference")))
             self.partial = smooth_until_failure(self.base, self.prm, self.q0, self.p0, T, force=self.force)
             t_part, q_part, _ = self.partial   # as far as DOP853 got: where it stopped, and the state of M there
             self.sample_M(f"smooth solution up to its failure at t = {t_part[-1]:.6g}", t_part, q_part)
@@ -248,7 +248,7 @@ class _Session:
             self.ref = reference(self.sysm, T=T, q0=self.q0, p0=self.p0, params=self.params)
         except (RuntimeError, ValueError) as e:
             self.add(ck.Check("reference", None, ck.FAIL, float("nan"), "vcirun.reference succeeds",
-                              "the exact nonsmooth solution on [0, T]", " ".join(str(e).split())))
+                              "the exact nonsmooth solution on [0, T]", _message(e, "reference")))
             return
         self.ref_ok = True
         ref = self.ref
@@ -433,6 +433,12 @@ class _Session:
             c.note = (f"the exact motion runs into a singular mass matrix: DOP853 stops at t = {t_part[-1]:.6g}, "
                       f"q = {ck._vec(q_part[-1])}, where M(q) has {what}; " + c.note)
         return c
+
+
+def _message(e, prefix) -> str:
+    """An exception's text on one line, without a leading 'prefix: ' (the check already names it)."""
+    text = " ".join(str(e).split())
+    return text[len(prefix) + 2:] if text.startswith(prefix + ": ") else text
 
 
 def _energy_changes(tr, mod, prm, force, mcva):
