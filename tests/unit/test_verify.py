@@ -41,7 +41,7 @@ def test_end_to_end_on_the_oscillator_wall(ow_result, tmp_path):
     assert abs(res.check("L2 order through impacts", "CVA").value - 2) < 0.15
     assert res.check("symplecticity", "CVA").value < 1e-10
     kernels = {r["kernel"] for r in res.check("derivatives", "CVA").rows}
-    assert {"SVC_PmJ (r)", "SVC_PmJ (J)", "SVC_Pp", "SVC_Ed", "sys_dHq", "sys_dphi", "ld_step"} <= kernels
+    assert {"SVC_PmJ (r)", "SVC_PmJ (J)", "SVC_Pp", "SVC_Ed", "sys_dHq", "sys_dphi", "ld_step", "sys_M"} <= kernels
     paths = res.save(tmp_path / "report.md")
     text = (tmp_path / "report.md").read_text()
     assert "**Verdict: pass**" in text and "| smooth order | CVA | pass |" in text

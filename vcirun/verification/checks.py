@@ -46,12 +46,13 @@ class Check:
 
     def line(self) -> str:
         who = f" [{self.method}]" if self.method else ""
-        val = "-" if self.value is None or not np.isfinite(self.value) and self.verdict == SKIP else _num(self.value)
+        val = "-" if self.value is None or not np.isfinite(self.value) and self.verdict == SKIP else fmt(self.value)
         return f"{self.verdict.upper():4s}  {self.name}{who}: {val} (threshold {self.threshold}; expected {self.expected})" + (
             f" - {self.note}" if self.note else "")
 
 
-def _num(x) -> str:
+def fmt(x) -> str:
+    """A number for the report: 3 significant digits, exponent form outside [1e-2, 1e4)."""
     if x is None:
         return "-"
     x = float(x)
@@ -82,7 +83,7 @@ def derivative_check(method, rows, n_probes) -> Check:
     out, worst, worst_row = [], PASS, None
     for r in rows:
         v = by_threshold(r["worst"], r["thresholds"])
-        out.append({"kernel": r["kernel"], "checked against": r["against"], "max rel. error": _num(r["worst"]),
+        out.append({"kernel": r["kernel"], "checked against": r["against"], "max rel. error": fmt(r["worst"]),
                     "pass / warn below": f"{r['thresholds'][0]:.0e} / {r['thresholds'][1]:.0e}", "verdict": v})
         ratio = r["worst"] / r["thresholds"][0]
         if worst_row is None or order[v] > order[worst] or (order[v] == order[worst] and ratio > worst_row[0]):
@@ -130,7 +131,7 @@ def hyperregularity_check(samples, lam0) -> Check:
 
     def where(group, i):
         src, t, q, _, _ = group[i]
-        return f"{src}, t = {t:.6g}, q = {_vec(q)}"
+        return f"{src}, t = {t:.6g}, q = {fmt_vec(q)}"
 
     def earliest(ts, m):
         idx = np.flatnonzero(m)
@@ -144,12 +145,12 @@ def hyperregularity_check(samples, lam0) -> Check:
         l_, c_, _ = stats(group)
         if np.isfinite(l_).any():
             i = int(np.nanargmin(l_))
-            rows.append({"along": label, "quantity": "smallest eigenvalue of M", "value": _num(l_[i]),
-                         "relative to M(q0)'s": _num(l_[i] / lam0), "where": where(group, i)})
+            rows.append({"along": label, "quantity": "smallest eigenvalue of M", "value": fmt(l_[i]),
+                         "relative to M(q0)'s": fmt(l_[i] / lam0), "where": where(group, i)})
             pos = np.flatnonzero(np.isfinite(l_) & (l_ > 0))
             if pos.size:
                 j = int(pos[np.argmax(c_[pos])])
-                rows.append({"along": label, "quantity": "condition number of M", "value": _num(c_[j]),
+                rows.append({"along": label, "quantity": "condition number of M", "value": fmt(c_[j]),
                              "relative to M(q0)'s": "", "where": where(group, j)})
     n = len(primary)
     i = earliest(ts, ~fin)
@@ -191,7 +192,8 @@ def hyperregularity_check(samples, lam0) -> Check:
     return Check("hyperregularity", None, PASS, float(cond[j]), thr, expected, note, rows)
 
 
-def _vec(q) -> str:
+def fmt_vec(q) -> str:
+    """A state vector for the report: [x, y, ...] at 4 significant digits."""
     return "[" + ", ".join(f"{x:.4g}" for x in np.asarray(q, float).ravel()) + "]"
 
 
@@ -234,7 +236,7 @@ def order_check(name, method, hs, errs, theory, *, scale=1.0, tol=ORDER_TOL, one
         dropped[by_h[:start]] = True
         break
     for h, e, u, d in sorted(zip(hs, errs, mask, dropped), reverse=True):
-        rows.append({"h": f"{h:.4g}", quantity: _num(e), "local slope": _num(ls[float(h)]) if float(h) in ls else "",
+        rows.append({"h": f"{h:.4g}", quantity: fmt(e), "local slope": fmt(ls[float(h)]) if float(h) in ls else "",
                      "used in fit": "yes" if u else ("no (pre-asymptotic: the error stalls)" if d else
                                                      "no (round-off plateau)")})
     for h, why in (excluded or []):
@@ -268,7 +270,7 @@ def order_check(name, method, hs, errs, theory, *, scale=1.0, tol=ORDER_TOL, one
     span = f"h = {used_h.max():.4g} .. {used_h.min():.4g}"
     where = (f"order within {tol:g} of {theory:g} for h <= {h_asym:.4g}" if h_asym is not None else
              f"no local slope within {tol:g} of {theory:g} on this ladder")
-    local = ", ".join(_num(s) for s in sl)
+    local = ", ".join(fmt(s) for s in sl)
     fit_ok = slope >= theory - tol if one_sided else abs(slope - theory) <= tol
     if dropped.any():
         span += f" (coarser h = {', '.join(f'{h:.4g}' for h in np.sort(hs[dropped])[::-1])} pre-asymptotic: dropped)"
@@ -297,7 +299,7 @@ def symplecticity_check(method, rows, forced) -> Check:
     if not rows:
         return skip("symplecticity", method, "no map could be evaluated")
     worst = max(rows, key=lambda r: r["defect"] if np.isfinite(r["defect"]) else np.inf)
-    shown = [{"map": r["map"], "h": f"{r['h']:.4g}", "state": r["state"], "max |J^T Omega J - Omega|": _num(r["defect"])}
+    shown = [{"map": r["map"], "h": f"{r['h']:.4g}", "state": r["state"], "max |J^T Omega J - Omega|": fmt(r["defect"])}
              for r in rows]
     thr = f"{SYMPLECTIC_THRESHOLDS[0]:.0e}"
     if forced:
@@ -360,9 +362,9 @@ def impact_energy_check(method, rows, energy_name, theory, scale) -> Check:
     if not rows:
         return skip("energy across impacts", method, "no run with impacts")
     rows = sorted(rows, key=lambda r: -r["h"])
-    shown = [{"h": f"{r['h']:.4g}", f"max |d{energy_name}| impact steps": _num(r["jump"]),
-              f"max |d{energy_name}| other steps": _num(r["smooth"]),
-              "ratio": _num(r["jump"] / r["smooth"]) if r["smooth"] > 0 else "-"} for r in rows]
+    shown = [{"h": f"{r['h']:.4g}", f"max |d{energy_name}| impact steps": fmt(r["jump"]),
+              f"max |d{energy_name}| other steps": fmt(r["smooth"]),
+              "ratio": fmt(r["jump"] / r["smooth"]) if r["smooth"] > 0 else "-"} for r in rows]
     hs = np.array([r["h"] for r in rows])
     jumps = np.array([r["jump"] for r in rows])
     thr = f"slope >= {theory - ENERGY_TOL:g}"
@@ -377,7 +379,7 @@ def impact_energy_check(method, rows, energy_name, theory, scale) -> Check:
                          f"{jumps.max():.2e}, {energy_name} ~ {scale:.3g})", shown, data)
         return Check("energy across impacts", method, WARN, float("nan"), thr, expected,
                      f"fewer than 3 steps with a change above round-off: no order (changes "
-                     f"{', '.join(_num(j) for j in jumps)})", shown, data)
+                     f"{', '.join(fmt(j) for j in jumps)})", shown, data)
     slope = float(np.polyfit(np.log(hs[above]), np.log(jumps[above]), 1)[0])
     data["slope"] = slope
     smooth = np.array([r["smooth"] for r in rows])

@@ -141,6 +141,20 @@ def _floor(value):
     return 1e-5 * (1.0 + abs(value))
 
 
+def _check_declared(c, s):
+    """sys_M, sys_V, sys_phi against the declaration itself (sympy.lambdify: no code generation)."""
+    if c.declared is None:
+        return []
+    mod, prm = c.mod, c.prm
+    M = c.declared["M"](s.q)
+    V, phi = c.declared["V"](s.q), c.declared["phi"](s.q)
+    return [("sys_M", "the declared mass matrix (sympy.lambdify)", rel_err(c.M(s.q), M, 1e-300), IDENTITY_THRESHOLDS),
+            ("sys_V", "the declared potential (sympy.lambdify)", rel_err(mod.sys_V(s.q, prm), V, 1.0),
+             IDENTITY_THRESHOLDS),
+            ("sys_phi", "the declared constraint (sympy.lambdify)", rel_err(mod.sys_phi(s.q, prm), phi, 1.0),
+             IDENTITY_THRESHOLDS)]
+
+
 def _check_dphi(c, s):
     mod, prm, n = c.mod, c.prm, c.n
     g = np.empty(n)
@@ -313,6 +327,7 @@ def _check_mh(c, s):
 
 # kernel names a row needs (all of them) -> check; rows whose names a module lacks are skipped
 KERNEL_CHECKS = [
+    (("sys_M", "sys_V", "sys_phi"), _check_declared),   # needs `declared` (check_kernels)
     (("sys_phi", "sys_dphi"), _check_dphi),
     (("sys_dHq", "sys_M", "hamiltonian"), _check_dhq),
     (("hamiltonian", "sys_M", "sys_V"), _check_hamiltonian),
@@ -325,13 +340,14 @@ KERNEL_CHECKS = [
 ]
 
 
-def check_kernels(mod, prm, probes, force=None, full_stages=None):
+def check_kernels(mod, prm, probes, force=None, full_stages=None, declared=None):
     """Run every applicable row of KERNEL_CHECKS at every probe. full_stages: the kernel set's
-    ((explicit Ld name, fraction), ...) (the DEL residual of ld_step needs the stage's name).
+    ((explicit Ld name, fraction), ...) (the DEL residual of ld_step needs the stage's name);
+    declared: numpy callables {"M", "V", "phi"} of q from the declaration (None: that row is skipped).
     Returns a list of dicts {kernel, against, worst (relative error over the probes), thresholds},
     one per kernel row."""
     c = _Ctx(mod, np.asarray(prm, float), force)
-    c.full_stages = full_stages
+    c.full_stages, c.declared = full_stages, declared
     worst: dict = {}
     for names, fn in KERNEL_CHECKS:
         if not all(hasattr(mod, k) for k in names):

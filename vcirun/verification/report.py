@@ -26,11 +26,11 @@ def _table(rows) -> list[str]:
 
 
 def _value(c) -> str:
-    from .checks import _num
+    from .checks import fmt
 
     if c.verdict == SKIP and not np.isfinite(c.value if c.value is not None else np.nan):
         return "-"
-    return _num(c.value)
+    return fmt(c.value)
 
 
 def markdown(res, figure=None) -> str:

@@ -197,6 +197,15 @@ class _Session:
         self.lam0 = float(np.linalg.eigvalsh(0.5 * (Mq0 + Mq0.T))[0])
         self.hyper = []   # (source, t, q, eigenvalues of M or None, h of a run or None)
 
+    def declared(self):
+        """numpy M(q), V(q), phi(q) of the declaration (sympy.lambdify, independent of code generation)."""
+        if not hasattr(self, "_declared"):
+            f, prm = self.sysm.numpy_functions(), list(self.prm)
+            self._declared = {"M": lambda q: np.array(f["M"](list(q), prm), float),
+                              "V": lambda q: float(f["V"](list(q), prm)),
+                              "phi": lambda q: float(f["phi"](list(q), prm))}
+        return self._declared
+
     def add(self, check):
         self.res.checks.append(check)
 
@@ -257,7 +266,7 @@ class _Session:
         self.ref_scale = max(float(np.max(np.abs(qt))), 1e-300)
         acc = float(ref.accuracy)
         rows = [{"impacts": len(ref.impacts), "first impacts": ", ".join(f"{t:.6g}" for t in ref.impacts[:6]),
-                 "accuracy (vs a 10x tighter solve)": ck._num(acc)}]
+                 "accuracy (vs a 10x tighter solve)": ck.fmt(acc)}]
         v = ck.PASS if acc <= 1e-8 * max(1.0, self.ref_scale) else ck.WARN
         note = f"{len(ref.impacts)} impacts on [0, {T:g}]; self-reported accuracy {acc:.2e}"
         # (issue 15) until vcirun.reference integrates the generalized force, a forced system's exact
@@ -312,7 +321,8 @@ class _Session:
             return
         mcva = meth.reset == "mcva"
         self.say(f"{name}: derivative checks of the generated kernels at {len(self.probes)} states")
-        rows = check_kernels(mod, self.prm, self.probes, force=self.force, full_stages=ks.full_stages)
+        rows = check_kernels(mod, self.prm, self.probes, force=self.force, full_stages=ks.full_stages,
+                             declared=self.declared())
         self.add(ck.derivative_check(name, rows, len(self.probes)))
         self.say(f"{name}: symplecticity defect of its one-step maps")
         rows = _symplecticity_rows(mod, self.prm, self.probes, self.hs, mcva, self.n)
@@ -431,7 +441,7 @@ class _Session:
             c.verdict = ck.FAIL
             c.value = float("nan") if ev is None else float(ev[0])
             c.note = (f"the exact motion runs into a singular mass matrix: DOP853 stops at t = {t_part[-1]:.6g}, "
-                      f"q = {ck._vec(q_part[-1])}, where M(q) has {what}; " + c.note)
+                      f"q = {ck.fmt_vec(q_part[-1])}, where M(q) has {what}; " + c.note)
         return c
 
 
