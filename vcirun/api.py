@@ -185,6 +185,22 @@ def _initial_state(d: SystemData, mod, start, prm):
     return q0, p0
 
 
+def _check_admissible(d: SystemData, mod, q0, prm, phi_text) -> None:
+    """A start inside the constraint is bad input (ValueError naming phi(q0), its value and the
+    constraint phi_text() -- called only then: on the warm path it builds the symbolic system), not a
+    run that ends later as `reset_failed` or `accumulation`; a start on the surface (to round-off)
+    is allowed."""
+    from .reference import start_tolerance  # (light: numpy only at import)
+
+    phi0 = float(mod.sys_phi(q0, prm))
+    g = np.empty(d.n)
+    mod.sys_dphi(q0, prm, g)
+    if not math.isfinite(phi0) or phi0 < -start_tolerance(q0, g):
+        raise ValueError(f"initial state: q0={q0.tolist()} lies inside the constraint of system {d.name}: "
+                         f"phi(q0) = {phi0:.6g} < 0 for phi = {phi_text()}; start where phi(q0) >= 0 "
+                         "(or pass constrained=False)")
+
+
 def grid_steps(h, T) -> tuple[float, float, int]:
     """Validated (h, T, N) of the grid t_k = k h, k = 0..N, N = round(T / h)."""
     h, T = float(h), float(T)
@@ -237,6 +253,8 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
         constrained = meth.constrained
     mod = load()
     q0, p0 = _initial_state(sysd, mod, start, prm)
+    if constrained:
+        _check_admissible(sysd, mod, q0, prm, lambda: str((sysm or resolve_system(system)).phi))
     n = sysd.n
     cap_imp = max(64, N // 4 + 16)
     t_start = time.perf_counter()

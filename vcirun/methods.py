@@ -43,24 +43,26 @@ def _kernel_set(method: Method) -> KernelSet:
     )
 
 
-def _props(mh, sympl, explicit):
-    return {"conserves_mh": mh, "symplectic": sympl, "explicit_ld": explicit}
+def _props(mh, sympl, explicit, forcing=None):
+    """Table I's columns; forcing: the L2 order measured through impacts on forced scenes (issue 15,
+    docs/forcing.md), None where no forced order was measured."""
+    return {"conserves_mh": mh, "symplectic": sympl, "explicit_ld": explicit, "forcing": forcing}
 
 
 METHODS = {
     # Table I of the paper: CVA and VCI use SVC (explicit Ld); VCI is exactly symplectic.
-    "CVA": Method("CVA", ld="SVC", reset="cva", properties=_props(False, False, True)),
-    "VCI": Method("VCI", ld="SVC", reset="vci", properties=_props(False, "exact", True)),
+    "CVA": Method("CVA", ld="SVC", reset="cva", properties=_props(False, False, True, "order 2")),
+    "VCI": Method("VCI", ld="SVC", reset="vci", properties=_props(False, "exact", True, "order 2")),
     # Section 5.2: MCVA on SVA with H~^{O(h^4)} (H4 kept: it does not vanish, see vcirun/modified) and
     # MCVAC, the generalized MCVA on SVC with H~^{O(h^3)}; both with the order-4 Gauss partial flow.
     "MCVAA": Method("MCVAA", ld="SVA", partial="gauss", reset="mcva", mh_order=4, flow_order=4,
-                    properties=_props(True, True, False)),
+                    properties=_props(True, True, False, "order 2")),
     "MCVAC": Method("MCVAC", ld="SVC", partial="gauss", reset="mcva", mh_order=3, flow_order=4,
-                    properties=_props(True, True, True)),
+                    properties=_props(True, True, True, "order 2")),
     # Beyond the paper (issue 7): CVA on higher-order symmetric compositions of SVC (Suzuki s5 order 4,
     # Kahan & Li s9 order 6 and s17 order 8; vcirun.discrete.lagrangians). Same partial map (the
     # composition over tau) and R^CVA: the collision time and the state at impact inherit the order.
-    "CVA4": Method("CVA4", ld="SVC4", reset="cva", properties=_props(False, False, False)),
+    "CVA4": Method("CVA4", ld="SVC4", reset="cva", properties=_props(False, False, False, "order 4")),
     "CVA6": Method("CVA6", ld="SVC6", reset="cva", properties=_props(False, False, False)),
     "CVA8": Method("CVA8", ld="SVC8", reset="cva", properties=_props(False, False, False)),
 }

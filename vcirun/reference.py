@@ -1,10 +1,14 @@
 """The continuous nonsmooth solution to high accuracy, for error measurement.
 
-Exact reference: Hamilton's equations integrated by DOP853 (scipy) with event location on
-phi(q) = 0 (direction: entering the constraint) and the exact elastic reset p+ = p- + lam grad phi,
-lam = -2 g^T M^-1 p- / g^T M^-1 g (H conserved), restarted after each impact; dense output on any
-grid. Its accuracy is self-reported as the largest difference (trajectory and impact times) from
-a second solve at a 10x tighter tolerance (at least scipy's floor of ~2.2e-14).
+Exact reference: Hamilton's equations with the generalized force, qdot = M^-1 p,
+pdot = -dH/dq + f(q, qdot, t), integrated by DOP853 (scipy) with event location on phi(q) = 0
+(direction: entering the constraint) and the exact elastic reset p+ = p- + lam grad phi,
+lam = -2 g^T M^-1 p- / g^T M^-1 g (H conserved: an impulse, bounded forces do no work in zero
+time), restarted after each impact; dense output on any grid. Its accuracy is self-reported as the
+largest difference (trajectory and impact times) from a second solve at a 10x tighter tolerance (at
+least scipy's floor of ~2.2e-14). A forced system also carries the work W(t) = int_0^t f . qdot as
+an extra state, and `energy_balance` = max |H(t) - H(0) - W(t)| on a dense grid: a check of the
+solve that does not rest on a second solve of the same equations.
 
 Also: a fine-step method reference (the paper's choice: CVA at a small h) and the closed-form
 oscillator against a wall.
@@ -20,7 +24,7 @@ from .methods import METHODS
 class Reference:
     """Callable reference solution: ref(t) -> q (len(t), n); ref.p(t); ref.impacts; ref.accuracy."""
 
-    def __init__(self, segments, n, impacts, H0, T, accuracy=np.nan, kind="exact"):
+    def __init__(self, segments, n, impacts, H0, T, accuracy=np.nan, kind="exact", width=None):
         self.segments = segments  # list of (t_start, t_end, dense OdeSolution)
         self.n = n
         self.impacts = np.asarray(impacts, float)
@@ -28,10 +32,12 @@ class Reference:
         self.T = T
         self.accuracy = accuracy
         self.kind = kind
+        self.energy_balance = np.nan  # forced exact solves: max |H(t) - H(0) - int f . qdot|
+        self._width = 2 * n if width is None else width
 
     def state(self, t) -> np.ndarray:
         t = np.atleast_1d(np.asarray(t, float))
-        out = np.empty((t.size, 2 * self.n))
+        out = np.empty((t.size, self._width))
         starts = np.array([s[0] for s in self.segments])
         idx = np.clip(np.searchsorted(starts, t, side="right") - 1, 0, len(self.segments) - 1)
         for j in np.unique(idx):
@@ -86,15 +92,21 @@ class _HermiteSegment:
 
 
 def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000):
+    """(segments, impact times, H(q0, p0), work) of the exact solve; work is None for an unforced
+    system, else a callable t -> W(t) = int_0^t f . qdot (the extra state of every segment)."""
     from scipy.integrate import solve_ivp  # here, not at module level: `import vcirun` stays light
 
     mod = load_module(system, METHODS["CVA"].kernel_set())  # system kernels + Hamilton's equations
     n = system.n
+    forced = bool(mod.FORCED)
     buf = np.empty(2 * n)
 
     def rhs(t, y):
-        mod.hamilton_rhs(y, prm, buf)
-        return buf.copy()
+        mod.dynamics_rhs(t, y[:2 * n], prm, buf)
+        if not forced:
+            return buf.copy()
+        # the work of the force, W' = f(q, qdot, t) . qdot (qdot = buf[:n])
+        return np.append(buf, mod.force_power(y[:n], buf[:n].copy(), t, prm))
 
     def event(t, y):
         return mod.sys_phi(y[:n], prm)
@@ -103,11 +115,11 @@ def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000):
     event.direction = -1.0
 
     def dip(t, y):  # d phi / dt: crosses 0 upwards at every local minimum of phi along the flow
-        return mod.gdot(y[:n], y[n:], prm)
+        return mod.gdot(y[:n], y[n:2 * n], prm)
 
     dip.terminal = False  # recorded, checked after the solve (a terminal event at a minimum would
     dip.direction = 1.0   # restart where d phi/dt = 0 and fire again at once)
-    y = np.concatenate([q0, p0])
+    y = np.concatenate([q0, p0] + ([[0.0]] if forced else []))
     t = 0.0
     segments, impacts = [], []
     atol = rtol * max(1.0, float(np.max(np.abs(y))))
@@ -134,10 +146,10 @@ def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000):
         segments.append((t, sol.t[-1] if te is None else te, sol.sol))
         if te is not None:
             g = np.empty(n)
-            lam = mod.cva_lambda(ye[:n], ye[n:], prm, g)
+            lam = mod.cva_lambda(ye[:n], ye[n:2 * n], prm, g)
             if lam == 0.0:
                 raise RuntimeError(f"reference: grazing contact at t={te:.6g} (zero normal velocity)")
-            ye[n:] = ye[n:] + lam * g
+            ye[n:2 * n] = ye[n:2 * n] + lam * g
             impacts.append(te)
             if len(impacts) > max_impacts:
                 raise RuntimeError(f"reference: more than {max_impacts} impacts (accumulation?) by t={te:.6g}")
@@ -159,7 +171,40 @@ def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000):
                 delta *= 0.5
         else:
             t = T
-    return segments, impacts, float(mod.hamiltonian(q0, p0, prm))
+    work = None
+    if forced:
+        whole = Reference(segments, n, impacts, np.nan, T, width=2 * n + 1)
+        work = lambda tt: whole.state(tt)[:, 2 * n]  # noqa: E731
+        segments = [(a, b, _Slice(f, 2 * n)) for a, b, f in segments]
+    return segments, impacts, float(mod.hamiltonian(q0, p0, prm)), work
+
+
+class _Slice:
+    """The first k components of a dense segment (the forced solve carries the work as state 2n)."""
+
+    def __init__(self, f, k):
+        self.f, self.k = f, k
+
+    def __call__(self, t):
+        return self.f(t)[: self.k]
+
+
+def _check_start(system, q0, prm) -> None:
+    """A start inside the constraint is bad input, named as such (not a grazing or accumulation
+    failure later): phi(q0) < 0 beyond round-off relative to the size of q0 and grad phi."""
+    phi0 = system.phi_value(q0, prm)
+    if not np.isfinite(phi0):
+        raise ValueError(f"initial state: phi(q0) = {phi0} is not finite at q0={np.asarray(q0).tolist()} "
+                         f"(constraint {system.phi})")
+    if phi0 < -start_tolerance(q0, system.grad_phi_value(q0, prm)):
+        raise ValueError(f"initial state: q0={np.asarray(q0).tolist()} lies inside the constraint: "
+                         f"phi(q0) = {phi0:.6g} < 0 for phi = {system.phi}; start where phi(q0) >= 0")
+
+
+def start_tolerance(q0, grad_phi) -> float:
+    """How far below 0 a start's phi(q0) may lie and still count as on the surface: round-off of
+    phi near q0, 64 eps (1 + |q0| |grad phi|) (a state built on phi = 0 in floating point)."""
+    return 64 * np.finfo(float).eps * (1.0 + float(np.max(np.abs(q0))) * float(np.max(np.abs(grad_phi))))
 
 
 def reference(system, *, T, beta=None, q0=None, p0=None, params=None, rtol=1e-13, method="exact", h=None,
@@ -183,17 +228,38 @@ def reference(system, *, T, beta=None, q0=None, p0=None, params=None, rtol=1e-13
         if tr.status != "ok":
             raise RuntimeError(f"reference: {method} at h={h} failed: {tr.message}")
         return _grid_reference(sysm, tr, prm)
-    segs, imps, H0 = _exact(sysm, q0, p0, prm, T, rtol)
-    acc = np.nan
-    if check_accuracy:
-        # estimate the returned solve's error against a tighter one (scipy's floor is ~2.2e-14)
-        segs2, imps2, _ = _exact(sysm, q0, p0, prm, T, max(rtol / 10, 2.3e-14))
-        tt = np.linspace(0.0, T, 2001)
-        a, b = Reference(segs, sysm.n, imps, H0, T), Reference(segs2, sysm.n, imps2, H0, T)
-        acc = float(np.max(np.abs(a(tt) - b(tt))))
-        if len(imps) == len(imps2) and imps:
-            acc = max(acc, float(np.max(np.abs(np.subtract(imps, imps2)))))
-    return Reference(segs, sysm.n, imps, H0, T, accuracy=acc, kind="exact")
+    _check_start(sysm, q0, prm)
+    try:
+        segs, imps, H0, work = _exact(sysm, q0, p0, prm, T, rtol)
+        acc = np.nan
+        ref = Reference(segs, sysm.n, imps, H0, T, kind="exact")
+        if check_accuracy:
+            # estimate the returned solve's error against a tighter one (scipy's floor is ~2.2e-14)
+            segs2, imps2, _, _ = _exact(sysm, q0, p0, prm, T, max(rtol / 10, 2.3e-14))
+            tt = np.linspace(0.0, T, 2001)
+            acc = float(np.max(np.abs(ref(tt) - Reference(segs2, sysm.n, imps2, H0, T)(tt))))
+            if len(imps) == len(imps2) and imps:
+                acc = max(acc, float(np.max(np.abs(np.subtract(imps, imps2)))))
+            elif len(imps) != len(imps2):
+                acc = np.inf  # the tighter solve sees another impact sequence: nothing is accurate
+            ref.accuracy = acc
+        if work is not None:
+            ref.energy_balance = _energy_balance(sysm, ref, work, prm, T)
+    except (ArithmeticError, ValueError, IndexError, np.linalg.LinAlgError) as e:
+        # scipy's and numpy's own messages (e.g. brentq's "f(a) and f(b) must have different signs")
+        # say nothing about the run: name the solve and the cause instead
+        raise RuntimeError(f"reference: the exact solve of {sysm.name} failed ({type(e).__name__}: {e})") from None
+    return ref
+
+
+def _energy_balance(system, ref, work, prm, T) -> float:
+    """max over a dense grid of |H(t) - H(0) - W(t)|, W the work integral carried by the solve."""
+    mod = load_module(system, METHODS["CVA"].kernel_set())
+    tt = np.linspace(0.0, T, 2001)
+    y = ref.state(tt)
+    n = system.n
+    H = np.array([mod.hamiltonian(y[k, :n].copy(), y[k, n:].copy(), prm) for k in range(len(tt))])
+    return float(np.max(np.abs(H - ref.H0 - work(tt))))
 
 
 class _Hermite:

@@ -88,7 +88,7 @@ def test_gauss_converges_at_full_step(ld, s, h):
 # ---- R^MCVA ---------------------------------------------------------------------------------------
 def _reset(mod, q, pm, h):
     pp = np.empty(2)
-    it, lam = mod.reset_mcva(q, pm, np.nan, 0.5 * h, h, 0.0, PRM, 1e-12, 50, pp)
+    it, lam = mod.reset_mcva(q, pm, np.nan, pm, 0.0, 0.5 * h, h, 0.0, PRM, 1e-12, 50, pp)
     return it, lam, pp
 
 

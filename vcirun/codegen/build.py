@@ -1,7 +1,7 @@
 """Assemble, cache and load one compiled module per (scene, kernel set).
 
 The module text = generated kernels (one CSE pass each) + the numba *source units* of the numeric
-layers (vcirun/maps, vcirun/collision, vcirun/modified) + the bindings `full`, `partial`, `reset`,
+layers (vcirun/maps, vcirun/collision) + the bindings `full`, `partial`, `reset`,
 `modified_energy`. Everything lives in one file so that numba's on-disk cache works for the whole
 event loop: numba cannot cache a function that takes another jitted function as an argument, and
 a compiled loop calling compiled kernels is what makes a 500-step simulation take microseconds.
@@ -82,7 +82,7 @@ class KernelSet:
 def _units(ks: KernelSet) -> list[str]:
     units = list(UNITS_BASE)
     if ks.modified is not None:
-        units[-1:-1] = ["modified/numeric.py"]
+        units[-1:-1] = ["maps/gauss.py", "collision/reset_mcva.py"]
     return units
 
 

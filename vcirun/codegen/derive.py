@@ -53,7 +53,22 @@ def system_kernels(system, with_dhq: bool = True) -> list[Kernel]:
     if with_dhq:
         x = list(sp.symbols(f"xm0:{n}"))
         ks.append(Kernel("sys_dHq", [("q", q), ("x", x)], [("out", system.dH_dq_at(x))], prm))
+    ks += force_kernels(system)
     return ks
+
+
+def force_kernels(system) -> list[Kernel]:
+    """sys_force(q, qd, t, prm, out) = f(q, qdot, t) and sys_force_jac(q, qd, t, prm, fq, fv) = (df/dq,
+    df/dqdot): the generalized force on its own, for the continuous dynamics (the exact reference),
+    the work terms of R^VCI and the forced modified equations of the MCVA family. Zero kernels for an
+    unforced system (the callers branch on the module constant FORCED, so they cost nothing there)."""
+    n = system.n
+    args = [("q", system.q), ("qd", system.qd), ("t", system.t)]
+    f = system.forcing if system.is_forced else sp.zeros(n, 1)
+    prm = system.param_symbols
+    return [Kernel("sys_force", args, [("out", f)], prm),
+            Kernel("sys_force_jac", args, [("fq", f.jacobian(list(system.q))), ("fv", f.jacobian(list(system.qd)))],
+                   prm)]
 
 
 def system_kernels_source(system, path: str | None = None) -> str:
@@ -177,6 +192,11 @@ def module_source(system, ks, unit_texts: list[str], kernel_path: str | None = N
              f"FULL_STAGES = np.array({[sid[s] for s, _ in ks.full_stages]}, dtype=np.int64)",
              f"FULL_FRACS = np.array({[float(f) for _, f in ks.full_stages]}, dtype=np.float64)",
              f"VCI_STAGE = {sid.get(ks.vci_stage, -1)}",
+             # forced DEL (discrete Lagrange-d'Alembert): f^- = FORCE_A[sid] h f(q0, v, t),
+             # f^+ = FORCE_B[sid] h f(q1, v, t + h) per explicit stage (trapezoidal for SVC)
+             f"FORCED = {bool(system.is_forced)}",
+             f"FORCE_A = np.array({[float(get_ld(nm).forcing_weights[0]) for nm in names]}, dtype=np.float64)",
+             f"FORCE_B = np.array({[float(get_ld(nm).forcing_weights[1]) for nm in names]}, dtype=np.float64)",
              # Algorithm 1 reuses the full step as the collision search's first partial step
              f"PARTIAL_IS_FULL = {ks.partial == 'ld'}", ""]
     parts.append(system_kernels_source(system, kernel_path))

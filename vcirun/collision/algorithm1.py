@@ -94,7 +94,7 @@ def integrate(q0, p0, t0, h, N, prm, constrained, ntol, maxit, event_tol, max_im
                     n_par += 1
                 tau_rem = tau_max - dtau
                 if code == 1:
-                    itr, lam = reset(qt, pt, Epre, tau_rem, h, tc + dtau, prm, ntol, maxit, pp)
+                    itr, lam = reset(qt, pt, Epre, vt, dtau, tau_rem, h, tc + dtau, prm, ntol, maxit, pp)
                     iters += abs(itr)
                     if itr < 0:
                         status = ST_RESET

@@ -1,6 +1,8 @@
 # numba source unit: reset maps R^CVA (eq. 32) and R^VCI (eq. 33).
-# Signature shared by every reset: reset(q, pm, E_pre, tau_rem, h, t, prm, ntol, maxit, pp)
-#   -> (iterations (< 0 on failure), lambda). q is the impact configuration, pm = p(t_i^-).
+# Signature shared by every reset: reset(q, pm, E_pre, vpre, dtau, tau_rem, h, t, prm, ntol, maxit, pp)
+#   -> (iterations (< 0 on failure), lambda). q is the impact configuration at the impact time t,
+#   pm = p(t_i^-); E_pre, vpre, dtau: discrete energy, mean velocity and length of the partial step
+#   that reached the impact (R^VCI's energy condition; the others ignore them).
 import math
 
 import numpy as np
@@ -28,8 +30,9 @@ def cva_lambda(q, pm, prm, g):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def reset_cva(q, pm, E_pre, tau_rem, h, t, prm, ntol, maxit, pp):
-    """R^CVA: q unchanged, pp = pm + lam grad phi, H conserved, lam != 0."""
+def reset_cva(q, pm, E_pre, vpre, dtau, tau_rem, h, t, prm, ntol, maxit, pp):
+    """R^CVA: q unchanged, pp = pm + lam grad phi, H conserved, lam != 0 (an impulse: bounded forces
+    do no work in zero time, so forcing does not enter)."""
     g = np.empty(NDOF)
     lam = cva_lambda(q, pm, prm, g)
     if lam == 0.0 or not math.isfinite(lam):
@@ -40,22 +43,31 @@ def reset_cva(q, pm, E_pre, tau_rem, h, t, prm, ntol, maxit, pp):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def reset_vci(q, pm, E_pre, tau_rem, h, t, prm, ntol, maxit, pp):
-    """R^VCI: pp = pm + lam grad phi with the discrete energy conserved across the impact,
-    -D3 Ld(q_prev, q, tau_pre) = E_pre = -D3 Ld(q, q_next, tau_rem), pp = -D1 Ld(q, q_next, tau_rem),
+def reset_vci(q, pm, E_pre, vpre, dtau, tau_rem, h, t, prm, ntol, maxit, pp):
+    """R^VCI: pp = pm + lam grad phi with the discrete energy balanced across the impact,
+    -D3 Ld(q, q_next, tau_rem) = E_pre + W^+ + W^-, pp = -D1 Ld(q, q_next, tau_rem) - f^-,
     solved jointly for (w, lam), q_next = q + tau_rem w, by Newton from the R^CVA reflection (the
     root near lam = 0 is not a reflection and is rejected). The post-impact step is the remaining
     time tau_rem = tau_max - Delta tau (after the decrement of Algorithm 1, line 15), so the
-    pre- and post-impact steps tile the grid step exactly."""
+    pre- and post-impact steps tile the grid step exactly.
+
+    Forcing (docs/forcing.md): the discrete Lagrange-d'Alembert principle with the impact time as a
+    variable gives the energy condition E^+ = E^- + f^+_pre . v_pre + f^-_post . v_post, the discrete
+    work of the force over the half of each partial step next to the impact, W^+ = b dtau f(q, vpre,
+    t) . vpre and W^-(w) = a tau_rem f(q, w, t) . w with the Ld's discrete-force weights (a, b).
+    Unforced (FORCED False): both are 0 and the equations are the paper's eq. (33)."""
     g = np.empty(NDOF)
     lam0 = cva_lambda(q, pm, prm, g)
     if lam0 == 0.0 or not math.isfinite(lam0):
         return -1, lam0
+    E_target = E_pre
+    if FORCED:
+        E_target += FORCE_B[VCI_STAGE] * dtau * force_power(q, vpre, t, prm)
     # Newton from the R^CVA reflection; near the fold (tiny normal velocity) it can fall onto the
     # non-reflecting root, so retry from larger reflections before giving up
     total = 0
     for scale in (1.0, 2.0, 4.0, 8.0, 0.5):
-        it, lam = _vci_newton(q, pm, E_pre, tau_rem, t, prm, ntol, maxit, g, scale * lam0, pp)
+        it, lam = _vci_newton(q, pm, E_target, tau_rem, t, prm, ntol, maxit, g, scale * lam0, pp)
         total += abs(it)
         if it > 0 and lam * lam0 > 0.0 and abs(lam) >= 1e-3 * abs(lam0):
             for i in range(NDOF):
@@ -65,8 +77,9 @@ def reset_vci(q, pm, E_pre, tau_rem, h, t, prm, ntol, maxit, pp):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _vci_newton(q, pm, E_pre, tau_rem, t, prm, ntol, maxit, g, lam_start, pp):
-    """Newton on (w, lam) for eq. (33) from lam_start; returns (iterations or -iterations, lam)."""
+def _vci_newton(q, pm, E_target, tau_rem, t, prm, ntol, maxit, g, lam_start, pp):
+    """Newton on (w, lam) for eq. (33) (forced: its energy condition with the work terms, see
+    reset_vci) from lam_start; returns (iterations or -iterations, lam)."""
     w = np.empty(NDOF)
     for i in range(NDOF):
         pp[i] = pm[i] + lam_start * g[i]
@@ -79,6 +92,10 @@ def _vci_newton(q, pm, E_pre, tau_rem, t, prm, ntol, maxit, g, lam_start, pp):
     J = np.empty((NDOF, NDOF))
     ev = np.empty(NDOF)
     c = np.empty(NODE_LEN)
+    fo = np.empty(NDOF)
+    fq = np.empty((NDOF, NDOF))
+    fv = np.empty((NDOF, NDOF))
+    aw = FORCE_A[VCI_STAGE] * tau_rem  # W^-(w) = aw f(q, w, t) . w
     sys_node(q, prm, c)  # q is fixed: its node data once, not per iteration
     it = 0
     ok = False
@@ -88,6 +105,15 @@ def _vci_newton(q, pm, E_pre, tau_rem, t, prm, ntol, maxit, g, lam_start, pp):
         ld_PmJc(VCI_STAGE, q, w, tau_rem, t, prm, c, r, J)
         E = ld_Ed(VCI_STAGE, q, w, tau_rem, prm)
         ld_Edv(VCI_STAGE, q, w, tau_rem, prm, ev)
+        if FORCED and aw != 0.0:
+            sys_force(q, w, t, prm, fo)
+            sys_force_jac(q, w, t, prm, fq, fv)
+            for j in range(NDOF):
+                dW = fo[j]
+                for i in range(NDOF):
+                    dW += fv[i, j] * w[i]
+                E -= aw * fo[j] * w[j]
+                ev[j] -= aw * dW
         for i in range(NDOF):
             F[i] = r[i] - pm[i] - lam * g[i]
             for j in range(NDOF):
@@ -95,7 +121,7 @@ def _vci_newton(q, pm, E_pre, tau_rem, t, prm, ntol, maxit, g, lam_start, pp):
             JJ[i, NDOF] = -g[i]
             JJ[NDOF, i] = ev[i]
         JJ[NDOF, NDOF] = 0.0
-        F[NDOF] = E - E_pre
+        F[NDOF] = E - E_target
         if not solve_small(JJ, F, m):
             break
         dn = 0.0

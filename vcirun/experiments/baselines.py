@@ -60,7 +60,7 @@ class _CompiledModel:
         mod, buf, n = self.mod, self._buf, self.n
 
         def rhs(t, y):
-            mod.hamilton_rhs(y, prm, buf)
+            mod.dynamics_rhs(t, y, prm, buf)  # forced Hamilton's equations (= hamilton_rhs unforced)
             return buf.copy()
 
         def phi(t, y):
@@ -85,7 +85,7 @@ class _NumpyModel:
         self.n = n
         prm = [float(v) for v in prm]
         # lambdified in the mechanics layer: the runner never touches sympy itself
-        Mf, dHf, Vf, phif, gf = (sysm.numpy_functions()[k] for k in ("M", "dHq", "V", "phi", "grad_phi"))
+        Mf, dHf, Vf, phif, gf, ff = (sysm.numpy_functions()[k] for k in ("M", "dHq", "V", "phi", "grad_phi", "f"))
         self.M = lambda qq: np.asarray(Mf(qq, prm), float)
         self.V = lambda qq: float(Vf(qq, prm))
         self.grad = lambda qq: np.asarray(gf(qq, prm), float).ravel()
@@ -93,7 +93,10 @@ class _NumpyModel:
         def rhs(t, y):
             qq, pp = y[:n], y[n:]
             xx = np.linalg.solve(np.asarray(Mf(qq, prm), float), pp)
-            return np.concatenate([xx, -np.asarray(dHf(qq, xx, prm), float).ravel()])
+            pdot = -np.asarray(dHf(qq, xx, prm), float).ravel()
+            if ff is not None:
+                pdot = pdot + np.asarray(ff(qq, xx, t, prm), float).ravel()
+            return np.concatenate([xx, pdot])
 
         def phi(t, y):
             return float(phif(y[:n], prm))

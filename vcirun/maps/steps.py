@@ -183,3 +183,28 @@ def hamilton_rhs(y, prm, out):
     for i in range(NDOF):
         out[i] = x[i]
         out[NDOF + i] = -g[i]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def dynamics_rhs(t, y, prm, out):
+    """The forced Hamilton's equations on y = (q, p): qdot = M^-1 p, pdot = -dH/dq + f(q, qdot, t)
+    (= hamilton_rhs for an unforced system: FORCED is a module constant)."""
+    hamilton_rhs(y, prm, out)
+    if FORCED:
+        f = np.empty(NDOF)
+        sys_force(y[:NDOF], out[:NDOF], t, prm, f)
+        for i in range(NDOF):
+            out[NDOF + i] += f[i]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def force_power(q, v, t, prm):
+    """f(q, v, t) . v: the power of the generalized force at velocity v (0 for an unforced system)."""
+    if not FORCED:
+        return 0.0
+    f = np.empty(NDOF)
+    sys_force(q, v, t, prm, f)
+    s = 0.0
+    for i in range(NDOF):
+        s += f[i] * v[i]
+    return s

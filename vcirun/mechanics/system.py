@@ -58,6 +58,10 @@ class MechanicalSystem:
         self.V = sp.sympify(self.V)
         self.phi = sp.sympify(self.phi)
         self.params = dict(self.params)
+        if not (self.phi.free_symbols & set(self.q)):
+            # phi constant in q: either no configuration is admissible or the constraint never acts
+            raise ValueError(f"system {self.name}: constraint phi = {self.phi} does not depend on the coordinates "
+                             f"({', '.join(s.name for s in self.q)}); give phi(q) as a function of them")
 
     # --- basic sizes and symbols -------------------------------------------------------------
     @property
@@ -126,7 +130,8 @@ class MechanicalSystem:
 
     def numpy_functions(self) -> dict:
         """Plain numpy callables (sympy.lambdify), as a numpy/scipy user would write the model:
-        M(q, prm), dHq(q, x, prm) = dH/dq at x = M^-1 p, V(q, prm), phi(q, prm), grad_phi(q, prm).
+        M(q, prm), dHq(q, x, prm) = dH/dq at x = M^-1 p, V(q, prm), phi(q, prm), grad_phi(q, prm),
+        f(q, qdot, t, prm) (the generalized force; None for an unforced system).
         For baselines and checks; the integrators use the compiled kernels instead."""
         if not hasattr(self, "_npf"):
             q, ps = list(self.q), self.param_symbols
@@ -136,7 +141,9 @@ class MechanicalSystem:
                          "dHq": sp.lambdify((q, x, ps), dHq, "numpy"),
                          "V": sp.lambdify((q, ps), self.V, "numpy"),
                          "phi": sp.lambdify((q, ps), self.phi, "numpy"),
-                         "grad_phi": sp.lambdify((q, ps), self.grad_phi, "numpy")}
+                         "grad_phi": sp.lambdify((q, ps), self.grad_phi, "numpy"),
+                         "f": (sp.lambdify((q, list(self.qd), self.t, ps), self.forcing, "numpy")
+                               if self.is_forced else None)}
         return self._npf
 
     def mass_matrix(self, q, params=None) -> np.ndarray:
@@ -146,6 +153,10 @@ class MechanicalSystem:
     def phi_value(self, q, params=None) -> float:
         prm = self.param_values() if params is None else np.asarray(params, float)
         return float(self._lambdas()[1](list(q), list(prm)))
+
+    def grad_phi_value(self, q, params=None) -> np.ndarray:
+        prm = self.param_values() if params is None else np.asarray(params, float)
+        return np.array(self.numpy_functions()["grad_phi"](list(q), list(prm)), dtype=float).ravel()
 
     def check_hyperregular(self, q, params=None) -> None:
         """The Legendre transform must be invertible: M(q) symmetric positive definite."""

@@ -4,8 +4,8 @@
   Hamilton-Jacobi equation (every VI is symplectic Euler applied to eta, eq. 23-24).
 - `derive.py`: eta as a stationary value, its exact derivatives (implicit function theorem on a DAG
   of symbolic nodes) and the generated kernels of H~^{O(h^s)} and its gradient.
-- `numeric.py`: numba unit with gauss_partial, reset_mcva, mh_energy (compiled into the scene's
-  module by vcirun.codegen).
+- the numba units that evaluate them live in vcirun/maps/gauss.py (mh_energy, gauss_partial) and
+  vcirun/collision/reset_mcva.py (reset_mcva), compiled into the scene's module by vcirun.codegen.
 
 - `evaluate.py`: the same generated module executed uncompiled (tests, exploration).
 

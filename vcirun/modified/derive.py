@@ -24,7 +24,7 @@ u_{k,beta}). W stays a leaf that is never differentiated. Everything is forward-
 done symbolically on a DAG of small named nodes, so expressions never swell: the partial derivatives
 of ell in (q, u) are the leaves ("primitives", one CSE pass), every other node is a short polynomial
 in earlier nodes, u and W. At run time u* is found by Newton on F and W = A^{-1} numerically
-(vcirun/modified/numeric.py). This replaces Appendix A step 2, whose printed second derivatives of
+(vcirun/maps/gauss.py). This replaces Appendix A step 2, whose printed second derivatives of
 qbar are not used (D_pp qbar and D_qp qbar are printed with the wrong sign, see
 tests/convergence/test_modified_series.py).
 
@@ -74,9 +74,8 @@ class StationaryEta:
     per_node=False: primitives by differentiating ell itself (the reference the tests compare to)."""
 
     def __init__(self, system, ld_name: str, per_node: bool = True):
-        if system.is_forced:
-            raise ValueError(f"method: the MCVA family needs a conservative system (a modified Hamiltonian "
-                             f"exists only without forcing); system {system.name} is forced")
+        # A forced system: eta is that of the conservative discrete Lagrangian (ell below is built
+        # from L alone); the force enters the partial flow's equations, not H~ (docs/forcing.md).
         ld = get_ld(ld_name)
         n = system.n
         self.n = n

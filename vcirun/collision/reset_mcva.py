@@ -1,0 +1,70 @@
+# numba source unit: the reset R^MCVA (eq. 34) of the MCVA family, conserving the truncated modified
+# Hamiltonian H~^{O(h^s)}.
+# Requires from the generated module: NDOF, MH_M, mh_guess, mh_gradient (vcirun/maps/gauss.py),
+# cva_lambda (vcirun/collision/resets.py).
+import math
+
+import numpy as np
+from numba import njit
+
+MH_RESET_ETOL = 8.0 * 2.220446049250313e-16  # R^MCVA accepts lam once H~ is conserved to this (relative)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def reset_mcva(q, pm, E_pre, vpre, dtau, tau_rem, h, t, prm, ntol, maxit, pp):
+    """R^MCVA (eq. 34): pp = pm + lam grad phi(q) with H~^{O(h^s)}(q, pp) = H~^{O(h^s)}(q, pm), lam != 0.
+    Newton on F(lam) = [H~(q, pm + lam g) - H~(q, pm)] / lam, whose root set excludes the trivial
+    root lam = 0 (F(0) = dH~/dp . g, the normal velocity, is nonzero at a transversal impact);
+    F'(lam) = (dH~/dp . g - F) / lam. Start: the R^CVA reflection (exact for H, H~ = H + O(h)).
+    Converged when the Newton step is below ntol (1 + |lam|), or when H~ is already conserved to
+    8 eps (relative): at small lam, F = dE / lam is only known to ~eps |H~| / lam. Failure (< 0) when
+    Newton does not converge or lam has not the sign of the reflection (then lam is returned too).
+    Forcing does not enter: the reset is an impulse, and bounded forces do no work in zero time."""
+    g = np.empty(NDOF)
+    lam0 = cva_lambda(q, pm, prm, g)
+    if lam0 == 0.0 or not math.isfinite(lam0):
+        return -1, lam0
+    nz = 2 * NDOF
+    u = np.empty(MH_M)
+    W = np.empty((MH_M, MH_M))
+    grad = np.empty(nz)
+    hess = np.empty((0, 0))  # not needed by the reset
+    mh_guess(q, pm, prm, u)
+    it0, E0 = mh_gradient(q, pm, h, prm, u, W, grad, hess)
+    if it0 < 0 or not math.isfinite(E0):
+        return -1, lam0
+    lam = lam0
+    it = 0
+    ok = False
+    while it < maxit:
+        it += 1
+        for i in range(NDOF):
+            pp[i] = pm[i] + lam * g[i]
+        if it == 1:
+            mh_guess(q, pp, prm, u)  # later iterates start from the previous stationary point
+        itu, E = mh_gradient(q, pp, h, prm, u, W, grad, hess)
+        if itu < 0 or not math.isfinite(E):
+            break
+        dE = E - E0
+        if abs(dE) <= MH_RESET_ETOL * max(1.0, abs(E0)):
+            ok = True  # conserved to round-off (a small lam pins F = dE / lam only to ~eps |E| / lam)
+            break
+        Fl = dE / lam
+        gp = 0.0
+        for i in range(NDOF):
+            gp += grad[NDOF + i] * g[i]
+        dF = (gp - Fl) / lam
+        if dF == 0.0 or not math.isfinite(dF):
+            break
+        step = Fl / dF
+        lam -= step
+        if abs(step) <= ntol * (1.0 + abs(lam)):
+            ok = True
+            break
+    if not ok or not (lam * lam0 > 0.0):
+        # no reflection: lam of the other sign means the modified dynamics already leaves the wall
+        # (possible at grazing, |normal velocity| ~ h); lam = 0 cannot be returned as a success
+        return -it, lam
+    for i in range(NDOF):
+        pp[i] = pm[i] + lam * g[i]
+    return it, lam
