@@ -249,3 +249,18 @@ def test_step_ladder_too_coarse_warns():
         assert c.verdict == ck.WARN and "too coarse" in c.note, c.line()
     assert "newton_failed" in res.check("smooth order", "CVA").note
     assert "4 impacts, reference 3" in res.check("L2 order through impacts", "CVA").note
+
+
+@pytest.mark.slow
+def test_forced_system_every_judged_check_passes():
+    """Linear drag against a wall (issue 15's setting): with the forced reference, CVA, VCI and MCVAC pass
+    every judged check; the forced maps' symplecticity and H~ conservation are skips, not verdicts; the
+    energy check balances the drag's work (measured slopes 3.04, 2.08, 3.23)."""
+    res = vcirun.verify("damped_oscillator", methods="CVA,VCI,MCVAC", q0=[1.5], p0=[0.0], params={"d": 0.5}, T=10.0)
+    assert res.check("reference").verdict == ck.PASS
+    assert res.ok and not res.warnings, [c.line() for c in res.checks if c.verdict in (ck.WARN, ck.FAIL)]
+    skipped = {(c.name, c.method) for c in res.checks if c.verdict == ck.SKIP}
+    assert skipped == {("symplecticity", m) for m in ("CVA", "VCI", "MCVAC")} | {("modified Hamiltonian", "MCVAC")}
+    for m in ("CVA", "VCI", "MCVAC"):
+        c = res.check("energy across impacts", m)
+        assert "H - W" in c.note and c.value >= 1.7
