@@ -9,11 +9,12 @@ from pathlib import Path
 
 import numpy as np
 
+from . import record
 from . import trajectory as tr
 from .codegen import build
 from .codegen.build import load_module
 from .methods import resolve_method
-from .scenedata import SystemData, check_mass_matrix, scene_args, scene_data
+from .scenedata import SystemData, check_mass_matrix, scene_args, scene_data, start_tolerance
 
 DEFAULT_TOLERANCES = {"newton_tol": 1e-12, "event_tol": 1e-13, "max_iter": 50, "max_impacts_step": 64}
 _METHOD_OPTIONS = {"ld", "mh_order", "flow_order"}
@@ -190,8 +191,6 @@ def _check_admissible(d: SystemData, mod, q0, prm, phi_text) -> None:
     constraint phi_text() -- called only then: on the warm path it builds the symbolic system), not a
     run that ends later as `reset_failed` or `accumulation`; a start on the surface (to round-off)
     is allowed."""
-    from .reference import start_tolerance  # (light: numpy only at import)
-
     phi0 = float(mod.sys_phi(q0, prm))
     g = np.empty(d.n)
     mod.sys_dphi(q0, prm, g)
@@ -236,12 +235,7 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     symbolic work (see `resolve_numeric`); the initial state's Legendre transform uses the compiled
     mass matrix on every path, so warm and cold starts give the same bits.
     """
-    mopts = {k: options.pop(k) for k in list(options) if k in _METHOD_OPTIONS}
-    unknown = set(options) - set(DEFAULT_TOLERANCES)
-    if unknown:
-        raise ValueError(f"options: unknown option {sorted(unknown)[0]!r} (known: "
-                         f"{', '.join(sorted(set(DEFAULT_TOLERANCES) | _METHOD_OPTIONS | {'params', 'constrained', 'energies'}))})")
-    tol = DEFAULT_TOLERANCES | options
+    mopts, tol = _split_options(options)
     h, T, N = grid_steps(h, T)
     if not _warmable(system):
         system = resolve_system(system)  # bad names and files raise here, before a bad method does
@@ -255,53 +249,56 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     q0, p0 = _initial_state(sysd, mod, start, prm)
     if constrained:
         _check_admissible(sysd, mod, q0, prm, lambda: str((sysm or resolve_system(system)).phi))
-    n = sysd.n
-    cap_imp = max(64, N // 4 + 16)
+    settings = record.settings_vector(constrained=bool(constrained), energies=bool(energies), **tol)
     t_start = time.perf_counter()
-    while True:
-        # (np.empty where the loop writes every entry that is read back: rows up to the last
-        # step reached, impacts and partial steps up to their counts, info)
-        out = dict(
-            Q=np.empty((N + 1, n)), P=np.empty((N + 1, n)), Hs=np.full(N + 1, np.nan), Eds=np.full(N + 1, np.nan),
-            Hm=np.full(N + 1, np.nan), imp_t=np.empty(cap_imp), imp_q=np.empty((cap_imp, n)),
-            imp_pm=np.empty((cap_imp, n)), imp_pp=np.empty((cap_imp, n)), imp_step=np.zeros(N, dtype=np.bool_),
-            partial_log=np.empty(2 * cap_imp + 16), iters_log=np.zeros(N, dtype=np.int64),
-            info=np.zeros(5, dtype=np.int64))
-        # (issue 8) no np.errstate here: the compiled loop never touches numpy's error state, and
-        # with NUMBA_DISABLE_JIT=1 the caller's np.errstate(all="raise") must reach the numerics
-        # (the floating-point hygiene check of tests/extremes runs the whole loop that way).
-        mod.integrate(q0, p0, float(t0), h, N, prm, bool(constrained), float(tol["newton_tol"]), int(tol["max_iter"]),
-                      float(tol["event_tol"]), int(tol["max_impacts_step"]), *out.values(), bool(energies))
-        # (issue 8) the loop reports ST_ACCUMULATION also when the impact record is full; that is a
-        # buffer size, not impacts accumulating: rerun with room for every impact the caps allow.
-        full_record = int(out["info"][2]) >= cap_imp
-        if not (int(out["info"][0]) == 4 and full_record) or cap_imp >= N * int(tol["max_impacts_step"]) + 16:
-            break
-        cap_imp = min(4 * cap_imp, N * int(tol["max_impacts_step"]) + 16)
+    out, counters = _run_loop(mod, q0, p0, float(t0), h, N, prm, settings, sysd.n, int(tol["max_impacts_step"]))
     wall = time.perf_counter() - t_start
-    info = out["info"]
-    status_code, fail, n_imp, n_par, steps = info.tolist()
-    status = tr.STATUS_CODES[status_code]
-    K = steps + 1  # grid points actually reached
-    t = t0 + h * np.arange(N + 1)
+    arrays = record.trim(out, counters, modified=meth.reset == "mcva")
+    status, fail = record.STATUS_CODES[counters["status"]], counters["fail_step"]
     message = ""
     if status != tr.OK:
-        message = (f"{status} in step {fail} (t = {t0 + fail * h:.6g}) from q = {out['Q'][fail].tolist()}, "
-                   f"p = {out['P'][fail].tolist()}")
-        cause = _failure_cause(mod, status, out["Q"][: fail + 1], out["P"][fail], t0, fail, h, prm, tol,
-                               float(out["Hs"][0]), out["imp_t"][:n_imp])
+        Q = out[record.FIELDS.index(record.FIELD["q"])]
+        P = out[record.FIELDS.index(record.FIELD["p"])]
+        message = (f"{status} in step {fail} (t = {t0 + fail * h:.6g}) from q = {Q[fail].tolist()}, "
+                   f"p = {P[fail].tolist()}")
+        cause = _failure_cause(mod, status, Q[: fail + 1], P[fail], t0, fail, h, prm, tol, float(arrays["H"][0]),
+                               arrays["impacts"])
         if cause:
             message += f"; cause: {cause}"
     return tr.Trajectory(
-        method=meth.name, system=sysd.name, h=h, T=N * h, t=t[:K], q=out["Q"][:K], p=out["P"][:K], H=out["Hs"][:K],
-        Ed=out["Eds"][:K], Hmod=out["Hm"][:K] if meth.reset == "mcva" else None,
-        impacts=out["imp_t"][:n_imp].copy(), impact_q=out["imp_q"][:n_imp].copy(),
-        impact_p_minus=out["imp_pm"][:n_imp].copy(), impact_p_plus=out["imp_pp"][:n_imp].copy(),
-        impact_step=out["imp_step"][:steps].copy(), partial_steps=out["partial_log"][:n_par].copy(),
-        newton_iters=out["iters_log"][:steps].copy(), status=status, message=message,
-        fail_step=fail, fail_time=(t0 + fail * h) if fail >= 0 else float("nan"), beta=beta, wall_time=wall,
-        tolerances={k: tol[k] for k in ("newton_tol", "event_tol", "max_iter", "max_impacts_step")},
+        method=meth.name, system=sysd.name, h=h, T=N * h, t=t0 + h * np.arange(counters["steps"] + 1), **arrays,
+        status=status, message=message, fail_step=fail, fail_time=(t0 + fail * h) if fail >= 0 else float("nan"),
+        beta=beta, wall_time=wall, tolerances={k: tol[k] for k in DEFAULT_TOLERANCES},
         options={"params": dict(zip(sysd.params, prm.tolist())), "constrained": bool(constrained), **mopts})
+
+
+def _split_options(options: dict) -> tuple[dict, dict]:
+    """(method options, tolerances with defaults) from simulate's **options (unknown names rejected)."""
+    mopts = {k: options.pop(k) for k in list(options) if k in _METHOD_OPTIONS}
+    unknown = set(options) - set(DEFAULT_TOLERANCES)
+    if unknown:
+        raise ValueError(f"options: unknown option {sorted(unknown)[0]!r} (known: "
+                         f"{', '.join(sorted(set(DEFAULT_TOLERANCES) | _METHOD_OPTIONS | {'params', 'constrained', 'energies'}))})")
+    return mopts, DEFAULT_TOLERANCES | options
+
+
+def _run_loop(mod, q0, p0, t0, h, N, prm, settings, n, max_impacts_step) -> tuple[tuple, dict]:
+    """(output buffers, counters) of the compiled loop. The impact record starts at N / 4 + 16
+    entries; the loop reports ST_ACCUMULATION also when it is full, which is a buffer size, not
+    impacts accumulating (issue 8): then it reruns with room for every impact the caps allow."""
+    cap_imp, most = max(64, N // 4 + 16), N * max_impacts_step + 16
+    while True:
+        out = record.allocate(N, n, cap_imp, 2 * cap_imp + 16)
+        info = np.zeros(len(record.COUNTERS), dtype=np.int64)
+        # (issue 8) no np.errstate here: the compiled loop never touches numpy's error state, and
+        # with NUMBA_DISABLE_JIT=1 the caller's np.errstate(all="raise") must reach the numerics
+        # (the floating-point hygiene check of tests/extremes runs the whole loop that way).
+        mod.integrate(q0, p0, t0, h, N, prm, settings, out, info)
+        counters = dict(zip(record.COUNTERS, info.tolist()))
+        full_record = counters["n_impacts"] >= cap_imp
+        if not (counters["status"] == record.STATUS_OF["accumulation"] and full_record) or cap_imp >= most:
+            return out, counters
+        cap_imp = min(4 * cap_imp, most)
 
 
 # --- failure causes (issue 8: every stop names its cause) ----------------------------------------

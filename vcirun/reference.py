@@ -10,15 +10,15 @@ least scipy's floor of ~2.2e-14). A forced system also carries the work W(t) = i
 an extra state, and `energy_balance` = max |H(t) - H(0) - W(t)| on a dense grid: a check of the
 solve that does not rest on a second solve of the same equations.
 
-Also: a fine-step method reference (the paper's choice: CVA at a small h) and the closed-form
-oscillator against a wall.
+Also: a fine-step method reference (the paper's choice: CVA at a small h). Closed forms (the
+oscillator against a wall, the bouncing ball) are in vcirun.oracles.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from .codegen.build import load_module
-from .methods import METHODS
+from .codegen.build import SYSTEM_KERNELS, load_module
+from .scenedata import start_tolerance
 
 
 class Reference:
@@ -96,7 +96,7 @@ def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000):
     system, else a callable t -> W(t) = int_0^t f . qdot (the extra state of every segment)."""
     from scipy.integrate import solve_ivp  # here, not at module level: `import vcirun` stays light
 
-    mod = load_module(system, METHODS["CVA"].kernel_set())  # system kernels + Hamilton's equations
+    mod = load_module(system, SYSTEM_KERNELS)  # system kernels + the continuous dynamics
     n = system.n
     forced = bool(mod.FORCED)
     buf = np.empty(2 * n)
@@ -201,12 +201,6 @@ def _check_start(system, q0, prm) -> None:
                          f"phi(q0) = {phi0:.6g} < 0 for phi = {system.phi}; start where phi(q0) >= 0")
 
 
-def start_tolerance(q0, grad_phi) -> float:
-    """How far below 0 a start's phi(q0) may lie and still count as on the surface: round-off of
-    phi near q0, 64 eps (1 + |q0| |grad phi|) (a state built on phi = 0 in floating point)."""
-    return 64 * np.finfo(float).eps * (1.0 + float(np.max(np.abs(q0))) * float(np.max(np.abs(grad_phi))))
-
-
 def reference(system, *, T, beta=None, q0=None, p0=None, params=None, rtol=1e-13, method="exact", h=None,
               check_accuracy=True) -> Reference:
     """The nonsmooth solution on [0, T] from (q0, p0) or the scene's initial-condition map at beta.
@@ -254,7 +248,7 @@ def reference(system, *, T, beta=None, q0=None, p0=None, params=None, rtol=1e-13
 
 def _energy_balance(system, ref, work, prm, T) -> float:
     """max over a dense grid of |H(t) - H(0) - W(t)|, W the work integral carried by the solve."""
-    mod = load_module(system, METHODS["CVA"].kernel_set())
+    mod = load_module(system, SYSTEM_KERNELS)
     tt = np.linspace(0.0, T, 2001)
     y = ref.state(tt)
     n = system.n
@@ -273,13 +267,13 @@ class _Hermite:
 
 
 def _grid_reference(system, tr, prm):
-    mod = load_module(system, METHODS["CVA"].kernel_set())
+    mod = load_module(system, SYSTEM_KERNELS)
     n = system.n
     buf = np.empty(2 * n)
     dq = np.empty_like(tr.q)
     dp = np.empty_like(tr.p)
     for k in range(len(tr.t)):
-        mod.hamilton_rhs(np.concatenate([tr.q[k], tr.p[k]]), prm, buf)
+        mod.dynamics_rhs(tr.t[k], np.concatenate([tr.q[k], tr.p[k]]), prm, buf)  # forced: the slopes include f
         dq[k], dp[k] = buf[:n], buf[n:]
     # split at impact steps so that interpolation never straddles a velocity jump
     y = np.hstack([tr.q, tr.p])
@@ -300,30 +294,5 @@ def l2_error(traj, ref) -> float:
     return float(np.sqrt(traj.h * np.sum(d * d)))
 
 
-def oscillator_wall_exact(t, x0, v0, m=1.0, k=1.0, d=0.5):
-    """Closed form of m x'' = -k x with an elastic wall at x = -d (phi = x + d >= 0).
-
-    Phase form x = A cos(th), v = -A w sin(th), th' = w; at an impact (x = -d, v < 0, th = th_i with
-    cos th_i = -d/A) the reflection v -> -v maps th_i to 2 pi - th_i. Returns (x, v, impact_times)."""
-    t = np.asarray(t, float)
-    w = np.sqrt(k / m)
-    A = np.hypot(x0, v0 / w)
-    if A <= d:
-        th0 = np.arctan2(-v0 / w, x0)
-        th = th0 + w * t
-        return A * np.cos(th), -A * w * np.sin(th), np.array([])
-    thi = np.arccos(-d / A)                        # impact phase in (pi/2, pi)
-    th0 = np.mod(np.arctan2(-v0 / w, x0), 2 * np.pi)  # x0 = A cos th0, v0 = -A w sin th0
-    # admissible phases: [2pi - thi, 2pi + thi) (mod 2pi); unfold into a phase that advances by 2 thi
-    # per period and wraps back
-    th0 = th0 if th0 < thi else th0 - 2 * np.pi   # now in [-(2pi - ... ), thi)
-    if th0 < -thi:
-        th0 = -thi
-    period = 2 * thi / w
-    s = (th0 + thi) / w + t                       # time since the last reflection point
-    frac = np.mod(s, period)
-    th = -thi + w * frac
-    n_imp = int(np.floor(((th0 + thi) / w + float(np.max(t, initial=0.0))) / period))
-    t_imp = np.array([(j + 1) * period - (th0 + thi) / w for j in range(n_imp)])
-    t_imp = t_imp[t_imp > 0]
-    return A * np.cos(th), -A * w * np.sin(th), t_imp
+# the closed form moved to vcirun.oracles (no compiled module needed); this name stays importable
+from .oracles import oscillator_wall_exact  # noqa: E402,F401

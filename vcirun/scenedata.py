@@ -64,6 +64,13 @@ def check_mass_matrix(name: str, q, Mq) -> None:
                          f"(eigenvalues {np.linalg.eigvalsh(S)}); the Lagrangian must be hyperregular") from None
 
 
+def start_tolerance(q0, grad_phi) -> float:
+    """How far below 0 a start's phi(q0) may lie and still count as on the surface: round-off of
+    phi near q0, 64 eps (1 + |q0| |grad phi|) (a state built on phi = 0 in floating point). Used by
+    vcirun.simulate and vcirun.reference alike."""
+    return 64 * np.finfo(float).eps * (1.0 + float(np.max(np.abs(q0))) * float(np.max(np.abs(grad_phi))))
+
+
 def merge_params(defaults: dict, overrides: dict) -> dict:
     unknown = set(overrides) - set(defaults)
     if unknown:

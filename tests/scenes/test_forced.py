@@ -101,7 +101,7 @@ def _cart_drag_independent(T, q0, p0, rtol=1e-13):
         return np.array([[m1 + m2, m2 * L * s], [m2 * L * s, m2 * L * L]])
 
     def rhs(t, y):
-        yy, th, p = y[0], y[1], y[2:]
+        th, p = y[1], y[2:]
         M = Mof(th)
         v = np.linalg.solve(M, p)
         dM_dth = np.array([[0.0, m2 * L * np.cos(th)], [m2 * L * np.cos(th), 0.0]])

@@ -36,13 +36,13 @@ import numba
 from .. import __version__
 
 _PKG = Path(__file__).resolve().parent.parent
-UNITS_BASE = ["maps/linalg.py", "maps/steps.py", "collision/events.py", "collision/resets.py",
-              "collision/algorithm1.py"]
 # files whose text changes the generated code: hashed into the key
 _GENERATOR_FILES = ["codegen/kernels.py", "codegen/printer.py", "codegen/build.py", "codegen/derive.py",
-                    "codegen/tensor.py", "discrete/lagrangians.py", "mechanics/system.py"]
+                    "codegen/tensor.py", "codegen/units.py", "record.py", "codegen/c_emit.py", "codegen/cc.py",
+                    "discrete/lagrangians.py",
+                    "mechanics/system.py"]
 # ... and, only for the MCVA family's modules (so that editing them does not invalidate CVA/VCI caches)
-_MODIFIED_GENERATOR_FILES = ["modified/derive.py", "modified/series.py"]
+_MODIFIED_GENERATOR_FILES = ["codegen/mh_kernels.py", "modified/eta.py", "modified/series.py"]
 # ... and, for the warm index only: the files that turn a scene name or a YAML file into a symbolic system
 _SYSTEM_FILES = ["scenedata.py", "mechanics/scenes.py", "mechanics/loader.py", "mechanics/expressions.py"]
 WARM_FORMAT = 1
@@ -79,11 +79,18 @@ class KernelSet:
         return tuple(dict.fromkeys(names))
 
 
+# The system-only kernel set: the system kernels and the continuous dynamics (H, Hamilton's
+# equations with the force, phi, grad phi, d phi/dt, the elastic multiplier; vcirun/maps/dynamics.py),
+# no discrete Lagrangian and no loop. What the exact reference, the baselines, studies and verify
+# need: they load it instead of compiling a method's module.
+SYSTEM_KERNELS = KernelSet(full_stages=(), partial=None, reset=None)
+
+
 def _units(ks: KernelSet) -> list[str]:
-    units = list(UNITS_BASE)
-    if ks.modified is not None:
-        units[-1:-1] = ["maps/gauss.py", "collision/reset_mcva.py"]
-    return units
+    """The numba source units of the module of `ks`, chosen by the contract (vcirun.codegen.units)."""
+    from .units import select_units
+
+    return [u.path for u in select_units(ks)]
 
 
 _keys: dict = {}
@@ -104,9 +111,22 @@ def _key_files(ks: KernelSet) -> set:
 
 
 def _versions() -> bytes:
-    # + the step-kernel path (codegen.derive: tensor or expanded), so the two never share a module
+    # + the step-kernel path (codegen.derive: tensor or expanded), so the two never share a module,
+    # + the kernel backend (codegen.cc: numba, or C with this compiler and flags)
     path = os.environ.get("VCIRUN_KERNEL_PATH", "")
-    return f"{__version__}|{numba.__version__}|{sys.version_info[:2]}|kernels={path}".encode()
+    return f"{__version__}|{numba.__version__}|{sys.version_info[:2]}|kernels={path}|{_backend_id()}".encode()
+
+
+def _backend_id() -> str:
+    from . import cc  # no sympy: compiler discovery only
+
+    key = (os.environ.get("CC"), os.environ.get(cc.BACKEND_ENV), os.environ.get("PATH"))
+    if key not in _BACKEND_IDS:
+        _BACKEND_IDS[key] = cc.identity()
+    return _BACKEND_IDS[key]
+
+
+_BACKEND_IDS: dict = {}
 
 
 def _module_key(system, ks: KernelSet) -> str:
@@ -145,7 +165,7 @@ def load_module(system, ks: KernelSet):
     if not cached:
         from .derive import module_source  # sympy work happens only here, on a cache miss
 
-        text = module_source(system, ks, [(_PKG / u).read_text() for u in _units(ks)])
+        text = module_source(system, ks, c_dir=cache_dir())
         tmp = path.with_suffix(f".tmp{os.getpid()}")
         tmp.write_text(text)
         os.replace(tmp, path)  # atomic: parallel workers never import a half-written file

@@ -10,24 +10,6 @@ N_MODEL = 32  # samples of the cubic Hermite model of g on the bracket (no parti
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def gdot(q, p, prm):
-    """d/dtau phi(q(tau)) along the continuous flow through (q, p): grad phi(q) . M(q)^{-1} p. The
-    partial map's own tau-derivative differs by O(tau^r) relatively (r its order): a model, never a
-    decision (the bracket keeps the root search safe)."""
-    A = np.empty((NDOF, NDOF))
-    x = p.copy()
-    sys_M(q, prm, A)
-    if not solve_small(A, x, NDOF):
-        return np.nan
-    g = np.empty(NDOF)
-    sys_dphi(q, prm, g)
-    s = 0.0
-    for i in range(NDOF):
-        s += g[i] * x[i]
-    return s
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
 def _hermite(s, ga, da, gb, db, H):
     s2 = s * s
     s3 = s2 * s

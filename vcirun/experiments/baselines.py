@@ -49,10 +49,9 @@ class _CompiledModel:
     """Hamilton's equations, phi and the elastic reset from the scene's compiled kernels."""
 
     def __init__(self, sysm, prm):
-        from ..codegen.build import load_module
-        from ..methods import METHODS
+        from ..codegen.build import SYSTEM_KERNELS, load_module
 
-        self.mod = load_module(sysm, METHODS["CVA"].kernel_set())
+        self.mod = load_module(sysm, SYSTEM_KERNELS)
         self.n = sysm.n
         self.prm = prm
         self._buf = np.empty(2 * sysm.n)

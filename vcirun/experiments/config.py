@@ -51,6 +51,9 @@ MethodName = Literal["CVA", "VCI", "MCVAA", "MCVAC", "MCVA", "CVA4", "CVA6", "CV
                      "SE1", "SE2", "SVA", "SVB", "SVC", "midpoint", "SVC4", "SVC6", "SVC8"]
 LdName = Literal["SE1", "SE2", "SVA", "SVB", "SVC", "midpoint", "SVC4", "SVC6", "SVC8"]
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]*$")
+# A config whose top level has this key is a study config (`vcirun study`, schema in
+# vcirun.experiments.studies.schema), not a sweep; `vcirun validate` dispatches on it.
+STUDY_KEY = "study"
 
 
 class ConfigError(ValueError):
@@ -514,9 +517,10 @@ _TAG_MODELS = {"builtin": BuiltinSystem, "file": FileSystem, "inline": InlineSys
                "list": BetaList, "exact": ExactReference, "method": MethodReference, "none": NoReference}
 
 
-def _model_at(loc: tuple):
-    """The pydantic model class at a raw error location, to list its allowed keys."""
-    current: Any = SweepConfig
+def _model_at(loc: tuple, root=None):
+    """The pydantic model class at a raw error location (from `root`, default SweepConfig), to list its
+    allowed keys."""
+    current: Any = root or SweepConfig
     for part in loc:
         if isinstance(part, str) and part in _TAG_MODELS:
             current = _TAG_MODELS[part]  # pydantic names the union member it tried
@@ -553,13 +557,13 @@ def _describe(value) -> str:
     return s if len(s) <= 40 else s[:37] + "..."
 
 
-def _pydantic_message(err: dict) -> tuple[tuple, str]:
+def _pydantic_message(err: dict, root=None) -> tuple[tuple, str]:
     raw = tuple(err["loc"])
     loc = _clean_loc(raw)
     typ, ctx, inp = err["type"], err.get("ctx") or {}, err.get("input")
     if typ == "extra_forbidden":
         key = raw[-1]
-        model = _model_at(raw[:-1])
+        model = _model_at(raw[:-1], root)
         allowed = _allowed_keys(model) if model else []
         hint = difflib.get_close_matches(str(key), allowed, n=1)
         msg = "unknown key"
@@ -606,10 +610,10 @@ def _pydantic_message(err: dict) -> tuple[tuple, str]:
     return loc, err["msg"]
 
 
-def _from_validation_error(e: ValidationError, source: str) -> ConfigError:
+def _from_validation_error(e: ValidationError, source: str, root=None) -> ConfigError:
     errors = e.errors(include_url=False)
     # A root-level custom error carries its own location (see _FieldError).
-    loc, msg = _pydantic_message(errors[0])
+    loc, msg = _pydantic_message(errors[0], root)
     more = len(errors) - 1
     if more:
         msg += f" (and {more} more problem{'s' * (more > 1)})"
@@ -630,6 +634,9 @@ def parse_config(data, *, source: str = "<config>", base_dir: Path | None = None
     for k in data:
         if not isinstance(k, str):
             raise ConfigError(f"keys must be strings (got {k!r})", source=source)
+    if STUDY_KEY in data:
+        raise ConfigError(f"a study config (top-level key {STUDY_KEY}: {data[STUDY_KEY]}), not a sweep config; run it "
+                          "with `vcirun study FILE`", source=source, field=STUDY_KEY)
     data = dict(data)
     if "name" not in data and source not in ("<config>", "<string>"):
         data["name"] = Path(source).stem
@@ -644,8 +651,8 @@ def parse_config(data, *, source: str = "<config>", base_dir: Path | None = None
     return cfg
 
 
-def load_config(path, *, check_semantics: bool = True) -> SweepConfig:
-    """Read and validate a YAML sweep config; every failure is a one-line `ConfigError`."""
+def read_config_data(path):
+    """The parsed YAML of a config file (sweep or study); every failure is a one-line `ConfigError`."""
     source = str(path)
     p = Path(path)
     if not p.exists():
@@ -660,7 +667,13 @@ def load_config(path, *, check_semantics: bool = True) -> SweepConfig:
         data = yaml_load(text)
     except yaml.YAMLError as e:
         raise ConfigError(_yaml_error_line(e), source=source) from None
-    return parse_config(data, source=source, base_dir=p.parent, check_semantics=check_semantics)
+    return data
+
+
+def load_config(path, *, check_semantics: bool = True) -> SweepConfig:
+    """Read and validate a YAML sweep config; every failure is a one-line `ConfigError`."""
+    data = read_config_data(path)
+    return parse_config(data, source=str(path), base_dir=Path(path).parent, check_semantics=check_semantics)
 
 
 def config_text(path) -> str:

@@ -30,6 +30,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from .. import record
 from .metrics import energy_summary
 
 __all__ = ["FORMAT", "SCHEMA_VERSION", "StorageError", "ResultsWriter", "RunInfo", "Results", "read_results",
@@ -44,8 +45,10 @@ LIBVER = "latest"
 JSON_ATTRS = {"tolerances", "options", "method_spec", "history", "config_canonical", "versions", "h_values",
               "methods", "ic_keys", "system_spec", "resolved_method"}
 # Per-step arrays dropped when store_trajectories is false; the impact record is always kept.
-TRAJECTORY_ARRAYS = ("t", "q", "p", "H", "Ed", "Hmod", "impact_step", "newton_iters")
-IMPACT_ARRAYS = ("impacts", "impact_q", "impact_p_minus", "impact_p_plus", "partial_steps")
+# the run record's rows (vcirun.record.FIELDS): per-step arrays with store_trajectories, the impact
+# record always
+TRAJECTORY_ARRAYS = ("t",) + record.stored_names("trajectory")
+IMPACT_ARRAYS = record.stored_names("impacts")
 
 
 class StorageError(RuntimeError):
@@ -121,7 +124,7 @@ def trajectory_payload(traj, *, store_arrays: bool = True) -> tuple[dict, dict]:
             value = getattr(traj, name)
             if value is None:
                 continue
-            if name == "impact_step":
+            if name in record.FIELD and record.FIELD[name].dtype == "bool":
                 value = np.asarray(value, dtype=np.uint8)  # 0/1: portable, unlike HDF5's bool enum
             arrays[name] = value
     return attrs, {k: np.asarray(v) for k, v in arrays.items()}
@@ -138,14 +141,19 @@ def trajectory_from_group(g):
         return g[name][()] if name in g else np.zeros(shape, dtype)
 
     beta = a.get("beta", float("nan"))
+    arrays = {}
+    for f in record.FIELDS:  # one per row of the run record; a row not stored comes back empty
+        if f.only is not None:
+            arrays[f.name] = g[f.name][()] if f.name in g else None
+            continue
+        dt = np.uint8 if f.dtype == "bool" else np.dtype(f.dtype)
+        value = arr(f.name, (0, n) if f.dof else (0,), dt)
+        arrays[f.name] = value.astype(bool) if f.dtype == "bool" else value
     return Trajectory(
         method=a.get("core_method", a.get("method", "")), system=a.get("system", ""), h=float(a["h"]),
-        T=float(a["T"]), t=arr("t"), q=arr("q", (0, n)), p=arr("p", (0, n)), H=arr("H"), Ed=arr("Ed"),
-        impacts=arr("impacts"), impact_q=arr("impact_q", (0, n)), impact_p_minus=arr("impact_p_minus", (0, n)),
-        impact_p_plus=arr("impact_p_plus", (0, n)), impact_step=arr("impact_step", dtype=np.uint8).astype(bool),
-        partial_steps=arr("partial_steps"), newton_iters=arr("newton_iters", dtype=np.int64),
+        T=float(a["T"]), t=arr("t"), **arrays,
         status=a.get("status", ""), message=a.get("message", ""), fail_step=int(a.get("fail_step", -1)),
-        fail_time=float(a.get("fail_time", float("nan"))), Hmod=g["Hmod"][()] if "Hmod" in g else None,
+        fail_time=float(a.get("fail_time", float("nan"))),
         beta=None if beta is None or not np.isfinite(beta) else float(beta), wall_time=float(a.get("wall_time", 0.0)),
         tolerances=a.get("tolerances") or {}, options=a.get("options") or {})
 

@@ -2,7 +2,7 @@
 # H~^{O(h^s)} of the scene's discrete Lagrangian (Newton for eta's stationary stage velocities) and
 # the Gauss collocation partial flow of its Hamilton equations. R^MCVA: vcirun/collision/reset_mcva.py.
 # Requires from the generated module: NDOF, MH_ORDER, MH_M, MH_NSTAGE, MH_FLOW_S, mh_FA, mh_value,
-# mh_grad, mh_hess (vcirun/modified/derive.py), velocity_guess, solve_small.
+# mh_grad, mh_hess (vcirun/codegen/mh_kernels.py), velocity_guess, solve_small.
 import math
 
 import numpy as np

@@ -1,45 +1,9 @@
-# numba source unit: reset maps R^CVA (eq. 32) and R^VCI (eq. 33).
-# Signature shared by every reset: reset(q, pm, E_pre, vpre, dtau, tau_rem, h, t, prm, ntol, maxit, pp)
-#   -> (iterations (< 0 on failure), lambda). q is the impact configuration at the impact time t,
-#   pm = p(t_i^-); E_pre, vpre, dtau: discrete energy, mean velocity and length of the partial step
-#   that reached the impact (R^VCI's energy condition; the others ignore them).
+# numba source unit: the reset R^VCI (eq. 33), with forcing (docs/forcing.md). Signature: see
+# collision/reset_cva.py.
 import math
 
 import numpy as np
 from numba import njit
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def cva_lambda(q, pm, prm, g):
-    """Nontrivial root of H(q, pm + lam g) = H(q, pm): H is quadratic in p, so
-    lam = -2 g^T M^-1 pm / g^T M^-1 g (the root lam = 0 is divided out)."""
-    sys_dphi(q, prm, g)
-    A = np.empty((NDOF, NDOF))
-    sys_M(q, prm, A)
-    x = g.copy()
-    if not solve_small(A, x, NDOF):
-        return 0.0
-    gWg = 0.0
-    gWp = 0.0
-    for i in range(NDOF):
-        gWg += g[i] * x[i]
-        gWp += x[i] * pm[i]
-    if not gWg > 0.0:
-        return 0.0
-    return -2.0 * gWp / gWg
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def reset_cva(q, pm, E_pre, vpre, dtau, tau_rem, h, t, prm, ntol, maxit, pp):
-    """R^CVA: q unchanged, pp = pm + lam grad phi, H conserved, lam != 0 (an impulse: bounded forces
-    do no work in zero time, so forcing does not enter)."""
-    g = np.empty(NDOF)
-    lam = cva_lambda(q, pm, prm, g)
-    if lam == 0.0 or not math.isfinite(lam):
-        return -1, lam  # zero normal velocity: no nontrivial reset exists
-    for i in range(NDOF):
-        pp[i] = pm[i] + lam * g[i]
-    return 1, lam
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -143,8 +107,3 @@ def _vci_newton(q, pm, E_target, tau_rem, t, prm, ntol, maxit, g, lam_start, pp)
             break
         dprev = dn
     return (it if ok else -it), lam
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def no_modified_energy(q, p, h, prm):
-    return np.nan
