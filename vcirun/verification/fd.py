@@ -155,6 +155,42 @@ def _check_declared(c, s):
              IDENTITY_THRESHOLDS)]
 
 
+def _check_force(c, s):
+    """Forced modules: sys_force against the declared force (sympy.lambdify), sys_force_jac against FD
+    of sys_force, dynamics_rhs = hamilton_rhs + (0, f), force_power = f . v."""
+    mod, prm, n = c.mod, c.prm, c.n
+    if c.force is None or not getattr(mod, "FORCED", True):
+        return []
+    v = np.linalg.solve(c.M(s.q), s.p)
+
+    def f_of(q, vv):
+        out = np.empty(n)
+        mod.sys_force(np.ascontiguousarray(q, float), np.ascontiguousarray(vv, float), s.t, prm, out)
+        return out
+
+    f = f_of(s.q, v)
+    ref = c.f(s.q, v, s.t)
+    scale = 1e-5 * (1.0 + float(np.max(np.abs(ref))))
+    rows = [("sys_force", "the declared force f(q, qdot, t) (sympy.lambdify)", rel_err(f, ref, scale), IDENTITY_THRESHOLDS)]
+    if hasattr(mod, "sys_force_jac"):
+        fq, fv = np.empty((n, n)), np.empty((n, n))
+        mod.sys_force_jac(s.q, v, s.t, prm, fq, fv)
+        e = max(rel_err(fq, map_jacobian(lambda q: f_of(q, v), s.q), scale),
+                rel_err(fv, map_jacobian(lambda vv: f_of(s.q, vv), v), scale))
+        rows.append(("sys_force_jac", "FD of sys_force in q and in qdot", e, FD_THRESHOLDS))
+    if hasattr(mod, "dynamics_rhs") and hasattr(mod, "hamilton_rhs"):
+        y = np.concatenate([s.q, s.p])
+        a, b = np.empty(2 * n), np.empty(2 * n)
+        mod.dynamics_rhs(s.t, y, prm, a)
+        mod.hamilton_rhs(y, prm, b)
+        b[n:] += ref
+        rows.append(("dynamics_rhs", "hamilton_rhs + (0, declared f)", rel_err(a, b, 1.0), IDENTITY_THRESHOLDS))
+    if hasattr(mod, "force_power"):
+        P = float(mod.force_power(s.q, v, s.t, prm))
+        rows.append(("force_power", "declared f . v", rel_err(P, float(ref @ v), scale), IDENTITY_THRESHOLDS))
+    return rows
+
+
 def _check_dphi(c, s):
     mod, prm, n = c.mod, c.prm, c.n
     g = np.empty(n)
@@ -328,6 +364,7 @@ def _check_mh(c, s):
 # kernel names a row needs (all of them) -> check; rows whose names a module lacks are skipped
 KERNEL_CHECKS = [
     (("sys_M", "sys_V", "sys_phi"), _check_declared),   # needs `declared` (check_kernels)
+    (("sys_force", "sys_M"), _check_force),             # forced modules, against the declared force
     (("sys_phi", "sys_dphi"), _check_dphi),
     (("sys_dHq", "sys_M", "hamiltonian"), _check_dhq),
     (("hamiltonian", "sys_M", "sys_V"), _check_hamiltonian),
