@@ -4,7 +4,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from functools import lru_cache
 
-from .codegen.build import KernelSet
+from .codegen.kernel_set import KernelSet
 from .discrete.lagrangians import LIBRARY, get_ld
 from .modified import check_mcva_options
 

@@ -22,12 +22,21 @@ from .scenedata import start_tolerance
 
 
 class Reference:
-    """Callable reference solution: ref(t) -> q (len(t), n); ref.p(t); ref.impacts; ref.accuracy."""
+    """Callable reference solution on [t_start, T]: ref(t) -> q, shape (n,) for a scalar t and
+    (len(t), n) for an array; ref.p(t), ref.state(t) likewise; ref.impacts; ref.accuracy.
+    Right-continuous at impacts (the post-impact momentum at t = tau). A time outside [t_start, T]
+    raises ValueError (no extrapolation)."""
 
-    def __init__(self, segments, n, impacts, H0, T, accuracy=np.nan, kind="exact", width=None):
+    def __init__(self, segments, n, impacts, H0, T, accuracy=np.nan, kind="exact", width=None, impact_contact=None,
+                 impact_impulse=None):
         self.segments = segments  # list of (t_start, t_end, dense OdeSolution)
         self.n = n
+        # one entry per contact impact, as Trajectory's (simultaneous impacts: one entry each)
         self.impacts = np.asarray(impacts, float)
+        self.impact_contact = (np.zeros(len(self.impacts), np.int64) if impact_contact is None
+                               else np.asarray(impact_contact, np.int64))
+        self.impact_impulse = (np.full(len(self.impacts), np.nan) if impact_impulse is None
+                               else np.asarray(impact_impulse, float))
         self.H0 = H0
         self.T = T
         self.accuracy = accuracy
@@ -35,21 +44,33 @@ class Reference:
         self.energy_balance = np.nan  # forced exact solves: max |H(t) - H(0) - int f . qdot|
         self._width = 2 * n if width is None else width
 
+    def __repr__(self) -> str:
+        acc = "" if not np.isfinite(self.accuracy) else f", accuracy={self.accuracy:.1e}"
+        return (f"Reference(kind={self.kind!r}, n={self.n}, t=[{self.segments[0][0]:g}, {self.T:g}], "
+                f"impacts={len(self.impacts)}, H0={self.H0:.6g}{acc})")
+
     def state(self, t) -> np.ndarray:
-        t = np.atleast_1d(np.asarray(t, float))
+        scalar = np.ndim(t) == 0
+        t = np.atleast_1d(np.asarray(t, float)).ravel()
+        t_start = self.segments[0][0]
+        tol = 1e-12 * max(1.0, abs(self.T))  # grids end at N h, which may exceed T by round-off
+        bad = ~((t >= t_start - tol) & (t <= self.T + tol))
+        if bad.any():
+            raise ValueError(f"t: {t[bad][0]:.17g} is outside the reference's interval [{t_start:g}, T = {self.T:g}]; "
+                             "compute the reference with a larger T")
         out = np.empty((t.size, self._width))
         starts = np.array([s[0] for s in self.segments])
         idx = np.clip(np.searchsorted(starts, t, side="right") - 1, 0, len(self.segments) - 1)
         for j in np.unique(idx):
             m = idx == j
             out[m] = self.segments[j][2](t[m]).T
-        return out
+        return out[0] if scalar else out
 
     def __call__(self, t) -> np.ndarray:
-        return self.state(t)[:, : self.n]
+        return self.state(t)[..., : self.n]
 
     def p(self, t) -> np.ndarray:
-        return self.state(t)[:, self.n:]
+        return self.state(t)[..., self.n:]
 
 
 def _first_root(g, a, b, samples=64):
@@ -75,6 +96,24 @@ def rk4_step(f, t, y, dt):
     return y + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
 
 
+def step_off_surface(rhs, phi, t, y, delta, tries=40):
+    """(t + d, y(t + d)) by one RK4 micro step of length d <= delta to a state with phi > 0, halving d
+    up to `tries` times; None if none is found (delta <= 0 or the motion stays on the surface).
+
+    After an elastic reset phi is ~0 (often -1e-17), and solve_ivp detects a crossing only from a
+    start value >= 0, so a hop shorter than its first step would go unnoticed (measured: DOP853 at
+    rtol 1e-3 over T = 300 lost the cart through the floor after 26 impacts). The micro step's local
+    error is ~d^5, negligible. Used by the exact reference and the solve_ivp baseline."""
+    for _ in range(tries):
+        if not delta > 0.0:
+            return None
+        y1 = rk4_step(rhs, t, y, delta)
+        if phi(y1) > 0.0:
+            return t + delta, y1
+        delta *= 0.5
+    return None
+
+
 class _HermiteSegment:
     """Dense output of the escape micro step: cubic Hermite on [t0, t1], called like an OdeSolution."""
 
@@ -91,9 +130,14 @@ class _HermiteSegment:
         return np.outer(y0, h00) + np.outer(m0, h10) + np.outer(y1, h01) + np.outer(m1, h11)
 
 
+SIMULTANEOUS = 1e-10  # contacts whose roots lie within this many seconds impact together (LCP)
+
+
 def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000):
-    """(segments, impact times, H(q0, p0), work) of the exact solve; work is None for an unforced
-    system, else a callable t -> W(t) = int_0^t f . qdot (the extra state of every segment)."""
+    """(segments, impacts, H(q0, p0), work) of the exact solve; impacts: [(time, contact, impulse)];
+    work is None for an unforced system, else a callable t -> W(t) = int_0^t f . qdot (the extra
+    state of every segment). The event is the gap min_i phi_i (sys_phi): its first root is the first
+    contact of any constraint."""
     from scipy.integrate import solve_ivp  # here, not at module level: `import vcirun` stays light
 
     mod = load_module(system, SYSTEM_KERNELS)  # system kernels + the continuous dynamics
@@ -108,24 +152,41 @@ def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000):
         # the work of the force, W' = f(q, qdot, t) . qdot (qdot = buf[:n])
         return np.append(buf, mod.force_power(y[:n], buf[:n].copy(), t, prm))
 
-    def event(t, y):
-        return mod.sys_phi(y[:n], prm)
+    m = int(mod.NCON)
+    mask = np.zeros(m, dtype=np.int64)  # contacts touching and not approaching at the segment's start
+
+    def event(t, y):  # the gap over the contacts not touching (collision/impact.py: gap)
+        return mod.gap(y[:n], prm, mask)
 
     event.terminal = True
     event.direction = -1.0
 
-    def dip(t, y):  # d phi / dt: crosses 0 upwards at every local minimum of phi along the flow
-        return mod.gdot(y[:n], y[n:2 * n], prm)
+    def dip(t, y):  # d gap / dt: crosses 0 upwards at every local minimum of the gap along the flow
+        return mod.gap_slope(y[:n], y[n:2 * n], prm, mask)
 
     dip.terminal = False  # recorded, checked after the solve (a terminal event at a minimum would
     dip.direction = 1.0   # restart where d phi/dt = 0 and fire again at once)
+
+    def pressed(t, y):  # a touching contact pushed into its constraint: resting contact (issue 18)
+        phis = np.empty(m)
+        mod.sys_phis(y[:n], prm, phis)
+        return float(np.min(np.where(mask == 1, phis, np.inf))) + 1e-12 * (1.0 + float(np.max(np.abs(y[:n]))))
+
+    pressed.terminal = True
+    pressed.direction = -1.0
     y = np.concatenate([q0, p0] + ([[0.0]] if forced else []))
     t = 0.0
-    segments, impacts = [], []
+    segments, impacts = [], []  # impacts: (time, contact index, impulse), one entry per contact impact
+    d, lam, active = np.empty(n), np.empty(m), np.empty(m, dtype=np.int64)
     atol = rtol * max(1.0, float(np.max(np.abs(y))))
     while t < T:
-        sol = solve_ivp(rhs, (t, T), y, method="DOP853", rtol=rtol, atol=atol, events=(event, dip),
+        mod.touching_mask(y[:n].copy(), y[n:2 * n].copy(), 1.0, SIMULTANEOUS / 4, prm, mask)
+        events = (event, dip, pressed) if mask.any() else (event, dip)
+        sol = solve_ivp(rhs, (t, T), y, method="DOP853", rtol=rtol, atol=atol, events=events,
                         dense_output=True)
+        if len(events) == 3 and sol.status == 1 and sol.t_events[2].size:
+            raise RuntimeError(f"reference: a touching contact is pushed into its constraint at t="
+                               f"{float(sol.t_events[2][0]):.6g} (resting contact)")
         if sol.status < 0:
             raise RuntimeError(f"reference: DOP853 failed at t={sol.t[-1]:.6g}: {sol.message}")
         te = None
@@ -139,18 +200,24 @@ def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000):
         for tm, ym in zip(sol.t_events[1], sol.y_events[1]):
             if te is not None and tm >= te:
                 break
-            if mod.sys_phi(ym[:n], prm) < 0.0:
-                te = _first_root(lambda s: mod.sys_phi(sol.sol(s)[:n], prm), t, float(tm))
+            if mod.gap(ym[:n], prm, mask) < 0.0:
+                te = _first_root(lambda s: mod.gap(sol.sol(s)[:n], prm, mask), t, float(tm))
                 ye = sol.sol(te).copy()
                 break
         segments.append((t, sol.t[-1] if te is None else te, sol.sol))
         if te is not None:
-            g = np.empty(n)
-            lam = mod.cva_lambda(ye[:n], ye[n:2 * n], prm, g)
-            if lam == 0.0:
+            # the impact law of the integrators (collision/impact.py): one contact, Newton's law;
+            # several within SIMULTANEOUS seconds of each other, Moreau's LCP
+            k, s0, _ = mod.impact_direction(ye[:n].copy(), ye[n:2 * n].copy(), 1.0, SIMULTANEOUS / 4, prm, d, lam,
+                                            active)
+            if k == 0:
                 raise RuntimeError(f"reference: grazing contact at t={te:.6g} (zero normal velocity)")
-            ye[n:2 * n] = ye[n:2 * n] + lam * g
-            impacts.append(te)
+            if k < 0:
+                raise RuntimeError(f"reference: the impact law has no solution at t={te:.6g} (case {k})")
+            ye[n:2 * n] = ye[n:2 * n] + s0 * d
+            for i in np.flatnonzero(active):
+                if m == 1 or lam[i] > 0.0:
+                    impacts.append((te, int(i), float(s0 if m == 1 else lam[i])))
             if len(impacts) > max_impacts:
                 raise RuntimeError(f"reference: more than {max_impacts} impacts (accumulation?) by t={te:.6g}")
             t, y = te, ye
@@ -158,22 +225,17 @@ def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000):
             # and solve_ivp only sees a crossing from a start value >= 0, so a hop shorter than its
             # first step would go unnoticed. One RK4 micro step (<= 1e-9, local error ~1e-45) to
             # phi > 0, covered by a cubic Hermite segment (error ~delta^4 times the 4th derivative).
-            delta = min(1e-9, 0.5 * (T - t))
-            for _ in range(40):
-                if delta <= 0.0:
-                    break
-                y1 = rk4_step(rhs, t, y, delta)
-                if mod.sys_phi(y1[:n], prm) > 0.0:
-                    segments.append((t, t + delta, _HermiteSegment(t, y, rhs(t, y), t + delta, y1,
-                                                                   rhs(t + delta, y1))))
-                    t, y = t + delta, y1
-                    break
-                delta *= 0.5
+            mod.touching_mask(y[:n].copy(), y[n:2 * n].copy(), 1.0, SIMULTANEOUS / 4, prm, mask)
+            off = step_off_surface(rhs, lambda yy: mod.gap(yy[:n], prm, mask), t, y, min(1e-9, 0.5 * (T - t)))
+            if off is not None:
+                t1, y1 = off
+                segments.append((t, t1, _HermiteSegment(t, y, rhs(t, y), t1, y1, rhs(t1, y1))))
+                t, y = t1, y1
         else:
             t = T
     work = None
     if forced:
-        whole = Reference(segments, n, impacts, np.nan, T, width=2 * n + 1)
+        whole = Reference(segments, n, [], np.nan, T, width=2 * n + 1)
         work = lambda tt: whole.state(tt)[:, 2 * n]  # noqa: E731
         segments = [(a, b, _Slice(f, 2 * n)) for a, b, f in segments]
     return segments, impacts, float(mod.hamiltonian(q0, p0, prm)), work
@@ -192,13 +254,15 @@ class _Slice:
 def _check_start(system, q0, prm) -> None:
     """A start inside the constraint is bad input, named as such (not a grazing or accumulation
     failure later): phi(q0) < 0 beyond round-off relative to the size of q0 and grad phi."""
-    phi0 = system.phi_value(q0, prm)
-    if not np.isfinite(phi0):
-        raise ValueError(f"initial state: phi(q0) = {phi0} is not finite at q0={np.asarray(q0).tolist()} "
-                         f"(constraint {system.phi})")
-    if phi0 < -start_tolerance(q0, system.grad_phi_value(q0, prm)):
-        raise ValueError(f"initial state: q0={np.asarray(q0).tolist()} lies inside the constraint: "
-                         f"phi(q0) = {phi0:.6g} < 0 for phi = {system.phi}; start where phi(q0) >= 0")
+    phis, G = system.phi_values(q0, prm), system.constraint_jacobian_value(q0, prm)
+    for i, c in enumerate(system.constraints):
+        what = f"phi = {c.phi}" if system.m == 1 else f"constraint {c.name} (phi = {c.phi})"
+        if not np.isfinite(phis[i]):
+            raise ValueError(f"initial state: phi(q0) = {phis[i]} is not finite at q0={np.asarray(q0).tolist()} "
+                             f"for {what}")
+        if phis[i] < -start_tolerance(q0, G[i]):
+            raise ValueError(f"initial state: q0={np.asarray(q0).tolist()} lies inside the constraint: "
+                             f"phi(q0) = {phis[i]:.6g} < 0 for {what}; start where phi(q0) >= 0")
 
 
 def reference(system, *, T, beta=None, q0=None, p0=None, params=None, rtol=1e-13, method="exact", h=None,
@@ -226,16 +290,17 @@ def reference(system, *, T, beta=None, q0=None, p0=None, params=None, rtol=1e-13
     try:
         segs, imps, H0, work = _exact(sysm, q0, p0, prm, T, rtol)
         acc = np.nan
-        ref = Reference(segs, sysm.n, imps, H0, T, kind="exact")
+        ref = Reference(segs, sysm.n, [i[0] for i in imps], H0, T, kind="exact",
+                        impact_contact=[i[1] for i in imps], impact_impulse=[i[2] for i in imps])
         if check_accuracy:
             # estimate the returned solve's error against a tighter one (scipy's floor is ~2.2e-14)
             segs2, imps2, _, _ = _exact(sysm, q0, p0, prm, T, max(rtol / 10, 2.3e-14))
             tt = np.linspace(0.0, T, 2001)
-            acc = float(np.max(np.abs(ref(tt) - Reference(segs2, sysm.n, imps2, H0, T)(tt))))
-            if len(imps) == len(imps2) and imps:
-                acc = max(acc, float(np.max(np.abs(np.subtract(imps, imps2)))))
-            elif len(imps) != len(imps2):
+            acc = float(np.max(np.abs(ref(tt) - Reference(segs2, sysm.n, [], H0, T)(tt))))
+            if [i[1] for i in imps] != [i[1] for i in imps2]:
                 acc = np.inf  # the tighter solve sees another impact sequence: nothing is accurate
+            elif imps:
+                acc = max(acc, float(np.max(np.abs(np.subtract([i[0] for i in imps], [i[0] for i in imps2])))))
             ref.accuracy = acc
         if work is not None:
             ref.energy_balance = _energy_balance(sysm, ref, work, prm, T)

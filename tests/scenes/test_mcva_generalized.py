@@ -1,7 +1,7 @@
 """Acceptance (issue 5): the generalized MCVA (Section 4.4) runs on every discrete Lagrangian of the
 library for s = 1, 2, 3 (and 4), and refuses an unsupported combination with a clear message.
 
-The default suite runs the generated module uncompiled (vcirun.api.load_module replaced by
+The default suite runs the generated module uncompiled (vcirun.resolve.load_module replaced by
 vcirun.codegen.evaluate.python_module_for: same source text, no numba compile) on a short run with
 one impact; the compiled runs of the whole matrix on the Figure 3 setting are marked slow
 (one numba compile of ~10-20 s per combination).
@@ -22,7 +22,7 @@ from vcirun.codegen.evaluate import python_module_for
 
 @pytest.fixture
 def uncompiled(monkeypatch):
-    monkeypatch.setattr(vcirun.api, "load_module", python_module_for)
+    monkeypatch.setattr(vcirun.resolve, "load_module", python_module_for)
 
 
 def _short_state():

@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from vcirun.codegen import c_emit, cc, derive
-from vcirun.codegen.build import _PKG, _units
+from vcirun.codegen.build import _PKG
 from vcirun.mechanics import get_scene
 from vcirun.methods import resolve_method
 
@@ -36,8 +36,7 @@ def _generated(system, method):
     """The generated part of the module text (kernels, dispatchers, constants), numba source."""
     s = get_scene(system)
     ks = resolve_method(method).kernel_set()
-    text = derive.module_source(s, ks, [])
-    return text[:text.index("\nfull = ")], s   # without the bindings to the (absent) units
+    return derive.generated_source(s, ks), s
 
 
 def _python(text: str):
@@ -140,7 +139,7 @@ def test_no_compiler_means_numba_source(monkeypatch, tmp_path):
     ks = resolve_method("CVA").kernel_set()
     monkeypatch.setenv("CC", str(tmp_path / "no-such-cc"))
     assert cc.compiler() is None and cc.backend() == "numba" and cc.identity() == "numba"
-    text = derive.module_source(s, ks, [], c_dir=tmp_path)
+    text = derive.module_source(s, ks, c_dir=tmp_path)
     assert "ExternalFunction" not in text and not list(tmp_path.glob("*.so"))
     monkeypatch.setenv(cc.BACKEND_ENV, "c")
     with pytest.raises(ValueError, match="VCIRUN_KERNEL_BACKEND=c but no C compiler"):
@@ -156,7 +155,7 @@ def test_failing_compiler_falls_back_to_numba(monkeypatch, tmp_path):
     monkeypatch.setenv("CC", "false")   # found on PATH, fails every call
     assert cc.backend() == "c"
     with pytest.warns(RuntimeWarning, match="the kernels stay in numba"):
-        text = derive.module_source(s, ks, [], c_dir=tmp_path)
+        text = derive.module_source(s, ks, c_dir=tmp_path)
     assert "ExternalFunction" not in text and not list(tmp_path.glob("*.so"))
 
 

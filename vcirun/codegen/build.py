@@ -28,16 +28,17 @@ import json
 import os
 import sys
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numba
 
 from .. import __version__
+from .kernel_set import SYSTEM_KERNELS, KernelSet  # noqa: F401 (callers import them from here)
 
 _PKG = Path(__file__).resolve().parent.parent
 # files whose text changes the generated code: hashed into the key
 _GENERATOR_FILES = ["codegen/kernels.py", "codegen/printer.py", "codegen/build.py", "codegen/derive.py",
+                    "codegen/kernel_set.py",
                     "codegen/tensor.py", "codegen/units.py", "record.py", "codegen/c_emit.py", "codegen/cc.py",
                     "discrete/lagrangians.py",
                     "mechanics/system.py"]
@@ -57,33 +58,6 @@ def cache_dir() -> Path:
     return d
 
 
-@dataclass(frozen=True)
-class KernelSet:
-    """What one compiled module must contain: the explicit stages of the full map, which partial map
-    and reset to bind, and (MCVA family) the modified-Hamiltonian data."""
-
-    full_stages: tuple                 # ((explicit Ld name, fraction of h), ...)
-    partial: str = "ld"                # "ld" (same map as full) or "gauss"
-    reset: str = "cva"                 # "cva", "vci", "mcva"
-    vci_stage: str | None = None       # explicit Ld whose energy R^VCI conserves
-    modified: tuple | None = None      # (Ld name, mh_order, flow_order) for the MCVA family
-
-    def key_text(self) -> str:
-        return repr(self)
-
-    @property
-    def explicit_names(self) -> tuple:
-        names = [s for s, _ in self.full_stages]
-        if self.vci_stage and self.vci_stage not in names:
-            names.append(self.vci_stage)
-        return tuple(dict.fromkeys(names))
-
-
-# The system-only kernel set: the system kernels and the continuous dynamics (H, Hamilton's
-# equations with the force, phi, grad phi, d phi/dt, the elastic multiplier; vcirun/maps/dynamics.py),
-# no discrete Lagrangian and no loop. What the exact reference, the baselines, studies and verify
-# need: they load it instead of compiling a method's module.
-SYSTEM_KERNELS = KernelSet(full_stages=(), partial=None, reset=None)
 
 
 def _units(ks: KernelSet) -> list[str]:

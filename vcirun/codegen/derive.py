@@ -47,9 +47,23 @@ def system_kernels(system, with_dhq: bool = True) -> list[Kernel]:
     ks = [
         Kernel("sys_M", [("q", q)], [("out", system.M)], prm),
         Kernel("sys_V", [("q", q)], [("V", system.V)], prm),
+        # the gap min_i phi_i (phi itself for one constraint): what the event search follows
         Kernel("sys_phi", [("q", q)], [("phi", system.phi)], prm),
-        Kernel("sys_dphi", [("q", q)], [("out", system.grad_phi)], prm),
+        Kernel("sys_phis", [("q", q)], [("out", sp.Matrix([c.phi for c in system.constraints]))], prm),
+        Kernel("sys_dphis", [("q", q)], [("out", system.constraint_jacobian)], prm),
+        Kernel("sys_restitution", [], [("out", sp.Matrix([c.restitution for c in system.constraints]))], prm),
     ]
+    if system.m == 1:
+        ks.append(Kernel("sys_dphi", [("q", q)], [("out", system.grad_phi)], prm))
+    # for held (resting) contacts, issue 18: the velocity terms of d^2/dt^2 phi_i = G_i qddot + v^T
+    # Hess(phi_i) v and of d/dt (M v) = M qddot + Mdot v along a velocity v
+    v = list(sp.symbols(f"vv0:{n}"))
+    ks.append(Kernel("sys_ddphis", [("q", q), ("v", v)],
+                     [("out", sp.Matrix([sum(sp.diff(c.phi, a, b) * v[i] * v[j] for i, a in enumerate(q)
+                                             for j, b in enumerate(q)) for c in system.constraints]))], prm))
+    ks.append(Kernel("sys_Mdotv", [("q", q), ("v", v)],
+                     [("out", sp.Matrix([sum(sp.diff(system.M[i, j], q[k]) * v[k] * v[j] for j in range(n)
+                                             for k in range(n)) for i in range(n)]))], prm))
     if with_dhq:
         x = list(sp.symbols(f"xm0:{n}"))
         ks.append(Kernel("sys_dHq", [("q", q), ("x", x)], [("out", system.dH_dq_at(x))], prm))
@@ -74,7 +88,9 @@ def force_kernels(system) -> list[Kernel]:
 def system_kernels_source(system, path: str | None = None) -> str:
     """Source of the system kernels on the chosen kernel path (sys_dHq from the tensors on "tensor")."""
     tensor = kernel_path(path) == "tensor"
-    parts = [k.emit() for k in system_kernels(system, with_dhq=not tensor)]
+    parts = [f"NCON = {system.m}"] + [k.emit() for k in system_kernels(system, with_dhq=not tensor)]
+    if system.m > 1:
+        parts.append(_GAP_GRADIENT)
     if tensor:
         from .tensor import dhq_source, node_source
 
@@ -82,6 +98,25 @@ def system_kernels_source(system, path: str | None = None) -> str:
     else:
         parts.append(_EXPANDED_NODE.format(n=system.n))
     return "\n\n".join(parts)
+
+
+# Several constraints: the gap min_i phi_i has the gradient of its smallest phi_i (where that is one
+# constraint); sys_dphi is that gradient, so d phi/dt along the flow (gdot) and the event search
+# follow the gap unchanged.
+_GAP_GRADIENT = """@njit(cache=True, nogil=True, error_model="numpy")
+def sys_dphi(q, prm, out):
+    phis = np.empty(NCON)
+    sys_phis(q, prm, phis)
+    k = 0
+    for i in range(1, NCON):
+        if phis[i] < phis[k]:
+            k = i
+    G = np.empty((NCON, NDOF))
+    sys_dphis(q, prm, G)
+    for j in range(NDOF):
+        out[j] = G[k, j]
+    return 0
+"""
 
 
 # Node data on the expanded path: M(q) only (row-major), enough for the velocity guess; the

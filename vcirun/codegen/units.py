@@ -50,6 +50,10 @@ class Unit:
         return (PKG / self.path).read_text()
 
 
+# the impact law of Moreau (collision/impact_law.py: pure, no generated names)
+IMPACT_LAW_PROVIDES = ("impact_law", "LCP_MAX_CONTACTS", "LCP_UNIQUE", "LCP_SINGULAR_UNIQUE", "LCP_MIN_NORM",
+                       "LCP_INFEASIBLE", "LCP_BAD_INPUT", "LCP_RANK_TOL", "LCP_FEAS_TOL", "LCP_SYM_TOL")
+
 UNITS = (
     Unit("maps/linalg.py", provides=("solve_small", "norm_inf", "copy_into", "set_row"), requires=()),
     Unit("maps/dynamics.py",
@@ -64,18 +68,24 @@ UNITS = (
                    "mh_terms", "mh_energy", "mh_gradient", "mh_field", "gauss_partial"),
          requires=("NDOF", "FORCED", "MH_ORDER", "MH_M", "MH_NSTAGE", "MH_FLOW_S", "mh_FA", "mh_value", "mh_grad",
                    "mh_hess", "sys_force", "sys_force_jac", "velocity_guess", "solve_small")),
-    Unit("collision/events.py", provides=("N_SCAN", "N_MODEL", "collision_time", "search_collision"),
-         requires=("partial", "sys_phi", "gdot")),
-    Unit("collision/reset_cva.py", provides=("reset_cva",), requires=("NDOF", "cva_lambda")),
+    Unit("collision/events.py", provides=("N_SCAN", "N_MODEL", "step_admissible", "collision_time", "search_collision"),
+         requires=("NCON", "partial", "sys_phi", "gap", "gap_slope", "touching_mask", "unmask_penetrating")),
+    Unit("collision/impact_law.py", provides=IMPACT_LAW_PROVIDES, requires=()),
+    Unit("collision/impact.py",
+         provides=("impact_direction", "touch_tolerance", "gap", "gap_slope", "normal_velocities", "touching_mask",
+                   "unmask_penetrating"),
+         requires=("NDOF", "NCON", "sys_restitution", "sys_phi", "sys_phis", "sys_dphis", "sys_M", "cva_lambda",
+                   "hamiltonian", "impact_law", "solve_small", "gdot")),
+    Unit("collision/reset_cva.py", provides=("reset_cva",), requires=("NDOF",)),
     Unit("collision/reset_vci.py", provides=("reset_vci",),
-         requires=("NDOF", "NODE_LEN", "FORCED", "VCI_STAGE", "FORCE_A", "FORCE_B", "cva_lambda", "velocity_guess",
+         requires=("NDOF", "NODE_LEN", "FORCED", "VCI_STAGE", "FORCE_A", "FORCE_B", "velocity_guess",
                    "sys_node", "ld_PmJc", "ld_Ed", "ld_Edv", "sys_force", "sys_force_jac", "force_power",
                    "solve_small")),
     Unit("collision/reset_mcva.py", provides=("MH_RESET_ETOL", "reset_mcva"),
-         requires=("NDOF", "MH_M", "cva_lambda", "mh_guess", "mh_gradient")),
+         requires=("NDOF", "MH_M", "mh_guess", "mh_gradient")),
     Unit("collision/algorithm1.py", provides=("integrate", "no_modified_energy"),
-         requires=("NDOF", "PARTIAL_IS_FULL", "full", "reset", "modified_energy", "search_collision",
-                   "hamiltonian", "sys_phi", "copy_into", "set_row")
+         requires=("NDOF", "NCON", "PARTIAL_IS_FULL", "full", "reset", "modified_energy", "search_collision",
+                   "step_admissible", "impact_direction", "hamiltonian", "copy_into", "set_row")
          + tuple(f.index_name for f in record.FIELDS) + tuple(f"I_{c.upper()}" for c in record.COUNTERS)
          + tuple(f"S_{s.upper()}" for s in record.SETTINGS) + tuple(f"ST_{n.upper()}" for n, _ in record.STATUSES)),
 )
@@ -83,8 +93,9 @@ UNIT = {u.path: u for u in UNITS}
 
 # what vcirun.codegen.derive emits, per part of a kernel set
 GENERATED = {
-    "system": ("NDOF", "FORCED", "NODE_LEN", "sys_M", "sys_V", "sys_phi", "sys_dphi", "sys_dHq", "sys_node",
-               "sys_node_M", "sys_force", "sys_force_jac"),
+    "system": ("NDOF", "NCON", "FORCED", "NODE_LEN", "sys_M", "sys_V", "sys_phi", "sys_dphi", "sys_phis",
+               "sys_dphis", "sys_ddphis", "sys_Mdotv", "sys_restitution", "sys_dHq", "sys_node", "sys_node_M",
+               "sys_force", "sys_force_jac"),
     "record": tuple(ln.split(" = ")[0] for ln in record.module_constants().splitlines()),
     "steps": ("FULL_STAGES", "FULL_FRACS", "FORCE_A", "FORCE_B", "VCI_STAGE", "PARTIAL_IS_FULL", "ld_PmJ", "ld_Pp",
               "ld_PmJc", "ld_Ppc", "ld_Ed"),
@@ -99,7 +110,8 @@ MODIFIED_ENERGY = {False: "no_modified_energy", True: "mh_energy"}
 
 # names Python calls on a module
 SYSTEM_ENTRY = ("hamiltonian", "hamilton_rhs", "dynamics_rhs", "force_power", "gdot", "cva_lambda",
-                "mass_matrix_ok", "sys_M", "sys_phi", "sys_dphi")
+                "mass_matrix_ok", "sys_M", "sys_phi", "sys_dphi", "sys_phis", "sys_dphis", "sys_restitution",
+                "impact_direction", "gap", "touching_mask", "sys_ddphis", "sys_Mdotv")
 METHOD_ENTRY = SYSTEM_ENTRY + ("integrate", "collision_time", "ld_step")
 
 

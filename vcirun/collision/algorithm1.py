@@ -35,9 +35,9 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
     energies = settings[S_ENERGIES] != 0.0
     Q = out[O_Q]
     P = out[O_P]
-    Hs = out[O_H]
-    Eds = out[O_ED]
-    Hm = out[O_HMOD]
+    H = out[O_H]
+    Ed = out[O_ED]
+    Hmod = out[O_HMOD]
     impact_step = out[O_IMPACT_STEP]
     newton_iters = out[O_NEWTON_ITERS]
     q = q0.copy()
@@ -45,7 +45,7 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
     qt = np.empty(NDOF)
     pt = np.empty(NDOF)
     vt = np.empty(NDOF)
-    work = np.empty((3, NDOF))
+    work = np.empty((4, NDOF))
     set_row(Q, 0, q)
     set_row(P, 0, p)
     info[I_N_IMPACTS] = 0
@@ -59,17 +59,17 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
     i = 0
     while i < N:
         t = t0 + i * h
-        it, Ed = full(q, p, h, t, prm, ntol, maxit, qt, pt, vt, energies or i == 0)
+        it, E = full(q, p, h, t, prm, ntol, maxit, qt, pt, vt, energies or i == 0)
         if energies or i == 0:
-            Hs[i] = hamiltonian(q, p, prm)
-            Hm[i] = modified_energy(q, p, h, prm)
-        Eds[i] = Ed
+            H[i] = hamiltonian(q, p, prm)
+            Hmod[i] = modified_energy(q, p, h, prm)
+        Ed[i] = E
         if it < 0:
             status = ST_NEWTON_FAILED
             fail = i
             break
         iters = it
-        if (not constrained) or sys_phi(qt, prm) > 0.0:
+        if (not constrained) or step_admissible(q, p, qt, h, event_tol, prm):
             copy_into(q, qt)
             copy_into(p, pt)
         else:
@@ -90,10 +90,10 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
         i += 1
     if status == ST_OK and energies:
         # energies at the last grid state (its discrete energy from one more trial step)
-        it, Ed = full(q, p, h, t0 + N * h, prm, ntol, maxit, qt, pt, vt)
-        Hs[N] = hamiltonian(q, p, prm)
-        Eds[N] = Ed
-        Hm[N] = modified_energy(q, p, h, prm)
+        it, E = full(q, p, h, t0 + N * h, prm, ntol, maxit, qt, pt, vt)
+        H[N] = hamiltonian(q, p, prm)
+        Ed[N] = E
+        Hmod[N] = modified_energy(q, p, h, prm)
     info[I_STATUS] = status
     info[I_FAIL_STEP] = fail
     info[I_STEPS] = i
@@ -104,11 +104,14 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
 def _impact_step(q, p, h, t, prm, ntol, maxit, event_tol, max_impacts_step, qt, pt, vt, work, dense, out, info):
     """Lines 5-17 of Algorithm 1: the step from (q, p) at t whose full step left the admissible set,
     by partial steps to each collision and resets. (qt, pt, vt) hold that full step on entry (reused
-    as the first partial step when the partial map is the full map); work: 3 x NDOF scratch. On
+    as the first partial step when the partial map is the full map); work: 4 x NDOF scratch. On
     success (q, p) hold the state at t + h. Returns (status, Newton iterations)."""
     qh = work[0]
     ph = work[1]
     pp = work[2]
+    d = work[3]
+    lam = np.empty(NCON)
+    active = np.empty(NCON, dtype=np.int64)
     copy_into(qh, q)
     copy_into(ph, p)
     tau_max = h
@@ -126,15 +129,20 @@ def _impact_step(q, p, h, t, prm, ntol, maxit, event_tol, max_impacts_step, qt, 
         _log_partial(out[O_PARTIAL_STEPS], info, dtau)
         tau_rem = tau_max - dtau
         if code == 1:
-            itr, lam = reset(qt, pt, Epre, vt, dtau, tau_rem, h, tc + dtau, prm, ntol, maxit, pp)
+            # the impact law (which contacts, Newton's multiplier, the energy it removes), then the
+            # method's reset along its direction
+            k, s0, dE = impact_direction(qt, pt, h, event_tol, prm, d, lam, active)
+            if k <= 0:
+                return ST_RESET_FAILED, iters  # no approaching contact (grazing), or no LCP solution
+            itr, s = reset(qt, pt, d, s0, dE, Epre, vt, dtau, tau_rem, h, tc + dtau, prm, ntol, maxit, pp)
             iters += abs(itr)
             if itr < 0:
                 return ST_RESET_FAILED, iters
             k_imp += 1
             if (_accumulating(dense, tc + dtau, h, max_impacts_step) or k_imp > max_impacts_step
-                    or info[I_N_IMPACTS] >= out[O_IMPACTS].shape[0]):
+                    or info[I_N_IMPACTS] + k > out[O_IMPACTS].shape[0]):
                 return ST_ACCUMULATION, iters
-            _record_impact(out, info, tc + dtau, qt, pt, pp, lam)
+            _record_impacts(out, info, tc + dtau, qt, pt, pp, s, s0, lam, active)
             copy_into(qh, qt)
             copy_into(ph, pp)
             tau_max = tau_rem
@@ -173,16 +181,22 @@ def _log_partial(log, info, dtau):
         info[I_N_PARTIAL] = k + 1
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _record_impact(out, info, t_imp, q, pm, pp, lam):
-    """One entry of every per-impact row of vcirun.record.FIELDS."""
-    k = info[I_N_IMPACTS]
-    out[O_IMPACTS][k] = t_imp
-    set_row(out[O_IMPACT_Q], k, q)
-    set_row(out[O_IMPACT_P_MINUS], k, pm)
-    set_row(out[O_IMPACT_P_PLUS], k, pp)
-    out[O_IMPACT_IMPULSE][k] = lam
-    info[I_N_IMPACTS] = k + 1
+@njit(cache=True, nogil=True, error_model="numpy")
+def _record_impacts(out, info, t_imp, q, pm, pp, s, s0, lam, active):
+    """One entry of every per-impact row of vcirun.record.FIELDS per contact that took an impulse
+    (simultaneous impacts: one entry each, at the same time and state). The reset's multiplier s
+    scales the impact law's impulses: contact i took lam_i s / s0 (one contact: s itself)."""
+    for i in range(NCON):
+        if active[i] == 0 or (NCON > 1 and not lam[i] > 0.0):
+            continue
+        k = info[I_N_IMPACTS]
+        out[O_IMPACTS][k] = t_imp
+        set_row(out[O_IMPACT_Q], k, q)
+        set_row(out[O_IMPACT_P_MINUS], k, pm)
+        set_row(out[O_IMPACT_P_PLUS], k, pp)
+        out[O_IMPACT_IMPULSE][k] = s if NCON == 1 else lam[i] * (s / s0)
+        out[O_IMPACT_CONTACT][k] = i
+        info[I_N_IMPACTS] = k + 1
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

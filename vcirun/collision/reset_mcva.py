@@ -1,7 +1,6 @@
 # numba source unit: the reset R^MCVA (eq. 34) of the MCVA family, conserving the truncated modified
-# Hamiltonian H~^{O(h^s)}.
-# Requires from the generated module: NDOF, MH_M, mh_guess, mh_gradient (vcirun/maps/gauss.py),
-# cva_lambda (vcirun/collision/resets.py).
+# Hamiltonian H~^{O(h^s)} (with restitution: losing what Newton's law removes from H, docs/contacts.md).
+# Signature: see collision/reset_cva.py; contract: vcirun.codegen.units.
 import math
 
 import numpy as np
@@ -11,17 +10,18 @@ MH_RESET_ETOL = 8.0 * 2.220446049250313e-16  # R^MCVA accepts lam once H~ is con
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def reset_mcva(q, pm, E_pre, vpre, dtau, tau_rem, h, t, prm, ntol, maxit, pp):
-    """R^MCVA (eq. 34): pp = pm + lam grad phi(q) with H~^{O(h^s)}(q, pp) = H~^{O(h^s)}(q, pm), lam != 0.
-    Newton on F(lam) = [H~(q, pm + lam g) - H~(q, pm)] / lam, whose root set excludes the trivial
-    root lam = 0 (F(0) = dH~/dp . g, the normal velocity, is nonzero at a transversal impact);
-    F'(lam) = (dH~/dp . g - F) / lam. Start: the R^CVA reflection (exact for H, H~ = H + O(h)).
+def reset_mcva(q, pm, d, s0, dE, E_pre, vpre, dtau, tau_rem, h, t, prm, ntol, maxit, pp):
+    """R^MCVA (eq. 34): pp = pm + lam d with H~^{O(h^s)}(q, pp) = H~^{O(h^s)}(q, pm) - dE, lam != 0
+    (d = grad phi(q) for one contact; dE = 0 for elastic impacts: the paper's reset).
+    Newton on F(lam) = [H~(q, pm + lam d) - H~(q, pm) + dE] / lam, whose root set excludes the trivial
+    root lam = 0 (F(0) = dH~/dp . d, the normal velocity, is nonzero at a transversal elastic impact);
+    F'(lam) = (dH~/dp . d - F) / lam. Start: the impact law's s0 (exact for H, H~ = H + O(h)).
     Converged when the Newton step is below ntol (1 + |lam|), or when H~ is already conserved to
     8 eps (relative): at small lam, F = dE / lam is only known to ~eps |H~| / lam. Failure (< 0) when
     Newton does not converge or lam has not the sign of the reflection (then lam is returned too).
     Forcing does not enter: the reset is an impulse, and bounded forces do no work in zero time."""
-    g = np.empty(NDOF)
-    lam0 = cva_lambda(q, pm, prm, g)
+    g = d
+    lam0 = s0
     if lam0 == 0.0 or not math.isfinite(lam0):
         return -1, lam0
     nz = 2 * NDOF
@@ -45,11 +45,11 @@ def reset_mcva(q, pm, E_pre, vpre, dtau, tau_rem, h, t, prm, ntol, maxit, pp):
         itu, E = mh_gradient(q, pp, h, prm, u, W, grad, hess)
         if itu < 0 or not math.isfinite(E):
             break
-        dE = E - E0
-        if abs(dE) <= MH_RESET_ETOL * max(1.0, abs(E0)):
-            ok = True  # conserved to round-off (a small lam pins F = dE / lam only to ~eps |E| / lam)
+        gap = E - E0 + dE
+        if abs(gap) <= MH_RESET_ETOL * max(1.0, abs(E0)):
+            ok = True  # balanced to round-off (a small lam pins F = gap / lam only to ~eps |E| / lam)
             break
-        Fl = dE / lam
+        Fl = gap / lam
         gp = 0.0
         for i in range(NDOF):
             gp += grad[NDOF + i] * g[i]

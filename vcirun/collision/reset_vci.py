@@ -1,5 +1,5 @@
-# numba source unit: the reset R^VCI (eq. 33), with forcing (docs/forcing.md). Signature: see
-# collision/reset_cva.py.
+# numba source unit: the reset R^VCI (eq. 33), with forcing (docs/forcing.md) and restitution
+# (docs/contacts.md). Signature: see collision/reset_cva.py.
 import math
 
 import numpy as np
@@ -7,37 +7,36 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def reset_vci(q, pm, E_pre, vpre, dtau, tau_rem, h, t, prm, ntol, maxit, pp):
-    """R^VCI: pp = pm + lam grad phi with the discrete energy balanced across the impact,
-    -D3 Ld(q, q_next, tau_rem) = E_pre + W^+ + W^-, pp = -D1 Ld(q, q_next, tau_rem) - f^-,
-    solved jointly for (w, lam), q_next = q + tau_rem w, by Newton from the R^CVA reflection (the
-    root near lam = 0 is not a reflection and is rejected). The post-impact step is the remaining
-    time tau_rem = tau_max - Delta tau (after the decrement of Algorithm 1, line 15), so the
-    pre- and post-impact steps tile the grid step exactly.
+def reset_vci(q, pm, d, s0, dE, E_pre, vpre, dtau, tau_rem, h, t, prm, ntol, maxit, pp):
+    """R^VCI: pp = pm + s d with the discrete energy balanced across the impact,
+    -D3 Ld(q, q_next, tau_rem) = E_pre + W^+ + W^- - dE, pp = -D1 Ld(q, q_next, tau_rem) - f^-,
+    solved jointly for (w, s), q_next = q + tau_rem w, by Newton from the impact law's s0 (the root
+    near s = 0 is not a reflection and is rejected). The post-impact step is the remaining time
+    tau_rem = tau_max - Delta tau (after the decrement of Algorithm 1, line 15), so the pre- and
+    post-impact steps tile the grid step exactly.
 
     Forcing (docs/forcing.md): the discrete Lagrange-d'Alembert principle with the impact time as a
     variable gives the energy condition E^+ = E^- + f^+_pre . v_pre + f^-_post . v_post, the discrete
     work of the force over the half of each partial step next to the impact, W^+ = b dtau f(q, vpre,
     t) . vpre and W^-(w) = a tau_rem f(q, w, t) . w with the Ld's discrete-force weights (a, b).
-    Unforced (FORCED False): both are 0 and the equations are the paper's eq. (33)."""
-    g = np.empty(NDOF)
-    lam0 = cva_lambda(q, pm, prm, g)
-    if lam0 == 0.0 or not math.isfinite(lam0):
-        return -1, lam0
-    E_target = E_pre
+    Restitution (docs/contacts.md): the discrete energy loses what Newton's law removes from H, dE
+    (0 for elastic impacts). Unforced and elastic: the paper's eq. (33)."""
+    if s0 == 0.0 or not math.isfinite(s0):
+        return -1, s0
+    E_target = E_pre - dE
     if FORCED:
         E_target += FORCE_B[VCI_STAGE] * dtau * force_power(q, vpre, t, prm)
-    # Newton from the R^CVA reflection; near the fold (tiny normal velocity) it can fall onto the
-    # non-reflecting root, so retry from larger reflections before giving up
+    # Newton from the impact law's multiplier; near the fold (tiny normal velocity) it can fall onto
+    # the non-reflecting root, so retry from larger multipliers before giving up
     total = 0
     for scale in (1.0, 2.0, 4.0, 8.0, 0.5):
-        it, lam = _vci_newton(q, pm, E_target, tau_rem, t, prm, ntol, maxit, g, scale * lam0, pp)
+        it, lam = _vci_newton(q, pm, E_target, tau_rem, t, prm, ntol, maxit, d, scale * s0, pp)
         total += abs(it)
-        if it > 0 and lam * lam0 > 0.0 and abs(lam) >= 1e-3 * abs(lam0):
+        if it > 0 and lam * s0 > 0.0 and abs(lam) >= 1e-3 * abs(s0):
             for i in range(NDOF):
-                pp[i] = pm[i] + lam * g[i]
+                pp[i] = pm[i] + lam * d[i]
             return total, lam
-    return -total, lam0
+    return -total, s0
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

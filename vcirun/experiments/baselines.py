@@ -28,7 +28,7 @@ import time
 import numpy as np
 
 from .. import trajectory as tr
-from ..reference import rk4_step
+from ..reference import step_off_surface
 
 __all__ = ["BASELINES", "solve_ivp_run", "is_baseline", "hamiltonian_on_grid"]
 
@@ -225,20 +225,12 @@ def solve_ivp_run(system, method: str = "DOP853", *, h, T, rtol, atol=None, beta
                 k += 1
             if k > N or te >= T_end:
                 break
-            # Step off the surface before restarting with the event: right after the reset phi is ~0
-            # (often -1e-17), and solve_ivp detects a crossing only from a start value >= 0, so a hop
-            # shorter than its first step would be missed and the motion lost (measured: DOP853 at
-            # rtol 1e-3 over T = 300 lost the cart through the floor after 26 impacts). One RK4 micro
-            # step of length delta (local error ~ delta^5, negligible) to a state with phi > 0.
+            # step off the surface before restarting with the event (reference.step_off_surface)
             if escape:
                 nxt = float(tgrid[k]) if k <= N else T_end
-                delta = min(escape_step, 0.5 * (nxt - t))
-                for _ in range(40):
-                    y1 = rk4_step(rhs, t, y, delta)
-                    if model.phi(t + delta, y1) > 0.0:
-                        t, y = t + delta, y1
-                        break
-                    delta *= 0.5
+                off = step_off_surface(rhs, lambda yy: model.phi(t, yy), t, y, min(escape_step, 0.5 * (nxt - t)))
+                if off is not None:
+                    t, y = off
         else:
             break
     wall = time.perf_counter() - t_start

@@ -40,16 +40,19 @@ import yaml
 from pydantic import (BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationError, field_validator,
                       model_validator)
 
+from ..discrete.lagrangians import LIBRARY
+from ..methods import METHODS
+
 __all__ = ["ConfigError", "SweepConfig", "MethodSpec", "InitialCondition", "ExecutorSpec", "load_config", "parse_config",
            "COLLISION_METHODS", "SMOOTH_METHODS", "DISCRETE_LAGRANGIANS", "yaml_load"]
 
-# Names `vcirun.simulate` accepts (tests/unit/test_config.py checks these against the core).
-COLLISION_METHODS = ("CVA", "VCI", "MCVAA", "MCVAC", "MCVA", "CVA4", "CVA6", "CVA8")
-DISCRETE_LAGRANGIANS = ("SE1", "SE2", "SVA", "SVB", "SVC", "midpoint", "SVC4", "SVC6", "SVC8")
+# Names `vcirun.simulate` accepts, read from the core's registries (vcirun.methods.METHODS,
+# vcirun.discrete.lagrangians.LIBRARY): one list each (issue 16).
+COLLISION_METHODS = tuple(METHODS) + ("MCVA",)
+DISCRETE_LAGRANGIANS = tuple(LIBRARY)
 SMOOTH_METHODS = DISCRETE_LAGRANGIANS  # a bare Ld name integrates the smooth dynamics, constraint ignored
-MethodName = Literal["CVA", "VCI", "MCVAA", "MCVAC", "MCVA", "CVA4", "CVA6", "CVA8",
-                     "SE1", "SE2", "SVA", "SVB", "SVC", "midpoint", "SVC4", "SVC6", "SVC8"]
-LdName = Literal["SE1", "SE2", "SVA", "SVB", "SVC", "midpoint", "SVC4", "SVC6", "SVC8"]
+MethodName = Literal[COLLISION_METHODS + DISCRETE_LAGRANGIANS]
+LdName = Literal[DISCRETE_LAGRANGIANS]
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]*$")
 # A config whose top level has this key is a study config (`vcirun study`, schema in
 # vcirun.experiments.studies.schema), not a sweep; `vcirun validate` dispatches on it.
@@ -76,7 +79,7 @@ PositiveFloat = Annotated[float, Field(gt=0)]
 
 # --- system ---------------------------------------------------------------------------------------
 class BuiltinSystem(_Model):
-    """A built-in scene (`vcirun.mechanics.scenes.BUILTIN_SCENES`) with optional parameter overrides."""
+    """A built-in scene (`vcirun.scenedata.BUILTIN_SCENE_DATA`) with optional parameter overrides."""
     name: str = Field(min_length=1)
     params: dict[str, float] = Field(default_factory=dict)
 
@@ -95,7 +98,8 @@ class InlineSystem(_Model):
     parameters: dict[str, float] = Field(default_factory=dict)
     mass_matrix: list[list[Union[str, float]]]
     potential: Union[str, float]
-    constraint: Union[str, float]
+    constraint: Union[str, float] | None = None
+    constraints: list[Union[str, float, dict[str, Union[str, float]]]] | None = None
     forcing: list[Union[str, float]] | None = None
     q0: list[float] | None = None
     p0: list[float] | None = None
@@ -108,7 +112,7 @@ class InlineSystem(_Model):
 
 def _system_tag(v: Any) -> str | None:
     if isinstance(v, dict):
-        if "coordinates" in v or "mass_matrix" in v or "potential" in v or "constraint" in v:
+        if "coordinates" in v or "mass_matrix" in v or "potential" in v or "constraint" in v or "constraints" in v:
             return "inline"
         return "file" if "file" in v else "builtin"
     if isinstance(v, BaseModel):
@@ -611,13 +615,42 @@ def _pydantic_message(err: dict, root=None) -> tuple[tuple, str]:
 
 
 def _from_validation_error(e: ValidationError, source: str, root=None) -> ConfigError:
+    """Every problem at once, on one line: unknown keys first (a typo such as `methdos:` is named, with
+    the closest known key, and the "required key is missing" it causes is folded into it), then the
+    rest in the order pydantic found them: `<file>: <field>: <problem>; <field>: <problem> (N problems)`."""
     errors = e.errors(include_url=False)
-    # A root-level custom error carries its own location (see _FieldError).
-    loc, msg = _pydantic_message(errors[0], root)
-    more = len(errors) - 1
-    if more:
-        msg += f" (and {more} more problem{'s' * (more > 1)})"
-    return ConfigError(msg, source=source, field=format_loc(loc))
+    items = [(err["type"], _pydantic_message(err, root)) for err in errors]  # root-level _FieldError: own location
+    unknown = [(loc, msg) for typ, (loc, msg) in items if typ == "extra_forbidden"]
+    missing = {loc for typ, (loc, _) in items if typ == "missing"}
+    folded = set()
+    for loc, msg in list(unknown):
+        m = re.search(r"did you mean '([^']+)'", msg)
+        if m and loc[:-1] + (m.group(1),) in missing:
+            folded.add(loc[:-1] + (m.group(1),))
+    out = [(loc, msg + (" (that key is required)" if loc[:-1] + (_hint(msg),) in folded else ""))
+           for loc, msg in unknown]
+    out += [(loc, msg) for typ, (loc, msg) in items if typ != "extra_forbidden" and not (typ == "missing" and loc in folded)]
+    seen, uniq, lists = set(), [], set()
+    for loc, msg in out:
+        if (loc, msg) in seen:
+            continue
+        seen.add((loc, msg))
+        m = re.search(r" \(allowed: [^)]*\)", msg)
+        if m:  # several unknown keys of one mapping: its allowed keys once
+            if (loc[:-1], m.group(0)) in lists:
+                msg = msg.replace(m.group(0), "")
+            lists.add((loc[:-1], m.group(0)))
+        uniq.append((loc, msg))
+    first_loc, first_msg = uniq[0]
+    text = first_msg + "".join(f"; {format_loc(loc)}: {msg}" for loc, msg in uniq[1:])
+    if len(uniq) > 1:
+        text += f" ({len(uniq)} problems)"
+    return ConfigError(text, source=source, field=format_loc(first_loc))
+
+
+def _hint(msg: str) -> str:
+    m = re.search(r"did you mean '([^']+)'", msg)
+    return m.group(1) if m else ""
 
 
 # --- loading -----------------------------------------------------------------------------------------
@@ -683,16 +716,17 @@ def config_text(path) -> str:
 # --- semantic checks (need the numerical core) ---------------------------------------------------------------
 def build_system(cfg: SweepConfig):
     """(system argument for vcirun.simulate/reference, parameter overrides or None, MechanicalSystem)."""
-    from vcirun.mechanics import BUILTIN_SCENES, load_system_yaml
+    from vcirun.mechanics import load_system_yaml
     from vcirun.mechanics.scenes import get_scene
+    from vcirun.scenedata import BUILTIN_SCENE_DATA, scene_args
 
     s = cfg.system
     if isinstance(s, BuiltinSystem):
-        if s.name not in BUILTIN_SCENES and not re.fullmatch(r"n_pendulum_\d+", s.name):
-            hint = difflib.get_close_matches(s.name, list(BUILTIN_SCENES), n=1)
+        if scene_args(s.name) is None:  # the one scene registry (vcirun.scenedata)
+            hint = difflib.get_close_matches(s.name, list(BUILTIN_SCENE_DATA), n=1)
             raise _Semantic("system",
                             f"unknown built-in system {s.name!r}" + (f"; did you mean {hint[0]!r}?" if hint else "")
-                            + f" (choose one of {', '.join(BUILTIN_SCENES)}, or a YAML file path)")
+                            + f" (choose one of {', '.join(BUILTIN_SCENE_DATA)}, or a YAML file path)")
         sysm = get_scene(s.name)
         return s.name, (dict(s.params) or None), sysm
     if isinstance(s, FileSystem):

@@ -82,6 +82,9 @@ class SweepSummary:
     executor: str = "local"    # "local" | "dask"
     executor_stats: dict = field(default_factory=dict)  # task sizes, measured costs (executors.*.stats)
     write_time: float = 0.0    # seconds the client spent storing results, final commit included (serial)
+    prepare_time: float = 0.0  # seconds of the preflight: loading or (cold cache) compiling the kernels
+    compiled: int = 0          # kernel modules the preflight generated and compiled (cold cache)
+    summary_error: str = ""    # why the summary group could not be written ("" if it was)
 
     @property
     def ok(self) -> bool:
@@ -145,8 +148,12 @@ def make_tasks(pending: list[RunSpec], workers: int, stored_refs: set, needs_ref
 # --- worker side ----------------------------------------------------------------------------------
 class _WorkerState:
     def __init__(self, cfg: SweepConfig, ref_T: float, ref_h: float):
-        import vcirun  # noqa: F401 - once per process; kernels and scenes are cached inside
+        import warnings
 
+        import vcirun  # noqa: F401 - once per process; kernels and scenes are cached inside
+        from vcirun.api import GridWarning
+
+        warnings.simplefilter("ignore", GridWarning)  # the client says it once for the sweep
         self.cfg = cfg
         self.ref_T = ref_T
         self.ref_h = ref_h
@@ -242,14 +249,13 @@ def _reference_payload(st: _WorkerState, ic: InitialCondition, ref) -> tuple[dic
 
 
 def _resolved_method(spec: MethodSpec) -> dict:
-    try:
-        from vcirun.methods import resolve_method
+    """What a method spec resolves to (name, ld, partial, reset, mh_order, flow_order): provenance.
+    The config layer has already resolved every method, so a failure here is a bug and raises."""
+    from vcirun.methods import resolve_method
 
-        m = resolve_method(spec.name, **{k: v for k, v in spec.simulate_kwargs().items()
-                                         if k in ("ld", "mh_order", "flow_order")})
-        return {k: getattr(m, k, None) for k in ("name", "ld", "partial", "reset", "mh_order", "flow_order")}
-    except Exception:  # noqa: BLE001 - provenance only
-        return {}
+    m = resolve_method(spec.name, **{k: v for k, v in spec.simulate_kwargs().items()
+                                     if k in ("ld", "mh_order", "flow_order")})
+    return {k: getattr(m, k, None) for k in ("name", "ld", "partial", "reset", "mh_order", "flow_order")}
 
 
 def _simulate_kwargs(st: _WorkerState, spec: RunSpec, T: float) -> dict:
@@ -264,7 +270,7 @@ def _execute_run(st: _WorkerState, spec: RunSpec, ref) -> dict:
 
     base = {"run_id": spec.run_id, "method": spec.method.name, "label": spec.label,
             "method_index": spec.method_index, "method_spec": spec.method.identity(),
-            "resolved_method": _resolved_method(spec), "ic_key": spec.ic.key, "ic_index": spec.ic_index,
+            "resolved_method": _resolved_method(spec.method), "ic_key": spec.ic.key, "ic_index": spec.ic_index,
             "beta": spec.ic.beta, "T_requested": st.cfg.T, "worker_pid": os.getpid()}
     if spec.method.display not in st.warm:
         st.warm.add(spec.method.display)
@@ -499,12 +505,19 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
         summary.skipped = len(specs) - len(pending)
         summary.deleted_incomplete = len(writer.incomplete)
         if not pending:
-            if writer.has_changes():
+            changed = writer.has_changes()
+            if changed:
                 writer.finish("complete")
+            _finalize(path, summary, if_missing=not changed)  # a no-op resume leaves the file untouched
             summary.status_counts = _status_counts(writer)
             summary.wall_time = time.monotonic() - t_start
             return summary
+        from vcirun.codegen.build import BUILD_LOG
+
+        t_pre, n_log = time.monotonic(), len(BUILD_LOG)
         _preflight(cfg, pending)
+        summary.prepare_time = time.monotonic() - t_pre  # kernels loaded or compiled: not run time
+        summary.compiled = sum(not e["cached"] for e in BUILD_LOG[n_log:])
         executor = executors.make_executor(ex_spec, workers=workers, start_method=start_method)
         executor.connect()  # a Dask cluster: reached (or a one-line error) before the file is created
         summary.workers = executor.workers
@@ -513,6 +526,11 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
         needs_ref = not isinstance(cfg.reference, NoReference)
         reporter = _Reporter(console, len(pending), f"{cfg.name}: {len(pending)} runs on {executor.describe()}",
                              progress)
+        from vcirun.api import grid_note
+
+        for h in cfg.h:
+            if grid_note(h, cfg.T):
+                reporter.log(f"note: {grid_note(h, cfg.T)}")
         if summary.skipped:
             reporter.log(f"resuming {path}: {summary.skipped} of {len(specs)} runs already stored"
                          + (f", {summary.deleted_incomplete} incomplete groups discarded"
@@ -560,6 +578,7 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
                 reporter.stop()
                 t0 = time.perf_counter()
                 writer.finish(status)  # every finished run is committed, whatever happened
+                _finalize(path, summary)  # the file is final: its summary group (issue 19)
                 summary.write_time += time.perf_counter() - t0
             if on_main:
                 signal.signal(signal.SIGTERM, old_term)
@@ -579,6 +598,17 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
         if executor is not None:
             executor.close()
         writer.close()
+
+
+def _finalize(path: Path, summary: SweepSummary, if_missing: bool = False) -> None:
+    """Write the file's summary group (vcirun.experiments.summary); a failure there is reported in
+    the summary, never allowed to cost the runs."""
+    from .summary import write_summary
+
+    try:
+        write_summary(path, if_missing=if_missing)
+    except storage.StorageError as e:
+        summary.summary_error = _one_line(e)
 
 
 @contextlib.contextmanager
