@@ -142,8 +142,9 @@ def test_derivative_table_catches_a_perturbed_kernel(compiled):
     system, mod, prm = compiled("oscillator_wall", "CVA")
     probes = [Probe(np.array([0.3]), np.array([-0.7]), 0.0, 0.04), Probe(np.array([-0.2]), np.array([0.5]), 1.0, 0.04)]
     ks = vcirun.methods.resolve_method("CVA").kernel_set()
-    ok = {r["kernel"]: r["worst"] for r in check_kernels(mod, prm, probes, full_stages=ks.full_stages)}
-    assert max(ok.values()) < 1e-8
+    rows = check_kernels(mod, prm, probes, full_stages=ks.full_stages)
+    ok = {r["kernel"]: r["worst"] for r in rows}
+    assert all(r["worst"] <= 0.1 * r["thresholds"][0] for r in rows), rows   # well inside each pass threshold
     bad = {r["kernel"]: r["worst"] for r in check_kernels(_Perturbed(mod, "SVC_Pp"), prm, probes,
                                                           full_stages=ks.full_stages)}
     assert bad["SVC_Pp"] > 5e-6 and bad["SVC_Pp"] > 1e3 * ok["SVC_Pp"]

@@ -142,17 +142,71 @@ def _floor(value):
 
 
 def _check_declared(c, s):
-    """sys_M, sys_V, sys_phi against the declaration itself (sympy.lambdify: no code generation)."""
+    """sys_M, sys_V, sys_phi (the gap min_i phi_i) and sys_phis against the declaration itself
+    (sympy.lambdify: no code generation)."""
     if c.declared is None:
         return []
     mod, prm = c.mod, c.prm
     M = c.declared["M"](s.q)
-    V, phi = c.declared["V"](s.q), c.declared["phi"](s.q)
-    return [("sys_M", "the declared mass matrix (sympy.lambdify)", rel_err(c.M(s.q), M, 1e-300), IDENTITY_THRESHOLDS),
+    V, phis = c.declared["V"](s.q), c.declared["phis"](s.q)
+    rows = [("sys_M", "the declared mass matrix (sympy.lambdify)", rel_err(c.M(s.q), M, 1e-300), IDENTITY_THRESHOLDS),
             ("sys_V", "the declared potential (sympy.lambdify)", rel_err(mod.sys_V(s.q, prm), V, 1.0),
              IDENTITY_THRESHOLDS),
-            ("sys_phi", "the declared constraint (sympy.lambdify)", rel_err(mod.sys_phi(s.q, prm), phi, 1.0),
-             IDENTITY_THRESHOLDS)]
+            ("sys_phi", "the declared constraint (the gap min_i phi_i for several; sympy.lambdify)",
+             rel_err(mod.sys_phi(s.q, prm), float(np.min(phis)), 1.0), IDENTITY_THRESHOLDS)]
+    if hasattr(mod, "sys_phis"):
+        out = np.empty(phis.size)
+        mod.sys_phis(s.q, prm, out)
+        rows.append(("sys_phis", "the declared constraints phi_i (sympy.lambdify)", rel_err(out, phis, 1.0),
+                     IDENTITY_THRESHOLDS))
+    return rows
+
+
+def _ncon(mod):
+    return int(getattr(mod, "NCON", 1))
+
+
+def _phis(c, q):
+    out = np.empty(_ncon(c.mod))
+    c.mod.sys_phis(np.ascontiguousarray(q, float), c.prm, out)
+    return out
+
+
+def _check_dphis(c, s):
+    """The constraint Jacobian (rows grad phi_i) against FD of sys_phis."""
+    m, n = _ncon(c.mod), c.n
+    G = np.empty((m, n))
+    c.mod.sys_dphis(s.q, c.prm, G)
+    return [("sys_dphis", "FD of sys_phis in q", rel_err(G, map_jacobian(lambda q: _phis(c, q), s.q),
+             _floor(float(np.max(np.abs(_phis(c, s.q)))))), FD_THRESHOLDS)]
+
+
+def _check_held_contact(c, s):
+    """Issue 18's velocity terms along v = M^-1 p: sys_ddphis = v^T Hess(phi_i) v (4th-order second
+    difference of sys_phis along v) and sys_Mdotv = (dM/dq . v) v (FD of sys_M along v, times v)."""
+    mod, prm, n, m = c.mod, c.prm, c.n, _ncon(c.mod)
+    v = np.linalg.solve(c.M(s.q), s.p)
+    rows = []
+    if hasattr(mod, "sys_ddphis") and hasattr(mod, "sys_phis"):
+        out = np.empty(m)
+        mod.sys_ddphis(s.q, v, prm, out)
+        # a second difference: step ~ eps^(1/6) (truncation e^4, round-off eps |phi| / e^2), and a floor on
+        # the scale |v|^2 / |q|^2 of the term (an exactly linear phi_i has v^T Hess v = 0)
+        qs, vs = max(1.0, float(np.max(np.abs(s.q)))), max(float(np.max(np.abs(v))), 1e-300)
+        e = 3e-3 * qs / vs
+        f = lambda a: _phis(c, s.q + a * v)  # noqa: E731
+        ref = (-f(2 * e) + 16 * f(e) - 30 * f(0.0) + 16 * f(-e) - f(-2 * e)) / (12 * e * e)
+        floor = 1e-3 * (1.0 + float(np.max(np.abs(f(0.0))))) * (vs / qs) ** 2
+        rows.append(("sys_ddphis", "v^T Hess(phi_i) v by a 4th-order second difference of sys_phis along v",
+                     rel_err(out, ref, floor), FD_THRESHOLDS))
+    if hasattr(mod, "sys_Mdotv"):
+        out = np.empty(n)
+        mod.sys_Mdotv(s.q, v, prm, out)
+        dM = map_jacobian(lambda a: c.M(s.q + a[0] * v).ravel(), np.zeros(1)).reshape(n, n)
+        ref = dM @ v
+        rows.append(("sys_Mdotv", "(dM/dq . v) v by FD of sys_M along v", rel_err(out, ref, 1e-5 * (1.0 + float(
+            np.max(np.abs(c.M(s.q) @ v))))), FD_THRESHOLDS))
+    return rows
 
 
 def _check_force(c, s):
@@ -366,6 +420,8 @@ KERNEL_CHECKS = [
     (("sys_M", "sys_V", "sys_phi"), _check_declared),   # needs `declared` (check_kernels)
     (("sys_force", "sys_M"), _check_force),             # forced modules, against the declared force
     (("sys_phi", "sys_dphi"), _check_dphi),
+    (("sys_phis", "sys_dphis"), _check_dphis),          # several constraints (issue 17)
+    (("sys_M",), _check_held_contact),                  # sys_ddphis, sys_Mdotv where defined (issue 18)
     (("sys_dHq", "sys_M", "hamiltonian"), _check_dhq),
     (("hamiltonian", "sys_M", "sys_V"), _check_hamiltonian),
     (("hamilton_rhs", "hamiltonian"), _check_rhs),
