@@ -14,7 +14,7 @@ __all__ = ["simulate", "reference", "l2_error", "Trajectory", "open_results", "_
 
 _LAZY = {"simulate": ("api", "simulate"), "reference": ("reference", "reference"),
          "l2_error": ("reference", "l2_error"), "Trajectory": ("trajectory", "Trajectory"),
-         "open_results": ("results", "open_results")}
+         "open_results": ("results", "open_results"), "verify": ("verification", "verify")}
 
 
 def __getattr__(name):
