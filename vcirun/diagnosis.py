@@ -93,7 +93,7 @@ def _reset(mod, q, p, prm, h, t, tol) -> list:
     n = q.shape[0]
     qt, pt, vt = np.empty(n), np.empty(n), np.empty(n)
     code, _, E_pre, _ = mod.collision_time(q, p, h, h, t, prm, float(tol["newton_tol"]), int(tol["max_iter"]),
-                                           float(tol["event_tol"]), qt, pt, vt)
+                                           float(tol["event_tol"]), qt, pt, vt, np.zeros(int(mod.NCON), np.int64))
     if code != 1:
         return []
     g, A = np.empty(n), np.empty((n, n))

@@ -178,9 +178,10 @@ def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000):
     t = 0.0
     segments, impacts = [], []  # impacts: (time, contact index, impulse), one entry per contact impact
     d, lam, active = np.empty(n), np.empty(m), np.empty(m, dtype=np.int64)
+    held = np.zeros(m, dtype=np.int64)  # contacts held (resting), issue 18
     atol = rtol * max(1.0, float(np.max(np.abs(y))))
     while t < T:
-        mod.touching_mask(y[:n].copy(), y[n:2 * n].copy(), 1.0, SIMULTANEOUS / 4, prm, mask)
+        mod.touching_mask(y[:n].copy(), y[n:2 * n].copy(), 1.0, SIMULTANEOUS / 4, prm, mask, held)
         events = (event, dip, pressed) if mask.any() else (event, dip)
         sol = solve_ivp(rhs, (t, T), y, method="DOP853", rtol=rtol, atol=atol, events=events,
                         dense_output=True)
@@ -225,7 +226,7 @@ def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000):
             # and solve_ivp only sees a crossing from a start value >= 0, so a hop shorter than its
             # first step would go unnoticed. One RK4 micro step (<= 1e-9, local error ~1e-45) to
             # phi > 0, covered by a cubic Hermite segment (error ~delta^4 times the 4th derivative).
-            mod.touching_mask(y[:n].copy(), y[n:2 * n].copy(), 1.0, SIMULTANEOUS / 4, prm, mask)
+            mod.touching_mask(y[:n].copy(), y[n:2 * n].copy(), 1.0, SIMULTANEOUS / 4, prm, mask, held)
             off = step_off_surface(rhs, lambda yy: mod.gap(yy[:n], prm, mask), t, y, min(1e-9, 0.5 * (T - t)))
             if off is not None:
                 t1, y1 = off

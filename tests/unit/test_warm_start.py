@@ -143,7 +143,7 @@ def test_warm_key_follows_the_hashed_files(tmp_path, monkeypatch):
     assert k0 == build.warm_key(ident, ks)
     assert build.warm_key(("scene", "double_pendulum"), ks) != k0
     assert build.warm_key(ident, METHODS["VCI"].kernel_set()) != k0
-    for rel in ["scenedata.py", "mechanics/scenes.py", "mechanics/loader.py", "collision/resets.py",
+    for rel in ["scenedata.py", "mechanics/scenes.py", "mechanics/loader.py", "collision/reset_cva.py",
                 "codegen/derive.py", "mechanics/system.py"]:
         f = pkg / rel
         text = f.read_text()
