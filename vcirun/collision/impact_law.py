@@ -39,7 +39,7 @@ LCP_INFEASIBLE = -1
 LCP_BAD_INPUT = -2
 LCP_RANK_TOL = 1e-11    # a pivot/eigenvalue below this times max W_ii counts as zero (rank decisions)
 LCP_FEAS_TOL = 1e-10    # accepted violation of the LCP conditions, relative to max |(1 + e_i) u-_i|
-LCP_SYM_TOL = 1e-10     # accepted |W_ij - W_ji| relative to max W_ii
+LCP_SYM_TOL = 1e-8      # accepted |W_ij - W_ji| relative to max W_ii (G M^-1 G^T's round-off grows with cond M)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
