@@ -82,7 +82,7 @@ UNITS = (
          provides=("impact_direction", "touch_tolerance", "gap", "gap_slope", "normal_velocities", "touching_mask",
                    "unmask_penetrating"),
          requires=("NDOF", "NCON", "sys_restitution", "sys_phi", "sys_phis", "sys_dphis", "sys_M", "cva_lambda",
-                   "hamiltonian", "impact_law", "solve_small", "gdot")),
+                   "impact_law", "solve_small", "gdot")),
     Unit("collision/reset_cva.py", provides=("reset_cva",), requires=("NDOF",)),
     Unit("collision/reset_vci.py", provides=("reset_vci",),
          requires=("NDOF", "NODE_LEN", "FORCED", "VCI_STAGE", "FORCE_A", "FORCE_B", "velocity_guess",

@@ -104,7 +104,9 @@ def _impact_several(q, pm, h, event_tol, prm, e, d, lam, active):
     ea = np.empty(k)
     for a in range(k):
         um[a] = u[idx[a]]
-        ea[a] = e[idx[a]]
+        # a touching contact that separates takes no restitution: with e > 0 a coupled separating
+        # contact could end up approaching and gain energy (docs/contacts.md, section 1.5)
+        ea[a] = e[idx[a]] if um[a] <= 0.0 else 0.0
         for b in range(k):
             s = 0.0
             for j in range(NDOF):
@@ -124,10 +126,11 @@ def _impact_several(q, pm, h, event_tol, prm, e, d, lam, active):
             d[j] += la[a] * G[i, j]
     if k == 1:  # one contact at the impact: the closed form (exactly 0 for e = 1)
         return 1, 1.0, _newton_loss_one(q, pm, prm, G[idx[0]], ea[0])
-    pp = pm.copy()
-    for j in range(NDOF):
-        pp[j] += d[j]
-    dE = hamiltonian(q, pm, prm) - hamiltonian(q, pp, prm)
+    # the energy Newton's law removes, -1/2 sum_i lam_i (1 - e_i) u-_i (docs/contacts.md, (2.2)):
+    # exactly 0 when every e_i = 1, and no cancellation of two energies
+    dE = 0.0
+    for a in range(k):
+        dE -= 0.5 * la[a] * (1.0 - ea[a]) * um[a]
     return k, 1.0, max(dE, 0.0)
 
 
