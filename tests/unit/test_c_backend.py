@@ -166,15 +166,17 @@ import numpy as np
 from numba.core import event
 import vcirun
 from vcirun.codegen import build
-compiles = []
+compiles = set()   # functions numba compiled (a load from its cache runs no compiler pass)
 class L(event.Listener):
-    def on_start(self, ev): compiles.append(ev.data["dispatcher"].py_func.__name__)
+    def on_start(self, ev): compiles.add(ev.data["qualname"])
     def on_end(self, ev): pass
-event.register("numba:compile", L())
+event.register("numba:run_pass", L())
 tr = vcirun.simulate("oscillator_wall", "CVA", h=0.05, T=3.0)
+mod = list(build._loaded.values())[-1]
+mod.mass_matrix_ok(tr.q[0], np.array([1.0, 1.0, 0.5]), np.empty((1, 1)))  # (the warm path's check: compiled too)
 text = (build.cache_dir() / ("vk_" + build.BUILD_LOG[-1]["key"] + ".py")).read_text()
 print(json.dumps({"q": tr.q.ravel().tolist(), "p": tr.p.ravel().tolist(), "impacts": len(tr.impacts),
-                  "compiles": len(compiles), "cached": build.BUILD_LOG[-1]["cached"],
+                  "compiles": sorted(compiles), "cached": build.BUILD_LOG[-1]["cached"],
                   "c_kernels": text.count("ExternalFunction(")}))
 """
 
@@ -189,8 +191,8 @@ def _run(cache, **env):
 def test_c_module_is_cached_across_processes_and_matches_numba(tmp_path):
     cold = _run(tmp_path / "c")
     warm = _run(tmp_path / "c")
-    assert cold["c_kernels"] >= 5 and cold["compiles"] > 0 and not cold["cached"]
-    assert warm["cached"] and warm["compiles"] == 0, "numba recompiled a function that calls C kernels"
+    assert cold["c_kernels"] >= 5 and "integrate" in cold["compiles"] and not cold["cached"]
+    assert warm["cached"] and warm["compiles"] == [], f"numba recompiled {warm['compiles']} in a new process"
     assert warm["q"] == cold["q"] and warm["p"] == cold["p"] and cold["impacts"] > 0
     nb = _run(tmp_path / "numba", VCIRUN_KERNEL_BACKEND="numba")
     assert nb["c_kernels"] == 0

@@ -549,9 +549,24 @@ class Translation:
     def c_source(self, k: CKernel) -> str:
         return C_PRELUDE + "\n" + k.c_body.replace("__NAME__", self.prefix + k.name)
 
-    def units(self, opt_level) -> list:
-        """[(kernel name, C translation unit, optimisation flag)] for vcirun.codegen.cc.compile_shared."""
-        return [(k.name, self.c_source(k), opt_level(k.statements)) for k in self.kernels]
+    def units(self, opt_level, bundle: int = 3000) -> list:
+        """[(unit name, C translation unit, optimisation flag)] for vcirun.codegen.cc.compile_shared:
+        kernels of one optimisation level packed into units of up to `bundle` statements (one compiler
+        process each; a kernel above it is a unit of its own)."""
+        out, cur = [], {}
+        for k in self.kernels:
+            flag = opt_level(k.statements)
+            names, body, size = cur.get(flag, ([], [], 0))
+            if names and size + k.statements > bundle:
+                out.append(("_".join(names)[:80], C_PRELUDE + "\n" + "\n".join(body), flag))
+                names, body, size = [], [], 0
+            names.append(k.name)
+            body.append(k.c_body.replace("__NAME__", self.prefix + k.name))
+            cur[flag] = (names, body, size + k.statements)
+        for flag, (names, body, _) in cur.items():
+            if names:
+                out.append(("_".join(names)[:80], C_PRELUDE + "\n" + "\n".join(body), flag))
+        return out
 
 
 def translate_module(text: str, salt: str = "") -> Translation:

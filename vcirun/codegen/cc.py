@@ -12,8 +12,9 @@ write of sqrt and friends. The optimisation level depends on the kernel's size (
 register allocators of gcc and LLVM are superlinear in the live values of one straight-line
 function, which is what a modified-Hamiltonian kernel at n = 8 is (docs/performance.md).
 
-Each kernel is its own translation unit, compiled in parallel (one job per core), then linked into
-one shared object, written atomically (parallel sweep workers never load a half-written file).
+Kernels of one optimisation level are packed into translation units (a long kernel is one of its
+own), compiled in parallel (one job per core), then linked into one shared object, written
+atomically (parallel sweep workers never load a half-written file).
 """
 from __future__ import annotations
 
@@ -27,8 +28,10 @@ from pathlib import Path
 BACKEND_ENV = "VCIRUN_KERNEL_BACKEND"
 BACKENDS = ("c", "numba")
 BASE_FLAGS = ("-fPIC", "-ffp-contract=off", "-fno-math-errno")
-# statements of one kernel -> optimisation level (measured: docs/performance.md, Cold builds)
-OPT_LEVELS = ((1500, "-O2"), (6000, "-O1"), (None, "-O1"))
+# statements of one kernel -> optimisation level (measured: docs/performance.md, Cold builds): -O2
+# where it is cheap; -O1 for the long (segmented) kernels, where -O2 costs twice the compile time
+# and did not run faster
+OPT_LEVELS = ((1500, "-O2"), (None, "-O1"))
 CC_TIMEOUT = 3600.0
 
 
@@ -100,10 +103,10 @@ def compile_shared(units: list, out: Path, jobs: int | None = None) -> Path:
     with tempfile.TemporaryDirectory(prefix="vkc_", dir=out.parent) as d:
         objs = []
         cmds = []
-        for name, src, opt in units:
-            c = Path(d) / f"{name}.c"
+        for i, (name, src, opt) in enumerate(units):
+            c = Path(d) / f"u{i}_{name}.c"
             c.write_text(src)
-            o = Path(d) / f"{name}.o"
+            o = c.with_suffix(".o")
             objs.append(str(o))
             cmds.append([cc, opt, *BASE_FLAGS, "-c", "-o", str(o), str(c)])
         jobs = jobs or max(1, min(len(cmds), os.cpu_count() or 1))
