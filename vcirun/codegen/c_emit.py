@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import ast
 import hashlib
+import os
 import re
 import subprocess
 import time
@@ -44,6 +45,22 @@ _BIN = {ast.Add: "+", ast.Sub: "-", ast.Mult: "*", ast.Div: "/"}
 _CMP = {ast.Lt: "<", ast.LtE: "<=", ast.Gt: ">", ast.GtE: ">=", ast.Eq: "==", ast.NotEq: "!="}
 _HEAP = 4096  # local arrays above this many doubles live on the heap (thread stacks of workers are small)
 SEGMENT_LINES = 400  # a kernel longer than twice this is split into functions of about this many statements
+# Kernels shorter than this stay numba source: LLVM inlines them into the compiled Newton loops (a C
+# call cannot be inlined: ~10 % more loop time for the cart-pendulum's 20-45-statement step kernels,
+# bench/compare_trees.py), and numba compiles them in well under a second.
+C_MIN_STATEMENTS = 100
+C_MIN_ENV = "VCIRUN_C_MIN_STATEMENTS"
+
+
+def min_statements() -> int:
+    """C_MIN_STATEMENTS, or $VCIRUN_C_MIN_STATEMENTS (0: every leaf kernel in C)."""
+    v = os.environ.get(C_MIN_ENV, "").strip()
+    if not v:
+        return C_MIN_STATEMENTS
+    try:
+        return max(0, int(v))
+    except ValueError:
+        raise ValueError(f"{C_MIN_ENV}: expected a number of statements, got {v!r}") from None
 
 
 class Unsupported(Exception):
@@ -569,10 +586,11 @@ class Translation:
         return out
 
 
-def translate_module(text: str, salt: str = "") -> Translation:
-    """Translate every leaf kernel of generated numba `text` (top-level defs). The symbol prefix
-    hashes the C code and `salt` (the compiler and its flags): modules whose kernels are the same
-    share one shared object, different ones never share a symbol name in one process."""
+def translate_module(text: str, salt: str = "", min_stmts: int = 0) -> Translation:
+    """Translate every leaf kernel of generated numba `text` (top-level defs) of at least `min_stmts`
+    statements. The symbol prefix hashes the C code and `salt` (the compiler and its flags):
+    modules whose kernels are the same share one shared object, different ones never share a
+    symbol name in one process."""
     tree = ast.parse(text)
     consts = module_constants(tree)
     kernels, spans, skipped = [], {}, {}
@@ -583,6 +601,9 @@ def translate_module(text: str, salt: str = "") -> Translation:
             k = _Translator(st, consts).translate()
         except Unsupported as e:
             skipped[st.name] = str(e)
+            continue
+        if k.statements < min_stmts:
+            skipped[st.name] = f"{k.statements} statements (below {min_stmts}: numba inlines it)"
             continue
         kernels.append(k)
         first = min([d.lineno for d in st.decorator_list] + [st.lineno]) - 1
@@ -677,7 +698,7 @@ def c_kernels(text: str, out_dir) -> str:
     from . import cc
 
     t0 = time.perf_counter()
-    tr = translate_module(text, salt=cc.identity())
+    tr = translate_module(text, salt=cc.identity(), min_stmts=min_statements())
     entry = {"c": [k.name for k in tr.kernels], "numba": dict(tr.skipped), "translate_s": time.perf_counter() - t0,
              "compile_s": 0.0, "reused": False}
     C_LOG.append(entry)

@@ -21,8 +21,6 @@ from __future__ import annotations
 import os
 import shutil
 import subprocess
-import tempfile
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 BACKEND_ENV = "VCIRUN_KERNEL_BACKEND"
@@ -73,7 +71,9 @@ def identity() -> str:
         stamp = f"{st.st_size}:{int(st.st_mtime)}"
     except OSError:
         stamp = "?"
-    return f"c|{cc}|{stamp}|{' '.join(BASE_FLAGS)}|{OPT_LEVELS}"
+    from .c_emit import SEGMENT_LINES, min_statements
+
+    return f"c|{cc}|{stamp}|{' '.join(BASE_FLAGS)}|{OPT_LEVELS}|min={min_statements()}|seg={SEGMENT_LINES}"
 
 
 def opt_level(statements: int) -> str:
@@ -96,6 +96,9 @@ def _run(cmd: list, cwd: str):
 def compile_shared(units: list, out: Path, jobs: int | None = None) -> Path:
     """Compile C translation units [(name, source, opt flag)] into the shared object `out`
     (atomically replaced). Returns out. Raises CompileError."""
+    import tempfile
+    from concurrent.futures import ThreadPoolExecutor
+
     cc = compiler()
     if cc is None:
         raise CompileError("no C compiler")
