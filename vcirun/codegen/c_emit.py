@@ -33,6 +33,9 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from . import cc
+from .cc import C_MIN_ENV, C_MIN_STATEMENTS, SEGMENT_LINES, min_statements  # noqa: F401  (the policy lives in cc)
+
 _MATH1 = {"sin": "sin", "cos": "cos", "tan": "tan", "asin": "asin", "acos": "acos", "atan": "atan",
           "sinh": "sinh", "cosh": "cosh", "tanh": "tanh", "asinh": "asinh", "acosh": "acosh", "atanh": "atanh",
           "exp": "exp", "expm1": "expm1", "log": "log", "log1p": "log1p", "log10": "log10", "log2": "log2",
@@ -44,25 +47,6 @@ _CONSTS = {("math", "pi"): "M_PI", ("np", "pi"): "M_PI", ("math", "e"): "M_E", (
 _BIN = {ast.Add: "+", ast.Sub: "-", ast.Mult: "*", ast.Div: "/"}
 _CMP = {ast.Lt: "<", ast.LtE: "<=", ast.Gt: ">", ast.GtE: ">=", ast.Eq: "==", ast.NotEq: "!="}
 _HEAP = 4096  # local arrays above this many doubles live on the heap (thread stacks of workers are small)
-SEGMENT_LINES = 400  # a kernel longer than twice this is split into functions of about this many statements
-# Kernels shorter than this stay numba source: LLVM inlines them into the compiled Newton loops (a C
-# call cannot be inlined: ~10 % more loop time for the cart-pendulum's 20-45-statement step kernels,
-# bench/compare_trees.py), and numba compiles them in well under a second.
-C_MIN_STATEMENTS = 100
-C_MIN_ENV = "VCIRUN_C_MIN_STATEMENTS"
-
-
-def min_statements() -> int:
-    """C_MIN_STATEMENTS, or $VCIRUN_C_MIN_STATEMENTS (0: every leaf kernel in C)."""
-    v = os.environ.get(C_MIN_ENV, "").strip()
-    if not v:
-        return C_MIN_STATEMENTS
-    try:
-        return max(0, int(v))
-    except ValueError:
-        raise ValueError(f"{C_MIN_ENV}: expected a number of statements, got {v!r}") from None
-
-
 class Unsupported(Exception):
     """The kernel uses something outside the translated subset (it stays in numba)."""
 
@@ -695,8 +679,6 @@ def c_kernels(text: str, out_dir) -> str:
     """Generated numba `text` with its leaf kernels compiled by the system C compiler into
     out_dir/<prefix>.so (reused when present) and bound by name; `text` unchanged when nothing
     translates, and (with a warning) when the compiler fails: numba is the fallback."""
-    from . import cc
-
     t0 = time.perf_counter()
     tr = translate_module(text, salt=cc.identity(), min_stmts=min_statements())
     entry = {"c": [k.name for k in tr.kernels], "numba": dict(tr.skipped), "translate_s": time.perf_counter() - t0,

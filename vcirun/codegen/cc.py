@@ -31,6 +31,23 @@ BASE_FLAGS = ("-fPIC", "-ffp-contract=off", "-fno-math-errno")
 # and did not run faster
 OPT_LEVELS = ((1500, "-O2"), (None, "-O1"))
 CC_TIMEOUT = 3600.0
+# Kernels shorter than this stay numba source: LLVM inlines them into the compiled Newton loops (a C
+# call cannot be inlined: ~10 % more loop time for the cart-pendulum's 20-45-statement step kernels,
+# bench/compare_trees.py), and numba compiles them in well under a second.
+C_MIN_STATEMENTS = 100
+C_MIN_ENV = "VCIRUN_C_MIN_STATEMENTS"
+SEGMENT_LINES = 400  # a kernel longer than twice this is split into functions of about this many statements
+
+
+def min_statements() -> int:
+    """C_MIN_STATEMENTS, or $VCIRUN_C_MIN_STATEMENTS (0: every leaf kernel in C)."""
+    v = os.environ.get(C_MIN_ENV, "").strip()
+    if not v:
+        return C_MIN_STATEMENTS
+    try:
+        return max(0, int(v))
+    except ValueError:
+        raise ValueError(f"{C_MIN_ENV}: expected a number of statements, got {v!r}") from None
 
 
 def compiler() -> str | None:
@@ -71,8 +88,6 @@ def identity() -> str:
         stamp = f"{st.st_size}:{int(st.st_mtime)}"
     except OSError:
         stamp = "?"
-    from .c_emit import SEGMENT_LINES, min_statements
-
     return f"c|{cc}|{stamp}|{' '.join(BASE_FLAGS)}|{OPT_LEVELS}|min={min_statements()}|seg={SEGMENT_LINES}"
 
 
