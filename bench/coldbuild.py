@@ -90,6 +90,16 @@ class Stack:
             self.frames[-1][2:4] = [w, c]
         return oc
 
+    def relabel(self, stage):
+        """The top frame's time so far stays with its stage; from now on it counts as `stage`."""
+        w, c = self.clocks()
+        fr = self.frames[-1]
+        fr[4] += w - fr[2]
+        fr[5] += c - fr[3]
+        self.excl[fr[0], fr[1]] = self.excl.get((fr[0], fr[1]), 0.0) + fr[4]
+        self.cpu[fr[0], fr[1]] = self.cpu.get((fr[0], fr[1]), 0.0) + fr[5]
+        fr[0], fr[2:6] = stage, [w, c, 0.0, 0.0]
+
     def wrap(self, obj, attr, stage, kernel_of=None):
         orig = getattr(obj, attr)
         stack = self
@@ -187,7 +197,7 @@ def profile(system: str, method: str, extra: dict | None = None) -> dict:
             return orig_exec(*a, **k)
         finally:
             stack.pop()
-            stack.frames[0][0] = "other"   # numba's compile from here on
+            stack.relabel("other")   # numba's compile from here on
 
     build._exec_module = exec_module
     tr = vcirun.simulate(system, method, **kw)
