@@ -31,9 +31,10 @@ BASE_FLAGS = ("-fPIC", "-ffp-contract=off", "-fno-math-errno")
 # and did not run faster
 OPT_LEVELS = ((1500, "-O2"), (None, "-O1"))
 CC_TIMEOUT = 3600.0
-# Kernels shorter than this stay numba source: LLVM inlines them into the compiled Newton loops (a C
-# call cannot be inlined: ~10 % more loop time for the cart-pendulum's 20-45-statement step kernels,
-# bench/compare_trees.py), and numba compiles them in well under a second.
+# Kernels lighter than this (statements + 2-D element stores) stay numba source: LLVM inlines them
+# into the compiled Newton loops (a C call cannot be inlined: ~10 % more loop time for the
+# cart-pendulum's 20-45-statement step kernels, bench/compare_trees.py), and numba compiles them in
+# well under a second.
 C_MIN_STATEMENTS = 100
 C_MIN_ENV = "VCIRUN_C_MIN_STATEMENTS"
 SEGMENT_LINES = 400  # a kernel longer than twice this is split into functions of about this many statements
