@@ -276,10 +276,41 @@ def print_kernels(r: dict, top: int = 8, log=print):
         log(f"      {k:24s} {sum(st.values()):7.2f}  ({r['compiles'].get(k, 0)}x)  {parts}")
 
 
+GROUPS = [("sympy", ("sympy",)), ("emit", ("emit",)), ("cc", ("cc",)), ("numba: front+typing", ("frontend", "typing", "typed")),
+          ("numba: lowering", ("lowering",)), ("LLVM", ("llvm_fn", "llvm_mod", "llvm_obj", "link")),
+          ("cache+other", ("cache", "other"))]
+
+
+def markdown(rows, generated=None) -> str:
+    """The per-stage table of `rows` (results of run_case) as Markdown, CPU seconds."""
+    head = "| case | wall s | CPU s | " + " | ".join(g for g, _ in GROUPS) + " | generated kernels (numba CPU s) | load |"
+    out = [head, "|" + "---|" * (head.count("|") - 1)]
+    gen = generated or ()
+    for r in rows:
+        if "error" in r:
+            out.append(f"| {r['case']} | {r['error']} |" + " |" * (len(GROUPS) + 3))
+            continue
+        st = r["stages_cpu"]
+        g = sum(sum(v.values()) for k, v in r["kernels"].items() if k in gen)
+        out.append(f"| {r['case']} | {r['first_sim_s']:.1f} | {r['first_sim_cpu_s']:.1f} | "
+                   + " | ".join(f"{sum(st.get(x, 0.0) for x in xs):.1f}" for _, xs in GROUPS)
+                   + f" | {g:.1f} | {r['loadavg_before'][0]:.1f} |")
+    return "\n".join(out)
+
+
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else argv
     if argv and argv[0] == "profile":
         print(json.dumps(profile(argv[1], argv[2])))
+        return
+    if argv and argv[0] == "markdown":   # python bench/coldbuild.py markdown results/coldbuild.json
+        rows = json.loads(Path(argv[1]).read_text())
+        rows = rows["coldbuild"]["rows"].values() if isinstance(rows, dict) else rows
+        kernels = {"sys_M", "sys_V", "sys_phi", "sys_dphi", "sys_dHq", "sys_node", "sys_node_M", "sys_force",
+                   "sys_force_jac", "mh_FA", "mh_value", "mh_grad", "mh_hess"}
+        kernels |= {k for r in rows if "kernels" in r for k in r["kernels"]
+                    if k.split("_")[-1] in ("PmJc", "Ppc", "Ed", "Edv", "PmJ", "Pp")}
+        print(markdown(list(rows), kernels))
         return
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", default=",".join(DEFAULT_CASES))
