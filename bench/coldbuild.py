@@ -90,6 +90,16 @@ class Stack:
             self.frames[-1][2:4] = [w, c]
         return oc
 
+    def relabel(self, stage):
+        """The top frame's time so far stays with its stage; from now on it counts as `stage`."""
+        w, c = self.clocks()
+        fr = self.frames[-1]
+        fr[4] += w - fr[2]
+        fr[5] += c - fr[3]
+        self.excl[fr[0], fr[1]] = self.excl.get((fr[0], fr[1]), 0.0) + fr[4]
+        self.cpu[fr[0], fr[1]] = self.cpu.get((fr[0], fr[1]), 0.0) + fr[5]
+        fr[0], fr[2:6] = stage, [w, c, 0.0, 0.0]
+
     def wrap(self, obj, attr, stage, kernel_of=None):
         orig = getattr(obj, attr)
         stack = self
@@ -187,7 +197,7 @@ def profile(system: str, method: str, extra: dict | None = None) -> dict:
             return orig_exec(*a, **k)
         finally:
             stack.pop()
-            stack.frames[0][0] = "other"   # numba's compile from here on
+            stack.relabel("other")   # numba's compile from here on
 
     build._exec_module = exec_module
     tr = vcirun.simulate(system, method, **kw)
@@ -266,10 +276,41 @@ def print_kernels(r: dict, top: int = 8, log=print):
         log(f"      {k:24s} {sum(st.values()):7.2f}  ({r['compiles'].get(k, 0)}x)  {parts}")
 
 
+GROUPS = [("sympy", ("sympy",)), ("emit", ("emit",)), ("cc", ("cc",)), ("numba: front+typing", ("frontend", "typing", "typed")),
+          ("numba: lowering", ("lowering",)), ("LLVM", ("llvm_fn", "llvm_mod", "llvm_obj", "link")),
+          ("cache+other", ("cache", "other"))]
+
+
+def markdown(rows, generated=None) -> str:
+    """The per-stage table of `rows` (results of run_case) as Markdown, CPU seconds."""
+    head = "| case | wall s | CPU s | " + " | ".join(g for g, _ in GROUPS) + " | generated kernels (numba CPU s) | load |"
+    out = [head, "|" + "---|" * (head.count("|") - 1)]
+    gen = generated or ()
+    for r in rows:
+        if "error" in r:
+            out.append(f"| {r['case']} | {r['error']} |" + " |" * (len(GROUPS) + 3))
+            continue
+        st = r["stages_cpu"]
+        g = sum(sum(v.values()) for k, v in r["kernels"].items() if k in gen)
+        out.append(f"| {r['case']} | {r['first_sim_s']:.1f} | {r['first_sim_cpu_s']:.1f} | "
+                   + " | ".join(f"{sum(st.get(x, 0.0) for x in xs):.1f}" for _, xs in GROUPS)
+                   + f" | {g:.1f} | {r['loadavg_before'][0]:.1f} |")
+    return "\n".join(out)
+
+
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else argv
     if argv and argv[0] == "profile":
         print(json.dumps(profile(argv[1], argv[2])))
+        return
+    if argv and argv[0] == "markdown":   # python bench/coldbuild.py markdown results/coldbuild.json
+        rows = json.loads(Path(argv[1]).read_text())
+        rows = rows["coldbuild"]["rows"].values() if isinstance(rows, dict) else rows
+        kernels = {"sys_M", "sys_V", "sys_phi", "sys_dphi", "sys_dHq", "sys_node", "sys_node_M", "sys_force",
+                   "sys_force_jac", "mh_FA", "mh_value", "mh_grad", "mh_hess"}
+        kernels |= {k for r in rows if "kernels" in r for k in r["kernels"]
+                    if k.split("_")[-1] in ("PmJc", "Ppc", "Ed", "Edv", "PmJ", "Pp")}
+        print(markdown(list(rows), kernels))
         return
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", default=",".join(DEFAULT_CASES))

@@ -94,7 +94,8 @@ def _versions() -> bytes:
 def _backend_id() -> str:
     from . import cc  # no sympy: compiler discovery only
 
-    key = (os.environ.get("CC"), os.environ.get(cc.BACKEND_ENV), os.environ.get("PATH"))
+    key = (os.environ.get("CC"), os.environ.get(cc.BACKEND_ENV), os.environ.get("PATH"),
+           os.environ.get("VCIRUN_C_MIN_STATEMENTS"))
     if key not in _BACKEND_IDS:
         _BACKEND_IDS[key] = cc.identity()
     return _BACKEND_IDS[key]

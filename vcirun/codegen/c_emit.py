@@ -25,12 +25,16 @@ from __future__ import annotations
 
 import ast
 import hashlib
+import os
 import re
 import subprocess
 import time
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from . import cc
+from .cc import C_MIN_ENV, C_MIN_STATEMENTS, SEGMENT_LINES, min_statements  # noqa: F401  (the policy lives in cc)
 
 _MATH1 = {"sin": "sin", "cos": "cos", "tan": "tan", "asin": "asin", "acos": "acos", "atan": "atan",
           "sinh": "sinh", "cosh": "cosh", "tanh": "tanh", "asinh": "asinh", "acosh": "acosh", "atanh": "atanh",
@@ -43,9 +47,6 @@ _CONSTS = {("math", "pi"): "M_PI", ("np", "pi"): "M_PI", ("math", "e"): "M_E", (
 _BIN = {ast.Add: "+", ast.Sub: "-", ast.Mult: "*", ast.Div: "/"}
 _CMP = {ast.Lt: "<", ast.LtE: "<=", ast.Gt: ">", ast.GtE: ">=", ast.Eq: "==", ast.NotEq: "!="}
 _HEAP = 4096  # local arrays above this many doubles live on the heap (thread stacks of workers are small)
-SEGMENT_LINES = 400  # a kernel longer than twice this is split into functions of about this many statements
-
-
 class Unsupported(Exception):
     """The kernel uses something outside the translated subset (it stays in numba)."""
 
@@ -58,6 +59,13 @@ class CKernel:
     c_body: str           # the C function (symbol name __NAME__)
     docstring: str = ""
     statements: int = 0
+    stores_2d: int = 0    # assignments to a 2-D array element (numba types and lowers each at a cost)
+
+    @property
+    def weight(self) -> int:
+        """What decides C or numba: statements plus 2-D element stores (n = 8's sys_node_M, 64 stores
+        and nothing else, cost numba 1.2-1.5 s)."""
+        return self.statements + self.stores_2d
 
 
 @dataclass
@@ -378,6 +386,13 @@ class _Translator:
             return self.expr(node, index=True)
 
     def translate(self) -> CKernel:
+        k = self._translate()
+        k.stores_2d = sum(1 for n in ast.walk(self.fn) if isinstance(n, (ast.Assign, ast.AugAssign))
+                          for t in (n.targets if isinstance(n, ast.Assign) else [n.target])
+                          if isinstance(t, ast.Subscript) and isinstance(t.slice, ast.Tuple))
+        return k
+
+    def _translate(self) -> CKernel:
         fn = self.fn
         doc = ast.get_docstring(fn) or ""
         body = [st for st in fn.body if not (isinstance(st, ast.Expr) and isinstance(st.value, ast.Constant))]
@@ -549,15 +564,31 @@ class Translation:
     def c_source(self, k: CKernel) -> str:
         return C_PRELUDE + "\n" + k.c_body.replace("__NAME__", self.prefix + k.name)
 
-    def units(self, opt_level) -> list:
-        """[(kernel name, C translation unit, optimisation flag)] for vcirun.codegen.cc.compile_shared."""
-        return [(k.name, self.c_source(k), opt_level(k.statements)) for k in self.kernels]
+    def units(self, opt_level, bundle: int = 3000) -> list:
+        """[(unit name, C translation unit, optimisation flag)] for vcirun.codegen.cc.compile_shared:
+        kernels of one optimisation level packed into units of up to `bundle` statements (one compiler
+        process each; a kernel above it is a unit of its own)."""
+        out, cur = [], {}
+        for k in self.kernels:
+            flag = opt_level(k.statements)
+            names, body, size = cur.get(flag, ([], [], 0))
+            if names and size + k.statements > bundle:
+                out.append(("_".join(names)[:80], C_PRELUDE + "\n" + "\n".join(body), flag))
+                names, body, size = [], [], 0
+            names.append(k.name)
+            body.append(k.c_body.replace("__NAME__", self.prefix + k.name))
+            cur[flag] = (names, body, size + k.statements)
+        for flag, (names, body, _) in cur.items():
+            if names:
+                out.append(("_".join(names)[:80], C_PRELUDE + "\n" + "\n".join(body), flag))
+        return out
 
 
-def translate_module(text: str, salt: str = "") -> Translation:
-    """Translate every leaf kernel of generated numba `text` (top-level defs). The symbol prefix
-    hashes the C code and `salt` (the compiler and its flags): modules whose kernels are the same
-    share one shared object, different ones never share a symbol name in one process."""
+def translate_module(text: str, salt: str = "", min_stmts: int = 0) -> Translation:
+    """Translate every leaf kernel of generated numba `text` (top-level defs) of at least `min_stmts`
+    statements. The symbol prefix hashes the C code and `salt` (the compiler and its flags):
+    modules whose kernels are the same share one shared object, different ones never share a
+    symbol name in one process."""
     tree = ast.parse(text)
     consts = module_constants(tree)
     kernels, spans, skipped = [], {}, {}
@@ -568,6 +599,10 @@ def translate_module(text: str, salt: str = "") -> Translation:
             k = _Translator(st, consts).translate()
         except Unsupported as e:
             skipped[st.name] = str(e)
+            continue
+        if k.weight < min_stmts:
+            skipped[st.name] = (f"{k.statements} statements + {k.stores_2d} 2-D stores (below {min_stmts}: "
+                                "numba inlines it)")
             continue
         kernels.append(k)
         first = min([d.lineno for d in st.decorator_list] + [st.lineno]) - 1
@@ -659,10 +694,8 @@ def c_kernels(text: str, out_dir) -> str:
     """Generated numba `text` with its leaf kernels compiled by the system C compiler into
     out_dir/<prefix>.so (reused when present) and bound by name; `text` unchanged when nothing
     translates, and (with a warning) when the compiler fails: numba is the fallback."""
-    from . import cc
-
     t0 = time.perf_counter()
-    tr = translate_module(text, salt=cc.identity())
+    tr = translate_module(text, salt=cc.identity(), min_stmts=min_statements())
     entry = {"c": [k.name for k in tr.kernels], "numba": dict(tr.skipped), "translate_s": time.perf_counter() - t0,
              "compile_s": 0.0, "reused": False}
     C_LOG.append(entry)

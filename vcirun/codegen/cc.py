@@ -12,24 +12,43 @@ write of sqrt and friends. The optimisation level depends on the kernel's size (
 register allocators of gcc and LLVM are superlinear in the live values of one straight-line
 function, which is what a modified-Hamiltonian kernel at n = 8 is (docs/performance.md).
 
-Each kernel is its own translation unit, compiled in parallel (one job per core), then linked into
-one shared object, written atomically (parallel sweep workers never load a half-written file).
+Kernels of one optimisation level are packed into translation units (a long kernel is one of its
+own), compiled in parallel (one job per core), then linked into one shared object, written
+atomically (parallel sweep workers never load a half-written file).
 """
 from __future__ import annotations
 
 import os
 import shutil
 import subprocess
-import tempfile
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 BACKEND_ENV = "VCIRUN_KERNEL_BACKEND"
 BACKENDS = ("c", "numba")
 BASE_FLAGS = ("-fPIC", "-ffp-contract=off", "-fno-math-errno")
-# statements of one kernel -> optimisation level (measured: docs/performance.md, Cold builds)
-OPT_LEVELS = ((1500, "-O2"), (6000, "-O1"), (None, "-O1"))
+# statements of one kernel -> optimisation level (measured: docs/performance.md, Cold builds): -O2
+# where it is cheap; -O1 for the long (segmented) kernels, where -O2 costs twice the compile time
+# and did not run faster
+OPT_LEVELS = ((1500, "-O2"), (None, "-O1"))
 CC_TIMEOUT = 3600.0
+# Kernels lighter than this (statements + 2-D element stores) stay numba source: LLVM inlines them
+# into the compiled Newton loops (a C call cannot be inlined: ~10 % more loop time for the
+# cart-pendulum's 20-45-statement step kernels, bench/compare_trees.py), and numba compiles them in
+# well under a second.
+C_MIN_STATEMENTS = 100
+C_MIN_ENV = "VCIRUN_C_MIN_STATEMENTS"
+SEGMENT_LINES = 400  # a kernel longer than twice this is split into functions of about this many statements
+
+
+def min_statements() -> int:
+    """C_MIN_STATEMENTS, or $VCIRUN_C_MIN_STATEMENTS (0: every leaf kernel in C)."""
+    v = os.environ.get(C_MIN_ENV, "").strip()
+    if not v:
+        return C_MIN_STATEMENTS
+    try:
+        return max(0, int(v))
+    except ValueError:
+        raise ValueError(f"{C_MIN_ENV}: expected a number of statements, got {v!r}") from None
 
 
 def compiler() -> str | None:
@@ -70,7 +89,7 @@ def identity() -> str:
         stamp = f"{st.st_size}:{int(st.st_mtime)}"
     except OSError:
         stamp = "?"
-    return f"c|{cc}|{stamp}|{' '.join(BASE_FLAGS)}|{OPT_LEVELS}"
+    return f"c|{cc}|{stamp}|{' '.join(BASE_FLAGS)}|{OPT_LEVELS}|min={min_statements()}|seg={SEGMENT_LINES}"
 
 
 def opt_level(statements: int) -> str:
@@ -93,6 +112,9 @@ def _run(cmd: list, cwd: str):
 def compile_shared(units: list, out: Path, jobs: int | None = None) -> Path:
     """Compile C translation units [(name, source, opt flag)] into the shared object `out`
     (atomically replaced). Returns out. Raises CompileError."""
+    import tempfile
+    from concurrent.futures import ThreadPoolExecutor
+
     cc = compiler()
     if cc is None:
         raise CompileError("no C compiler")
@@ -100,10 +122,10 @@ def compile_shared(units: list, out: Path, jobs: int | None = None) -> Path:
     with tempfile.TemporaryDirectory(prefix="vkc_", dir=out.parent) as d:
         objs = []
         cmds = []
-        for name, src, opt in units:
-            c = Path(d) / f"{name}.c"
+        for i, (name, src, opt) in enumerate(units):
+            c = Path(d) / f"u{i}_{name}.c"
             c.write_text(src)
-            o = Path(d) / f"{name}.o"
+            o = c.with_suffix(".o")
             objs.append(str(o))
             cmds.append([cc, opt, *BASE_FLAGS, "-c", "-o", str(o), str(c)])
         jobs = jobs or max(1, min(len(cmds), os.cpu_count() or 1))
