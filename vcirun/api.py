@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from . import trajectory as tr
+from . import validation
 from .codegen import build
 from .codegen.build import load_module
 from .methods import resolve_method
@@ -225,6 +226,8 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     if unknown:
         raise ValueError(f"options: unknown option {sorted(unknown)[0]!r} (known: "
                          f"{', '.join(sorted(set(DEFAULT_TOLERANCES) | _METHOD_OPTIONS | {'params', 'constrained', 'energies'}))})")
+    validation.check_simulate_args(h=h, T=T, t0=t0, beta=beta, q0=q0, p0=p0, params=params, constrained=constrained,
+                                   energies=energies, tolerances=options, system=system)  # (issue 22)
     tol = DEFAULT_TOLERANCES | options
     h, T, N = grid_steps(h, T)
     if not _warmable(system):
@@ -232,6 +235,7 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     meth = resolve_method(method, **mopts)
     sysd, load, sysm = resolve_numeric(system, meth.kernel_set())
     prm = sysd.param_values(params)
+    validation.check_run_memory(N, sysd.n)  # before any buffer is allocated (issue 22)
     start = _start_state(sysd, beta, q0, p0, prm, sysm)
     if constrained is None:
         constrained = meth.constrained
@@ -274,6 +278,11 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
                                float(out["Hs"][0]), out["imp_t"][:n_imp])
         if cause:
             message += f"; cause: {cause}"
+    # (issue 22) an energy that is not finite from the start (e.g. q0 = 1e300) is a failure, not ok
+    bad_start = validation.nonfinite_start(out["Hs"][0], out["Eds"][0] if energies else None,
+                                           out["Hm"][0] if energies and meth.reset == "mcva" else None, q0, p0)
+    if bad_start and status == tr.OK:
+        status, fail, message = tr.NONFINITE, 0, f"{tr.NONFINITE} at t = {t0:.6g}: {bad_start}"
     return tr.Trajectory(
         method=meth.name, system=sysd.name, h=h, T=N * h, t=t[:K], q=out["Q"][:K], p=out["P"][:K], H=out["Hs"][:K],
         Ed=out["Eds"][:K], Hmod=out["Hm"][:K] if meth.reset == "mcva" else None,
