@@ -14,7 +14,13 @@ first timed run of each method a worker makes one untimed one-step run of it, so
 measures integration, not kernel loading. The parent is the only writer of the results file
 (see `storage.ResultsWriter`). A run that fails numerically, or raises, is recorded with its status
 and message, and the sweep carries on. Ctrl-C and SIGTERM stop the workers, keep every finished
-run and report the interruption; a hard kill loses at most the runs not yet committed.
+run and report the interruption. Storage (see `storage`): the client commits finished runs to a
+journal beside the results file every `commit_interval` seconds (default 1 s, at a cost independent
+of the file's size) and folds the journal into the HDF5 file when the sweep finishes; pool workers
+send each run to the client as soon as it is computed. A SIGKILL therefore loses at most the runs
+that finished in the last commit_interval (plus one commit's duration) and the runs being computed.
+Before anything is created the sweep checks the memory of its runs in flight and the disk space its
+results need.
 """
 from __future__ import annotations
 
@@ -25,6 +31,7 @@ import json
 import math
 import multiprocessing as mp
 import os
+import shutil
 import signal
 import sys
 import threading
@@ -36,6 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import validation
 from . import storage
 from .config import InitialCondition, MethodReference, MethodSpec, NoReference, SweepConfig, build_system
 
@@ -124,11 +132,14 @@ def reference_horizon(cfg: SweepConfig) -> float:
     return max([cfg.T] + [round(cfg.T / h) * h for h in cfg.h])
 
 
-def make_tasks(pending: list[RunSpec], workers: int, stored_refs: set, needs_reference: bool) -> list[Task]:
-    """One task per initial condition; split when there are fewer than 2 per worker."""
+def make_tasks(pending: list[RunSpec], workers: int, stored_refs: set, needs_reference: bool,
+               reference_ics=()) -> list[Task]:
+    """One task per initial condition; split when there are fewer than 2 per worker. `reference_ics`:
+    initial conditions whose runs are all stored but whose reference is missing (a task of no runs)."""
     by_ic: OrderedDict[str, list[RunSpec]] = OrderedDict()
     for s in pending:
         by_ic.setdefault(s.ic.key, []).append(s)
+    extra = [Task(ic, [], True) for ic in reference_ics if ic.key not in by_ic] if needs_reference else []
     parts = 1
     if workers > 1 and len(by_ic) < 2 * workers:
         parts = math.ceil(2 * workers / max(1, len(by_ic)))
@@ -139,7 +150,14 @@ def make_tasks(pending: list[RunSpec], workers: int, stored_refs: set, needs_ref
         for j in range(0, len(runs), size):
             want = needs_reference and key not in stored_refs and j == 0
             tasks.append(Task(runs[0].ic, runs[j:j + size], want))
-    return tasks
+    return tasks + extra
+
+
+def missing_references(cfg: SweepConfig, writer: storage.ResultsWriter) -> list[InitialCondition]:
+    """Initial conditions whose reference the file lacks (e.g. a file that lost its references group)."""
+    if isinstance(cfg.reference, NoReference):
+        return []
+    return [ic for ic in cfg.initial_conditions() if ic.key not in writer.references]
 
 
 # --- worker side ----------------------------------------------------------------------------------
@@ -150,6 +168,8 @@ class _WorkerState:
         self.cfg = cfg
         self.ref_T = ref_T
         self.ref_h = ref_h
+        if cfg.max_memory is not None:
+            validation.set_memory_limit(cfg.max_memory)  # simulate's own check uses the sweep's limit
         self.system, self.params, _ = build_system(cfg)
         self.tolerances = cfg.tolerances.model_dump(exclude_none=True)
         self.refs: OrderedDict[str, object] = OrderedDict()
@@ -173,9 +193,13 @@ def _set_parent_death_signal() -> None:
         pass
 
 
+_OUTBOX = None  # pool workers: the queue each finished run is sent to (see executors.LocalExecutor)
+
+
 def _init_worker(cfg: SweepConfig, ref_T: float, ref_h: float, parent_pid: int | None = None,
-                 in_pool: bool = True) -> None:
-    global _STATE
+                 in_pool: bool = True, outbox=None) -> None:
+    global _STATE, _OUTBOX
+    _OUTBOX = outbox
     if in_pool:
         # The parent handles Ctrl-C and SIGTERM for everyone (a terminal sends Ctrl-C to the whole
         # process group); a worker is stopped by the parent's terminate(), i.e. SIGTERM's default action.
@@ -307,9 +331,11 @@ def _execute_run(st: _WorkerState, spec: RunSpec, ref) -> dict:
     return {"run_id": spec.run_id, "attrs": attrs, "arrays": arrays}
 
 
-def _execute(task: Task, st: _WorkerState | None = None) -> dict:
+def _execute(task: Task, st: _WorkerState | None = None, emit=None) -> dict:
     """Worker entry point: the reference (if this task stores it) and every run of the task
-    (state: this process's, or `st` given by the Dask executor)."""
+    (state: this process's, or `st` given by the Dask executor). With `emit`, each run is sent on
+    as soon as it is computed (a result dict of one run, the reference with the first) and the
+    return value only counts the messages (`streamed`)."""
     st = st or _STATE
     if st is None:  # pragma: no cover - initializer always runs first
         raise RuntimeError("worker not initialised")
@@ -321,9 +347,25 @@ def _execute(task: Task, st: _WorkerState | None = None) -> dict:
     out = {"ic_key": task.ic.key, "runs": [], "reference": None}
     if task.want_reference:
         out["reference"] = _reference_payload(st, task.ic, ref)
+    if emit is None:
+        for spec in task.runs:
+            out["runs"].append(_execute_run(st, spec, ref))
+        return out
+    sent = 0
     for spec in task.runs:
-        out["runs"].append(_execute_run(st, spec, ref))
-    return out
+        emit({**out, "runs": [_execute_run(st, spec, ref)]})
+        out["reference"] = None
+        sent += 1
+    if not task.runs:
+        emit(out)
+        sent += 1
+    return {"streamed": sent}
+
+
+def _execute_streamed(task: Task) -> dict:
+    """Pool entry point: `_execute` sending every run to the client's queue as it finishes (a hard kill
+    of the client then loses only what it had not committed, not whole tasks)."""
+    return _execute(task, emit=_OUTBOX.put)
 
 
 # --- client side -----------------------------------------------------------------------------------
@@ -388,12 +430,15 @@ def _default_start_method() -> str:
     return "fork" if "fork" in mp.get_all_start_methods() else "spawn"
 
 
-def _preflight(cfg: SweepConfig, pending: list[RunSpec]) -> None:
+def _preflight(cfg: SweepConfig, pending: list[RunSpec]) -> int:
     """One step of every method in this process: compiles (and caches on disk) the kernels the
-    workers use, and turns bad input the core rejects into an error before any file exists."""
+    workers use, and turns bad input the core rejects into an error before any file exists.
+    Returns the number of coordinates n."""
     import vcirun
 
-    system, params, _ = build_system(cfg)
+    if cfg.max_memory is not None:
+        validation.set_memory_limit(cfg.max_memory)
+    system, params, sysm = build_system(cfg)
     tol = cfg.tolerances.model_dump(exclude_none=True)
     seen = set()
     for spec in pending:
@@ -420,6 +465,45 @@ def _preflight(cfg: SweepConfig, pending: list[RunSpec]) -> None:
             raise SweepError(f"reference: {_one_line(e)}") from None
         except Exception:  # noqa: BLE001 - numerical trouble is reported per initial condition later
             pass
+    return sysm.n
+
+
+def _check_resources(cfg: SweepConfig, pending: list[RunSpec], n: int, workers: int, path: Path,
+                     writer: storage.ResultsWriter) -> None:
+    """Refuse, before the file is created, a sweep whose runs in flight exceed the memory limit or whose
+    results cannot fit on the disk (their journal, then the file's final copy: about twice the data)."""
+    if not pending:
+        return
+    steps = {h: validation.grid_size(h, cfg.T) for h in {s.h for s in pending}}
+    N = max(steps.values())
+    stored = validation.stored_bytes(N, n, store_trajectories=cfg.store_trajectories)
+    try:  # each worker holds a run's buffers and its result message; the client the message and its record
+        validation.check_run_memory(N, n, copies=min(workers, len(pending)), extra=2 * stored, limit=cfg.max_memory,
+                                    field="h", hint=", or raise max_memory in the config (e.g. max_memory: 32GB) or "
+                                                    "the VCIRUN_MAX_MEMORY environment variable")
+    except ValueError as e:
+        raise SweepError(f"{_one_line(e)} (with {min(workers, len(pending))} worker(s); fewer --workers need less)") \
+            from None
+    need = sum(validation.stored_bytes(steps[s.h], n, store_trajectories=cfg.store_trajectories) for s in pending)
+    size = path.stat().st_size if path.exists() and not writer.force else 0
+    total = size + 2 * need
+    where = next((d for d in [path.parent, *path.parent.parents] if d.exists()), Path("."))
+    try:
+        free = shutil.disk_usage(where).free
+    except OSError:
+        return
+    if total > free:
+        raise SweepError(f"{path}: the {len(pending)} pending runs need about {validation.format_bytes(total)} on disk "
+                         f"(their journal and the final copy of the file), {validation.format_bytes(free)} free in "
+                         f"{where}; free space, choose another --output"
+                         + (" or set store_trajectories: false" if cfg.store_trajectories else ""))
+
+
+def _final_hooks(cfg: SweepConfig) -> list:
+    """The sweep finished and the file is final: callables f(h5py.File) that run inside the last rewrite
+    of a complete sweep (on the copy that then atomically replaces the file), e.g. a summary group of
+    every run (issue 19). This is the one place where 'the file is final' happens."""
+    return []
 
 
 def _root_attrs(cfg: SweepConfig, config_text: str, config_path, specs: list[RunSpec]) -> dict:
@@ -459,7 +543,7 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
               force: bool = False, workers: int | None = None, retry_failed: bool = False,
               console=None, progress: bool = True, argv: list | None = None,
               start_method: str | None = None, scheduler: str | None = None, task_size: int | None = None,
-              worker_cache_dir: str | None = None) -> SweepSummary:
+              worker_cache_dir: str | None = None, commit_interval: float | None = None) -> SweepSummary:
     """Compute every run of `cfg` missing from its results file; returns counts.
 
     output: results path (default cfg.output, else results/<name>.h5); force: start a new file;
@@ -467,8 +551,10 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
     retry_failed: recompute stored runs whose status is not ok; start_method: multiprocessing start
     method of the pool (default fork where available, else spawn). scheduler: a Dask scheduler address
     (or "local"), winning over cfg.executor; task_size: runs per task (default automatic);
-    worker_cache_dir: VCIRUN_CACHE_DIR of the Dask workers. Raises SweepError (unusable file, a method
-    the core rejects, a worker that died, a lost scheduler) and storage.StorageError.
+    worker_cache_dir: VCIRUN_CACHE_DIR of the Dask workers. commit_interval: seconds between journal
+    commits (default 1, or VCIRUN_COMMIT_INTERVAL): the most a hard kill can lose. Raises SweepError
+    (unusable file, a method the core rejects, not enough memory or disk, a worker that died, a lost
+    scheduler) and storage.StorageError (a file that cannot be read or written).
     """
     from . import executors
 
@@ -485,7 +571,9 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
     summary = SweepSummary(path=path, total=len(specs), workers=workers, executor=ex_spec.kind)
     session = {"argv": list(argv if argv is not None else sys.argv), "workers": workers, "pid": os.getpid()}
     writer = storage.ResultsWriter(path, root_attrs=_root_attrs(cfg, config_text, config_path, specs),
-                                   config_key=cfg.canonical_sha256(), force=force, session=session)
+                                   config_key=cfg.canonical_sha256(), force=force, session=session,
+                                   commit_interval=commit_interval)
+    writer.final_hooks = _final_hooks(cfg)
     writer.acquire()
     executor = None
     try:
@@ -498,13 +586,15 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
         pending = [s for s in specs if s.run_id not in writer.complete_runs]
         summary.skipped = len(specs) - len(pending)
         summary.deleted_incomplete = len(writer.incomplete)
-        if not pending:
+        ref_only = missing_references(cfg, writer)
+        if not pending and not ref_only:
             if writer.has_changes():
                 writer.finish("complete")
             summary.status_counts = _status_counts(writer)
             summary.wall_time = time.monotonic() - t_start
             return summary
-        _preflight(cfg, pending)
+        n = _preflight(cfg, pending or [specs[0]])
+        _check_resources(cfg, pending, n, workers, writer.path, writer)
         executor = executors.make_executor(ex_spec, workers=workers, start_method=start_method)
         executor.connect()  # a Dask cluster: reached (or a one-line error) before the file is created
         summary.workers = executor.workers
@@ -513,10 +603,11 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
         needs_ref = not isinstance(cfg.reference, NoReference)
         reporter = _Reporter(console, len(pending), f"{cfg.name}: {len(pending)} runs on {executor.describe()}",
                              progress)
-        if summary.skipped:
+        if summary.skipped or summary.deleted_incomplete:
             reporter.log(f"resuming {path}: {summary.skipped} of {len(specs)} runs already stored"
-                         + (f", {summary.deleted_incomplete} incomplete groups discarded"
-                            if summary.deleted_incomplete else ""))
+                         + (f", {summary.deleted_incomplete} incomplete or damaged groups discarded"
+                            if summary.deleted_incomplete else "")
+                         + (f", {len(ref_only)} missing reference(s) to recompute" if ref_only else ""))
         ref_T, ref_h = reference_horizon(cfg), min(cfg.h)
         status, broken = "complete", ""
         on_main = threading.current_thread() is threading.main_thread()
@@ -539,8 +630,9 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
 
         try:
             # The local pool forks its workers in start(): before the progress thread starts.
-            executor.start(cfg, pending, set(writer.references), needs_ref, ref_T, ref_h)
+            executor.start(cfg, pending, set(writer.references), needs_ref, ref_T, ref_h, reference_ics=ref_only)
             reporter.start()
+            writer.start_autocommit()  # after the fork: commits while the client waits for results
             for result in executor.results():
                 take(result)
         except KeyboardInterrupt as e:
