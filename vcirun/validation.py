@@ -184,7 +184,8 @@ def parse_bytes(value, field: str = "max_memory") -> int:
 def format_bytes(b: float) -> str:
     for unit, size in (("TiB", 2**40), ("GiB", 2**30), ("MiB", 2**20), ("KiB", 2**10)):
         if b >= size:
-            return f"{b / size:.3g} {unit}"
+            v = b / size
+            return f"{v:.3g} {unit}" if v < 1000 else f"{v:.0f} {unit}"
     return f"{int(b)} B"
 
 

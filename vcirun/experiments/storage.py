@@ -38,6 +38,7 @@ import errno
 import json
 import os
 import platform
+import re
 import shutil
 import struct
 import subprocess
@@ -580,6 +581,9 @@ def _resolve_output(path) -> Path:
                                "--output") from None
         if p.is_symlink():  # a loop realpath gave up on
             raise StorageError(f"{path}: symbolic link loop; choose another --output")
+        if not p.parent.is_dir():  # a dangling link: write where it points, but create no directories there
+            raise StorageError(f"{path}: symbolic link to {p}, whose directory does not exist; create it or "
+                               "choose another --output")
     if p.is_dir():
         raise StorageError(f"{p}: is a directory; give a file path such as {p / 'results.h5'}")
     if p.exists() and not p.is_file():
@@ -810,6 +814,9 @@ class ResultsWriter:
         expected = _decode_attr("journal", f.attrs.get("journal", ""))
         if j is not None and j.token and j.token == expected and j.config_key == self.config_key:
             self._old_journal = j
+            sessions = [r for r in j.records if r.kind == "session"]
+            if sessions and isinstance(sessions[-1].header.get("history"), list):
+                self.prior_history = sessions[-1].header["history"]  # the killed session's own count
             runs = {k: (None, a) for k, a in self.complete_runs.items()}
             refs = {k: (None, a) for k, a in self.references.items()}
             _overlay(j, runs, refs)
@@ -1110,7 +1117,13 @@ class ResultsWriter:
 
 def _one_line(e, limit: int = 300) -> str:
     s = " ".join(str(e).split()) or type(e).__name__
+    m = _HDF5_REASON.search(s)  # HDF5's "(file write failed: ..., error message = 'No space left ...', ...)"
+    if m:
+        s = f"HDF5: {m.group(2)}" + (f", errno {m.group(1)}" if m.group(1) else "")
     return s if len(s) <= limit else s[: limit - 3] + "..."
+
+
+_HDF5_REASON = re.compile(r"(?:errno = (\d+), )?error message = '([^']*)'")
 
 
 def _short(v) -> str:
@@ -1119,10 +1132,9 @@ def _short(v) -> str:
 
 
 def _fmt_bytes(b: float) -> str:
-    for unit, size in (("GiB", 2**30), ("MiB", 2**20), ("KiB", 2**10)):
-        if b >= size:
-            return f"{b / size:.3g} {unit}"
-    return f"{int(b)} B"
+    from vcirun.validation import format_bytes
+
+    return format_bytes(b)
 
 
 # --- readers ----------------------------------------------------------------------------------------

@@ -586,7 +586,8 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
         pending = [s for s in specs if s.run_id not in writer.complete_runs]
         summary.skipped = len(specs) - len(pending)
         summary.deleted_incomplete = len(writer.incomplete)
-        ref_only = missing_references(cfg, writer)
+        pending_ics = {s.ic.key for s in pending}
+        ref_only = [ic for ic in missing_references(cfg, writer) if ic.key not in pending_ics]
         if not pending and not ref_only:
             if writer.has_changes():
                 writer.finish("complete")
