@@ -58,7 +58,8 @@ def _reads_results(fn):
 
         try:
             return fn(*args, **kwargs)
-        except (click.exceptions.Exit, click.exceptions.Abort, click.exceptions.ClickException):
+        except (typer.Exit, typer.Abort, click.exceptions.Exit, click.exceptions.Abort,
+                click.exceptions.ClickException):
             raise
         except (OSError, KeyError, ValueError, TypeError, IndexError, AttributeError, RuntimeError,
                 MemoryError) as e:

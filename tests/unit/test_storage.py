@@ -177,7 +177,8 @@ def test_unusable_files_are_reported(tmp_path, content, match):
 def test_failed_commit_leaves_previous_file_intact(tmp_path, monkeypatch):
     path = write(tmp_path / "r.h5", {"a": run_attrs(make_traj(), "CVA", 0.01, 3.2)})
     before = path.read_bytes()
-    w = ResultsWriter(path, root_attrs={"name": "t"}, config_key=KEY).acquire()
+    # in this process (isolate=False), so that the writer sees the monkeypatched _write_group
+    w = ResultsWriter(path, root_attrs={"name": "t"}, config_key=KEY, isolate=False).acquire()
     calls = []
 
     def boom(f, grp, attrs, arrays):

@@ -553,6 +553,79 @@ def _fsync_path(path: Path, directory: bool = False) -> None:
         os.close(fd)
 
 
+def _reserve(path: Path, nbytes: int) -> None:
+    """Allocate the file's blocks up to nbytes (HDF5 writes into them and truncates the file to its end
+    of allocation on close), so that a full disk is met here with ENOSPC, before the HDF5 library runs:
+    HDF5 under ENOSPC prints errors from deallocators and can crash the process."""
+    if not hasattr(os, "posix_fallocate"):
+        return
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        os.posix_fallocate(fd, 0, max(int(nbytes), 1))
+    except OSError as e:
+        if e.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):
+            raise
+        # EOPNOTSUPP, EINVAL (file systems without fallocate): no reservation, HDF5 errors still caught
+    finally:
+        os.close(fd)
+
+
+class _ChildFailed(RuntimeError):
+    def __init__(self, text: str, errno_: int | None = None, crashed: bool = False):
+        super().__init__(text)
+        self.errno = errno_
+        self.crashed = crashed
+
+
+def _in_child(fn, tmp: Path) -> None:
+    """Run fn (the HDF5 writes of a rewrite) in a forked child: whatever the HDF5 library does when a
+    write fails (tracebacks printed from deallocators, a crash after ENOSPC), this process only learns
+    that the copy could not be written. The child dies with this process (PR_SET_PDEATHSIG)."""
+    r, w = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # child: no atexit handlers, no stdio flushes, stderr silenced
+        code = 0
+        try:
+            os.close(r)
+            with contextlib.suppress(Exception):
+                import ctypes
+
+                ctypes.CDLL(None).prctl(1, 9)  # PR_SET_PDEATHSIG, SIGKILL
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, 2)
+            fn()
+        except BaseException as e:  # noqa: BLE001 - reported to the parent
+            code = 1
+            with contextlib.suppress(BaseException):
+                os.write(w, json.dumps({"type": type(e).__name__, "errno": getattr(e, "errno", None),
+                                        "text": _one_line(e, 400), "storage": isinstance(e, StorageError)}).encode())
+        finally:
+            os._exit(code)
+    os.close(w)
+    chunks = []
+    try:
+        while True:
+            b = os.read(r, 65536)
+            if not b:
+                break
+            chunks.append(b)
+    finally:
+        os.close(r)
+        _, status = os.waitpid(pid, 0)
+    if os.WIFSIGNALED(status):
+        raise _ChildFailed(f"the HDF5 library crashed (signal {os.WTERMSIG(status)}) while writing {tmp.name}",
+                           crashed=True)
+    if os.WEXITSTATUS(status) != 0:
+        try:
+            info = json.loads(b"".join(chunks) or b"{}")
+        except ValueError:
+            info = {}
+        text = info.get("text") or f"the writer exited with status {os.WEXITSTATUS(status)}"
+        if info.get("storage"):
+            raise StorageError(text)
+        raise _ChildFailed(text, info.get("errno"))
+
+
 def _write_all(fd: int, pieces) -> None:
     for piece in pieces:
         mv = memoryview(piece)
@@ -610,7 +683,8 @@ class ResultsWriter:
     """
 
     def __init__(self, path, *, root_attrs: dict, config_key: str, force: bool = False,
-                 commit_interval: float | None = None, session: dict | None = None, min_interval=None):
+                 commit_interval: float | None = None, session: dict | None = None, min_interval=None,
+                 isolate: bool = True):
         self.requested_path = Path(path)
         self.path = _resolve_output(path)
         self.root_attrs = dict(root_attrs)
@@ -620,6 +694,7 @@ class ResultsWriter:
         if interval is None:
             interval = float(os.environ.get("VCIRUN_COMMIT_INTERVAL", DEFAULT_COMMIT_INTERVAL))
         self.commit_interval = max(0.0, float(interval))
+        self.isolate = isolate  # HDF5 rewrites in a forked child (see _in_child); False: in this process
         self.session = dict(session or {})
         self.session.setdefault("started", now_iso())
         self.session.setdefault("status", "running")
@@ -988,9 +1063,9 @@ class ResultsWriter:
         t0 = time.monotonic()
         tmp = self.tmp_path
         fresh = self._fresh or not self.path.exists()
+        need = self._space_needed(journals)
         with contextlib.suppress(OSError):
             free = shutil.disk_usage(self.path.parent).free
-            need = self._space_needed(journals)
             if need > free:
                 raise StorageError(f"{self.path}: not enough free space to write results (about "
                                    f"{_fmt_bytes(need)} needed, {_fmt_bytes(free)} free in {self.path.parent}); every "
@@ -1000,32 +1075,13 @@ class ResultsWriter:
         try:
             if not fresh:
                 shutil.copyfile(self.path, tmp)
-            with h5py.File(tmp, "w" if fresh else "a", libver=LIBVER) as f:
-                if fresh:
-                    f.attrs["format"] = FORMAT
-                    f.attrs["schema_version"] = SCHEMA_VERSION
-                    f.attrs["config_key"] = self.config_key
-                for group in ("runs", "references"):
-                    if group not in f:
-                        f.create_group(group)  # a file that lost one gets it back
-                for key, value in self.root_attrs.items():
-                    f.attrs[key] = _encode_attr(key, value)
-                for path in self._deletions:
-                    if path in f:
-                        del f[path]
-                for j in journals:
-                    self._apply_journal(f, j)
-                stamp = now_iso()
-                for p in self._pending:
-                    group = "runs" if p.kind == "run" else "references"
-                    _write_group(f, f"{group}/{p.key}", {**p.attrs, "committed_at": stamp}, p.arrays)
-                history = list(self.prior_history) + [session]
-                f.attrs["history"] = _encode_attr("history", history)
-                f.attrs["updated"] = now_iso()
-                f.attrs["n_runs_complete"] = len(f["runs"])  # all groups here are complete
-                f.attrs["journal"] = new_token
-                for hook in final_hooks:
-                    hook(f)
+            if not fresh:  # (h5py's "w" would truncate a reservation away; a fresh file is small)
+                _reserve(tmp, need)  # the space HDF5 writes into, taken now: a full disk fails here, cleanly
+            write = lambda: self._write_copy(tmp, fresh, journals, session, new_token, final_hooks)  # noqa: E731
+            if self.isolate and hasattr(os, "fork"):
+                _in_child(write, tmp)
+            else:
+                write()
             _fsync_path(tmp)
             os.replace(tmp, self.path)
             _fsync_path(self.path.parent, directory=True)
@@ -1039,9 +1095,13 @@ class ResultsWriter:
             if isinstance(e, (OSError, RuntimeError, ValueError, KeyError)):
                 # disk full, permissions, HDF5 errors: the live file still holds every committed run.
                 # No further HDF5 write in this process (h5py's state after a failed write is suspect).
-                err = StorageError(f"{self.path}: cannot write results ({_one_line(e)}); the file and its journal "
-                                   "still hold every run committed before this error: fix the cause and rerun the "
-                                   "same command to resume")
+                if isinstance(e, OSError) or getattr(e, "crashed", False) or "errno" in str(e):
+                    err = StorageError(f"{self.path}: cannot write results ({_one_line(e)}); the file and its "
+                                       "journal still hold every run committed before this error: fix the cause and "
+                                       "rerun the same command to resume")
+                else:  # HDF5 refused to update the copy: the file's own structures are damaged
+                    err = StorageError(f"{self.path}: cannot update the results file ({_one_line(e)}); it looks "
+                                       "damaged: move it away or rerun with --force to start over")
                 self._failed = err
                 raise err from e
             raise
@@ -1061,6 +1121,35 @@ class ResultsWriter:
         if self._jfd is None:  # any journal beside the file is now applied or stale
             with contextlib.suppress(OSError):
                 self.journal_path.unlink()
+
+    def _write_copy(self, tmp: Path, fresh: bool, journals, session: dict, new_token: str, final_hooks) -> None:
+        """The HDF5 part of a rewrite: everything that changes goes into the copy `tmp`."""
+        with h5py.File(tmp, "w" if fresh else "a", libver=LIBVER) as f:
+            if fresh:
+                f.attrs["format"] = FORMAT
+                f.attrs["schema_version"] = SCHEMA_VERSION
+                f.attrs["config_key"] = self.config_key
+            for group in ("runs", "references"):
+                if group not in f:
+                    f.create_group(group)  # a file that lost one gets it back
+            for key, value in self.root_attrs.items():
+                f.attrs[key] = _encode_attr(key, value)
+            for path in self._deletions:
+                if path in f:
+                    del f[path]
+            for j in journals:
+                self._apply_journal(f, j)
+            stamp = now_iso()
+            for p in self._pending:
+                group = "runs" if p.kind == "run" else "references"
+                _write_group(f, f"{group}/{p.key}", {**p.attrs, "committed_at": stamp}, p.arrays)
+            history = list(self.prior_history) + [session]
+            f.attrs["history"] = _encode_attr("history", history)
+            f.attrs["updated"] = now_iso()
+            f.attrs["n_runs_complete"] = len(f["runs"])  # all groups here are complete
+            f.attrs["journal"] = new_token
+            for hook in final_hooks:
+                hook(f)
 
     def _apply_journal(self, f, j: Journal) -> None:
         try:
