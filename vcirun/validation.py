@@ -19,6 +19,8 @@ No sympy and no numba here: `experiments/` imports this module.
 """
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import keyword
 import math
 import numbers
@@ -32,7 +34,7 @@ import yaml
 
 __all__ = ["MAX_STEPS", "MIN_H", "MAX_YAML_CHARS", "MAX_YAML_NODES", "MAX_COORDINATES", "MAX_PARAMETERS",
            "check_number", "check_simulate_args", "check_reference_args", "check_state_vector", "grid_size",
-           "run_bytes", "stored_bytes", "memory_limit", "set_memory_limit", "parse_bytes", "format_bytes",
+           "run_bytes", "stored_bytes", "memory_limit", "set_memory_limit", "limit_memory", "parse_bytes", "format_bytes",
            "check_run_memory", "check_identifier", "check_distinct_names", "ascii_name_problem",
            "yaml_load", "YAMLLimitError", "nonfinite_start", "describe"]
 
@@ -190,6 +192,8 @@ def format_bytes(b: float) -> str:
 
 
 _LIMIT: int | None = None
+# a sweep's max_memory, for the runs it computes in this thread (see `limit_memory`)
+_SCOPED: contextvars.ContextVar = contextvars.ContextVar("vcirun_memory_limit", default=None)
 
 
 def _physical_memory() -> int:
@@ -202,6 +206,8 @@ def _physical_memory() -> int:
 def memory_limit() -> int:
     """Bytes one run (or a sweep's runs in flight) may take: `set_memory_limit`, else VCIRUN_MAX_MEMORY,
     else half of the physical memory."""
+    if _SCOPED.get() is not None:
+        return _SCOPED.get()
     if _LIMIT is not None:
         return _LIMIT
     env = os.environ.get("VCIRUN_MAX_MEMORY")
@@ -214,6 +220,19 @@ def set_memory_limit(limit) -> None:
     """Set the process-wide limit (bytes or text like '16GB'); None restores the default."""
     global _LIMIT
     _LIMIT = None if limit is None else parse_bytes(limit)
+
+
+@contextlib.contextmanager
+def limit_memory(limit):
+    """The limit for the calls inside this block (this thread only); None: no change."""
+    if limit is None:
+        yield
+        return
+    token = _SCOPED.set(parse_bytes(limit))
+    try:
+        yield
+    finally:
+        _SCOPED.reset(token)
 
 
 def check_run_memory(N: int, n: int, *, copies: int = 1, extra: int = 0, limit=None, field: str = "T",

@@ -587,6 +587,10 @@ def _in_child(fn, tmp: Path) -> None:
         try:
             os.close(r)
             with contextlib.suppress(Exception):
+                import faulthandler
+
+                faulthandler.disable()  # a crash here is reported by the parent, not dumped
+            with contextlib.suppress(Exception):
                 import ctypes
 
                 ctypes.CDLL(None).prctl(1, 9)  # PR_SET_PDEATHSIG, SIGKILL

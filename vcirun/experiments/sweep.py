@@ -168,8 +168,6 @@ class _WorkerState:
         self.cfg = cfg
         self.ref_T = ref_T
         self.ref_h = ref_h
-        if cfg.max_memory is not None:
-            validation.set_memory_limit(cfg.max_memory)  # simulate's own check uses the sweep's limit
         self.system, self.params, _ = build_system(cfg)
         self.tolerances = cfg.tolerances.model_dump(exclude_none=True)
         self.refs: OrderedDict[str, object] = OrderedDict()
@@ -335,10 +333,16 @@ def _execute(task: Task, st: _WorkerState | None = None, emit=None) -> dict:
     """Worker entry point: the reference (if this task stores it) and every run of the task
     (state: this process's, or `st` given by the Dask executor). With `emit`, each run is sent on
     as soon as it is computed (a result dict of one run, the reference with the first) and the
-    return value only counts the messages (`streamed`)."""
+    return value only counts the messages (`streamed`). simulate's memory check uses the sweep's
+    max_memory inside."""
     st = st or _STATE
     if st is None:  # pragma: no cover - initializer always runs first
         raise RuntimeError("worker not initialised")
+    with validation.limit_memory(st.cfg.max_memory):
+        return _execute_task(task, st, emit)
+
+
+def _execute_task(task: Task, st: _WorkerState, emit) -> dict:
     ref = None
     needs_ref = not isinstance(st.cfg.reference, NoReference) and (
         task.want_reference or any(r.method.options.constrained is not False for r in task.runs))
@@ -436,8 +440,6 @@ def _preflight(cfg: SweepConfig, pending: list[RunSpec]) -> int:
     Returns the number of coordinates n."""
     import vcirun
 
-    if cfg.max_memory is not None:
-        validation.set_memory_limit(cfg.max_memory)
     system, params, sysm = build_system(cfg)
     tol = cfg.tolerances.model_dump(exclude_none=True)
     seen = set()
