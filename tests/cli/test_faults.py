@@ -341,9 +341,13 @@ def test_simulated_enospc_in_the_journal_truncates_it_and_keeps_every_commit(tmp
         w.commit()
     monkeypatch.undo()
     assert w.journal_path.stat().st_size == good  # cut back to the last complete record
-    w.finish("complete")  # after a failed write nothing more is attempted
-    w.close()
     assert [r.run_id for r in storage.read_results(path).runs] == [items[0][0]]
+    w.commit()  # space again: the retry appends right after the last complete record
+    assert {r.run_id for r in storage.read_results(path).runs} == {items[0][0], items[1][0]}
+    w.finish("complete")
+    w.close()
+    with h5py.File(path, "r") as f:
+        assert sorted(f["runs"]) == sorted([items[0][0], items[1][0]])
 
 
 def test_an_hdf5_crash_during_a_rewrite_stays_in_the_child(tmp_path):

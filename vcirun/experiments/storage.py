@@ -799,6 +799,14 @@ class ResultsWriter:
                 raise StorageError(f"{self.path}: another vcirun sweep is writing this file; wait for it or "
                                    "choose another --output") from None
             raise StorageError(f"{self.path}: cannot lock {self.lock_path} ({_os_text(e)})") from None
+        try:  # the lock file we hold must still be the one at lock_path (a releasing writer unlinks it)
+            same = os.fstat(fd).st_ino == os.stat(self.lock_path).st_ino
+        except OSError:
+            same = False
+        if not same:
+            os.close(fd)
+            raise StorageError(f"{self.path}: another vcirun sweep is starting or stopping on this file; "
+                               "retry in a moment")
         with contextlib.suppress(OSError):
             os.ftruncate(fd, 0)
             os.write(fd, f"{os.getpid()}\n".encode())
@@ -990,6 +998,7 @@ class ResultsWriter:
                 # a torn tail would be ignored by readers; cut it so the journal stays clean
                 with contextlib.suppress(OSError):
                     os.ftruncate(self._jfd, self._jend)
+                    os.lseek(self._jfd, self._jend, os.SEEK_SET)  # a retry appends right after it
                 err = StorageError(f"{self.journal_path}: cannot write results ({_os_text(e)}); every run committed "
                                    f"before this error is kept ({len(self.complete_runs)} in {self.path} and its "
                                    "journal): free space and rerun the same command to resume")
