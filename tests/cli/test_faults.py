@@ -183,6 +183,39 @@ os.kill(os.getpid(), signal.SIGKILL)
         assert len(f["runs"]) == 5
 
 
+def test_background_compaction_folds_the_journal_in_while_the_sweep_runs(tmp_path):
+    import time
+
+    path = tmp_path / "r.h5"
+    w = ResultsWriter(path, root_attrs={"name": "t"}, config_key=KEY)
+    w.acquire()
+    w.start()
+    w.start_background_compaction(min_interval=0.2)
+    items = list(runs(6).items())
+    for rid, (a, arr) in items[:4]:
+        w.add_run(rid, a, arr)
+        w.commit()
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:  # a round replaces the file with one holding the four runs
+        with h5py.File(path, "r") as f:
+            if len(f["runs"]) == 4:
+                assert f.attrs["journal_applied"] > 0 and f.attrs["journal"] == w._token
+                break
+        time.sleep(0.1)
+    else:
+        raise AssertionError("no compaction round within 60 s")
+    for rid, (a, arr) in items[4:]:
+        w.add_run(rid, a, arr)
+        w.commit()
+    res = storage.read_results(path)  # the file's four and the journal's tail, each once
+    assert sorted(r.run_id for r in res.runs) == sorted(k for k, _ in items) and res.in_journal <= 2
+    w.finish("complete")
+    w.close()
+    with h5py.File(path, "r") as f:
+        assert sorted(f["runs"]) == sorted(k for k, _ in items) and f.attrs["journal_applied"] == 0
+    assert not w.compact_path.exists() and not w.journal_path.exists()
+
+
 # --- resume verifies what it trusts ---------------------------------------------------------------------------
 def test_resume_recomputes_runs_whose_datasets_are_missing_or_misshapen(tiny):
     out = tiny.parent / "r.h5"

@@ -451,6 +451,18 @@ class Journal:
     records: list = field(default_factory=list)  # after the "open" record, in order
     good_end: int = 0     # offset past the last complete record
     torn: bool = False    # bytes after good_end (a kill or a disk-full in the middle of an append)
+    applied: int = 0      # records ending at or before this offset are in the file already (see `after`)
+
+    def after(self, offset: int) -> "Journal":
+        """The records the file does not hold yet: those ending past `offset` (its `journal_applied`)."""
+        if not offset:
+            return self
+        return Journal(self.path, self.token, self.config_key, [r for r in self.records if r.end > offset],
+                       self.good_end, self.torn, max(self.applied, int(offset)))
+
+    @property
+    def new_bytes(self) -> int:
+        return max(0, self.good_end - self.applied)
 
 
 def read_journal(path, *, verify: bool = True) -> Journal | None:
@@ -590,6 +602,28 @@ class _ChildFailed(RuntimeError):
         self.io_failure = io_failure  # an OSError in the child, or a crash: the write failed, not the file
 
 
+def _child_setup(background: bool = False) -> None:
+    """A forked HDF5 writer: dies with its parent, prints nothing (the parent reports), no crash dump;
+    in the background also at a lower priority and deaf to Ctrl-C (the parent stops it)."""
+    with contextlib.suppress(Exception):
+        import faulthandler
+
+        faulthandler.disable()
+    with contextlib.suppress(Exception):
+        import ctypes
+
+        ctypes.CDLL(None).prctl(1, 9)  # PR_SET_PDEATHSIG, SIGKILL
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, 2)
+    if background:
+        import signal
+
+        with contextlib.suppress(OSError):
+            os.nice(10)
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, signal.SIG_IGN)
+
+
 def _in_child(fn, tmp: Path) -> None:
     """Run fn (the HDF5 writes of a rewrite) in a forked child: whatever the HDF5 library does when a
     write fails (tracebacks printed from deallocators, a crash after ENOSPC), this process only learns
@@ -600,16 +634,7 @@ def _in_child(fn, tmp: Path) -> None:
         code = 0
         try:
             os.close(r)
-            with contextlib.suppress(Exception):
-                import faulthandler
-
-                faulthandler.disable()  # a crash here is reported by the parent, not dumped
-            with contextlib.suppress(Exception):
-                import ctypes
-
-                ctypes.CDLL(None).prctl(1, 9)  # PR_SET_PDEATHSIG, SIGKILL
-            devnull = os.open(os.devnull, os.O_WRONLY)
-            os.dup2(devnull, 2)
+            _child_setup()
             fn()
         except BaseException as e:  # noqa: BLE001 - reported to the parent
             code = 1
@@ -741,6 +766,9 @@ class ResultsWriter:
         self._auto_stop = threading.Event()
         self._auto_error: BaseException | None = None
         self._made_dirs: list[Path] = []
+        self._compactor: tuple | None = None  # (pid, pipe) of the background compaction child
+        self._journal_base = 0                # journal offset past its open record
+        self.compaction_rounds = 0            # (counted in the child; for tests that run it in-process)
 
     # the temporary copy lives next to the file so that os.replace stays on one filesystem
     @property
@@ -832,8 +860,9 @@ class ResultsWriter:
         """Take the writer lock and read what an existing file already holds (nothing is written)."""
         self._acquire_lock()
         try:
-            with contextlib.suppress(FileNotFoundError):
-                self.tmp_path.unlink()  # leftover of a rewrite that was killed before its rename
+            for leftover in (self.tmp_path, self.compact_path):  # of a rewrite killed before its rename
+                with contextlib.suppress(FileNotFoundError):
+                    leftover.unlink()
             self._fresh = self.force or not self.path.exists()
             if not self._fresh:
                 self._read_existing()
@@ -915,6 +944,7 @@ class ResultsWriter:
         j = read_journal(self.journal_path)
         expected = _decode_attr("journal", f.attrs.get("journal", ""))
         if j is not None and j.token and j.token == expected and j.config_key == self.config_key:
+            j = j.after(_applied(f))
             self._old_journal = j
             sessions = [r for r in j.records if r.kind == "session"]
             if sessions and isinstance(sessions[-1].header.get("history"), list):
@@ -1069,7 +1099,7 @@ class ResultsWriter:
             self._failed = err  # finish() must not try another rewrite on this (likely full) disk
             raise err from None
         _fsync_path(jp.parent, directory=True)
-        self._jfd, self._jend, self._token = fd, n, token
+        self._jfd, self._jend, self._token, self._journal_base = fd, n, token, n
 
     def _close_journal(self) -> None:
         if self._jfd is not None:
@@ -1079,7 +1109,7 @@ class ResultsWriter:
 
     def _space_needed(self, journals) -> int:
         size = self.path.stat().st_size if not self._fresh and self.path.exists() else 0
-        extra = sum(j.good_end for j in journals if j is not None)
+        extra = sum(j.new_bytes for j in journals if j is not None)
         extra += sum(sum(int(np.asarray(a).nbytes) for a in p.arrays.values()) for p in self._pending)
         return size + 2 * extra + 2**20  # the copy, what it gains (HDF5 overhead included), slack
 
@@ -1176,6 +1206,7 @@ class ResultsWriter:
             f.attrs["updated"] = now_iso()
             f.attrs["n_runs_complete"] = len(f["runs"])  # all groups here are complete
             f.attrs["journal"] = new_token
+            f.attrs["journal_applied"] = 0  # a new journal (or none): nothing of it is in the file yet
             for hook in final_hooks:
                 hook(f)
 
@@ -1192,6 +1223,97 @@ class ResultsWriter:
                 elif r.kind == "delete" and r.key in f:
                     del f[r.key]
 
+    # -- background compaction -------------------------------------------------------------------------------
+    @property
+    def compact_path(self) -> Path:
+        return self.path.with_name(f".{self.path.name}.compacting")
+
+    def start_background_compaction(self, min_interval: float = 10.0) -> None:
+        """Fold the journal into the HDF5 file from a forked child while the sweep runs, so that plain h5py
+        sees the runs committed up to a round ago and the final compaction only has the tail to do. Each
+        round copies the file, applies the new records, records how far (`journal_applied`) and atomically
+        replaces the file; rounds are at least `min_interval` and 4 round durations apart (the child runs
+        at a lower priority). The commits and the loss bound do not depend on it: a failed or killed
+        round changes nothing (readers and resumes apply the journal past `journal_applied`)."""
+        if self._compactor is not None or self._jfd is None or not (self.isolate and hasattr(os, "fork")):
+            return
+        r, w = os.pipe()
+        pid = os.fork()
+        if pid == 0:
+            code = 0
+            try:
+                os.close(w)
+                _child_setup(background=True)
+                self._compact_loop(r, float(min_interval))
+            except BaseException:  # noqa: BLE001 - the parent's final compaction does what is left
+                code = 1
+            finally:
+                os._exit(code)
+        os.close(r)
+        self._compactor = (pid, w)
+
+    def _compact_loop(self, stop_fd: int, min_interval: float) -> None:
+        import select
+
+        applied, interval = self._journal_base, min_interval
+        while True:
+            if select.select([stop_fd], [], [], interval)[0]:
+                return  # the parent closed the pipe: stop between rounds
+            j = read_journal(self.journal_path)
+            if j is None or j.token != self._token:
+                return
+            new = j.after(applied)
+            if not any(r.kind != "session" for r in new.records):
+                continue
+            t0 = time.monotonic()
+            tmp = self.compact_path
+            shutil.copyfile(self.path, tmp)
+            _reserve(tmp, tmp.stat().st_size + 2 * new.new_bytes + 2**20)
+            with h5py.File(tmp, "a", libver=LIBVER) as f:
+                self._apply_journal(f, new)
+                sessions = [r for r in new.records if r.kind == "session"]
+                if sessions and isinstance(sessions[-1].header.get("history"), list):
+                    f.attrs["history"] = _encode_attr("history", sessions[-1].header["history"])
+                    f.attrs["updated"] = str(sessions[-1].header.get("updated", now_iso()))
+                f.attrs["n_runs_complete"] = len(f["runs"])
+                f.attrs["journal_applied"] = int(new.good_end)
+            _fsync_path(tmp)
+            os.replace(tmp, self.path)
+            _fsync_path(self.path.parent, directory=True)
+            applied = new.good_end
+            self.compaction_rounds += 1
+            interval = max(min_interval, 4.0 * (time.monotonic() - t0))
+
+    def stop_background_compaction(self, grace: float = 5.0) -> None:
+        """Ask the compactor to stop between rounds; a round still running after `grace` s is abandoned
+        (the file is then the previous round's, which is consistent)."""
+        if self._compactor is None:
+            return
+        pid, w = self._compactor
+        self._compactor = None
+        with contextlib.suppress(OSError):
+            os.close(w)
+        deadline = time.monotonic() + grace
+        while True:
+            done, _ = os.waitpid(pid, os.WNOHANG)
+            if done:
+                break
+            if time.monotonic() > deadline:
+                with contextlib.suppress(OSError):
+                    os.kill(pid, 9)
+                os.waitpid(pid, 0)
+                break
+            time.sleep(0.02)
+        with contextlib.suppress(OSError):
+            self.compact_path.unlink()
+
+    def _file_applied(self) -> int:
+        try:
+            with h5py.File(self.path, "r") as f:
+                return _applied(f)
+        except Exception:  # noqa: BLE001 - then the whole journal is applied (idempotent)
+            return 0
+
     # -- finishing ------------------------------------------------------------------------------------------
     def finish(self, status: str, final_hooks=None) -> None:
         """Commit what is queued, record how this session ended ('complete', 'interrupted', ...) and
@@ -1199,6 +1321,7 @@ class ResultsWriter:
         `self.final_hooks`) run inside that last rewrite, on the open file, when status is 'complete'.
         After a failed write nothing more is written (the file and journal keep every committed run)."""
         self.stop_autocommit()
+        self.stop_background_compaction()
         with self._mutex:
             if self._failed is not None:
                 return
@@ -1213,7 +1336,8 @@ class ResultsWriter:
             if journal is None or journal.token != self._token:
                 raise StorageError(f"{self.journal_path}: the journal of this session is missing or was replaced; "
                                    "rerun the same command to resume")
-            self._rewrite(new_token="", journals=[journal], final_hooks=hooks)
+            # what a background compaction folded in already is skipped
+            self._rewrite(new_token="", journals=[journal.after(self._file_applied())], final_hooks=hooks)
             self._close_journal()
             with contextlib.suppress(OSError):
                 self.journal_path.unlink()
@@ -1221,6 +1345,7 @@ class ResultsWriter:
 
     def close(self) -> None:
         self.stop_autocommit()
+        self.stop_background_compaction()
         try:
             if self._pending and self._lock_fd is not None and self._failed is None:
                 with contextlib.suppress(StorageError):
@@ -1324,7 +1449,13 @@ def _file_journal(path, f) -> Journal | None:
         return None
     if j is None or j.token != expected or j.config_key != _decode_attr("config_key", f.attrs.get("config_key", "")):
         return None
-    return j
+    return j.after(_applied(f))
+
+
+def _applied(f) -> int:
+    """How much of its journal the file holds already (a background compaction's progress)."""
+    v = _decode_attr("journal_applied", f.attrs.get("journal_applied", 0))
+    return int(v) if isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0 else 0
 
 
 def read_results(path) -> Results:

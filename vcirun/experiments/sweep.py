@@ -634,8 +634,9 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
         try:
             # The local pool forks its workers in start(): before the progress thread starts.
             executor.start(cfg, pending, set(writer.references), needs_ref, ref_T, ref_h, reference_ics=ref_only)
+            writer.start_background_compaction()  # a forked child: before any thread of ours starts
             reporter.start()
-            writer.start_autocommit()  # after the fork: commits while the client waits for results
+            writer.start_autocommit()  # after the forks: commits while the client waits for results
             for result in executor.results():
                 take(result)
         except KeyboardInterrupt as e:
