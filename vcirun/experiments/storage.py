@@ -604,7 +604,8 @@ class _ChildFailed(RuntimeError):
 
 def _child_setup(background: bool = False) -> None:
     """A forked HDF5 writer: dies with its parent, prints nothing (the parent reports), no crash dump;
-    in the background also at a lower priority and deaf to Ctrl-C (the parent stops it)."""
+    in the background also deaf to Ctrl-C (the parent stops it). (Not niced: on a busy machine a niced
+    compactor starved, and the final compaction then had everything to do.)"""
     with contextlib.suppress(Exception):
         import faulthandler
 
@@ -618,8 +619,6 @@ def _child_setup(background: bool = False) -> None:
     if background:
         import signal
 
-        with contextlib.suppress(OSError):
-            os.nice(10)
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, signal.SIG_IGN)
 
@@ -1232,8 +1231,7 @@ class ResultsWriter:
         """Fold the journal into the HDF5 file from a forked child while the sweep runs, so that plain h5py
         sees the runs committed up to a round ago and the final compaction only has the tail to do. Each
         round copies the file, applies the new records, records how far (`journal_applied`) and atomically
-        replaces the file; rounds are at least `min_interval` and 4 round durations apart (the child runs
-        at a lower priority). The commits and the loss bound do not depend on it: a failed or killed
+        replaces the file; rounds are at least `min_interval` and 4 round durations apart. The commits and the loss bound do not depend on it: a failed or killed
         round changes nothing (readers and resumes apply the journal past `journal_applied`)."""
         if self._compactor is not None or self._jfd is None or not (self.isolate and hasattr(os, "fork")):
             return
@@ -1284,9 +1282,10 @@ class ResultsWriter:
             self.compaction_rounds += 1
             interval = max(min_interval, 4.0 * (time.monotonic() - t0))
 
-    def stop_background_compaction(self, grace: float = 5.0) -> None:
-        """Ask the compactor to stop between rounds; a round still running after `grace` s is abandoned
-        (the file is then the previous round's, which is consistent)."""
+    def stop_background_compaction(self, grace: float = 120.0) -> None:
+        """Ask the compactor to stop between rounds (a round under way is finished: its work is work the
+        final compaction would do); one still running after `grace` s is abandoned (the file is then the
+        previous round's, which is consistent)."""
         if self._compactor is None:
             return
         pid, w = self._compactor
