@@ -602,10 +602,12 @@ class _ChildFailed(RuntimeError):
         self.io_failure = io_failure  # an OSError in the child, or a crash: the write failed, not the file
 
 
-def _child_setup(background: bool = False) -> None:
-    """A forked HDF5 writer: dies with its parent, prints nothing (the parent reports), no crash dump;
-    in the background also deaf to Ctrl-C (the parent stops it). (Not niced: on a busy machine a niced
-    compactor starved, and the final compaction then had everything to do.)"""
+def _child_setup(keep_fd: int, background: bool = False) -> None:
+    """A forked HDF5 writer: dies with its parent, prints nothing (the parent reports), no crash dump,
+    and holds none of the parent's descriptors but `keep_fd` (copies of sockets, e.g. a Dask client's,
+    would keep connections open that the parent closes); in the background also deaf to Ctrl-C (the
+    parent stops it). (Not niced: on a busy machine a niced compactor starved, and the final
+    compaction then had everything to do.)"""
     with contextlib.suppress(Exception):
         import faulthandler
 
@@ -614,13 +616,23 @@ def _child_setup(background: bool = False) -> None:
         import ctypes
 
         ctypes.CDLL(None).prctl(1, 9)  # PR_SET_PDEATHSIG, SIGKILL
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    os.dup2(devnull, 2)
+    devnull = os.open(os.devnull, os.O_RDWR)
+    for fd in (0, 1, 2):
+        os.dup2(devnull, fd)
+    os.closerange(3, keep_fd)  # (devnull among them: 0, 1, 2 are copies of it now)
+    os.closerange(keep_fd + 1, _max_fd())
     if background:
         import signal
 
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, signal.SIG_IGN)
+
+
+def _max_fd() -> int:
+    try:
+        return int(min(os.sysconf("SC_OPEN_MAX"), 1 << 20))
+    except (ValueError, OSError):
+        return 4096
 
 
 def _in_child(fn, tmp: Path) -> None:
@@ -633,7 +645,7 @@ def _in_child(fn, tmp: Path) -> None:
         code = 0
         try:
             os.close(r)
-            _child_setup()
+            _child_setup(w)
             fn()
         except BaseException as e:  # noqa: BLE001 - reported to the parent
             code = 1
@@ -1241,7 +1253,8 @@ class ResultsWriter:
             code = 0
             try:
                 os.close(w)
-                _child_setup(background=True)
+                _child_setup(r, background=True)
+                self._jfd = None  # (closed by _child_setup; the child reads the journal by its path)
                 self._compact_loop(r, float(min_interval))
             except BaseException:  # noqa: BLE001 - the parent's final compaction does what is left
                 code = 1
