@@ -68,7 +68,7 @@ def main():
         t0 = time.perf_counter()
         from vcirun.codegen.derive import module_source
 
-        text = module_source(s, ks, [(build._PKG / u).read_text() for u in build._units(ks)])
+        text = module_source(s, ks)
         out.update(derive_s=time.perf_counter() - t0, source_chars=len(text), source_lines=text.count("\n"))
         print(json.dumps(out))
         return
@@ -84,7 +84,7 @@ def main():
     out.update(first_sim_s=t1 - t0, to_first_sim_s=t1 - T_START, cached=bool(log.get("cached")),
                generate_s=float(log.get("generate_s", float("nan"))), status=tr.status,
                derive_imported="vcirun.codegen.derive" in sys.modules,
-               modified_derive_imported="vcirun.modified.derive" in sys.modules,
+               modified_derive_imported="vcirun.modified.eta" in sys.modules,
                sympy_imported="sympy" in sys.modules, n_impacts=int(len(tr.impacts)))
     m = a.get("measure_steps")
     if m:

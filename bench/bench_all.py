@@ -20,8 +20,15 @@ Sections (`--only a,b,...` to pick; `--quick` for a short smoke run):
   dof       only the degrees-of-freedom part of `scaling`
   tensor    the per-slot tensor prototype of the step (bench/tensor_prototype.py): symbolic and numba
             time and us per step against vcirun's generated step, n-link pendulum n = 1, 2, 4, 8
+  coldbuild cold builds (issue 21): the first simulation of a scene with a FRESH kernel cache, one
+            fresh process at a time, per stage (sympy, emission, C compiler, numba frontend / typing /
+            lowering, LLVM, cache write) and per compiled function (bench/coldbuild.py), cart-pendulum
+            and n-link pendulum n = 2, 4, 8 x CVA, MCVAC, MCVAA on the default kernel backend, the
+            cart-pendulum also on the numba backend (VCIRUN_KERNEL_BACKEND=numba; set
+            VCIRUN_BENCH_NUMBA_ALL=1 for every case: the 8-link MCVAA takes ~10 minutes); the
+            issue's target table with wall and CPU seconds and the load average beside each
   wp        the work-precision studies (configs/work_precision.yaml, work_precision_double.yaml,
-            long_horizon.yaml) through vcirun.experiments.workprecision, with their figures; the
+            long_horizon.yaml) through `vcirun study` (vcirun.experiments.studies), with their figures; the
             10x target is read on vcirun's front (best method at each accuracy) of the two T = 5 studies
 
 The machine is shared with other sessions: every timing is a median over repeats, the load average
@@ -471,18 +478,23 @@ def dof_rows() -> dict:
 
 # --- work-precision ----------------------------------------------------------------------------------
 def section_wp(res):
+    import io
+
+    from vcirun.experiments.studies.runner import run_file
+
     out = {}
     for cfg in ["configs/work_precision.yaml", "configs/work_precision_double.yaml", "configs/long_horizon.yaml"]:
         log(f"== work-precision study {cfg}")
-        cmd = [sys.executable, "-m", "vcirun.experiments.workprecision", cfg, "--plot"] + (["--quick"] if QUICK else [])
-        if QUICK:
-            cmd += ["--output", f"results/{Path(cfg).stem}_quick.json"]
         t0 = time.perf_counter()
-        r = subprocess.run(cmd, cwd=ROOT, text=True, capture_output=True)
-        log(r.stdout.rstrip())
-        if r.returncode:
-            log(r.stderr.strip()[-2000:])
-        out[cfg] = {"returncode": r.returncode, "seconds": time.perf_counter() - t0}
+        tables = io.StringIO()
+        try:   # the study API (what `vcirun study CFG --plot [--quick]` runs), in this process
+            run = run_file(ROOT / cfg, plot=True, quick=QUICK, log=log, tables=tables,
+                           output=ROOT / "results" / (Path(cfg).stem + ("_quick" if QUICK else "") + ".json"))
+            log(tables.getvalue().rstrip())
+            out[cfg] = {"returncode": 0, "results": str(run.results), "seconds": time.perf_counter() - t0}
+        except Exception as e:  # noqa: BLE001 - one study failing must not end the benchmark
+            log(f"  failed: {type(e).__name__}: {e}")
+            out[cfg] = {"returncode": 1, "error": f"{type(e).__name__}: {e}", "seconds": time.perf_counter() - t0}
     res["work_precision"] = out
 
 
@@ -534,6 +546,42 @@ def print_targets(res):
     res["targets"] = [{"what": a, "measured": b_, "target": c, "met": bool(d)} for a, b_, c, d in rows]
 
 
+def section_coldbuild(res):
+    import coldbuild
+
+    log("== cold builds (fresh cache, fresh process, one at a time; stages in CPU seconds)")
+    cases = (["cart_pendulum:CVA", "cart_pendulum:MCVAC"] if QUICK else coldbuild.DEFAULT_CASES)
+    numba_cases = ([] if QUICK else cases if os.environ.get("VCIRUN_BENCH_NUMBA_ALL")
+                   else [c for c in cases if c.startswith("cart_pendulum")])
+    rows = {}
+    for backend, which in (("default", cases), ("numba", numba_cases)):
+        if not which:
+            continue
+        log(f"  backend {backend}:")
+        coldbuild.header(log=log)
+        env = {} if backend == "default" else {"VCIRUN_KERNEL_BACKEND": "numba"}
+        for c in which:
+            r = coldbuild.run_case(c, env_extra=env)
+            rows[f"{backend}/{c}"] = r
+            coldbuild.print_row(r, log=log)
+    for key, r in rows.items():
+        coldbuild.print_kernels(r, 5, log=log)
+    log("  issue 21 targets (cold build, fresh cache): case, issue's 'today', numba backend now, default backend "
+        "now (wall / CPU s, load average before)")
+    table = []
+    for case, (today, target) in coldbuild.TARGETS.items():
+        d, nb = rows.get(f"default/{case}"), rows.get(f"numba/{case}")
+        cell = lambda r: ("-" if r is None or "error" in r else  # noqa: E731
+                          f"{r['first_sim_s']:.1f} / {r['first_sim_cpu_s']:.1f} (load {r['loadavg_before'][0]:.1f})")
+        met = None if d is None or "error" in d else bool(d["first_sim_s"] <= target)
+        met_cpu = None if d is None or "error" in d else bool(d["first_sim_cpu_s"] <= target)
+        table.append({"case": case, "today_s": today, "target_s": target, "numba": cell(nb), "default": cell(d),
+                      "met_wall": met, "met_cpu": met_cpu})
+        log(f"    {case:22s} today {today:6.1f} s  target <= {target:4.0f} s | numba {cell(nb):28s} | default "
+            f"{cell(d):28s} {'met' if met else 'met in CPU time' if met_cpu else 'NOT met'}")
+    res["coldbuild"] = {"rows": rows, "targets": table}
+
+
 def section_tensor(res):
     log("== per-slot tensor prototype (bench/tensor_prototype.py): symbolic, numba and us per SVC step")
     path = ROOT / "results" / ("tensor_prototype_quick.json" if QUICK else "tensor_prototype.json")
@@ -551,7 +599,7 @@ def section_tensor(res):
 
 SECTIONS = {"steps": section_steps, "sim5": section_sim5, "impact": section_impact, "build": section_build,
             "sweep": section_sweep, "yardstick": section_yardstick, "scaling": section_scaling, "dof": section_dof,
-            "tensor": section_tensor, "wp": section_wp}
+            "tensor": section_tensor, "wp": section_wp, "coldbuild": section_coldbuild}
 
 
 def main(argv=None):
@@ -579,7 +627,7 @@ def main(argv=None):
     res["seconds"] = time.perf_counter() - t0
     out = Path(a.output or ("results/bench_all_quick.json" if QUICK else "results/bench_all.json"))
     out.parent.mkdir(exist_ok=True)
-    from vcirun.experiments.workprecision import _jsonable
+    from vcirun.experiments.studies.jsonio import to_json as _jsonable
 
     res = _jsonable(res)
     if out.exists() and a.only != ",".join(SECTIONS):   # a partial run updates the saved sections only

@@ -9,7 +9,7 @@ kernel module is generated (or found) by a subprocess running that tree with its
 by this tree's `vcirun.simulate`, alternating old/new `--repeats` times (a slow spell of the shared
 machine hits both). Printed per (method, h): median loop time (`traj.wall_time`) of each, the ratio,
 whether q and p agree bit for bit, and the Newton iteration totals. Both modules must have the
-integrate signature of this tree's simulate.
+integrate signature of this tree's simulate, or the positional one before issue 16 (adapted).
 """
 from __future__ import annotations
 
@@ -46,7 +46,31 @@ def load(path: str):
     spec.loader.exec_module(mod)
     if not hasattr(mod, "mass_matrix_ok"):  # modules before 2026-12-01 lack the compiled check simulate calls
         mod.mass_matrix_ok = lambda q, prm, A, m=mod: (m.sys_M(q, prm, A), True)[1]
+    if not hasattr(mod, "O_Q"):  # before issue 16: positional outputs; adapt to the record ABI
+        mod = _PositionalLoop(mod)
     return mod
+
+
+class _PositionalLoop:
+    """A module of the positional ABI (integrate with 25 arguments, before issue 16) behind the
+    record ABI integrate(q0, p0, t0, h, N, prm, settings, out, info) of this tree. The adapter costs
+    one Python call (~1 us) inside the timed region, against the old module."""
+
+    def __init__(self, mod):
+        self._mod = mod
+
+    def __getattr__(self, name):
+        return getattr(self._mod, name)
+
+    def integrate(self, q0, p0, t0, h, N, prm, settings, out, info):
+        from vcirun import record
+
+        S = dict(zip(record.SETTINGS, settings))
+        o = dict(zip([f.name for f in record.FIELDS], out))
+        self._mod.integrate(q0, p0, t0, h, N, prm, bool(S["constrained"]), S["newton_tol"], int(S["max_iter"]),
+                            S["event_tol"], int(S["max_impacts_step"]), o["q"], o["p"], o["H"], o["Ed"], o["Hmod"],
+                            o["impacts"], o["impact_q"], o["impact_p_minus"], o["impact_p_plus"], o["impact_step"],
+                            o["partial_steps"], o["newton_iters"], info, bool(S["energies"]))
 
 
 def main(argv=None):

@@ -1,7 +1,7 @@
 """Symbolic cost of the MCVA family's modified-Hamiltonian kernels against the degrees of freedom.
 
 For the n-link pendulum against a wall (n = 1, 2, 4, 8) and MCVAC (SVC, H~ to O(h^3)) and MCVAA
-(SVA, O(h^4)): CPU seconds of `vcirun.modified.derive.modified_kernels_source` (derivation and
+(SVA, O(h^4)): CPU seconds of `vcirun.codegen.mh_kernels.modified_kernels_source` (derivation and
 emission; sympy only, no numba) and the size of the generated source, each in a fresh process.
 With `--baseline PATH` (a checkout of an older vcirun) the same is measured there in the same run,
 interleaved, and the ratios are printed.
@@ -22,7 +22,7 @@ CHILD = r"""
 import json, sys, time
 from vcirun.mechanics import get_scene
 from vcirun.methods import resolve_method
-from vcirun.modified.derive import modified_kernels_source
+from vcirun.codegen.mh_kernels import modified_kernels_source
 K, meth = int(sys.argv[1]), sys.argv[2]
 s = get_scene(f"n_pendulum_{K}")
 ks = resolve_method(meth).kernel_set()

@@ -13,7 +13,7 @@ The kernel path is selected with VCIRUN_KERNEL_PATH=tensor|expanded (vcirun.code
 exponents are least-squares slopes of log(quantity) against log(n) over the n-link pendulum rows.
 
 With --mcvac, also the symbolic split of MCVAC's module (in this process, no numba): system + step
-kernels (tensor path) against the modified-Hamiltonian kernels (vcirun.modified.derive, not changed
+kernels (tensor path) against the modified-Hamiltonian kernels (vcirun.codegen.mh_kernels, not changed
 by the tensor path; their own scaling: bench/scaling_mh.py), with their source sizes.
 
     python bench/scaling_tensor.py [--quick] [--mcvac] [--output=PATH]
@@ -86,7 +86,7 @@ def mcvac_symbolic(Ks) -> list:
     from vcirun.codegen import derive
     from vcirun.mechanics import get_scene
     from vcirun.methods import resolve_method
-    from vcirun.modified.derive import modified_kernels_source
+    from vcirun.codegen.mh_kernels import modified_kernels_source
 
     rows = []
     for K in Ks:

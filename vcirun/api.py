@@ -9,12 +9,14 @@ from pathlib import Path
 
 import numpy as np
 
+from . import record
 from . import trajectory as tr
 from . import validation
 from .codegen import build
 from .codegen.build import load_module
+from .diagnosis import accumulation_onset, failure_cause  # noqa: F401 (accumulation_onset: public here)
 from .methods import resolve_method
-from .scenedata import SystemData, check_mass_matrix, scene_args, scene_data
+from .scenedata import SystemData, check_mass_matrix, requested_start, scene_args, scene_data, start_tolerance
 
 DEFAULT_TOLERANCES = {"newton_tol": 1e-12, "event_tol": 1e-13, "max_iter": 50, "max_impacts_step": 64}
 _METHOD_OPTIONS = {"ld", "mh_order", "flow_order"}
@@ -147,24 +149,7 @@ def _start_state(d: SystemData, beta, q0, p0, prm, sysm=None):
     ("legendre", q0, qdot0) (p0 = M(q0) qdot0 is computed by `_initial_state` with the compiled M).
     Same rules and messages as MechanicalSystem.initial_state; with the symbolic system at hand
     (cold path) the hyperregularity check runs here, before anything is generated or compiled."""
-    if q0 is not None or p0 is not None:
-        if q0 is None or p0 is None:
-            raise ValueError("initial state: give both q0 and p0 (or beta)")
-        q0, p0 = np.asarray(q0, float).ravel(), np.asarray(p0, float).ravel()
-        kind = "state"
-    elif beta is not None:
-        if d.ic_map is None:
-            raise ValueError(f"beta: system {d.name} has no initial-condition map; give q0 and p0")
-        qq, qdot = d.ic_map(float(beta))
-        q0, p0 = np.array(qq, dtype=float), np.array(qdot, dtype=float)
-        kind = "legendre"
-    elif d.default_q0 is not None:
-        q0, p0 = np.array(d.default_q0, float), np.array(d.default_p0, float)
-        kind = "state"
-    else:
-        raise ValueError(f"initial state: system {d.name} needs q0 and p0 (or beta)")
-    if q0.shape != (d.n,) or p0.shape != (d.n,):
-        raise ValueError(f"initial state: q0 and p0 must have length {d.n}")
+    kind, q0, p0 = requested_start(d, beta, q0, p0)
     if sysm is not None:
         sysm.check_hyperregular(q0, prm)
     return kind, q0, p0, sysm is not None
@@ -175,15 +160,36 @@ def _initial_state(d: SystemData, mod, start, prm):
     path, so warm and cold starts compute the same bits; on the warm path the hyperregularity check
     uses it too (compiled: mass_matrix_ok; numpy's check then only words the error)."""
     kind, q0, p0, checked = start
-    if kind == "legendre" or not checked:
-        q0 = np.ascontiguousarray(q0, dtype=float)
-        Mq = np.empty((q0.shape[0], q0.shape[0]))
-        ok = mod.mass_matrix_ok(q0, prm, Mq)   # M(q0) once, for the check and the Legendre transform
-        if not checked and not ok:
-            check_mass_matrix(d.name, q0, Mq)
-        if kind == "legendre":
-            p0 = Mq @ p0
+    # on every path, so that a cold start compiles (and caches) what a warm start calls
+    q0 = np.ascontiguousarray(q0, dtype=float)
+    Mq = np.empty((q0.shape[0], q0.shape[0]))
+    ok = mod.mass_matrix_ok(q0, prm, Mq)   # M(q0) once, for the check and the Legendre transform
+    if not checked and not ok:
+        check_mass_matrix(d.name, q0, Mq)
+    if kind == "legendre":
+        p0 = Mq @ p0
     return q0, p0
+
+
+def _check_admissible(d: SystemData, mod, q0, prm, phi_text) -> None:
+    """A start inside the constraint is bad input (ValueError naming phi(q0), its value and the
+    constraint phi_text() -- called only then: on the warm path it builds the symbolic system), not a
+    run that ends later as `reset_failed` or `accumulation`; a start on the surface (to round-off)
+    is allowed."""
+    m = int(mod.NCON)
+    phis, G = np.empty(m), np.empty((m, d.n))
+    mod.sys_phis(q0, prm, phis)
+    mod.sys_dphis(q0, prm, G)
+    for i in range(m):
+        if not math.isfinite(phis[i]) or phis[i] < -start_tolerance(q0, G[i]):
+            raise ValueError(f"initial state: q0={q0.tolist()} lies inside the constraint of system {d.name}: "
+                             f"phi(q0) = {phis[i]:.6g} < 0 for {phi_text(i)}; start where phi(q0) >= 0 "
+                             "(or pass constrained=False)")
+
+
+def _constraint_text(sysm, i: int) -> str:
+    c = sysm.constraints[i]
+    return f"phi = {c.phi}" if sysm.m == 1 else f"constraint {c.name} (phi = {c.phi})"
 
 
 def grid_steps(h, T) -> tuple[float, float, int]:
@@ -221,14 +227,9 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     symbolic work (see `resolve_numeric`); the initial state's Legendre transform uses the compiled
     mass matrix on every path, so warm and cold starts give the same bits.
     """
-    mopts = {k: options.pop(k) for k in list(options) if k in _METHOD_OPTIONS}
-    unknown = set(options) - set(DEFAULT_TOLERANCES)
-    if unknown:
-        raise ValueError(f"options: unknown option {sorted(unknown)[0]!r} (known: "
-                         f"{', '.join(sorted(set(DEFAULT_TOLERANCES) | _METHOD_OPTIONS | {'params', 'constrained', 'energies'}))})")
+    mopts, tol = _split_options(options)
     validation.check_simulate_args(h=h, T=T, t0=t0, beta=beta, q0=q0, p0=p0, params=params, constrained=constrained,
-                                   energies=energies, tolerances=options, system=system)  # (issue 22)
-    tol = DEFAULT_TOLERANCES | options
+                                   energies=energies, tolerances=tol, system=system)  # (issue 22)
     h, T, N = grid_steps(h, T)
     if not _warmable(system):
         system = resolve_system(system)  # bad names and files raise here, before a bad method does
@@ -241,166 +242,61 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
         constrained = meth.constrained
     mod = load()
     q0, p0 = _initial_state(sysd, mod, start, prm)
-    n = sysd.n
-    cap_imp = max(64, N // 4 + 16)
+    if constrained:
+        _check_admissible(sysd, mod, q0, prm, lambda i: _constraint_text(sysm or resolve_system(system), i))
+    settings = record.settings_vector(constrained=bool(constrained), energies=bool(energies), **tol)
     t_start = time.perf_counter()
-    while True:
-        # (np.empty where the loop writes every entry that is read back: rows up to the last
-        # step reached, impacts and partial steps up to their counts, info)
-        out = dict(
-            Q=np.empty((N + 1, n)), P=np.empty((N + 1, n)), Hs=np.full(N + 1, np.nan), Eds=np.full(N + 1, np.nan),
-            Hm=np.full(N + 1, np.nan), imp_t=np.empty(cap_imp), imp_q=np.empty((cap_imp, n)),
-            imp_pm=np.empty((cap_imp, n)), imp_pp=np.empty((cap_imp, n)), imp_step=np.zeros(N, dtype=np.bool_),
-            partial_log=np.empty(2 * cap_imp + 16), iters_log=np.zeros(N, dtype=np.int64),
-            info=np.zeros(5, dtype=np.int64))
-        # (issue 8) no np.errstate here: the compiled loop never touches numpy's error state, and
-        # with NUMBA_DISABLE_JIT=1 the caller's np.errstate(all="raise") must reach the numerics
-        # (the floating-point hygiene check of tests/extremes runs the whole loop that way).
-        mod.integrate(q0, p0, float(t0), h, N, prm, bool(constrained), float(tol["newton_tol"]), int(tol["max_iter"]),
-                      float(tol["event_tol"]), int(tol["max_impacts_step"]), *out.values(), bool(energies))
-        # (issue 8) the loop reports ST_ACCUMULATION also when the impact record is full; that is a
-        # buffer size, not impacts accumulating: rerun with room for every impact the caps allow.
-        full_record = int(out["info"][2]) >= cap_imp
-        if not (int(out["info"][0]) == 4 and full_record) or cap_imp >= N * int(tol["max_impacts_step"]) + 16:
-            break
-        cap_imp = min(4 * cap_imp, N * int(tol["max_impacts_step"]) + 16)
+    out, counters = _run_loop(mod, q0, p0, float(t0), h, N, prm, settings, sysd.n, int(tol["max_impacts_step"]))
     wall = time.perf_counter() - t_start
-    info = out["info"]
-    status_code, fail, n_imp, n_par, steps = info.tolist()
-    status = tr.STATUS_CODES[status_code]
-    K = steps + 1  # grid points actually reached
-    t = t0 + h * np.arange(N + 1)
+    arrays = record.trim(out, counters, modified=meth.reset == "mcva")
+    status, fail = record.STATUS_CODES[counters["status"]], counters["fail_step"]
     message = ""
     if status != tr.OK:
-        message = (f"{status} in step {fail} (t = {t0 + fail * h:.6g}) from q = {out['Q'][fail].tolist()}, "
-                   f"p = {out['P'][fail].tolist()}")
-        cause = _failure_cause(mod, status, out["Q"][: fail + 1], out["P"][fail], t0, fail, h, prm, tol,
-                               float(out["Hs"][0]), out["imp_t"][:n_imp])
+        Q = out[record.FIELDS.index(record.FIELD["q"])]
+        P = out[record.FIELDS.index(record.FIELD["p"])]
+        message = (f"{status} in step {fail} (t = {t0 + fail * h:.6g}) from q = {Q[fail].tolist()}, "
+                   f"p = {P[fail].tolist()}")
+        cause = failure_cause(mod, status, Q[: fail + 1], P[fail], t0, fail, h, prm, tol, float(arrays["H"][0]),
+                              arrays["impacts"])
         if cause:
             message += f"; cause: {cause}"
     # (issue 22) an energy that is not finite from the start (e.g. q0 = 1e300) is a failure, not ok
-    bad_start = validation.nonfinite_start(out["Hs"][0], out["Eds"][0] if energies else None,
-                                           out["Hm"][0] if energies and meth.reset == "mcva" else None, q0, p0)
+    bad_start = validation.nonfinite_start(arrays["H"][0], arrays["Ed"][0] if energies else None,
+                                           arrays["Hmod"][0] if energies and arrays.get("Hmod") is not None
+                                           else None, q0, p0)
     if bad_start and status == tr.OK:
         status, fail, message = tr.NONFINITE, 0, f"{tr.NONFINITE} at t = {t0:.6g}: {bad_start}"
     return tr.Trajectory(
-        method=meth.name, system=sysd.name, h=h, T=N * h, t=t[:K], q=out["Q"][:K], p=out["P"][:K], H=out["Hs"][:K],
-        Ed=out["Eds"][:K], Hmod=out["Hm"][:K] if meth.reset == "mcva" else None,
-        impacts=out["imp_t"][:n_imp].copy(), impact_q=out["imp_q"][:n_imp].copy(),
-        impact_p_minus=out["imp_pm"][:n_imp].copy(), impact_p_plus=out["imp_pp"][:n_imp].copy(),
-        impact_step=out["imp_step"][:steps].copy(), partial_steps=out["partial_log"][:n_par].copy(),
-        newton_iters=out["iters_log"][:steps].copy(), status=status, message=message,
-        fail_step=fail, fail_time=(t0 + fail * h) if fail >= 0 else float("nan"), beta=beta, wall_time=wall,
-        tolerances={k: tol[k] for k in ("newton_tol", "event_tol", "max_iter", "max_impacts_step")},
+        method=meth.name, system=sysd.name, h=h, T=N * h, t=t0 + h * np.arange(counters["steps"] + 1), **arrays,
+        status=status, message=message, fail_step=fail, fail_time=(t0 + fail * h) if fail >= 0 else float("nan"),
+        beta=beta, wall_time=wall, tolerances={k: tol[k] for k in DEFAULT_TOLERANCES},
         options={"params": dict(zip(sysd.params, prm.tolist())), "constrained": bool(constrained), **mopts})
 
 
-# --- failure causes (issue 8: every stop names its cause) ----------------------------------------
-
-def accumulation_onset(impacts, h) -> float:
-    """Start of the final run of impacts that each follow the previous one by less than one step h
-    (impacts denser than the grid): the time an accumulation began. nan without impacts."""
-    imp = np.asarray(impacts, float)
-    if imp.size == 0:
-        return float("nan")
-    k = imp.size - 1
-    while k > 0 and imp[k] - imp[k - 1] < h:
-        k -= 1
-    return float(imp[k])
+def _split_options(options: dict) -> tuple[dict, dict]:
+    """(method options, tolerances with defaults) from simulate's **options (unknown names rejected)."""
+    mopts = {k: options.pop(k) for k in list(options) if k in _METHOD_OPTIONS}
+    unknown = set(options) - set(DEFAULT_TOLERANCES)
+    if unknown:
+        raise ValueError(f"options: unknown option {sorted(unknown)[0]!r} (known: "
+                         f"{', '.join(sorted(set(DEFAULT_TOLERANCES) | _METHOD_OPTIONS | {'params', 'constrained', 'energies'}))})")
+    return mopts, DEFAULT_TOLERANCES | options
 
 
-def _fastest_mode(mod, q, p, prm) -> float:
-    """Largest |eigenvalue| of the linearized Hamilton's equations at (q, p) (central differences): the
-    fastest local time scale 1/omega of the motion (a nearly singular M makes some modes fast)."""
-    n = q.shape[0]
-    y = np.concatenate([q, p])
-    J = np.empty((2 * n, 2 * n))
-    fa, fb = np.empty(2 * n), np.empty(2 * n)
-    for j in range(2 * n):
-        e = 1e-6 * max(1.0, abs(y[j]))
-        ya, yb = y.copy(), y.copy()
-        ya[j] += e
-        yb[j] -= e
-        mod.hamilton_rhs(ya, prm, fa)
-        mod.hamilton_rhs(yb, prm, fb)
-        J[:, j] = (fa - fb) / (2 * e)
-    return float(np.max(np.abs(np.linalg.eigvals(J))))
-
-
-def _failure_cause(mod, status, Q, p, t0, fail, h, prm, tol, H0, impacts) -> str:
-    """A short diagnosis of a failed run from its grid states Q[0..fail] (p: momentum at Q[fail]);
-    "" if nothing specific is found (the status itself then says what failed). Never raises."""
-    try:
-        q = Q[-1]
-        t = t0 + fail * h
-        n = q.shape[0]
-        causes = []
-        if status == tr.ACCUMULATION:
-            onset = accumulation_onset(impacts, h)
-            k = int(np.sum(impacts >= onset)) if np.isfinite(onset) else 0
-            last = float(impacts[-1] - impacts[-2]) if len(impacts) > 1 else float("nan")
-            return (f"impacts accumulate: accumulation began at t = {onset:.9g} ({k} impacts since, each less "
-                    f"than one step h after the previous, the last {last:.3g} apart; limit: more than "
-                    f"max_impacts_step = {int(tol['max_impacts_step'])} impacts in one step or such a run "
-                    f"longer than max_impacts_step steps); an event-driven scheme cannot follow impacts denser "
-                    f"than its grid (the motion is settling into contact)")
-        if status == tr.EVENT_FAILED:
-            return "the collision-time search did not bracket the root to event_tol * h within 200 iterations"
-        A = np.empty((n, n))
-        worst, t_worst = 0.0, t
-        idx = np.union1d(np.linspace(0, len(Q) - 1, 500).astype(int), np.arange(max(0, len(Q) - 100), len(Q)))
-        for k in idx:  # conditioning of M along the motion
-            mod.sys_M(Q[k], prm, A)
-            c = float(np.linalg.cond(A)) if np.all(np.isfinite(A)) else np.inf
-            if not c <= worst:
-                worst, t_worst = c, t0 + k * h
-        if not worst < 1e4:  # built-in scenes at default parameters: cond(M) < 30
-            causes.append(f"mass matrix nearly singular along the motion (cond(M) = {worst:.3g} at t = {t_worst:.6g})")
-        elif status == tr.NEWTON_FAILED and worst >= 1e3 and t_worst >= t - 100 * h:
-            # conditioning still moderate on the grid but worst right before the failure: the step
-            # that failed was heading into a singular configuration between grid points
-            causes.append(f"mass matrix approaching singularity at the failure (cond(M) = {worst:.3g} at "
-                          f"t = {t_worst:.6g}, the largest along the motion)")
-        H = float(mod.hamiltonian(q, p, prm))
-        if not np.isfinite(H) or abs(H - H0) > 10.0 * max(1.0, abs(H0)):
-            causes.append(f"the discrete motion had diverged (H = {H:.4g}, H(0) = {H0:.4g}): step h too large")
-        elif status in (tr.NEWTON_FAILED, tr.NONFINITE):
-            w = _fastest_mode(mod, q, p, prm)
-            if h * w > 2.0:
-                causes.append(f"step h too large for the fastest local mode of the motion (h * omega = {h * w:.3g} "
-                              f"> 2, the stability limit of the Verlet-type maps)")
-        if status == tr.RESET_FAILED and not causes:
-            qt, pt, vt = np.empty(n), np.empty(n), np.empty(n)
-            code, _, E_pre, _ = mod.collision_time(q, p, h, h, t, prm, float(tol["newton_tol"]), int(tol["max_iter"]),
-                                                   float(tol["event_tol"]), qt, pt, vt)
-            if code == 1:
-                g = np.empty(n)
-                mod.sys_dphi(qt, prm, g)
-                mod.sys_M(qt, prm, A)
-                Wg = np.linalg.solve(A, g)
-                vn = float(Wg @ pt)                       # d phi / dt before the impact
-                gWg = float(g @ Wg)
-                ke_n = 0.5 * vn * vn / gWg if gWg > 0 else 0.0   # kinetic energy of the normal motion
-                speed = float(np.linalg.norm(np.linalg.solve(A, pt)) * np.linalg.norm(g))
-                mismatch = abs(E_pre - float(mod.hamiltonian(qt, pt, prm)))
-                w = _fastest_mode(mod, qt, pt, prm)
-                if abs(vn) <= 1e-6 * speed:
-                    causes.append(f"zero normal velocity at the contact (d phi/dt = {vn:.3g}; grazing or resting "
-                                  "contact): no elastic reset exists")
-                elif ke_n < 10 * mismatch:
-                    causes.append(f"no reflecting root of the reset equations: the normal kinetic energy "
-                                  f"{ke_n:.3g} (d phi/dt = {vn:.3g}, effective mass 1/(g^T M^-1 g) = {1 / gWg:.3g}) "
-                                  f"is not large against the energy error the reset must absorb (pre-impact "
-                                  f"discrete energy - H = {mismatch:.3g}): a grazing contact or a tiny effective mass")
-                elif h * w > 2.0:
-                    causes.append(f"no reflecting root of the reset equations: step h too large for the fastest "
-                                  f"local mode at the impact (h * omega = {h * w:.3g} > 2)")
-                else:
-                    causes.append(f"Newton found no reflecting root of the reset equations (cond(M) at the impact "
-                                  f"= {np.linalg.cond(A):.3g}, h * omega = {h * w:.3g}, normal kinetic energy "
-                                  f"{ke_n:.3g})")
-        if status == tr.NONFINITE and not causes:
-            causes.append("the state overflowed")
-        return "; ".join(causes)
-    except Exception:  # a diagnosis must never turn a failure record into an exception
-        return ""
+def _run_loop(mod, q0, p0, t0, h, N, prm, settings, n, max_impacts_step) -> tuple[tuple, dict]:
+    """(output buffers, counters) of the compiled loop. The impact record starts at N / 4 + 16
+    entries; the loop reports ST_ACCUMULATION also when it is full, which is a buffer size, not
+    impacts accumulating (issue 8): then it reruns with room for every impact the caps allow."""
+    cap_imp, most = max(64, N // 4 + 16), N * max_impacts_step + 16
+    while True:
+        out = record.allocate(N, n, cap_imp, 2 * cap_imp + 16)
+        info = np.zeros(len(record.COUNTERS), dtype=np.int64)
+        # (issue 8) no np.errstate here: the compiled loop never touches numpy's error state, and
+        # with NUMBA_DISABLE_JIT=1 the caller's np.errstate(all="raise") must reach the numerics
+        # (the floating-point hygiene check of tests/extremes runs the whole loop that way).
+        mod.integrate(q0, p0, t0, h, N, prm, settings, out, info)
+        counters = dict(zip(record.COUNTERS, info.tolist()))
+        full_record = counters["n_impacts"] >= cap_imp
+        if not (counters["status"] == record.STATUS_OF["accumulation"] and full_record) or cap_imp >= most:
+            return out, counters
+        cap_imp = min(4 * cap_imp, most)

@@ -270,18 +270,27 @@ def plot(
 
 
 # --- validate -----------------------------------------------------------------------------------------
-@app.command(epilog="Example:\n\n  vcirun validate configs/fig4.yaml")
-def validate(config: Path = typer.Argument(..., help="YAML sweep config.", show_default=False)):
-    """Check a sweep config without running it (schema, system, methods, initial conditions)."""
-    from vcirun.experiments.config import load_config
+@app.command(epilog="Examples:\n\n  vcirun validate configs/fig4.yaml\n\n  vcirun validate configs/extremes.yaml")
+def validate(config: Path = typer.Argument(..., help="YAML sweep or study config.", show_default=False)):
+    """Check a sweep config (schema, system, methods, initial conditions) or a study config (top-level
+    `study:`) without running it."""
+    from vcirun.experiments.config import SweepConfig
+    from vcirun.experiments.studies.schema import load_any
     from vcirun.experiments.sweep import expand
 
     try:
-        cfg = load_config(config)
+        cfg = load_any(config)
     except _expected_errors() as e:
         _fail(str(e))
-    ics = cfg.initial_conditions()
     typer.echo(f"{config}: ok")
+    if not isinstance(cfg, SweepConfig):
+        typer.echo(f"  study     {cfg.study}")
+        typer.echo(f"  name      {cfg.name}")
+        for key, value in cfg.describe():
+            typer.echo(f"  {key:<9s} {value}")
+        typer.echo(f"run it with: vcirun study {config}")
+        return
+    ics = cfg.initial_conditions()
     typer.echo(f"  name      {cfg.name}")
     typer.echo(f"  system    {cfg.system_label()}")
     typer.echo(f"  methods   {', '.join(m.display for m in cfg.methods)}")
@@ -297,6 +306,38 @@ def validate(config: Path = typer.Argument(..., help="YAML sweep config.", show_
                                             f" ({ref.method} at h = {ref.h:g})" if ref.kind == "method" else ""))
     typer.echo(f"  runs      {len(expand(cfg))}")
     typer.echo(f"  output    {cfg.output_path()}")
+
+
+# --- study ----------------------------------------------------------------------------------------------
+@app.command(epilog="Examples:\n\n"
+             "  vcirun study configs/work_precision.yaml --quick\n\n"
+             "  vcirun study configs/work_precision.yaml --plot\n\n"
+             "  vcirun study configs/extremes.yaml\n\n"
+             "  vcirun study configs/extremes.yaml --only step_limit,long_horizon")
+def study(
+    config: Path = typer.Argument(..., help="YAML study config (top-level key study: work_precision, "
+                                            "long_horizon or extremes).", show_default=False),
+    output: Optional[Path] = typer.Option(None, "--output", "-o", help="Results JSON (overrides the config's output)."),
+    quick: bool = typer.Option(False, "--quick", help="Work precision: one initial condition, fewer repeats and "
+                                                      "tolerances (a smoke run)."),
+    plot: bool = typer.Option(False, "--plot", help="Work precision: also draw the figures."),
+    only: List[str] = typer.Option([], "--only", help="Extremes: run only these sections (comma-separated or "
+                                                      "repeated); the others are kept from the existing results."),
+):
+    """Run a study: work precision against solve_ivp, long horizons, or the extremes (hard cases). Writes the
+    results JSON (and, for extremes, the Markdown report); prints the tables of a work-precision study."""
+    from vcirun.experiments.studies.runner import run_file
+
+    sections = [s.strip() for item in only for s in item.split(",") if s.strip()]
+    try:
+        out = run_file(config, output=output, quick=quick, plot=plot, only=sections or None,
+                       log=lambda m: typer.echo(m, err=True))
+    except _expected_errors() as e:
+        _fail(str(e))
+    typer.echo(f"{out.study} study {out.name}: results in {out.results}" + (f", report {out.report}" if out.report else "")
+               + f" ({out.seconds:.0f} s)")
+    for p in out.figures:
+        typer.echo(f"  {p}")
 
 
 # --- info ---------------------------------------------------------------------------------------------

@@ -4,8 +4,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from functools import lru_cache
 
-from .codegen.build import KernelSet
+from .codegen.kernel_set import KernelSet
 from .discrete.lagrangians import LIBRARY, get_ld
+from .modified import check_mcva_options
 
 
 @dataclass(frozen=True)
@@ -43,26 +44,31 @@ def _kernel_set(method: Method) -> KernelSet:
     )
 
 
-def _props(mh, sympl, explicit):
-    return {"conserves_mh": mh, "symplectic": sympl, "explicit_ld": explicit}
+def properties(*, conserves_mh=False, symplectic=False, explicit_ld=False, forcing=None) -> dict:
+    """Table I's columns of a method: conserves its associated modified Hamiltonian; symplectic
+    (True, or "exact"); explicit discrete Lagrangian (the simplifying discrete Lagrange-d'Alembert
+    principle); forcing: the L2 order measured through impacts on forced scenes (issue 15,
+    docs/forcing.md), None where none was measured."""
+    return {"conserves_mh": conserves_mh, "symplectic": symplectic, "explicit_ld": explicit_ld, "forcing": forcing}
 
 
 METHODS = {
     # Table I of the paper: CVA and VCI use SVC (explicit Ld); VCI is exactly symplectic.
-    "CVA": Method("CVA", ld="SVC", reset="cva", properties=_props(False, False, True)),
-    "VCI": Method("VCI", ld="SVC", reset="vci", properties=_props(False, "exact", True)),
+    "CVA": Method("CVA", ld="SVC", reset="cva", properties=properties(explicit_ld=True, forcing="order 2")),
+    "VCI": Method("VCI", ld="SVC", reset="vci",
+                  properties=properties(symplectic="exact", explicit_ld=True, forcing="order 2")),
     # Section 5.2: MCVA on SVA with H~^{O(h^4)} (H4 kept: it does not vanish, see vcirun/modified) and
     # MCVAC, the generalized MCVA on SVC with H~^{O(h^3)}; both with the order-4 Gauss partial flow.
     "MCVAA": Method("MCVAA", ld="SVA", partial="gauss", reset="mcva", mh_order=4, flow_order=4,
-                    properties=_props(True, True, False)),
+                    properties=properties(conserves_mh=True, symplectic=True, forcing="order 2")),
     "MCVAC": Method("MCVAC", ld="SVC", partial="gauss", reset="mcva", mh_order=3, flow_order=4,
-                    properties=_props(True, True, True)),
+                    properties=properties(conserves_mh=True, symplectic=True, explicit_ld=True, forcing="order 2")),
     # Beyond the paper (issue 7): CVA on higher-order symmetric compositions of SVC (Suzuki s5 order 4,
     # Kahan & Li s9 order 6 and s17 order 8; vcirun.discrete.lagrangians). Same partial map (the
     # composition over tau) and R^CVA: the collision time and the state at impact inherit the order.
-    "CVA4": Method("CVA4", ld="SVC4", reset="cva", properties=_props(False, False, False)),
-    "CVA6": Method("CVA6", ld="SVC6", reset="cva", properties=_props(False, False, False)),
-    "CVA8": Method("CVA8", ld="SVC8", reset="cva", properties=_props(False, False, False)),
+    "CVA4": Method("CVA4", ld="SVC4", reset="cva", properties=properties(forcing="order 4")),
+    "CVA6": Method("CVA6", ld="SVC6", reset="cva", properties=properties()),
+    "CVA8": Method("CVA8", ld="SVC8", reset="cva", properties=properties()),
 }
 
 
@@ -84,15 +90,24 @@ def resolve_method(method, **options) -> Method:
                                  f"energy of one explicit step); {ld.name} is a composition - use CVA, or "
                                  f"one of {', '.join(k for k, v in LIBRARY.items() if v.explicit)}")
             return Method(f"{method}[{ld.name}]", ld=ld.name, reset=base.reset,
-                          properties=_props(False, base.properties["symplectic"], ld.explicit))
+                          properties=properties(symplectic=base.properties["symplectic"], explicit_ld=ld.explicit))
         bad = sorted(options)[0]
         hint = "ld (CVA, VCI)" if method in ("CVA", "VCI") else "none: use method 'MCVA' for ld/mh_order/flow_order"
         raise ValueError(f"{bad}: option not accepted by method {method} (accepted: {hint})")
     if method in LIBRARY:
-        return Method(method, ld=method, reset=None, properties=_props(False, "exact", LIBRARY[method].explicit))
+        return Method(method, ld=method, reset=None,
+                      properties=properties(symplectic="exact", explicit_ld=LIBRARY[method].explicit))
     if method == "MCVA":
-        from .modified import generalized_mcva
-
         return generalized_mcva(**options)
     known = ", ".join(list(METHODS) + ["MCVA"] + list(LIBRARY))
     raise ValueError(f"method: unknown method {method!r} (choose one of {known})")
+
+
+def generalized_mcva(ld: str = "SVC", mh_order: int = 3, flow_order: int = 4, **unknown) -> Method:
+    """Generalized MCVA (Section 4.4): full steps of discrete Lagrangian `ld`, partial steps by the
+    `flow_order` Gauss collocation flow of the truncated modified Hamiltonian H~^{O(h^mh_order)},
+    reset R^MCVA conserving that truncation. Raises ValueError naming the offending field."""
+    ld, mh_order, flow_order = check_mcva_options(ld, mh_order, flow_order, **unknown)
+    return Method(f"MCVA[{ld},s={mh_order},g{flow_order}]", ld=ld, partial="gauss", reset="mcva",
+                  mh_order=mh_order, flow_order=flow_order,
+                  properties=properties(conserves_mh=True, symplectic=True, explicit_ld=LIBRARY[ld].explicit))

@@ -64,6 +64,36 @@ def check_mass_matrix(name: str, q, Mq) -> None:
                          f"(eigenvalues {np.linalg.eigvalsh(S)}); the Lagrangian must be hyperregular") from None
 
 
+def requested_start(d, beta=None, q0=None, p0=None) -> tuple:
+    """The one rule for a run's initial state (vcirun.simulate and MechanicalSystem.initial_state):
+    ("state", q0, p0) from explicit values or the system's default, or ("legendre", q0, qdot0) from
+    its initial-condition map at beta (p0 = M(q0) qdot0 is the caller's: compiled or symbolic M).
+    d: anything with name, n, ic_map, default_q0, default_p0. ValueError names what is missing."""
+    if q0 is not None or p0 is not None:
+        if q0 is None or p0 is None:
+            raise ValueError("initial state: give both q0 and p0 (or beta)")
+        kind, q0, p0 = "state", np.asarray(q0, float).ravel(), np.asarray(p0, float).ravel()
+    elif beta is not None:
+        if d.ic_map is None:
+            raise ValueError(f"beta: system {d.name} has no initial-condition map; give q0 and p0")
+        qq, qdot = d.ic_map(float(beta))
+        kind, q0, p0 = "legendre", np.array(qq, dtype=float), np.array(qdot, dtype=float)
+    elif d.default_q0 is not None:
+        kind, q0, p0 = "state", np.array(d.default_q0, float), np.array(d.default_p0, float)
+    else:
+        raise ValueError(f"initial state: system {d.name} needs q0 and p0 (or beta)")
+    if q0.shape != (d.n,) or p0.shape != (d.n,):
+        raise ValueError(f"initial state: q0 and p0 must have length {d.n}")
+    return kind, q0, p0
+
+
+def start_tolerance(q0, grad_phi) -> float:
+    """How far below 0 a start's phi(q0) may lie and still count as on the surface: round-off of
+    phi near q0, 64 eps (1 + |q0| |grad phi|) (a state built on phi = 0 in floating point). Used by
+    vcirun.simulate and vcirun.reference alike."""
+    return 64 * np.finfo(float).eps * (1.0 + float(np.max(np.abs(q0))) * float(np.max(np.abs(grad_phi))))
+
+
 def merge_params(defaults: dict, overrides: dict) -> dict:
     unknown = set(overrides) - set(defaults)
     if unknown:
@@ -129,6 +159,37 @@ def n_pendulum(n: int = 2, **overrides) -> SystemData:
         description=f"{n}-link pendulum against the wall x = w")
 
 
+def ball_in_box(**overrides) -> SystemData:
+    q0, v0 = np.array([0.3, 0.6]), np.array([0.7, 0.0])
+    prm = merge_params({"m": 1.0, "g": 9.81, "width": 1.0, "height": 1.0, "e": 1.0}, overrides)
+    return SystemData(
+        name="ball_in_box", n=2, params=prm, default_q0=q0, default_p0=prm["m"] * v0,
+        description="point mass in the box 0 <= x <= width, 0 <= y <= height under gravity; four walls "
+                    "(floor, ceiling, left, right) with restitution e (issue 17)")
+
+
+def newton_cradle(n: int = 3, **overrides) -> SystemData:
+    n = int(n)
+    prm = merge_params({"m": 1.0, "d": 0.1, "e": 1.0}, overrides)
+    q0 = np.array([-0.2] + [prm["d"] * k for k in range(1, n)])  # balls 2..N touching, ball 1 away
+    p0 = np.zeros(n)
+    p0[0] = prm["m"] * 1.0                                       # ... approaching at speed 1
+    return SystemData(
+        name=f"newton_cradle_{n}", n=n, params=prm, default_q0=q0, default_p0=p0,
+        description=f"{n} equal balls of diameter d on a line, contacts between neighbours with restitution e; "
+                    "balls 2..N touching, ball 1 approaching at speed 1 (issue 17)")
+
+
+def double_pendulum_walls(**overrides) -> SystemData:
+    q0 = np.array([-np.pi / 2, -np.pi / 2])
+    return SystemData(
+        name="double_pendulum_walls", n=2,
+        params=merge_params({"m1": 1.0, "m2": 1.0, "l1": 1.0, "l2": 1.0, "g": 9.81, "w": 1.2, "e": 1.0}, overrides),
+        ic_map=lambda beta: (beta * q0 / (np.pi / 2), np.zeros(2)),
+        default_q0=q0, default_p0=np.zeros(2),
+        description="double pendulum whose second tip stays between the walls x = -w and x = w (restitution e)")
+
+
 BUILTIN_SCENE_DATA = {
     "cart_pendulum": cart_pendulum,
     "double_pendulum": double_pendulum,
@@ -136,7 +197,11 @@ BUILTIN_SCENE_DATA = {
     "damped_oscillator": damped_oscillator,
     "bouncing_ball": bouncing_ball,
     "n_pendulum": n_pendulum,
+    "ball_in_box": ball_in_box,
+    "newton_cradle": newton_cradle,
+    "double_pendulum_walls": double_pendulum_walls,
 }
+_SIZED = ("n_pendulum", "newton_cradle")  # scenes named <name>_K with K the size
 
 
 def scene_args(name: str):
@@ -144,8 +209,9 @@ def scene_args(name: str):
     or None if `name` is not a built-in scene."""
     if not isinstance(name, str):
         return None
-    if name.startswith("n_pendulum_") and name[len("n_pendulum_"):].isdigit():
-        return "n_pendulum", (int(name[len("n_pendulum_"):]),)
+    for base in _SIZED:
+        if name.startswith(base + "_") and name[len(base) + 1:].isdigit():
+            return base, (int(name[len(base) + 1:]),)
     if name in BUILTIN_SCENE_DATA:
         return name, ()
     return None

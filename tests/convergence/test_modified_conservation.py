@@ -3,7 +3,7 @@ acceptance 2): the variation max - min of H~^{O(h^s)} over a fixed time interval
 
 Trajectories: the cart-pendulum from Xi(3.2) with the constraint ignored, over [0, 0.7] (up to just
 before the first impact of the constrained motion), full steps of the Ld's own map. The generated code
-runs uncompiled (vcirun.modified.evaluate.python_module), so no numba compile is needed here.
+runs uncompiled (vcirun.codegen.evaluate.python_module), so no numba compile is needed here.
 """
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import pytest
 
 from convergence.helpers import fit_order
 from vcirun.mechanics.scenes import get_scene
-from vcirun.modified.evaluate import python_module
+from vcirun.codegen.evaluate import python_module
 
 SYSTEM = get_scene("cart_pendulum")
 PRM = SYSTEM.param_values()

@@ -6,7 +6,7 @@
 - R^MCVA conserves H~^{O(h^s)} to 1e-12 (relative) and never returns lambda = 0; at a grazing contact
   (zero normal velocity) it reports failure instead of the trivial root.
 
-Uncompiled generated code (vcirun.modified.evaluate.python_module): no numba compile here.
+Uncompiled generated code (vcirun.codegen.evaluate.python_module): no numba compile here.
 """
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ import pytest
 
 from convergence.helpers import fit_order
 from vcirun.mechanics.scenes import get_scene
-from vcirun.modified.evaluate import python_module
+from vcirun.codegen.evaluate import python_module
 
 SYSTEM = get_scene("cart_pendulum")
 PRM = SYSTEM.param_values()
@@ -88,7 +88,7 @@ def test_gauss_converges_at_full_step(ld, s, h):
 # ---- R^MCVA ---------------------------------------------------------------------------------------
 def _reset(mod, q, pm, h):
     pp = np.empty(2)
-    it, lam = mod.reset_mcva(q, pm, np.nan, 0.5 * h, h, 0.0, PRM, 1e-12, 50, pp)
+    it, lam = mod.reset_mcva(q, pm, np.nan, pm, 0.0, 0.5 * h, h, 0.0, PRM, 1e-12, 50, pp)
     return it, lam, pp
 
 

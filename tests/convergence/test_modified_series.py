@@ -2,7 +2,7 @@
 items 1 of "What to build"): the symplectic-Euler series, eta for SE1, the exact derivatives of eta
 and of the implicit qbar (Appendix A step 2 against finite differences), and the H4-for-SVA claim.
 
-Everything here runs the generated code uncompiled (vcirun.modified.evaluate.python_module): no numba
+Everything here runs the generated code uncompiled (vcirun.codegen.evaluate.python_module): no numba
 compile, the same source text.
 """
 from __future__ import annotations
@@ -16,7 +16,7 @@ import sympy as sp
 from vcirun.discrete.lagrangians import LIBRARY, ld_expression
 from vcirun.modified import MH_LDS
 from vcirun.mechanics.scenes import get_scene
-from vcirun.modified.evaluate import python_module
+from vcirun.codegen.evaluate import python_module
 from vcirun.modified.series import jet, modified_series, padd, pmul, pscale
 
 SYSTEM = get_scene("cart_pendulum")

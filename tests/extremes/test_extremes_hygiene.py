@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import vcirun
-from vcirun.stress import hygiene_case
+from vcirun.experiments.studies.hygiene import hygiene_case
 
 METHODS = ["CVA", "VCI", "MCVAA", "MCVAC"]
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import vcirun
-from vcirun import stress
+from vcirun.experiments.studies import parameters
 
 METHODS = ["CVA", "VCI", "MCVAA", "MCVAC"]
 FAILURES = ("newton_failed", "event_failed", "reset_failed", "accumulation", "nonfinite")
@@ -36,7 +36,7 @@ def test_beta_100_pendulum_rotates(method, ref_beta100):
 @pytest.mark.parametrize("method", METHODS)
 @pytest.mark.parametrize("beta", [3.2, 10.0, 30.0, 100.0])
 def test_high_energy_second_order(method, beta):
-    r = stress.energy_case(method, beta, hs=[1e-2, 1e-3, 1e-4], T=5.0)
+    r = parameters.energy_case(method, beta, hs=[1e-2, 1e-3, 1e-4], T=5.0)
     assert all(x["status"] == "ok" for x in r["runs"])
     assert r["runs"][-1]["order"] > 1.8 and r["runs"][-1]["l2"] <= 5e-5
 
@@ -44,7 +44,7 @@ def test_high_energy_second_order(method, beta):
 @pytest.mark.parametrize("method", METHODS)
 def test_tiny_mass_ratio(method):
     """m2/m1 = 1e-4 (cond(M) up to 2.5e3): L2 at h = 1e-3 is 9.6e-4 .. 1.1e-3, second order."""
-    r = stress.mass_ratio_case(method, 1e-4, hs=[1e-2, 1e-3], T=5.0)
+    r = parameters.mass_ratio_case(method, 1e-4, hs=[1e-2, 1e-3], T=5.0)
     assert [x["status"] for x in r["runs"]] == ["ok", "ok"]
     assert r["runs"][1]["l2"] <= 2e-3 and r["runs"][1]["order"] > 1.9
 
@@ -54,7 +54,7 @@ def test_large_mass_ratio(method):
     """m2/m1 = 1e4: a light cart under a heavy spinning bob; at theta = pi/2 the fastest local mode
     has omega ~ 3e6 and cond(M) ~ 6e3. h = 1e-2 stops (newton_failed; CVA's cause: the motion had
     diverged / M nearly singular); h = 1e-5 runs, L2 0.10 against an 8-impact exact motion."""
-    r = stress.mass_ratio_case(method, 1e4, hs=[1e-2, 1e-5], T=5.0)
+    r = parameters.mass_ratio_case(method, 1e4, hs=[1e-2, 1e-5], T=5.0)
     bad, good = r["runs"]
     assert bad["status"] in FAILURES
     assert good["status"] == "ok" and good["l2"] <= 0.15 and good["impacts"] == r["ref_impacts"]
@@ -64,7 +64,7 @@ def test_large_mass_ratio(method):
 @pytest.mark.parametrize("method", METHODS)
 @pytest.mark.parametrize("ratio", [1e-4, 1e-2, 1.0, 1e2, 1e4])
 def test_mass_ratios_converge(method, ratio):
-    r = stress.mass_ratio_case(method, ratio, hs=[1e-4, 1e-5], T=5.0)
+    r = parameters.mass_ratio_case(method, ratio, hs=[1e-4, 1e-5], T=5.0)
     last = r["runs"][-1]
     assert last["status"] == "ok"
     assert last["l2"] <= (0.15 if ratio >= 1e4 else 1e-3)
@@ -76,7 +76,7 @@ def test_nearly_singular_mass_matrix_runs_at_small_h(method):
     round-off floor (vcirun/maps/steps.py) every step size stopped with newton_failed at t ~ 0.1 (the
     correction cycled between two floats above newton_tol = 1e-12). Now h = 1e-5 runs: L2 0.021 ..
     0.030 over [0, 2] (one impact; the impact excites a fast mode, omega ~ 270)."""
-    r = stress.singular_mass_case(method, 1e-4, hs=[1e-5], T=2.0)
+    r = parameters.singular_mass_case(method, 1e-4, hs=[1e-5], T=2.0)
     assert r["cond0"] > 3e4 and r["ref_accuracy"] < 1e-5
     x = r["runs"][0]
     assert x["status"] == "ok" and x["l2"] <= 0.05
@@ -87,7 +87,7 @@ def test_nearly_singular_mass_matrix_stops_with_cause(method):
     """m1 = 1e-8 (cond(M) = 4e8) at h = 1e-3, and m1 = 1e-4 at h = 1e-2: a failure status whose cause
     names the mass matrix or the step size."""
     for m1, h in ((1e-8, 1e-3), (1e-4, 1e-2)):
-        x = stress.singular_mass_case(method, m1, hs=[h], T=2.0, with_reference=False)["runs"][0]
+        x = parameters.singular_mass_case(method, m1, hs=[h], T=2.0, with_reference=False)["runs"][0]
         assert x["status"] in FAILURES, x
         assert "mass matrix nearly singular" in x["cause"] or "step h too large" in x["cause"], x
 
@@ -102,7 +102,7 @@ def test_singular_mass_matrix_along_the_motion_stops_with_cause(method):
     """m1 = 0 from a non-aligned start: M is singular whenever the links align (the exact solution
     stops existing at t = 0.3346, where DOP853 gives up). h = 1e-2: a failure naming the mass
     matrix (or a diverged motion)."""
-    x = stress.singular_mass_case(method, 0.0, hs=[1e-2], T=2.0, q0=np.array([-1.0, 0.5]), p0=np.zeros(2),
+    x = parameters.singular_mass_case(method, 0.0, hs=[1e-2], T=2.0, q0=np.array([-1.0, 0.5]), p0=np.zeros(2),
                                   with_reference=False)["runs"][0]
     assert x["status"] in FAILURES
     assert "mass matrix nearly singular" in x["cause"] or "diverged" in x["cause"]

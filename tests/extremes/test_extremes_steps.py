@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import vcirun
-from vcirun import stress
+from vcirun.experiments.studies import step_size
 
 METHODS = ["CVA", "VCI", "MCVAA", "MCVAC"]
 SCENES = {"cart_pendulum": dict(beta=3.2), "double_pendulum": {}}
@@ -62,7 +62,7 @@ def test_coarse_scan_to_h_2(scene, method):
 @pytest.mark.parametrize("method", METHODS)
 @pytest.mark.parametrize("scene", list(SCENES))
 def test_step_limit_bisection(scene, method):
-    r = stress.step_limit(scene, method, T=5.0, h_min=1e-5, h_max=2.0, per_decade=4, rel=1e-3, **SCENES[scene])
+    r = step_size.step_limit(scene, method, T=5.0, h_min=1e-5, h_max=2.0, per_decade=4, rel=1e-3, **SCENES[scene])
     assert not r["crashes"]
     lim = H_LIMIT[(scene, method)]
     if lim is None:
@@ -101,13 +101,13 @@ def _check_long(r, steps, slope_factor=1.0):
 
 @pytest.mark.parametrize("method", METHODS)
 def test_long_horizon_1e5_steps(method):
-    _check_long(stress.long_run("cart_pendulum", method, h=1e-2, steps=100_000, beta=3.2), 100_000, 10.0)
+    _check_long(step_size.long_run("cart_pendulum", method, h=1e-2, steps=100_000, beta=3.2), 100_000, 10.0)
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("method", METHODS)
 def test_long_horizon_1e6_steps(method):
-    r = stress.long_run("cart_pendulum", method, h=1e-2, steps=1_000_000, beta=3.2)
+    r = step_size.long_run("cart_pendulum", method, h=1e-2, steps=1_000_000, beta=3.2)
     _check_long(r, 1_000_000)
 
 
@@ -117,7 +117,7 @@ def test_long_horizon_1e6_steps(method):
 # 1e6 steps, x2.1 .. x4.7 from 1e5 steps), not on one run. A drift would grow x10 over that decade.
 @pytest.mark.slow
 def test_mcvaa_modified_hamiltonian_grows_sublinearly():
-    r = stress.long_run("cart_pendulum", "MCVAA", h=1e-2, steps=1_000_000, beta=3.2)
+    r = step_size.long_run("cart_pendulum", "MCVAA", h=1e-2, steps=1_000_000, beta=3.2)
     d = r["maxdev_Hmod"]
     assert d[1_000_000] <= 6 * d[100_000] and d[1_000_000] <= 1e-4 * abs(r["H0"]), d
 
@@ -129,12 +129,12 @@ def test_mcvac_modified_hamiltonian_stays_within_one_percent():
     0.016 -> 0.19 J, slope -2.0e-5 J/s, after this session's last-bit changes). Sub-linear growth is
     therefore not asserted for MCVAC (it is for MCVAA above); what every realization kept is an error
     below 1 % of H0 (0.38 J)."""
-    r = stress.long_run("cart_pendulum", "MCVAC", h=1e-2, steps=1_000_000, beta=3.2)
+    r = step_size.long_run("cart_pendulum", "MCVAC", h=1e-2, steps=1_000_000, beta=3.2)
     d = r["maxdev_Hmod"]
     assert d[1_000_000] <= 1e-2 * abs(r["H0"]), d
 
 
 def test_drift_slope_is_least_squares():
     t = np.linspace(0, 10, 101)
-    assert stress.drift_slope(t, 3.0 + 0.25 * t + 0.01 * np.sin(7 * t)) == pytest.approx(0.25, abs=2e-3)
-    assert math.isnan(stress.drift_slope(t[:1], t[:1]))
+    assert step_size.drift_slope(t, 3.0 + 0.25 * t + 0.01 * np.sin(7 * t)) == pytest.approx(0.25, abs=2e-3)
+    assert math.isnan(step_size.drift_slope(t[:1], t[:1]))

@@ -23,7 +23,7 @@ from vcirun.api import resolve_system
 from vcirun.codegen.build import load_module
 from vcirun.mechanics.system import MechanicalSystem
 from vcirun.methods import METHODS
-from vcirun.reference import oscillator_wall_exact
+from vcirun.oracles import oscillator_wall_exact
 from guards import guarded
 
 D = 0.5

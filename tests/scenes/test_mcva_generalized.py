@@ -2,7 +2,7 @@
 library for s = 1, 2, 3 (and 4), and refuses an unsupported combination with a clear message.
 
 The default suite runs the generated module uncompiled (vcirun.api.load_module replaced by
-vcirun.modified.evaluate.python_module_for: same source text, no numba compile) on a short run with
+vcirun.codegen.evaluate.python_module_for: same source text, no numba compile) on a short run with
 one impact; the compiled runs of the whole matrix on the Figure 3 setting are marked slow
 (one numba compile of ~10-20 s per combination).
 """
@@ -16,8 +16,8 @@ import vcirun.api
 from vcirun.discrete.lagrangians import LIBRARY
 from vcirun.modified import MH_LDS
 from vcirun.methods import METHODS, resolve_method
-from vcirun.modified import generalized_mcva
-from vcirun.modified.evaluate import python_module_for
+from vcirun.methods import generalized_mcva
+from vcirun.codegen.evaluate import python_module_for
 
 
 @pytest.fixture

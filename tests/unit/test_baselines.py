@@ -15,7 +15,7 @@ import pytest
 
 import vcirun
 from vcirun.experiments.baselines import BASELINES, solve_ivp_run
-from vcirun.reference import oscillator_wall_exact
+from vcirun.oracles import oscillator_wall_exact
 
 T, BETA, H = 5.0, 3.2, 1e-2
 
@@ -139,7 +139,7 @@ def test_bad_input_raises_naming_the_field():
 def test_shipped_study_configs_load():
     from pathlib import Path
 
-    from vcirun.experiments.workprecision import load_study
+    from vcirun.experiments.studies.schema import load_study
 
     root = Path(__file__).resolve().parents[2]
     for name, study in [("work_precision", "work_precision"), ("work_precision_double", "work_precision"),
@@ -168,8 +168,9 @@ def test_matching_on_the_pareto_front():
 
 def test_a_tiny_study_runs_end_to_end(tmp_path):
     from vcirun.experiments import workprecision as wp
+    from vcirun.experiments.studies.schema import WorkPrecisionStudy
 
-    cfg = wp.StudyConfig(study="work_precision", name="tiny", system="cart_pendulum", beta=[3.2], T=1.0,
+    cfg = WorkPrecisionStudy(study="work_precision", name="tiny", system="cart_pendulum", beta=[3.2], T=1.0,
                          methods=["CVA"], h=[1e-2, 5e-3], baselines={"DOP853": [1e-4, 1e-8]}, repeats=1,
                          baseline_repeats=1, output=str(tmp_path / "tiny.json"))
     res = wp.run_study(cfg, log=lambda m: None)

@@ -1,4 +1,4 @@
-"""The modified Hamiltonian's building blocks (vcirun.modified.derive) at n > 2.
+"""The modified Hamiltonian's building blocks (vcirun.modified.eta) at n > 2.
 
 - Primitives from per-node tensors (d^A M_bc, d^A V at the quadrature nodes of each stage) equal the
   derivatives of ell(q, u) = Ld(q, q + h v(u), h) / h taken directly, for every Ld of MH_LDS.
@@ -16,8 +16,8 @@ import sympy as sp
 
 from vcirun.mechanics import get_scene
 from vcirun.modified import MH_LDS
-from vcirun.modified.derive import StationaryEta
-from vcirun.modified.evaluate import python_module
+from vcirun.modified.eta import StationaryEta
+from vcirun.codegen.evaluate import python_module
 
 
 def _numeric(st, e, point):

@@ -118,7 +118,7 @@ def _check_along_grad_and_reflecting(mod, prm, q, pm, pp, lam):
 
 def _cva_check(mc, prm, q, pm):
     pp = np.empty_like(pm)
-    it, lam = mc.reset_cva(q, pm, 0.0, 0.0, 0.0, 0.0, prm, NTOL, MAXIT, pp)
+    it, lam = mc.reset_cva(q, pm, 0.0, pm, 0.0, 0.0, 0.0, 0.0, prm, NTOL, MAXIT, pp)
     assert it > 0
     H_m, H_p = mc.hamiltonian(q, pm, prm), mc.hamiltonian(q, pp, prm)
     kin = 0.5 * pm @ _Minv(mc, q, prm) @ pm
@@ -147,7 +147,7 @@ def _solve_w(mv, q, pp, tau, prm):
 
 def _vci_check(mv, prm, q, pm, Epre, tau_rem, h):
     pp = np.empty_like(pm)
-    it, lam = mv.reset_vci(q, pm, Epre, tau_rem, h, 0.0, prm, NTOL, MAXIT, pp)
+    it, lam = mv.reset_vci(q, pm, Epre, pm, 0.0, tau_rem, h, 0.0, prm, NTOL, MAXIT, pp)
     assert it > 0, (q, pm, Epre, tau_rem)
     w, r = _solve_w(mv, q, pp, tau_rem, prm)
     res_p = np.max(np.abs(r - pp)) / max(1.0, np.max(np.abs(pp)))
@@ -189,7 +189,7 @@ def test_vci_reset_random_states(scene):
     worst, failed = 0.0, 0
     for q, pm, E, _, tr, h in _random_impacts(scene, 150, 2):
         pp = np.empty_like(pm)
-        it, _ = mv.reset_vci(q.copy(), pm.copy(), E, tr, h, 0.0, prm, NTOL, MAXIT, pp)
+        it, _ = mv.reset_vci(q.copy(), pm.copy(), E, pm.copy(), 0.0, tr, h, 0.0, prm, NTOL, MAXIT, pp)
         if it < 0:
             failed += 1
             exists, Fmin = _vci_has_reflecting_root(mv, mc, prm, q, pm, E, tr)
@@ -242,7 +242,7 @@ def test_vci_reset_reports_failure_when_eq33_has_no_solution():
     Emin = c - b * b / (4 * a)
     for dE in (1e-4, 1e-2, 1.0):
         pp = np.zeros(1)
-        it, _ = mv.reset_vci(q, pm, Emin - dE, tau, 0.1, 0.0, prm, NTOL, MAXIT, pp)
+        it, _ = mv.reset_vci(q, pm, Emin - dE, pm, 0.0, tau, 0.1, 0.0, prm, NTOL, MAXIT, pp)
         assert it < 0
 
 
@@ -257,5 +257,5 @@ def test_vci_reset_finds_reflecting_root_when_one_exists():
         w = np.roots([a, b, c - E])
         lam_ref = np.max(m * w + tau * k * q[0] / 2) - pm[0]   # the reflecting root (p+ > 0)
         pp = np.zeros(1)
-        it, lam = mv.reset_vci(q, pm, E, tau, 0.1, 0.0, prm, NTOL, MAXIT, pp)
+        it, lam = mv.reset_vci(q, pm, E, pm, 0.0, tau, 0.1, 0.0, prm, NTOL, MAXIT, pp)
         assert it > 0 and abs(lam - lam_ref) <= 1e-10 * abs(lam_ref), (dE, it, lam, lam_ref)

@@ -18,7 +18,6 @@ import numpy as np
 import pytest
 
 from vcirun.codegen import derive
-from vcirun.codegen.build import _PKG, _units
 from vcirun.codegen.tensor import quadrature_nodes
 from vcirun.discrete.lagrangians import LIBRARY, ExplicitLd
 from vcirun.mechanics import get_scene
@@ -230,7 +229,7 @@ SIMS = [  # (system, method, method options, simulate keywords): impacts with SV
 def _compiled_expanded(system, ks, directory):
     """The module of (system, ks) on the expanded path, compiled from its own file (the kernel cache
     key does not know the kernel path, so the cache is bypassed)."""
-    text = derive.module_source(system, ks, [(_PKG / u).read_text() for u in _units(ks)], kernel_path="expanded")
+    text = derive.module_source(system, ks, kernel_path="expanded")
     name = f"vcirun_expanded_{system.name}_{abs(hash(ks.key_text()))}"
     path = directory / f"{name}.py"
     path.write_text(text)

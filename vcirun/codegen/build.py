@@ -1,7 +1,7 @@
 """Assemble, cache and load one compiled module per (scene, kernel set).
 
 The module text = generated kernels (one CSE pass each) + the numba *source units* of the numeric
-layers (vcirun/maps, vcirun/collision, vcirun/modified) + the bindings `full`, `partial`, `reset`,
+layers (vcirun/maps, vcirun/collision) + the bindings `full`, `partial`, `reset`,
 `modified_energy`. Everything lives in one file so that numba's on-disk cache works for the whole
 event loop: numba cannot cache a function that takes another jitted function as an argument, and
 a compiled loop calling compiled kernels is what makes a 500-step simulation take microseconds.
@@ -28,21 +28,22 @@ import json
 import os
 import sys
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numba
 
 from .. import __version__
+from .kernel_set import SYSTEM_KERNELS, KernelSet  # noqa: F401 (callers import them from here)
 
 _PKG = Path(__file__).resolve().parent.parent
-UNITS_BASE = ["maps/linalg.py", "maps/steps.py", "collision/events.py", "collision/resets.py",
-              "collision/algorithm1.py"]
 # files whose text changes the generated code: hashed into the key
 _GENERATOR_FILES = ["codegen/kernels.py", "codegen/printer.py", "codegen/build.py", "codegen/derive.py",
-                    "codegen/tensor.py", "discrete/lagrangians.py", "mechanics/system.py"]
+                    "codegen/kernel_set.py",
+                    "codegen/tensor.py", "codegen/units.py", "record.py", "codegen/c_emit.py", "codegen/cc.py",
+                    "discrete/lagrangians.py",
+                    "mechanics/system.py"]
 # ... and, only for the MCVA family's modules (so that editing them does not invalidate CVA/VCI caches)
-_MODIFIED_GENERATOR_FILES = ["modified/derive.py", "modified/series.py"]
+_MODIFIED_GENERATOR_FILES = ["codegen/mh_kernels.py", "modified/eta.py", "modified/series.py"]
 # ... and, for the warm index only: the files that turn a scene name or a YAML file into a symbolic system
 _SYSTEM_FILES = ["scenedata.py", "mechanics/scenes.py", "mechanics/loader.py", "mechanics/expressions.py"]
 WARM_FORMAT = 1
@@ -57,33 +58,13 @@ def cache_dir() -> Path:
     return d
 
 
-@dataclass(frozen=True)
-class KernelSet:
-    """What one compiled module must contain: the explicit stages of the full map, which partial map
-    and reset to bind, and (MCVA family) the modified-Hamiltonian data."""
-
-    full_stages: tuple                 # ((explicit Ld name, fraction of h), ...)
-    partial: str = "ld"                # "ld" (same map as full) or "gauss"
-    reset: str = "cva"                 # "cva", "vci", "mcva"
-    vci_stage: str | None = None       # explicit Ld whose energy R^VCI conserves
-    modified: tuple | None = None      # (Ld name, mh_order, flow_order) for the MCVA family
-
-    def key_text(self) -> str:
-        return repr(self)
-
-    @property
-    def explicit_names(self) -> tuple:
-        names = [s for s, _ in self.full_stages]
-        if self.vci_stage and self.vci_stage not in names:
-            names.append(self.vci_stage)
-        return tuple(dict.fromkeys(names))
 
 
 def _units(ks: KernelSet) -> list[str]:
-    units = list(UNITS_BASE)
-    if ks.modified is not None:
-        units[-1:-1] = ["modified/numeric.py"]
-    return units
+    """The numba source units of the module of `ks`, chosen by the contract (vcirun.codegen.units)."""
+    from .units import select_units
+
+    return [u.path for u in select_units(ks)]
 
 
 _keys: dict = {}
@@ -104,9 +85,22 @@ def _key_files(ks: KernelSet) -> set:
 
 
 def _versions() -> bytes:
-    # + the step-kernel path (codegen.derive: tensor or expanded), so the two never share a module
+    # + the step-kernel path (codegen.derive: tensor or expanded), so the two never share a module,
+    # + the kernel backend (codegen.cc: numba, or C with this compiler and flags)
     path = os.environ.get("VCIRUN_KERNEL_PATH", "")
-    return f"{__version__}|{numba.__version__}|{sys.version_info[:2]}|kernels={path}".encode()
+    return f"{__version__}|{numba.__version__}|{sys.version_info[:2]}|kernels={path}|{_backend_id()}".encode()
+
+
+def _backend_id() -> str:
+    from . import cc  # no sympy: compiler discovery only
+
+    key = (os.environ.get("CC"), os.environ.get(cc.BACKEND_ENV), os.environ.get("PATH"))
+    if key not in _BACKEND_IDS:
+        _BACKEND_IDS[key] = cc.identity()
+    return _BACKEND_IDS[key]
+
+
+_BACKEND_IDS: dict = {}
 
 
 def _module_key(system, ks: KernelSet) -> str:
@@ -145,7 +139,7 @@ def load_module(system, ks: KernelSet):
     if not cached:
         from .derive import module_source  # sympy work happens only here, on a cache miss
 
-        text = module_source(system, ks, [(_PKG / u).read_text() for u in _units(ks)])
+        text = module_source(system, ks, c_dir=cache_dir())
         tmp = path.with_suffix(f".tmp{os.getpid()}")
         tmp.write_text(text)
         os.replace(tmp, path)  # atomic: parallel workers never import a half-written file

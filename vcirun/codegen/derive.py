@@ -47,19 +47,41 @@ def system_kernels(system, with_dhq: bool = True) -> list[Kernel]:
     ks = [
         Kernel("sys_M", [("q", q)], [("out", system.M)], prm),
         Kernel("sys_V", [("q", q)], [("V", system.V)], prm),
+        # the gap min_i phi_i (phi itself for one constraint): what the event search follows
         Kernel("sys_phi", [("q", q)], [("phi", system.phi)], prm),
-        Kernel("sys_dphi", [("q", q)], [("out", system.grad_phi)], prm),
+        Kernel("sys_phis", [("q", q)], [("out", sp.Matrix([c.phi for c in system.constraints]))], prm),
+        Kernel("sys_dphis", [("q", q)], [("out", system.constraint_jacobian)], prm),
+        Kernel("sys_restitution", [], [("out", sp.Matrix([c.restitution for c in system.constraints]))], prm),
     ]
+    if system.m == 1:
+        ks.append(Kernel("sys_dphi", [("q", q)], [("out", system.grad_phi)], prm))
     if with_dhq:
         x = list(sp.symbols(f"xm0:{n}"))
         ks.append(Kernel("sys_dHq", [("q", q), ("x", x)], [("out", system.dH_dq_at(x))], prm))
+    ks += force_kernels(system)
     return ks
+
+
+def force_kernels(system) -> list[Kernel]:
+    """sys_force(q, qd, t, prm, out) = f(q, qdot, t) and sys_force_jac(q, qd, t, prm, fq, fv) = (df/dq,
+    df/dqdot): the generalized force on its own, for the continuous dynamics (the exact reference),
+    the work terms of R^VCI and the forced modified equations of the MCVA family. Zero kernels for an
+    unforced system (the callers branch on the module constant FORCED, so they cost nothing there)."""
+    n = system.n
+    args = [("q", system.q), ("qd", system.qd), ("t", system.t)]
+    f = system.forcing if system.is_forced else sp.zeros(n, 1)
+    prm = system.param_symbols
+    return [Kernel("sys_force", args, [("out", f)], prm),
+            Kernel("sys_force_jac", args, [("fq", f.jacobian(list(system.q))), ("fv", f.jacobian(list(system.qd)))],
+                   prm)]
 
 
 def system_kernels_source(system, path: str | None = None) -> str:
     """Source of the system kernels on the chosen kernel path (sys_dHq from the tensors on "tensor")."""
     tensor = kernel_path(path) == "tensor"
-    parts = [k.emit() for k in system_kernels(system, with_dhq=not tensor)]
+    parts = [f"NCON = {system.m}"] + [k.emit() for k in system_kernels(system, with_dhq=not tensor)]
+    if system.m > 1:
+        parts.append(_GAP_GRADIENT)
     if tensor:
         from .tensor import dhq_source, node_source
 
@@ -67,6 +89,25 @@ def system_kernels_source(system, path: str | None = None) -> str:
     else:
         parts.append(_EXPANDED_NODE.format(n=system.n))
     return "\n\n".join(parts)
+
+
+# Several constraints: the gap min_i phi_i has the gradient of its smallest phi_i (where that is one
+# constraint); sys_dphi is that gradient, so d phi/dt along the flow (gdot) and the event search
+# follow the gap unchanged.
+_GAP_GRADIENT = """@njit(cache=True, nogil=True, error_model="numpy")
+def sys_dphi(q, prm, out):
+    phis = np.empty(NCON)
+    sys_phis(q, prm, phis)
+    k = 0
+    for i in range(1, NCON):
+        if phis[i] < phis[k]:
+            k = i
+    G = np.empty((NCON, NDOF))
+    sys_dphis(q, prm, G)
+    for j in range(NDOF):
+        out[j] = G[k, j]
+    return 0
+"""
 
 
 # Node data on the expanded path: M(q) only (row-major), enough for the velocity guess; the
@@ -168,34 +209,62 @@ def _dispatch(fname: str, sig: str, call: str, names: list[str], returns: bool, 
     return "\n".join(lines) + "\n"
 
 
-def module_source(system, ks, unit_texts: list[str], kernel_path: str | None = None) -> str:
-    """The module text of (system, kernel set); kernel_path: "tensor" or "expanded" (default: see
-    the module docstring)."""
+def _kernels_backend(generated: str, c_dir) -> str:
+    """The generated kernels with the chosen backend: C for the leaf kernels when c_dir is given and
+    a C compiler exists (vcirun.codegen.cc.backend()), else numba source as emitted."""
+    if c_dir is None:
+        return generated
+    from . import cc
+
+    if cc.backend() != "c":
+        return generated
+    from .c_emit import c_kernels
+
+    return c_kernels(generated, c_dir)
+
+
+def module_source(system, ks, kernel_path: str | None = None, c_dir=None) -> str:
+    """The module text of (system, kernel set): the generated part (`generated_source`, with the
+    kernel backend applied) assembled with the numba units and role bindings the contract selects
+    (vcirun.codegen.units.assemble, which checks both sides). kernel_path: "tensor" or "expanded"
+    (default: see the module docstring); c_dir: where the C backend puts the shared object of the leaf
+    kernels (vcirun.codegen.c_emit; None or backend "numba": every kernel stays numba source)."""
+    from . import units
+
+    return units.assemble(_kernels_backend(generated_source(system, ks, kernel_path), c_dir), ks)
+
+
+def generated_source(system, ks, kernel_path: str | None = None) -> str:
+    """The generated part of a module, by the parts of vcirun.codegen.units.GENERATED: the system
+    kernels and the record's constants always; the step kernels of the full map's stages (with
+    their dispatchers by stage id); R^VCI's dEd/dv; the modified Hamiltonian's kernels."""
+    from ..record import module_constants
+
+    parts = [HEADER, f"NDOF = {system.n}", f"FORCED = {bool(system.is_forced)}",
+             system_kernels_source(system, kernel_path), module_constants()]
     names = list(ks.explicit_names)
-    sid = {nm: i for i, nm in enumerate(names)}
-    parts = [HEADER, f"NDOF = {system.n}",
-             f"FULL_STAGES = np.array({[sid[s] for s, _ in ks.full_stages]}, dtype=np.int64)",
-             f"FULL_FRACS = np.array({[float(f) for _, f in ks.full_stages]}, dtype=np.float64)",
-             f"VCI_STAGE = {sid.get(ks.vci_stage, -1)}",
-             # Algorithm 1 reuses the full step as the collision search's first partial step
-             f"PARTIAL_IS_FULL = {ks.partial == 'ld'}", ""]
-    parts.append(system_kernels_source(system, kernel_path))
-    parts.append(ld_kernels_source(system, names, ks.vci_stage, kernel_path))
-    parts.append(_dispatch("ld_PmJ", "q0, v, h, t, prm, r, J", "PmJ", names, False))
-    parts.append(_dispatch("ld_Pp", "q0, v, h, t, prm, out", "Pp", names, False))
-    parts.append(_dispatch("ld_PmJc", "q0, v, h, t, prm, c, r, J", "PmJc", names, False, inline=True))
-    parts.append(_dispatch("ld_Ppc", "q0, v, h, t, prm, c, out, cn", "Ppc", names, False, inline=True))
-    parts.append(_dispatch("ld_Ed", "q0, v, h, prm", "Ed", names, True))
+    if names:
+        sid = {nm: i for i, nm in enumerate(names)}
+        parts += [f"FULL_STAGES = np.array({[sid[s] for s, _ in ks.full_stages]}, dtype=np.int64)",
+                  f"FULL_FRACS = np.array({[float(f) for _, f in ks.full_stages]}, dtype=np.float64)",
+                  f"VCI_STAGE = {sid.get(ks.vci_stage, -1)}",
+                  # forced DEL (discrete Lagrange-d'Alembert): f^- = FORCE_A[sid] h f(q0, v, t),
+                  # f^+ = FORCE_B[sid] h f(q1, v, t + h) per explicit stage (trapezoidal for SVC)
+                  f"FORCE_A = np.array({[float(get_ld(nm).forcing_weights[0]) for nm in names]}, dtype=np.float64)",
+                  f"FORCE_B = np.array({[float(get_ld(nm).forcing_weights[1]) for nm in names]}, dtype=np.float64)",
+                  # Algorithm 1 reuses the full step as the collision search's first partial step
+                  f"PARTIAL_IS_FULL = {ks.partial == 'ld'}"]
+        parts.append(ld_kernels_source(system, names, ks.vci_stage, kernel_path))
+        parts.append(_dispatch("ld_PmJ", "q0, v, h, t, prm, r, J", "PmJ", names, False))
+        parts.append(_dispatch("ld_Pp", "q0, v, h, t, prm, out", "Pp", names, False))
+        parts.append(_dispatch("ld_PmJc", "q0, v, h, t, prm, c, r, J", "PmJc", names, False, inline=True))
+        parts.append(_dispatch("ld_Ppc", "q0, v, h, t, prm, c, out, cn", "Ppc", names, False, inline=True))
+        parts.append(_dispatch("ld_Ed", "q0, v, h, prm", "Ed", names, True))
     if ks.vci_stage:  # only R^VCI needs dEd/dv, and only of its own stage
         parts.append('@njit(cache=True, nogil=True, error_model="numpy")\ndef ld_Edv(sid, q0, v, h, prm, out):\n'
                      f"    {ks.vci_stage}_Edv(q0, v, h, prm, out)\n")
     if ks.modified is not None:
-        from ..modified.derive import modified_kernels_source
+        from .mh_kernels import modified_kernels_source
 
         parts.append(modified_kernels_source(system, ks))
-    parts += unit_texts
-    parts.append("full = ld_step")
-    parts.append("partial = " + ("ld_partial" if ks.partial == "ld" else "gauss_partial"))
-    parts.append("reset = " + {"cva": "reset_cva", "vci": "reset_vci", "mcva": "reset_mcva"}[ks.reset])
-    parts.append("modified_energy = " + ("no_modified_energy" if ks.modified is None else "mh_energy"))
     return "\n\n".join(parts) + "\n"

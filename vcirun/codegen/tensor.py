@@ -64,50 +64,16 @@ from __future__ import annotations
 import re
 import weakref
 from dataclasses import dataclass
-from functools import lru_cache
 
 import sympy as sp
 
+from ..discrete.quadrature import quadrature_nodes  # noqa: F401  (also this module's name for it)
 from .kernels import _code
 
 _NJ = '@njit(cache=True, nogil=True, error_model="numpy")'
 
 
-# --- which Lds are quadrature rules ------------------------------------------------------------
-@lru_cache(maxsize=None)
-def quadrature_nodes(ld) -> tuple | None:
-    """((C_i, W_i), ...) if Ld(q0, q1, h) = h sum_i W_i L(q0 + C_i (q1 - q0), (q1 - q0)/h) for any L
-    (read off ld.build applied to an undefined function of 2 coordinates), else None."""
-    build = getattr(ld, "build", None)
-    if build is None:
-        return None
-    a = sp.symbols("tq0_0:2")
-    b = sp.symbols("tq1_0:2")
-    h = sp.Symbol("th")
-    Lf = sp.Function("Lf")
-    try:
-        expr = sp.expand(build(lambda q, v: Lf(*q, *v), list(a), list(b), h))
-    except Exception:  # an Ld that does not accept a generic L: not a quadrature rule
-        return None
-    nodes = []
-    for term in sp.Add.make_args(expr):
-        calls = term.atoms(sp.core.function.AppliedUndef)
-        if len(calls) != 1:
-            return None
-        call = calls.pop()
-        w = sp.simplify(term / (h * call))
-        if not w.is_number or len(call.args) != 4:
-            return None
-        x, v = call.args[:2], call.args[2:]
-        if any(sp.simplify(v[k] - (b[k] - a[k]) / h) != 0 for k in range(2)):
-            return None
-        c = sp.simplify((x[0] - a[0]) / (b[0] - a[0]))
-        if not c.is_number or sp.simplify(x[1] - (a[1] + c * (b[1] - a[1]))) != 0:
-            return None
-        nodes.append((float(c), float(w)))
-    return tuple(nodes) if nodes else None
-
-
+# --- which Lds are quadrature rules: vcirun.discrete.quadrature -----------------------------------
 def needs_second_derivatives(nodes) -> bool:
     """dPm/dv needs d2M, d2V only through the term h^2 C (1 - C) S: interior nodes."""
     return any(c * (1.0 - c) != 0.0 for c, _ in nodes)

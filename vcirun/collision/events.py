@@ -1,5 +1,12 @@
-# numba source unit: CollisionTime[Phi^partial, q, p] (Algorithm 1, line 8).
-# Requires: NDOF, partial, sys_phi, sys_dphi, sys_M, solve_small.
+# numba source unit: CollisionTime[Phi^partial, q, p] (Algorithm 1, line 8), over every constraint
+# at once: the first root of the gap g = min_i phi_i (its slope: that of the smallest phi_i).
+# Contract: vcirun.codegen.units.
+#
+# Several constraints (issue 17): a contact that is touching at the start of a search (phi_i within
+# round-off or the event tolerance of 0) and not approaching (normal velocity >= 0) is left out of
+# the gap for that search -- it would pin g at 0 (two balls at rest against each other) -- unless
+# the trial end point shows it penetrating. The impact law (collision/impact.py) still takes every
+# contact at phi = 0 into the impact. One constraint: no mask, the paper's search bit for bit.
 import math
 
 import numpy as np
@@ -7,24 +14,6 @@ from numba import njit
 
 N_SCAN = 4  # interior samples of the initial bracket (first-root search), when the cubic model is unsure
 N_MODEL = 32  # samples of the cubic Hermite model of g on the bracket (no partial steps: free)
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def gdot(q, p, prm):
-    """d/dtau phi(q(tau)) along the continuous flow through (q, p): grad phi(q) . M(q)^{-1} p. The
-    partial map's own tau-derivative differs by O(tau^r) relatively (r its order): a model, never a
-    decision (the bracket keeps the root search safe)."""
-    A = np.empty((NDOF, NDOF))
-    x = p.copy()
-    sys_M(q, prm, A)
-    if not solve_small(A, x, NDOF):
-        return np.nan
-    g = np.empty(NDOF)
-    sys_dphi(q, prm, g)
-    s = 0.0
-    for i in range(NDOF):
-        s += g[i] * x[i]
-    return s
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -73,9 +62,21 @@ def _model_first_root(a, ga, da, b, gb, db):
     return a + 0.5 * (lo + hi) * H
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def step_admissible(q, p, qt, h, event_tol, prm):
+    """Algorithm 1's precondition (31) for the full step q -> qt: phi(qt) > 0 (one constraint), or every
+    contact not touching at q positive at qt and the touching ones not penetrating."""
+    if NCON == 1:
+        return sys_phi(qt, prm) > 0.0
+    mask = np.empty(NCON, dtype=np.int64)
+    touching_mask(q, p, h, event_tol, prm, mask)
+    return gap(qt, prm, mask) > 0.0 and unmask_penetrating(qt, prm, mask) == 0
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def collision_time(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt, vt):
-    """First root tau in (0, tau_max] of g(tau) = phi(q(tau)), q(tau) from Phi^partial_tau(qh, ph).
+    """First root tau in (0, tau_max] of the gap g(tau) = min_i phi_i(q(tau)), q(tau) from
+    Phi^partial_tau(qh, ph).
 
     Returns (code, tau, E_pre, newton_iters): code 1 = collision at tau, 0 = no collision in
     (0, tau_max] (tau = tau_max), -1 = a partial step failed, -2 = the root search failed. On return
@@ -92,15 +93,14 @@ def search_collision(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt,
     full step, when the partial map is the full one), so it is not recomputed.
 
     Method. g(0) > 0 > g(tau_max) brackets a root; CollisionTime is a set and the FIRST root is
-    wanted. The cubic Hermite model of g from the values and the flow's slopes (gdot) at both ends
+    wanted. The cubic Hermite model of g from the values and the flow's slopes at both ends
     locates it when the model has a single sign change (a resolved motion); otherwise interior
-    samples of the partial map pick the first sign change. From the model's root the iteration is
-    secant on the partial map's own g (Newton with gdot for the first correction), safeguarded by the
-    bracket: a step that leaves it, or a bracket that stops shrinking, falls back to Illinois /
-    bisection. It stops when the correction is below event_tol * h, at an evaluated point (so the
-    returned state is that of the returned tau). Typically 2-3 partial steps per impact, against
-    10-12 for bracketing alone.
+    samples of the partial map pick the first sign change (`_scan_bracket`). From the model's root
+    the iteration is secant on the partial map's own g (`_refine_root`). Typically 2-3 partial steps
+    per impact, against 10-12 for bracketing alone.
     """
+    mask = np.empty(NCON, dtype=np.int64)
+    touching_mask(qh, ph, h, event_tol, prm, mask)
     iters = 0
     E = np.nan
     if not have_end:
@@ -108,80 +108,114 @@ def search_collision(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt,
         if it < 0:
             return -1, tau_max, E, -it
         iters += it
-    gb = sys_phi(qt, prm)
-    if not math.isfinite(gb):
+    if NCON > 1:
+        unmask_penetrating(qt, prm, mask)
+    gb = gap(qt, prm, mask)
+    if not math.isfinite(gb) and (NCON == 1 or not gb > 0.0):  # (+inf: every contact masked)
         return -1, tau_max, E, iters
     if gb >= 0.0:
         if have_end:  # the caller's full step knows E; recompute only when asked for the state's energy
             it, E = partial(qh, ph, tau_max, h, t, prm, ntol, maxit, qt, pt, vt)
             iters += abs(it)
         return 0, tau_max, E, iters
-    db = gdot(qt, pt, prm)
+    db = gap_slope(qt, pt, prm, mask)
     b = tau_max
     a = 0.0
-    ga = sys_phi(qh, prm)
-    da = gdot(qh, ph, prm)
+    ga = gap(qh, prm, mask)
+    da = gap_slope(qh, ph, prm, mask)
     tol = event_tol * h
     if ga <= 0.0:
-        # On (or numerically just past) the surface: the trivial root at 0 is not a collision.
-        # Halve towards 0 until g > 0; the first collision lies before any point with g < 0.
-        s = tau_max
-        found = False
-        while s > 1e-3 * tol:
-            s *= 0.5
-            it, E = partial(qh, ph, s, h, t, prm, ntol, maxit, qt, pt, vt)
-            if it < 0:
-                return -1, s, E, iters - it
-            iters += it
-            gs = sys_phi(qt, prm)
-            if gs > 0.0:
-                a = s
-                ga = gs
-                da = gdot(qt, pt, prm)
-                found = True
-                break
-            b = s
-            gb = gs
-            db = gdot(qt, pt, prm)
-        if not found:
-            # moving into the constraint from the surface: the impact is at tau = 0
-            it, E = partial(qh, ph, 0.0, h, t, prm, ntol, maxit, qt, pt, vt)
-            return 1, 0.0, E, iters + abs(it)
+        code, a, ga, da, b, gb, db, E, itc = _leave_surface(qh, ph, tau_max, h, t, prm, ntol, maxit, tol, qt, pt,
+                                                              vt, mask, b, gb, db)
+        iters += itc
+        if code != 0:
+            return code, (a if code == 1 else b), E, iters
     c = _model_first_root(a, ga, da, b, gb, db)
     if c < 0.0:
-        # the model is unsure (several sign changes, or no slopes): sample the bracket for the first
-        # sign change, as a plain bracket would skip an earlier root
-        a0 = a
-        span = b - a
-        for j in range(1, N_SCAN):
-            c = a0 + span * j / N_SCAN
-            it, E = partial(qh, ph, c, h, t, prm, ntol, maxit, qt, pt, vt)
-            if it < 0:
-                return -1, c, E, iters - it
-            iters += it
-            gc = sys_phi(qt, prm)
-            if gc < 0.0:
-                b = c
-                gb = gc
-                break
-            if gc > 0.0:
-                a = c
-                ga = gc
-            else:
-                return 1, c, E, iters
-        c = (a * gb - b * ga) / (gb - ga)
+        code, c, a, ga, b, gb, E, itc = _scan_bracket(qh, ph, h, t, prm, ntol, maxit, qt, pt, vt, mask, a, ga, b, gb)
+        iters += itc
+        if code != 0:
+            return code, c, E, iters
+    code, tau, E, itc = _refine_root(qh, ph, h, t, prm, ntol, maxit, tol, qt, pt, vt, mask, c, a, ga, b, gb)
+    return code, tau, E, iters + itc
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _leave_surface(qh, ph, tau_max, h, t, prm, ntol, maxit, tol, qt, pt, vt, mask, b, gb, db):
+    """On (or numerically just past) the surface at tau = 0: the trivial root at 0 is not a
+    collision. Halve towards 0 until g > 0; the first collision lies before any point with g < 0.
+    Returns (code, a, ga, da, b, gb, db, E, iters): code 0 with the bracket [a, b]; 1 = moving into the
+    constraint from the surface, the impact at tau = 0 (returned as a, with its state); -1 = a partial
+    step failed (at b)."""
+    s = tau_max
+    iters = 0
+    E = np.nan
+    while s > 1e-3 * tol:
+        s *= 0.5
+        it, E = partial(qh, ph, s, h, t, prm, ntol, maxit, qt, pt, vt)
+        if it < 0:
+            return -1, 0.0, 0.0, 0.0, s, gb, db, E, iters - it
+        iters += it
+        gs = gap(qt, prm, mask)
+        if gs > 0.0:
+            return 0, s, gs, gap_slope(qt, pt, prm, mask), b, gb, db, E, iters
+        b = s
+        gb = gs
+        db = gap_slope(qt, pt, prm, mask)
+    it, E = partial(qh, ph, 0.0, h, t, prm, ntol, maxit, qt, pt, vt)
+    return 1, 0.0, 0.0, 0.0, b, gb, db, E, iters + abs(it)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _scan_bracket(qh, ph, h, t, prm, ntol, maxit, qt, pt, vt, mask, a, ga, b, gb):
+    """The cubic model is unsure (several sign changes, or no slopes): sample the bracket for the first
+    sign change, as a plain bracket would skip an earlier root. Returns (code, c, a, ga, b, gb, E,
+    iters): code 0 with the false-position point c of the narrowed bracket; 1 = a sample landed on
+    g = 0 (the root c, with its state); -1 = a partial step failed."""
+    a0 = a
+    span = b - a
+    iters = 0
+    E = np.nan
+    for j in range(1, N_SCAN):
+        c = a0 + span * j / N_SCAN
+        it, E = partial(qh, ph, c, h, t, prm, ntol, maxit, qt, pt, vt)
+        if it < 0:
+            return -1, c, a, ga, b, gb, E, iters - it
+        iters += it
+        gc = gap(qt, prm, mask)
+        if gc < 0.0:
+            b = c
+            gb = gc
+            break
+        if gc > 0.0:
+            a = c
+            ga = gc
+        else:
+            return 1, c, a, ga, b, gb, E, iters
+    return 0, (a * gb - b * ga) / (gb - ga), a, ga, b, gb, E, iters
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _refine_root(qh, ph, h, t, prm, ntol, maxit, tol, qt, pt, vt, mask, c, a, ga, b, gb):
+    """From c in the bracket [a, b] (g(a) > 0 > g(b)): secant on the partial map's own g (Newton with
+    the flow's slope for the first correction), safeguarded by the bracket: a step that leaves it, or
+    a bracket that stops shrinking, falls back to Illinois / bisection. Stops when the correction is
+    below a tenth of tol = event_tol * h, at an evaluated point (so the returned state is that of
+    the returned tau). Returns (code, tau, E, iters) as search_collision."""
     if not (c > a and c < b):
         c = 0.5 * (a + b)
     xp = np.nan  # previous evaluated point (secant)
     gp = np.nan
     side = 0
     width = b - a
+    iters = 0
+    E = np.nan
     for k in range(200):
         it, E = partial(qh, ph, c, h, t, prm, ntol, maxit, qt, pt, vt)
         if it < 0:
             return -1, c, E, iters - it
         iters += it
-        gc = sys_phi(qt, prm)
+        gc = gap(qt, prm, mask)
         if not math.isfinite(gc):
             return -1, c, E, iters
         if gc > 0.0:
@@ -201,7 +235,7 @@ def search_collision(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt,
         if math.isfinite(xp) and gc != gp:
             step = gc * (c - xp) / (gc - gp)        # secant on the partial map's g
         else:
-            step = gc / gdot(qt, pt, prm)           # first correction: Newton with the flow's slope
+            step = gc / gap_slope(qt, pt, prm, mask)  # first correction: Newton with the flow's slope
         if math.isfinite(step) and abs(step) <= 0.1 * tol:
             # converged at an evaluated point (a tenth of the tolerance: the superlinear steps rarely
             # land between, and it keeps |phi| at the reported state near round-off)

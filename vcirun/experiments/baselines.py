@@ -28,7 +28,7 @@ import time
 import numpy as np
 
 from .. import trajectory as tr
-from ..reference import rk4_step
+from ..reference import step_off_surface
 
 __all__ = ["BASELINES", "solve_ivp_run", "is_baseline", "hamiltonian_on_grid"]
 
@@ -49,10 +49,9 @@ class _CompiledModel:
     """Hamilton's equations, phi and the elastic reset from the scene's compiled kernels."""
 
     def __init__(self, sysm, prm):
-        from ..codegen.build import load_module
-        from ..methods import METHODS
+        from ..codegen.build import SYSTEM_KERNELS, load_module
 
-        self.mod = load_module(sysm, METHODS["CVA"].kernel_set())
+        self.mod = load_module(sysm, SYSTEM_KERNELS)
         self.n = sysm.n
         self.prm = prm
         self._buf = np.empty(2 * sysm.n)
@@ -60,7 +59,7 @@ class _CompiledModel:
         mod, buf, n = self.mod, self._buf, self.n
 
         def rhs(t, y):
-            mod.hamilton_rhs(y, prm, buf)
+            mod.dynamics_rhs(t, y, prm, buf)  # forced Hamilton's equations (= hamilton_rhs unforced)
             return buf.copy()
 
         def phi(t, y):
@@ -85,7 +84,7 @@ class _NumpyModel:
         self.n = n
         prm = [float(v) for v in prm]
         # lambdified in the mechanics layer: the runner never touches sympy itself
-        Mf, dHf, Vf, phif, gf = (sysm.numpy_functions()[k] for k in ("M", "dHq", "V", "phi", "grad_phi"))
+        Mf, dHf, Vf, phif, gf, ff = (sysm.numpy_functions()[k] for k in ("M", "dHq", "V", "phi", "grad_phi", "f"))
         self.M = lambda qq: np.asarray(Mf(qq, prm), float)
         self.V = lambda qq: float(Vf(qq, prm))
         self.grad = lambda qq: np.asarray(gf(qq, prm), float).ravel()
@@ -93,7 +92,10 @@ class _NumpyModel:
         def rhs(t, y):
             qq, pp = y[:n], y[n:]
             xx = np.linalg.solve(np.asarray(Mf(qq, prm), float), pp)
-            return np.concatenate([xx, -np.asarray(dHf(qq, xx, prm), float).ravel()])
+            pdot = -np.asarray(dHf(qq, xx, prm), float).ravel()
+            if ff is not None:
+                pdot = pdot + np.asarray(ff(qq, xx, t, prm), float).ravel()
+            return np.concatenate([xx, pdot])
 
         def phi(t, y):
             return float(phif(y[:n], prm))
@@ -223,20 +225,12 @@ def solve_ivp_run(system, method: str = "DOP853", *, h, T, rtol, atol=None, beta
                 k += 1
             if k > N or te >= T_end:
                 break
-            # Step off the surface before restarting with the event: right after the reset phi is ~0
-            # (often -1e-17), and solve_ivp detects a crossing only from a start value >= 0, so a hop
-            # shorter than its first step would be missed and the motion lost (measured: DOP853 at
-            # rtol 1e-3 over T = 300 lost the cart through the floor after 26 impacts). One RK4 micro
-            # step of length delta (local error ~ delta^5, negligible) to a state with phi > 0.
+            # step off the surface before restarting with the event (reference.step_off_surface)
             if escape:
                 nxt = float(tgrid[k]) if k <= N else T_end
-                delta = min(escape_step, 0.5 * (nxt - t))
-                for _ in range(40):
-                    y1 = rk4_step(rhs, t, y, delta)
-                    if model.phi(t + delta, y1) > 0.0:
-                        t, y = t + delta, y1
-                        break
-                    delta *= 0.5
+                off = step_off_surface(rhs, lambda yy: model.phi(t, yy), t, y, min(escape_step, 0.5 * (nxt - t)))
+                if off is not None:
+                    t, y = off
         else:
             break
     wall = time.perf_counter() - t_start

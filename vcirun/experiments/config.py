@@ -41,20 +41,25 @@ from pydantic import (BaseModel, ConfigDict, Discriminator, Field, Tag, Validati
                       model_validator)
 
 from .. import validation as _validation
+from ..discrete.lagrangians import LIBRARY
+from ..methods import METHODS
 
 __all__ = ["ConfigError", "SweepConfig", "MethodSpec", "InitialCondition", "ExecutorSpec", "load_config", "parse_config",
            "COLLISION_METHODS", "SMOOTH_METHODS", "DISCRETE_LAGRANGIANS", "yaml_load"]
 
-# Names `vcirun.simulate` accepts (tests/unit/test_config.py checks these against the core).
-COLLISION_METHODS = ("CVA", "VCI", "MCVAA", "MCVAC", "MCVA", "CVA4", "CVA6", "CVA8")
-DISCRETE_LAGRANGIANS = ("SE1", "SE2", "SVA", "SVB", "SVC", "midpoint", "SVC4", "SVC6", "SVC8")
+# Names `vcirun.simulate` accepts, read from the core's registries (vcirun.methods.METHODS,
+# vcirun.discrete.lagrangians.LIBRARY): one list each (issue 16).
+COLLISION_METHODS = tuple(METHODS) + ("MCVA",)
+DISCRETE_LAGRANGIANS = tuple(LIBRARY)
 SMOOTH_METHODS = DISCRETE_LAGRANGIANS  # a bare Ld name integrates the smooth dynamics, constraint ignored
-MethodName = Literal["CVA", "VCI", "MCVAA", "MCVAC", "MCVA", "CVA4", "CVA6", "CVA8",
-                     "SE1", "SE2", "SVA", "SVB", "SVC", "midpoint", "SVC4", "SVC6", "SVC8"]
-LdName = Literal["SE1", "SE2", "SVA", "SVB", "SVC", "midpoint", "SVC4", "SVC6", "SVC8"]
+MethodName = Literal[COLLISION_METHODS + DISCRETE_LAGRANGIANS]
+LdName = Literal[DISCRETE_LAGRANGIANS]
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]*$")
 MAX_RUNS = 10_000_000  # methods x h x initial conditions of one sweep
 MAX_CONFIG_BYTES = 4_000_000  # a config file is a few kB
+# A config whose top level has this key is a study config (`vcirun study`, schema in
+# vcirun.experiments.studies.schema), not a sweep; `vcirun validate` dispatches on it.
+STUDY_KEY = "study"
 
 
 class ConfigError(ValueError):
@@ -125,7 +130,7 @@ PositiveFloat = Annotated[float, Field(gt=0)]
 
 # --- system ---------------------------------------------------------------------------------------
 class BuiltinSystem(_Model):
-    """A built-in scene (`vcirun.mechanics.scenes.BUILTIN_SCENES`) with optional parameter overrides."""
+    """A built-in scene (`vcirun.scenedata.BUILTIN_SCENE_DATA`) with optional parameter overrides."""
     name: str = Field(min_length=1)
     params: dict[str, float] = Field(default_factory=dict)
 
@@ -144,7 +149,8 @@ class InlineSystem(_Model):
     parameters: dict[str, float] = Field(default_factory=dict)
     mass_matrix: list[list[Union[str, float]]]
     potential: Union[str, float]
-    constraint: Union[str, float]
+    constraint: Union[str, float] | None = None
+    constraints: list[Union[str, float, dict[str, Union[str, float]]]] | None = None
     forcing: list[Union[str, float]] | None = None
     q0: list[float] | None = None
     p0: list[float] | None = None
@@ -157,7 +163,7 @@ class InlineSystem(_Model):
 
 def _system_tag(v: Any) -> str | None:
     if isinstance(v, dict):
-        if "coordinates" in v or "mass_matrix" in v or "potential" in v or "constraint" in v:
+        if "coordinates" in v or "mass_matrix" in v or "potential" in v or "constraint" in v or "constraints" in v:
             return "inline"
         return "file" if "file" in v else "builtin"
     if isinstance(v, BaseModel):
@@ -564,9 +570,10 @@ _TAG_MODELS = {"builtin": BuiltinSystem, "file": FileSystem, "inline": InlineSys
                "list": BetaList, "exact": ExactReference, "method": MethodReference, "none": NoReference}
 
 
-def _model_at(loc: tuple):
-    """The pydantic model class at a raw error location, to list its allowed keys."""
-    current: Any = SweepConfig
+def _model_at(loc: tuple, root=None):
+    """The pydantic model class at a raw error location (from `root`, default SweepConfig), to list its
+    allowed keys."""
+    current: Any = root or SweepConfig
     for part in loc:
         if isinstance(part, str) and part in _TAG_MODELS:
             current = _TAG_MODELS[part]  # pydantic names the union member it tried
@@ -603,13 +610,13 @@ def _describe(value) -> str:
     return s if len(s) <= 40 else s[:37] + "..."
 
 
-def _pydantic_message(err: dict) -> tuple[tuple, str]:
+def _pydantic_message(err: dict, root=None) -> tuple[tuple, str]:
     raw = tuple(err["loc"])
     loc = _clean_loc(raw)
     typ, ctx, inp = err["type"], err.get("ctx") or {}, err.get("input")
     if typ == "extra_forbidden":
         key = raw[-1]
-        model = _model_at(raw[:-1])
+        model = _model_at(raw[:-1], root)
         allowed = _allowed_keys(model) if model else []
         hint = difflib.get_close_matches(str(key), allowed, n=1)
         msg = "unknown key"
@@ -656,10 +663,10 @@ def _pydantic_message(err: dict) -> tuple[tuple, str]:
     return loc, err["msg"]
 
 
-def _from_validation_error(e: ValidationError, source: str) -> ConfigError:
+def _from_validation_error(e: ValidationError, source: str, root=None) -> ConfigError:
     errors = e.errors(include_url=False)
     # A root-level custom error carries its own location (see _FieldError).
-    loc, msg = _pydantic_message(errors[0])
+    loc, msg = _pydantic_message(errors[0], root)
     more = len(errors) - 1
     if more:
         msg += f" (and {more} more problem{'s' * (more > 1)})"
@@ -680,6 +687,9 @@ def parse_config(data, *, source: str = "<config>", base_dir: Path | None = None
     for k in data:
         if not isinstance(k, str):
             raise ConfigError(f"keys must be strings (got {k!r})", source=source)
+    if STUDY_KEY in data:
+        raise ConfigError(f"a study config (top-level key {STUDY_KEY}: {data[STUDY_KEY]}), not a sweep config; run it "
+                          "with `vcirun study FILE`", source=source, field=STUDY_KEY)
     data = dict(data)
     if "name" not in data and source not in ("<config>", "<string>"):
         data["name"] = Path(source).stem
@@ -694,8 +704,8 @@ def parse_config(data, *, source: str = "<config>", base_dir: Path | None = None
     return cfg
 
 
-def load_config(path, *, check_semantics: bool = True) -> SweepConfig:
-    """Read and validate a YAML sweep config; every failure is a one-line `ConfigError`."""
+def read_config_data(path):
+    """The parsed YAML of a config file (sweep or study); every failure is a one-line `ConfigError`."""
     source = str(path)
     p = Path(path)
     if not p.exists():
@@ -719,7 +729,13 @@ def load_config(path, *, check_semantics: bool = True) -> SweepConfig:
         data = yaml_load(text)
     except yaml.YAMLError as e:
         raise ConfigError(_yaml_error_line(e), source=source) from None
-    return parse_config(data, source=source, base_dir=p.parent, check_semantics=check_semantics)
+    return data
+
+
+def load_config(path, *, check_semantics: bool = True) -> SweepConfig:
+    """Read and validate a YAML sweep config; every failure is a one-line `ConfigError`."""
+    data = read_config_data(path)
+    return parse_config(data, source=str(path), base_dir=Path(path).parent, check_semantics=check_semantics)
 
 
 def config_text(path) -> str:
@@ -729,16 +745,17 @@ def config_text(path) -> str:
 # --- semantic checks (need the numerical core) ---------------------------------------------------------------
 def build_system(cfg: SweepConfig):
     """(system argument for vcirun.simulate/reference, parameter overrides or None, MechanicalSystem)."""
-    from vcirun.mechanics import BUILTIN_SCENES, load_system_yaml
+    from vcirun.mechanics import load_system_yaml
     from vcirun.mechanics.scenes import get_scene
+    from vcirun.scenedata import BUILTIN_SCENE_DATA, scene_args
 
     s = cfg.system
     if isinstance(s, BuiltinSystem):
-        if s.name not in BUILTIN_SCENES and not re.fullmatch(r"n_pendulum_\d+", s.name):
-            hint = difflib.get_close_matches(s.name, list(BUILTIN_SCENES), n=1)
+        if scene_args(s.name) is None:  # the one scene registry (vcirun.scenedata)
+            hint = difflib.get_close_matches(s.name, list(BUILTIN_SCENE_DATA), n=1)
             raise _Semantic("system",
                             f"unknown built-in system {s.name!r}" + (f"; did you mean {hint[0]!r}?" if hint else "")
-                            + f" (choose one of {', '.join(BUILTIN_SCENES)}, or a YAML file path)")
+                            + f" (choose one of {', '.join(BUILTIN_SCENE_DATA)}, or a YAML file path)")
         sysm = get_scene(s.name)
         return s.name, (dict(s.params) or None), sysm
     if isinstance(s, FileSystem):

@@ -53,6 +53,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from .. import record
 from .metrics import energy_summary
 
 __all__ = ["FORMAT", "SCHEMA_VERSION", "StorageError", "ResultsWriter", "RunInfo", "Results", "read_results",
@@ -69,8 +70,10 @@ DEFAULT_COMMIT_INTERVAL = 1.0  # seconds between journal commits (the loss bound
 JSON_ATTRS = {"tolerances", "options", "method_spec", "history", "config_canonical", "versions", "h_values",
               "methods", "ic_keys", "system_spec", "resolved_method"}
 # Per-step arrays dropped when store_trajectories is false; the impact record is always kept.
-TRAJECTORY_ARRAYS = ("t", "q", "p", "H", "Ed", "Hmod", "impact_step", "newton_iters")
-IMPACT_ARRAYS = ("impacts", "impact_q", "impact_p_minus", "impact_p_plus", "partial_steps")
+# the run record's rows (vcirun.record.FIELDS): per-step arrays with store_trajectories, the impact
+# record always
+TRAJECTORY_ARRAYS = ("t",) + record.stored_names("trajectory")
+IMPACT_ARRAYS = record.stored_names("impacts")
 
 
 class StorageError(RuntimeError):
@@ -166,7 +169,7 @@ def trajectory_payload(traj, *, store_arrays: bool = True) -> tuple[dict, dict]:
             value = getattr(traj, name)
             if value is None:
                 continue
-            if name == "impact_step":
+            if name in record.FIELD and record.FIELD[name].dtype == "bool":
                 value = np.asarray(value, dtype=np.uint8)  # 0/1: portable, unlike HDF5's bool enum
             arrays[name] = value
     return attrs, {k: np.asarray(v) for k, v in arrays.items()}
@@ -183,14 +186,19 @@ def trajectory_from_group(g):
         return g[name][()] if name in g else np.zeros(shape, dtype)
 
     beta = a.get("beta", float("nan"))
+    arrays = {}
+    for f in record.FIELDS:  # one per row of the run record; a row not stored comes back empty
+        if f.only is not None:
+            arrays[f.name] = g[f.name][()] if f.name in g else None
+            continue
+        dt = np.uint8 if f.dtype == "bool" else np.dtype(f.dtype)
+        value = arr(f.name, (0, n) if f.dof else (0,), dt)
+        arrays[f.name] = value.astype(bool) if f.dtype == "bool" else value
     return Trajectory(
         method=a.get("core_method", a.get("method", "")), system=a.get("system", ""), h=float(a["h"]),
-        T=float(a["T"]), t=arr("t"), q=arr("q", (0, n)), p=arr("p", (0, n)), H=arr("H"), Ed=arr("Ed"),
-        impacts=arr("impacts"), impact_q=arr("impact_q", (0, n)), impact_p_minus=arr("impact_p_minus", (0, n)),
-        impact_p_plus=arr("impact_p_plus", (0, n)), impact_step=arr("impact_step", dtype=np.uint8).astype(bool),
-        partial_steps=arr("partial_steps"), newton_iters=arr("newton_iters", dtype=np.int64),
+        T=float(a["T"]), t=arr("t"), **arrays,
         status=a.get("status", ""), message=a.get("message", ""), fail_step=int(a.get("fail_step", -1)),
-        fail_time=float(a.get("fail_time", float("nan"))), Hmod=g["Hmod"][()] if "Hmod" in g else None,
+        fail_time=float(a.get("fail_time", float("nan"))),
         beta=None if beta is None or not np.isfinite(beta) else float(beta), wall_time=float(a.get("wall_time", 0.0)),
         tolerances=a.get("tolerances") or {}, options=a.get("options") or {})
 
@@ -283,22 +291,29 @@ def run_problem(g, attrs: dict | None = None) -> str | None:
         n = iq[1]
     if n is None or n < 1:
         return "cannot tell the number of coordinates (no q0 attribute nor impact_q dataset)"
-    want = {"impacts": (m,), "impact_q": (m, n), "impact_p_minus": (m, n), "impact_p_plus": (m, n)}
     k = _int_attr(a, "n_partial_steps")
-    if k is not None:
-        want["partial_steps"] = (k,)
-    if a.get("has_trajectory") is True:
-        want.update(t=(N + 1,), q=(N + 1, n), p=(N + 1, n), H=(N + 1,), Ed=(N + 1,), impact_step=(N,),
-                    newton_iters=(N,))
-        if a.get("has_Hmod") is True:
-            want["Hmod"] = (N + 1,)
-    for name, shape in want.items():
+    size = {"grid": N + 1, "step": N, "impact": m, "partial": k}
+    want = {"t": ((N + 1,), True)} if a.get("has_trajectory") is True else {}
+    for f in record.FIELDS:  # each stored row of the run record, at its declared length
+        if f.stored == "no" or (f.stored == "trajectory" and a.get("has_trajectory") is not True) \
+                or (f.only == "modified" and a.get("has_Hmod") is not True) or size[f.axis] is None:
+            continue
+        want[f.name] = (((size[f.axis], n) if f.dof else (size[f.axis],)), f.name in _ALWAYS_WRITTEN)
+    for name, (shape, required) in want.items():
         got = _shape_of(g, name)
+        if got is None and not required:
+            continue  # a row added to the record after this file was written
         if got != shape:
             return (f"dataset {name} missing" if got is None else
                     f"dataset {name} is {got}" if isinstance(got, str) else
                     f"dataset {name} has shape {got}, expected {shape}")
     return None
+
+
+# rows every version of the schema wrote: a run without one of them is damaged; later rows (e.g.
+# impact_impulse) are checked when present
+_ALWAYS_WRITTEN = {"t", "q", "p", "H", "Ed", "Hmod", "impact_step", "newton_iters", "impacts", "impact_q",
+                   "impact_p_minus", "impact_p_plus", "partial_steps"}
 
 
 def reference_problem(g, attrs: dict | None = None) -> str | None:

@@ -1,7 +1,8 @@
 """The work-precision study (issue 7): what accuracy a method buys for what time, beside solve_ivp.
 
-A study config (YAML; `configs/work_precision.yaml`, `configs/work_precision_double.yaml`,
-`configs/long_horizon.yaml`) has its own schema, because its grid holds methods that are not vcirun
+A study config (`study: work_precision` or `study: long_horizon`; `configs/work_precision.yaml`,
+`configs/work_precision_double.yaml`, `configs/long_horizon.yaml`) is validated by
+`vcirun.experiments.studies.schema.WorkPrecisionStudy`; its grid holds methods that are not vcirun
 methods (scipy's solve_ivp at a tolerance, see `vcirun.experiments.baselines`):
 
     study: work_precision            # or long_horizon
@@ -51,13 +52,11 @@ solver run reached its accuracy); "faster, less accurate" where it is cheaper th
 but less accurate than the cheapest one (the ratio is then only bounded above); "no" otherwise. Computed
 on the medians over initial conditions and, separately, per initial condition.
 
-`python -m vcirun.experiments.workprecision CONFIG [--quick]` runs a study and prints its tables;
-`vcirun.experiments.wp_figures.plot_study(JSON)` draws it.
+`vcirun study CONFIG [--quick] [--plot]` runs a study and prints its tables (the runner:
+`vcirun.experiments.studies.runner`); `vcirun.experiments.wp_figures.plot_study(JSON)` draws it.
 """
 from __future__ import annotations
 
-import argparse
-import json
 import math
 import os
 import platform
@@ -67,82 +66,14 @@ import time
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal, Union
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from .baselines import BASELINES, hamiltonian_on_grid, solve_ivp_run
-from .config import ConfigError, MethodSpec, yaml_load
+from .baselines import hamiltonian_on_grid, solve_ivp_run
+from .studies.jsonio import load_json, save_json
+from .studies.schema import WorkPrecisionStudy
 
-__all__ = ["StudyConfig", "load_study", "run_study", "summarize", "matched_ratios", "print_tables", "main"]
-
-
-# --- config ------------------------------------------------------------------------------------------
-class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, frozen=True)
-
-
-class BetaRange(_Model):
-    start: float
-    stop: float
-    num: int = Field(ge=1, le=1000)
-
-
-class StudyConfig(_Model):
-    study: Literal["work_precision", "long_horizon"]
-    name: str = Field(min_length=1)
-    description: str = ""
-    system: str = Field(min_length=1)
-    params: dict[str, float] = Field(default_factory=dict)
-    beta: Union[list[float], BetaRange]
-    T: Union[float, list[float]]
-    methods: list[Union[str, dict]] = Field(min_length=1)
-    h: list[float] = Field(min_length=1)
-    baselines: dict[str, list[float]] = Field(default_factory=dict)
-    baseline_h: Union[float, None] = None
-    baseline_max_T: dict[str, float] = Field(default_factory=dict)
-    repeats: int = Field(default=7, ge=1, le=1000)
-    baseline_repeats: int = Field(default=5, ge=1, le=1000)
-    reference_rtol: float = Field(default=1e-13, gt=0)
-    max_steps: int = Field(default=2_000_000, ge=1)
-    baseline_time_limit: float = Field(default=60.0, gt=0)
-    output: str = "results/work_precision.json"
-
-    def betas(self) -> list[float]:
-        if isinstance(self.beta, BetaRange):
-            return [float(b) for b in np.linspace(self.beta.start, self.beta.stop, self.beta.num)]
-        return [float(b) for b in self.beta]
-
-    def horizons(self) -> list[float]:
-        return [float(t) for t in (self.T if isinstance(self.T, list) else [self.T])]
-
-    def method_specs(self) -> list[MethodSpec]:
-        return [MethodSpec.model_validate({"name": m} if isinstance(m, str) else m) for m in self.methods]
-
-    def baseline_grids(self) -> list[float]:
-        return [float(self.baseline_h)] if self.baseline_h is not None else sorted(set(self.h), reverse=True)
-
-
-def load_study(path) -> StudyConfig:
-    """Read a study config; every problem is a one-line ConfigError naming the file and field."""
-    p = Path(path)
-    if not p.is_file():
-        raise ConfigError("file not found", source=str(path))
-    data = yaml_load(p.read_text(encoding="utf-8"))
-    try:
-        cfg = StudyConfig.model_validate(data)
-        cfg.method_specs()
-    except ValidationError as e:
-        err = e.errors(include_url=False)[0]
-        raise ConfigError(err["msg"], source=str(path), field=".".join(str(x) for x in err["loc"])) from None
-    for b in cfg.baselines:
-        solver, _, rhs = b.partition("/")
-        if solver not in BASELINES or rhs not in ("", "numpy"):
-            raise ConfigError(f"unknown solver {b!r} (choose from {', '.join(BASELINES)}; append '/numpy' for a "
-                              "lambdified numpy right-hand side, e.g. DOP853/numpy)", source=str(path),
-                              field="baselines")
-    return cfg
+__all__ = ["run_study", "analyze", "summarize", "matched_ratios", "vcirun_front", "print_tables", "save", "load"]
 
 
 # --- running ----------------------------------------------------------------------------------------
@@ -200,7 +131,7 @@ def _call(run: _Run, system, params, time_limit):
     return traj, time.perf_counter() - t0, time.thread_time() - c0
 
 
-def run_study(cfg: StudyConfig, *, quick: bool = False, log=print, extra_methods: dict | None = None) -> dict:
+def run_study(cfg: WorkPrecisionStudy, *, quick: bool = False, log=print, extra_methods: dict | None = None) -> dict:
     """Run every run of the study (see the module docstring) and return the JSON-able result.
     extra_methods: {label: vcirun.methods.Method} run beside the config's methods (prototypes that
     have no name in the method registry, e.g. from bench/)."""
@@ -220,7 +151,7 @@ def run_study(cfg: StudyConfig, *, quick: bool = False, log=print, extra_methods
         cfg = cfg.model_copy(update={"baselines": {k: v[::3] for k, v in cfg.baselines.items()},
                                      "baseline_time_limit": min(cfg.baseline_time_limit, 10.0)})
     lh = cfg.study == "long_horizon"
-    out = {"study": cfg.study, "name": cfg.name + ("_quick" if quick else ""), "description": cfg.description, "config": cfg.model_dump(),
+    out = {"study": cfg.study, "name": cfg.name + ("_quick" if quick else ""), "description": cfg.description, "config": cfg.model_dump(mode="json", by_alias=True),
            "quick": quick, "machine": _machine(), "started": time.strftime("%Y-%m-%d %H:%M:%S"),
            "protocol": {"repeats": repeats, "baseline_repeats": brepeats, "statistic": "median over repeats, "
                         "then median over initial conditions", "interleaved": True, "process": "one, serial"}}
@@ -590,70 +521,15 @@ def print_tables(res: dict, file=sys.stdout) -> None:
     pr(f"   study wall time {res['seconds']:.0f} s")
 
 
-def _jsonable(x):
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, (bool, np.bool_)):
-        return bool(x)
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    if isinstance(x, (np.floating, float)):
-        return float(x) if np.isfinite(x) else None
-    if isinstance(x, np.integer):
-        return int(x)
-    return x
-
-
 def save(res: dict, path) -> Path:
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    p.write_text(json.dumps(_jsonable(res), indent=1))
-    return p
+    return save_json(res, path)
 
 
 def load(path) -> dict:
-    """A saved study (None -> NaN in numeric fields)."""
-    def fix(x):
-        if isinstance(x, dict):
-            return {k: fix(v) for k, v in x.items()}
-        if isinstance(x, list):
-            return [fix(v) for v in x]
-        return x
-    res = fix(json.loads(Path(path).read_text()))
-    for coll in ("runs",):
-        for r in res.get(coll, []):
-            for k, v in list(r.items()):
-                if v is None and k not in ("rtol", "message") and not k.endswith(("_how", "_solver")):
-                    r[k] = math.nan
+    """A saved study (None -> NaN in the runs' numeric fields), re-analysed."""
+    res = load_json(path)
+    for r in res.get("runs", []):
+        for k, v in list(r.items()):
+            if v is None and k not in ("rtol", "message") and not k.endswith(("_how", "_solver")):
+                r[k] = math.nan
     return analyze(res)   # summary and ratios from the stored runs (the analysis may be newer than the file)
-
-
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m vcirun.experiments.workprecision",
-                                 description="Run a work-precision / long-horizon study and print its tables.")
-    ap.add_argument("config")
-    ap.add_argument("--output", "-o", default=None)
-    ap.add_argument("--quick", action="store_true", help="one initial condition, fewer repeats")
-    ap.add_argument("--plot", action="store_true", help="also draw the figure (vcirun.experiments.wp_figures)")
-    a = ap.parse_args(argv)
-    try:
-        cfg = load_study(a.config)
-    except ConfigError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 1
-    res = run_study(cfg, quick=a.quick, log=lambda s: print(s, file=sys.stderr, flush=True))
-    path = save(res, a.output or cfg.output)
-    print_tables(load(path))
-    print(f"saved {path}")
-    if a.plot:
-        from .wp_figures import plot_study
-
-        for p in plot_study(path):
-            print(f"  {p}")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -64,30 +64,3 @@ def copy_into(dst, src):
 def set_row(M, k, src):
     for i in range(src.shape[0]):
         M[k, i] = src[i]
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def mass_matrix_ok(q, prm, A):
-    """A = M(q); True if M(q) is finite and its symmetric part is positive definite (its Cholesky
-    factorisation exists): the hyperregularity check of vcirun.api at the initial state, compiled
-    because simulate runs it on every call (numpy's cholesky cost 10 us per call there)."""
-    sys_M(q, prm, A)
-    n = A.shape[0]
-    for i in range(n):
-        for j in range(n):
-            if not math.isfinite(A[i, j]):
-                return False
-    L = np.zeros((n, n))
-    for j in range(n):
-        s = A[j, j]
-        for k in range(j):
-            s -= L[j, k] * L[j, k]
-        if not s > 0.0:
-            return False
-        L[j, j] = math.sqrt(s)
-        for i in range(j + 1, n):
-            s = 0.5 * (A[i, j] + A[j, i])
-            for k in range(j):
-                s -= L[i, k] * L[j, k]
-            L[i, j] = s / L[j, j]
-    return True

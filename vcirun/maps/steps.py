@@ -14,28 +14,10 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _velocity_from(A, p, v):
-    """v = A^{-1} p for A = M(q) (destroyed); v = 0 if A is singular (Newton then starts from rest)."""
-    for i in range(NDOF):
-        v[i] = p[i]
-    if not solve_small(A, v, NDOF):
-        for i in range(NDOF):
-            v[i] = 0.0
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def velocity_guess(q, p, prm, v):
-    """v = M(q)^{-1} p: the continuous velocity, Newton's starting point for every step."""
-    A = np.empty((NDOF, NDOF))
-    sys_M(q, prm, A)
-    _velocity_from(A, p, v)
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def guess_from_node(c, p, v, A):
     """v = M(q)^{-1} p with M(q) from the node data c of q (A: n x n scratch, overwritten)."""
     sys_node_M(c, A)
-    _velocity_from(A, p, v)
+    velocity_from(A, p, v)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -151,35 +133,6 @@ def ld_step(q0, p0, h, t, prm, newton_tol, max_iter, q1, p1, vlast, want_E=True)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def hamiltonian(q, p, prm):
-    """H(q, p) = 1/2 p^T M(q)^{-1} p + V(q)."""
-    A = np.empty((NDOF, NDOF))
-    x = p.copy()
-    sys_M(q, prm, A)
-    solve_small(A, x, NDOF)
-    s = 0.0
-    for i in range(NDOF):
-        s += p[i] * x[i]
-    return 0.5 * s + sys_V(q, prm)
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
 def ld_partial(q0, p0, tau, h, t, prm, newton_tol, max_iter, q1, p1, vlast):
     """Phi^partial = Phi^full_tau (CVA, VCI): the same discrete Lagrangian at step tau."""
     return ld_step(q0, p0, tau, t, prm, newton_tol, max_iter, q1, p1, vlast)
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def hamilton_rhs(y, prm, out):
-    """Hamilton's equations (6)-(7) on y = (q, p): qdot = M^-1 p, pdot = -dH/dq."""
-    q = y[:NDOF]
-    p = y[NDOF:]
-    A = np.empty((NDOF, NDOF))
-    x = p.copy()
-    sys_M(q, prm, A)
-    solve_small(A, x, NDOF)
-    g = np.empty(NDOF)
-    sys_dHq(q, x, prm, g)
-    for i in range(NDOF):
-        out[i] = x[i]
-        out[NDOF + i] = -g[i]

@@ -5,7 +5,9 @@
     parameters: {m: 1.0, k: 4.0}
     mass_matrix: [["m", "0"], ["0", "m"]]
     potential: "0.5*k*x**2"
-    constraint: "x + 1"                # phi(q) >= 0
+    constraint: "x + 1"                # phi(q) >= 0 (one elastic constraint), or several:
+    # constraints: ["x + 1", {name: floor, phi: "theta + 1", restitution: 0.9}]   (restitution: a
+    #   number in [0, 1] or a parameter name; default 1)
     forcing: ["-0.1*x_dot", "0"]        # optional f(q, qdot, t); velocities are <coord>_dot
     q0: [0.5, 0.0]                       # optional default initial state (with p0 or qdot0)
     qdot0: [0.0, 1.0]
@@ -24,10 +26,11 @@ import yaml
 
 from .. import validation
 from .expressions import ALLOWED_FUNCTIONS, ExpressionError, parse_expression, parse_matrix
-from .system import MechanicalSystem
+from .system import Constraint, MechanicalSystem
 
-_KEYS = {"name", "coordinates", "parameters", "mass_matrix", "potential", "constraint", "forcing", "q0", "p0",
-         "qdot0", "description"}
+_KEYS = {"name", "coordinates", "parameters", "mass_matrix", "potential", "constraint", "constraints", "forcing",
+         "q0", "p0", "qdot0", "description"}
+_CONSTRAINT_KEYS = {"name", "phi", "restitution"}
 
 
 def load_system_yaml(source, field_prefix: str = "system") -> MechanicalSystem:
@@ -38,17 +41,19 @@ def load_system_yaml(source, field_prefix: str = "system") -> MechanicalSystem:
     extra = set(data) - _KEYS
     if extra:
         raise ValueError(f"{field_prefix}.{sorted(map(str, extra))[0]}: unknown key (allowed: {', '.join(sorted(_KEYS))})")
-    for k in ("coordinates", "mass_matrix", "potential", "constraint"):
+    for k in ("coordinates", "mass_matrix", "potential"):
         if k not in data:
             raise ValueError(f"{field_prefix}.{k}: required")
+    if ("constraint" in data) == ("constraints" in data):
+        raise ValueError(f"{field_prefix}.constraint: give exactly one of constraint (one expression) or "
+                         "constraints (a list)")
     coords, params = _declared_names(data, field_prefix)
     q = [sp.Symbol(c) for c in coords]
     qd = [sp.Symbol(f"{c}_dot") for c in coords]
     sym = {s.name: s for s in q + [sp.Symbol(p) for p in params]}
     M = parse_matrix(data["mass_matrix"], sym, f"{field_prefix}.mass_matrix")
     V = parse_expression(_expression(data["potential"], f"{field_prefix}.potential"), sym, f"{field_prefix}.potential")
-    phi = parse_expression(_expression(data["constraint"], f"{field_prefix}.constraint"), sym,
-                           f"{field_prefix}.constraint")
+    constraints = _constraints(data, sym, params, field_prefix)
     forcing = None
     if data.get("forcing") is not None:
         fs = data["forcing"]
@@ -66,7 +71,7 @@ def load_system_yaml(source, field_prefix: str = "system") -> MechanicalSystem:
         if data.get("p0") is not None:
             p0 = _vector(data["p0"], n, f"{field_prefix}.p0")
     system = MechanicalSystem(name=_system_name(data.get("name", "user_system"), field_prefix), q=q, qd=qd,
-                              params=params, M=M, V=V, phi=phi, forcing=forcing,
+                              params=params, M=M, V=V, constraints=constraints, forcing=forcing,
                               description=_description(data.get("description", ""), field_prefix))
     if q0 is not None:
         if p0 is None:
@@ -76,6 +81,47 @@ def load_system_yaml(source, field_prefix: str = "system") -> MechanicalSystem:
         system.default_q0, system.default_p0 = q0, p0
         system.check_hyperregular(q0)
     return system
+
+
+def _constraints(data: dict, sym: dict, params: dict, field_prefix: str) -> list:
+    """The Constraint list of `constraint:` (one elastic) or `constraints:` (items: an expression, or
+    {name, phi, restitution}; restitution a number in [0, 1] or a parameter name)."""
+    if "constraint" in data:
+        fld = f"{field_prefix}.constraint"
+        return [Constraint("phi", parse_expression(_expression(data["constraint"], fld), sym, fld))]
+    items = data["constraints"]
+    if not isinstance(items, list) or not items:
+        raise ValueError(f"{field_prefix}.constraints: must be a non-empty list of expressions or "
+                         "{name, phi, restitution} mappings")
+    if len(items) > validation.MAX_COORDINATES:
+        raise ValueError(f"{field_prefix}.constraints: {len(items)} constraints; the limit is {validation.MAX_COORDINATES}")
+    out, names = [], {}
+    for i, item in enumerate(items):
+        fld = f"{field_prefix}.constraints[{i}]"
+        if isinstance(item, dict):
+            extra = set(item) - _CONSTRAINT_KEYS
+            if extra:
+                raise ValueError(f"{fld}.{sorted(map(str, extra))[0]}: unknown key (allowed: name, phi, restitution)")
+            if "phi" not in item:
+                raise ValueError(f"{fld}.phi: required")
+            name = item.get("name", f"c{i}")
+            names[f"constraints[{i}].name"] = name if isinstance(name, str) else str(name)
+            phi = parse_expression(_expression(item["phi"], f"{fld}.phi"), sym, f"{fld}.phi")
+            e = item.get("restitution", 1.0)
+            if isinstance(e, str):
+                if e not in params:
+                    raise ValueError(f"{fld}.restitution: {e!r} is not a parameter (declared: "
+                                     f"{', '.join(params) or 'none'}); give a number in [0, 1] or a parameter name")
+                e = sp.Symbol(e)
+            elif isinstance(e, bool) or not isinstance(e, (int, float)) or not 0.0 <= float(e) <= 1.0:
+                raise ValueError(f"{fld}.restitution: must be a number in [0, 1] or a parameter name (got {e!r})")
+            else:
+                e = sp.Float(float(e)) if float(e) != 1.0 else sp.Integer(1)
+        else:
+            name, phi, e = f"c{i}", parse_expression(_expression(item, fld), sym, fld), sp.Integer(1)
+        out.append(Constraint(name, phi, e))
+    validation.check_distinct_names(names, field_prefix)  # (they name contacts in records)
+    return out
 
 
 MAX_FILE_BYTES = 4_000_000  # a system file is a few kB

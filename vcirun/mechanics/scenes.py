@@ -12,7 +12,7 @@ import functools
 import sympy as sp
 
 from .. import scenedata as sd
-from .system import MechanicalSystem
+from .system import Constraint, MechanicalSystem
 
 
 def _system(d: sd.SystemData, q, M, V, phi, **kw) -> MechanicalSystem:
@@ -92,15 +92,45 @@ def n_pendulum(n: int = 2, **overrides) -> MechanicalSystem:
     return _system(d, list(th), M, V, phi)
 
 
-BUILTIN_SCENES = {
-    "cart_pendulum": cart_pendulum,
-    "double_pendulum": double_pendulum,
-    "oscillator_wall": oscillator_wall,
-    "damped_oscillator": damped_oscillator,
-    "bouncing_ball": bouncing_ball,
-    "n_pendulum": n_pendulum,
-}
-assert set(BUILTIN_SCENES) == set(sd.BUILTIN_SCENE_DATA)
+def ball_in_box(**overrides) -> MechanicalSystem:
+    """Issue 17: a point mass m in the box 0 <= x <= width, 0 <= y <= height under gravity g, four
+    walls in this order: floor y >= 0, ceiling height - y >= 0, left x >= 0, right width - x >= 0,
+    each with restitution e (a parameter). Decoupled motion: closed form in vcirun.oracles."""
+    d = sd.ball_in_box(**overrides)
+    x, y = sp.symbols("x y")
+    m, g, W, Hh, e = sp.symbols("m g width height e")
+    cons = [Constraint("floor", y, e), Constraint("ceiling", Hh - y, e), Constraint("left", x, e),
+            Constraint("right", W - x, e)]
+    return _system(d, [x, y], sp.diag(m, m), m * g * y, None, constraints=cons)
+
+
+def newton_cradle(n: int = 3, **overrides) -> MechanicalSystem:
+    """Issue 17: n equal balls (mass m, diameter d) on a line, no gravity along it; contact i between
+    balls i and i + 1: x_{i+1} - x_i - d >= 0, restitution e."""
+    n = int(n)
+    d = sd.newton_cradle(n, **overrides)
+    xs = sp.symbols(f"x1:{n + 1}")
+    m, dd, e = sp.symbols("m d e")
+    cons = [Constraint(f"c{i + 1}{i + 2}", xs[i + 1] - xs[i] - dd, e) for i in range(n - 1)]
+    return _system(d, list(xs), m * sp.eye(n), sp.Integer(0), None, constraints=cons)
+
+
+def double_pendulum_walls(**overrides) -> MechanicalSystem:
+    """Issue 17: the double pendulum of Figure 1 whose second tip x = l1 sin th1 + l2 sin th2 stays
+    between two walls: right w - x >= 0, left x + w >= 0, restitution e."""
+    d = sd.double_pendulum_walls(**overrides)
+    t1, t2 = sp.symbols("theta1 theta2")
+    m1, m2, l1, l2, g, w, e = sp.symbols("m1 m2 l1 l2 g w e")
+    c = sp.cos(t1 - t2)
+    M = sp.Matrix([[(m1 + m2) * l1**2, m2 * l1 * l2 * c], [m2 * l1 * l2 * c, m2 * l2**2]])
+    V = -(m1 + m2) * g * l1 * sp.cos(t1) - m2 * g * l2 * sp.cos(t2)
+    xt = l1 * sp.sin(t1) + l2 * sp.sin(t2)
+    return _system(d, [t1, t2], M, V, None, constraints=[Constraint("right", w - xt, e), Constraint("left", xt + w, e)])
+
+
+# One registry of built-in scenes: the names (and numeric parts) are vcirun.scenedata's; each has its
+# symbolic part here under the same name.
+BUILTIN_SCENES = {name: globals()[name] for name in sd.BUILTIN_SCENE_DATA}
 
 
 def get_scene(name: str, **params) -> MechanicalSystem:

@@ -1,4 +1,5 @@
-"""Symbolic mechanical systems L = 1/2 qdot^T M(q) qdot - V(q) with one unilateral constraint phi(q) >= 0.
+"""Symbolic mechanical systems L = 1/2 qdot^T M(q) qdot - V(q) with unilateral constraints phi_i(q) >= 0,
+each with a restitution coefficient (issue 17; one elastic constraint is the paper's case).
 
 A `MechanicalSystem` is pure data plus derived sympy objects; it never computes numbers itself:
 the only bridge to numbers is `vcirun.codegen`. Parameters stay symbols so that a parameter change
@@ -12,19 +13,34 @@ from dataclasses import dataclass, field
 import numpy as np
 import sympy as sp
 
-from ..scenedata import check_mass_matrix, param_vector
+from ..scenedata import check_mass_matrix, param_vector, requested_start
+
+
+@dataclass(eq=False)
+class Constraint:
+    """One unilateral constraint phi(q) >= 0: its name, phi (sympy, in q and the parameters) and its
+    restitution coefficient e in [0, 1] (a number, or a parameter symbol so that params={"e": 0.8}
+    changes it without recompiling)."""
+
+    name: str
+    phi: sp.Expr
+    restitution: sp.Expr = sp.Integer(1)
 
 
 @dataclass(eq=False)
 class MechanicalSystem:
-    """A hyperregular mechanical Lagrangian system with one holonomic unilateral constraint.
+    """A hyperregular mechanical Lagrangian system with holonomic unilateral constraints.
 
     name      : identifier (used in records and kernel cache keys)
     q         : list of n coordinate symbols
     params    : ordered dict symbol-name -> float value (the symbols appear in M, V, phi, forcing)
     M         : n x n symmetric sympy Matrix in q and params
     V         : sympy expression, potential energy
-    phi       : sympy expression, constraint function, admissible set phi(q) >= 0
+    phi       : sympy expression, the constraint function of a one-constraint system, phi(q) >= 0
+                (elastic); or None with `constraints`
+    constraints: list of Constraint (name, phi_i, restitution e_i), admissible set all phi_i >= 0.
+                After construction `constraints` always holds the list and `phi` is phi_1 for one
+                constraint, the gap function min_i phi_i for several (what the event search follows)
     forcing   : optional length-n sympy Matrix f(q, qdot, t) (generalized forces), symbols `qd` and `t`
     ic_map    : optional callable beta -> (q0, qdot0) (a scene's initial-condition family, e.g. Xi)
     """
@@ -34,7 +50,7 @@ class MechanicalSystem:
     params: dict
     M: sp.Matrix
     V: sp.Expr
-    phi: sp.Expr
+    phi: sp.Expr | None = None
     forcing: sp.Matrix | None = None
     qd: list = field(default_factory=list)
     t: sp.Symbol = field(default_factory=lambda: sp.Symbol("t"))
@@ -42,6 +58,7 @@ class MechanicalSystem:
     default_q0: np.ndarray | None = None
     default_p0: np.ndarray | None = None
     description: str = ""
+    constraints: list | None = None
 
     def __post_init__(self):
         self.q = list(self.q)
@@ -56,8 +73,37 @@ class MechanicalSystem:
         if self.forcing is not None:
             self.forcing = sp.Matrix(self.forcing).reshape(n, 1)
         self.V = sp.sympify(self.V)
-        self.phi = sp.sympify(self.phi)
         self.params = dict(self.params)
+        self._set_constraints()
+
+    def _set_constraints(self) -> None:
+        if (self.constraints is None) == (self.phi is None):
+            raise ValueError(f"system {self.name}: give either phi (one elastic constraint) or constraints")
+        if self.constraints is None:
+            self.constraints = [Constraint("phi", self.phi)]
+        cons = []
+        for i, c in enumerate(self.constraints):
+            if not isinstance(c, Constraint):
+                raise ValueError(f"system {self.name}: constraints[{i}] must be a Constraint")
+            c = Constraint(str(c.name), sp.sympify(c.phi), sp.sympify(c.restitution))
+            if not (c.phi.free_symbols & set(self.q)):
+                # phi constant in q: either no configuration is admissible or the constraint never acts
+                raise ValueError(f"system {self.name}: constraint {c.name}: phi = {c.phi} does not depend on the "
+                                 f"coordinates ({', '.join(s.name for s in self.q)}); give phi(q) as a function of them")
+            e = c.restitution
+            if e.is_Symbol:
+                if e.name not in self.params:
+                    raise ValueError(f"system {self.name}: constraint {c.name}: restitution {e} is neither a number "
+                                     f"nor a parameter ({', '.join(self.params) or 'none declared'})")
+            elif not (e.is_number and 0 <= float(e) <= 1):
+                raise ValueError(f"system {self.name}: constraint {c.name}: restitution must be a number in [0, 1] "
+                                 f"or a parameter name (got {e})")
+            cons.append(c)
+        names = [c.name for c in cons]
+        if len(set(names)) != len(names):
+            raise ValueError(f"system {self.name}: constraint names must be distinct (got {names})")
+        self.constraints = cons
+        self.phi = cons[0].phi if len(cons) == 1 else sp.Min(*[c.phi for c in cons])
 
     # --- basic sizes and symbols -------------------------------------------------------------
     @property
@@ -90,8 +136,21 @@ class MechanicalSystem:
         return self.forcing.subs(sub, simultaneous=True)
 
     @property
+    def m(self) -> int:
+        """Number of unilateral constraints."""
+        return len(self.constraints)
+
+    @property
     def grad_phi(self) -> sp.Matrix:
+        """grad phi of a one-constraint system (several: `constraint_jacobian`)."""
+        if self.m != 1:
+            raise ValueError(f"system {self.name}: {self.m} constraints; use constraint_jacobian")
         return sp.Matrix([sp.diff(self.phi, s) for s in self.q])
+
+    @property
+    def constraint_jacobian(self) -> sp.Matrix:
+        """G (m x n): row i is grad phi_i."""
+        return sp.Matrix([[sp.diff(c.phi, s) for s in self.q] for c in self.constraints])
 
     def hamiltonian_symbolic(self):
         """H(q, p) = 1/2 p^T M(q)^{-1} p + V(q) with symbols p_i; only sensible for small n."""
@@ -106,8 +165,11 @@ class MechanicalSystem:
         """Hash of the symbolic content (not the parameter values): the kernel cache key part."""
         if getattr(self, "_fp", None):
             return self._fp
+        cons = [(c.name, sp.srepr(c.phi), sp.srepr(c.restitution)) for c in self.constraints]
+        # (one elastic constraint named "phi": the same text as before issue 17, so caches stay valid)
+        phi = sp.srepr(self.phi) if cons == [("phi", sp.srepr(self.phi), sp.srepr(sp.Integer(1)))] else cons
         text = repr((self.name, [str(s) for s in self.q], list(self.params), sp.srepr(self.M),
-                     sp.srepr(self.V), sp.srepr(self.phi),
+                     sp.srepr(self.V), phi,
                      sp.srepr(self.forcing) if self.forcing is not None else None))
         self._fp = hashlib.sha256(text.encode()).hexdigest()[:16]
         return self._fp
@@ -116,7 +178,8 @@ class MechanicalSystem:
     def _lambdas(self):
         if not hasattr(self, "_lam"):
             args = (self.q, self.param_symbols)
-            self._lam = (sp.lambdify(args, self.M, "numpy"), sp.lambdify(args, self.phi, "numpy"))
+            self._lam = (sp.lambdify(args, self.M, "numpy"),
+                         sp.lambdify(args, [c.phi for c in self.constraints], "numpy"))
         return self._lam
 
     def dH_dq_at(self, x) -> sp.Matrix:
@@ -126,7 +189,9 @@ class MechanicalSystem:
 
     def numpy_functions(self) -> dict:
         """Plain numpy callables (sympy.lambdify), as a numpy/scipy user would write the model:
-        M(q, prm), dHq(q, x, prm) = dH/dq at x = M^-1 p, V(q, prm), phi(q, prm), grad_phi(q, prm).
+        M(q, prm), dHq(q, x, prm) = dH/dq at x = M^-1 p, V(q, prm), phis(q, prm) (the m constraint
+        values), G(q, prm) (m x n, rows grad phi_i), f(q, qdot, t, prm) (the generalized force; None for
+        an unforced system); for one constraint also phi(q, prm) and grad_phi(q, prm).
         For baselines and checks; the integrators use the compiled kernels instead."""
         if not hasattr(self, "_npf"):
             q, ps = list(self.q), self.param_symbols
@@ -135,17 +200,42 @@ class MechanicalSystem:
             self._npf = {"M": sp.lambdify((q, ps), self.M, "numpy"),
                          "dHq": sp.lambdify((q, x, ps), dHq, "numpy"),
                          "V": sp.lambdify((q, ps), self.V, "numpy"),
-                         "phi": sp.lambdify((q, ps), self.phi, "numpy"),
-                         "grad_phi": sp.lambdify((q, ps), self.grad_phi, "numpy")}
+                         "phis": sp.lambdify((q, ps), [c.phi for c in self.constraints], "numpy"),
+                         "G": sp.lambdify((q, ps), self.constraint_jacobian, "numpy"),
+                         "f": (sp.lambdify((q, list(self.qd), self.t, ps), self.forcing, "numpy")
+                               if self.is_forced else None)}
+            if self.m == 1:
+                self._npf |= {"phi": sp.lambdify((q, ps), self.phi, "numpy"),
+                              "grad_phi": sp.lambdify((q, ps), self.grad_phi, "numpy")}
         return self._npf
 
     def mass_matrix(self, q, params=None) -> np.ndarray:
         prm = self.param_values() if params is None else np.asarray(params, float)
         return np.array(self._lambdas()[0](list(q), list(prm)), dtype=float)
 
-    def phi_value(self, q, params=None) -> float:
+    def phi_values(self, q, params=None) -> np.ndarray:
+        """(phi_1(q), ..., phi_m(q))."""
         prm = self.param_values() if params is None else np.asarray(params, float)
-        return float(self._lambdas()[1](list(q), list(prm)))
+        return np.array(self._lambdas()[1](list(q), list(prm)), dtype=float).ravel()
+
+    def phi_value(self, q, params=None) -> float:
+        """The gap min_i phi_i(q) (phi(q) for one constraint)."""
+        return float(np.min(self.phi_values(q, params)))
+
+    def constraint_jacobian_value(self, q, params=None) -> np.ndarray:
+        prm = self.param_values() if params is None else np.asarray(params, float)
+        return np.array(self.numpy_functions()["G"](list(q), list(prm)), dtype=float).reshape(self.m, self.n)
+
+    def grad_phi_value(self, q, params=None) -> np.ndarray:
+        """grad phi(q) of the constraint with the smallest phi_i(q) (the gap's gradient)."""
+        k = int(np.argmin(self.phi_values(q, params)))
+        return self.constraint_jacobian_value(q, params)[k]
+
+    def restitution_values(self, params=None) -> np.ndarray:
+        """(e_1, ..., e_m) at the parameter values."""
+        vals = dict(zip(self.params, self.param_values() if params is None else np.asarray(params, float)))
+        return np.array([float(c.restitution.subs({sp.Symbol(k): v for k, v in vals.items()}))
+                         for c in self.constraints])
 
     def check_hyperregular(self, q, params=None) -> None:
         """The Legendre transform must be invertible: M(q) symmetric positive definite."""
@@ -158,20 +248,8 @@ class MechanicalSystem:
 
     def initial_state(self, beta=None, q0=None, p0=None, params=None):
         """(q0, p0) from explicit values, the scene's initial-condition map at beta, or its default."""
-        if q0 is not None or p0 is not None:
-            if q0 is None or p0 is None:
-                raise ValueError("initial state: give both q0 and p0 (or beta)")
-            q0, p0 = np.asarray(q0, float).ravel(), np.asarray(p0, float).ravel()
-        elif beta is not None:
-            if self.ic_map is None:
-                raise ValueError(f"beta: system {self.name} has no initial-condition map; give q0 and p0")
-            qq, qdot = self.ic_map(float(beta))
-            q0, p0 = self.legendre(qq, qdot, params)
-        elif self.default_q0 is not None:
-            q0, p0 = np.array(self.default_q0, float), np.array(self.default_p0, float)
-        else:
-            raise ValueError(f"initial state: system {self.name} needs q0 and p0 (or beta)")
-        if q0.shape != (self.n,) or p0.shape != (self.n,):
-            raise ValueError(f"initial state: q0 and p0 must have length {self.n}")
+        kind, q0, p0 = requested_start(self, beta, q0, p0)  # the same rule as vcirun.simulate
+        if kind == "legendre":
+            q0, p0 = self.legendre(q0, p0, params)
         self.check_hyperregular(q0, params)
         return q0, p0

@@ -1,16 +1,17 @@
 """Backward error analysis from the discrete Lagrangian and the MCVA family (Sections 3.4, 4.3-4.4).
 
+Symbolic only (this package never imports vcirun.codegen or vcirun.methods):
 - `series.py`: the symplectic-Euler backward-error functionals H_i[K], derived from the
   Hamilton-Jacobi equation (every VI is symplectic Euler applied to eta, eq. 23-24).
-- `derive.py`: eta as a stationary value, its exact derivatives (implicit function theorem on a DAG
-  of symbolic nodes) and the generated kernels of H~^{O(h^s)} and its gradient.
-- `numeric.py`: numba unit with gauss_partial, reset_mcva, mh_energy (compiled into the scene's
-  module by vcirun.codegen).
+- `eta.py`: eta as a stationary value, its exact derivatives (implicit function theorem on a DAG
+  of symbolic nodes) and H~^{O(h^s)} in them; vcirun/codegen/mh_kernels.py emits their kernels.
+- the numba units that evaluate them live in vcirun/maps/gauss.py (mh_energy, gauss_partial) and
+  vcirun/collision/reset_mcva.py (reset_mcva), compiled into the scene's module by vcirun.codegen.
+The generated module executed uncompiled (tests, exploration): vcirun/codegen/evaluate.py.
 
-- `evaluate.py`: the same generated module executed uncompiled (tests, exploration).
-
-`generalized_mcva(ld, mh_order, flow_order)` returns the Method of Section 4.4; MCVAA and MCVAC
-(Section 5.2) are entries of vcirun.methods.METHODS.
+`vcirun.methods.generalized_mcva(ld, mh_order, flow_order)` returns the Method of Section 4.4 (its
+options checked by `check_mcva_options` here); MCVAA and MCVAC (Section 5.2) are entries of
+vcirun.methods.METHODS.
 
 What checking the paper found (tests/convergence/test_modified_series.py):
 - H4 does NOT vanish for SVA (Section 5.2 claims it does). The eta-based series depends on h through
@@ -34,12 +35,11 @@ MH_LDS = ("SE1", "SE2", "SVA", "SVB", "SVC", "midpoint")
 FLOW_ORDERS = (4, 6)
 
 
-def generalized_mcva(ld: str = "SVC", mh_order: int = 3, flow_order: int = 4, **unknown):
-    """Generalized MCVA (Section 4.4): full steps of discrete Lagrangian `ld`, partial steps by the
-    `flow_order` Gauss collocation flow of the truncated modified Hamiltonian H~^{O(h^mh_order)},
-    reset R^MCVA conserving that truncation. Raises ValueError naming the offending field."""
-    from ..methods import Method
-
+def check_mcva_options(ld: str = "SVC", mh_order: int = 3, flow_order: int = 4, **unknown) -> tuple:
+    """(ld, mh_order, flow_order) of a generalized MCVA (Section 4.4), validated: full steps of
+    discrete Lagrangian `ld`, partial steps by the `flow_order` Gauss collocation flow of the truncated
+    modified Hamiltonian H~^{O(h^mh_order)}, reset R^MCVA conserving that truncation. Raises ValueError
+    naming the offending field. (vcirun.methods.generalized_mcva makes the Method.)"""
     if unknown:
         raise ValueError(f"options: {sorted(unknown)[0]!r} is not an option of method MCVA "
                          "(use ld=, mh_order=, flow_order=)")
@@ -58,6 +58,4 @@ def generalized_mcva(ld: str = "SVC", mh_order: int = 3, flow_order: int = 4, **
     if flow_order < mh_order:
         raise ValueError(f"flow_order: {flow_order} is below mh_order {mh_order} (the partial flow must "
                          "solve the modified equations to at least the truncation's order)")
-    return Method(f"MCVA[{ld},s={mh_order},g{flow_order}]", ld=ld, partial="gauss", reset="mcva",
-                  mh_order=mh_order, flow_order=flow_order,
-                  properties={"conserves_mh": True, "symplectic": True, "explicit_ld": LIBRARY[ld].explicit})
+    return ld, mh_order, flow_order

@@ -1,8 +1,8 @@
-# numba source unit: the MCVA family (Sections 4.3-4.4): the truncated modified Hamiltonian
-# H~^{O(h^s)} of the scene's discrete Lagrangian, the Gauss collocation partial flow of its Hamilton
-# equations, and the reset R^MCVA (eq. 34).
+# numba source unit: the MCVA family's maps (Sections 4.3-4.4): the truncated modified Hamiltonian
+# H~^{O(h^s)} of the scene's discrete Lagrangian (Newton for eta's stationary stage velocities) and
+# the Gauss collocation partial flow of its Hamilton equations. R^MCVA: vcirun/collision/reset_mcva.py.
 # Requires from the generated module: NDOF, MH_ORDER, MH_M, MH_NSTAGE, MH_FLOW_S, mh_FA, mh_value,
-# mh_grad, mh_hess (vcirun/modified/derive.py), velocity_guess, solve_small, cva_lambda.
+# mh_grad, mh_hess (vcirun/codegen/mh_kernels.py), velocity_guess, solve_small.
 import math
 
 import numpy as np
@@ -25,7 +25,6 @@ else:
 GAUSS_D = np.linalg.solve(GAUSS_A.T, GAUSS_B)
 MH_U_TOL = 1e-10   # Newton on u stops after a step this small (relative): the error is then ~1e-20
 MH_U_MAXIT = 50
-MH_RESET_ETOL = 8.0 * 2.220446049250313e-16  # R^MCVA accepts lam once H~ is conserved to this (relative)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -127,14 +126,21 @@ def mh_gradient(q, p, h, prm, u, W, grad, hess):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def mh_field(y, h, prm, u, W, grad, hess, f):
-    """f = (dH~/dp, -dH~/dq) at y = (q, p). Returns the Newton iterations spent on u (< 0: failure)."""
+def mh_field(y, t, h, prm, u, W, grad, hess, f):
+    """f = (dH~/dp, -dH~/dq + F(q, dH~/dp, t)) at y = (q, p), F the generalized force (forced
+    modified equations, docs/forcing.md; FORCED False: the Hamiltonian field of H~). Returns the
+    Newton iterations spent on u (< 0: failure)."""
     q = y[:NDOF]
     p = y[NDOF:]
     it, val = mh_gradient(q, p, h, prm, u, W, grad, hess)
     for i in range(NDOF):
         f[i] = grad[NDOF + i]
         f[NDOF + i] = -grad[i]
+    if FORCED:
+        fo = np.empty(NDOF)
+        sys_force(q, f[:NDOF], t, prm, fo)
+        for i in range(NDOF):
+            f[NDOF + i] += fo[i]
     if it >= 0 and not math.isfinite(val):
         return -1
     return it
@@ -143,7 +149,8 @@ def mh_field(y, h, prm, u, W, grad, hess, f):
 @njit(cache=True, nogil=True, error_model="numpy")
 def gauss_partial(q0, p0, tau, h, t, prm, ntol, maxit, q1, p1, vlast):
     """One step of length tau of the s-stage Gauss collocation method (order 2s; s = MH_FLOW_S) on
-    Hamilton's equations of H~^{O(h^s)}(q, p; h) (h: the full step, a parameter of H~).
+    Hamilton's equations of H~^{O(h^s)}(q, p; h) (h: the full step, a parameter of H~), with the
+    generalized force F(q, dH~/dp, t) added to dp/dt for a forced system (stage times t + c_i tau).
 
     Stage equations Z_i = tau sum_j a_ij f(y0 + Z_j) solved by simplified Newton with the fixed matrix
     I - tau (A x J0), J0 = the Jacobian of eta's Hamiltonian field at y0 (= that of H~ up to O(h)),
@@ -167,18 +174,28 @@ def gauss_partial(q0, p0, tau, h, t, prm, ntol, maxit, q1, p1, vlast):
     hess = np.empty((nz, nz))
     f0 = np.empty(nz)
     mh_guess(q0, p0, prm, U[0])
-    it0 = mh_field(y0, h, prm, U[0], W, grad, hess, f0)
+    it0 = mh_field(y0, t, h, prm, U[0], W, grad, hess, f0)
     if it0 < 0:
         return -1, np.nan
     for k in range(1, s):
         for i in range(MH_M):
             U[k, i] = U[0, i]
-    # J0 = d/dy (H_p, -H_q) with eta's Hessian
+    # J0 = d/dy (H_p, -H_q + F(q, H_p, t)) with eta's Hessian for H~'s
     J0 = np.empty((nz, nz))
     for i in range(NDOF):
         for j in range(nz):
             J0[i, j] = hess[NDOF + i, j]
             J0[NDOF + i, j] = -hess[i, j]
+    if FORCED:
+        fq = np.empty((NDOF, NDOF))
+        fv = np.empty((NDOF, NDOF))
+        sys_force_jac(q0, f0[:NDOF], t, prm, fq, fv)
+        for i in range(NDOF):
+            for j in range(nz):
+                acc = fq[i, j] if j < NDOF else 0.0
+                for k in range(NDOF):
+                    acc += fv[i, k] * J0[k, j]
+                J0[NDOF + i, j] += acc
     m = s * nz
     N = np.empty((m, m))
     for a in range(s):
@@ -205,7 +222,7 @@ def gauss_partial(q0, p0, tau, h, t, prm, ntol, maxit, q1, p1, vlast):
         for a in range(s):
             for i in range(nz):
                 Y[i] = y0[i] + Z[a, i]
-            if mh_field(Y, h, prm, U[a], W, grad, nohess, Fs[a]) < 0:
+            if mh_field(Y, t + GAUSS_C[a] * tau, h, prm, U[a], W, grad, nohess, Fs[a]) < 0:
                 return -it, np.nan
         for a in range(s):
             for i in range(nz):
@@ -240,61 +257,3 @@ def gauss_partial(q0, p0, tau, h, t, prm, ntol, maxit, q1, p1, vlast):
         vlast[i] = Fs[s - 1, i]
     return (it if ok else -it), np.nan
 
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def reset_mcva(q, pm, E_pre, tau_rem, h, t, prm, ntol, maxit, pp):
-    """R^MCVA (eq. 34): pp = pm + lam grad phi(q) with H~^{O(h^s)}(q, pp) = H~^{O(h^s)}(q, pm), lam != 0.
-    Newton on F(lam) = [H~(q, pm + lam g) - H~(q, pm)] / lam, whose root set excludes the trivial
-    root lam = 0 (F(0) = dH~/dp . g, the normal velocity, is nonzero at a transversal impact);
-    F'(lam) = (dH~/dp . g - F) / lam. Start: the R^CVA reflection (exact for H, H~ = H + O(h)).
-    Converged when the Newton step is below ntol (1 + |lam|), or when H~ is already conserved to
-    8 eps (relative): at small lam, F = dE / lam is only known to ~eps |H~| / lam. Failure (< 0) when
-    Newton does not converge or lam has not the sign of the reflection (then lam is returned too)."""
-    g = np.empty(NDOF)
-    lam0 = cva_lambda(q, pm, prm, g)
-    if lam0 == 0.0 or not math.isfinite(lam0):
-        return -1, lam0
-    nz = 2 * NDOF
-    u = np.empty(MH_M)
-    W = np.empty((MH_M, MH_M))
-    grad = np.empty(nz)
-    hess = np.empty((0, 0))  # not needed by the reset
-    mh_guess(q, pm, prm, u)
-    it0, E0 = mh_gradient(q, pm, h, prm, u, W, grad, hess)
-    if it0 < 0 or not math.isfinite(E0):
-        return -1, lam0
-    lam = lam0
-    it = 0
-    ok = False
-    while it < maxit:
-        it += 1
-        for i in range(NDOF):
-            pp[i] = pm[i] + lam * g[i]
-        if it == 1:
-            mh_guess(q, pp, prm, u)  # later iterates start from the previous stationary point
-        itu, E = mh_gradient(q, pp, h, prm, u, W, grad, hess)
-        if itu < 0 or not math.isfinite(E):
-            break
-        dE = E - E0
-        if abs(dE) <= MH_RESET_ETOL * max(1.0, abs(E0)):
-            ok = True  # conserved to round-off (a small lam pins F = dE / lam only to ~eps |E| / lam)
-            break
-        Fl = dE / lam
-        gp = 0.0
-        for i in range(NDOF):
-            gp += grad[NDOF + i] * g[i]
-        dF = (gp - Fl) / lam
-        if dF == 0.0 or not math.isfinite(dF):
-            break
-        step = Fl / dF
-        lam -= step
-        if abs(step) <= ntol * (1.0 + abs(lam)):
-            ok = True
-            break
-    if not ok or not (lam * lam0 > 0.0):
-        # no reflection: lam of the other sign means the modified dynamics already leaves the wall
-        # (possible at grazing, |normal velocity| ~ h); lam = 0 cannot be returned as a success
-        return -it, lam
-    for i in range(NDOF):
-        pp[i] = pm[i] + lam * g[i]
-    return it, lam

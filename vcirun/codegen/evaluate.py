@@ -23,10 +23,9 @@ def _njit(*args, **kwargs):
 @lru_cache(maxsize=None)
 def python_module_for(system, ks):
     """The generated module of (system, kernel set) executed as plain Python."""
-    from ..codegen.build import _PKG, _units
-    from ..codegen.derive import module_source
+    from .derive import module_source
 
-    text = module_source(system, ks, [(_PKG / u).read_text() for u in _units(ks)])
+    text = module_source(system, ks)
     text = text.replace("from numba import njit", "")
     mod = types.ModuleType(f"vcirun_python_{system.name}_{abs(hash(ks))}")
     mod.__dict__["njit"] = _njit
@@ -35,12 +34,16 @@ def python_module_for(system, ks):
 
 
 def python_module(system, ld: str = "SVC", mh_order: int = 3, flow_order: int = 4):
-    """The scene's MCVA module for (ld, mh_order, flow_order), executed as plain Python."""
-    from . import generalized_mcva
+    """The scene's MCVA module for (ld, mh_order, flow_order), executed as plain Python (the kernel set
+    of vcirun.methods.generalized_mcva, built here: codegen does not import methods)."""
+    from ..discrete.lagrangians import get_ld
+    from ..modified import check_mcva_options
+    from .build import KernelSet
 
     if isinstance(system, str):
         from ..mechanics.scenes import get_scene
 
         system = get_scene(system)
-    ks = generalized_mcva(ld=ld, mh_order=int(mh_order), flow_order=int(flow_order)).kernel_set()
+    ld, s, flow = check_mcva_options(ld, int(mh_order), int(flow_order))
+    ks = KernelSet(full_stages=tuple(get_ld(ld).stages), partial="gauss", reset="mcva", modified=(ld, s, flow))
     return python_module_for(system, ks)

@@ -1,0 +1,34 @@
+"""What one compiled module must contain (a KernelSet), without importing numba or sympy: the
+method registry (vcirun.methods) and the config layer read it on every start."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class KernelSet:
+    """What one compiled module must contain: the explicit stages of the full map, which partial map
+    and reset to bind, and (MCVA family) the modified-Hamiltonian data."""
+
+    full_stages: tuple                 # ((explicit Ld name, fraction of h), ...)
+    partial: str = "ld"                # "ld" (same map as full) or "gauss"
+    reset: str = "cva"                 # "cva", "vci", "mcva"
+    vci_stage: str | None = None       # explicit Ld whose energy R^VCI conserves
+    modified: tuple | None = None      # (Ld name, mh_order, flow_order) for the MCVA family
+
+    def key_text(self) -> str:
+        return repr(self)
+
+    @property
+    def explicit_names(self) -> tuple:
+        names = [s for s, _ in self.full_stages]
+        if self.vci_stage and self.vci_stage not in names:
+            names.append(self.vci_stage)
+        return tuple(dict.fromkeys(names))
+
+
+# The system-only kernel set: the system kernels and the continuous dynamics (H, Hamilton's
+# equations with the force, phi, grad phi, d phi/dt, the elastic multiplier; vcirun/maps/dynamics.py),
+# no discrete Lagrangian and no loop. What the exact reference, the baselines, studies and verify
+# need: they load it instead of compiling a method's module.
+SYSTEM_KERNELS = KernelSet(full_stages=(), partial=None, reset=None)

@@ -1,0 +1,233 @@
+# numba source unit: the contacts: the gap min_i phi_i over the contacts that are not touching
+# (touching = phi_i within round-off or the event tolerance of 0 and not approaching: two balls at
+# rest against each other would pin the gap at 0), and the impact law at a collision found by the
+# event search: which contacts take part, their impulses, the direction of the momentum jump and
+# the energy Newton's law removes.
+# Contract: vcirun.codegen.units. Derivations: docs/contacts.md.
+#
+#   impact_direction(q, pm, h, event_tol, prm, d, lam, active) -> (k, s0, dE)
+#     q, pm: the impact configuration and momentum before the impact. On return d (n) holds the
+#     direction of the jump, p+ = pm + s d, s0 the multiplier of Newton's law (so pm + s0 d is R^CVA's
+#     p+ with restitution), lam (NCON) the per-contact impulses of p+ = pm + s0 d = pm + G^T lam
+#     (lam_i of a contact not at the impact is 0), active (NCON) 1 for the contacts at the impact, dE
+#     the continuous energy Newton's law removes, H(q, pm) - H(q, pm + s0 d) >= 0 (0 for elastic
+#     impacts). k: the number of contacts at the impact, 0 if none approaches (no impact), < 0 if the
+#     complementarity problem has no solution.
+#
+# One constraint (NCON == 1): d = grad phi, s0 = (1 + e)/2 times R^CVA's elastic multiplier (the
+# paper's lam for e = 1, bit for bit), dE = (1 - e^2) u^2 / (2 W) with u = grad phi . M^-1 pm and
+# W = grad phi . M^-1 grad phi. Several: the contacts whose own root lies within the event tolerance
+# of this one, or touching (phi_i <= touch_tolerance), Moreau's law on them (impact_law), d =
+# G_A^T lam_A, s0 = 1.
+import math
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def impact_direction(q, pm, h, event_tol, prm, d, lam, active):
+    e = np.empty(NCON)
+    sys_restitution(prm, e)
+    for i in range(NCON):
+        lam[i] = 0.0
+        active[i] = 0
+    if NCON == 1:
+        s0 = cva_lambda(q, pm, prm, d)  # d = grad phi
+        if s0 == 0.0 or not math.isfinite(s0):
+            return 0, s0, 0.0
+        if e[0] != 1.0:
+            s0 *= 0.5 * (1.0 + e[0])
+        lam[0] = s0
+        active[0] = 1
+        return 1, s0, _newton_loss_one(q, pm, prm, d, e[0])
+    return _impact_several(q, pm, h, event_tol, prm, e, d, lam, active)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _newton_loss_one(q, pm, prm, g, e):
+    """(1 - e^2) u^2 / (2 W) of one contact with gradient g (0.0 exactly for e = 1)."""
+    if e == 1.0:
+        return 0.0
+    A = np.empty((NDOF, NDOF))
+    sys_M(q, prm, A)
+    x = g.copy()
+    if not solve_small(A, x, NDOF):
+        return 0.0
+    W = 0.0
+    u = 0.0
+    for i in range(NDOF):
+        W += g[i] * x[i]
+        u += x[i] * pm[i]
+    return (1.0 - e * e) * u * u / (2.0 * W)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _impact_several(q, pm, h, event_tol, prm, e, d, lam, active):
+    phis = np.empty(NCON)
+    G = np.empty((NCON, NDOF))
+    sys_phis(q, prm, phis)
+    sys_dphis(q, prm, G)
+    A = np.empty((NDOF, NDOF))
+    sys_M(q, prm, A)
+    X = np.empty((NCON, NDOF))  # rows M^-1 grad phi_i
+    u = np.empty(NCON)
+    for i in range(NCON):
+        for j in range(NDOF):
+            X[i, j] = G[i, j]
+        B = A.copy()
+        solve_small(B, X[i], NDOF)
+        s = 0.0
+        for j in range(NDOF):
+            s += X[i, j] * pm[j]
+        u[i] = s
+    # the contacts at this impact: the one the search located (smallest phi) and every other whose
+    # own root lies within the event tolerance of it, approaching or not (separating ones get lam = 0)
+    i0 = 0
+    for i in range(1, NCON):
+        if phis[i] < phis[i0]:
+            i0 = i
+    idx = np.empty(NCON, dtype=np.int64)
+    k = 0
+    for i in range(NCON):
+        if i == i0 or phis[i] <= touch_tolerance(q, prm, i, u[i], h, event_tol):
+            idx[k] = i
+            k += 1
+    approaching = False
+    for a in range(k):
+        if u[idx[a]] < 0.0:
+            approaching = True
+    if not approaching:
+        return 0, 0.0, 0.0
+    W = np.empty((k, k))
+    um = np.empty(k)
+    ea = np.empty(k)
+    for a in range(k):
+        um[a] = u[idx[a]]
+        ea[a] = e[idx[a]]
+        for b in range(k):
+            s = 0.0
+            for j in range(NDOF):
+                s += G[idx[a], j] * X[idx[b], j]
+            W[a, b] = s
+    la = np.empty(k)
+    case = impact_law(W, um, ea, la)
+    if case < 0:
+        return case, 0.0, 0.0
+    for j in range(NDOF):
+        d[j] = 0.0
+    for a in range(k):
+        i = idx[a]
+        lam[i] = la[a]
+        active[i] = 1
+        for j in range(NDOF):
+            d[j] += la[a] * G[i, j]
+    if k == 1:  # one contact at the impact: the closed form (exactly 0 for e = 1)
+        return 1, 1.0, _newton_loss_one(q, pm, prm, G[idx[0]], ea[0])
+    pp = pm.copy()
+    for j in range(NDOF):
+        pp[j] += d[j]
+    dE = hamiltonian(q, pm, prm) - hamiltonian(q, pp, prm)
+    return k, 1.0, max(dE, 0.0)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def touch_tolerance(q, prm, i, u, h, event_tol):
+    """How close to phi_i = 0 counts as touching: the event tolerance's worth of motion, or round-off
+    of phi_i near q (64 eps (1 + |q| |grad phi_i|), as a start on the surface)."""
+    G = np.empty((NCON, NDOF))
+    sys_dphis(q, prm, G)
+    gq = 0.0
+    qn = 0.0
+    for j in range(NDOF):
+        gq = max(gq, abs(G[i, j]))
+        qn = max(qn, abs(q[j]))
+    return max(4.0 * event_tol * h * abs(u), 64.0 * 2.220446049250313e-16 * (1.0 + qn * gq))
+
+
+# --- contact geometry: the gap over the contacts not touching (shared by the event search and the
+# exact reference)
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def gap(q, prm, mask):
+    """min over the constraints not masked of phi_i(q) (+inf if all are masked)."""
+    if NCON == 1:
+        return sys_phi(q, prm)
+    phis = np.empty(NCON)
+    sys_phis(q, prm, phis)
+    g = np.inf
+    for i in range(NCON):
+        if mask[i] == 0 and phis[i] < g:
+            g = phis[i]
+    return g
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def gap_slope(q, p, prm, mask):
+    """d/dtau of the gap along the flow through (q, p): grad phi_k . M^-1 p, k its smallest unmasked phi_i."""
+    if NCON == 1:
+        return gdot(q, p, prm)
+    phis = np.empty(NCON)
+    sys_phis(q, prm, phis)
+    k = -1
+    for i in range(NCON):
+        if mask[i] == 0 and (k < 0 or phis[i] < phis[k]):
+            k = i
+    if k < 0:
+        return np.nan
+    return normal_velocities(q, p, prm)[k]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def normal_velocities(q, p, prm):
+    """u_i = grad phi_i(q) . M(q)^-1 p for every constraint."""
+    A = np.empty((NDOF, NDOF))
+    x = p.copy()
+    sys_M(q, prm, A)
+    u = np.empty(NCON)
+    if not solve_small(A, x, NDOF):
+        for i in range(NCON):
+            u[i] = np.nan
+        return u
+    G = np.empty((NCON, NDOF))
+    sys_dphis(q, prm, G)
+    for i in range(NCON):
+        s = 0.0
+        for j in range(NDOF):
+            s += G[i, j] * x[j]
+        u[i] = s
+    return u
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def touching_mask(q, p, h, event_tol, prm, mask):
+    """mask[i] = 1 for the contacts touching at (q, p) and not approaching (see the unit's header);
+    returns how many. For one constraint nothing is masked."""
+    for i in range(NCON):
+        mask[i] = 0
+    if NCON == 1:
+        return 0
+    phis = np.empty(NCON)
+    sys_phis(q, prm, phis)
+    u = normal_velocities(q, p, prm)
+    k = 0
+    for i in range(NCON):
+        if phis[i] <= touch_tolerance(q, prm, i, u[i], h, event_tol) and u[i] >= 0.0:
+            mask[i] = 1
+            k += 1
+    return k
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def unmask_penetrating(q, prm, mask):
+    """Unmask the masked contacts that penetrate at q (phi_i below minus its round-off); returns how many."""
+    if NCON == 1:
+        return 0
+    phis = np.empty(NCON)
+    sys_phis(q, prm, phis)
+    k = 0
+    for i in range(NCON):
+        if mask[i] == 1 and phis[i] < -touch_tolerance(q, prm, i, 0.0, 1.0, 0.0):
+            mask[i] = 0
+            k += 1
+    return k

@@ -1,0 +1,296 @@
+# numba source unit: the impact law of k simultaneous contacts (issue 17; docs/contacts.md, section 1):
+# Moreau's generalized Newton law as a linear complementarity problem, solved exactly for k <= 8.
+# PURE: it reads no name of the generated part or of another unit (every size from its arguments, its
+# own constants only), so any module (and the exact reference) can include it.
+#
+#   impact_law(W, um, e, lam) -> case code
+#     W   (k, k) the Delassus matrix G M^-1 G^T of the k contacts at the impact (symmetric PSD)
+#     um  (k,)   their normal velocities before the impact, u- = G M^-1 p-
+#     e   (k,)   their restitution coefficients in [0, 1]
+#     lam (k,)   out: the impulses, p+ = p- + G^T lam
+#   LCP: w = (1 + e) * u- + W lam >= 0, lam >= 0, lam . w = 0, i.e. with u+ = u- + W lam:
+#   u+_i + e_i u-_i >= 0, lam_i >= 0, lam_i (u+_i + e_i u-_i) = 0.
+#
+# Case codes (the return value):
+#   LCP_UNIQUE (0)          W positive definite (a P-matrix): the unique solution.
+#   LCP_SINGULAR_UNIQUE (1) W singular (dependent constraint gradients), but W_PP is nonsingular on the
+#                           set P = {i : w_i = 0}: lam is still unique.
+#   LCP_MIN_NORM (2)        W singular and W_PP singular: u+ is unique, lam is not (in general); lam is
+#                           the least Euclidean norm solution (a convex QP, solved exactly by
+#                           enumeration of supports; order-independent, so duplicated contacts share
+#                           the impulse equally).
+#   LCP_INFEASIBLE (-1)     no lam >= 0 makes w >= 0: no solution. Impossible for positive definite W;
+#                           possible for singular W with different restitutions (e.g. a ball pressed in
+#                           a gap of zero width between walls of different e). lam is set to 0.
+#   LCP_BAD_INPUT (-2)      k outside 1..LCP_MAX_CONTACTS, shapes disagree, a non-finite entry, e outside
+#                           [0, 1], W not symmetric (to LCP_SYM_TOL), or W_ii <= 0. lam is set to 0.
+# One contact (k = 1, W > 0): lam = -(1 + e) u- / W if u- < 0 else 0, written as
+# -(1.0 + e[0]) * um[0] / W[0, 0] so that e = 1 gives -2 u-/W bit for bit (cva_lambda's value).
+import math
+
+import numpy as np
+from numba import njit
+
+LCP_MAX_CONTACTS = 8    # 2^k supports are enumerated: 256 small solves at most
+LCP_UNIQUE = 0
+LCP_SINGULAR_UNIQUE = 1
+LCP_MIN_NORM = 2
+LCP_INFEASIBLE = -1
+LCP_BAD_INPUT = -2
+LCP_RANK_TOL = 1e-11    # a pivot/eigenvalue below this times max W_ii counts as zero (rank decisions)
+LCP_FEAS_TOL = 1e-10    # accepted violation of the LCP conditions, relative to max |(1 + e_i) u-_i|
+LCP_SYM_TOL = 1e-10     # accepted |W_ij - W_ji| relative to max W_ii
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def impact_law(W, um, e, lam):
+    """Moreau's generalized Newton law for k contacts as an LCP; returns a case code (see the unit's
+    header): lam >= 0 with u+ = um + W lam, u+_i + e_i um_i >= 0, complementary."""
+    k = um.shape[0]
+    for i in range(lam.shape[0]):
+        lam[i] = 0.0
+    if k < 1 or k > LCP_MAX_CONTACTS or W.shape[0] != k or W.shape[1] != k or e.shape[0] != k \
+            or lam.shape[0] != k:
+        return LCP_BAD_INPUT
+    for i in range(k):
+        if not (math.isfinite(um[i]) and math.isfinite(e[i]) and e[i] >= 0.0 and e[i] <= 1.0):
+            return LCP_BAD_INPUT
+        if not (math.isfinite(W[i, i]) and W[i, i] > 0.0):
+            return LCP_BAD_INPUT
+    if k == 1:
+        if um[0] < 0.0:
+            lam[0] = -(1.0 + e[0]) * um[0] / W[0, 0]
+        return LCP_UNIQUE
+    wmax = 0.0
+    for i in range(k):
+        wmax = max(wmax, W[i, i])
+    A = np.empty((k, k))  # W symmetrised (it is symmetric up to the round-off of G M^-1 G^T)
+    for i in range(k):
+        for j in range(k):
+            if not math.isfinite(W[i, j]) or abs(W[i, j] - W[j, i]) > LCP_SYM_TOL * wmax:
+                return LCP_BAD_INPUT
+            A[i, j] = 0.5 * (W[i, j] + W[j, i])
+    q = np.empty(k)
+    qs = 0.0
+    for i in range(k):
+        q[i] = (1.0 + e[i]) * um[i]
+        qs = max(qs, abs(q[i]))
+    full = (1 << k) - 1
+    pd = _lcp_rank_full(A, full, k, wmax)
+    if qs == 0.0:
+        return LCP_UNIQUE if pd else LCP_MIN_NORM  # lam = 0: w = 0, P = all, W_PP = W singular, 0 least norm
+    tol_w = LCP_FEAS_TOL * qs
+    # 1. a basic solution: the support S with the smallest violation among the 2^k candidates
+    #    lam_S = -A_SS^-1 q_S (A_SS nonsingular). For PSD A a solvable LCP has a vertex solution, whose
+    #    support has A_SS nonsingular (docs/contacts.md, 1.3), so this finds a solution if one exists.
+    x = np.empty(k)
+    best = np.zeros(k)
+    best_v = np.inf
+    for mask in range(full + 1):
+        if _lcp_solve_support(A, q, mask, k, wmax, x):
+            v = _lcp_violation(A, q, x, mask, k, wmax)
+            if v < best_v:
+                best_v = v
+                for i in range(k):
+                    best[i] = x[i]
+    if not best_v <= tol_w:
+        return LCP_INFEASIBLE
+    if pd:
+        _lcp_clip_into(best, lam, k)
+        return LCP_UNIQUE
+    # 2. W singular: w (hence u+) is unique; every solution is supported in P = {i : w_i = 0} and
+    #    solves A_PP lam_P = -q_P. If A_PP is nonsingular that solution is unique.
+    P = 0
+    for i in range(k):
+        wi = q[i]
+        for j in range(k):
+            wi += A[i, j] * best[j]
+        if wi <= tol_w:
+            P |= 1 << i
+    if _lcp_rank_full(A, P, k, wmax):
+        _lcp_clip_into(best, lam, k)
+        return LCP_SINGULAR_UNIQUE
+    # 3. the least-norm solution: on its support F it is the least-norm solution pinv(A_FF) (-q_F) of
+    #    A_FF x_F = -q_F, so the feasible candidate of least norm over all F within P is it.
+    best_n = np.inf
+    bestm = np.zeros(k)
+    for F in range(P + 1):
+        if F & ~P:
+            continue
+        _lcp_pinv_support(A, q, F, k, wmax, x)
+        if _lcp_violation(A, q, x, F, k, wmax) <= tol_w:
+            nrm = 0.0
+            for i in range(k):
+                nrm += x[i] * x[i]
+            if nrm < best_n:
+                best_n = nrm
+                for i in range(k):
+                    bestm[i] = x[i]
+    if best_n == np.inf:  # cannot happen: the basic solution's support is a candidate
+        _lcp_clip_into(best, lam, k)
+        return LCP_SINGULAR_UNIQUE
+    _lcp_clip_into(bestm, lam, k)
+    return LCP_MIN_NORM
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _lcp_clip_into(x, lam, k):
+    """lam = max(x, 0): removes the round-off negatives (within the accepted violation)."""
+    for i in range(k):
+        lam[i] = x[i] if x[i] > 0.0 else 0.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _lcp_violation(A, q, x, mask, k, wmax):
+    """Largest violation of the LCP conditions by x (supported on mask), in velocity units:
+    -x_i wmax and |w_i| on the support (w_S = 0 there), -w_i off it."""
+    v = 0.0
+    for i in range(k):
+        wi = q[i]
+        for j in range(k):
+            wi += A[i, j] * x[j]
+        if (mask >> i) & 1:
+            v = max(v, -x[i] * wmax, abs(wi))
+        else:
+            v = max(v, -wi)
+    return v if v == v else np.inf
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _lcp_solve_support(A, q, mask, k, wmax, x):
+    """x_S = -A_SS^-1 q_S, x = 0 off S = mask, by Gaussian elimination with partial pivoting; False if
+    A_SS is singular (a pivot below LCP_RANK_TOL wmax)."""
+    idx = np.empty(k, np.int64)
+    m = 0
+    for i in range(k):
+        x[i] = 0.0
+        if (mask >> i) & 1:
+            idx[m] = i
+            m += 1
+    if m == 0:
+        return True
+    B = np.empty((m, m))
+    b = np.empty(m)
+    for r in range(m):
+        b[r] = -q[idx[r]]
+        for c in range(m):
+            B[r, c] = A[idx[r], idx[c]]
+    for c in range(m):
+        piv = c
+        amax = abs(B[c, c])
+        for r in range(c + 1, m):
+            if abs(B[r, c]) > amax:
+                amax = abs(B[r, c])
+                piv = r
+        if not amax > LCP_RANK_TOL * wmax:
+            return False
+        if piv != c:
+            for j in range(m):
+                tmp = B[c, j]
+                B[c, j] = B[piv, j]
+                B[piv, j] = tmp
+            tmp = b[c]
+            b[c] = b[piv]
+            b[piv] = tmp
+        for r in range(c + 1, m):
+            f = B[r, c] / B[c, c]
+            if f != 0.0:
+                for j in range(c + 1, m):
+                    B[r, j] -= f * B[c, j]
+                b[r] -= f * b[c]
+    for r in range(m - 1, -1, -1):
+        s = b[r]
+        for j in range(r + 1, m):
+            s -= B[r, j] * b[j]
+        b[r] = s / B[r, r]
+    for r in range(m):
+        x[idx[r]] = b[r]
+    return True
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _lcp_rank_full(A, mask, k, wmax):
+    """True if the principal submatrix A_SS (S = mask; symmetric PSD) is positive definite: Cholesky
+    with every pivot above LCP_RANK_TOL wmax. The empty matrix counts as nonsingular."""
+    idx = np.empty(k, np.int64)
+    m = 0
+    for i in range(k):
+        if (mask >> i) & 1:
+            idx[m] = i
+            m += 1
+    L = np.zeros((m, m))
+    for j in range(m):
+        d = A[idx[j], idx[j]]
+        for c in range(j):
+            d -= L[j, c] * L[j, c]
+        if not d > LCP_RANK_TOL * wmax:
+            return False
+        L[j, j] = math.sqrt(d)
+        for r in range(j + 1, m):
+            s = A[idx[r], idx[j]]
+            for c in range(j):
+                s -= L[r, c] * L[j, c]
+            L[r, j] = s / L[j, j]
+    return True
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _lcp_pinv_support(A, q, mask, k, wmax, x):
+    """x_S = pinv(A_SS) (-q_S) (the least-norm least-squares solution; eigenvalues below LCP_RANK_TOL
+    wmax count as zero), x = 0 off S, by the cyclic Jacobi eigendecomposition of the symmetric A_SS."""
+    idx = np.empty(k, np.int64)
+    m = 0
+    for i in range(k):
+        x[i] = 0.0
+        if (mask >> i) & 1:
+            idx[m] = i
+            m += 1
+    if m == 0:
+        return
+    B = np.empty((m, m))
+    V = np.zeros((m, m))
+    for r in range(m):
+        V[r, r] = 1.0
+        for c in range(m):
+            B[r, c] = A[idx[r], idx[c]]
+    for _ in range(100):
+        off = 0.0
+        for r in range(m):
+            for c in range(r + 1, m):
+                off += B[r, c] * B[r, c]
+        if off <= (1e-17 * wmax) ** 2:
+            break
+        for a in range(m - 1):
+            for c in range(a + 1, m):
+                if B[a, c] == 0.0:
+                    continue
+                # rotation in the (a, c) plane that zeroes B[a, c]
+                theta = (B[c, c] - B[a, a]) / (2.0 * B[a, c])
+                t = (1.0 if theta >= 0.0 else -1.0) / (abs(theta) + math.sqrt(theta * theta + 1.0))
+                cs = 1.0 / math.sqrt(t * t + 1.0)
+                sn = t * cs
+                for r in range(m):
+                    bra = B[r, a]
+                    brc = B[r, c]
+                    B[r, a] = cs * bra - sn * brc
+                    B[r, c] = sn * bra + cs * brc
+                for r in range(m):
+                    bar = B[a, r]
+                    bcr = B[c, r]
+                    B[a, r] = cs * bar - sn * bcr
+                    B[c, r] = sn * bar + cs * bcr
+                for r in range(m):
+                    var = V[r, a]
+                    vcr = V[r, c]
+                    V[r, a] = cs * var - sn * vcr
+                    V[r, c] = sn * var + cs * vcr
+    # x_S = V diag(1/d) V^T (-q_S) over the eigenvalues d above the rank tolerance
+    for j in range(m):
+        d = B[j, j]
+        if d > LCP_RANK_TOL * wmax:
+            s = 0.0
+            for r in range(m):
+                s -= V[r, j] * q[idx[r]]
+            s /= d
+            for r in range(m):
+                x[idx[r]] += V[r, j] * s

@@ -1,0 +1,108 @@
+# numba source unit: the reset R^VCI (eq. 33), with forcing (docs/forcing.md) and restitution
+# (docs/contacts.md). Signature: see collision/reset_cva.py.
+import math
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def reset_vci(q, pm, d, s0, dE, E_pre, vpre, dtau, tau_rem, h, t, prm, ntol, maxit, pp):
+    """R^VCI: pp = pm + s d with the discrete energy balanced across the impact,
+    -D3 Ld(q, q_next, tau_rem) = E_pre + W^+ + W^- - dE, pp = -D1 Ld(q, q_next, tau_rem) - f^-,
+    solved jointly for (w, s), q_next = q + tau_rem w, by Newton from the impact law's s0 (the root
+    near s = 0 is not a reflection and is rejected). The post-impact step is the remaining time
+    tau_rem = tau_max - Delta tau (after the decrement of Algorithm 1, line 15), so the pre- and
+    post-impact steps tile the grid step exactly.
+
+    Forcing (docs/forcing.md): the discrete Lagrange-d'Alembert principle with the impact time as a
+    variable gives the energy condition E^+ = E^- + f^+_pre . v_pre + f^-_post . v_post, the discrete
+    work of the force over the half of each partial step next to the impact, W^+ = b dtau f(q, vpre,
+    t) . vpre and W^-(w) = a tau_rem f(q, w, t) . w with the Ld's discrete-force weights (a, b).
+    Restitution (docs/contacts.md): the discrete energy loses what Newton's law removes from H, dE
+    (0 for elastic impacts). Unforced and elastic: the paper's eq. (33)."""
+    if s0 == 0.0 or not math.isfinite(s0):
+        return -1, s0
+    E_target = E_pre - dE
+    if FORCED:
+        E_target += FORCE_B[VCI_STAGE] * dtau * force_power(q, vpre, t, prm)
+    # Newton from the impact law's multiplier; near the fold (tiny normal velocity) it can fall onto
+    # the non-reflecting root, so retry from larger multipliers before giving up
+    total = 0
+    for scale in (1.0, 2.0, 4.0, 8.0, 0.5):
+        it, lam = _vci_newton(q, pm, E_target, tau_rem, t, prm, ntol, maxit, d, scale * s0, pp)
+        total += abs(it)
+        if it > 0 and lam * s0 > 0.0 and abs(lam) >= 1e-3 * abs(s0):
+            for i in range(NDOF):
+                pp[i] = pm[i] + lam * d[i]
+            return total, lam
+    return -total, s0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _vci_newton(q, pm, E_target, tau_rem, t, prm, ntol, maxit, g, lam_start, pp):
+    """Newton on (w, lam) for eq. (33) (forced: its energy condition with the work terms, see
+    reset_vci) from lam_start; returns (iterations or -iterations, lam)."""
+    w = np.empty(NDOF)
+    for i in range(NDOF):
+        pp[i] = pm[i] + lam_start * g[i]
+    velocity_guess(q, pp, prm, w)
+    lam = lam_start
+    m = NDOF + 1
+    F = np.empty(m)
+    JJ = np.empty((m, m))
+    r = np.empty(NDOF)
+    J = np.empty((NDOF, NDOF))
+    ev = np.empty(NDOF)
+    c = np.empty(NODE_LEN)
+    fo = np.empty(NDOF)
+    fq = np.empty((NDOF, NDOF))
+    fv = np.empty((NDOF, NDOF))
+    aw = FORCE_A[VCI_STAGE] * tau_rem  # W^-(w) = aw f(q, w, t) . w
+    sys_node(q, prm, c)  # q is fixed: its node data once, not per iteration
+    it = 0
+    ok = False
+    dprev = np.inf
+    while it < maxit:
+        it += 1
+        ld_PmJc(VCI_STAGE, q, w, tau_rem, t, prm, c, r, J)
+        E = ld_Ed(VCI_STAGE, q, w, tau_rem, prm)
+        ld_Edv(VCI_STAGE, q, w, tau_rem, prm, ev)
+        if FORCED and aw != 0.0:
+            sys_force(q, w, t, prm, fo)
+            sys_force_jac(q, w, t, prm, fq, fv)
+            for j in range(NDOF):
+                dW = fo[j]
+                for i in range(NDOF):
+                    dW += fv[i, j] * w[i]
+                E -= aw * fo[j] * w[j]
+                ev[j] -= aw * dW
+        for i in range(NDOF):
+            F[i] = r[i] - pm[i] - lam * g[i]
+            for j in range(NDOF):
+                JJ[i, j] = J[i, j]
+            JJ[i, NDOF] = -g[i]
+            JJ[NDOF, i] = ev[i]
+        JJ[NDOF, NDOF] = 0.0
+        F[NDOF] = E - E_target
+        if not solve_small(JJ, F, m):
+            break
+        dn = 0.0
+        xn = abs(lam)
+        for i in range(NDOF):
+            w[i] -= F[i]
+            dn = max(dn, abs(F[i]))
+            xn = max(xn, abs(w[i]))
+        lam -= F[NDOF]
+        dn = max(dn, abs(F[NDOF]))
+        if not math.isfinite(dn):
+            break
+        if dn <= ntol * (1.0 + xn):
+            ok = True
+            break
+        # (issue 8) round-off floor, as in explicit_step (vcirun/maps/steps.py)
+        if it >= 3 and dn >= dprev and dn <= math.sqrt(ntol) * (1.0 + xn):
+            ok = True
+            break
+        dprev = dn
+    return (it if ok else -it), lam

@@ -1,0 +1,137 @@
+"""Why a run stopped (issue 8: every stop names its cause), from its grid states and the compiled
+module: `failure_cause` returns the "; cause: ..." text of `Trajectory.message`. numpy only; a
+diagnosis never raises."""
+from __future__ import annotations
+
+import numpy as np
+
+from . import trajectory as tr
+
+COND_SINGULAR = 1e4   # cond(M) along the motion above this: nearly singular (built-in scenes: < 30)
+COND_RISING = 1e3     # ... above this and largest right before a Newton failure: heading into it
+
+
+def accumulation_onset(impacts, h) -> float:
+    """Start of the final run of impacts that each follow the previous one by less than one step h
+    (impacts denser than the grid): the time an accumulation began. nan without impacts."""
+    imp = np.asarray(impacts, float)
+    if imp.size == 0:
+        return float("nan")
+    k = imp.size - 1
+    while k > 0 and imp[k] - imp[k - 1] < h:
+        k -= 1
+    return float(imp[k])
+
+
+def failure_cause(mod, status, Q, p, t0, fail, h, prm, tol, H0, impacts) -> str:
+    """A short diagnosis of a failed run from its grid states Q[0..fail] (p: momentum at Q[fail]);
+    "" if nothing specific is found (the status itself then says what failed). Never raises."""
+    try:
+        if status == tr.ACCUMULATION:
+            return _accumulation(impacts, h, int(tol["max_impacts_step"]))
+        if status == tr.EVENT_FAILED:
+            return "the collision-time search did not bracket the root to event_tol * h within 200 iterations"
+        t = t0 + fail * h
+        causes = _conditioning(mod, status, Q, prm, t0, h, t) + _divergence(mod, status, Q[-1], p, prm, h, H0)
+        if status == tr.RESET_FAILED and not causes:
+            causes += _reset(mod, Q[-1], p, prm, h, t, tol)
+        if status == tr.NONFINITE and not causes:
+            causes.append("the state overflowed")
+        return "; ".join(causes)
+    except Exception:  # a diagnosis must never turn a failure record into an exception
+        return ""
+
+
+def _accumulation(impacts, h, max_impacts_step) -> str:
+    onset = accumulation_onset(impacts, h)
+    k = int(np.sum(impacts >= onset)) if np.isfinite(onset) else 0
+    last = float(impacts[-1] - impacts[-2]) if len(impacts) > 1 else float("nan")
+    return (f"impacts accumulate: accumulation began at t = {onset:.9g} ({k} impacts since, each less "
+            f"than one step h after the previous, the last {last:.3g} apart; limit: more than "
+            f"max_impacts_step = {max_impacts_step} impacts in one step or such a run "
+            f"longer than max_impacts_step steps); an event-driven scheme cannot follow impacts denser "
+            f"than its grid (the motion is settling into contact)")
+
+
+def _conditioning(mod, status, Q, prm, t0, h, t) -> list:
+    """cond(M) along the motion (500 samples and the last 100 states)."""
+    n = Q.shape[1]
+    A = np.empty((n, n))
+    worst, t_worst = 0.0, t
+    idx = np.union1d(np.linspace(0, len(Q) - 1, 500).astype(int), np.arange(max(0, len(Q) - 100), len(Q)))
+    for k in idx:
+        mod.sys_M(Q[k], prm, A)
+        c = float(np.linalg.cond(A)) if np.all(np.isfinite(A)) else np.inf
+        if not c <= worst:
+            worst, t_worst = c, t0 + k * h
+    if not worst < COND_SINGULAR:
+        return [f"mass matrix nearly singular along the motion (cond(M) = {worst:.3g} at t = {t_worst:.6g})"]
+    if status == tr.NEWTON_FAILED and worst >= COND_RISING and t_worst >= t - 100 * h:
+        # conditioning still moderate on the grid but worst right before the failure: the step
+        # that failed was heading into a singular configuration between grid points
+        return [f"mass matrix approaching singularity at the failure (cond(M) = {worst:.3g} at "
+                f"t = {t_worst:.6g}, the largest along the motion)"]
+    return []
+
+
+def _divergence(mod, status, q, p, prm, h, H0) -> list:
+    H = float(mod.hamiltonian(q, p, prm))
+    if not np.isfinite(H) or abs(H - H0) > 10.0 * max(1.0, abs(H0)):
+        return [f"the discrete motion had diverged (H = {H:.4g}, H(0) = {H0:.4g}): step h too large"]
+    if status in (tr.NEWTON_FAILED, tr.NONFINITE):
+        w = fastest_mode(mod, q, p, prm)
+        if h * w > 2.0:
+            return [f"step h too large for the fastest local mode of the motion (h * omega = {h * w:.3g} "
+                    f"> 2, the stability limit of the Verlet-type maps)"]
+    return []
+
+
+def _reset(mod, q, p, prm, h, t, tol) -> list:
+    """A reset that found no root: redo the step's collision search and look at the impact state."""
+    n = q.shape[0]
+    qt, pt, vt = np.empty(n), np.empty(n), np.empty(n)
+    code, _, E_pre, _ = mod.collision_time(q, p, h, h, t, prm, float(tol["newton_tol"]), int(tol["max_iter"]),
+                                           float(tol["event_tol"]), qt, pt, vt)
+    if code != 1:
+        return []
+    g, A = np.empty(n), np.empty((n, n))
+    mod.sys_dphi(qt, prm, g)
+    mod.sys_M(qt, prm, A)
+    Wg = np.linalg.solve(A, g)
+    vn = float(Wg @ pt)                       # d phi / dt before the impact
+    gWg = float(g @ Wg)
+    ke_n = 0.5 * vn * vn / gWg if gWg > 0 else 0.0   # kinetic energy of the normal motion
+    speed = float(np.linalg.norm(np.linalg.solve(A, pt)) * np.linalg.norm(g))
+    mismatch = abs(E_pre - float(mod.hamiltonian(qt, pt, prm)))
+    w = fastest_mode(mod, qt, pt, prm)
+    if abs(vn) <= 1e-6 * speed:
+        return [f"zero normal velocity at the contact (d phi/dt = {vn:.3g}; grazing or resting contact): no "
+                "elastic reset exists"]
+    if ke_n < 10 * mismatch:
+        return [f"no reflecting root of the reset equations: the normal kinetic energy {ke_n:.3g} (d phi/dt = "
+                f"{vn:.3g}, effective mass 1/(g^T M^-1 g) = {1 / gWg:.3g}) is not large against the energy error "
+                f"the reset must absorb (pre-impact discrete energy - H = {mismatch:.3g}): a grazing contact or a "
+                "tiny effective mass"]
+    if h * w > 2.0:
+        return [f"no reflecting root of the reset equations: step h too large for the fastest local mode at the "
+                f"impact (h * omega = {h * w:.3g} > 2)"]
+    return [f"Newton found no reflecting root of the reset equations (cond(M) at the impact = "
+            f"{np.linalg.cond(A):.3g}, h * omega = {h * w:.3g}, normal kinetic energy {ke_n:.3g})"]
+
+
+def fastest_mode(mod, q, p, prm) -> float:
+    """Largest |eigenvalue| of the linearized Hamilton's equations at (q, p) (central differences): the
+    fastest local time scale 1/omega of the motion (a nearly singular M makes some modes fast)."""
+    n = q.shape[0]
+    y = np.concatenate([q, p])
+    J = np.empty((2 * n, 2 * n))
+    fa, fb = np.empty(2 * n), np.empty(2 * n)
+    for j in range(2 * n):
+        e = 1e-6 * max(1.0, abs(y[j]))
+        ya, yb = y.copy(), y.copy()
+        ya[j] += e
+        yb[j] -= e
+        mod.hamilton_rhs(ya, prm, fa)
+        mod.hamilton_rhs(yb, prm, fb)
+        J[:, j] = (fa - fb) / (2 * e)
+    return float(np.max(np.abs(np.linalg.eigvals(J))))

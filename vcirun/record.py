@@ -1,0 +1,154 @@
+"""The record of a run, as one table: what the compiled loop fills, what `Trajectory` holds, what a
+results file stores, and what docs/results_schema.md lists (issue 16).
+
+- FIELDS: every array the loop writes (name, axis, per-coordinate?, dtype, fill, storage, meaning).
+  The generated module gets one index constant O_<NAME> per row (vcirun.codegen.units), the loop
+  reads its output arrays as `out[O_<NAME>]` from one tuple built here (`allocate`), `Trajectory`
+  has one attribute per row (trimmed by `trim`), and storage writes every row whose `stored` says so.
+  Adding an array is one row here plus the kernel code that fills it.
+- COUNTERS: the loop's scalar results (status, where it stopped, how much it filled), the `info`
+  array, indexed by I_<NAME>.
+- SETTINGS: the loop's scalar inputs (the constraint switch and the tolerances), one float64 array,
+  indexed by S_<NAME>.
+- STATUSES: the status codes, in code order (ST_<NAME> in the module).
+
+numpy only: importing this imports neither sympy nor numba.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+AXES = {
+    "grid": "N+1 grid states t_k = t0 + k h",
+    "step": "N grid steps k -> k+1",
+    "impact": "one entry per impact, in time order",
+    "partial": "one entry per partial step of Algorithm 1",
+}
+
+
+@dataclass(frozen=True)
+class Field:
+    """One array of the record. axis: a key of AXES; dof: a trailing axis of length n; fill: the
+    value the buffer starts with (None: np.empty, the loop writes every entry that is read back);
+    stored: "impacts" (always stored), "trajectory" (stored with store_trajectories), "no";
+    only: None, or "modified" (the MCVA family; None in the Trajectory of other methods)."""
+
+    name: str
+    axis: str
+    dof: bool
+    dtype: str
+    fill: float | None
+    stored: str
+    doc: str
+    only: str | None = None
+
+    @property
+    def index_name(self) -> str:
+        return "O_" + self.name.upper()
+
+
+FIELDS = (
+    Field("q", "grid", True, "float64", None, "trajectory", "grid positions q_k"),
+    Field("p", "grid", True, "float64", None, "trajectory", "grid momenta p_k (T*Q)"),
+    Field("H", "grid", False, "float64", np.nan, "trajectory", "continuous Hamiltonian H(q_k, p_k)"),
+    Field("Ed", "grid", False, "float64", np.nan, "trajectory",
+          "discrete energy -D3 Ld of the trial full step from each grid state (not the step taken where "
+          "impact_step is true)"),
+    Field("Hmod", "grid", False, "float64", np.nan, "trajectory", "truncated modified Hamiltonian H~^{O(h^s)}",
+          only="modified"),
+    Field("impacts", "impact", False, "float64", None, "impacts", "impact times, ascending"),
+    Field("impact_q", "impact", True, "float64", None, "impacts", "configuration at each impact"),
+    Field("impact_p_minus", "impact", True, "float64", None, "impacts", "momentum before each impact"),
+    Field("impact_p_plus", "impact", True, "float64", None, "impacts", "momentum after each impact"),
+    Field("impact_impulse", "impact", False, "float64", None, "impacts",
+          "impulse lambda of each contact impact: p+ = p- + sum over the impact's contacts of lambda_i grad phi_i(q)"),
+    Field("impact_contact", "impact", False, "int64", None, "impacts",
+          "index of the impact's constraint, in declaration order (simultaneous impacts: one entry each)"),
+    Field("impact_step", "step", False, "bool", 0, "trajectory", "True where step k -> k+1 contained an impact"),
+    Field("partial_steps", "partial", False, "float64", None, "impacts", "every partial step length Delta tau taken"),
+    Field("newton_iters", "step", False, "int64", 0, "trajectory", "Newton iterations spent in step k -> k+1"),
+)
+FIELD = {f.name: f for f in FIELDS}
+
+COUNTERS = ("status", "fail_step", "n_impacts", "n_partial", "steps")
+
+SETTINGS = ("constrained", "newton_tol", "max_iter", "event_tol", "max_impacts_step", "energies")
+
+# (name, meaning) in code order: the module's ST_<NAME> = code, Trajectory.status = name
+STATUSES = (
+    ("ok", "the run reached T"),
+    ("newton_failed", "a full/partial step or reset solve did not converge"),
+    ("event_failed", "the collision-time search did not converge"),
+    ("reset_failed", "the reset map found no nontrivial root"),
+    ("accumulation", "impacts denser than the grid for > max_impacts_step steps (or in one step)"),
+    ("nonfinite", "a state became inf/NaN (or the initial energy is not finite)"),
+)
+STATUS_CODES = {code: name for code, (name, _) in enumerate(STATUSES)}
+STATUS_OF = {name: code for code, name in STATUS_CODES.items()}
+
+
+def module_constants() -> str:
+    """The index and status constants of the record, as module source (vcirun.codegen.units emits
+    them into every generated module): O_<FIELD>, I_<COUNTER>, S_<SETTING>, ST_<STATUS>."""
+    lines = [f"{f.index_name} = {k}" for k, f in enumerate(FIELDS)]
+    lines += [f"I_{c.upper()} = {k}" for k, c in enumerate(COUNTERS)]
+    lines += [f"S_{s.upper()} = {k}" for k, s in enumerate(SETTINGS)]
+    lines += [f"ST_{name.upper()} = {code}" for code, (name, _) in enumerate(STATUSES)]
+    return "\n".join(lines)
+
+
+def settings_vector(**values) -> np.ndarray:
+    """The loop's settings array from keyword values (every SETTINGS name, nothing else)."""
+    missing, extra = set(SETTINGS) - set(values), set(values) - set(SETTINGS)
+    if missing or extra:
+        raise ValueError(f"settings: missing {sorted(missing)}, unknown {sorted(extra)}")
+    return np.array([float(values[s]) for s in SETTINGS], dtype=np.float64)
+
+
+def allocate(N: int, n: int, cap_impacts: int, cap_partial: int) -> tuple:
+    """The loop's output tuple, one buffer per FIELDS row in table order."""
+    rows = {"grid": N + 1, "step": N, "impact": cap_impacts, "partial": cap_partial}
+    out = []
+    for f in FIELDS:
+        shape = (rows[f.axis], n) if f.dof else (rows[f.axis],)
+        dt = np.bool_ if f.dtype == "bool" else np.dtype(f.dtype)
+        out.append(np.empty(shape, dt) if f.fill is None else np.full(shape, f.fill, dt))
+    return tuple(out)
+
+
+def trim(out: tuple, counters: dict, modified: bool) -> dict:
+    """{name: array} of a finished loop: grid rows up to the last state reached, step rows up to the
+    steps taken, impacts and partial steps up to their counts (copies where the buffer is larger)."""
+    steps = counters["steps"]
+    used = {"grid": steps + 1, "step": steps, "impact": counters["n_impacts"], "partial": counters["n_partial"]}
+    arrays = {}
+    for f, buf in zip(FIELDS, out):
+        if f.only == "modified" and not modified:
+            arrays[f.name] = None
+            continue
+        k = used[f.axis]
+        arrays[f.name] = buf[:k] if f.axis == "grid" else buf[:k].copy()
+    return arrays
+
+
+def stored_names(kind: str) -> tuple:
+    """Names of the rows stored as `kind` ("impacts": always, "trajectory": with trajectories)."""
+    return tuple(f.name for f in FIELDS if f.stored == kind)
+
+
+def schema_markdown() -> str:
+    """The per-run datasets table of docs/results_schema.md (tests check the document holds it)."""
+    hdf = {"float64": "f8", "int64": "i8", "bool": "u1"}
+    lines = ["| dataset | shape, dtype | stored | meaning |", "|---|---|---|---|",
+             "| `t` | (N+1,) f8 | with trajectories | grid times t0 + k h |"]
+    size = {"grid": "N+1", "step": "N", "impact": "m", "partial": "K"}
+    when = {"impacts": "always", "trajectory": "with trajectories"}
+    for f in FIELDS:
+        if f.stored == "no":
+            continue
+        shape = f"({size[f.axis]}, n)" if f.dof else f"({size[f.axis]},)"
+        note = " (MCVA family only)" if f.only == "modified" else ""
+        lines.append(f"| `{f.name}` | {shape} {hdf[f.dtype]} | {when[f.stored]} | {f.doc}{note} |")
+    return "\n".join(lines)
