@@ -33,7 +33,7 @@ import numpy as np
 import yaml
 
 __all__ = ["MAX_STEPS", "MIN_H", "MAX_YAML_CHARS", "MAX_YAML_NODES", "MAX_COORDINATES", "MAX_PARAMETERS",
-           "check_number", "check_simulate_args", "check_reference_args", "check_state_vector", "grid_size",
+           "check_number", "check_simulate_args", "check_scene_size", "check_reference_args", "check_state_vector", "grid_size",
            "run_bytes", "stored_bytes", "memory_limit", "set_memory_limit", "limit_memory", "parse_bytes", "format_bytes",
            "check_run_memory", "check_identifier", "check_distinct_names", "ascii_name_problem",
            "yaml_load", "YAMLLimitError", "nonfinite_start", "describe"]
@@ -48,7 +48,7 @@ MAX_YAML_CHARS = 4_000_000
 MAX_YAML_NODES = 1_000_000
 MAX_YAML_SCALAR_CHARS = 20_000_000  # characters of every scalar after alias expansion
 # Declarations of user systems (the generated kernels grow like n**2 to n**4).
-MAX_COORDINATES = 64
+MAX_COORDINATES = 32
 MAX_PARAMETERS = 1024
 MAX_NAME_CHARS = 64
 
@@ -281,6 +281,19 @@ def check_system_names(system) -> None:
     check_distinct_names(names, "system")
 
 
+def check_scene_size(system, field: str = "system") -> None:
+    """A sized built-in scene (`n_pendulum_K`, `newton_cradle_K`) within the coordinate cap: its symbolic
+    model and kernels grow like K**2 to K**4, and K = 100000 would build them until memory runs out."""
+    if not isinstance(system, str):
+        return
+    m = re.fullmatch(r"([a-z_]+?)_(\d+)", system)
+    if m and m.group(1) in ("n_pendulum", "newton_cradle"):
+        k = int(m.group(2))
+        if not 1 <= k <= MAX_COORDINATES:
+            raise ValueError(f"{field}: {system} has {k} bodies; the built-in sized scenes take 1 to "
+                             f"{MAX_COORDINATES}")
+
+
 def check_simulate_args(*, h, T, t0=0.0, beta=None, q0=None, p0=None, params=None, constrained=None,
                         energies=True, tolerances: dict | None = None, system=None) -> int:
     """Validate `vcirun.simulate`'s arguments (same bounds and messages as a sweep config); returns N."""
@@ -302,14 +315,16 @@ def check_simulate_args(*, h, T, t0=0.0, beta=None, q0=None, p0=None, params=Non
         if k in _TOLERANCE_BOUNDS:
             check_number(k, v, **_TOLERANCE_BOUNDS[k])
     if system is not None:
+        check_scene_size(system)
         check_system_names(system)
     return N
 
 
 def check_reference_args(*, T, rtol=1e-13, method="exact", h=None, beta=None, q0=None, p0=None,
-                         params=None) -> None:
+                         params=None, system=None) -> None:
     """Validate `vcirun.reference`'s arguments (the config layer's bounds on reference.rtol, T, h)."""
     check_number("T", T, gt=0)
+    check_scene_size(system)
     if not isinstance(method, str):
         raise ValueError(f"method: must be 'exact' or a method name (got {describe(method)})")
     if method == "exact":
@@ -481,12 +496,44 @@ def _check_expansion(root) -> None:
         memo[key] = (count, chars)
 
 
+MAX_YAML_DEPTH = 100  # nesting of flow collections (PyYAML takes seconds to refuse 1000 levels)
+
+
+def _flow_depth(text: str) -> int:
+    """Deepest nesting of [ ] and { } outside quoted scalars (a scan before PyYAML recurses into it)."""
+    depth = top = 0
+    quote = None
+    i, n = 0, len(text)
+    while i < n:
+        c = text[i]
+        if quote:
+            if c == "\\" and quote == '"':
+                i += 1
+            elif c == quote:
+                quote = None
+        elif c in "'\"":
+            quote = c
+        elif c == "#" and (i == 0 or text[i - 1] in " \t\n"):
+            j = text.find("\n", i)
+            i = n if j < 0 else j
+            continue
+        elif c in "[{":
+            depth += 1
+            top = max(top, depth)
+        elif c in "]}":
+            depth -= 1
+        i += 1
+    return top
+
+
 def yaml_load(text: str):
     """Parse YAML text of a config or a system file (see `SafeLoader`); YAMLError on bad input."""
     if not isinstance(text, str):
         raise YAMLLimitError(f"expected YAML text (got {type(text).__name__})")
     if len(text) > MAX_YAML_CHARS:
         raise YAMLLimitError(f"the text is {len(text):,} characters long; the limit is {MAX_YAML_CHARS:,}")
+    if text.count("[") + text.count("{") > MAX_YAML_DEPTH and _flow_depth(text) > MAX_YAML_DEPTH:
+        raise YAMLLimitError(f"the document nests [ ] or {{ }} more than {MAX_YAML_DEPTH} levels deep")
     loader = SafeLoader(text)
     try:
         return loader.get_single_data()

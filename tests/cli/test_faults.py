@@ -269,6 +269,18 @@ def test_unusable_outputs_are_one_line_and_leave_nothing(tiny, tmp_path):
     assert not Path("/nonexistent-vcirun-test").exists()
 
 
+def test_output_names_the_os_refuses(tiny, tmp_path):
+    with pytest.raises(StorageError, match="cannot contain a NUL character"):
+        run_sweep(load_config(tiny), output="a\x00b.h5", workers=1, progress=False)
+    one_line(cli("sweep", tiny, "--output", tmp_path / ("x" * 300 + ".h5"), "-q"), "File name too long")
+
+
+def test_absurd_worker_counts_are_refused(tiny, tmp_path):
+    with pytest.raises(SweepError, match=r"workers: 100000 local worker processes .* too many"):
+        run_sweep(load_config(tiny), output=tmp_path / "r.h5", workers=100_000, progress=False)
+    assert not (tmp_path / "r.h5").exists()
+
+
 def test_a_symlinked_output_is_written_through(tiny, tmp_path):
     (tmp_path / "store").mkdir()
     link = tmp_path / "link.h5"

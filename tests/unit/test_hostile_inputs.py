@@ -84,6 +84,15 @@ def test_yaml_limits_and_rules():
     assert validation.yaml_load("a: &a [1e-3, 2]\nb: [*a, *a]\n") == {"a": [1e-3, 2], "b": [[1e-3, 2], [1e-3, 2]]}
 
 
+def test_deeply_nested_yaml_is_refused_before_pyyaml_recurses():
+    t0 = time.perf_counter()
+    with pytest.raises(yaml.YAMLError, match="more than 100 levels deep"):
+        validation.yaml_load("x: " + "[" * 5000 + "]" * 5000 + "\n")
+    assert time.perf_counter() - t0 < 2.0
+    # brackets inside quotes or comments are text
+    assert validation.yaml_load("a: '" + "[" * 300 + "'\n# " + "{" * 300 + "\n") == {"a": "[" * 300}
+
+
 def test_system_files_are_parsed_like_configs(tmp_path):
     p = tmp_path / "s.yaml"
     p.write_text(SYSTEM.replace("{k: 4.0}", "{k: 1e-3}"))
@@ -149,8 +158,14 @@ def test_run_bytes_estimates_what_simulate_allocates():
 def test_sizes_are_capped(tmp_path):
     s = tmp_path / "s.yaml"
     s.write_text(SYSTEM.replace("coordinates: [x]", "coordinates: [" + ", ".join(f"x{i}" for i in range(100)) + "]"))
-    with pytest.raises(ValueError, match="system.coordinates: 100 coordinates; the limit is 64"):
+    with pytest.raises(ValueError, match="system.coordinates: 100 coordinates; the limit is 32"):
         load_system_yaml(s)
+    one_line_config_error(tmp_path, CONFIG.replace("system: cart_pendulum", "system: n_pendulum_100000")
+                          .replace("beta: [3.2]\n", ""), "system: n_pendulum_100000 has 100000 bodies")
+    with pytest.raises(ValueError, match="system: n_pendulum_100000 has 100000 bodies"):
+        vcirun.simulate("n_pendulum_100000", "CVA", h=0.01, T=0.1)
+    with pytest.raises(ValueError, match="system: newton_cradle_5000 has 5000 bodies"):
+        vcirun.reference("newton_cradle_5000", T=0.1)
     chunk = "(" + "-".join(["-x"] * 80) + ")"  # 7199 nodes in 7259 characters (under the length cap)
     s.write_text(SYSTEM.replace('"0.5*k*x**2"', '"' + "*".join([chunk] * 30) + '"'))
     with pytest.raises(ValueError, match="system.potential: .*has 7199 numbers, names and operations; the limit is 5000"):

@@ -756,6 +756,10 @@ def build_system(cfg: SweepConfig):
             raise _Semantic("system",
                             f"unknown built-in system {s.name!r}" + (f"; did you mean {hint[0]!r}?" if hint else "")
                             + f" (choose one of {', '.join(BUILTIN_SCENE_DATA)}, or a YAML file path)")
+        try:
+            _validation.check_scene_size(s.name)
+        except ValueError as e:
+            raise _Semantic("system", str(e).partition(": ")[2]) from None
         sysm = get_scene(s.name)
         return s.name, (dict(s.params) or None), sysm
     if isinstance(s, FileSystem):

@@ -100,7 +100,7 @@ def resolve_spec(cfg_spec=None, *, scheduler: str | None = None, task_size: int 
     """The ExecutorSpec a sweep uses: the config's `executor` section, overridden by the command line
     (`--scheduler ADDRESS`, or `--scheduler local` for the local pool; `--task-size`; `--worker-cache-dir`)."""
     from .config import ExecutorSpec, check_scheduler_address
-    from .sweep import SweepError
+    from .worker import SweepError
 
     spec = cfg_spec or ExecutorSpec()
     upd: dict = {}
@@ -137,7 +137,7 @@ def resolve_spec(cfg_spec=None, *, scheduler: str | None = None, task_size: int 
 
 
 def _import_distributed():
-    from .sweep import SweepError
+    from .worker import SweepError
 
     try:
         import distributed  # noqa: F401 - optional dependency, imported only for a Dask sweep
@@ -156,7 +156,7 @@ def make_executor(spec, *, workers: int, start_method: str | None = None):
 
 def split_tasks(tasks: list, task_size: int) -> list:
     """Split tasks into tasks of at most `task_size` runs (the reference stays with the first part)."""
-    from .sweep import Task
+    from .worker import Task
 
     out = []
     for t in tasks:
@@ -228,7 +228,7 @@ class LocalExecutor:
         return {"tasks": self._n_tasks}
 
     def start(self, cfg, pending, stored_refs, needs_reference, ref_T, ref_h, reference_ics=()) -> None:
-        from . import sweep
+        from . import worker as sweep  # (the worker side of a sweep)
 
         tasks = sweep.make_tasks(pending, self.workers, set(stored_refs), needs_reference, reference_ics)
         if self.task_size:
@@ -251,7 +251,7 @@ class LocalExecutor:
 
     @staticmethod
     def _in_process(tasks):
-        from . import sweep
+        from . import worker as sweep  # (the worker side of a sweep)
 
         for task in tasks:
             # run by run, so an interruption loses at most one run (the reference is cached)
@@ -308,7 +308,7 @@ class LocalExecutor:
 
     def close(self) -> None:
         if self._pool is not None:
-            from . import sweep
+            from . import worker as sweep  # (the worker side of a sweep)
 
             sweep._terminate_pool(self._pool)
             self._pool = None
@@ -333,7 +333,7 @@ def _run_unit(payload: dict, tasks: list) -> dict:
     cache_dir = payload.get("cache_dir")
     if cache_dir and os.environ.get("VCIRUN_CACHE_DIR") != cache_dir:
         os.environ["VCIRUN_CACHE_DIR"] = cache_dir  # read by vcirun.codegen.build.cache_dir() at each load
-    from . import sweep
+    from . import worker as sweep
 
     key, st = getattr(_LOCAL, "state", (None, None))
     cold = key != payload["key"]
@@ -435,7 +435,7 @@ class DaskExecutor:
 
     # -- connect
     def connect(self) -> None:
-        from .sweep import SweepError
+        from .worker import SweepError
 
         distributed = _import_distributed()
         self._quiet = _quiet_logs()
@@ -463,7 +463,7 @@ class DaskExecutor:
                              f"{_one_line(e)}); the workers need the same vcirun as this client") from None
 
     def _set_up(self) -> None:
-        from .sweep import SweepError
+        from .worker import SweepError
 
         hello = self.client.run(_worker_hello, self.cache_dir)
         mine = self._fingerprint = source_fingerprint(cached=False)
@@ -549,7 +549,7 @@ class DaskExecutor:
 
     def _next_unit(self, k: int) -> list:
         """Up to k runs from the queue: whole initial conditions while they fit, else part of one."""
-        from .sweep import Task
+        from .worker import Task
 
         tasks, n = [], 0
         if self._ref_only:  # initial conditions whose runs are stored but whose reference is missing

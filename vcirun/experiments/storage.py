@@ -714,7 +714,15 @@ class _Pending:
 def _resolve_output(path) -> Path:
     """The path to write: a symlink's target (the link then keeps pointing at the results), checked
     for the usual mistakes with a one-line message."""
-    p = Path(path)
+    if "\x00" in str(path):
+        raise StorageError(f"{str(path)!r}: a path cannot contain a NUL character; choose another --output")
+    try:
+        return _resolve_checked(Path(path), path)
+    except OSError as e:  # a name too long, a component without permission, ...
+        raise StorageError(f"{path}: cannot use this path ({_os_text(e)}); choose another --output") from None
+
+
+def _resolve_checked(p: Path, path) -> Path:
     if p.is_symlink():
         try:
             p = Path(os.path.realpath(p, strict=False))
