@@ -1,8 +1,9 @@
-# vcirun: one virtual environment in .venv, one kernel cache in .vcirun_cache (shared by tests).
+# vcirun: one virtual environment in .venv. Compiled kernels go to the one cache every entry point
+# uses (make, the vcirun command, the Python API, the tests): $VCIRUN_CACHE_DIR if set, else
+# ~/.cache/vcirun; `vcirun cache info` shows it, `vcirun cache clear` empties it.
 PY      ?= python3
 VENV    := .venv
 BIN     := $(VENV)/bin
-export VCIRUN_CACHE_DIR ?= $(CURDIR)/.vcirun_cache
 
 .PHONY: run test test-all bench reproduce extremes clean install
 
@@ -14,10 +15,12 @@ $(BIN)/vcirun: pyproject.toml
 
 install: $(BIN)/vcirun
 
-# The main job on a small default: sweep configs/quick.yaml and plot it.
+# The main job on a small default: sweep configs/quick.yaml and plot it (then, as the README says:
+# `source .venv/bin/activate` puts `vcirun` on PATH).
 run: install
 	$(BIN)/vcirun sweep configs/quick.yaml
 	$(BIN)/vcirun plot results/quick.h5
+	@echo "next: source $(VENV)/bin/activate, then e.g. vcirun simulate --method MCVAA --beta 4.2 (see README.md)"
 
 # The default test suite (slow tests excluded; `make test-all` runs them too).
 test: install
@@ -46,5 +49,6 @@ reproduce: install
 	$(BIN)/vcirun plot results/fig1.h5
 	$(BIN)/vcirun plot results/table2.h5
 
+# (the kernel cache is not the repository's: `vcirun cache clear` empties it)
 clean:
-	rm -rf $(VENV) .vcirun_cache build *.egg-info
+	rm -rf $(VENV) build *.egg-info

@@ -84,7 +84,7 @@ def main(argv=None):
     a = ap.parse_args(argv)
     sys.path.insert(0, str(ROOT))
     import vcirun
-    from vcirun import api
+    from vcirun import resolve
 
     beta = 3.2 if a.system == "cart_pendulum" else None
     new_cache = os.environ.get("VCIRUN_CACHE_DIR", str(Path.home() / ".cache" / "vcirun"))
@@ -95,16 +95,16 @@ def main(argv=None):
         for h in (float(x) for x in a.h.split(",")):
             times = {"old": [], "new": []}
             last = {}
-            orig = api.load_module
+            orig = resolve.load_module
             try:
                 for _ in range(a.repeats):
                     for tag, mod in mods.items():
-                        api.load_module = lambda s, k, m=mod: m   # a substitute loader: no warm index
+                        resolve.load_module = lambda s, k, m=mod: m   # a substitute loader: no warm index
                         tr = vcirun.simulate(a.system, method, h=h, T=a.T, beta=beta, energies=False)
                         times[tag].append(tr.wall_time)
                         last[tag] = tr
             finally:
-                api.load_module = orig
+                resolve.load_module = orig
             med = {k: statistics.median(v) * 1e3 for k, v in times.items()}
             o, n = last["old"], last["new"]
             same = np.array_equal(o.q, n.q) and np.array_equal(o.p, n.p)

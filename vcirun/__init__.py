@@ -1,6 +1,6 @@
 """vcirun: event-driven variational collision integrators (Pekarek & Murphey) as an experiment runner.
 
-Python API: `simulate`, `reference`, `l2_error`; command line: `vcirun --help`.
+Python API: `simulate`, `reference`, `l2_error`, `open_results`; command line: `vcirun --help`.
 
 The API names are loaded on first use (PEP 562), so `import vcirun` costs next to nothing and a warm
 `vcirun.simulate` imports neither sympy nor scipy.integrate (issue 7).
@@ -10,10 +10,11 @@ import types as _types
 
 __version__ = "0.1.0"
 
-__all__ = ["simulate", "reference", "l2_error", "Trajectory", "__version__"]
+__all__ = ["simulate", "reference", "l2_error", "Trajectory", "open_results", "__version__"]
 
 _LAZY = {"simulate": ("api", "simulate"), "reference": ("reference", "reference"),
-         "l2_error": ("reference", "l2_error"), "Trajectory": ("trajectory", "Trajectory")}
+         "l2_error": ("reference", "l2_error"), "Trajectory": ("trajectory", "Trajectory"),
+         "open_results": ("results", "open_results"), "verify": ("verification", "verify")}
 
 
 def __getattr__(name):

@@ -1,147 +1,21 @@
 """The Python API: `simulate`, `reference`, `l2_error`. The CLI and the sweep runner go through these."""
 from __future__ import annotations
 
-import hashlib
 import math
-import os
 import time
-from pathlib import Path
 
 import numpy as np
 
 from . import record
 from . import trajectory as tr
 from . import validation
-from .codegen import build
-from .codegen.build import load_module
 from .diagnosis import accumulation_onset, failure_cause  # noqa: F401 (accumulation_onset: public here)
 from .methods import resolve_method
-from .scenedata import SystemData, check_mass_matrix, requested_start, scene_args, scene_data, start_tolerance
+from .resolve import _warmable, resolve_numeric, resolve_system  # noqa: F401 (public here)
+from .scenedata import SystemData, check_mass_matrix, requested_start, start_tolerance
 
 DEFAULT_TOLERANCES = {"newton_tol": 1e-12, "event_tol": 1e-13, "max_iter": 50, "max_impacts_step": 64}
 _METHOD_OPTIONS = {"ld", "mh_order", "flow_order"}
-
-
-def _is_yaml_source(s: str) -> bool:
-    """A YAML system file: a name ending in .yaml/.yml, or an existing file that is not a built-in
-    scene's name (a built-in name always means the scene: no file-system lookup per call)."""
-    return s.endswith((".yaml", ".yml")) or (scene_args(s) is None and Path(s).is_file())
-
-
-def resolve_system(system, params: dict | None = None):
-    """A MechanicalSystem from a built-in name, a YAML file path, or an instance (symbolic: imports sympy)."""
-    from .mechanics.system import MechanicalSystem
-
-    if isinstance(system, MechanicalSystem):
-        if params:
-            system.param_values(params)  # validates the names
-        return system
-    if isinstance(system, (str, Path)):
-        s = str(system)
-        if _is_yaml_source(s):
-            from .mechanics.loader import load_system_yaml
-
-            return load_system_yaml(s)
-        from .mechanics.scenes import get_scene
-
-        return get_scene(s)
-    raise ValueError(f"system: expected a built-in name, a YAML path or a MechanicalSystem, got {type(system).__name__}")
-
-
-# --- warm start (issue 7): a system given by name or file without the symbolic system ----------------
-
-def _warmable(system) -> bool:
-    """A built-in scene name or an existing file: something the warm index may know."""
-    if not isinstance(system, (str, Path)):
-        return False
-    s = str(system)
-    return Path(s).is_file() if _is_yaml_source(s) else scene_args(s) is not None
-
-
-def _warm_ident(system):
-    """(("scene", name) or ("yaml", sha256 of the file), file bytes or None) for a system the warm index
-    can serve, else (None, None) (instances, unknown names, missing files: the symbolic path decides)."""
-    if not isinstance(system, (str, Path)):
-        return None, None
-    s = str(system)
-    if _is_yaml_source(s):
-        try:
-            data = Path(s).read_bytes()
-        except OSError:
-            return None, None
-        return ("yaml", hashlib.sha256(data).hexdigest()), data
-    if scene_args(s) is None:
-        return None, None
-    return ("scene", s), None
-
-
-def _data_from_entry(ident, entry) -> SystemData | None:
-    """The numeric system of a warm index entry (None if it does not fit: then the symbolic path runs)."""
-    try:
-        names = [k for k, _ in entry["params"]]
-        if ident[0] == "scene":
-            d = scene_data(ident[1])
-            if d.name != entry["name"] or d.n != entry["n"] or list(d.params) != names:
-                return None
-            return d
-        n = int(entry["n"])
-        vec = lambda v: None if v is None else np.array(v, dtype=float)  # noqa: E731
-        d = SystemData(name=str(entry["name"]), n=n, params={k: v for k, v in entry["params"]},
-                       default_q0=vec(entry["default_q0"]), default_p0=vec(entry["default_p0"]),
-                       description=str(entry.get("description", "")))
-        if (entry.get("ic_map") or (d.default_q0 is None) != (d.default_p0 is None)
-                or any(a is not None and a.shape != (n,) for a in (d.default_q0, d.default_p0))
-                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in d.params.values())):
-            return None
-        return d
-    except (KeyError, TypeError, ValueError):
-        return None
-
-
-def _entry_data(sysm) -> dict:
-    """What the warm index stores about a symbolic system (built-in scenes take the rest from
-    vcirun.scenedata; YAML systems have no initial-condition map)."""
-    vec = lambda a: None if a is None else np.asarray(a, float).tolist()  # noqa: E731
-    return {"name": sysm.name, "n": sysm.n, "params": [[k, v] for k, v in sysm.params.items()],
-            "default_q0": vec(sysm.default_q0), "default_p0": vec(sysm.default_p0),
-            "description": sysm.description, "ic_map": sysm.ic_map is not None}
-
-
-_WARM_HITS: dict = {}
-
-
-def resolve_numeric(system, ks: build.KernelSet):
-    """(SystemData, loader, symbolic system or None) for `system` (built-in name, YAML path or
-    MechanicalSystem) and kernel set `ks`; loader() returns the compiled module.
-
-    A built-in name or a YAML file whose (identity, ks) is in the warm index is served from it:
-    no symbolic system, no sympy. Otherwise (and always for a MechanicalSystem instance) the
-    symbolic system is built and its module loaded or generated; names and files are then indexed.
-    A substitute for `load_module` (tests monkeypatch it to run modules uncompiled) is always used:
-    it turns the warm index off."""
-    genuine = load_module is build.load_module
-    ident, raw = _warm_ident(system) if genuine else (None, None)
-    if ident is not None:
-        memo = (ident, ks, os.environ.get("VCIRUN_KERNEL_PATH", ""))
-        hit = _WARM_HITS.get(memo)
-        if hit is not None:   # this process has read the entry already: no file access per call
-            return hit
-        entry = build.warm_lookup(ident, ks)
-        d = _data_from_entry(ident, entry) if entry is not None else None
-        if d is not None:
-            hit = (d, lambda: build.load_cached_module(entry["module"], d.name, ks), None)
-            _WARM_HITS[memo] = hit
-            return hit
-    sysm = resolve_system(system)
-    d = SystemData.of(sysm)
-
-    def load():
-        mod = load_module(sysm, ks)
-        if ident is not None and (raw is None or _warm_ident(system)[1] == raw):  # the file we hashed
-            build.warm_record(ident, ks, build.module_key(sysm, ks), _entry_data(sysm))
-        return mod
-
-    return d, load, sysm
 
 
 def _start_state(d: SystemData, beta, q0, p0, prm, sysm=None):
@@ -192,22 +66,45 @@ def _constraint_text(sysm, i: int) -> str:
     return f"phi = {c.phi}" if sysm.m == 1 else f"constraint {c.name} (phi = {c.phi})"
 
 
+class GridWarning(UserWarning):
+    """T is not a multiple of h: the grid ends at N h < T (said once per (T, h))."""
+
+
 def grid_steps(h, T) -> tuple[float, float, int]:
-    """Validated (h, T, N) of the grid t_k = k h, k = 0..N, N = round(T / h)."""
+    """Validated (h, T, N) of the grid t_k = k h, k = 0..N, N = floor(T / h) as in the paper (to a
+    relative 1e-9, so T = 5, h = 1e-3 gives N = 5000 despite 5 / 1e-3 = 4999.999...)."""
     h, T = float(h), float(T)
     if not (h > 0 and math.isfinite(h)):
         raise ValueError(f"h: must be a positive finite step (got {h})")
     if not (T > 0 and math.isfinite(T)):
         raise ValueError(f"T: must be a positive finite time (got {T})")
-    N = int(round(T / h))
+    N = grid_count(h, T)
     if N < 1:
         raise ValueError(f"T: must be at least one step h (got T={T}, h={h})")
     return h, T, N
 
 
+def grid_count(h: float, T: float) -> int:
+    """N = floor(T / h) up to a relative 1e-9 (the one rule for the grid's length)."""
+    r = T / h
+    return int(math.floor(r + 1e-9 * max(1.0, r)))
+
+
+def grid_note(h: float, T: float) -> str:
+    """'' if T is a multiple of h, else the sentence that says where the grid ends."""
+    N = grid_count(h, T)
+    if abs(N * h - T) <= 1e-9 * max(1.0, abs(T)):
+        return ""
+    return (f"T = {T:g} is not a multiple of h = {h:g}: the grid ends at N h = {N * h:.12g} "
+            f"(N = floor(T / h) = {N}, as in the paper); the trajectory's T is that end time")
+
+
+_FIRST_CALLS: set = set()
+
+
 def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, constrained=None,
-             t0=0.0, energies=True, **options) -> tr.Trajectory:
-    """Simulate `system` with `method` on the grid t_k = t0 + k h, k = 0..N, N = round(T / h).
+             t0=0.0, energies=True, resting_contact=True, **options) -> tr.Trajectory:
+    """Simulate `system` with `method` on the grid t_k = t0 + k h, k = 0..N, N = floor(T / h).
 
     system : built-in name ('cart_pendulum', 'double_pendulum', 'oscillator_wall', ...), YAML path,
              or MechanicalSystem.
@@ -217,6 +114,10 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     beta   : the scene's initial-condition map (Xi(beta) for the cart-pendulum); or give q0 and p0.
     params : parameter overrides; constrained: False ignores the constraint (default: per method).
     options: newton_tol, event_tol, max_iter, max_impacts_step.
+    resting_contact: True (default) holds contacts that come to rest (accumulating impacts, a start
+             resting on a surface, a small bounce with e < 1) and releases them where the contact
+             force turns tensile (issue 18); False stops such runs with status `accumulation` (and
+             a resting start with `reset_failed`), as before.
     energies: False skips H, Ed (and the MCVA family's Hmod) along the grid, leaving NaN after t0;
              for runs that only need the trajectory, e.g. timing against solve_ivp, which does
              not evaluate H either.
@@ -244,7 +145,22 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     q0, p0 = _initial_state(sysd, mod, start, prm)
     if constrained:
         _check_admissible(sysd, mod, q0, prm, lambda i: _constraint_text(sysm or resolve_system(system), i))
-    settings = record.settings_vector(constrained=bool(constrained), energies=bool(energies), **tol)
+    note = grid_note(h, T)
+    if note:
+        import warnings
+
+        warnings.warn(note, GridWarning, stacklevel=2)  # Python shows each distinct note once
+    settings = record.settings_vector(constrained=bool(constrained), energies=bool(energies),
+                                      resting_contact=bool(resting_contact), **tol)
+    if mod.__name__ not in _FIRST_CALLS:
+        # numba's first call of the loop (load from its cache, or compile) is not integration: one
+        # untimed step with arguments of the same types, so wall_time measures the integration only
+        _FIRST_CALLS.add(mod.__name__)
+        t_first = time.perf_counter()
+        _run_loop(mod, q0, p0, float(t0), h, 1, prm, settings, sysd.n, int(tol["max_impacts_step"]))
+        from .cache import note_first_call
+
+        note_first_call(mod, meth.kernel_set(), time.perf_counter() - t_first)
     t_start = time.perf_counter()
     out, counters = _run_loop(mod, q0, p0, float(t0), h, N, prm, settings, sysd.n, int(tol["max_impacts_step"]))
     wall = time.perf_counter() - t_start
@@ -270,7 +186,8 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
         method=meth.name, system=sysd.name, h=h, T=N * h, t=t0 + h * np.arange(counters["steps"] + 1), **arrays,
         status=status, message=message, fail_step=fail, fail_time=(t0 + fail * h) if fail >= 0 else float("nan"),
         beta=beta, wall_time=wall, tolerances={k: tol[k] for k in DEFAULT_TOLERANCES},
-        options={"params": dict(zip(sysd.params, prm.tolist())), "constrained": bool(constrained), **mopts})
+        options={"params": dict(zip(sysd.params, prm.tolist())), "constrained": bool(constrained), **mopts},
+        coordinates=getattr(sysd, "coordinates", None), dynamics=tr._dynamics(mod, prm))
 
 
 def _split_options(options: dict) -> tuple[dict, dict]:
@@ -279,7 +196,7 @@ def _split_options(options: dict) -> tuple[dict, dict]:
     unknown = set(options) - set(DEFAULT_TOLERANCES)
     if unknown:
         raise ValueError(f"options: unknown option {sorted(unknown)[0]!r} (known: "
-                         f"{', '.join(sorted(set(DEFAULT_TOLERANCES) | _METHOD_OPTIONS | {'params', 'constrained', 'energies'}))})")
+                         f"{', '.join(sorted(set(DEFAULT_TOLERANCES) | _METHOD_OPTIONS | {'params', 'constrained', 'energies', 'resting_contact'}))})")
     return mopts, DEFAULT_TOLERANCES | options
 
 
@@ -289,14 +206,14 @@ def _run_loop(mod, q0, p0, t0, h, N, prm, settings, n, max_impacts_step) -> tupl
     impacts accumulating (issue 8): then it reruns with room for every impact the caps allow."""
     cap_imp, most = max(64, N // 4 + 16), N * max_impacts_step + 16
     while True:
-        out = record.allocate(N, n, cap_imp, 2 * cap_imp + 16)
+        out = record.allocate(N, n, cap_imp, 2 * cap_imp + 16, m=int(mod.NCON), cap_releases=cap_imp)
         info = np.zeros(len(record.COUNTERS), dtype=np.int64)
         # (issue 8) no np.errstate here: the compiled loop never touches numpy's error state, and
         # with NUMBA_DISABLE_JIT=1 the caller's np.errstate(all="raise") must reach the numerics
         # (the floating-point hygiene check of tests/extremes runs the whole loop that way).
         mod.integrate(q0, p0, t0, h, N, prm, settings, out, info)
         counters = dict(zip(record.COUNTERS, info.tolist()))
-        full_record = counters["n_impacts"] >= cap_imp
+        full_record = counters["n_impacts"] + int(mod.NCON) > cap_imp  # (an impact adds up to NCON entries)
         if not (counters["status"] == record.STATUS_OF["accumulation"] and full_record) or cap_imp >= most:
             return out, counters
         cap_imp = min(4 * cap_imp, most)

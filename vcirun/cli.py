@@ -27,6 +27,33 @@ class CliError(Exception):
     """An expected failure: reported as one line on stderr, exit status 1."""
 
 
+def _version_callback(value: bool):
+    if value:
+        import vcirun
+
+        typer.echo(f"vcirun {vcirun.__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(version: bool = typer.Option(False, "--version", callback=_version_callback, is_eager=True,
+                                       help="Print the version and exit.")):
+    """Event-driven variational collision integrators (Pekarek & Murphey 2014)."""
+
+
+def _announce_compiles() -> None:
+    """Print the build module's "compiling kernels for <scene>/<family> (first time, about N s)" line
+    on stderr (once per process)."""
+    from vcirun import cache
+
+    if _say_compile not in cache.COMPILE_CALLBACKS:
+        cache.COMPILE_CALLBACKS.append(_say_compile)
+
+
+def _say_compile(message: str) -> None:
+    typer.echo(message, err=True)
+
+
 def _fail(message: str, code: int = 1):
     typer.echo(f"error: {' '.join(str(message).split())}", err=True)
     raise typer.Exit(code)
@@ -83,25 +110,68 @@ def _parse_params(items: list[str]) -> dict:
     return out
 
 
+def _parse_vector(text: str | None, name: str):
+    """'1.2,-1.0' -> [1.2, -1.0] (None stays None)."""
+    if text is None:
+        return None
+    try:
+        return [float(x) for x in str(text).replace(" ", "").split(",") if x != ""]
+    except ValueError:
+        raise CliError(f"{name}: expected comma-separated numbers such as 1.2,-1.0 (got {text!r})") from None
+
+
 def simulate_once(system: str, method: str, *, h: float, T: float, beta: float | None = None, ld=None,
                   mh_order=None, flow_order=None, params: dict | None = None, constrained: bool | None = None,
-                  newton_tol=None, event_tol=None):
-    """One run through `vcirun.simulate`; bad input becomes CliError. Returns (trajectory, seconds)."""
+                  newton_tol=None, event_tol=None, q0=None, p0=None):
+    """One run through `vcirun.simulate`; bad input becomes CliError. Returns (trajectory, seconds);
+    `traj.compiled_now` says whether kernels were generated during the call."""
     import time
+    import warnings
 
     import vcirun
+    from vcirun.api import GridWarning
+    from vcirun.codegen import build
 
     kw = {k: v for k, v in dict(ld=ld, mh_order=mh_order, flow_order=flow_order, params=params or None,
                                 constrained=constrained, newton_tol=newton_tol, event_tol=event_tol).items()
           if v is not None}
-    if beta is None and system in DEFAULT_BETA:
+    if (q0 is None) != (p0 is None):
+        raise CliError("initial state: give both --q0 and --p0 (or --beta)")
+    if q0 is not None:
+        if beta is not None:
+            raise CliError("initial state: give either --beta or --q0/--p0, not both")
+        kw.update(q0=q0, p0=p0)
+    elif beta is None and system in DEFAULT_BETA:
         beta = DEFAULT_BETA[system]
+    n_log = len(build.BUILD_LOG)
     t0 = time.perf_counter()
     try:
-        traj = vcirun.simulate(system, method, h=h, T=T, beta=beta, **kw)
+        with warnings.catch_warnings(record=True) as notes:
+            warnings.simplefilter("always", GridWarning)
+            traj = vcirun.simulate(system, method, h=h, T=T, beta=beta, **kw)
     except ValueError as e:
         raise CliError(str(e)) from None
+    for w in notes:
+        typer.echo(f"note: {w.message}", err=True)
+    traj.compiled_now = any(not e["cached"] for e in build.BUILD_LOG[n_log:])
     return traj, time.perf_counter() - t0
+
+
+def _energy_scale(traj) -> float:
+    """max(|H0|, the largest kinetic energy 1/2 p . qdot on (up to 2000 of) the grid states): what a
+    relative energy error is relative to (|H0| alone depends on the zero of V and may be ~0)."""
+    import numpy as np
+
+    H0 = abs(float(traj.H[0]))
+    if traj.dynamics is None or len(traj.t) == 0:
+        return H0
+    n = traj.q.shape[1]
+    ke = 0.0
+    for k in np.unique(np.linspace(0, len(traj.t) - 1, min(2000, len(traj.t))).astype(int)):
+        y = np.concatenate([traj.q[k], traj.p[k]])
+        qdot = traj.dynamics(traj.t[k], y)[:n]
+        ke = max(ke, 0.5 * float(traj.p[k] @ qdot))
+    return max(H0, ke)
 
 
 def summary_lines(traj, total_seconds: float) -> list[tuple[str, str]]:
@@ -117,12 +187,17 @@ def summary_lines(traj, total_seconds: float) -> list[tuple[str, str]]:
     H = np.asarray(traj.H, float)
     if H.size and np.isfinite(H[0]):
         dH = float(np.nanmax(np.abs(H - H[0])))
-        rel = f" (relative {dH / abs(H[0]):.2e})" if H[0] != 0 else ""
+        scale = _energy_scale(traj)
+        rel = (f" (relative {dH / scale:.2e} to the energy scale {scale:.4g} = max(|H0|, max kinetic energy))"
+               if np.isfinite(scale) and scale > 0 else "")
         rows.append(("max |H - H0|", f"{dH:.3e}{rel}"))
     if traj.Hmod is not None and len(traj.Hmod) and np.isfinite(traj.Hmod[0]):
         rows.append(("max |Hmod - Hmod0|", f"{float(np.nanmax(np.abs(traj.Hmod - traj.Hmod[0]))):.3e}"))
-    rows.append(("wall time", f"{traj.wall_time:.4g} s integrating, {total_seconds:.3g} s in total "
-                              "(includes kernel loading/compilation)"))
+    setup = max(0.0, total_seconds - traj.wall_time)
+    what = ("compiling kernels (first time; cached for the next runs)" if getattr(traj, "compiled_now", False)
+            else "loading kernels and setting up")
+    rows.append(("wall time", f"{traj.wall_time:.4g} s integrating; {total_seconds:.3g} s in total, of which "
+                              f"{setup:.3g} s {what}"))
     return rows
 
 
@@ -130,7 +205,8 @@ def summary_lines(traj, total_seconds: float) -> list[tuple[str, str]]:
              "  vcirun simulate\n\n"
              "  vcirun simulate --system cart_pendulum --method MCVAA --h 0.01 --T 5 --beta 3.2\n\n"
              "  vcirun simulate --method MCVA --ld SVC --mh-order 3 --flow-order 4\n\n"
-             "  vcirun simulate --system double_pendulum --method CVA --unconstrained")
+             "  vcirun simulate --system double_pendulum --method CVA --unconstrained\n\n"
+             "  vcirun simulate --system double_pendulum --q0 1.2,-1.0 --p0 0,0 --output run.h5")
 def simulate(
     system: str = typer.Option("cart_pendulum", "--system", "-s",
                                help="Built-in scene (cart_pendulum, double_pendulum, oscillator_wall, ...) "
@@ -150,13 +226,26 @@ def simulate(
     unconstrained: bool = typer.Option(False, "--unconstrained", help="Ignore the impact constraint."),
     newton_tol: Optional[float] = typer.Option(None, "--newton-tol", help="Newton tolerance."),
     event_tol: Optional[float] = typer.Option(None, "--event-tol", help="Collision-time tolerance."),
+    q0: Optional[str] = typer.Option(None, "--q0", metavar="Q1,Q2,...",
+                                     help="Initial coordinates, comma-separated (with --p0; `vcirun systems` "
+                                          "lists each scene's coordinates)."),
+    p0: Optional[str] = typer.Option(None, "--p0", metavar="P1,P2,...", help="Initial momenta p = M(q) qdot."),
+    output: Optional[Path] = typer.Option(None, "--output", "-o",
+                                          help="Save the trajectory: .h5 (read with "
+                                               "vcirun.trajectory.read_trajectory), .nc, .csv or .npz."),
 ):
     """Simulate one run and print a summary (steps, impacts, status, energy error, wall time)."""
+    _announce_compiles()
     try:
         traj, total = simulate_once(system, method, h=h, T=T, beta=beta, ld=ld, mh_order=mh_order,
                                     flow_order=flow_order, params=_parse_params(param),
                                     constrained=False if unconstrained else None, newton_tol=newton_tol,
-                                    event_tol=event_tol)
+                                    event_tol=event_tol, q0=_parse_vector(q0, "--q0"), p0=_parse_vector(p0, "--p0"))
+        if output is not None:
+            try:
+                traj.save(output)
+            except (ValueError, OSError, ImportError) as e:
+                raise CliError(f"--output: {e}") from None
     except CliError as e:
         _fail(str(e))
     from rich.table import Table
@@ -167,6 +256,8 @@ def simulate(
     for k, v in summary_lines(traj, total):
         t.add_row(k, v)
     _console().print(t)
+    if output is not None:
+        typer.echo(f"saved {output}")
     if traj.status != "ok":
         _fail(f"run ended with status {traj.status}: {traj.message}")
 
@@ -197,10 +288,15 @@ def sweep(
     worker_cache_dir: Optional[str] = typer.Option(
         None, "--worker-cache-dir", metavar="DIR",
         help="Kernel cache of the Dask workers (their VCIRUN_CACHE_DIR), e.g. one on a shared filesystem."),
+    strict: bool = typer.Option(False, "--strict",
+                                help="Exit with status 1 when any run in the file did not finish with status ok "
+                                     "(for scripts and CI; the runs are stored either way)."),
 ):
     """Run every method x h x initial condition of CONFIG in parallel into one HDF5 file; resumable.
     Locally by default; on a Dask cluster with --scheduler."""
     from vcirun.experiments.sweep import sweep_file
+
+    _announce_compiles()
 
     try:
         summary = sweep_file(config, output=output, force=force, workers=workers, retry_failed=retry_failed,
@@ -218,8 +314,12 @@ def sweep(
         _fail(f"interrupted by {summary.interrupted}: {done} of {summary.total} runs are saved in "
               f"{summary.path}; run the same command again to resume", code)
     counts = ", ".join(f"{n} {s}" for s, n in sorted(summary.status_counts.items()))
+    what = (f"compiling kernels for {summary.compiled} method famil{'ies' if summary.compiled > 1 else 'y'} (first "
+            "time; cached now)" if summary.compiled else "loading kernels")
+    prep = (f", of which {summary.prepare_time:.1f} s {what} before the first run"
+            if summary.prepare_time >= 0.05 * max(summary.wall_time, 1e-9) and summary.prepare_time >= 1.0 else "")
     typer.echo(f"{summary.path}: {summary.total} runs ({summary.computed} computed, {summary.skipped} already "
-               f"stored; {counts or 'none'}) in {summary.wall_time:.1f} s")
+               f"stored; {counts or 'none'}) in {summary.wall_time:.1f} s{prep}")
     st = summary.executor_stats
     if summary.executor == "dask" and summary.computed and st.get("tasks"):
         cost = st.get("per_run_cost_s")
@@ -229,22 +329,30 @@ def sweep(
     if summary.computed and summary.failed:
         typer.echo(f"note: {summary.failed} run(s) did not finish with status ok; `vcirun info {summary.path}` "
                    "lists their messages")
+    if summary.summary_error:
+        typer.echo(f"note: {summary.summary_error}", err=True)
+    not_ok = sum(n for st, n in summary.status_counts.items() if st != "ok")
+    if strict and not_ok:
+        _fail(f"--strict: {not_ok} of {sum(summary.status_counts.values())} stored runs did not finish with status "
+              f"ok; `vcirun info {summary.path} --failed` lists them")
     typer.echo(f"next: vcirun plot {summary.path}")
 
 
 # --- plot -------------------------------------------------------------------------------------------
 @app.command(epilog="Examples:\n\n"
-             "  vcirun plot                      (the newest results file under results/)\n\n"
+             "  vcirun plot                      (every results file under results/)\n\n"
              "  vcirun plot results/fig4.h5\n\n"
              "  vcirun plot results/fig4.h5 --out paper-figures/")
 @_reads_results
 def plot(
-    results: Optional[Path] = typer.Argument(None, help="Results file (default: newest *.h5 under results/), or a work-precision study JSON.",
+    results: Optional[Path] = typer.Argument(None, help="Results file or work-precision study JSON (default: every "
+                                                        "*.h5 under results/, each into results/figures/<name>/).",
                                              show_default=False),
     out: Optional[Path] = typer.Option(None, "--out", help="Output folder (default: <results dir>/figures/<name>)."),
 ):
     """Write the figures (PNG and PDF) and tables (CSV and Markdown) a results file supports."""
     from vcirun.experiments.figures import plot_results
+    from vcirun.experiments.storage import StorageError
     from vcirun.experiments.tables import print_table
     from vcirun.experiments.wp_figures import is_study_file, plot_study, print_study_tables
 
@@ -255,18 +363,33 @@ def plot(
         for p in plot_study(results, out):
             typer.echo(f"  {p}")
         return
-    try:
-        report = plot_results(results, outdir=out)
-    except _expected_errors() as e:
-        _fail(str(e))
+    if results is None:
+        d = Path("results")
+        files = sorted(p for p in d.rglob("*.h5") if not p.name.startswith(".")) if d.is_dir() else []
+        if not files:
+            _fail(f"no results (*.h5) under {d}/; run `vcirun sweep CONFIG` first or name a file")
+        if out is not None and len(files) > 1:
+            _fail(f"--out: {len(files)} results files under {d}/ would overwrite each other; name one file")
+    else:
+        files = [results]
     console = _console()
-    for table in report.tables:
-        print_table(table, console)
-    typer.echo(f"figures and tables for {report.results_path}:")
-    for p in report.paths:
-        typer.echo(f"  {p}")
-    for name, why in report.skipped.items():
-        typer.echo(f"  (skipped {name}: {why})")
+    for path in files:
+        try:
+            report = plot_results(path, outdir=out)
+        except StorageError as e:
+            if results is None and "no complete runs" in str(e):
+                typer.echo(f"(skipped {path}: {e})")
+                continue
+            _fail(str(e))
+        except _expected_errors() as e:
+            _fail(str(e))
+        for table in report.tables:
+            print_table(table, console)
+        typer.echo(f"figures and tables for {report.results_path}:")
+        for p in report.paths:
+            typer.echo(f"  {p}")
+        for name, why in report.skipped.items():
+            typer.echo(f"  (skipped {name}: {why})")
 
 
 # --- validate -----------------------------------------------------------------------------------------
@@ -301,6 +424,11 @@ def validate(config: Path = typer.Argument(..., help="YAML sweep or study config
     else:
         typer.echo(f"  initial   {len(ics)} state(s)")
     typer.echo(f"  T         {cfg.T:g}")
+    from vcirun.api import grid_note
+
+    for h in cfg.h:
+        if grid_note(h, cfg.T):
+            typer.echo(f"  note      {grid_note(h, cfg.T)}")
     ref = cfg.reference
     typer.echo(f"  reference {ref.kind}" + (f" (rtol {ref.rtol:g})" if ref.kind == "exact" else
                                             f" ({ref.method} at h = {ref.h:g})" if ref.kind == "method" else ""))
@@ -387,6 +515,153 @@ def info(
                    f"{r.attrs.get('message', '')}")
     if len(bad) > 50:
         typer.echo(f"  ... and {len(bad) - 50} more failed runs")
+
+
+# --- verify -------------------------------------------------------------------------------------------
+def verify_system(system: str, *, methods: str = "CVA,MCVAC", q0=None, p0=None, beta=None, T: float = 5.0,
+                  h=None, params: dict | None = None, output: Path | None = None, console=None):
+    """`vcirun verify` as a plain function: runs vcirun.verify (progress on `console`), writes the report
+    if `output` is given; bad input becomes CliError. Returns (VerifyResult, written paths)."""
+    import time
+
+    import vcirun
+
+    if beta is None and q0 is None and p0 is None and system in DEFAULT_BETA:
+        beta = DEFAULT_BETA[system]
+    t0 = time.perf_counter()
+
+    def progress(msg):
+        if console is not None:
+            console.print(f"[dim]{time.perf_counter() - t0:6.1f} s[/dim]  {msg}")
+
+    try:
+        res = vcirun.verify(system, methods=methods, q0=q0, p0=p0, beta=beta, T=T, h=h, params=params or None,
+                            progress=progress)
+    except ValueError as e:
+        raise CliError(str(e)) from None
+    written = res.save(output) if output is not None else []
+    return res, written
+
+
+@app.command("verify", epilog="Examples:\n\n"
+             "  vcirun verify cart_pendulum\n\n"
+             "  vcirun verify my_system.yaml --methods CVA,MCVAC --q0 1.2,-1.0 --p0 0,0 --T 5 --output report.md\n\n"
+             "  vcirun verify cart_pendulum --beta 3.2 --h 0.02,0.01,0.005,0.0025\n\n"
+             "Exit status 0 when every check passes (warnings are printed, they do not fail), 1 when one fails.")
+def verify_command(
+    system: str = typer.Argument(..., help="Built-in scene (cart_pendulum, oscillator_wall, ...) or a YAML system file.",
+                                 show_default=False),
+    methods: str = typer.Option("CVA,MCVAC", "--methods", "-m", help="Comma-separated methods to verify."),
+    q0: Optional[str] = typer.Option(None, "--q0", help="Start positions, comma separated (with --p0)."),
+    p0: Optional[str] = typer.Option(None, "--p0", help="Start momenta, comma separated (with --q0)."),
+    beta: Optional[float] = typer.Option(None, "--beta", "-b",
+                                         help="Initial-condition parameter of the scene's map (default: the scene's "
+                                              "default state; 3.2 for cart_pendulum)."),
+    T: float = typer.Option(5.0, "--T", "-T", help="Final time of every run."),
+    h: Optional[str] = typer.Option(None, "--h", help="Step ladder, comma separated (default 0.04 / 2^k, k = 0..6)."),
+    param: List[str] = typer.Option([], "--param", "-p", help="Parameter override NAME=VALUE (repeatable)."),
+    output: Optional[Path] = typer.Option(None, "--output", "-o",
+                                          help="Markdown report to write (the figure goes next to it, .png)."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress output."),
+):
+    """Run the test suite's numerical checks on SYSTEM: kernel derivatives, hyperregularity, observed
+    orders (smooth and through impacts), symplecticity, modified-Hamiltonian conservation, impact times
+    and energy across impacts; one verdict per check (pass / warn / fail, the number, the threshold)."""
+    try:
+        res, written = verify_system(system, methods=methods, q0=_parse_vector(q0, "--q0"),
+                                     p0=_parse_vector(p0, "--p0"), beta=beta, T=T, h=_parse_vector(h, "--h"),
+                                     params=_parse_params(param), output=output,
+                                     console=None if quiet else _console(stderr=True))
+    except CliError as e:
+        _fail(str(e))
+    from rich.table import Table
+
+    style = {"pass": "green", "warn": "yellow", "fail": "bold red", "skip": "dim"}
+    t = Table(title=f"vcirun verify {res.system} ({res.seconds:.1f} s)", box=None, pad_edge=False)
+    for col in ("check", "method", "verdict", "value", "threshold"):
+        t.add_column(col)
+    from vcirun.verification.report import _value
+
+    for c in res.checks:
+        t.add_row(c.name, c.method or "-", f"[{style[c.verdict]}]{c.verdict}[/]", _value(c), c.threshold)
+    console = _console()
+    console.print(t)
+    for c in res.checks:
+        if c.verdict in ("warn", "fail", "skip"):
+            console.print(f"[{style[c.verdict]}]{c.verdict}[/]  {c.name}" + (f" [{c.method}]" if c.method else "")
+                          + f": {c.note}", soft_wrap=True)
+    for p in written:
+        typer.echo(f"wrote {p}")
+    if not res.ok:
+        raise typer.Exit(1)
+
+
+# --- systems -----------------------------------------------------------------------------------------
+@app.command(epilog="Examples:\n\n  vcirun systems\n\n  vcirun systems cart_pendulum")
+def systems(name: Optional[str] = typer.Argument(None, help="One scene (default: all).", show_default=False)):
+    """The built-in scenes: coordinates, parameters (default, unit, meaning), constraint and initial
+    states. Any scene also runs with `n_pendulum_K` for K links; YAML files declare your own."""
+    from vcirun.catalog import BUILTIN_INFO, momentum_unit, scene_info
+    from vcirun.scenedata import scene_data
+
+    names = [name] if name else list(BUILTIN_INFO) + ["n_pendulum_3"]
+    console = _console()
+
+    def say(text):  # unit brackets such as [m] are text, not rich markup
+        console.print(text, soft_wrap=True, markup=False)
+
+    for nm in names:
+        info = scene_info(nm)
+        if info is None:
+            _fail(f"system: unknown built-in system {nm!r} (choose one of {', '.join(BUILTIN_INFO)}, or n_pendulum_K)")
+        d = scene_data(nm)
+        console.print(f"[bold]{nm}[/bold]", end="")
+        say(f"  {d.description}" + ("  (n_pendulum_K: any K)" if nm.startswith("n_pendulum_") else ""))
+        coords = ", ".join(f"{c} [{u}] {m}" for c, u, m in info.coordinates)
+        say(f"  coordinates  {coords}; momenta p = M(q) qdot in "
+            + ", ".join(f"{momentum_unit(u)}" for _, u, _ in info.coordinates))
+        say("  parameters   " + "; ".join(f"{k} = {v:g} {info.params.get(k, ('', ''))[0]} "
+                                         f"({info.params.get(k, ('', ''))[1]})" for k, v in d.params.items()))
+        say(f"  constraint   {info.constraint}")
+        if info.ic_map:
+            say(f"  --beta       {info.ic_map}")
+        if info.default_state:
+            say(f"  default      {info.default_state}")
+        example = ",".join("0" for _ in info.coordinates)
+        say(f"  example      vcirun simulate --system {nm} --q0 {example} --p0 {example}"
+            if nm != "cart_pendulum" else "  example      vcirun simulate --system cart_pendulum --beta 3.2")
+    typer.echo("Energies in J, times in s; options --param NAME=VALUE override parameters.")
+
+
+# --- cache ---------------------------------------------------------------------------------------------
+cache_app = typer.Typer(help="The kernel cache every vcirun command and `make` share ($VCIRUN_CACHE_DIR, "
+                             "default ~/.cache/vcirun).", no_args_is_help=True)
+app.add_typer(cache_app, name="cache")
+
+
+def _mb(n: int) -> str:
+    return f"{n / 1e6:.1f} MB"
+
+
+@cache_app.command("info", epilog="Example:\n\n  vcirun cache info")
+def cache_info():
+    """Where the compiled kernels are and how much space they take."""
+    from vcirun import cache
+
+    i = cache.info()
+    typer.echo(f"{i.path}: {i.modules} compiled modules, {i.index_entries} warm-start entries, {i.files} files, "
+               f"{_mb(i.bytes)}")
+    typer.echo("It grows with every vcirun version and system; `vcirun cache clear` empties it (the next run of "
+               "each system compiles again).")
+
+
+@cache_app.command("clear", epilog="Example:\n\n  vcirun cache clear")
+def cache_clear():
+    """Delete every cached kernel."""
+    from vcirun import cache
+
+    i = cache.clear()
+    typer.echo(f"removed {i.modules} compiled modules ({_mb(i.bytes)}) from {i.path}")
 
 
 def main() -> None:  # pragma: no cover - console entry point alternative

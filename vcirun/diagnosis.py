@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import trajectory as tr
+from .record import STATUSES
+
+OK, NEWTON_FAILED, EVENT_FAILED, RESET_FAILED, ACCUMULATION, NONFINITE = (name for name, _ in STATUSES)
 
 COND_SINGULAR = 1e4   # cond(M) along the motion above this: nearly singular (built-in scenes: < 30)
 COND_RISING = 1e3     # ... above this and largest right before a Newton failure: heading into it
@@ -27,15 +29,15 @@ def failure_cause(mod, status, Q, p, t0, fail, h, prm, tol, H0, impacts) -> str:
     """A short diagnosis of a failed run from its grid states Q[0..fail] (p: momentum at Q[fail]);
     "" if nothing specific is found (the status itself then says what failed). Never raises."""
     try:
-        if status == tr.ACCUMULATION:
+        if status == ACCUMULATION:
             return _accumulation(impacts, h, int(tol["max_impacts_step"]))
-        if status == tr.EVENT_FAILED:
+        if status == EVENT_FAILED:
             return "the collision-time search did not bracket the root to event_tol * h within 200 iterations"
         t = t0 + fail * h
         causes = _conditioning(mod, status, Q, prm, t0, h, t) + _divergence(mod, status, Q[-1], p, prm, h, H0)
-        if status == tr.RESET_FAILED and not causes:
+        if status == RESET_FAILED and not causes:
             causes += _reset(mod, Q[-1], p, prm, h, t, tol)
-        if status == tr.NONFINITE and not causes:
+        if status == NONFINITE and not causes:
             causes.append("the state overflowed")
         return "; ".join(causes)
     except Exception:  # a diagnosis must never turn a failure record into an exception
@@ -66,7 +68,7 @@ def _conditioning(mod, status, Q, prm, t0, h, t) -> list:
             worst, t_worst = c, t0 + k * h
     if not worst < COND_SINGULAR:
         return [f"mass matrix nearly singular along the motion (cond(M) = {worst:.3g} at t = {t_worst:.6g})"]
-    if status == tr.NEWTON_FAILED and worst >= COND_RISING and t_worst >= t - 100 * h:
+    if status == NEWTON_FAILED and worst >= COND_RISING and t_worst >= t - 100 * h:
         # conditioning still moderate on the grid but worst right before the failure: the step
         # that failed was heading into a singular configuration between grid points
         return [f"mass matrix approaching singularity at the failure (cond(M) = {worst:.3g} at "
@@ -78,7 +80,7 @@ def _divergence(mod, status, q, p, prm, h, H0) -> list:
     H = float(mod.hamiltonian(q, p, prm))
     if not np.isfinite(H) or abs(H - H0) > 10.0 * max(1.0, abs(H0)):
         return [f"the discrete motion had diverged (H = {H:.4g}, H(0) = {H0:.4g}): step h too large"]
-    if status in (tr.NEWTON_FAILED, tr.NONFINITE):
+    if status in (NEWTON_FAILED, NONFINITE):
         w = fastest_mode(mod, q, p, prm)
         if h * w > 2.0:
             return [f"step h too large for the fastest local mode of the motion (h * omega = {h * w:.3g} "
@@ -91,7 +93,7 @@ def _reset(mod, q, p, prm, h, t, tol) -> list:
     n = q.shape[0]
     qt, pt, vt = np.empty(n), np.empty(n), np.empty(n)
     code, _, E_pre, _ = mod.collision_time(q, p, h, h, t, prm, float(tol["newton_tol"]), int(tol["max_iter"]),
-                                           float(tol["event_tol"]), qt, pt, vt)
+                                           float(tol["event_tol"]), qt, pt, vt, np.zeros(int(mod.NCON), np.int64))
     if code != 1:
         return []
     g, A = np.empty(n), np.empty((n, n))

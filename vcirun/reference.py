@@ -22,7 +22,10 @@ from .scenedata import start_tolerance
 
 
 class Reference:
-    """Callable reference solution: ref(t) -> q (len(t), n); ref.p(t); ref.impacts; ref.accuracy."""
+    """Callable reference solution on [t_start, T]: ref(t) -> q, shape (n,) for a scalar t and
+    (len(t), n) for an array; ref.p(t), ref.state(t) likewise; ref.impacts; ref.accuracy.
+    Right-continuous at impacts (the post-impact momentum at t = tau). A time outside [t_start, T]
+    raises ValueError (no extrapolation)."""
 
     def __init__(self, segments, n, impacts, H0, T, accuracy=np.nan, kind="exact", width=None, impact_contact=None,
                  impact_impulse=None):
@@ -41,21 +44,33 @@ class Reference:
         self.energy_balance = np.nan  # forced exact solves: max |H(t) - H(0) - int f . qdot|
         self._width = 2 * n if width is None else width
 
+    def __repr__(self) -> str:
+        acc = "" if not np.isfinite(self.accuracy) else f", accuracy={self.accuracy:.1e}"
+        return (f"Reference(kind={self.kind!r}, n={self.n}, t=[{self.segments[0][0]:g}, {self.T:g}], "
+                f"impacts={len(self.impacts)}, H0={self.H0:.6g}{acc})")
+
     def state(self, t) -> np.ndarray:
-        t = np.atleast_1d(np.asarray(t, float))
+        scalar = np.ndim(t) == 0
+        t = np.atleast_1d(np.asarray(t, float)).ravel()
+        t_start = self.segments[0][0]
+        tol = 1e-12 * max(1.0, abs(self.T))  # grids end at N h, which may exceed T by round-off
+        bad = ~((t >= t_start - tol) & (t <= self.T + tol))
+        if bad.any():
+            raise ValueError(f"t: {t[bad][0]:.17g} is outside the reference's interval [{t_start:g}, T = {self.T:g}]; "
+                             "compute the reference with a larger T")
         out = np.empty((t.size, self._width))
         starts = np.array([s[0] for s in self.segments])
         idx = np.clip(np.searchsorted(starts, t, side="right") - 1, 0, len(self.segments) - 1)
         for j in np.unique(idx):
             m = idx == j
             out[m] = self.segments[j][2](t[m]).T
-        return out
+        return out[0] if scalar else out
 
     def __call__(self, t) -> np.ndarray:
-        return self.state(t)[:, : self.n]
+        return self.state(t)[..., : self.n]
 
     def p(self, t) -> np.ndarray:
-        return self.state(t)[:, self.n:]
+        return self.state(t)[..., self.n:]
 
 
 def _first_root(g, a, b, samples=64):
@@ -163,9 +178,10 @@ def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000):
     t = 0.0
     segments, impacts = [], []  # impacts: (time, contact index, impulse), one entry per contact impact
     d, lam, active = np.empty(n), np.empty(m), np.empty(m, dtype=np.int64)
+    held = np.zeros(m, dtype=np.int64)  # contacts held (resting), issue 18
     atol = rtol * max(1.0, float(np.max(np.abs(y))))
     while t < T:
-        mod.touching_mask(y[:n].copy(), y[n:2 * n].copy(), 1.0, SIMULTANEOUS / 4, prm, mask)
+        mod.touching_mask(y[:n].copy(), y[n:2 * n].copy(), 1.0, SIMULTANEOUS / 4, prm, mask, held)
         events = (event, dip, pressed) if mask.any() else (event, dip)
         sol = solve_ivp(rhs, (t, T), y, method="DOP853", rtol=rtol, atol=atol, events=events,
                         dense_output=True)
@@ -210,7 +226,7 @@ def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000):
             # and solve_ivp only sees a crossing from a start value >= 0, so a hop shorter than its
             # first step would go unnoticed. One RK4 micro step (<= 1e-9, local error ~1e-45) to
             # phi > 0, covered by a cubic Hermite segment (error ~delta^4 times the 4th derivative).
-            mod.touching_mask(y[:n].copy(), y[n:2 * n].copy(), 1.0, SIMULTANEOUS / 4, prm, mask)
+            mod.touching_mask(y[:n].copy(), y[n:2 * n].copy(), 1.0, SIMULTANEOUS / 4, prm, mask, held)
             off = step_off_surface(rhs, lambda yy: mod.gap(yy[:n], prm, mask), t, y, min(1e-9, 0.5 * (T - t)))
             if off is not None:
                 t1, y1 = off

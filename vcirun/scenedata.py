@@ -27,6 +27,7 @@ class SystemData:
     default_q0: np.ndarray | None = None
     default_p0: np.ndarray | None = None
     description: str = ""
+    coordinates: list | None = None   # coordinate names (None: vcirun.catalog's for built-in scenes)
 
     def param_values(self, overrides: dict | None = None) -> np.ndarray:
         """Parameter vector in declaration order, with overrides applied (unknown names rejected)."""
@@ -36,7 +37,8 @@ class SystemData:
     def of(cls, system) -> "SystemData":
         """The numeric view of a `MechanicalSystem` (or of anything with the same attributes)."""
         return cls(name=system.name, n=system.n, params=dict(system.params), ic_map=system.ic_map,
-                   default_q0=system.default_q0, default_p0=system.default_p0, description=system.description)
+                   default_q0=system.default_q0, default_p0=system.default_p0, description=system.description,
+                   coordinates=[str(c) for c in system.q])
 
 
 def param_vector(name: str, params: dict, overrides: dict | None = None) -> np.ndarray:

@@ -1,4 +1,16 @@
-"""The record of one simulation run (the `Trajectory` returned by `vcirun.simulate`)."""
+"""The record of one simulation run (the `Trajectory` returned by `vcirun.simulate`), its dense
+output `tr(t)`, and its conversions (`to_xarray`, `to_dataframe`, `plot`).
+
+Dense output. Between grid points (and between the impacts inside a step) the states are joined by
+cubic Hermite interpolation of q and p, with the slopes (qdot, pdot) of the continuous dynamics at
+the recorded states (`_dynamics`: the compiled, forced, Hamilton equations of the run's module). An impact
+step k -> k+1 is split at its recorded impact states: [t_k, tau_1] ends in (q(tau_1), p-),
+[tau_1, ...] starts from (q(tau_1), p+), so no piece ever interpolates across a velocity jump; the
+interpolant is right-continuous at an impact (p+ at t = tau) and equals the grid state at every
+grid time. Its own error is O(h^4) per piece, so between grid points it keeps the method's order
+for methods of order <= 4 (every method of the paper: order 2; CVA4); for CVA6/CVA8 it is limited to
+order 4 between grid points (exact at them).
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -38,17 +50,180 @@ class Trajectory:
     wall_time: float = 0.0
     tolerances: dict = field(default_factory=dict)
     options: dict = field(default_factory=dict)
+    coordinates: list | None = None    # names of the n coordinates (None: q0 .. q{n-1})
+    # (t, y) -> ydot of the continuous dynamics, for dense output; attached by simulate, dropped when
+    # pickled (resolved again from a built-in scene's name, see `attach_dynamics`)
+    dynamics: object = field(default=None, repr=False, compare=False)
 
     def __post_init__(self):
         n = self.q.shape[1] if isinstance(self.q, np.ndarray) and self.q.ndim == 2 else 0
         for f in record.FIELDS:
             if getattr(self, f.name) is None and f.only is None:
                 dt = np.bool_ if f.dtype == "bool" else np.dtype(f.dtype)
-                setattr(self, f.name, np.zeros((0, n) if f.dof else (0,), dt))
+                setattr(self, f.name, np.zeros(f.shape(0, n, 0), dt))
 
     @property
     def ok(self) -> bool:
         return self.status == OK
+
+    def __getstate__(self):
+        state = dict(self.__dict__)
+        state["dynamics"] = None
+        state.pop("_dense", None)
+        return state
+
+    # --- dense output -----------------------------------------------------------------------------
+    @property
+    def coordinate_names(self) -> list[str]:
+        from .catalog import coordinate_names
+
+        return coordinate_names(self.system, self.q.shape[1], self.coordinates)
+
+    def attach_dynamics(self, system=None, params=None) -> "Trajectory":
+        """Attach the continuous dynamics dense output needs (a trajectory read from a results file or
+        unpickled has none): `system` a built-in name, YAML path or MechanicalSystem (default: this
+        run's system name, which works for built-in scenes); `params` default: the run's. Returns self."""
+        from .codegen.build import SYSTEM_KERNELS
+        from .resolve import resolve_numeric
+
+        sysd, load, _ = resolve_numeric(self.system if system is None else system, SYSTEM_KERNELS)
+        prm = sysd.param_values(params if params is not None else (self.options or {}).get("params"))
+        self.dynamics = _dynamics(load(), prm)
+        self.__dict__.pop("_dense", None)
+        return self
+
+    def _dense_output(self) -> "DenseOutput":
+        d = self.__dict__.get("_dense")
+        if d is None:
+            if len(self.t) == 0:
+                raise ValueError("dense output: this trajectory holds no grid states (stored with "
+                                 "store_trajectories: false?)")
+            if self.dynamics is None:
+                from .catalog import scene_info
+
+                if scene_info(self.system) is None:
+                    raise ValueError(f"dense output: the dynamics of system {self.system!r} are not attached; "
+                                     "call tr.attach_dynamics(system) with its YAML path or MechanicalSystem")
+                self.attach_dynamics()
+            d = DenseOutput(self, self.dynamics)
+            self.__dict__["_dense"] = d
+        return d
+
+    def __call__(self, t) -> np.ndarray:
+        """q(t) by dense output: shape (n,) for a scalar t, (len(t), n) for an array. ValueError for t
+        outside [t_0, t_N] (no extrapolation)."""
+        return self._dense_output().state(t)[..., : self.q.shape[1]]
+
+    def momentum(self, t) -> np.ndarray:
+        """p(t) by dense output (right-continuous at impacts); shapes as `tr(t)`."""
+        return self._dense_output().state(t)[..., self.q.shape[1]:]
+
+    def state(self, t) -> np.ndarray:
+        """(q(t), p(t)) concatenated: shape (2n,) or (len(t), 2n)."""
+        return self._dense_output().state(t)
+
+    # --- conversions ------------------------------------------------------------------------------
+    def _units(self) -> tuple[list, list, str]:
+        from .catalog import momentum_unit, scene_info, units_for
+
+        names = self.coordinate_names
+        qu = units_for(self.system, names)
+        return qu, [momentum_unit(u) for u in qu], "J" if scene_info(self.system) is not None else ""
+
+    def to_xarray(self):
+        """An xarray.Dataset: q, p over (t, coordinate) with the system's coordinate names, H, Ed,
+        Hmod over t, the impact record over `impact`; units as attributes (SI, built-in scenes) and
+        per coordinate in the `q_units` / `p_units` coordinates; run facts as Dataset attributes."""
+        import xarray as xr
+
+        names = self.coordinate_names
+        qu, pu, eu = self._units()
+        coords = {"t": ("t", np.asarray(self.t, float), {"units": "s", "long_name": "time"}),
+                  "coordinate": ("coordinate", names), "q_units": ("coordinate", qu),
+                  "p_units": ("coordinate", pu),
+                  "impact": ("impact", np.arange(len(self.impacts)))}
+        data = {
+            "q": (("t", "coordinate"), self.q, {"long_name": "generalized coordinates (grid states)"}),
+            "p": (("t", "coordinate"), self.p, {"long_name": "generalized momenta p = M(q) qdot"}),
+            "H": ("t", self.H, {"units": eu, "long_name": "Hamiltonian H(q, p)"}),
+            "Ed": ("t", self.Ed, {"units": eu, "long_name": "discrete energy -D3 Ld of the trial full step"}),
+            "impact_step": ("step", np.asarray(self.impact_step, bool),
+                            {"long_name": "step k -> k+1 contained an impact"}),
+            "newton_iters": ("step", np.asarray(self.newton_iters), {"long_name": "Newton iterations of step k"}),
+            "impact_time": ("impact", self.impacts, {"units": "s"}),
+            "impact_q": (("impact", "coordinate"), self.impact_q.reshape(len(self.impacts), len(names))),
+            "impact_p_minus": (("impact", "coordinate"), self.impact_p_minus.reshape(len(self.impacts), len(names))),
+            "impact_p_plus": (("impact", "coordinate"), self.impact_p_plus.reshape(len(self.impacts), len(names))),
+        }
+        if self.Hmod is not None:
+            data["Hmod"] = ("t", self.Hmod, {"units": eu, "long_name": "truncated modified Hamiltonian"})
+        attrs = {"system": self.system, "method": self.method, "h": self.h, "T": self.T, "status": self.status,
+                 "message": self.message, "wall_time": self.wall_time,
+                 "beta": np.nan if self.beta is None else float(self.beta)}
+        if len(self.newton_iters) != len(self.t) - 1:
+            data.pop("impact_step"), data.pop("newton_iters")
+        return xr.Dataset(data, coords=coords, attrs=attrs)
+
+    def to_dataframe(self):
+        """A pandas DataFrame, one row per grid point: t, each coordinate by name, p_<name>, H, Ed
+        (Hmod); units in `df.attrs["units"]`."""
+        import pandas as pd
+
+        names = self.coordinate_names
+        qu, pu, eu = self._units()
+        cols = {"t": self.t}
+        cols.update({c: self.q[:, i] for i, c in enumerate(names)})
+        cols.update({f"p_{c}": self.p[:, i] for i, c in enumerate(names)})
+        cols.update(H=self.H, Ed=self.Ed)
+        if self.Hmod is not None:
+            cols["Hmod"] = self.Hmod
+        df = pd.DataFrame(cols)
+        df.attrs["units"] = {"t": "s", **dict(zip(names, qu)), **{f"p_{c}": u for c, u in zip(names, pu)},
+                             "H": eu, "Ed": eu, "Hmod": eu}
+        df.attrs.update(system=self.system, method=self.method, h=self.h, status=self.status)
+        return df
+
+    def save(self, path) -> "Path":
+        """Write the run to `path` by its suffix: .h5/.hdf5 (group `trajectory`, the layout of a results
+        file's run group; read back with `vcirun.trajectory.read_trajectory`), .nc (netCDF via
+        `to_xarray`, needs h5netcdf or netCDF4), .csv (`to_dataframe`), .npz (numpy arrays)."""
+        from pathlib import Path
+
+        path = Path(path)
+        suffix = path.suffix.lower()
+        if suffix not in (".h5", ".hdf5", ".nc", ".csv", ".npz"):
+            raise ValueError(f"output: unknown format {path.suffix or '(none)'!r} of {path}; use .h5, .nc, .csv or .npz")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if suffix in (".h5", ".hdf5"):
+            import h5py
+
+            from .experiments import storage
+
+            attrs, arrays = storage.trajectory_payload(self)
+            attrs["coordinates"] = self.coordinate_names
+            with h5py.File(path, "w") as f:
+                f.attrs["format"] = "vcirun-trajectory"
+                storage._write_group(f, "trajectory", {k: v for k, v in attrs.items() if k != "coordinates"}, arrays)
+                f["trajectory"].attrs["coordinates"] = np.array(self.coordinate_names, dtype=h5py.string_dtype())
+        elif suffix == ".nc":
+            self.to_xarray().to_netcdf(path)
+        elif suffix == ".csv":
+            self.to_dataframe().to_csv(path, index=False)
+        else:
+            arrays = {k: np.asarray(getattr(self, k)) for k in ("t", "q", "p", "H", "Ed", "impacts", "impact_q",
+                                                                "impact_p_minus", "impact_p_plus", "impact_step")}
+            if self.Hmod is not None:
+                arrays["Hmod"] = self.Hmod
+            np.savez(path, coordinates=np.array(self.coordinate_names), **arrays)
+        return path
+
+    def plot(self, dense: bool = True, samples_per_step: int = 8):
+        """A matplotlib Figure: each coordinate against time (the dense output as a line when the
+        dynamics are available, grid states as dots), impacts as dashed lines, and H (and Hmod).
+        The Figure is not registered with pyplot and no global matplotlib state changes."""
+        from .plotting import trajectory_figure
+
+        return trajectory_figure(self, dense=dense, samples_per_step=samples_per_step)
 
     @property
     def n_steps(self) -> int:
@@ -59,10 +234,129 @@ class Trajectory:
                 f"steps={self.n_steps}, impacts={len(self.impacts)}, status={self.status!r})")
 
 
-_SIZES = {"grid": "N+1", "step": "N", "impact": "m", "partial": "K"}
+_SIZES = {"grid": "N+1", "step": "N", "impact": "K_i", "partial": "K_p", "release": "K_r"}
 Trajectory.__doc__ = (
     "Time-major record of a run on the grid t_k = t0 + k h (N = grid steps taken, n = degrees of freedom,\n"
-    "m = impacts, K = partial steps). t (N+1,) grid times; the arrays, one per vcirun.record.FIELDS row:\n"
-    + "\n".join(f"  {f.name} ({_SIZES[f.axis]}{', n' if f.dof else ''}{',' if not f.dof else ''}) {f.dtype}: {f.doc}"
+    "m = constraints, K_i impacts, K_p partial steps, K_r releases). t (N+1,) grid times; the arrays, one\n"
+    "per vcirun.record.FIELDS row:\n"
+    + "\n".join(f"  {f.name} ({_SIZES[f.axis]}{', n' if f.dof else ''}{', m' if f.contacts else ''}"
+                f"{',' if not (f.dof or f.contacts) else ''}) {f.dtype}: {f.doc}"
                 + (" (None for other methods)" if f.only == "modified" else "") for f in record.FIELDS)
     + "\nand status, message, fail_step, fail_time, beta, wall_time, tolerances, options.")
+
+
+def read_trajectory(path) -> Trajectory:
+    """A Trajectory saved by `Trajectory.save(... .h5)` (dense output re-attaches for built-in scenes)."""
+    import h5py
+
+    from .experiments import storage
+
+    with h5py.File(path, "r") as f:
+        if "trajectory" not in f:
+            raise ValueError(f"{path}: no 'trajectory' group (written by Trajectory.save / vcirun simulate --output?)")
+        tr = storage.trajectory_from_group(f["trajectory"])
+        c = f["trajectory"].attrs.get("coordinates")
+        if c is not None:
+            tr.coordinates = [x.decode() if isinstance(x, bytes) else str(x) for x in c]
+    return tr
+
+
+def _dynamics(mod, prm):
+    """The continuous right-hand side (t, y) -> ydot, y = (q, p), of a compiled module at parameters
+    `prm`, for dense output: the one place that chooses it. The forced Hamilton equations
+    (`dynamics_rhs`: pdot = -dH/dq + f(q, qdot, t)); `hamilton_rhs` for modules built before forcing
+    reached the continuous right-hand side."""
+    prm = np.ascontiguousarray(prm, dtype=float)
+    forced = getattr(mod, "dynamics_rhs", None)
+    plain = mod.hamilton_rhs
+
+    def f(t, y):
+        out = np.empty(y.shape[0])
+        y = np.ascontiguousarray(y, dtype=float)
+        if forced is not None:
+            forced(float(t), y, prm, out)
+        else:
+            plain(y, prm, out)
+        return out
+
+    return f
+
+
+class DenseOutput:
+    """Piecewise cubic Hermite interpolant of a Trajectory's states (see the module docstring).
+
+    Nodes are the grid states and, inside impact steps, the impact states; node i carries the state
+    arriving at it (left) and the one leaving it (right): equal at grid points, (q, p-) and (q, p+) at
+    impacts. Piece i joins the right state of node i to the left state of node i+1. Slopes are
+    evaluated lazily, only at the nodes of the pieces asked for."""
+
+    def __init__(self, traj: Trajectory, rhs):
+        t = np.asarray(traj.t, float)
+        Y = np.hstack([traj.q, traj.p])
+        self.n2 = Y.shape[1]
+        self.rhs = rhs
+        self.t_grid = t
+        self.Y_grid = Y
+        imp = np.asarray(traj.impacts, float)
+        keep = (imp >= t[0]) & (imp <= t[-1])   # a failed run may record impacts of its last step
+        imp = imp[keep]
+        iq, ipm, ipp = (np.asarray(a, float).reshape(-1, traj.q.shape[1])[keep]
+                        for a in (traj.impact_q, traj.impact_p_minus, traj.impact_p_plus))
+        # step of each impact: (t_k, t_k+1] -> k (an impact exactly at t_k closes step k-1)
+        step = np.clip(np.searchsorted(t, imp, side="left") - 1, 0, max(len(t) - 2, 0))
+        # order: grid node k, then the impacts of step k by time
+        key_step = np.concatenate([np.arange(len(t)), step])
+        key_kind = np.concatenate([np.zeros(len(t)), np.ones(len(imp))])
+        times = np.concatenate([t, imp])
+        order = np.lexsort((times, key_kind, key_step))
+        self.times = times[order]
+        left = np.vstack([Y, np.hstack([iq, ipm])])[order]
+        right = np.vstack([Y, np.hstack([iq, ipp])])[order]
+        self.left, self.right = left, right
+        self.is_grid = (key_kind[order] == 0)
+        self.FL = np.full_like(left, np.nan)
+        self.FR = np.full_like(right, np.nan)
+        a, b = self.times[:-1], self.times[1:]
+        self.pieces = np.flatnonzero(b > a)      # zero-length pieces (an impact at a grid time) skipped
+        self.starts = a[self.pieces]
+
+    def _slopes(self, nodes, which):
+        F, Y = (self.FL, self.left) if which == "left" else (self.FR, self.right)
+        for i in nodes[~np.isfinite(F[nodes, 0])] if len(nodes) else nodes:
+            F[i] = self.rhs(self.times[i], Y[i])
+            if self.is_grid[i]:  # one state: one evaluation for both sides
+                (self.FR if which == "left" else self.FL)[i] = F[i]
+        return F[nodes]
+
+    def state(self, t) -> np.ndarray:
+        scalar = np.ndim(t) == 0
+        tt = np.atleast_1d(np.asarray(t, float)).ravel()
+        t0, t1 = self.t_grid[0], self.t_grid[-1]
+        tol = 1e-12 * max(1.0, abs(t0), abs(t1))
+        bad = ~((tt >= t0 - tol) & (tt <= t1 + tol))
+        if bad.any():
+            raise ValueError(f"t: {tt[bad][0]:.17g} is outside the trajectory's time span [{t0:g}, {t1:.17g}] "
+                             "(dense output does not extrapolate)")
+        if len(self.pieces) == 0:   # a single grid point
+            out = np.repeat(self.right[:1], tt.size, axis=0)
+        else:
+            j = np.clip(np.searchsorted(self.starts, tt, side="right") - 1, 0, len(self.pieces) - 1)
+            i = self.pieces[j]
+            uniq = np.unique(i)
+            self._slopes(uniq, "right")
+            self._slopes(uniq + 1, "left")
+            a, b = self.times[i], self.times[i + 1]
+            d = (b - a)[:, None]
+            s = ((tt - a) / (b - a))[:, None]
+            y0, y1 = self.right[i], self.left[i + 1]
+            m0, m1 = self.FR[i] * d, self.FL[i + 1] * d
+            s2, s3 = s * s, s * s * s
+            out = ((2 * s3 - 3 * s2 + 1) * y0 + (s3 - 2 * s2 + s) * m0 + (-2 * s3 + 3 * s2) * y1
+                   + (s3 - s2) * m1)
+            # at the grid times: the grid states themselves (bit for bit)
+            g = np.searchsorted(self.t_grid, tt)
+            g = np.clip(g, 0, len(self.t_grid) - 1)
+            hit = self.t_grid[g] == tt
+            if hit.any():
+                out[hit] = self.Y_grid[g[hit]]
+        return out[0] if scalar else out

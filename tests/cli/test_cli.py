@@ -106,7 +106,7 @@ def test_sweep_info_plot_resume_force(runner, tiny, count_runs):
     assert "8 of 8 runs stored" in r.stdout and "tiny: 8 runs" in r.stdout
     assert all(rid in r.stdout for rid in stamps)
 
-    r = invoke(runner, "plot")  # no argument: the newest results file under results/
+    r = invoke(runner, "plot")  # no argument: every results file under results/ (here one)
     assert r.exit_code == 0, r.output
     figdir = Path("results/figures/tiny")
     for name in ("fig4_l2_error_vs_beta.png", "fig4_l2_error_vs_beta.pdf", "work_precision.png",

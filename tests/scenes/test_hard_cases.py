@@ -19,6 +19,8 @@ import pytest
 import sympy as sp
 
 import vcirun
+
+NO_HELD = np.zeros(1, dtype=np.int64)  # collision_time's held contacts (issue 18): none
 from vcirun.api import resolve_system
 from vcirun.codegen.build import load_module
 from vcirun.mechanics.system import MechanicalSystem
@@ -206,7 +208,7 @@ def test_grazing_discrete_impact_vci_has_no_reset():
     prm, _, mv = _osc()
     m, k, d = prm
     q, p, v = np.empty(1), np.empty(1), np.empty(1)
-    code, dtau, Epre, _ = mv.collision_time(np.array([x0]), np.array([v0]), H, H, 0.0, prm, NTOL, MAXIT, ETOL, q, p, v)
+    code, dtau, Epre, _ = mv.collision_time(np.array([x0]), np.array([v0]), H, H, 0.0, prm, NTOL, MAXIT, ETOL, q, p, v, NO_HELD)
     assert code == 1
     tau = H - dtau
     a, b, c = m / 2 + k * tau**2 / 4, k * tau * q[0] / 2, k * q[0] ** 2 / 2
@@ -280,7 +282,7 @@ def test_several_impacts_in_one_step_vci_limitation():
     # the first reset satisfies eq. (33): recompute it from the initial state
     prm, _, mv = _osc(BOUNCE)
     q, p, v = np.empty(1), np.empty(1), np.empty(1)
-    code, dtau, Epre, _ = mv.collision_time(np.array([A_B]), np.array([0.0]), H, H, 0.0, prm, NTOL, MAXIT, ETOL, q, p, v)
+    code, dtau, Epre, _ = mv.collision_time(np.array([A_B]), np.array([0.0]), H, H, 0.0, prm, NTOL, MAXIT, ETOL, q, p, v, NO_HELD)
     assert code == 1
     pp = tr.impact_p_plus[0]
     w = (pp - (H - dtau) * prm[1] * q / 2) / prm[0]   # oscillator: Pm(q, w, tau) = m w + tau k q / 2
@@ -327,7 +329,7 @@ def test_large_step_events_are_first_roots_on_the_surface(scene, kw, method):
     n = s.n
     qt, pt, vt = np.empty(n), np.empty(n), np.empty(n)
     for i in np.flatnonzero(tr.impact_step):
-        code, tau, _, _ = mod.collision_time(tr.q[i], tr.p[i], h, h, tr.t[i], prm, NTOL, MAXIT, ETOL, qt, pt, vt)
+        code, tau, _, _ = mod.collision_time(tr.q[i], tr.p[i], h, h, tr.t[i], prm, NTOL, MAXIT, ETOL, qt, pt, vt, NO_HELD)
         assert code == 1
         for s_ in np.linspace(0.0, tau, 402)[1:-1]:
             mod.partial(tr.q[i], tr.p[i], s_, h, tr.t[i], prm, NTOL, MAXIT, qt, pt, vt)

@@ -1,7 +1,7 @@
 """Acceptance (issue 5): the generalized MCVA (Section 4.4) runs on every discrete Lagrangian of the
 library for s = 1, 2, 3 (and 4), and refuses an unsupported combination with a clear message.
 
-The default suite runs the generated module uncompiled (vcirun.api.load_module replaced by
+The default suite runs the generated module uncompiled (vcirun.resolve.load_module replaced by
 vcirun.codegen.evaluate.python_module_for: same source text, no numba compile) on a short run with
 one impact; the compiled runs of the whole matrix on the Figure 3 setting are marked slow
 (one numba compile of ~10-20 s per combination).
@@ -22,7 +22,7 @@ from vcirun.codegen.evaluate import python_module_for
 
 @pytest.fixture
 def uncompiled(monkeypatch):
-    monkeypatch.setattr(vcirun.api, "load_module", python_module_for)
+    monkeypatch.setattr(vcirun.resolve, "load_module", python_module_for)
 
 
 def _short_state():
@@ -55,8 +55,8 @@ def test_named_methods():
     a, c = METHODS["MCVAA"], METHODS["MCVAC"]
     assert (a.ld, a.partial, a.reset, a.mh_order, a.flow_order) == ("SVA", "gauss", "mcva", 4, 4)
     assert (c.ld, c.partial, c.reset, c.mh_order, c.flow_order) == ("SVC", "gauss", "mcva", 3, 4)
-    assert a.properties == {"conserves_mh": True, "symplectic": True, "explicit_ld": False}
-    assert c.properties == {"conserves_mh": True, "symplectic": True, "explicit_ld": True}
+    assert a.properties == {"conserves_mh": True, "symplectic": True, "explicit_ld": False, "forcing": "order 2"}
+    assert c.properties == {"conserves_mh": True, "symplectic": True, "explicit_ld": True, "forcing": "order 2"}
     m = resolve_method("MCVA", ld="midpoint", mh_order=2, flow_order=6)
     assert (m.ld, m.reset, m.partial, m.mh_order, m.flow_order) == ("midpoint", "mcva", "gauss", 2, 6)
     assert m.kernel_set().modified == ("midpoint", 2, 6)
@@ -79,9 +79,11 @@ def test_refuses_unsupported_combinations(kwargs, field):
         vcirun.simulate("cart_pendulum", "MCVA", h=0.01, T=0.1, beta=3.2, **kwargs)
 
 
-def test_refuses_a_forced_system():
-    with pytest.raises(ValueError, match="conservative"):
-        vcirun.simulate("damped_oscillator", "MCVAC", h=0.01, T=0.1)
+def test_accepts_a_forced_system():
+    """Since issue 15 the MCVA family takes forced systems (orders: tests/scenes/test_forced.py): the
+    full step is the forced DEL, the partial flow adds the force to the modified equations."""
+    tr = vcirun.simulate("damped_oscillator", "MCVAC", h=0.01, T=1.0)
+    assert tr.ok and np.all(np.diff(tr.H) < 0)  # linear drag: the energy decreases every step
 
 
 @pytest.mark.slow

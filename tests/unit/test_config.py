@@ -166,11 +166,25 @@ def test_missing_file_and_directory(tmp_path):
         load_config(tmp_path)
 
 
-def test_many_problems_are_counted_on_the_one_line(tmp_path):
+def test_many_problems_are_all_reported_on_the_one_line(tmp_path):
     path = write(tmp_path, edit(GOOD, T="0", h="[-1]"))
     with pytest.raises(ConfigError) as ei:
         load_config(path)
-    assert "(and 1 more problem)" in str(ei.value) and "\n" not in str(ei.value)
+    msg = str(ei.value)
+    assert "\n" not in msg and "(2 problems)" in msg
+    assert "h[0]: must be > 0 (got -1)" in msg and "T: must be > 0 (got 0)" in msg
+
+
+def test_a_typo_is_named_not_reported_as_missing(tmp_path):
+    """`methdos:` instead of `methods:`: the typo and the key it probably means, once; and the other
+    problems of the file in the same line."""
+    path = write(tmp_path, GOOD.replace("methods:", "methdos:").replace("T: 0.5", "T: -1"))
+    with pytest.raises(ConfigError) as ei:
+        load_config(path)
+    msg = str(ei.value)
+    assert msg.startswith(f"{path}: methdos: unknown key; did you mean 'methods'?"), msg
+    assert "(that key is required)" in msg and "required key is missing" not in msg
+    assert "T: must be > 0 (got -1)" in msg and "(2 problems)" in msg and "\n" not in msg
 
 
 def test_good_config_defaults_and_yaml_floats(tmp_path):

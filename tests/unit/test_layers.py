@@ -16,16 +16,16 @@ import pytest
 PKG = Path(__file__).resolve().parents[2] / "vcirun"
 
 LAYERS = (
-    ("foundation", ("record", "scenedata", "validation", "oracles", "trajectory", "catalog")),
+    ("foundation", ("record", "scenedata", "validation", "oracles", "catalog", "plotting")),
     ("symbolic model", ("mechanics",)),
     ("discrete mechanics", ("discrete",)),
     ("backward error", ("modified",)),
-    ("code generation", ("codegen",)),
+    ("code generation", ("codegen", "cache")),
     ("numba units", ("maps", "collision")),
     ("methods", ("methods",)),
-    ("Python API", ("api", "diagnosis")),
+    ("Python API", ("resolve", "trajectory", "api", "diagnosis")),
     ("reference", ("reference",)),
-    ("analysis", ("verification", "results", "experiments", "cache")),
+    ("analysis", ("verification", "results", "experiments")),
 )
 OUTSIDE = ("__init__", "cli", "__main__")
 

@@ -23,6 +23,8 @@ import numpy as np
 import pytest
 
 import vcirun
+
+NO_HELD = np.zeros(1, dtype=np.int64)  # collision_time's held contacts (issue 18): none
 from vcirun.api import resolve_system
 from vcirun.codegen.build import load_module
 from vcirun.methods import METHODS
@@ -86,7 +88,7 @@ def _recorded_impacts(scene, method):
             assert tr.status == "ok", tr.message
             j = 0
             for i in np.flatnonzero(tr.impact_step):
-                code, dtau, Epre, _ = mod.collision_time(tr.q[i], tr.p[i], h, h, tr.t[i], prm, NTOL, MAXIT, ETOL, qt, pt, vt)
+                code, dtau, Epre, _ = mod.collision_time(tr.q[i], tr.p[i], h, h, tr.t[i], prm, NTOL, MAXIT, ETOL, qt, pt, vt, NO_HELD)
                 assert code == 1
                 # the recorded impact is the first of this step (impacts are ascending)
                 while tr.impacts[j] < tr.t[i] - 1e-12:

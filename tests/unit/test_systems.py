@@ -112,7 +112,7 @@ def test_warm_path_checks_the_mass_matrix_at_q0_compiled(monkeypatch):
     """A built-in scene served from the warm index never builds the symbolic system, so the
     hyperregularity check at q0 is the module's compiled mass_matrix_ok (a Cholesky attempt); numpy's
     check_mass_matrix then words the error. Cart-pendulum M = [[m1 + m2, m2 L sin], [., m2 L^2]]."""
-    from vcirun import api
+    from vcirun import api, resolve
 
     vcirun.simulate("cart_pendulum", "CVA", h=0.1, T=0.2, beta=3.2)  # compiles and indexes the module
 
@@ -120,6 +120,7 @@ def test_warm_path_checks_the_mass_matrix_at_q0_compiled(monkeypatch):
         raise AssertionError("the warm path must not build the symbolic system")
 
     monkeypatch.setattr(api, "resolve_system", no_symbolic)
+    monkeypatch.setattr(resolve, "resolve_system", no_symbolic)
     ok = vcirun.simulate("cart_pendulum", "CVA", h=0.1, T=0.2, beta=3.2)
     assert ok.status == "ok"
     for m1 in (-1.5, -0.2):  # M[0, 0] = m1 + m2 < 0 (indefinite) and = 0 (singular; m2 = 0.2)

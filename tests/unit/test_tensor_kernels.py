@@ -257,7 +257,7 @@ def test_simulation_agrees_with_expanded_path(system_name, method, mopts, kw, tm
         assert "vcirun.codegen.tensor" in getattr(kernel, "py_func", kernel).__doc__
     a = vcirun.simulate(system, method, **mopts, **kw)
     exp_mod = _compiled_expanded(system, ks, tmp_path)
-    monkeypatch.setattr(api, "load_module", lambda s, k: exp_mod)
+    monkeypatch.setattr(resolve, "load_module", lambda s, k: exp_mod)
     b = vcirun.simulate(system, method, **mopts, **kw)
     assert a.status == b.status == "ok"
     assert len(a.impacts) == len(b.impacts)

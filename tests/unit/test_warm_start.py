@@ -19,6 +19,7 @@ import pytest
 
 import vcirun
 import vcirun.api as api
+import vcirun.resolve as resolve
 from vcirun.codegen import build
 from vcirun.methods import METHODS
 
@@ -142,7 +143,7 @@ def test_warm_key_follows_the_hashed_files(tmp_path, monkeypatch):
     assert k0 == build.warm_key(ident, ks)
     assert build.warm_key(("scene", "double_pendulum"), ks) != k0
     assert build.warm_key(ident, METHODS["VCI"].kernel_set()) != k0
-    for rel in ["scenedata.py", "mechanics/scenes.py", "mechanics/loader.py", "collision/resets.py",
+    for rel in ["scenedata.py", "mechanics/scenes.py", "mechanics/loader.py", "collision/reset_cva.py",
                 "codegen/derive.py", "mechanics/system.py"]:
         f = pkg / rel
         text = f.read_text()
@@ -209,7 +210,7 @@ def test_yaml_index_entry_fields(yaml_file):
 
 
 def test_substituted_load_module_disables_the_warm_index(monkeypatch):
-    """Tests run modules uncompiled by monkeypatching vcirun.api.load_module: that must win."""
+    """Tests run modules uncompiled by monkeypatching vcirun.resolve.load_module: that must win."""
     calls = []
 
     def fake(system, ks):
@@ -218,7 +219,7 @@ def test_substituted_load_module_disables_the_warm_index(monkeypatch):
 
     ks = METHODS["CVA"].kernel_set()
     api.resolve_numeric("cart_pendulum", ks)[1]()  # indexed
-    monkeypatch.setattr(api, "load_module", fake)
+    monkeypatch.setattr(resolve, "load_module", fake)
     vcirun.simulate("cart_pendulum", "CVA", h=2e-2, T=1.0, beta=3.2)
     assert calls == ["cart_pendulum"]
 
@@ -235,7 +236,7 @@ def test_import_vcirun_is_light_and_names_resolve():
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     assert r.stdout.split(maxsplit=2)[:2] == ["True", "True"], r.stdout
-    assert "['Trajectory', '__version__', 'l2_error', 'reference', 'simulate'] False False" in r.stdout
+    assert "['Trajectory', '__version__', 'l2_error', 'open_results', 'reference', 'simulate'] False False" in r.stdout
     with pytest.raises(AttributeError):
         vcirun.no_such_name  # noqa: B018
     assert isinstance(vcirun.__version__, str) and "simulate" in dir(vcirun)

@@ -55,6 +55,15 @@ def system_kernels(system, with_dhq: bool = True) -> list[Kernel]:
     ]
     if system.m == 1:
         ks.append(Kernel("sys_dphi", [("q", q)], [("out", system.grad_phi)], prm))
+    # for held (resting) contacts, issue 18: the velocity terms of d^2/dt^2 phi_i = G_i qddot + v^T
+    # Hess(phi_i) v and of d/dt (M v) = M qddot + Mdot v along a velocity v
+    v = list(sp.symbols(f"vv0:{n}"))
+    ks.append(Kernel("sys_ddphis", [("q", q), ("v", v)],
+                     [("out", sp.Matrix([sum(sp.diff(c.phi, a, b) * v[i] * v[j] for i, a in enumerate(q)
+                                             for j, b in enumerate(q)) for c in system.constraints]))], prm))
+    ks.append(Kernel("sys_Mdotv", [("q", q), ("v", v)],
+                     [("out", sp.Matrix([sum(sp.diff(system.M[i, j], q[k]) * v[k] * v[j] for j in range(n)
+                                             for k in range(n)) for i in range(n)]))], prm))
     if with_dhq:
         x = list(sp.symbols(f"xm0:{n}"))
         ks.append(Kernel("sys_dHq", [("q", q), ("x", x)], [("out", system.dH_dq_at(x))], prm))

@@ -664,13 +664,42 @@ def _pydantic_message(err: dict, root=None) -> tuple[tuple, str]:
 
 
 def _from_validation_error(e: ValidationError, source: str, root=None) -> ConfigError:
+    """Every problem at once, on one line: unknown keys first (a typo such as `methdos:` is named, with
+    the closest known key, and the "required key is missing" it causes is folded into it), then the
+    rest in the order pydantic found them: `<file>: <field>: <problem>; <field>: <problem> (N problems)`."""
     errors = e.errors(include_url=False)
-    # A root-level custom error carries its own location (see _FieldError).
-    loc, msg = _pydantic_message(errors[0], root)
-    more = len(errors) - 1
-    if more:
-        msg += f" (and {more} more problem{'s' * (more > 1)})"
-    return ConfigError(msg, source=source, field=format_loc(loc))
+    items = [(err["type"], _pydantic_message(err, root)) for err in errors]  # root-level _FieldError: own location
+    unknown = [(loc, msg) for typ, (loc, msg) in items if typ == "extra_forbidden"]
+    missing = {loc for typ, (loc, _) in items if typ == "missing"}
+    folded = set()
+    for loc, msg in list(unknown):
+        m = re.search(r"did you mean '([^']+)'", msg)
+        if m and loc[:-1] + (m.group(1),) in missing:
+            folded.add(loc[:-1] + (m.group(1),))
+    out = [(loc, msg + (" (that key is required)" if loc[:-1] + (_hint(msg),) in folded else ""))
+           for loc, msg in unknown]
+    out += [(loc, msg) for typ, (loc, msg) in items if typ != "extra_forbidden" and not (typ == "missing" and loc in folded)]
+    seen, uniq, lists = set(), [], set()
+    for loc, msg in out:
+        if (loc, msg) in seen:
+            continue
+        seen.add((loc, msg))
+        m = re.search(r" \(allowed: [^)]*\)", msg)
+        if m:  # several unknown keys of one mapping: its allowed keys once
+            if (loc[:-1], m.group(0)) in lists:
+                msg = msg.replace(m.group(0), "")
+            lists.add((loc[:-1], m.group(0)))
+        uniq.append((loc, msg))
+    first_loc, first_msg = uniq[0]
+    text = first_msg + "".join(f"; {format_loc(loc)}: {msg}" for loc, msg in uniq[1:])
+    if len(uniq) > 1:
+        text += f" ({len(uniq)} problems)"
+    return ConfigError(text, source=source, field=format_loc(first_loc))
+
+
+def _hint(msg: str) -> str:
+    m = re.search(r"did you mean '([^']+)'", msg)
+    return m.group(1) if m else ""
 
 
 # --- loading -----------------------------------------------------------------------------------------

@@ -1,62 +1,60 @@
-"""Figures from a results file, in the paper's style (matplotlib, Agg backend, PNG and PDF).
+"""Figures from a results file (or a Trajectory), in the paper's style.
 
-- Figure 4: L2 trajectory error against beta, one curve per method and h, log axis.
+- Figure 4: L2 trajectory error against beta, one curve per method and h, log axis; the reference
+  used is stated, failed runs are marked at the bottom of the axes and listed in the legend.
 - Figure 3: time evolution of H, -D3 Ld (impact steps masked) and the truncated modified
-  Hamiltonian, impact times as dashed vertical lines, one panel per method.
+  Hamiltonian (its truncation order mh_order in the legend), impact times as dashed vertical lines,
+  one panel per method, one shared y axis.
 - Figure 1: energy H(t) of the same run with and without the impact constraint.
 - Work-precision: mean computation time against median L2 error per method, one point per h.
+- `trajectory_figure(tr)` (`Trajectory.plot()`): coordinates and energy of one run.
 
-Each builder returns the paths it wrote, or raises `FigureSkipped` with the reason the results do
-not support that figure (the `plot` command reports it and carries on).
+Notebook safety: every builder returns a `matplotlib.figure.Figure` that is not registered with
+pyplot, built inside a local `matplotlib.rc_context`; nothing here selects a backend or changes
+global rcParams, so Jupyter's inline plots are unaffected (shown by displaying the returned Figure;
+in a script call `fig.savefig(...)`). Files are written only for the CLI (`vcirun plot`), by
+`save_figure` / `make_figures` / `plot_results`. A builder raises `FigureSkipped` with the reason the
+results do not support its figure.
 """
 from __future__ import annotations
 
+import math
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from ..plotting import _COLORS, _MARKERS, _STYLES, STYLE, _figure, _fmt_h, _styled, style, trajectory_figure  # noqa: F401
 from . import metrics, storage
 
-__all__ = ["FigureSkipped", "figure4", "figure3", "figure1", "work_precision", "make_figures", "plot_results",
-           "PlotReport"]
-
-# Colour per method (Okabe-Ito, colour-blind safe), line style per step size.
-_COLORS = ["#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#F0E442", "#000000"]
-_STYLES = ["-", "--", ":", "-."]
-_MARKERS = ["o", "s", "^", "D", "v", "P"]
-
+__all__ = ["FigureSkipped", "figure4", "figure3", "figure1", "work_precision", "trajectory_figure", "make_figures",
+           "plot_results", "PlotReport", "save_figure", "STYLE"]
 
 class FigureSkipped(Exception):
     """The results hold nothing this figure can show; str() says why."""
 
 
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
-
-    plt.rcParams.update({
-        "font.family": "serif", "font.size": 9, "axes.labelsize": 10, "legend.fontsize": 8,
-        "axes.linewidth": 0.8, "lines.linewidth": 1.1, "lines.markersize": 3.0, "savefig.bbox": "tight",
-        "pdf.fonttype": 42, "ps.fonttype": 42,  # embed TrueType, editable text in the PDF
-    })
-    return plt
-
-
-def _save(fig, outdir: Path, stem: str) -> list[Path]:
+def save_figure(fig, outdir: Path, stem: str) -> list[Path]:
+    """Write `fig` as <outdir>/<stem>.png and .pdf (for the CLI)."""
+    outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     paths = []
-    for ext in ("png", "pdf"):
-        p = outdir / f"{stem}.{ext}"
-        fig.savefig(p, dpi=200 if ext == "png" else None, metadata=None if ext == "png" else {"Creator": "vcirun"})
-        paths.append(p)
-    import matplotlib.pyplot as plt
-
-    plt.close(fig)
+    with style():
+        for ext in ("png", "pdf"):
+            p = outdir / f"{stem}.{ext}"
+            fig.savefig(p, dpi=200 if ext == "png" else None,
+                        metadata=None if ext == "png" else {"Creator": "vcirun"})
+            paths.append(p)
     return paths
+
+
+def _as_results(results) -> storage.Results:
+    if isinstance(results, storage.Results):
+        return results
+    if isinstance(results, (str, Path)):
+        return storage.read_results(results)
+    raise TypeError(f"results: expected vcirun results (a path or storage.Results), got {type(results).__name__}")
 
 
 def _method_order(runs) -> list[str]:
@@ -66,41 +64,106 @@ def _method_order(runs) -> list[str]:
     return sorted(seen, key=lambda k: seen[k])
 
 
-def _fmt_h(h: float) -> str:
-    m, e = f"{h:.1e}".split("e")
-    m = m.rstrip("0").rstrip(".")
-    return f"{m}E{int(e)}"
+
+def reference_note(results: storage.Results) -> str:
+    """The reference the L2 errors were measured against, in words (from the stored config)."""
+    a = results.attrs
+    spec = (a.get("config_canonical") or {}).get("reference") or {"kind": a.get("reference_kind", "?")}
+    kind = spec.get("kind")
+    if kind == "exact":
+        acc = [float(r.get("accuracy")) for r in results.references.values()
+               if r.get("accuracy") is not None and np.isfinite(r.get("accuracy"))]
+        txt = f"reference: exact nonsmooth solution (DOP853, event location, rtol {spec.get('rtol', 1e-13):g})"
+        return txt + (f", self-reported accuracy <= {max(acc):.1e}" if acc else "")
+    if kind == "method":
+        return f"reference: {spec.get('method', 'CVA')} at h = {_fmt_h(float(spec.get('h')))}"
+    return "no reference"
 
 
-def figure4(results: storage.Results, outdir: Path) -> list[Path]:
+def _runs_by_series(runs):
+    """{(label, h): [(beta, l2 or nan, status, l2_note)]} sorted by beta, runs with a finite beta."""
+    acc = defaultdict(list)
+    for r in runs:
+        beta = r.attrs.get("beta")
+        if beta is None or not np.isfinite(beta):
+            continue
+        l2 = r.attrs.get("l2_error")
+        l2 = math.nan if l2 is None or not np.isfinite(l2) else float(l2)
+        acc[(r.attrs["label"], float(r.attrs["h"]))].append((float(beta), l2, str(r.attrs.get("status", "?")),
+                                                              str(r.attrs.get("l2_note", ""))))
+    return {k: sorted(v) for k, v in acc.items()}
+
+
+def _coincident(series: dict, tol: float = 0.02) -> dict:
+    """{key: other key} for curves within a relative `tol` of an earlier one at every common beta."""
+    out, keys = {}, list(series)
+    for i, a in enumerate(keys):
+        for b in keys[:i]:
+            (ba, ea), (bb, eb) = series[a], series[b]
+            common, ia, ib = np.intersect1d(ba, bb, return_indices=True)
+            x, y = ea[ia], eb[ib]
+            m = np.isfinite(x) & np.isfinite(y)
+            if m.sum() >= 2 and np.max(np.abs(x[m] - y[m]) / np.maximum(np.abs(x[m]), np.abs(y[m]))) < tol:
+                out[a] = b
+                break
+    return out
+
+
+@_styled
+def figure4(results) -> "Figure":
     """L2 error against beta for each method and h (the paper's Figure 4)."""
-    series = metrics.l2_series(results.runs)
-    series = {k: v for k, v in series.items() if np.isfinite(v[1]).any()}
-    if not series:
+    from matplotlib.lines import Line2D
+
+    results = _as_results(results)
+    raw = _runs_by_series(results.runs)
+    drawable = {k: v for k, v in raw.items() if any(np.isfinite(p[1]) or p[2] != "ok" for p in v)}
+    if not any(np.isfinite(p[1]) for v in drawable.values() for p in v):
         raise FigureSkipped("no run has both a beta and an L2 error (needs beta in the config and a reference)")
-    if max(len(b) for b, _ in series.values()) < 2:
+    if max(len(v) for v in drawable.values()) < 2:
         raise FigureSkipped("L2 error against beta needs at least two betas")
-    plt = _pyplot()
     labels = _method_order(results.runs)
-    hs = sorted({h for _, h in series}, reverse=True)
-    fig, ax = plt.subplots(figsize=(6.4, 4.6), layout="constrained")
-    for (label, h), (b, e) in sorted(series.items(), key=lambda kv: (labels.index(kv[0][0]), -kv[0][1])):
+    hs = sorted({h for _, h in drawable}, reverse=True)
+    keys = sorted(drawable, key=lambda k: (labels.index(k[0]), -k[1]))
+    curves = {k: (np.array([p[0] for p in drawable[k]]), np.array([p[1] for p in drawable[k]])) for k in keys}
+    same = _coincident(curves)
+    fig, ax = _figure(figsize=(6.4, 4.8))
+    handles, failed_handles = [], []
+    for idx, key in enumerate(keys):
+        label, h = key
+        b, e = curves[key]
         i, j = labels.index(label), hs.index(h)
-        ax.semilogy(b, e, color=_COLORS[i % len(_COLORS)], linestyle=_STYLES[j % len(_STYLES)],
-                    marker=_MARKERS[i % len(_MARKERS)], markevery=max(1, len(b) // 12),
-                    label=f"{label}, h = {_fmt_h(h)}")
-        bad = ~np.isfinite(e)
-        if bad.any():  # failed runs: marked on the axis rather than silently dropped
-            ax.plot(b[bad], np.full(bad.sum(), np.nanmin(e[np.isfinite(e)]) if np.isfinite(e).any() else 1.0),
-                    "x", color=_COLORS[i % len(_COLORS)], markersize=5)
+        color = _COLORS[i % len(_COLORS)]
+        every = max(1, len(b) // 12)
+        # markers of different series at different betas, wider lines drawn first: a curve lying on
+        # another stays visible (Figure 4's CVA and MCVAC at h = 1e-2 nearly coincide)
+        base = text = f"{label}, h = {_fmt_h(h)}"
+        if key in same:
+            text += f" (on {same[key][0]}, h = {_fmt_h(same[key][1])})"
+        if np.isfinite(e).any():
+            (ln,) = ax.semilogy(b, e, color=color, linestyle=_STYLES[j % len(_STYLES)],
+                                linewidth=max(0.8, 2.4 - 0.35 * idx), zorder=2 + idx,
+                                marker=_MARKERS[i % len(_MARKERS)], markevery=((idx * max(1, every // len(keys))) % every, every),
+                                markersize=4, markerfacecolor="white" if j else color, label=text)
+            handles.append(ln)
+        status = [p[2] for p in drawable[key]]
+        bad = np.array([s != "ok" for s in status])
+        if bad.any():  # failed runs: a mark on the beta axis, and in the legend
+            kinds = sorted({s for s in status if s != "ok"})
+            ax.plot(b[bad], np.full(bad.sum(), 0.02 + 0.03 * (idx % 4)), linestyle="none", marker="x",
+                    color=color, markersize=5, transform=ax.get_xaxis_transform(), clip_on=False, zorder=10)
+            what = "all" if bad.all() else f"{bad.sum()} of"
+            failed_handles.append(Line2D([], [], linestyle="none", marker="x", color=color, markersize=5,
+                                         label=f"{base}: {what} {len(b)} runs failed ({', '.join(kinds)})"))
     ax.set_xlabel(r"$\beta$")
     ax.set_ylabel(r"$L^2$ error")
     ax.grid(True, which="both", linewidth=0.3, alpha=0.5)
+    allh = handles + failed_handles
     # below the axes: the curves fill the whole plot, so any inside position hides some of them
-    fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncol=min(4, len(series)),
-               frameon=False)
-    ax.set_title(f"{results.attrs.get('system', '')}, T = {results.attrs.get('T', '')}", fontsize=9)
-    return _save(fig, outdir, "fig4_l2_error_vs_beta")
+    fig.legend(handles=allh, loc="outside lower center", ncol=min(4, max(1, len(handles))) if not failed_handles
+               else 2, frameon=False)
+    ax.set_title(f"{results.attrs.get('system', '')}, T = {results.attrs.get('T', '')}\n{reference_note(results)}",
+                 fontsize=8)
+    return fig
 
 
 def _pick_case(runs, want) -> tuple[float, str]:
@@ -116,8 +179,26 @@ def _pick_case(runs, want) -> tuple[float, str]:
     return h, min(order, key=order.get)
 
 
-def figure3(results: storage.Results, outdir: Path) -> list[Path]:
+def _mh_order(r) -> int | None:
+    """The truncation order of a run's modified Hamiltonian (resolved_method, else the method data)."""
+    m = r.attrs.get("resolved_method") or {}
+    if isinstance(m, dict) and m.get("mh_order"):
+        return int(m["mh_order"])
+    try:
+        from vcirun.methods import resolve_method
+
+        spec = r.attrs.get("method_spec") or {"name": r.attrs.get("method")}
+        mm = resolve_method(spec["name"], **{k: v for k, v in spec.items() if k in ("ld", "mh_order", "flow_order")})
+        return int(mm.mh_order) if getattr(mm, "mh_order", None) else None
+    except Exception:  # noqa: BLE001 - a label detail, never a reason to lose the figure
+        return None
+
+
+@_styled
+def figure3(results) -> "Figure":
     """H, -D3 Ld and the truncated modified Hamiltonian over time, one panel per MH method."""
+    results = _as_results(results)
+
     def want(r):
         return r.attrs.get("has_trajectory") and r.attrs.get("has_Hmod") and r.attrs.get("n_steps", 0) > 0
 
@@ -126,30 +207,34 @@ def figure3(results: storage.Results, outdir: Path) -> list[Path]:
         raise FigureSkipped("needs stored trajectories of an MCVA-family run (store_trajectories: true; "
                             "methods MCVAA, MCVAC or MCVA)")
     runs = [r for r in results.runs if want(r) and float(r.attrs["h"]) == h and r.attrs["ic_key"] == ic]
-    plt = _pyplot()
-    fig, axes = plt.subplots(1, len(runs), figsize=(3.4 * len(runs), 3.0), squeeze=False, layout="constrained")
+    fig, axes = _figure(1, len(runs), figsize=(3.4 * len(runs), 3.2), squeeze=False, sharey=True)
     for ax, r in zip(axes[0], runs):
         tr = storage.load_trajectory(results.path, r.run_id)
+        s = _mh_order(r)
         ax.plot(tr.t, tr.H, color=_COLORS[0], label=r"$H$")
         ax.plot(tr.t, metrics.masked_discrete_energy(tr), color=_COLORS[1], linestyle="--",
-                label=r"$-D_3L_d$")
-        ax.plot(tr.t, tr.Hmod, color=_COLORS[2], linestyle="-.", label=r"truncated MH")
+                label=r"$-D_3L_d$ (impact steps masked)")
+        ax.plot(tr.t, tr.Hmod, color=_COLORS[2], linestyle="-.",
+                label="truncated MH" + (f", mh_order = {s}" if s else ""))
         for ti in tr.impacts:
             ax.axvline(ti, color="0.4", linestyle=(0, (4, 3)), linewidth=0.7)
         ax.set_title(f"{r.attrs['label']}" + ("" if r.attrs.get("status") == "ok" else f" [{r.attrs['status']}]"),
                      fontsize=9)
         ax.set_xlabel(r"$t$ [s]")
         ax.grid(True, linewidth=0.3, alpha=0.5)
+        ax.legend(frameon=False, fontsize=7)
     axes[0][0].set_ylabel("energy [J]")
-    axes[0][0].legend(frameon=False)
     b = runs[0].attrs.get("beta")
     where = f"beta = {b:g}" if b is not None and np.isfinite(b) else ic
-    fig.suptitle(f"{results.attrs.get('system', '')}: {where}, h = {_fmt_h(h)}", fontsize=9)
-    return _save(fig, outdir, "fig3_energy_evolution")
+    fig.suptitle(f"{results.attrs.get('system', '')}: {where}, h = {_fmt_h(h)}; dashed lines: impacts", fontsize=9)
+    return fig
 
 
-def figure1(results: storage.Results, outdir: Path) -> list[Path]:
+@_styled
+def figure1(results) -> "Figure":
     """H(t) of a run with impacts against the same method without the constraint (Figure 1)."""
+    results = _as_results(results)
+
     def unconstrained(r):
         return (r.attrs.get("method_spec") or {}).get("constrained") is False
 
@@ -166,8 +251,7 @@ def figure1(results: storage.Results, outdir: Path) -> list[Path]:
                             "(a second method entry with options: {constrained: false})")
     pairs.sort(key=lambda p: (-float(p[0].attrs["h"]), p[0].attrs.get("method_index", 0)))
     pairs = pairs[:4]
-    plt = _pyplot()
-    fig, axes = plt.subplots(len(pairs), 1, figsize=(6.0, 2.6 * len(pairs)), squeeze=False, layout="constrained")
+    fig, axes = _figure(len(pairs), 1, figsize=(6.0, 2.9 * len(pairs)), squeeze=False)
     for ax, (rc, rf) in zip(axes[:, 0], pairs):
         tc = storage.load_trajectory(results.path, rc.run_id)
         tf = storage.load_trajectory(results.path, rf.run_id)
@@ -182,14 +266,13 @@ def figure1(results: storage.Results, outdir: Path) -> list[Path]:
         txt = f"largest change of H over an impact step: {jump:.2g}"
         if smooth > 0:
             txt += f" = {jump / smooth:.2g} x the range of H without impacts ({smooth:.2g})"
-        ax.text(0.01, 0.97, txt, transform=ax.transAxes, fontsize=7, color="0.3", va="top",
-                bbox={"facecolor": "white", "edgecolor": "none", "alpha": 0.8, "pad": 1})
+        # in the title, not over the data: an annotation box inside the axes covered the legend
+        ax.set_title(f"{rc.attrs['label']}, h = {_fmt_h(float(rc.attrs['h']))}\n{txt}", fontsize=8)
         ax.set_ylabel(r"$H$ [J]")
-        ax.set_title(f"{rc.attrs['label']}, h = {_fmt_h(float(rc.attrs['h']))}", fontsize=9)
         ax.grid(True, linewidth=0.3, alpha=0.5)
-    axes[-1, 0].set_xlabel(r"$t$ [s]")
-    axes[0, 0].legend(frameon=False, loc="upper right")
-    return _save(fig, outdir, "fig1_energy_with_without_impacts")
+    axes[-1, 0].set_xlabel(r"$t$ [s]; dashed lines: impacts")
+    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside upper center", ncol=2, frameon=False)
+    return fig
 
 
 def _largest_impact_jump(tr) -> float:
@@ -199,12 +282,15 @@ def _largest_impact_jump(tr) -> float:
     return float(np.max(np.abs(tr.H[steps + 1] - tr.H[steps]))) if steps.size else 0.0
 
 
-def work_precision(results: storage.Results, outdir: Path) -> list[Path]:
+@_styled
+def work_precision(results) -> "Figure":
     """Median L2 error against mean computation time, one marker per h, one line per method."""
+    results = _as_results(results)
     l2 = defaultdict(list)
     for r in results.runs:
-        if r.attrs.get("status") == "ok" and r.attrs.get("l2_error") is not None:
-            l2[(r.attrs["label"], float(r.attrs["h"]))].append(float(r.attrs["l2_error"]))
+        e = r.attrs.get("l2_error")
+        if r.attrs.get("status") == "ok" and e is not None and np.isfinite(e):  # NaN: no reference
+            l2[(r.attrs["label"], float(r.attrs["h"]))].append(float(e))
     stats = {(s.label, s.h): s for s in metrics.timing_stats(results.runs)}
     points = defaultdict(list)
     for (label, h), errs in l2.items():
@@ -212,10 +298,9 @@ def work_precision(results: storage.Results, outdir: Path) -> list[Path]:
         if s and s.n and np.isfinite(s.mean):
             points[label].append((s.mean, float(np.median(errs)), h))
     if not points or max(len(v) for v in points.values()) < 2:
-        raise FigureSkipped("work-precision needs L2 errors and timings at two or more h")
-    plt = _pyplot()
+        raise FigureSkipped("work-precision needs finite L2 errors (a reference) and timings at two or more h")
     labels = _method_order(results.runs)
-    fig, ax = plt.subplots(figsize=(5.0, 3.8), layout="constrained")
+    fig, ax = _figure(figsize=(5.0, 3.8))
     for label in labels:
         pts = sorted(points.get(label, []))
         if not pts:
@@ -230,27 +315,41 @@ def work_precision(results: storage.Results, outdir: Path) -> list[Path]:
     ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: f"{x:g}"))
     ax.xaxis.set_minor_formatter(NullFormatter())
     hs = sorted({p[2] for v in points.values() for p in v}, reverse=True)
-    ax.set_title("one point per h: " + ", ".join(_fmt_h(h) for h in hs) + " (larger h: less time)", fontsize=8)
+    ax.set_title("one point per h: " + ", ".join(_fmt_h(h) for h in hs) + " (larger h: less time)\n"
+                 + reference_note(results), fontsize=7)
     ax.set_xlabel("mean computation time per run [s]")
     ax.set_ylabel(r"median $L^2$ error")
     ax.grid(True, which="both", linewidth=0.3, alpha=0.5)
     ax.legend(frameon=False)
-    return _save(fig, outdir, "work_precision")
+    return fig
 
 
 FIGURES = {"fig4": figure4, "fig3": figure3, "fig1": figure1, "work_precision": work_precision}
+_STEMS = {"fig4": "fig4_l2_error_vs_beta", "fig3": "fig3_energy_evolution", "fig1": "fig1_energy_with_without_impacts",
+          "work_precision": "work_precision"}
 
 
-def make_figures(results: storage.Results, outdir: Path, which=None) -> tuple[list[Path], dict[str, str]]:
-    """Every figure the results support: (written paths, {figure: reason skipped})."""
-    written, skipped = [], {}
+def figures(results, which=None) -> tuple[dict, dict[str, str]]:
+    """Every figure the results support, as Figures: ({name: Figure}, {name: reason skipped})."""
+    results = _as_results(results)
+    made, skipped = {}, {}
     for name, fn in FIGURES.items():
         if which and name not in which:
             continue
         try:
-            written += fn(results, Path(outdir))
+            made[name] = fn(results)
         except FigureSkipped as e:
             skipped[name] = str(e)
+    return made, skipped
+
+
+def make_figures(results, outdir: Path, which=None) -> tuple[list[Path], dict[str, str]]:
+    """For `vcirun plot`: write every figure the results support (PNG and PDF) into `outdir`:
+    (written paths, {figure: reason skipped})."""
+    made, skipped = figures(results, which)
+    written = []
+    for name, fig in made.items():
+        written += save_figure(fig, Path(outdir), _STEMS[name])
     return written, skipped
 
 
@@ -264,9 +363,9 @@ class PlotReport:
 
 
 def plot_results(results=None, outdir=None, results_dir="results") -> PlotReport:
-    """`vcirun plot`: every figure and table a results file supports, written to
+    """`vcirun plot FILE`: every figure and table a results file supports, written to
     <results dir>/figures/<sweep name>/ unless `outdir` is given. With no file, the newest *.h5 under
-    `results_dir`."""
+    `results_dir` (the CLI itself plots every results file when given none)."""
     from . import tables
 
     path = Path(results) if results is not None else storage.find_newest_results(results_dir)

@@ -59,7 +59,7 @@ from .metrics import energy_summary
 __all__ = ["FORMAT", "SCHEMA_VERSION", "StorageError", "ResultsWriter", "RunInfo", "Results", "read_results",
            "load_trajectory", "load_reference", "trajectory_payload", "trajectory_from_group",
            "environment_attrs", "find_newest_results", "run_problem", "reference_problem", "journal_path",
-           "read_journal"]
+           "read_journal", "run_isolated"]
 
 FORMAT = "vcirun-sweep"
 SCHEMA_VERSION = 1
@@ -192,7 +192,7 @@ def trajectory_from_group(g):
             arrays[f.name] = g[f.name][()] if f.name in g else None
             continue
         dt = np.uint8 if f.dtype == "bool" else np.dtype(f.dtype)
-        value = arr(f.name, (0, n) if f.dof else (0,), dt)
+        value = arr(f.name, f.shape(0, n, 0), dt)
         arrays[f.name] = value.astype(bool) if f.dtype == "bool" else value
     return Trajectory(
         method=a.get("core_method", a.get("method", "")), system=a.get("system", ""), h=float(a["h"]),
@@ -695,6 +695,16 @@ def _in_child(fn, tmp: Path) -> None:
                                                                                "PermissionError"))
 
 
+def run_isolated(fn, path: Path, *, isolate: bool = True) -> None:
+    """fn() (HDF5 writes that replace `path` atomically) in a forked child where fork exists and
+    `isolate`; its failure is raised here (StorageError as such, anything else as RuntimeError), a
+    crash as RuntimeError naming the signal."""
+    if isolate and hasattr(os, "fork"):
+        _in_child(fn, Path(path))
+    else:
+        fn()
+
+
 def _write_all(fd: int, pieces) -> None:
     for piece in pieces:
         mv = memoryview(piece)
@@ -817,6 +827,11 @@ class ResultsWriter:
     def journal_path(self) -> Path:
         return journal_path(self.path)
 
+    @property
+    def failed(self) -> bool:
+        """A write failed this session (disk full, ...): nothing more is written."""
+        return self._failed is not None
+
     def __enter__(self):
         self.open()
         return self
@@ -894,7 +909,8 @@ class ResultsWriter:
         """Take the writer lock and read what an existing file already holds (nothing is written)."""
         self._acquire_lock()
         try:
-            for leftover in (self.tmp_path, self.compact_path):  # of a rewrite killed before its rename
+            summary_tmp = self.path.with_name(f".{self.path.name}.summary-partial")  # (experiments.summary)
+            for leftover in (self.tmp_path, self.compact_path, summary_tmp):  # of a rewrite killed before its rename
                 with contextlib.suppress(FileNotFoundError):
                     leftover.unlink()
             self._fresh = self.force or not self.path.exists()

@@ -64,6 +64,9 @@ class SweepSummary:
     executor: str = "local"    # "local" | "dask"
     executor_stats: dict = field(default_factory=dict)  # task sizes, measured costs (executors.*.stats)
     write_time: float = 0.0    # seconds the client spent storing results, final commit included (serial)
+    prepare_time: float = 0.0  # seconds of the preflight: loading or (cold cache) compiling the kernels
+    compiled: int = 0          # kernel modules the preflight generated and compiled (cold cache)
+    summary_error: str = ""    # why the summary group could not be written ("" if it was)
 
     @property
     def ok(self) -> bool:
@@ -317,12 +320,19 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
         pending_ics = {s.ic.key for s in pending}
         ref_only = [ic for ic in missing_references(cfg, writer) if ic.key not in pending_ics]
         if not pending and not ref_only:
-            if writer.has_changes():
+            changed = writer.has_changes()
+            if changed:
                 writer.finish("complete")
+            _finalize(writer, summary, if_missing=not changed)  # a no-op resume leaves the file untouched
             summary.status_counts = _status_counts(writer)
             summary.wall_time = time.monotonic() - t_start
             return summary
+        from vcirun.codegen.build import BUILD_LOG
+
+        t_pre, n_log = time.monotonic(), len(BUILD_LOG)
         n = _preflight(cfg, pending or [specs[0]])
+        summary.prepare_time = time.monotonic() - t_pre  # kernels loaded or compiled: not run time
+        summary.compiled = sum(not e["cached"] for e in BUILD_LOG[n_log:])
         _check_resources(cfg, pending, n, workers, writer.path, writer)
         executor = executors.make_executor(ex_spec, workers=workers, start_method=start_method)
         executor.connect()  # a Dask cluster: reached (or a one-line error) before the file is created
@@ -332,6 +342,11 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
         needs_ref = not isinstance(cfg.reference, NoReference)
         reporter = _Reporter(console, len(pending), f"{cfg.name}: {len(pending)} runs on {executor.describe()}",
                              progress)
+        from vcirun.api import grid_note
+
+        for h in cfg.h:
+            if grid_note(h, cfg.T):
+                reporter.log(f"note: {grid_note(h, cfg.T)}")
         if summary.skipped or summary.deleted_incomplete:
             reporter.log(f"resuming {path}: {summary.skipped} of {len(specs)} runs already stored"
                          + (f", {summary.deleted_incomplete} incomplete or damaged groups discarded"
@@ -382,6 +397,7 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
                 reporter.stop()
                 t0 = time.perf_counter()
                 writer.finish(status)  # every finished run is committed, whatever happened
+                _finalize(writer, summary)  # the file is final: its summary group (issue 19)
                 summary.write_time += time.perf_counter() - t0
             if on_main:
                 signal.signal(signal.SIGTERM, old_term)
@@ -401,6 +417,22 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
         if executor is not None:
             executor.close()
         writer.close()
+
+
+def _finalize(writer: storage.ResultsWriter, summary: SweepSummary, if_missing: bool = False) -> None:
+    """Write the file's summary group (vcirun.experiments.summary); a failure there is reported in
+    the summary, never allowed to cost the runs. Not after a failed write (a full disk), at the
+    resolved path (an output that is a symlink stays one), and in a forked child like every HDF5 write
+    of the sweep (storage.run_isolated: an HDF5 crash there is an error here)."""
+    if writer.failed:
+        return
+    from .summary import write_summary
+
+    try:
+        storage.run_isolated(lambda: write_summary(writer.path, if_missing=if_missing), writer.path,
+                             isolate=writer.isolate)
+    except (storage.StorageError, RuntimeError, OSError) as e:
+        summary.summary_error = _one_line(e)
 
 
 @contextlib.contextmanager

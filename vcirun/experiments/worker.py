@@ -80,7 +80,12 @@ def make_tasks(pending: list[RunSpec], workers: int, stored_refs: set, needs_ref
 # --- worker side ----------------------------------------------------------------------------------
 class _WorkerState:
     def __init__(self, cfg: SweepConfig, ref_T: float, ref_h: float):
+        import warnings
+
         import vcirun  # noqa: F401 - once per process; kernels and scenes are cached inside
+        from vcirun.api import GridWarning
+
+        warnings.simplefilter("ignore", GridWarning)  # the client says it once for the sweep
 
         self.cfg = cfg
         self.ref_T = ref_T
@@ -181,14 +186,13 @@ def _reference_payload(st: _WorkerState, ic: InitialCondition, ref) -> tuple[dic
 
 
 def _resolved_method(spec: MethodSpec) -> dict:
-    try:
-        from vcirun.methods import resolve_method
+    """What a method spec resolves to (name, ld, partial, reset, mh_order, flow_order): provenance.
+    The config layer has already resolved every method, so a failure here is a bug and raises."""
+    from vcirun.methods import resolve_method
 
-        m = resolve_method(spec.name, **{k: v for k, v in spec.simulate_kwargs().items()
-                                         if k in ("ld", "mh_order", "flow_order")})
-        return {k: getattr(m, k, None) for k in ("name", "ld", "partial", "reset", "mh_order", "flow_order")}
-    except Exception:  # noqa: BLE001 - provenance only
-        return {}
+    m = resolve_method(spec.name, **{k: v for k, v in spec.simulate_kwargs().items()
+                                     if k in ("ld", "mh_order", "flow_order")})
+    return {k: getattr(m, k, None) for k in ("name", "ld", "partial", "reset", "mh_order", "flow_order")}
 
 
 def _simulate_kwargs(st: _WorkerState, spec: RunSpec, T: float) -> dict:
@@ -203,7 +207,7 @@ def _execute_run(st: _WorkerState, spec: RunSpec, ref) -> dict:
 
     base = {"run_id": spec.run_id, "method": spec.method.name, "label": spec.label,
             "method_index": spec.method_index, "method_spec": spec.method.identity(),
-            "resolved_method": _resolved_method(spec), "ic_key": spec.ic.key, "ic_index": spec.ic_index,
+            "resolved_method": _resolved_method(spec.method), "ic_key": spec.ic.key, "ic_index": spec.ic_index,
             "beta": spec.ic.beta, "T_requested": st.cfg.T, "worker_pid": os.getpid()}
     if spec.method.display not in st.warm:
         st.warm.add(spec.method.display)

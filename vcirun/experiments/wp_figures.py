@@ -1,7 +1,8 @@
 """Figures and tables of a work-precision or long-horizon study (vcirun.experiments.workprecision).
 
-`plot_study(path, outdir=None)` reads the study's JSON (results/work_precision.json, ...) and writes,
-to `outdir` (default <results dir>/figures/<study name>/):
+`plot_study(path, outdir=None)` (for `vcirun plot`) reads the study's JSON (results/work_precision.json,
+...) and writes, to `outdir` (default <results dir>/figures/<study name>/); `work_precision_figure(res)`
+and `long_horizon_figure(res)` return the Figures without writing (no pyplot, no global style):
 
 - work_precision: `work_precision_<name>.png/.pdf`, three panels: median L2 error against the median
   compiled-loop wall time per simulation, the median wall time of the whole call, and its median CPU
@@ -27,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from . import workprecision as wp
-from .figures import _COLORS, _MARKERS, _fmt_h, _pyplot, _save
+from .figures import _COLORS, _MARKERS, _figure, _fmt_h, _styled, save_figure
 
 __all__ = ["plot_study", "work_precision_figure", "long_horizon_figure", "print_study_tables", "is_study_file"]
 
@@ -60,13 +61,14 @@ def _baseline_grid(res, prefer=1e-2) -> float | None:
     return min(hs, key=lambda h: abs(math.log(h / prefer))) if hs else None
 
 
-def work_precision_figure(res: dict, outdir: Path) -> list[Path]:
-    plt = _pyplot()
+@_styled
+def work_precision_figure(res: dict):
+    """The work-precision Figure of a loaded study (not registered with pyplot; see figures)."""
     labels = _vcirun_labels(res)
     T = sorted({p["T"] for p in res["summary"]})[0]
     pts = [p for p in res["summary"] if p["T"] == T]
     hb = _baseline_grid(res)
-    fig, axes = plt.subplots(1, 3, figsize=(14.0, 4.4), sharey=True, layout="constrained")
+    fig, axes = _figure(1, 3, figsize=(14.0, 4.4), sharey=True)
     for ax, timing, xlabel in ((axes[0], "wall", "median compiled-loop wall time per simulation [s]"),
                                (axes[1], "call", "median wall time per call\n(simulate() / solve_ivp_run()) [s]"),
                                (axes[2], "cpu", "median CPU time per call (thread_time) [s]")):
@@ -100,17 +102,18 @@ def work_precision_figure(res: dict, outdir: Path) -> list[Path]:
     nb = len({r["beta"] for r in res["runs"]})
     grid = f"; solve_ivp output on the h = {_fmt_h(hb)} grid" if hb else ""
     fig.suptitle(f"{res['config']['system']}, T = {T:g}, medians over {nb} initial conditions{grid}", fontsize=9)
-    return _save(fig, outdir, f"work_precision_{res['name']}")
+    return fig
 
 
-def long_horizon_figure(res: dict, outdir: Path, timing: str = "cpu") -> list[Path]:
-    """x axis: CPU time of the whole call (default; runs of seconds are preempted on a loaded machine,
-    so their wall time is inflated more than that of short runs) or "wall" (compiled-loop time)."""
-    plt = _pyplot()
+@_styled
+def long_horizon_figure(res: dict, timing: str = "cpu"):
+    """The long-horizon Figure. x axis: CPU time of the whole call (default; runs of seconds are
+    preempted on a loaded machine, so their wall time is inflated more than that of short runs) or
+    "wall" (compiled-loop time)."""
     tkey = lambda p: p.get(timing, math.nan)  # noqa: E731
     labels = _vcirun_labels(res)
     Ts = sorted({p["T"] for p in res["summary"]})
-    fig, axes = plt.subplots(1, len(Ts), figsize=(5.0 * len(Ts), 4.2), squeeze=False, layout="constrained")
+    fig, axes = _figure(1, len(Ts), figsize=(5.0 * len(Ts), 4.2), squeeze=False)
     for ax, T in zip(axes[0], Ts):
         pts = [p for p in res["summary"] if p["T"] == T]
         for i, label in enumerate(labels):
@@ -151,7 +154,7 @@ def long_horizon_figure(res: dict, outdir: Path, timing: str = "cpu") -> list[Pa
     axes[0][0].set_ylabel("energy error (median over initial conditions)")
     axes[0][0].legend(frameon=False, fontsize=6, loc="best")
     fig.suptitle(f"{res['config']['system']}: energy error over long horizons (failed runs omitted)", fontsize=9)
-    return _save(fig, outdir, f"long_horizon_{res['name']}")
+    return fig
 
 
 def _tables_markdown(res: dict) -> tuple[str, str]:
@@ -175,9 +178,9 @@ def plot_study(path, outdir=None) -> list[Path]:
     outdir = Path(outdir) if outdir is not None else path.parent / "figures" / res["name"]
     outdir.mkdir(parents=True, exist_ok=True)
     if res["study"] == "work_precision":
-        paths = work_precision_figure(res, outdir)
+        paths = save_figure(work_precision_figure(res), outdir, f"work_precision_{res['name']}")
     else:
-        paths = long_horizon_figure(res, outdir)
+        paths = save_figure(long_horizon_figure(res), outdir, f"long_horizon_{res['name']}")
     summ, rat = _tables_markdown(res)
     p = outdir / f"{res['name']}_summary.md"
     p.write_text(summ)

@@ -74,6 +74,7 @@ class MechanicalSystem:
             self.forcing = sp.Matrix(self.forcing).reshape(n, 1)
         self.V = sp.sympify(self.V)
         self.params = dict(self.params)
+        self._check_declaration()  # first: dynamicsymbols would make the constraint checks misleading
         self._set_constraints()
 
     def _set_constraints(self) -> None:
@@ -104,6 +105,47 @@ class MechanicalSystem:
             raise ValueError(f"system {self.name}: constraint names must be distinct (got {names})")
         self.constraints = cons
         self.phi = cons[0].phi if len(cons) == 1 else sp.Min(*[c.phi for c in cons])
+
+    def _check_declaration(self) -> None:
+        """Name the cause when a declaration holds what the code generator cannot take: sympy
+        Functions of time (pydy / sympy.physics.mechanics `dynamicsymbols`) or their derivatives, and
+        free symbols that are neither coordinates nor parameters (nor, in forcing, velocities or t).
+        Without this, such a system fails deep inside code generation."""
+        from sympy.core.function import AppliedUndef
+
+        parts = [("coordinates", sp.Matrix(self.q)), ("mass_matrix", self.M), ("potential", sp.Matrix([self.V]))]
+        if self.phi is not None:
+            parts.append(("constraint", sp.Matrix([sp.sympify(self.phi)])))
+        for i, c in enumerate(self.constraints or []):
+            if hasattr(c, "phi"):
+                parts.append((f"constraints[{i}]", sp.Matrix([sp.sympify(c.phi), sp.sympify(c.restitution)])))
+        if self.forcing is not None:
+            parts.append(("forcing", self.forcing))
+        for fld, expr in parts:
+            funcs = sorted({str(f) for f in expr.atoms(AppliedUndef)} | {str(d) for d in expr.atoms(sp.Derivative)})
+            if funcs:
+                raise ValueError(
+                    f"system {self.name}: {fld} contains {', '.join(funcs[:3])}{' ...' if len(funcs) > 3 else ''}, "
+                    "sympy Functions of time (pydy / sympy.physics.mechanics dynamicsymbols); declare the coordinates "
+                    "as plain Symbols (q1, q2 = sympy.symbols('q1 q2')) and substitute them into M, V, phi and "
+                    "forcing, e.g. sympy.physics.mechanics.msubs(expr, {q1(t).diff(t): q1_dot, q1(t): q1})")
+        bad_q = [str(c) for c in self.q if not isinstance(c, sp.Symbol)]
+        if bad_q:
+            raise ValueError(f"system {self.name}: coordinates must be sympy Symbols (got {', '.join(bad_q[:3])})")
+        known = set(self.q) | set(self.param_symbols)
+        for fld, expr in parts[1:]:
+            allowed = known | (set(self.qd) | {self.t} if fld == "forcing" else set())
+            extra = sorted((s for s in expr.free_symbols if s not in allowed), key=str)
+            if extra:
+                names = {str(s) for s in allowed}
+                why = "; ".join(f"{s} has the name of a coordinate or parameter but other assumptions "
+                                f"({getattr(s, '_assumptions_orig', None) or s.assumptions0}): use plain "
+                                f"sympy.Symbol({str(s)!r})" if str(s) in names else
+                                f"{s} is neither a coordinate ({', '.join(map(str, self.q))}) nor a parameter "
+                                f"({', '.join(self.params) or 'none'})" for s in extra[:3])
+                raise ValueError(f"system {self.name}: {fld}: {why}"
+                                 + ("; velocities <coordinate>_dot and t are allowed in forcing only"
+                                    if fld != "forcing" and any(s in set(self.qd) | {self.t} for s in extra) else ""))
 
     # --- basic sizes and symbols -------------------------------------------------------------
     @property

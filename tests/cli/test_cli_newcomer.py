@@ -1,0 +1,147 @@
+"""What a newcomer types first: --version, systems, cache info|clear, simulate --q0/--p0/--output,
+sweep --strict, plot without an argument, grid and compile notes (issue 19)."""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+import vcirun
+from vcirun.cli import app
+
+TINY = """\
+name: {name}
+system: cart_pendulum
+methods: [CVA]
+h: [3.2e-2]
+beta: [3.2, 4.2]
+T: 0.5
+output: results/{name}.h5
+timing_repeats: 1
+{extra}"""
+
+
+@pytest.fixture
+def runner():
+    return CliRunner()
+
+
+def invoke(runner, *args):
+    return runner.invoke(app, [str(a) for a in args], catch_exceptions=False)
+
+
+def one_line_error(r, *words):
+    assert r.exit_code == 1, (r.exit_code, r.output)
+    lines = r.stderr.strip().splitlines()
+    assert lines and lines[-1].startswith("error: ") and "Traceback" not in r.output, r.output
+    for w in words:
+        assert w in lines[-1], lines[-1]
+
+
+def test_version(runner):
+    r = invoke(runner, "--version")
+    assert r.exit_code == 0 and r.stdout.strip() == f"vcirun {vcirun.__version__}"
+
+
+def test_systems(runner):
+    r = invoke(runner, "systems")
+    assert r.exit_code == 0
+    for name in ("cart_pendulum", "double_pendulum", "oscillator_wall", "bouncing_ball", "n_pendulum_3"):
+        assert name in r.stdout
+    assert "y [m] height of the cart" in r.stdout and "theta [rad]" in r.stdout
+    assert "m2 = 0.2 kg (pendulum point mass)" in r.stdout
+    r = invoke(runner, "systems", "double_pendulum")
+    assert "w = 1.2 m" in r.stdout and "cart_pendulum" not in r.stdout
+    one_line_error(invoke(runner, "systems", "cart_pendlum"), "unknown built-in system")
+
+
+def test_cache_info_and_clear(runner, tmp_path, monkeypatch):
+    monkeypatch.setenv("VCIRUN_CACHE_DIR", str(tmp_path / "c"))
+    k = tmp_path / "c" / "kernels"
+    k.mkdir(parents=True)
+    (k / "vk_00000000000000000000.py").write_text("x = 1\n" * 100)
+    (k / "wi_1.json").write_text("{}")
+    r = invoke(runner, "cache", "info")
+    assert r.exit_code == 0 and f"{tmp_path / 'c'}: 1 compiled modules, 1 warm-start entries, 2 files" in r.stdout
+    r = invoke(runner, "cache", "clear")
+    assert r.exit_code == 0 and "removed 1 compiled modules" in r.stdout
+    assert not k.exists()
+
+
+def test_one_default_cache_for_every_entry_point(monkeypatch, tmp_path):
+    from vcirun import cache
+
+    monkeypatch.delenv("VCIRUN_CACHE_DIR", raising=False)
+    monkeypatch.setenv("HOME", str(tmp_path))
+    assert cache.cache_root() == tmp_path / ".cache" / "vcirun"
+    makefile = (Path(__file__).resolve().parents[2] / "Makefile").read_text()
+    assert "VCIRUN_CACHE_DIR" not in "\n".join(l for l in makefile.splitlines() if not l.startswith("#"))
+
+
+def test_compile_announcement(monkeypatch, tmp_path, capsys):
+    """A module missing from the cache is announced before it is built (without building it here)."""
+    from vcirun import cache, cli
+    from vcirun.mechanics import get_scene
+    from vcirun.methods import resolve_method
+
+    monkeypatch.setenv("VCIRUN_CACHE_DIR", str(tmp_path / "empty"))
+    monkeypatch.setattr(cache, "COMPILE_CALLBACKS", [])
+    cli._announce_compiles()
+    ks = resolve_method("MCVAC").kernel_set()
+    assert cache.announce_if_cold(get_scene("cart_pendulum"), ks)
+    err = capsys.readouterr().err
+    assert re.search(r"compiling kernels for cart_pendulum/MCVA\[SVC,s=3\] \(first time, about \d+ s", err), err
+
+
+def test_simulate_q0_p0_output_and_energy_scale(runner, tmp_path):
+    out = tmp_path / "run.h5"
+    r = invoke(runner, "simulate", "--system", "double_pendulum", "--q0", "-1.5,-1.5", "--p0", "0,0", "--T", "2",
+               "--output", out)
+    assert r.exit_code == 0, r.output
+    assert f"saved {out}" in r.stdout
+    rel = float(re.search(r"relative ([0-9.e+-]+) to the energy scale", r.stdout).group(1))
+    assert rel < 1e-2   # H0 ~ 0 here: relative to |H0| alone this was 1e13 .. 1e16
+    assert "s integrating;" in r.stdout
+    from vcirun.trajectory import read_trajectory
+
+    tr = read_trajectory(out)
+    np.testing.assert_array_equal(tr.q[0], [-1.5, -1.5])
+    assert tr.coordinate_names == ["theta1", "theta2"] and tr.impacts.size >= 1
+    assert tr(1.0).shape == (2,)              # dense output re-attached from the scene's name
+    r = invoke(runner, "simulate", "--system", "double_pendulum", "--T", "0.1", "--output", tmp_path / "x.csv")
+    assert r.exit_code == 0 and (tmp_path / "x.csv").read_text().startswith("t,theta1,theta2,p_theta1")
+    one_line_error(invoke(runner, "simulate", "--q0", "1,0", "--T", "0.1"), "give both --q0 and --p0")
+    one_line_error(invoke(runner, "simulate", "--q0", "1,x", "--p0", "0,0", "--T", "0.1"), "--q0", "comma-separated")
+    one_line_error(invoke(runner, "simulate", "--q0", "1", "--p0", "0", "--T", "0.1"), "length 2")
+    one_line_error(invoke(runner, "simulate", "--T", "0.1", "--output", tmp_path / "x.txt"), "--output", ".h5")
+
+
+def test_grid_note_once(runner):
+    r = invoke(runner, "simulate", "--h", "0.03", "--T", "1")
+    assert r.exit_code == 0
+    assert r.stderr.count("note: T = 1 is not a multiple of h = 0.03: the grid ends at N h = 0.99") == 1
+    assert "T = 0.99" in r.stdout
+    with pytest.warns(vcirun.api.GridWarning, match="N = floor"):
+        tr = vcirun.simulate("cart_pendulum", "CVA", h=0.03, T=1, beta=3.2)
+    assert tr.T == pytest.approx(0.99) and tr.n_steps == 33
+    assert vcirun.api.grid_steps(1e-3, 5)[2] == 5000 and vcirun.api.grid_steps(3.2e-2, 5)[2] == 156
+
+
+def test_sweep_strict_and_plot_every_file(runner, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    Path("good.yaml").write_text(TINY.format(name="good", extra=""))
+    Path("bad.yaml").write_text(TINY.format(name="bad", extra="tolerances: {max_iter: 1}\n"))
+    r = invoke(runner, "sweep", "good.yaml", "--workers", "1", "--strict", "-q")
+    assert r.exit_code == 0, r.output
+    r = invoke(runner, "sweep", "bad.yaml", "--workers", "1", "-q")
+    assert r.exit_code == 0 and "did not finish with status ok" in r.stdout
+    one_line_error(invoke(runner, "sweep", "bad.yaml", "--workers", "1", "--strict", "-q"),
+                   "--strict: 2 of 2 stored runs did not finish with status ok")
+    r = invoke(runner, "plot")       # no argument: every results file under results/
+    assert r.exit_code == 0, r.output
+    assert "figures and tables for results/bad.h5" in r.stdout and "figures and tables for results/good.h5" in r.stdout
+    assert Path("results/figures/good/table2_timing.md").exists() and Path("results/figures/bad/table2_timing.md").exists()
+    one_line_error(invoke(runner, "plot", "--out", "x"), "would overwrite each other")

@@ -1,0 +1,88 @@
+"""The `summary` group of a results file: every run's scalar metrics over (method, h, initial
+condition) as plain HDF5 datasets with dimension scales, so that readers that know nothing of vcirun
+see named dimensions:
+
+    xarray.open_dataset("results/fig4.h5", group="summary", engine="h5netcdf")   # no vcirun needed
+    h5py: f["summary/l2_error"].dims[0][0] is f["summary/method"]
+
+Written once when a sweep finishes (also after an interruption: it covers the runs the file holds),
+from `vcirun.results.collect`, the table behind `vcirun.open_results`. Strings are UTF-8
+variable-length; missing runs are NaN / "missing" (see vcirun.results). The write is atomic like the
+sweep's commits (copy, write, fsync, rename) and happens while the sweep still holds the file's lock.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from . import storage
+
+__all__ = ["write_summary", "GROUP"]
+
+GROUP = "summary"
+
+
+def _dataset(g, name, arr):
+    if arr.dtype == object:
+        return g.create_dataset(name, data=np.array([str(x) for x in arr.ravel()], dtype=object).reshape(arr.shape),
+                                dtype=h5py.string_dtype("utf-8"))
+    return g.create_dataset(name, data=arr)
+
+
+def _write_group(f: h5py.File, tab) -> None:
+    if GROUP in f:
+        del f[GROUP]
+    g = f.create_group(GROUP)
+    scales = {}
+    for name, values in tab.dims.items():
+        d = _dataset(g, name, np.asarray(values))
+        for k, v in tab.coord_attrs.get(name, {}).items():
+            d.attrs[k] = v
+        d.make_scale(name)
+        scales[name] = d
+    for name, (dims, arr, attrs) in tab.variables.items():
+        d = _dataset(g, name, np.asarray(arr))
+        for i, dim in enumerate(dims):
+            d.dims[i].attach_scale(scales[dim])
+        for k, v in attrs.items():
+            d.attrs[k] = v
+    for k, v in tab.attrs.items():
+        g.attrs[k] = v
+
+
+def write_summary(path, if_missing: bool = False) -> Path:
+    """(Re)write the summary group of the results file at `path` atomically (with `if_missing`, only
+    if the file has none); returns the path. StorageError if the file cannot be read or written (the
+    file is then unchanged)."""
+    from vcirun.results import collect
+
+    path = Path(path)
+    if if_missing:
+        try:
+            with h5py.File(path, "r") as f:
+                if GROUP in f:
+                    return path
+        except OSError as e:
+            raise storage.StorageError(f"{path}: not a readable HDF5 file ({' '.join(str(e).split())})") from None
+    res = storage.read_results(path)
+    tab = collect(res)
+    tmp = path.with_name(f".{path.name}.summary-partial")
+    try:
+        shutil.copyfile(path, tmp)
+        with h5py.File(tmp, "a", libver=storage.LIBVER) as f:
+            _write_group(f, tab)
+        storage._fsync_path(tmp)
+        os.replace(tmp, path)
+        storage._fsync_path(path.parent, directory=True)
+    except OSError as e:
+        raise storage.StorageError(f"{path}: cannot write the summary group ({' '.join(str(e).split())}); "
+                                   "the runs are unaffected") from e
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+    return path

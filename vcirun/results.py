@@ -1,0 +1,200 @@
+"""A sweep's results as one labelled table: `vcirun.open_results(path)` -> xarray.Dataset.
+
+Dimensions: `method` (the config's labels, in config order), `h` (the config's steps) and the
+initial-condition axis: `beta` (its values) when the config sweeps beta, else `initial_condition`
+(the run groups' ic keys: `state=0`, ..., or `default`). Every scalar a run records is a variable
+over (method, h, <ic>) (select a method with `.sel({"method": "MCVAA"})`: xarray reserves the
+keyword `method`): l2_error, wall_time, wall_time_call, n_steps, n_impacts, n_partial_steps,
+newton_iters_total, H0, max_abs_dH, H_range, Ed_range, Hmod_range, fail_step, fail_time, t_end (the
+grid's end N h), and the strings status, message, l2_note, run_id. Per initial condition: q0, p0
+(over `coordinate`, named from the system), reference_accuracy, reference_n_impacts.
+
+A run that is not in the file (an interrupted sweep) has status "missing" and NaN numbers; integer
+counts are int64 when every run is present, else float64 with NaN (a -1 placeholder would average
+silently). Failed runs keep their numbers (n_steps up to the failure; l2_error NaN with l2_note).
+
+`collect(results)` builds the same table with numpy only; `vcirun.experiments.summary` writes it into
+the file's `summary` group with HDF5 dimension scales, so plain `xarray.open_dataset(path,
+group="summary", engine="h5netcdf")` reads it without vcirun.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["open_results", "collect", "Table"]
+
+# run attributes that are bookkeeping, not metrics (indices, process ids, flags)
+_SKIP = {"method_index", "ic_index", "worker_pid", "complete", "has_trajectory", "has_Hmod", "beta", "h",
+         "T_requested", "committed_at"}
+_STRINGS = ("status", "message", "l2_note", "run_id")
+_RENAME = {"T": "t_end"}
+_ATTRS = {
+    "l2_error": {"long_name": "L2 trajectory error sqrt(h sum_k |q_k - q_ref(t_k)|^2)"},
+    "wall_time": {"units": "s", "long_name": "integration time (fastest of timing_repeats)"},
+    "wall_time_call": {"units": "s", "long_name": "whole vcirun.simulate call"},
+    "t_end": {"units": "s", "long_name": "end of the grid, N h with N = floor(T / h)"},
+    "fail_time": {"units": "s"}, "H0": {"long_name": "H at t = 0"},
+    "max_abs_dH": {"long_name": "max |H - H0| over the grid"},
+    "H_range": {"long_name": "max - min of H"}, "Ed_range": {"long_name": "max - min of -D3 Ld, impact steps masked"},
+    "Hmod_range": {"long_name": "max - min of the truncated modified Hamiltonian"},
+    "n_steps": {"long_name": "grid steps taken"}, "n_impacts": {"long_name": "impacts located"},
+}
+
+
+@dataclass
+class Table:
+    """dims: {name: values}; variables: {name: (dims tuple, array, attrs)}; attrs: file facts."""
+    dims: dict
+    variables: dict
+    attrs: dict = field(default_factory=dict)
+    coord_attrs: dict = field(default_factory=dict)
+
+
+def _ic_axis(res, ic_keys):
+    betas = {}
+    for r in res.runs:
+        b = r.attrs.get("beta")
+        if b is not None and np.isfinite(b):
+            betas[r.attrs.get("ic_key")] = float(b)
+    for k, a in res.references.items():
+        b = a.get("beta")
+        if b is not None and np.isfinite(b):
+            betas.setdefault(k, float(b))
+    if ic_keys and all(k.startswith("beta=") for k in ic_keys):
+        vals = [betas.get(k, _beta_of_key(k)) for k in ic_keys]
+        if all(v is not None and np.isfinite(v) for v in vals):
+            return "beta", np.array(vals, float)
+    return "initial_condition", np.array(ic_keys, dtype=object)
+
+
+def _beta_of_key(key: str):
+    try:
+        return float(key.split("=", 1)[1])
+    except (IndexError, ValueError):
+        return None
+
+
+def collect(results) -> Table:
+    """The (method, h, initial condition) table of a `storage.Results` (or a path)."""
+    from vcirun.catalog import coordinate_names
+    from vcirun.experiments import figures, storage
+
+    res = results if isinstance(results, storage.Results) else storage.read_results(results)
+    a = res.attrs
+    labels = [m.get("label") for m in (a.get("methods") or []) if isinstance(m, dict)]
+    for r in res.runs:  # runs of labels the root does not list (other tooling): appended
+        if r.attrs.get("label") not in labels:
+            labels.append(r.attrs.get("label"))
+    hs = [float(h) for h in (a.get("h_values") or [])]
+    for r in res.runs:
+        if float(r.attrs["h"]) not in hs:
+            hs.append(float(r.attrs["h"]))
+    ic_keys = list(a.get("ic_keys") or [])
+    for r in res.runs:
+        if r.attrs.get("ic_key") not in ic_keys:
+            ic_keys.append(r.attrs.get("ic_key"))
+    ic_dim, ic_vals = _ic_axis(res, ic_keys)
+    shape = (len(labels), len(hs), len(ic_keys))
+    li = {x: i for i, x in enumerate(labels)}
+    hi = {x: i for i, x in enumerate(hs)}
+    ii = {x: i for i, x in enumerate(ic_keys)}
+
+    cells = {}
+    for r in res.runs:
+        cells[(li[r.attrs["label"]], hi[float(r.attrs["h"])], ii[r.attrs["ic_key"]])] = r
+    numeric, strings = {}, {s: np.full(shape, "missing" if s == "status" else "", dtype=object) for s in _STRINGS}
+    for idx, r in cells.items():
+        for k, v in r.attrs.items():
+            if k in _STRINGS:
+                strings[k][idx] = "" if v is None else str(v)
+                continue
+            if k in _SKIP or isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)):
+                continue
+            name = _RENAME.get(k, k)
+            if name not in numeric:
+                numeric[name] = (np.full(shape, np.nan), [])
+            numeric[name][0][idx] = np.nan if v is None else float(v)
+            numeric[name][1].append(isinstance(v, (int, np.integer)))
+        strings["run_id"][idx] = r.run_id
+    dims3 = ("method", "h", ic_dim)
+    variables = {}
+    complete = len(cells) == math.prod(shape)
+    for name in sorted(numeric):
+        arr, is_int = numeric[name]
+        if complete and all(is_int) and np.all(np.isfinite(arr)):
+            arr = arr.astype(np.int64)
+        variables[name] = (dims3, arr, dict(_ATTRS.get(name, {})))
+    for name in _STRINGS:
+        variables[name] = (dims3, strings[name], {})
+
+    # per initial condition: start state and the reference's facts
+    n = next((len(r.attrs["q0"]) for r in res.runs if isinstance(r.attrs.get("q0"), list)), 0)
+    if n:
+        q0, p0 = np.full((len(ic_keys), n), np.nan), np.full((len(ic_keys), n), np.nan)
+        for r in res.runs:
+            if isinstance(r.attrs.get("q0"), list) and isinstance(r.attrs.get("p0"), list):
+                q0[ii[r.attrs["ic_key"]]] = r.attrs["q0"]
+                p0[ii[r.attrs["ic_key"]]] = r.attrs["p0"]
+        variables["q0"] = ((ic_dim, "coordinate"), q0, {"long_name": "initial coordinates"})
+        variables["p0"] = ((ic_dim, "coordinate"), p0, {"long_name": "initial momenta"})
+    if res.references:
+        acc, nimp = np.full(len(ic_keys), np.nan), np.full(len(ic_keys), np.nan)
+        for k, ra in res.references.items():
+            if k in ii:
+                v = ra.get("accuracy")
+                acc[ii[k]] = np.nan if v is None else float(v)
+                m = ra.get("n_impacts")
+                nimp[ii[k]] = np.nan if m is None else float(m)
+        variables["reference_accuracy"] = ((ic_dim,), acc, {"long_name": "self-reported accuracy of the reference"})
+        variables["reference_n_impacts"] = ((ic_dim,), nimp, {})
+
+    dims = {"method": np.array(labels, dtype=object), "h": np.array(hs, float), ic_dim: ic_vals}
+    if n:
+        dims["coordinate"] = np.array(coordinate_names(str(a.get("system", "")), n), dtype=object)
+    coord_attrs = {"h": {"long_name": "step size", "units": "s"}}
+    if ic_dim == "initial_condition":
+        coord_attrs[ic_dim] = {"long_name": "initial-condition key (results group name)"}
+    else:
+        coord_attrs[ic_dim] = {"long_name": "initial-condition parameter beta of the scene's map"}
+    attrs = {"name": res.name, "system": str(a.get("system", "")), "T": float(a.get("T", np.nan)),
+             "reference": figures.reference_note(res), "source": str(res.path),
+             "n_runs": len(res.runs), "n_runs_expected": int(a.get("n_runs_expected", math.prod(shape)) or 0)}
+    for k in ("vcirun_version", "git_commit", "created", "updated", "config_sha256"):
+        if a.get(k) not in (None, ""):
+            attrs[k] = str(a[k])
+    return Table(dims, variables, attrs, coord_attrs)
+
+
+def open_results(path):
+    """The results file at `path` as an xarray.Dataset over (method, h, beta | initial_condition):
+    every scalar metric of every run (see the module docstring). Example::
+
+        ds = vcirun.open_results("results/fig4.h5")
+        ds.l2_error.sel({"method": "MCVAA", "h": 0.01})    # the Figure 4 curve, over beta
+        ds.l2_error.loc["MCVAA", 0.01]                     # the same, by position of the dims
+        ds.wall_time.mean("beta").to_pandas()              # Table II's means, method x h
+
+    `method` is a keyword of xarray's own `.sel(..., method="nearest")` (inexact matching), so the
+    method dimension is selected with the dict form `.sel({"method": ...})`: `.sel(method="MCVAA")`
+    would be read by xarray as a fill method and fails ("Invalid fill method").
+    """
+    import xarray as xr
+
+    from vcirun.experiments import storage
+
+    path = Path(path)
+    try:
+        res = storage.read_results(path)
+    except storage.StorageError as e:
+        raise ValueError(str(e)) from None
+    tab = collect(res)
+    coords = {k: (k, v if v.dtype != object else v.astype(str), tab.coord_attrs.get(k, {}))
+              for k, v in tab.dims.items()}
+    data = {}
+    for name, (dims, arr, attrs) in tab.variables.items():
+        data[name] = (dims, arr.astype(str) if arr.dtype == object else arr, attrs)
+    return xr.Dataset(data, coords=coords, attrs=tab.attrs)

@@ -1,0 +1,455 @@
+"""Finite differences, the symplecticity defect, and the derivative checks of generated kernels.
+
+Stencils (shared with the test suite): `map_jacobian` (4th-order central), `gradient`, `jacobian`,
+`mixed_hessian`; `omega` and `symplecticity_defect` (max |J^T Omega J - Omega|).
+
+`KERNEL_CHECKS` is the table `vcirun verify` runs: kernel name -> how it is checked, against which
+lower-level kernel (FD of a value kernel, or an identity between kernels). A row whose kernels a
+module does not define is skipped, so the table keeps working when names are added; explicit
+discrete Lagrangian kernels <LD>_* are checked for every explicit stage the module defines, against
+FD of the discrete Lagrangian Ld(q0, q1, h) evaluated numerically from the module's own L(q, v) =
+1/2 v^T M(q) v - V(q) (sys_M, sys_V) by the library's quadrature rule (vcirun.discrete.lagrangians).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+# Relative-error thresholds: (pass, warn). FD rows are limited by the stencil (4th order, step 1e-3
+# relative: ~1e-11 on smooth kernels) and by round-off in the differenced value; identity rows by
+# round-off alone.
+FD_THRESHOLDS = (1e-6, 1e-4)
+IDENTITY_THRESHOLDS = (1e-10, 1e-7)
+FD_STEP = 1e-3
+
+
+def _steps(x, d):
+    return d * np.maximum(1.0, np.abs(np.asarray(x, float)))
+
+
+def gradient(f, x, d=FD_STEP):
+    """Gradient of scalar f at vector x (4th-order central stencil, steps d * max(1, |x_i|))."""
+    x = np.asarray(x, float)
+    e = _steps(x, d)
+    g = np.empty(x.size)
+    for i in range(x.size):
+        u = np.zeros(x.size)
+        u[i] = e[i]
+        g[i] = (-f(x + 2 * u) + 8 * f(x + u) - 8 * f(x - u) + f(x - 2 * u)) / (12 * e[i])
+    return g
+
+
+def map_jacobian(f, y, d=1e-3):
+    """Jacobian of f: R^m -> R^k at y by the 4th-order central stencil (error O(d^4) + O(eps/d))."""
+    y = np.asarray(y, float)
+    m = y.size
+    cols = []
+    for j in range(m):
+        e = np.zeros(m)
+        e[j] = d * max(1.0, abs(y[j]))
+        cols.append((-f(y + 2 * e) + 8 * f(y + e) - 8 * f(y - e) + f(y - 2 * e)) / (12 * e[j]))
+    return np.column_stack(cols)
+
+
+jacobian = map_jacobian
+
+
+def mixed_hessian(f, x, d=3e-3):
+    """Hessian of scalar f at x: 4th-order central stencils for the diagonal and the mixed entries."""
+    x = np.asarray(x, float)
+    m = x.size
+    e = _steps(x, d)
+    H = np.empty((m, m))
+    f0 = f(x)
+    for i in range(m):
+        u = np.zeros(m)
+        u[i] = e[i]
+        H[i, i] = (-f(x + 2 * u) + 16 * f(x + u) - 30 * f0 + 16 * f(x - u) - f(x - 2 * u)) / (12 * e[i] ** 2)
+        for j in range(i):
+            w = np.zeros(m)
+            w[j] = e[j]
+
+            def g(a, b):
+                return f(x + a * u + b * w)
+
+            val = (8 * (g(1, -2) + g(2, -1) + g(-2, 1) + g(-1, 2)) - 8 * (g(-1, -2) + g(-2, -1) + g(1, 2) + g(2, 1))
+                   - (g(2, -2) + g(-2, 2) - g(-2, -2) - g(2, 2)) + 64 * (g(-1, -1) + g(1, 1) - g(1, -1) - g(-1, 1)))
+            H[i, j] = H[j, i] = val / (144 * e[i] * e[j])
+    return H
+
+
+def omega(n):
+    """The canonical symplectic matrix on (q, p) in R^2n."""
+    return np.block([[np.zeros((n, n)), np.eye(n)], [-np.eye(n), np.zeros((n, n))]])
+
+
+def symplecticity_defect(J):
+    """max |J^T Omega J - Omega| (entrywise)."""
+    n = J.shape[0] // 2
+    W = omega(n)
+    return float(np.max(np.abs(J.T @ W @ J - W)))
+
+
+def rel_err(a, b, floor=0.0):
+    """max |a - b| / max(max |b|, floor): relative error of a against the reference b."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    den = max(float(np.max(np.abs(b))) if b.size else 0.0, floor, 1e-300)
+    return float(np.max(np.abs(a - b)) / den) if a.size else 0.0
+
+
+# --- derivative checks of a compiled module ----------------------------------------------------------
+
+@dataclass
+class Probe:
+    """One state at which kernels are checked: q, p (n,), time t, step h."""
+    q: np.ndarray
+    p: np.ndarray
+    t: float
+    h: float
+
+
+class _Ctx:
+    """What the checks need: the module, the parameter vector, an optional generalized force
+    f(q, qdot, t) (numpy; None if unforced), and small wrappers around the kernels."""
+
+    def __init__(self, mod, prm, force=None):
+        self.mod, self.prm, self.force = mod, prm, force
+        self.n = int(mod.NDOF)
+
+    def M(self, q):
+        A = np.empty((self.n, self.n))
+        self.mod.sys_M(np.ascontiguousarray(q, float), self.prm, A)
+        return A
+
+    def H(self, q, p):
+        return float(self.mod.hamiltonian(np.ascontiguousarray(q, float), np.ascontiguousarray(p, float), self.prm))
+
+    def L(self, q, v):
+        q, v = np.asarray(q, float), np.asarray(v, float)
+        return 0.5 * float(v @ self.M(q) @ v) - float(self.mod.sys_V(np.ascontiguousarray(q), self.prm))
+
+    def f(self, q, v, t):
+        if self.force is None:
+            return np.zeros(self.n)
+        return np.asarray(self.force(np.asarray(q, float), np.asarray(v, float), float(t)), float)
+
+
+def _floor(value):
+    # FD of a value of size |f| carries round-off ~ eps |f| / step; derivatives far below 1e-5 (1 + |f|)
+    # are compared in absolute terms at that floor (e.g. dH/dq = 0 at an equilibrium)
+    return 1e-5 * (1.0 + abs(value))
+
+
+def _check_declared(c, s):
+    """sys_M, sys_V, sys_phi (the gap min_i phi_i) and sys_phis against the declaration itself
+    (sympy.lambdify: no code generation)."""
+    if c.declared is None:
+        return []
+    mod, prm = c.mod, c.prm
+    M = c.declared["M"](s.q)
+    V, phis = c.declared["V"](s.q), c.declared["phis"](s.q)
+    rows = [("sys_M", "the declared mass matrix (sympy.lambdify)", rel_err(c.M(s.q), M, 1e-300), IDENTITY_THRESHOLDS),
+            ("sys_V", "the declared potential (sympy.lambdify)", rel_err(mod.sys_V(s.q, prm), V, 1.0),
+             IDENTITY_THRESHOLDS),
+            ("sys_phi", "the declared constraint (the gap min_i phi_i for several; sympy.lambdify)",
+             rel_err(mod.sys_phi(s.q, prm), float(np.min(phis)), 1.0), IDENTITY_THRESHOLDS)]
+    if hasattr(mod, "sys_phis"):
+        out = np.empty(phis.size)
+        mod.sys_phis(s.q, prm, out)
+        rows.append(("sys_phis", "the declared constraints phi_i (sympy.lambdify)", rel_err(out, phis, 1.0),
+                     IDENTITY_THRESHOLDS))
+    return rows
+
+
+def _ncon(mod):
+    return int(getattr(mod, "NCON", 1))
+
+
+def _phis(c, q):
+    out = np.empty(_ncon(c.mod))
+    c.mod.sys_phis(np.ascontiguousarray(q, float), c.prm, out)
+    return out
+
+
+def _check_dphis(c, s):
+    """The constraint Jacobian (rows grad phi_i) against FD of sys_phis."""
+    m, n = _ncon(c.mod), c.n
+    G = np.empty((m, n))
+    c.mod.sys_dphis(s.q, c.prm, G)
+    return [("sys_dphis", "FD of sys_phis in q", rel_err(G, map_jacobian(lambda q: _phis(c, q), s.q),
+             _floor(float(np.max(np.abs(_phis(c, s.q)))))), FD_THRESHOLDS)]
+
+
+def _check_held_contact(c, s):
+    """Issue 18's velocity terms along v = M^-1 p: sys_ddphis = v^T Hess(phi_i) v (4th-order second
+    difference of sys_phis along v) and sys_Mdotv = (dM/dq . v) v (FD of sys_M along v, times v)."""
+    mod, prm, n, m = c.mod, c.prm, c.n, _ncon(c.mod)
+    v = np.linalg.solve(c.M(s.q), s.p)
+    rows = []
+    if hasattr(mod, "sys_ddphis") and hasattr(mod, "sys_phis"):
+        out = np.empty(m)
+        mod.sys_ddphis(s.q, v, prm, out)
+        # a second difference: step ~ eps^(1/6) (truncation e^4, round-off eps |phi| / e^2), and a floor on
+        # the scale |v|^2 / |q|^2 of the term (an exactly linear phi_i has v^T Hess v = 0)
+        qs, vs = max(1.0, float(np.max(np.abs(s.q)))), max(float(np.max(np.abs(v))), 1e-300)
+        e = 3e-3 * qs / vs
+        f = lambda a: _phis(c, s.q + a * v)  # noqa: E731
+        ref = (-f(2 * e) + 16 * f(e) - 30 * f(0.0) + 16 * f(-e) - f(-2 * e)) / (12 * e * e)
+        floor = 1e-3 * (1.0 + float(np.max(np.abs(f(0.0))))) * (vs / qs) ** 2
+        rows.append(("sys_ddphis", "v^T Hess(phi_i) v by a 4th-order second difference of sys_phis along v",
+                     rel_err(out, ref, floor), FD_THRESHOLDS))
+    if hasattr(mod, "sys_Mdotv"):
+        out = np.empty(n)
+        mod.sys_Mdotv(s.q, v, prm, out)
+        dM = map_jacobian(lambda a: c.M(s.q + a[0] * v).ravel(), np.zeros(1)).reshape(n, n)
+        ref = dM @ v
+        rows.append(("sys_Mdotv", "(dM/dq . v) v by FD of sys_M along v", rel_err(out, ref, 1e-5 * (1.0 + float(
+            np.max(np.abs(c.M(s.q) @ v))))), FD_THRESHOLDS))
+    return rows
+
+
+def _check_force(c, s):
+    """Forced modules: sys_force against the declared force (sympy.lambdify), sys_force_jac against FD
+    of sys_force, dynamics_rhs = hamilton_rhs + (0, f), force_power = f . v."""
+    mod, prm, n = c.mod, c.prm, c.n
+    if c.force is None or not getattr(mod, "FORCED", True):
+        return []
+    v = np.linalg.solve(c.M(s.q), s.p)
+
+    def f_of(q, vv):
+        out = np.empty(n)
+        mod.sys_force(np.ascontiguousarray(q, float), np.ascontiguousarray(vv, float), s.t, prm, out)
+        return out
+
+    f = f_of(s.q, v)
+    ref = c.f(s.q, v, s.t)
+    scale = 1e-5 * (1.0 + float(np.max(np.abs(ref))))
+    rows = [("sys_force", "the declared force f(q, qdot, t) (sympy.lambdify)", rel_err(f, ref, scale), IDENTITY_THRESHOLDS)]
+    if hasattr(mod, "sys_force_jac"):
+        fq, fv = np.empty((n, n)), np.empty((n, n))
+        mod.sys_force_jac(s.q, v, s.t, prm, fq, fv)
+        e = max(rel_err(fq, map_jacobian(lambda q: f_of(q, v), s.q), scale),
+                rel_err(fv, map_jacobian(lambda vv: f_of(s.q, vv), v), scale))
+        rows.append(("sys_force_jac", "FD of sys_force in q and in qdot", e, FD_THRESHOLDS))
+    if hasattr(mod, "dynamics_rhs") and hasattr(mod, "hamilton_rhs"):
+        y = np.concatenate([s.q, s.p])
+        a, b = np.empty(2 * n), np.empty(2 * n)
+        mod.dynamics_rhs(s.t, y, prm, a)
+        mod.hamilton_rhs(y, prm, b)
+        b[n:] += ref
+        rows.append(("dynamics_rhs", "hamilton_rhs + (0, declared f)", rel_err(a, b, 1.0), IDENTITY_THRESHOLDS))
+    if hasattr(mod, "force_power"):
+        P = float(mod.force_power(s.q, v, s.t, prm))
+        rows.append(("force_power", "declared f . v", rel_err(P, float(ref @ v), scale), IDENTITY_THRESHOLDS))
+    return rows
+
+
+def _check_dphi(c, s):
+    mod, prm, n = c.mod, c.prm, c.n
+    g = np.empty(n)
+    mod.sys_dphi(s.q, prm, g)
+    phi = lambda q: float(mod.sys_phi(np.ascontiguousarray(q), prm))  # noqa: E731
+    return [("sys_dphi", "FD of sys_phi in q", rel_err(g, gradient(phi, s.q), _floor(phi(s.q))), FD_THRESHOLDS)]
+
+
+def _check_dhq(c, s):
+    mod, prm, n = c.mod, c.prm, c.n
+    x = np.linalg.solve(c.M(s.q), s.p)
+    g = np.empty(n)
+    mod.sys_dHq(s.q, x, prm, g)
+    fd = gradient(lambda q: c.H(q, s.p), s.q)
+    return [("sys_dHq", "FD of hamiltonian in q at fixed p (x = M^-1 p)", rel_err(g, fd, _floor(c.H(s.q, s.p))),
+             FD_THRESHOLDS)]
+
+
+def _check_hamiltonian(c, s):
+    x = np.linalg.solve(c.M(s.q), s.p)
+    direct = 0.5 * float(s.p @ x) + float(c.mod.sys_V(s.q, c.prm))
+    H = c.H(s.q, s.p)
+    return [("hamiltonian", "1/2 p^T M^-1 p + V from sys_M, sys_V (numpy solve)", rel_err(H, direct, 1.0),
+             IDENTITY_THRESHOLDS)]
+
+
+def _check_rhs(c, s):
+    n = c.n
+    out = np.empty(2 * n)
+    c.mod.hamilton_rhs(np.concatenate([s.q, s.p]), c.prm, out)
+    gq = gradient(lambda q: c.H(q, s.p), s.q)
+    gp = gradient(lambda p: c.H(s.q, p), s.p)
+    fl = _floor(c.H(s.q, s.p))
+    return [("hamilton_rhs", "(dH/dp, -dH/dq) by FD of hamiltonian", rel_err(out, np.concatenate([gp, -gq]), fl),
+             FD_THRESHOLDS)]
+
+
+def _check_gdot(c, s):
+    n = c.n
+    out = np.empty(2 * n)
+    c.mod.hamilton_rhs(np.concatenate([s.q, s.p]), c.prm, out)
+    qdot = out[:n]
+    phi = lambda a: float(c.mod.sys_phi(np.ascontiguousarray(s.q + a[0] * qdot), c.prm))  # noqa: E731
+    fd = gradient(phi, np.zeros(1))[0]
+    val = float(c.mod.gdot(s.q, s.p, c.prm))
+    return [("gdot", "FD of sys_phi along qdot = M^-1 p", rel_err(val, fd, _floor(phi(np.zeros(1)))), FD_THRESHOLDS)]
+
+
+def _check_cva_lambda(c, s):
+    g = np.empty(c.n)
+    lam = float(c.mod.cva_lambda(s.q, s.p, c.prm, g))
+    H0 = c.H(s.q, s.p)
+    return [("cva_lambda", "H(q, p + lam grad phi) = H(q, p) (the R^CVA reflection)",
+             rel_err(c.H(s.q, s.p + lam * g), H0, 1.0), IDENTITY_THRESHOLDS)]
+
+
+def _stage_names(mod):
+    from ..discrete.lagrangians import LIBRARY
+
+    return [nm for nm, ld in LIBRARY.items() if ld.explicit and hasattr(mod, f"{nm}_PmJ")]
+
+
+def _ld_value(c, name):
+    """Ld(q0, q1, h) of explicit Lagrangian `name` from the module's L (the library's quadrature rule)."""
+    from ..discrete.lagrangians import LIBRARY
+
+    build = LIBRARY[name].build
+    return lambda q0, q1, h: float(build(c.L, list(q0), list(q1), h))
+
+
+def _check_ld(c, s):
+    from ..discrete.lagrangians import LIBRARY
+
+    mod, prm, n = c.mod, c.prm, c.n
+    rows = []
+    v = np.linalg.solve(c.M(s.q), s.p)
+    h, t, q0 = s.h, s.t, s.q
+    q1 = q0 + h * v
+    for nm in _stage_names(mod):
+        Ld = _ld_value(c, nm)
+        a, b = LIBRARY[nm].forcing_weights
+        r, J = np.empty(n), np.empty((n, n))
+        getattr(mod, f"{nm}_PmJ")(q0, v, h, t, prm, r, J)
+        ref = -gradient(lambda x: Ld(x, q1, h), q0, FD_STEP * h) - a * h * c.f(q0, v, t)
+        scale = _floor(Ld(q0, q1, h) / h)
+        rows.append((f"{nm}_PmJ (r)", "-D1 Ld - f^- by FD of Ld in q0", rel_err(r, ref, scale), FD_THRESHOLDS))
+
+        def r_of(vv):
+            rr, JJ = np.empty(n), np.empty((n, n))
+            getattr(mod, f"{nm}_PmJ")(q0, np.ascontiguousarray(vv), h, t, prm, rr, JJ)
+            return rr
+
+        rows.append((f"{nm}_PmJ (J)", "dPm/dv by FD of its r in v", rel_err(J, map_jacobian(r_of, v), scale),
+                     FD_THRESHOLDS))
+        pp = np.empty(n)
+        getattr(mod, f"{nm}_Pp")(q0, v, h, t, prm, pp)
+        ref = gradient(lambda x: Ld(q0, x, h), q1, FD_STEP * h) + b * h * c.f(q1, v, t + h)
+        rows.append((f"{nm}_Pp", "D2 Ld + f^+ by FD of Ld in q1", rel_err(pp, ref, scale), FD_THRESHOLDS))
+        Ed = float(getattr(mod, f"{nm}_Ed")(q0, v, h, prm))
+        ref = -gradient(lambda x: Ld(q0, q1, x[0]), np.array([h]), FD_STEP * abs(h))[0]
+        rows.append((f"{nm}_Ed", "-D3 Ld by FD of Ld in h at fixed q0, q1", rel_err(Ed, ref, scale), FD_THRESHOLDS))
+        if hasattr(mod, f"{nm}_Edv"):
+            ev = np.empty(n)
+            getattr(mod, f"{nm}_Edv")(q0, v, h, prm, ev)
+            ref = gradient(lambda vv: float(getattr(mod, f"{nm}_Ed")(q0, np.ascontiguousarray(vv), h, prm)), v)
+            rows.append((f"{nm}_Edv", f"FD of {nm}_Ed in v", rel_err(ev, ref, scale), FD_THRESHOLDS))
+        if hasattr(mod, f"{nm}_PmJc") and hasattr(mod, "sys_node"):
+            # (unwritten slots, e.g. structural zeros of M, stay NaN in both: compared as equal)
+            cn0, cn1, cq1 = (np.full(int(mod.NODE_LEN), np.nan) for _ in range(3))
+            mod.sys_node(q0, prm, cn0)
+            mod.sys_node(q1, prm, cq1)
+            rc, Jc, ppc = np.empty(n), np.empty((n, n)), np.empty(n)
+            getattr(mod, f"{nm}_PmJc")(q0, v, h, t, prm, cn0, rc, Jc)
+            getattr(mod, f"{nm}_Ppc")(q0, v, h, t, prm, cn0, ppc, cn1)
+            same_slots = np.array_equal(np.isnan(cn1), np.isnan(cq1))
+            e = max(rel_err(rc, r), rel_err(Jc, J), rel_err(ppc, pp),
+                    rel_err(np.nan_to_num(cn1), np.nan_to_num(cq1), 1.0) if same_slots else np.inf)
+            rows.append((f"{nm}_PmJc, {nm}_Ppc", f"= {nm}_PmJ, {nm}_Pp with node data sys_node(q0); end node "
+                         "= sys_node(q1)", e, IDENTITY_THRESHOLDS))
+    return rows
+
+
+def _check_step(c, s):
+    """ld_step of an explicit Ld solves the DEL equations: Pm(q0, v) = p0, q1 = q0 + h v, p1 = Pp."""
+    mod, prm, n = c.mod, c.prm, c.n
+    if c.full_stages is None or len(c.full_stages) != 1:
+        return []   # a composition: its stages are checked above, the composition by the symplecticity check
+    nm = c.full_stages[0][0]
+    q1, p1, v = np.empty(n), np.empty(n), np.empty(n)
+    it, _ = mod.ld_step(s.q, s.p, s.h, s.t, prm, 1e-14, 50, q1, p1, v)
+    if it < 0:
+        return [("ld_step", "Newton on the DEL equations", np.inf, IDENTITY_THRESHOLDS)]
+    r, J, pp = np.empty(n), np.empty((n, n)), np.empty(n)
+    getattr(mod, f"{nm}_PmJ")(s.q, v, s.h, s.t, prm, r, J)
+    getattr(mod, f"{nm}_Pp")(s.q, v, s.h, s.t, prm, pp)
+    e = max(rel_err(r, s.p, 1.0), rel_err(q1, s.q + s.h * v, 1.0), rel_err(p1, pp, 1.0))
+    return [("ld_step", f"DEL residual: {nm}_PmJ(q0, v) = p0, q1 = q0 + h v, p1 = {nm}_Pp", e, (1e-9, 1e-7))]
+
+
+def _check_mh(c, s):
+    mod, prm, n = c.mod, c.prm, c.n
+    rows = []
+    h = s.h
+    E = lambda y: float(mod.mh_energy(np.ascontiguousarray(y[:n]), np.ascontiguousarray(y[n:]), h, prm))  # noqa: E731
+    y = np.concatenate([s.q, s.p])
+    m = int(mod.MH_M)
+    u, W = np.empty(m), np.empty((m, m))
+    grad, hess = np.empty(2 * n), np.empty((2 * n, 2 * n))
+    mod.mh_guess(s.q, s.p, prm, u)
+    it, val = mod.mh_gradient(s.q, s.p, h, prm, u, W, grad, hess)
+    if it < 0 or not np.isfinite(val):
+        return [("mh_gradient", "Newton on the stationary stage velocities", np.inf, FD_THRESHOLDS)]
+    rows.append(("mh_gradient (grad)", "FD of mh_energy in (q, p)", rel_err(grad, gradient(E, y), _floor(val)),
+                 FD_THRESHOLDS))
+    terms = np.empty(int(mod.MH_ORDER))
+
+    def eta(yy):
+        out = np.empty(int(mod.MH_ORDER))
+        mod.mh_terms(np.ascontiguousarray(yy[:n]), np.ascontiguousarray(yy[n:]), h, prm, out)
+        return float(out[0])
+
+    rows.append(("mh_gradient (hess)", "Hessian of eta (mh_terms[0]) by 4th-order FD", rel_err(hess, mixed_hessian(eta, y),
+                 _floor(eta(y))), FD_THRESHOLDS))
+    tot = float(mod.mh_terms(s.q, s.p, h, prm, terms))
+    series = sum(h ** i * terms[i] for i in range(len(terms)))
+    rows.append(("mh_terms", "eta + h H2 + ... + h^(s-1) H_s = mh_energy", max(rel_err(series, val, 1.0),
+                 rel_err(tot, val, 1.0)), IDENTITY_THRESHOLDS))
+    return rows
+
+
+# kernel names a row needs (all of them) -> check; rows whose names a module lacks are skipped
+KERNEL_CHECKS = [
+    (("sys_M", "sys_V", "sys_phi"), _check_declared),   # needs `declared` (check_kernels)
+    (("sys_force", "sys_M"), _check_force),             # forced modules, against the declared force
+    (("sys_phi", "sys_dphi"), _check_dphi),
+    (("sys_phis", "sys_dphis"), _check_dphis),          # several constraints (issue 17)
+    (("sys_M",), _check_held_contact),                  # sys_ddphis, sys_Mdotv where defined (issue 18)
+    (("sys_dHq", "sys_M", "hamiltonian"), _check_dhq),
+    (("hamiltonian", "sys_M", "sys_V"), _check_hamiltonian),
+    (("hamilton_rhs", "hamiltonian"), _check_rhs),
+    (("gdot", "sys_phi", "hamilton_rhs"), _check_gdot),
+    (("cva_lambda", "hamiltonian"), _check_cva_lambda),
+    (("sys_M", "sys_V"), _check_ld),          # every explicit stage <LD>_PmJ, _Pp, _Ed, _Edv, _PmJc, _Ppc
+    (("ld_step", "FULL_STAGES"), _check_step),
+    (("mh_energy", "mh_gradient", "mh_guess", "mh_terms", "MH_M", "MH_ORDER"), _check_mh),
+]
+
+
+def check_kernels(mod, prm, probes, force=None, full_stages=None, declared=None):
+    """Run every applicable row of KERNEL_CHECKS at every probe. full_stages: the kernel set's
+    ((explicit Ld name, fraction), ...) (the DEL residual of ld_step needs the stage's name);
+    declared: numpy callables {"M", "V", "phi"} of q from the declaration (None: that row is skipped).
+    Returns a list of dicts {kernel, against, worst (relative error over the probes), thresholds},
+    one per kernel row."""
+    c = _Ctx(mod, np.asarray(prm, float), force)
+    c.full_stages, c.declared = full_stages, declared
+    worst: dict = {}
+    for names, fn in KERNEL_CHECKS:
+        if not all(hasattr(mod, k) for k in names):
+            continue
+        for s in probes:
+            s = Probe(np.ascontiguousarray(s.q, float), np.ascontiguousarray(s.p, float), float(s.t), float(s.h))
+            for kernel, against, err, thr in fn(c, s):
+                err = float(err) if np.isfinite(err) else float("inf")
+                cur = worst.get(kernel)
+                if cur is None or not err <= cur["worst"]:
+                    worst[kernel] = {"kernel": kernel, "against": against, "worst": err, "thresholds": thr}
+    return list(worst.values())

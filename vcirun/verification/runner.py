@@ -1,0 +1,549 @@
+"""`vcirun.verify`: the test suite's numerical checks, run on the user's own system and methods."""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import checks as ck
+from .fd import Probe, check_kernels, map_jacobian, symplecticity_defect
+from .harness import StepFailed, exact_smooth, smooth_until_failure, step
+
+DEFAULT_METHODS = ("CVA", "MCVAC")
+DEFAULT_H_MAX = 0.04
+DEFAULT_LEVELS = 7         # h = 0.04, 0.02, ..., 0.000625
+N_PROBES = 3               # states along the motion (besides the start) for kernel and map checks
+NEWTON_TOL = 1e-14         # the maps' Newton tolerance inside the FD Jacobians (noise / FD step << 1e-8)
+IMPACT_ORDER_MCVA = 2      # the MCVA family is second order overall through impacts (the brief, Section 4.3)
+
+
+@dataclass
+class VerifyResult:
+    """What `vcirun.verify` found. checks: every verdict (vcirun.verification.checks.Check);
+    ok: no check failed; warnings: the checks that warn; seconds: wall time of the verification."""
+
+    system: str
+    n: int
+    methods: list
+    q0: np.ndarray
+    p0: np.ndarray
+    T: float
+    h: list
+    params: dict
+    checks: list = field(default_factory=list)
+    seconds: float = 0.0
+    notes: list = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return not any(c.failed for c in self.checks)
+
+    @property
+    def failures(self) -> list:
+        return [c for c in self.checks if c.verdict == ck.FAIL]
+
+    @property
+    def warnings(self) -> list:
+        return [c for c in self.checks if c.verdict == ck.WARN]
+
+    def check(self, name, method=None):
+        """The check called `name` (of `method`), or None."""
+        return next((c for c in self.checks if c.name == name and c.method == method), None)
+
+    def to_markdown(self, figure=None) -> str:
+        from .report import markdown
+
+        return markdown(self, figure)
+
+    def figure(self, path):
+        from .report import figure
+
+        return figure(self, path)
+
+    def save(self, path, figure=True):
+        """Write the Markdown report to `path` (and the figure next to it, same name .png). Returns the
+        paths written."""
+        from pathlib import Path
+
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        written = []
+        fig = None
+        if figure:
+            fig = self.figure(path.with_suffix(".png"))
+            if fig is not None:
+                written.append(fig)
+        path.write_text(self.to_markdown(fig.name if fig is not None else None))
+        written.insert(0, path)
+        return written
+
+
+def _ladder(h, T):
+    """Validated, descending list of steps; each a positive finite float with T / h >= 1."""
+    if h is None:
+        return [DEFAULT_H_MAX / 2 ** k for k in range(DEFAULT_LEVELS)]
+    if isinstance(h, (int, float)):
+        h = [h]
+    try:
+        hs = sorted({float(x) for x in h}, reverse=True)
+    except (TypeError, ValueError):
+        raise ValueError(f"h: expected a list of step sizes (got {h!r})") from None
+    if len(hs) < 3:
+        raise ValueError(f"h: an order needs at least 3 step sizes (got {len(hs)})")
+    for x in hs:
+        if not (x > 0 and np.isfinite(x)) or T / x < 1:
+            raise ValueError(f"h: every step must be positive, finite and at most T = {T:g} (got {x:g})")
+    return hs
+
+
+def _methods(methods):
+    from ..methods import resolve_method
+
+    if methods is None:
+        methods = DEFAULT_METHODS
+    if isinstance(methods, str):
+        methods = [m.strip() for m in methods.split(",") if m.strip()]
+    out = [resolve_method(m) for m in methods]
+    if not out:
+        raise ValueError("methods: give at least one method (e.g. CVA,MCVAC)")
+    return out
+
+
+def _impact_order(meth):
+    from ..discrete.lagrangians import LIBRARY
+
+    return IMPACT_ORDER_MCVA if meth.reset == "mcva" else LIBRARY[meth.ld].order
+
+
+def _forcing(sysm):
+    """numpy f(q, qdot, t) of a forced system (sympy.lambdify of the declaration), or None."""
+    if not sysm.is_forced:
+        return None
+    import sympy as sp
+
+    fn = sp.lambdify([sysm.q, sysm.qd, sysm.t, sysm.param_symbols], list(sysm.forcing), "numpy")
+    return fn
+
+
+def verify(system, methods=None, *, q0=None, p0=None, beta=None, T=5.0, h=None, params=None,
+           progress=None) -> VerifyResult:
+    """Run the numerical checks of vcirun's test suite on `system` with `methods`.
+
+    system : built-in name, YAML path or MechanicalSystem; methods: names (list or "CVA,MCVAC"; default
+             CVA and MCVAC) or Method objects; q0, p0 or beta: the start state (as vcirun.simulate);
+    T      : final time of every run; h: the step ladder (default 0.04 / 2^k, k = 0..6);
+    params : parameter overrides; progress: callable(str) told what is being computed.
+
+    Checks (each a verdict pass / warn / fail / skip with its number and threshold; see
+    vcirun.verification.checks): derivatives of every generated kernel the methods' modules define
+    against finite differences at the start and N_PROBES states along the motion; hyperregularity of
+    M(q) along the motion; smooth observed orders (constraint ignored) against the exact smooth
+    solution; the symplecticity defect of each one-step map; the MCVA family's modified-Hamiltonian
+    conservation order; through impacts, the L2 order and the impact-time error against the exact
+    reference (vcirun.reference) and the energy change across impact steps.
+
+    Forced systems: the exact smooth solution adds the declared force to Hamilton's equations;
+    vcirun.reference is compared with it before the first impact (if they disagree, the impact checks
+    are skipped with that reason, as they were until issue 15); the energy check balances the forces'
+    work; symplecticity and H~ conservation are reported, not judged.
+
+    Returns a VerifyResult (`.ok`, `.checks`, `.save(path)` writes the Markdown report and figure).
+    Bad input raises ValueError naming the field."""
+    s = _Session(system, methods, q0, p0, beta, T, h, params, progress)
+    s.references()
+    s.choose_probes()
+    for meth in s.meths:
+        s.method_checks(meth)
+    s.add(s.hyperregularity())
+    s.res.checks.sort(key=lambda c: c.method is not None)   # system-level checks first
+    s.res.seconds = time.perf_counter() - s.t_start
+    return s.res
+
+
+class _Session:
+    """The state of one verification: the system, start state, ladder, references, and the results."""
+
+    def __init__(self, system, methods, q0, p0, beta, T, h, params, progress):
+        from ..api import resolve_system
+        from ..codegen.build import load_module
+        from ..methods import METHODS
+
+        self.say = progress or (lambda msg: None)
+        self.t_start = time.perf_counter()
+        T = float(T)
+        if not (T > 0 and np.isfinite(T)):
+            raise ValueError(f"T: must be a positive finite time (got {T})")
+        self.T, self.hs = T, _ladder(h, T)
+        self.meths = _methods(methods)
+        self.sysm = sysm = resolve_system(system)
+        self.params = params
+        self.prm = prm = sysm.param_values(params)
+        self.q0, self.p0 = sysm.initial_state(beta=beta, q0=q0, p0=p0, params=prm)
+        self.n = sysm.n
+        phi0 = sysm.phi_value(self.q0, prm)
+        if not phi0 >= 0:   # checked before anything is compiled
+            raise ValueError(f"q0: the start state is inside the constraint: phi(q0) = {phi0:.6g} < 0 for constraint "
+                             f"{sysm.phi} (choose q0 with phi(q0) >= 0)")
+        f = _forcing(sysm)
+        self.force = None if f is None else (lambda q, v, t: np.asarray(f(q, v, t, prm), float).ravel())
+        self.res = VerifyResult(system=sysm.name, n=self.n, methods=[m.name for m in self.meths], q0=self.q0,
+                                p0=self.p0, T=T, h=self.hs, params=dict(zip(sysm.params, prm.tolist())))
+        from ..api import grid_count
+
+        short = [x for x in self.hs if abs(grid_count(x, T) * x - T) > 1e-9 * T]
+        if short:
+            self.res.notes.append(f"T = {T:g} is not a multiple of h = {', '.join(f'{x:g}' for x in short)}: those "
+                                  "grids end at floor(T / h) h < T (each run's error is measured on its own grid)")
+        if self.force is not None:
+            self.res.notes.append("forced system: the exact smooth solution adds the declared generalized force to "
+                                  "Hamilton's equations (sympy.lambdify of the declaration)")
+        self.base = load_module(sysm, METHODS["CVA"].kernel_set())   # system kernels + Hamilton's equations
+        self.H0 = float(self.base.hamiltonian(self.q0, self.p0, prm))
+        Mq0 = self.M(self.q0)
+        self.lam0 = float(np.linalg.eigvalsh(0.5 * (Mq0 + Mq0.T))[0])
+        self.hyper = []   # (source, t, q, eigenvalues of M or None, h of a run or None)
+
+    def declared(self):
+        """numpy M(q), V(q), phi(q) of the declaration (sympy.lambdify, independent of code generation)."""
+        if not hasattr(self, "_declared"):
+            f, prm = self.sysm.numpy_functions(), list(self.prm)
+            if "phis" in f:
+                phis = lambda q: np.array(f["phis"](list(q), prm), float).ravel()  # noqa: E731
+            else:   # one constraint (before several constraints were declared as a list)
+                phis = lambda q: np.array([f["phi"](list(q), prm)], float)  # noqa: E731
+            self._declared = {"M": lambda q: np.array(f["M"](list(q), prm), float),
+                              "V": lambda q: float(f["V"](list(q), prm)), "phis": phis}
+        return self._declared
+
+    def add(self, check):
+        self.res.checks.append(check)
+
+    def M(self, q):
+        A = np.empty((self.n, self.n))
+        self.base.sys_M(np.ascontiguousarray(q, float), self.prm, A)
+        return A
+
+    def sample_M(self, src, ts, Q, h=None):
+        for t, q in zip(ts, Q):
+            A = self.M(q)
+            ev = np.linalg.eigvalsh(0.5 * (A + A.T)) if np.all(np.isfinite(A)) else None
+            self.hyper.append((src, float(t), np.array(q), ev, h))
+
+    def simulate(self, meth, h, **kw):
+        import warnings
+
+        from ..api import GridWarning, simulate
+
+        with warnings.catch_warnings():   # said once, in the report's notes (see __init__)
+            warnings.simplefilter("ignore", GridWarning)
+            return simulate(self.sysm, meth, h=h, T=self.T, q0=self.q0, p0=self.p0, params=self.params, **kw)
+
+    # --- the exact solutions ------------------------------------------------------------------------
+    def references(self):
+        """The exact smooth solution on the coarsest grid (constraint ignored) and vcirun.reference."""
+        from ..reference import reference
+
+        T, hs = self.T, self.hs
+        self.say("exact smooth solution (DOP853, constraint ignored)")
+        from ..api import grid_count
+
+        self.N0 = N0 = grid_count(hs[0], T)
+        # nested ladder (every grid contains the coarsest one, same end): the test suite's error measure
+        self.nested = all(grid_count(x, T) % N0 == 0 and abs(grid_count(x, T) * x - N0 * hs[0]) <= 1e-9 * T for x in hs)
+        self.t_smooth = np.linspace(0.0, N0 * hs[0], N0 + 1) if self.nested else np.unique(np.concatenate(
+            [x * np.arange(grid_count(x, T) + 1) for x in hs]))
+        self.partial = None
+        try:
+            self.qs_ref, self.ps_ref = exact_smooth(self.base, self.prm, self.q0, self.p0, self.t_smooth,
+                                                    force=self.force)
+            self.smooth_ok = True
+            self.qscale = max(float(np.max(np.abs(self.qs_ref))), 1e-300)
+            self.sample_M("smooth solution (constraint ignored)", self.t_smooth, self.qs_ref)
+        except RuntimeError as e:
+            self.smooth_ok, self.qscale = False, 1.0
+            self.add(ck.Check("smooth reference", None, ck.FAIL, float("nan"), "DOP853 succeeds",
+                              "a smooth solution on [0, T]", _message(e, "smooth reference")))
+            self.partial = smooth_until_failure(self.base, self.prm, self.q0, self.p0, T, force=self.force)
+            t_part, q_part, _ = self.partial   # as far as DOP853 got: where it stopped, and the state of M there
+            self.sample_M(f"smooth solution up to its failure at t = {t_part[-1]:.6g}", t_part, q_part)
+        self.say("exact nonsmooth reference (vcirun.reference: events + elastic reset)")
+        self.ref, self.ref_ok = None, False
+        self.ref_reason = "no exact nonsmooth reference (vcirun.reference failed)"
+        try:
+            self.ref = reference(self.sysm, T=T, q0=self.q0, p0=self.p0, params=self.params)
+        except (RuntimeError, ValueError) as e:
+            self.add(ck.Check("reference", None, ck.FAIL, float("nan"), "vcirun.reference succeeds",
+                              "the exact nonsmooth solution on [0, T]", _message(e, "reference")))
+            return
+        self.ref_ok = True
+        ref = self.ref
+        tt = np.linspace(0.0, T, 2001)
+        qt = ref(tt)
+        self.ref_scale = max(float(np.max(np.abs(qt))), 1e-300)
+        acc = float(ref.accuracy)
+        rows = [{"impacts": len(ref.impacts), "first impacts": ", ".join(f"{t:.6g}" for t in ref.impacts[:6]),
+                 "accuracy (vs a 10x tighter solve)": ck.fmt(acc)}]
+        v = ck.PASS if acc <= 1e-8 * max(1.0, self.ref_scale) else ck.WARN
+        note = f"{len(ref.impacts)} impacts on [0, {T:g}]; self-reported accuracy {acc:.2e}"
+        # (issue 15) until vcirun.reference integrates the generalized force, a forced system's exact
+        # reference is the unforced motion: detected against the forced smooth solve before the first impact
+        if self.force is not None and self.smooth_ok:
+            m = self.t_smooth < 0.9 * (ref.impacts[0] if len(ref.impacts) else T)
+            dev = float(np.max(np.abs(ref(self.t_smooth[m]) - self.qs_ref[m]))) if m.sum() >= 2 else 0.0
+            if dev > 1e-7 * max(1.0, self.qscale):
+                self.ref_ok = False
+                self.ref_reason = "vcirun.reference ignores this system's forcing (issue 15)"
+                v = ck.WARN
+                note = (f"vcirun.reference ignores the forcing of this system (differs from the forced smooth "
+                        f"solution by {dev:.2e} before the first impact; issue 15): impact checks skipped")
+        if self.ref_ok:
+            self.sample_M("exact reference", tt, qt)
+        self.add(ck.Check("reference", None, v, acc, "accuracy <= 1e-8 max |q|",
+                          "an exact reference far more accurate than the methods", note, rows))
+
+    def choose_probes(self):
+        """The start state and N_PROBES states along the exact motion (or a run, if there is none)."""
+        T, n, h0 = self.T, self.n, self.hs[0]
+        self.probes = [Probe(self.q0, self.p0, 0.0, h0)]
+        run = None
+        if not self.ref_ok and not self.smooth_ok:
+            try:
+                run = self.simulate(self.meths[0], self.hs[-1])
+            except ValueError:
+                run = None
+        for k in range(N_PROBES):
+            t = T * (k + 1) / (N_PROBES + 1)
+            if self.ref_ok:
+                y = self.ref.state([t])[0]
+                self.probes.append(Probe(y[:n], y[n:], t, h0))
+            elif self.smooth_ok:
+                j = int(np.argmin(np.abs(self.t_smooth - t)))
+                self.probes.append(Probe(self.qs_ref[j], self.ps_ref[j], float(self.t_smooth[j]), h0))
+            elif run is not None and len(run.t) > N_PROBES + 1:   # spread over the part it reached
+                j = int(np.argmin(np.abs(run.t - t * run.t[-1] / T)))
+                self.probes.append(Probe(run.q[j], run.p[j], float(run.t[j]), h0))
+
+    # --- one method --------------------------------------------------------------------------------
+    def method_checks(self, meth):
+        from ..codegen.build import load_module
+
+        name = meth.name
+        ks = meth.kernel_set()
+        self.say(f"{name}: loading its compiled module")
+        try:
+            mod = load_module(self.sysm, ks)
+        except ValueError as e:   # e.g. the MCVA family on a forced system (until issue 15)
+            self.add(ck.skip("every check", name, f"{name} does not run on this system: {' '.join(str(e).split())}"))
+            return
+        mcva = meth.reset == "mcva"
+        self.say(f"{name}: derivative checks of the generated kernels at {len(self.probes)} states")
+        rows = check_kernels(mod, self.prm, self.probes, force=self.force, full_stages=ks.full_stages,
+                             declared=self.declared())
+        self.add(ck.derivative_check(name, rows, len(self.probes)))
+        self.say(f"{name}: symplecticity defect of its one-step maps")
+        rows = _symplecticity_rows(mod, self.prm, self.probes, self.hs, mcva, self.n)
+        self.add(ck.symplecticity_check(name, rows, self.force is not None))
+        self.smooth_order(meth)
+        if meth.reset is None:    # a bare discrete Lagrangian: smooth integration only
+            for nm in ("L2 order through impacts", "impact times", "energy across impacts"):
+                self.add(ck.skip(nm, name, f"{name} integrates the smooth system (no reset): no impacts to check"))
+            return
+        self.impact_checks(meth)
+
+    def smooth_order(self, meth):
+        from ..discrete.lagrangians import LIBRARY
+
+        name, hs = meth.name, self.hs
+        self.say(f"{name}: smooth runs (constraint ignored) over h = {hs[0]:g} .. {hs[-1]:g}")
+        used, errs, excl = [], [], []
+        for x in hs:
+            tr = self.simulate(meth, x, constrained=False)
+            self.sample_M(f"{name} smooth run h = {x:g}", *_thin(tr), h=x)
+            if tr.status != "ok":
+                excl.append((x, f"status {tr.status}"))
+            elif self.smooth_ok:
+                used.append(x)
+                errs.append(_smooth_error(tr, x, self.T, self.N0, self.nested, self.t_smooth, self.qs_ref))
+        if not self.smooth_ok:
+            self.add(ck.skip("smooth order", name, "no smooth reference"))
+            return
+        c = ck.order_check("smooth order", name, used, errs, LIBRARY[meth.ld].order, scale=self.qscale,
+                           quantity="max |q - q_exact|", excluded=excl)
+        c.note += f" (Ld {meth.ld}, constraint ignored)"
+        c.expected += f" (Ld {meth.ld})"
+        self.add(c)
+
+    def impact_checks(self, meth):
+        """Runs through impacts over the ladder: L2 order, impact times, energy across impact steps, and
+        (MCVA family) the truncated modified Hamiltonian's conservation order."""
+        name, hs, ref = meth.name, self.hs, self.ref
+        mcva = meth.reset == "mcva"
+        self.say(f"{name}: runs through impacts over h = {hs[0]:g} .. {hs[-1]:g}")
+        l2_h, l2, excl, ev_rows, en_rows = [], [], [], [], []
+        hm_h, hm_var, hm_scale, hm_excl = [], [], [], []
+        for x in hs:
+            tr = self.simulate(meth, x)
+            self.sample_M(f"{name} run h = {x:g}", *_thin(tr), h=x)
+            if mcva:
+                if tr.status == "ok" and np.all(np.isfinite(tr.Hmod)):
+                    hm_h.append(x)
+                    hm_var.append(float(np.ptp(tr.Hmod)))
+                    hm_scale.append(float(np.mean(np.abs(tr.Hmod))))
+                else:
+                    hm_excl.append((x, f"status {tr.status}"))
+            if self.ref_ok:
+                nimp, nref = len(tr.impacts), len(ref.impacts)
+                same = tr.status == "ok" and nimp == nref
+                terr = float(np.max(np.abs(tr.impacts - ref.impacts))) if same and nimp else float("nan")
+                ev_rows.append({"h": x, "n_impacts": nimp, "n_ref": nref, "time_error": terr, "status": tr.status})
+                if tr.status != "ok":
+                    excl.append((x, f"status {tr.status}"))
+                elif nimp != nref:
+                    excl.append((x, f"{nimp} impacts, reference {nref}"))
+                else:
+                    from ..reference import l2_error
+
+                    l2_h.append(x)
+                    l2.append(l2_error(tr, ref))
+            if tr.status == "ok":
+                dE = _energy_changes(tr, self.base, self.prm, self.force, mcva)
+                imp = np.asarray(tr.impact_step, bool)[: dE.size]
+                en_rows.append({"h": x, "jump": float(dE[imp].max()) if imp.any() else float("nan"),
+                                "smooth": float(dE[~imp].max()) if (~imp).any() else float("nan")})
+        if mcva:
+            if self.force is not None:
+                self.add(ck.skip("modified Hamiltonian", name, "forced system: H~ is not conserved"))
+            else:
+                c = ck.order_check("modified Hamiltonian", name, hm_h, hm_var, meth.mh_order,
+                                   scale=float(np.mean(hm_scale)) if hm_scale else 1.0, tol=ck.MH_TOL,
+                                   quantity="max - min of H~ over [0, T]", excluded=hm_excl)
+                c.expected = f"variation ~ h^{meth.mh_order} (mh_order {meth.mh_order})"
+                c.note += " (along the runs through impacts: R^MCVA conserves H~, the smooth steps vary it)"
+                self.add(c)
+        p_imp = _impact_order(meth)
+        if self.ref_ok:
+            c = ck.order_check("L2 order through impacts", name, l2_h, l2, p_imp,
+                               scale=self.ref_scale * np.sqrt(self.T), quantity="L2 error", excluded=excl)
+            if excl and c.verdict == ck.PASS:
+                c.verdict = ck.WARN
+                c.note = f"runs excluded: {'; '.join(f'h = {x:g}: {why}' for x, why in excl)}; " + c.note
+            self.add(c)
+            self.add(ck.impact_events_check(name, ev_rows, p_imp, self.T))
+        else:
+            for nm in ("L2 order through impacts", "impact times"):
+                self.add(ck.skip(nm, name, self.ref_reason))
+        forced = self.force is not None
+        e_scale = float(np.mean(hm_scale)) if (mcva and hm_scale and not forced) else abs(self.H0) or 1.0
+        energy = "H - W" if forced else ("H~" if mcva else "H")
+        self.add(ck.impact_energy_check(name, en_rows, energy, p_imp, e_scale))
+
+    # --- hyperregularity ---------------------------------------------------------------------------
+    def hyperregularity(self):
+        c = ck.hyperregularity_check(self.hyper, self.lam0)
+        if self.partial is None:
+            return c
+        # the exact solution stopped: if M(q) is singular there, that is why (a motion that runs into a
+        # singular mass matrix cannot be integrated, by any method)
+        t_part, q_part, _ = self.partial
+        A = self.M(q_part[-1])
+        ev = np.linalg.eigvalsh(0.5 * (A + A.T)) if np.all(np.isfinite(A)) else None
+        if ev is None or ev[0] <= 0 or ev[-1] / ev[0] > ck.COND_WARN or ev[0] < ck.LAMBDA_RATIO_WARN * self.lam0:
+            if ev is None:
+                what = "entries that are not finite"
+            elif ev[0] > 0:
+                what = (f"smallest eigenvalue {ev[0]:.3g} ({ev[0] / self.lam0:.2e} x its value at q0), "
+                        f"cond(M) = {ev[-1] / ev[0]:.3g}")
+            else:
+                what = f"smallest eigenvalue {ev[0]:.3g}"
+            c.verdict = ck.FAIL
+            c.value = float("nan") if ev is None else float(ev[0])
+            c.note = (f"the exact motion runs into a singular mass matrix: DOP853 stops at t = {t_part[-1]:.6g}, "
+                      f"q = {ck.fmt_vec(q_part[-1])}, where M(q) has {what}; " + c.note)
+        return c
+
+
+def _message(e, prefix) -> str:
+    """An exception's text on one line, without a leading 'prefix: ' (the check already names it)."""
+    text = " ".join(str(e).split())
+    return text[len(prefix) + 2:] if text.startswith(prefix + ": ") else text
+
+
+def _energy_changes(tr, mod, prm, force, mcva):
+    """|E(t_k+1) - E(t_k)| per step, E = H~ (MCVA family) or H; for a forced system (every method)
+    |dH - W| with W the work of the forces over the step (trapezoidal on each side of every impact in
+    it, so the velocity jump is never straddled: O(h^3) per step)."""
+    if force is None:
+        return np.abs(np.diff(tr.Hmod if mcva else tr.H))
+    dE = np.diff(tr.H)   # forced, any method (the MCVA family's H~ balances a different work: dH~/dp, not qdot)
+    n = tr.q.shape[1]
+    A = np.empty((n, n))
+
+    def power(q, p, t):
+        mod.sys_M(np.ascontiguousarray(q, float), prm, A)
+        v = np.linalg.solve(A, p)
+        return float(force(q, v, t) @ v)
+
+    P = np.array([power(q, p, t) for q, p, t in zip(tr.q, tr.p, tr.t)])
+    W = 0.5 * tr.h * (P[:-1] + P[1:])
+    t0 = float(tr.t[0])
+    steps = np.minimum(np.floor((np.asarray(tr.impacts) - t0) / tr.h).astype(int), len(dE) - 1)
+    for k in np.unique(steps):
+        idx = np.flatnonzero(steps == k)
+        pts = [(tr.t[k], tr.q[k], tr.p[k], None)]
+        for i in idx:
+            pts.append((tr.impacts[i], tr.impact_q[i], tr.impact_p_minus[i], tr.impact_p_plus[i]))
+        pts.append((tr.t[k + 1], tr.q[k + 1], tr.p[k + 1], None))
+        w = 0.0
+        for (ta, qa, pa_m, pa_p), (tb, qb, pb, _) in zip(pts[:-1], pts[1:]):
+            pa = pa_p if pa_p is not None else pa_m      # leave an impact with its post-impact momentum
+            w += 0.5 * (tb - ta) * (power(qa, pa, ta) + power(qb, pb, tb))
+        W[k] = w
+    return np.abs(dE - W)
+
+
+def _thin(tr, k=400):
+    """(t, q) of a run at about k grid points (for sampling M along it)."""
+    stride = max(1, len(tr.t) // k)
+    return tr.t[::stride], tr.q[::stride]
+
+
+def _smooth_error(tr, h, T, N0, nested, t_smooth, qs_ref):
+    """max |q_k - q_exact(t_k)| over the coarsest grid (nested ladders: the test suite's measure) or
+    over the run's own grid."""
+    if nested:
+        from ..api import grid_count
+
+        stride = grid_count(h, T) // N0
+        return float(np.max(np.abs(tr.q[::stride] - qs_ref)))
+    idx = np.clip(np.searchsorted(t_smooth, tr.t - 1e-12 * T), 0, len(t_smooth) - 1)   # the union grid holds tr.t
+    return float(np.max(np.abs(tr.q - qs_ref[idx])))
+
+
+def _symplecticity_rows(mod, prm, probes, hs, mcva, n):
+    rows = []
+    h_list = [hs[0], hs[len(hs) // 2]]
+    for k, s in enumerate(probes):
+        label = "start" if k == 0 else f"t = {s.t:.4g}"
+        y = np.concatenate([s.q, s.p])
+        for x in h_list:
+            def full(yy, x=x, t=s.t):
+                return np.concatenate(step(mod, yy[:n], yy[n:], x, t, prm, newton_tol=NEWTON_TOL))
+            try:
+                rows.append({"map": "full Phi_h", "h": x, "state": label, "defect": symplecticity_defect(map_jacobian(full, y))})
+            except StepFailed:
+                rows.append({"map": "full Phi_h", "h": x, "state": label, "defect": float("inf")})
+            if mcva and hasattr(mod, "gauss_partial"):
+                def part(yy, x=x, t=s.t):
+                    q1, p1, v = np.empty(n), np.empty(n), np.empty(n)
+                    it, _ = mod.gauss_partial(np.ascontiguousarray(yy[:n]), np.ascontiguousarray(yy[n:]), 0.5 * x, x, t,
+                                              prm, NEWTON_TOL, 50, q1, p1, v)
+                    if it < 0:
+                        raise StepFailed("gauss_partial did not converge")
+                    return np.concatenate([q1, p1])
+                try:
+                    d = symplecticity_defect(map_jacobian(part, y))
+                except StepFailed:
+                    d = float("inf")
+                rows.append({"map": "partial flow of H~ (tau = h/2)", "h": x, "state": label, "defect": d})
+    return rows
