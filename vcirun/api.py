@@ -8,6 +8,7 @@ import numpy as np
 
 from . import record
 from . import trajectory as tr
+from . import validation
 from .diagnosis import accumulation_onset, failure_cause  # noqa: F401 (accumulation_onset: public here)
 from .methods import resolve_method
 from .resolve import _warmable, resolve_numeric, resolve_system  # noqa: F401 (public here)
@@ -128,12 +129,15 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     mass matrix on every path, so warm and cold starts give the same bits.
     """
     mopts, tol = _split_options(options)
+    validation.check_simulate_args(h=h, T=T, t0=t0, beta=beta, q0=q0, p0=p0, params=params, constrained=constrained,
+                                   energies=energies, tolerances=tol, system=system)  # (issue 22)
     h, T, N = grid_steps(h, T)
     if not _warmable(system):
         system = resolve_system(system)  # bad names and files raise here, before a bad method does
     meth = resolve_method(method, **mopts)
     sysd, load, sysm = resolve_numeric(system, meth.kernel_set())
     prm = sysd.param_values(params)
+    validation.check_run_memory(N, sysd.n)  # before any buffer is allocated (issue 22)
     start = _start_state(sysd, beta, q0, p0, prm, sysm)
     if constrained is None:
         constrained = meth.constrained
@@ -172,6 +176,12 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
                               arrays["impacts"])
         if cause:
             message += f"; cause: {cause}"
+    # (issue 22) an energy that is not finite from the start (e.g. q0 = 1e300) is a failure, not ok
+    bad_start = validation.nonfinite_start(arrays["H"][0], arrays["Ed"][0] if energies else None,
+                                           arrays["Hmod"][0] if energies and arrays.get("Hmod") is not None
+                                           else None, q0, p0)
+    if bad_start and status == tr.OK:
+        status, fail, message = tr.NONFINITE, 0, f"{tr.NONFINITE} at t = {t0:.6g}: {bad_start}"
     return tr.Trajectory(
         method=meth.name, system=sysd.name, h=h, T=N * h, t=t0 + h * np.arange(counters["steps"] + 1), **arrays,
         status=status, message=message, fail_step=fail, fail_time=(t0 + fail * h) if fail >= 0 else float("nan"),

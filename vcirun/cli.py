@@ -74,6 +74,28 @@ def _expected_errors():
     return (ConfigError, StorageError, SweepError, CliError)
 
 
+def _reads_results(fn):
+    """`info` and `plot`: a results file that cannot be read (damaged blocks, wrong types where the
+    readers expect numbers, permissions) ends in one line naming the file, never in a traceback."""
+    import functools
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        import click
+
+        try:
+            return fn(*args, **kwargs)
+        except (typer.Exit, typer.Abort, click.exceptions.Exit, click.exceptions.Abort,
+                click.exceptions.ClickException):
+            raise
+        except (OSError, KeyError, ValueError, TypeError, IndexError, AttributeError, RuntimeError,
+                MemoryError) as e:
+            text = " ".join(str(e).split())
+            _fail(f"{kwargs.get('results') or 'results'}: cannot read the results file ({type(e).__name__}: "
+                  f"{text[:200]}); it may be damaged: rerun the sweep that wrote it, or move it away")
+    return wrapper
+
+
 # --- simulate ---------------------------------------------------------------------------------------
 def _parse_params(items: list[str]) -> dict:
     out = {}
@@ -282,6 +304,8 @@ def sweep(
                              task_size=task_size, worker_cache_dir=worker_cache_dir)
     except _expected_errors() as e:
         _fail(str(e))
+    except OSError as e:  # e.g. the config or output vanished or became unreadable mid-way
+        _fail(f"{e.filename or output or config}: {e.strerror or e}")
     except KeyboardInterrupt:  # before the first run started (e.g. while compiling kernels)
         _fail("interrupted before any run was computed", 130)
     done = summary.skipped + summary.computed
@@ -319,6 +343,7 @@ def sweep(
              "  vcirun plot                      (every results file under results/)\n\n"
              "  vcirun plot results/fig4.h5\n\n"
              "  vcirun plot results/fig4.h5 --out paper-figures/")
+@_reads_results
 def plot(
     results: Optional[Path] = typer.Argument(None, help="Results file or work-precision study JSON (default: every "
                                                         "*.h5 under results/, each into results/figures/<name>/).",
@@ -445,6 +470,7 @@ def study(
 
 # --- info ---------------------------------------------------------------------------------------------
 @app.command(epilog="Examples:\n\n  vcirun info results/quick.h5\n\n  vcirun info results/fig4.h5 --failed")
+@_reads_results
 def info(
     results: Path = typer.Argument(..., help="Results file.", show_default=False),
     failed: bool = typer.Option(False, "--failed", help="Only runs whose status is not ok."),
@@ -469,7 +495,10 @@ def info(
     say(f"[bold]{res.name}[/bold]  {results}")
     say(f"  system {a.get('system', '?')}, T = {a.get('T', '?')}, reference {a.get('reference_kind', '?')}")
     say(f"  {len(res.runs)} of {expected} runs stored"
-                  + (f", {len(res.incomplete)} incomplete group(s) ignored" if res.incomplete else ""))
+                  + (f", {len(res.incomplete)} incomplete group(s) ignored" if res.incomplete else "")
+                  + (f"; {res.in_journal} of them in the journal of a session that did not finish (the next "
+                     "`vcirun sweep` of this config folds them into the file)" if getattr(res, "in_journal", 0)
+                     else ""))
     say(f"  created {a.get('created', '?')}, updated {a.get('updated', '?')}; vcirun "
                   f"{a.get('vcirun_version', '?')}, git {str(a.get('git_commit', ''))[:10] or 'n/a'}"
                   + (" (dirty)" if a.get("git_dirty") == "yes" else ""))

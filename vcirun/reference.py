@@ -275,7 +275,10 @@ def reference(system, *, T, beta=None, q0=None, p0=None, params=None, rtol=1e-13
     method='CVA' (or any method name) with h: a fine-step simulation, interpolated by cubic Hermite
     on (q, qdot = M^-1 p) between its grid points (exact at the grid points)."""
     from .api import resolve_system, simulate
+    from .validation import check_reference_args
 
+    check_reference_args(T=T, rtol=rtol, method=method, h=h, beta=beta, q0=q0, p0=p0, params=params,
+                         system=system)  # (issue 22)
     sysm = resolve_system(system)
     prm = sysm.param_values(params)
     q0, p0 = sysm.initial_state(beta=beta, q0=q0, p0=p0, params=prm)

@@ -12,6 +12,7 @@ from scipy import stats
 
 from vcirun.experiments import metrics, storage
 from vcirun.experiments.storage import ResultsWriter, StorageError
+from vcirun import record
 from vcirun.trajectory import Trajectory
 
 KEY = "k" * 64
@@ -22,7 +23,7 @@ def make_traj(*, N=40, n=2, h=0.01, with_hmod=True, n_imp=2, status="ok", beta=3
     t = h * np.arange(N + 1)
     imp_step = np.zeros(N, bool)
     imp_step[[k for k in (5, 17)[:n_imp] if k < N]] = True
-    return Trajectory(
+    kw = dict(
         method="MCVAC" if with_hmod else "CVA", system="synthetic", h=h, T=N * h, t=t,
         q=rng.normal(size=(N + 1, n)), p=rng.normal(size=(N + 1, n)), H=10 + 0.01 * rng.normal(size=N + 1),
         Ed=10 + 0.02 * rng.normal(size=N + 1), impacts=np.sort(rng.uniform(0, N * h, n_imp)),
@@ -33,6 +34,13 @@ def make_traj(*, N=40, n=2, h=0.01, with_hmod=True, n_imp=2, status="ok", beta=3
         fail_step=-1 if status == "ok" else 3, fail_time=math.nan if status == "ok" else 0.03,
         Hmod=10 + 1e-6 * rng.normal(size=N + 1) if with_hmod else None, beta=beta, wall_time=1.25e-3,
         tolerances={"newton_tol": 1e-12, "event_tol": 1e-13}, options={"params": {"m1": 1.0}, "constrained": True})
+    # every other row of the run record at its declared length (resume verifies the lengths)
+    length = {"grid": N + 1, "step": N, "impact": n_imp, "partial": 2 * n_imp}
+    for f in record.FIELDS:
+        if f.name not in kw and f.only is None:
+            kw[f.name] = np.zeros((length[f.axis], n) if f.dof else (length[f.axis],), np.dtype(
+                bool if f.dtype == "bool" else f.dtype))
+    return Trajectory(**kw)
 
 
 def run_attrs(traj, label, h, beta, index=0, ic_key=None):
@@ -177,7 +185,8 @@ def test_unusable_files_are_reported(tmp_path, content, match):
 def test_failed_commit_leaves_previous_file_intact(tmp_path, monkeypatch):
     path = write(tmp_path / "r.h5", {"a": run_attrs(make_traj(), "CVA", 0.01, 3.2)})
     before = path.read_bytes()
-    w = ResultsWriter(path, root_attrs={"name": "t"}, config_key=KEY).acquire()
+    # in this process (isolate=False), so that the writer sees the monkeypatched _write_group
+    w = ResultsWriter(path, root_attrs={"name": "t"}, config_key=KEY, isolate=False).acquire()
     calls = []
 
     def boom(f, grp, attrs, arrays):

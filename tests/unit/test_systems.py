@@ -126,7 +126,9 @@ def test_warm_path_checks_the_mass_matrix_at_q0_compiled(monkeypatch):
     for m1 in (-1.5, -0.2):  # M[0, 0] = m1 + m2 < 0 (indefinite) and = 0 (singular; m2 = 0.2)
         with pytest.raises(ValueError, match="mass_matrix is not positive definite at q0"):
             vcirun.simulate("cart_pendulum", "CVA", h=0.1, T=0.2, beta=3.2, params={"m1": m1})
-    with pytest.raises(ValueError, match="mass_matrix is not finite at q0"):
+    with pytest.raises(ValueError, match="mass_matrix is not finite at q0"):  # m2 L^2 overflows
+        vcirun.simulate("cart_pendulum", "CVA", h=0.1, T=0.2, q0=[1.0, 0.5], p0=[0.0, 0.0], params={"L": 1e200})
+    with pytest.raises(ValueError, match=r"q0: must be a list of finite numbers"):  # refused before (issue 22)
         vcirun.simulate("cart_pendulum", "CVA", h=0.1, T=0.2, q0=[1.0, np.nan], p0=[0.0, 0.0])
     # just positive definite: m1 + m2 = 1e-9 > 0 with the pendulum hanging (sin theta = 0) is accepted
     tr = vcirun.simulate("cart_pendulum", "CVA", h=1e-3, T=2e-3, q0=[1.0, 0.0], p0=[0.0, 0.0],

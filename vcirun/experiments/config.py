@@ -40,6 +40,7 @@ import yaml
 from pydantic import (BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationError, field_validator,
                       model_validator)
 
+from .. import validation as _validation
 from ..discrete.lagrangians import LIBRARY
 from ..methods import METHODS
 
@@ -54,6 +55,8 @@ SMOOTH_METHODS = DISCRETE_LAGRANGIANS  # a bare Ld name integrates the smooth dy
 MethodName = Literal[COLLISION_METHODS + DISCRETE_LAGRANGIANS]
 LdName = Literal[DISCRETE_LAGRANGIANS]
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]*$")
+MAX_RUNS = 10_000_000  # methods x h x initial conditions of one sweep
+MAX_CONFIG_BYTES = 4_000_000  # a config file is a few kB
 # A config whose top level has this key is a study config (`vcirun study`, schema in
 # vcirun.experiments.studies.schema), not a sweep; `vcirun validate` dispatches on it.
 STUDY_KEY = "study"
@@ -72,6 +75,54 @@ class ConfigError(ValueError):
 
 class _Model(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, frozen=True)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _no_bools_for_numbers(cls, data):
+        """pydantic reads true as 1.0 for a float field (`potential: true` was stored as 1.0): refuse it."""
+        if isinstance(data, dict):
+            for name, f in cls.model_fields.items():
+                key = f.alias or name
+                kinds = _leaf_types(f.annotation)
+                if key in data and kinds & {float, int} and bool not in kinds:
+                    where = _bool_inside(data[key])
+                    if where is not None:
+                        what = "an expression or a number" if str in kinds else "a number"
+                        raise _FieldError((key, *where), f"must be {what}, not true/false")
+        return data
+
+
+def _leaf_types(tp) -> set:
+    """The annotation's leaf types (Annotated, Optional, Union and containers unwrapped)."""
+    leaves, stack = set(), [tp]
+    while stack:
+        t = stack.pop()
+        origin = typing.get_origin(t)
+        if origin is Annotated:
+            stack.append(typing.get_args(t)[0])
+        elif origin in (Union, list, tuple, dict):
+            args = typing.get_args(t)
+            stack.extend(args[1:] if origin is dict else args)
+        else:
+            leaves.add(t)
+    return leaves
+
+
+def _bool_inside(value, depth: int = 0):
+    """Location (tuple) of a bool inside a value of lists/dicts, else None."""
+    if isinstance(value, bool):
+        return ()
+    if depth < 4 and isinstance(value, (list, tuple)):
+        for i, v in enumerate(value):
+            where = _bool_inside(v, depth + 1)
+            if where is not None:
+                return (i, *where)
+    if depth < 4 and isinstance(value, dict):
+        for k, v in value.items():
+            where = _bool_inside(v, depth + 1)
+            if where is not None:
+                return (str(k), *where)
+    return None
 
 
 PositiveFloat = Annotated[float, Field(gt=0)]
@@ -206,7 +257,7 @@ class BetaRange(_Model):
 
 
 class BetaList(_Model):
-    values_: list[float] = Field(alias="values", min_length=1)
+    values_: list[float] = Field(alias="values", min_length=1, max_length=100_000)
 
     def values(self) -> list[float]:
         return [float(b) for b in self.values_]
@@ -318,12 +369,12 @@ class InitialCondition(BaseModel):
 class SweepConfig(_Model):
     """A sweep: every method at every h from every initial condition, on [0, T]."""
     name: str = Field(min_length=1, max_length=80)
-    description: str | None = None
+    description: str | None = Field(default=None, max_length=10_000)
     system: SystemSpec
-    methods: list[MethodSpec] = Field(min_length=1)
-    h: list[PositiveFloat] = Field(min_length=1)
+    methods: list[MethodSpec] = Field(min_length=1, max_length=1_000)
+    h: list[PositiveFloat] = Field(min_length=1, max_length=10_000)
     beta: BetaSpec | None = None
-    initial_states: list[InitialState] | None = Field(default=None, min_length=1)
+    initial_states: list[InitialState] | None = Field(default=None, min_length=1, max_length=100_000)
     T: PositiveFloat
     reference: ReferenceSpec = Field(default_factory=lambda: ExactReference(kind="exact"))
     tolerances: Tolerances = Field(default_factory=Tolerances)
@@ -335,6 +386,16 @@ class SweepConfig(_Model):
     # identical) and its wall_time is the fastest: other processes preempting a worker would
     # otherwise add outliers of a scheduler time slice to sub-millisecond runs. 1 for long runs.
     timing_repeats: int = Field(default=3, ge=1, le=1000)
+    # Memory a sweep may use for its runs in flight (text like 16GB, or bytes); default: the
+    # VCIRUN_MAX_MEMORY environment variable, else half the physical memory. Not part of the results.
+    max_memory: Union[str, float, None] = None
+
+    @field_validator("max_memory")
+    @classmethod
+    def _memory(cls, v):
+        if v is not None:
+            _validation.parse_bytes(v, "max_memory")
+        return v
 
     @field_validator("name")
     @classmethod
@@ -368,11 +429,22 @@ class SweepConfig(_Model):
 
     @model_validator(mode="after")
     def _consistent(self):
+        seen_h: set = set()
         for i, hi in enumerate(self.h):
             if hi > self.T:
                 raise _FieldError(("h", i), f"must be <= T = {self.T:g} (got {hi:g})")
-            if hi in self.h[:i]:
+            try:
+                _validation.grid_size(hi, self.T)  # underflowing h, T / h too many steps
+            except ValueError as e:
+                raise _FieldError(("h", i), str(e).partition(": ")[2]) from None
+            if hi in seen_h:
                 raise _FieldError(("h", i), f"duplicate step {hi:g}")
+            seen_h.add(hi)
+        n_ics = (len(self.beta.values()) if self.beta is not None
+                 else len(self.initial_states) if self.initial_states is not None else 1)
+        if len(self.methods) * len(self.h) * n_ics > MAX_RUNS:
+            raise _FieldError(("methods",), f"the grid has {len(self.methods) * len(self.h) * n_ics:,} runs "
+                                            f"(methods x h x initial conditions); the limit is {MAX_RUNS:,}")
         seen: dict[str, int] = {}
         idents: dict[str, int] = {}
         for i, m in enumerate(self.methods):
@@ -388,7 +460,8 @@ class SweepConfig(_Model):
             raise _FieldError(("initial_states",), "give either beta or initial_states, not both")
         if self.beta is not None:
             b = self.beta.values()
-            dup = [x for i, x in enumerate(b) if x in b[:i]]
+            seen_b: set = set()
+            dup = [x for x in b if x in seen_b or seen_b.add(x)]  # linear: 100 000 betas are allowed
             if dup:
                 raise _FieldError(("beta",), f"duplicate beta {dup[0]:g}")
         return self
@@ -413,7 +486,8 @@ class SweepConfig(_Model):
     def canonical(self) -> dict:
         """Everything that determines the results (not where they go, nor how many processes or which
         executor compute them)."""
-        return self.model_dump(mode="json", by_alias=True, exclude={"output", "workers", "executor", "description"})
+        return self.model_dump(mode="json", by_alias=True, exclude={"output", "workers", "executor", "description",
+                                                                      "max_memory"})
 
     def canonical_sha256(self) -> str:
         return hashlib.sha256(json.dumps(self.canonical(), sort_keys=True).encode()).hexdigest()
@@ -437,39 +511,14 @@ class _FieldError(ValueError):
 
 
 # --- YAML ----------------------------------------------------------------------------------------------
-class _Loader(yaml.SafeLoader):
-    """SafeLoader that reads 1e-2 as a float (YAML 1.1 wants 1.0e-2) and rejects duplicate keys."""
-
-
-_Loader.yaml_implicit_resolvers = {k: list(v) for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()}
-_Loader.add_implicit_resolver(
-    "tag:yaml.org,2002:float",
-    re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
-                   |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
-                   |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
-                   |[-+]?\.(?:inf|Inf|INF)
-                   |\.(?:nan|NaN|NAN))$""", re.X),
-    list("-+0123456789."))
-
-
-def _construct_mapping(loader, node, deep=False):
-    loader.flatten_mapping(node)
-    seen = {}
-    for key_node, _ in node.value:
-        key = loader.construct_object(key_node, deep=deep)
-        if key in seen:
-            raise yaml.constructor.ConstructorError(
-                None, None, f"duplicate key {key!r} (first at line {seen[key] + 1})", key_node.start_mark)
-        seen[key] = key_node.start_mark.line
-    return yaml.SafeLoader.construct_mapping(loader, node, deep=deep)
-
-
-_Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
+# The loader lives in vcirun.validation (system files are parsed by the same rules): YAML 1.2 numbers,
+# duplicate keys rejected, alias expansion and text size capped before anything walks the value.
+_Loader = _validation.SafeLoader
 
 
 def yaml_load(text: str):
-    """Parse YAML config text (see `_Loader`)."""
-    return yaml.load(text, Loader=_Loader)  # noqa: S506 - _Loader is a SafeLoader
+    """Parse YAML config text (see `vcirun.validation.SafeLoader`)."""
+    return _validation.yaml_load(text)
 
 
 def _yaml_error_line(e: yaml.YAMLError) -> str:
@@ -693,6 +742,15 @@ def read_config_data(path):
     if p.is_dir():
         raise ConfigError("is a directory, expected a YAML file", source=source)
     try:
+        st = p.stat()
+    except OSError as e:
+        raise ConfigError(f"cannot read: {e}", source=source) from None
+    if not p.is_file():  # a FIFO or a device would block or never end
+        raise ConfigError("not a regular file, expected a YAML file", source=source)
+    if st.st_size > MAX_CONFIG_BYTES:
+        raise ConfigError(f"the file is {st.st_size:,} bytes; a config is a few kB (limit {MAX_CONFIG_BYTES:,})",
+                          source=source)
+    try:
         text = p.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as e:
         raise ConfigError(f"cannot read: {e}", source=source) from None
@@ -727,6 +785,10 @@ def build_system(cfg: SweepConfig):
             raise _Semantic("system",
                             f"unknown built-in system {s.name!r}" + (f"; did you mean {hint[0]!r}?" if hint else "")
                             + f" (choose one of {', '.join(BUILTIN_SCENE_DATA)}, or a YAML file path)")
+        try:
+            _validation.check_scene_size(s.name)
+        except ValueError as e:
+            raise _Semantic("system", str(e).partition(": ")[2]) from None
         sysm = get_scene(s.name)
         return s.name, (dict(s.params) or None), sysm
     if isinstance(s, FileSystem):
@@ -767,6 +829,7 @@ def check_semantics_of(cfg: SweepConfig, *, source: str = "<config>") -> None:
     except ValueError as e:
         fld, msg = _strip_field(str(e), "system.params")
         raise ConfigError(msg, source=source, field="system." + fld if not fld.startswith("system") else fld) from None
+    check_memory_of(cfg, sysm.n, source=source)
     from vcirun.methods import resolve_method
 
     for i, m in enumerate(cfg.methods):
@@ -781,8 +844,9 @@ def check_semantics_of(cfg: SweepConfig, *, source: str = "<config>") -> None:
             resolve_method(cfg.reference.method)
         except (ValueError, TypeError, NotImplementedError) as e:
             raise ConfigError(_strip_field(str(e), "")[1], source=source, field="reference.method") from None
-    for i, ic in enumerate(cfg.initial_conditions()):
-        field = ("beta" + (f"[{i}]" if len(cfg.initial_conditions()) > 1 else "") if ic.beta is not None
+    ics = cfg.initial_conditions()
+    for i, ic in enumerate(ics):
+        field = ("beta" + (f"[{i}]" if len(ics) > 1 else "") if ic.beta is not None
                  else f"initial_states[{i}]" if ic.q0 is not None else "system")
         try:
             q0, p0 = sysm.initial_state(params=prm, **ic.simulate_kwargs())
@@ -800,3 +864,15 @@ def check_semantics_of(cfg: SweepConfig, *, source: str = "<config>") -> None:
         if phi0 < 0:
             raise ConfigError(f"initial state violates the constraint (phi(q0) = {phi0:.3g} < 0)",
                               source=source, field=field)
+
+
+def check_memory_of(cfg: SweepConfig, n: int, *, source: str = "<config>", workers: int = 1) -> None:
+    """Refuse a grid whose finest run (its buffers, `workers` of them at once) exceeds the memory limit
+    (`max_memory`, else VCIRUN_MAX_MEMORY, else half the physical memory) before anything is allocated."""
+    i = min(range(len(cfg.h)), key=lambda j: cfg.h[j])
+    N = _validation.grid_size(cfg.h[i], cfg.T)
+    try:
+        _validation.check_run_memory(N, n, copies=workers, limit=cfg.max_memory, field="x",
+                                     hint=", or raise max_memory in the config (e.g. max_memory: 32GB)")
+    except ValueError as e:
+        raise ConfigError(str(e).partition(": ")[2], source=source, field=f"h[{i}]") from None

@@ -9,14 +9,18 @@ kill-safety do not depend on the executor, and the runs are bit-for-bit the same
 Executor protocol (what `run_sweep` calls, in this order)::
 
     connect()             before the results file exists: reach the cluster, count its workers
-    start(cfg, pending, stored_refs, needs_reference, ref_T, ref_h)
+    start(cfg, pending, stored_refs, needs_reference, ref_T, ref_h, reference_ics=())
+                          (reference_ics: initial conditions that only need their reference)
     results()             iterator of result dicts, in completion order
     close()               always; stops whatever is still running
     describe(), session_info(), stats()   for the progress label and the file's history
 
 `LocalExecutor`: the `ProcessPoolExecutor` of the runner as it was (fork, one task per initial
 condition, parent-death signal), or in-process run by run for one worker; `task_size` caps the runs
-per task.
+per task. Pool workers send each finished run to the client at once through a queue (a task of many
+runs is not held back until its last run: a hard kill of the client loses only uncommitted runs); a
+reader thread moves the messages into the client, so the client never blocks on a worker that died
+in the middle of a message, and it learns of a dead worker from the pool's futures.
 
 `DaskExecutor` (`--scheduler tcp://HOST:PORT` or `executor: {kind: dask, address: ...}`): a
 `distributed.Client`. A task is a list of `sweep.Task`s, whole initial conditions where they fit (so
@@ -96,7 +100,7 @@ def resolve_spec(cfg_spec=None, *, scheduler: str | None = None, task_size: int 
     """The ExecutorSpec a sweep uses: the config's `executor` section, overridden by the command line
     (`--scheduler ADDRESS`, or `--scheduler local` for the local pool; `--task-size`; `--worker-cache-dir`)."""
     from .config import ExecutorSpec, check_scheduler_address
-    from .sweep import SweepError
+    from .worker import SweepError
 
     spec = cfg_spec or ExecutorSpec()
     upd: dict = {}
@@ -133,7 +137,7 @@ def resolve_spec(cfg_spec=None, *, scheduler: str | None = None, task_size: int 
 
 
 def _import_distributed():
-    from .sweep import SweepError
+    from .worker import SweepError
 
     try:
         import distributed  # noqa: F401 - optional dependency, imported only for a Dask sweep
@@ -152,7 +156,7 @@ def make_executor(spec, *, workers: int, start_method: str | None = None):
 
 def split_tasks(tasks: list, task_size: int) -> list:
     """Split tasks into tasks of at most `task_size` runs (the reference stays with the first part)."""
-    from .sweep import Task
+    from .worker import Task
 
     out = []
     for t in tasks:
@@ -223,10 +227,10 @@ class LocalExecutor:
     def stats(self) -> dict:
         return {"tasks": self._n_tasks}
 
-    def start(self, cfg, pending, stored_refs, needs_reference, ref_T, ref_h) -> None:
-        from . import sweep
+    def start(self, cfg, pending, stored_refs, needs_reference, ref_T, ref_h, reference_ics=()) -> None:
+        from . import worker as sweep  # (the worker side of a sweep)
 
-        tasks = sweep.make_tasks(pending, self.workers, set(stored_refs), needs_reference)
+        tasks = sweep.make_tasks(pending, self.workers, set(stored_refs), needs_reference, reference_ics)
         if self.task_size:
             tasks = split_tasks(tasks, self.task_size)
         self._n_tasks = len(tasks)
@@ -236,29 +240,66 @@ class LocalExecutor:
             return
         method = self.start_method or sweep._default_start_method()
         ctx = mp.get_context(method)
+        self._outbox = ctx.SimpleQueue()
         self._pool = cf.ProcessPoolExecutor(
             max_workers=min(self.workers, len(tasks)), mp_context=ctx, initializer=sweep._init_worker,
-            initargs=(cfg, ref_T, ref_h, None if method == "forkserver" else os.getpid()))
+            initargs=(cfg, ref_T, ref_h, None if method == "forkserver" else os.getpid(), True, self._outbox))
         # With fork, every worker is created by the first submit: before the progress thread starts,
         # and after _preflight compiled the kernels, which the workers inherit.
-        futures = [self._pool.submit(sweep._execute, t) for t in tasks]
+        futures = [self._pool.submit(sweep._execute_streamed, t) for t in tasks]
         self._iter = self._pooled(futures)
 
     @staticmethod
     def _in_process(tasks):
-        from . import sweep
+        from . import worker as sweep  # (the worker side of a sweep)
 
         for task in tasks:
             # run by run, so an interruption loses at most one run (the reference is cached)
             for j, spec in enumerate(task.runs):
                 yield sweep._execute(sweep.Task(task.ic, [spec], task.want_reference and j == 0))
+            if not task.runs:  # only the reference
+                yield sweep._execute(task)
 
     def _pooled(self, futures):
+        import queue
+
+        inbox: queue.Queue = queue.Queue()
+        stop = threading.Event()
+        outbox = self._outbox
+
+        def pump():  # blocking reads live here, never in the client's loop
+            conn = outbox._reader
+            while not stop.is_set():
+                try:
+                    if conn.poll(0.1):
+                        inbox.put(outbox.get())
+                except (EOFError, OSError):
+                    return
+                except Exception as e:  # noqa: BLE001 - a message that does not unpickle
+                    inbox.put(e)
+                    return
+
+        reader = threading.Thread(target=pump, name="vcirun-results", daemon=True)
+        reader.start()
+        pending, expected, received = set(futures), 0, 0
         try:
-            for fut in cf.as_completed(futures):
-                yield fut.result()
+            while pending or received < expected:
+                try:
+                    msg = inbox.get(timeout=0.1)
+                except queue.Empty:
+                    msg = None
+                if isinstance(msg, Exception):
+                    raise WorkerDied(f"a result message could not be read ({_one_line(msg)})")
+                if msg is not None:
+                    received += 1
+                    yield msg
+                for fut in [f for f in pending if f.done()]:
+                    pending.discard(fut)
+                    expected += int(fut.result()["streamed"])  # raises the task's error, or a broken pool
         except cf.process.BrokenProcessPool as e:
             raise WorkerDied(_one_line(e)) from None
+        finally:
+            stop.set()
         self._pool.shutdown(wait=True)
         self._pool = None
 
@@ -267,7 +308,7 @@ class LocalExecutor:
 
     def close(self) -> None:
         if self._pool is not None:
-            from . import sweep
+            from . import worker as sweep  # (the worker side of a sweep)
 
             sweep._terminate_pool(self._pool)
             self._pool = None
@@ -292,7 +333,7 @@ def _run_unit(payload: dict, tasks: list) -> dict:
     cache_dir = payload.get("cache_dir")
     if cache_dir and os.environ.get("VCIRUN_CACHE_DIR") != cache_dir:
         os.environ["VCIRUN_CACHE_DIR"] = cache_dir  # read by vcirun.codegen.build.cache_dir() at each load
-    from . import sweep
+    from . import worker as sweep
 
     key, st = getattr(_LOCAL, "state", (None, None))
     cold = key != payload["key"]
@@ -374,6 +415,7 @@ class DaskExecutor:
         self._quiet = None
         self._closing = False
         self._queue: deque = deque()       # [ic_key, [RunSpec, ...]] groups still to submit
+        self._ref_only: list = []          # initial conditions that only need their reference
         self._refs_to_store: set = set()
         self._inflight: dict = {}          # future -> number of runs
         self._seen: set = set()
@@ -393,7 +435,7 @@ class DaskExecutor:
 
     # -- connect
     def connect(self) -> None:
-        from .sweep import SweepError
+        from .worker import SweepError
 
         distributed = _import_distributed()
         self._quiet = _quiet_logs()
@@ -421,7 +463,7 @@ class DaskExecutor:
                              f"{_one_line(e)}); the workers need the same vcirun as this client") from None
 
     def _set_up(self) -> None:
-        from .sweep import SweepError
+        from .worker import SweepError
 
         hello = self.client.run(_worker_hello, self.cache_dir)
         mine = self._fingerprint = source_fingerprint(cached=False)
@@ -480,13 +522,14 @@ class DaskExecutor:
                 "worker_hosts": len(self._hosts), "worker_processes_used": len(self._pids)}
 
     # -- run
-    def start(self, cfg, pending, stored_refs, needs_reference, ref_T, ref_h) -> None:
+    def start(self, cfg, pending, stored_refs, needs_reference, ref_T, ref_h, reference_ics=()) -> None:
         from distributed import as_completed
 
         self._payload = task_payload(cfg, ref_T, ref_h, cache_dir=self.cache_dir, fingerprint=self._fingerprint)
         groups: OrderedDict[str, list] = OrderedDict()
         for s in pending:
             groups.setdefault(s.ic.key, []).append(s)
+        self._ref_only = [ic for ic in reference_ics if ic.key not in groups] if needs_reference else []
         self._queue = deque([k, runs] for k, runs in groups.items())
         self._refs_to_store = set(groups) - set(stored_refs) if needs_reference else set()
         self._ac = as_completed(loop=self.client.loop, with_results=True, raise_errors=False)
@@ -506,9 +549,12 @@ class DaskExecutor:
 
     def _next_unit(self, k: int) -> list:
         """Up to k runs from the queue: whole initial conditions while they fit, else part of one."""
-        from .sweep import Task
+        from .worker import Task
 
         tasks, n = [], 0
+        if self._ref_only:  # initial conditions whose runs are stored but whose reference is missing
+            batch, self._ref_only = self._ref_only[:k], self._ref_only[k:]
+            return [Task(ic, [], True) for ic in batch]
         while self._queue and n < k:
             key, runs = self._queue[0]
             if n and len(runs) > k - n:
@@ -529,12 +575,14 @@ class DaskExecutor:
         if n:
             self.workers = n
         window = max(2, IN_FLIGHT_PER_WORKER * self.workers)
-        while self._queue and len(self._inflight) < window:
+        while (self._queue or self._ref_only) and len(self._inflight) < window:
             k = self._next_size()
             unit = self._next_unit(k)
             n = sum(len(t.runs) for t in unit)
+            first = unit[0].runs[0].run_id if unit[0].runs else "ref-" + hashlib.sha256(
+                unit[0].ic.key.encode()).hexdigest()[:12]
             fut = self.client.submit(_run_unit, self._payload, unit, pure=False, retries=self.retries,
-                                     key=f"vcirun-{unit[0].runs[0].run_id}-{self._token}-{len(self._sizes)}")
+                                     key=f"vcirun-{first}-{self._token}-{len(self._sizes)}")
             self._inflight[fut] = n
             self._sizes.append(n)
             self._ac.add(fut)
@@ -565,7 +613,7 @@ class DaskExecutor:
     def results(self):
         from distributed.client import FutureCancelledError
 
-        while self._inflight or self._queue:
+        while self._inflight or self._queue or self._ref_only:
             fut, res = self._next_completed()
             n = self._inflight.pop(fut, 0)
             # Classify by what as_completed gathered: the future's status may have changed since (a lost

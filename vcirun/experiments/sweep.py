@@ -11,60 +11,42 @@ solutions across its tasks. A task is the pending runs of one initial condition 
 only when there are too few initial conditions to keep every worker busy), so the reference for
 an initial condition is computed once, next to the runs that need it, and stored once. Before the
 first timed run of each method a worker makes one untimed one-step run of it, so `wall_time`
-measures integration, not kernel loading. The parent is the only writer of the results file
+measures integration, not kernel loading (the worker side lives in `worker`). The parent is the
+only writer of the results file
 (see `storage.ResultsWriter`). A run that fails numerically, or raises, is recorded with its status
 and message, and the sweep carries on. Ctrl-C and SIGTERM stop the workers, keep every finished
-run and report the interruption; a hard kill loses at most the runs not yet committed.
+run and report the interruption. Storage (see `storage`): the client commits finished runs to a
+journal beside the results file every `commit_interval` seconds (default 1 s, at a cost independent
+of the file's size), folds the journal into the HDF5 file in the background and when the sweep
+finishes; pool workers
+send each run to the client as soon as it is computed. A SIGKILL therefore loses at most the runs
+that finished in the last commit_interval (plus one commit's duration) and the runs being computed.
+Before anything is created the sweep checks the memory of its runs in flight and the disk space its
+results need.
 """
 from __future__ import annotations
 
-import concurrent.futures as cf
 import contextlib
 import hashlib
 import json
-import math
-import multiprocessing as mp
 import os
+import shutil
 import signal
 import sys
 import threading
 import time
-import traceback
-from collections import OrderedDict, defaultdict
+from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
+from .. import validation
 from . import storage
 from .config import InitialCondition, MethodReference, MethodSpec, NoReference, SweepConfig, build_system
+# the worker side (re-exported: these names were sweep's)
+from .worker import (RunSpec, SweepError, Task, _default_start_method, _execute, _execute_streamed,  # noqa: F401
+                     _init_worker, _one_line, _terminate_pool, _WorkerState, make_tasks)
 
 __all__ = ["RunSpec", "Task", "SweepError", "SweepSummary", "expand", "run_sweep", "sweep_file", "default_workers"]
-
-
-class SweepError(RuntimeError):
-    """A sweep that cannot start or cannot go on; one-line message."""
-
-
-@dataclass(frozen=True)
-class RunSpec:
-    run_id: str
-    method_index: int
-    method: MethodSpec
-    h: float
-    ic_index: int
-    ic: InitialCondition
-
-    @property
-    def label(self) -> str:
-        return self.method.display
-
-
-@dataclass
-class Task:
-    ic: InitialCondition
-    runs: list
-    want_reference: bool
 
 
 @dataclass
@@ -127,209 +109,11 @@ def reference_horizon(cfg: SweepConfig) -> float:
     return max([cfg.T] + [round(cfg.T / h) * h for h in cfg.h])
 
 
-def make_tasks(pending: list[RunSpec], workers: int, stored_refs: set, needs_reference: bool) -> list[Task]:
-    """One task per initial condition; split when there are fewer than 2 per worker."""
-    by_ic: OrderedDict[str, list[RunSpec]] = OrderedDict()
-    for s in pending:
-        by_ic.setdefault(s.ic.key, []).append(s)
-    parts = 1
-    if workers > 1 and len(by_ic) < 2 * workers:
-        parts = math.ceil(2 * workers / max(1, len(by_ic)))
-    tasks = []
-    for key, runs in by_ic.items():
-        k = max(1, min(parts, len(runs)))
-        size = math.ceil(len(runs) / k)
-        for j in range(0, len(runs), size):
-            want = needs_reference and key not in stored_refs and j == 0
-            tasks.append(Task(runs[0].ic, runs[j:j + size], want))
-    return tasks
-
-
-# --- worker side ----------------------------------------------------------------------------------
-class _WorkerState:
-    def __init__(self, cfg: SweepConfig, ref_T: float, ref_h: float):
-        import warnings
-
-        import vcirun  # noqa: F401 - once per process; kernels and scenes are cached inside
-        from vcirun.api import GridWarning
-
-        warnings.simplefilter("ignore", GridWarning)  # the client says it once for the sweep
-        self.cfg = cfg
-        self.ref_T = ref_T
-        self.ref_h = ref_h
-        self.system, self.params, _ = build_system(cfg)
-        self.tolerances = cfg.tolerances.model_dump(exclude_none=True)
-        self.refs: OrderedDict[str, object] = OrderedDict()
-        self.ref_errors: dict[str, str] = {}
-        self.warm: set[str] = set()
-
-
-_STATE: _WorkerState | None = None
-
-
-def _set_parent_death_signal() -> None:
-    """Linux: die with the parent (a SIGKILLed sweep must not leave workers computing)."""
-    if not sys.platform.startswith("linux"):
-        return
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
-
-
-def _init_worker(cfg: SweepConfig, ref_T: float, ref_h: float, parent_pid: int | None = None,
-                 in_pool: bool = True) -> None:
-    global _STATE
-    if in_pool:
-        # The parent handles Ctrl-C and SIGTERM for everyone (a terminal sends Ctrl-C to the whole
-        # process group); a worker is stopped by the parent's terminate(), i.e. SIGTERM's default action.
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-        signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    if parent_pid is not None:
-        _set_parent_death_signal()
-        if os.getppid() != parent_pid:  # the parent died before prctl took effect
-            os._exit(1)
-    if _STATE is None or _STATE.cfg != cfg or (_STATE.ref_T, _STATE.ref_h) != (ref_T, ref_h):
-        _STATE = _WorkerState(cfg, ref_T, ref_h)
-
-
-def _one_line(text: str, limit: int = 500) -> str:
-    s = " ".join(str(text).split())
-    return s if len(s) <= limit else s[: limit - 3] + "..."
-
-
-def _reference(st: _WorkerState, ic: InitialCondition):
-    """The reference for one initial condition (cached in this process), or None with a reason."""
-    import vcirun
-
-    ref_spec = st.cfg.reference
-    if isinstance(ref_spec, NoReference):
-        return None
-    if ic.key in st.refs:
-        st.refs.move_to_end(ic.key)
-        return st.refs[ic.key]
-    if ic.key in st.ref_errors:
-        return None
-    kw = dict(T=st.ref_T, params=st.params, **ic.simulate_kwargs())
-    if isinstance(ref_spec, MethodReference):
-        kw.update(method=ref_spec.method, h=ref_spec.h)
-    else:
-        kw.update(rtol=ref_spec.rtol)
-    try:
-        ref = vcirun.reference(st.system, **kw)
-    except Exception as e:  # noqa: BLE001 - recorded; runs keep their trajectories, l2 becomes NaN
-        st.ref_errors[ic.key] = _one_line(f"{type(e).__name__}: {e}")
-        return None
-    st.refs[ic.key] = ref
-    while len(st.refs) > 8:
-        st.refs.popitem(last=False)
-    return ref
-
-
-def _reference_payload(st: _WorkerState, ic: InitialCondition, ref) -> tuple[dict, dict]:
-    spec = st.cfg.reference
-    attrs = {"ic_key": ic.key, "beta": ic.beta, "kind": spec.kind, "T": st.ref_T,
-             "rtol": getattr(spec, "rtol", None), "method": getattr(spec, "method", ""),
-             "ref_h": getattr(spec, "h", None)}
-    if ref is None:
-        attrs.update(status="failed", message=st.ref_errors.get(ic.key, ""), accuracy=None)
-        return attrs, {}
-    n = max(1, math.ceil(st.ref_T / st.ref_h - 1e-9))
-    t = np.linspace(0.0, st.ref_T, n + 1)
-    arrays = {"t": t, "q": np.asarray(ref(t)), "impacts": np.asarray(ref.impacts, float)}
-    with contextlib.suppress(Exception):
-        arrays["p"] = np.asarray(ref.p(t))
-    attrs.update(status="ok", message="", accuracy=float(getattr(ref, "accuracy", float("nan"))),
-                 H0=float(getattr(ref, "H0", float("nan"))), n_impacts=int(len(ref.impacts)),
-                 ref_description=str(getattr(ref, "kind", spec.kind)))
-    return attrs, arrays
-
-
-def _resolved_method(spec: MethodSpec) -> dict:
-    """What a method spec resolves to (name, ld, partial, reset, mh_order, flow_order): provenance.
-    The config layer has already resolved every method, so a failure here is a bug and raises."""
-    from vcirun.methods import resolve_method
-
-    m = resolve_method(spec.name, **{k: v for k, v in spec.simulate_kwargs().items()
-                                     if k in ("ld", "mh_order", "flow_order")})
-    return {k: getattr(m, k, None) for k in ("name", "ld", "partial", "reset", "mh_order", "flow_order")}
-
-
-def _simulate_kwargs(st: _WorkerState, spec: RunSpec, T: float) -> dict:
-    kw = dict(h=spec.h, T=T, **spec.method.simulate_kwargs(), **spec.ic.simulate_kwargs(), **st.tolerances)
-    if st.params:
-        kw["params"] = st.params
-    return kw
-
-
-def _execute_run(st: _WorkerState, spec: RunSpec, ref) -> dict:
-    import vcirun
-
-    base = {"run_id": spec.run_id, "method": spec.method.name, "label": spec.label,
-            "method_index": spec.method_index, "method_spec": spec.method.identity(),
-            "resolved_method": _resolved_method(spec.method), "ic_key": spec.ic.key, "ic_index": spec.ic_index,
-            "beta": spec.ic.beta, "T_requested": st.cfg.T, "worker_pid": os.getpid()}
-    if spec.method.display not in st.warm:
-        st.warm.add(spec.method.display)
-        with contextlib.suppress(Exception):  # the timed call below reports any error
-            vcirun.simulate(st.system, spec.method.name, **_simulate_kwargs(st, spec, spec.h))
-    walls, calls = [], []
-    for _ in range(st.cfg.timing_repeats):
-        t0 = time.perf_counter()
-        try:
-            traj = vcirun.simulate(st.system, spec.method.name, **_simulate_kwargs(st, spec, st.cfg.T))
-        except Exception as e:  # noqa: BLE001 - a run that raises is recorded, the sweep goes on
-            attrs = {**base, "status": "error", "message": _one_line(f"{type(e).__name__}: {e}"),
-                     "traceback": traceback.format_exc(limit=20), "h": spec.h, "T": st.cfg.T,
-                     "n_steps": 0, "n_impacts": 0, "wall_time": None, "wall_time_call": time.perf_counter() - t0,
-                     "l2_error": None, "l2_note": "run raised", "has_trajectory": False, "has_Hmod": False}
-            return {"run_id": spec.run_id, "attrs": attrs, "arrays": {}}
-        calls.append(time.perf_counter() - t0)
-        walls.append(float(traj.wall_time))
-        if traj.status != "ok":
-            break  # a failure is not worth timing again
-    traj.wall_time = min(walls)  # identical runs: the spread is timing noise, the minimum the cost
-    call = min(calls)
-    attrs, arrays = storage.trajectory_payload(traj, store_arrays=st.cfg.store_trajectories)
-    attrs["wall_time_repeats"] = walls
-    l2, note = None, ""
-    if isinstance(st.cfg.reference, NoReference):
-        note = "no reference configured"
-    elif spec.method.options.constrained is False:
-        note = "unconstrained run: the reference solves the constrained system"
-    elif traj.status != "ok":
-        note = "run failed; error over a partial grid would mislead"
-    elif ref is None:
-        note = "reference failed: " + st.ref_errors.get(spec.ic.key, "")
-    else:
-        l2 = float(vcirun.l2_error(traj, ref))
-    attrs.update(base)
-    attrs.update(l2_error=l2, l2_note=note, wall_time_call=call,
-                 q0=np.asarray(traj.q[0], float) if len(traj.q) else None,
-                 p0=np.asarray(traj.p[0], float) if len(traj.p) else None)
-    return {"run_id": spec.run_id, "attrs": attrs, "arrays": arrays}
-
-
-def _execute(task: Task, st: _WorkerState | None = None) -> dict:
-    """Worker entry point: the reference (if this task stores it) and every run of the task
-    (state: this process's, or `st` given by the Dask executor)."""
-    st = st or _STATE
-    if st is None:  # pragma: no cover - initializer always runs first
-        raise RuntimeError("worker not initialised")
-    ref = None
-    needs_ref = not isinstance(st.cfg.reference, NoReference) and (
-        task.want_reference or any(r.method.options.constrained is not False for r in task.runs))
-    if needs_ref:
-        ref = _reference(st, task.ic)
-    out = {"ic_key": task.ic.key, "runs": [], "reference": None}
-    if task.want_reference:
-        out["reference"] = _reference_payload(st, task.ic, ref)
-    for spec in task.runs:
-        out["runs"].append(_execute_run(st, spec, ref))
-    return out
+def missing_references(cfg: SweepConfig, writer: storage.ResultsWriter) -> list[InitialCondition]:
+    """Initial conditions whose reference the file lacks (e.g. a file that lost its references group)."""
+    if isinstance(cfg.reference, NoReference):
+        return []
+    return [ic for ic in cfg.initial_conditions() if ic.key not in writer.references]
 
 
 # --- client side -----------------------------------------------------------------------------------
@@ -386,20 +170,13 @@ class _Reporter:
             self._progress = None
 
 
-def _default_start_method() -> str:
-    """fork where available: workers inherit the imported package and the kernels _preflight
-    compiled, so a pool is ready at once (spawn costs every worker a fresh import and kernel load,
-    seconds per sweep). The pool is created before any thread of ours starts, and workers use
-    neither h5py nor rich, so nothing they need can be left locked by the fork."""
-    return "fork" if "fork" in mp.get_all_start_methods() else "spawn"
-
-
-def _preflight(cfg: SweepConfig, pending: list[RunSpec]) -> None:
+def _preflight(cfg: SweepConfig, pending: list[RunSpec]) -> int:
     """One step of every method in this process: compiles (and caches on disk) the kernels the
-    workers use, and turns bad input the core rejects into an error before any file exists."""
+    workers use, and turns bad input the core rejects into an error before any file exists.
+    Returns the number of coordinates n."""
     import vcirun
 
-    system, params, _ = build_system(cfg)
+    system, params, sysm = build_system(cfg)
     tol = cfg.tolerances.model_dump(exclude_none=True)
     seen = set()
     for spec in pending:
@@ -426,6 +203,45 @@ def _preflight(cfg: SweepConfig, pending: list[RunSpec]) -> None:
             raise SweepError(f"reference: {_one_line(e)}") from None
         except Exception:  # noqa: BLE001 - numerical trouble is reported per initial condition later
             pass
+    return sysm.n
+
+
+def _check_resources(cfg: SweepConfig, pending: list[RunSpec], n: int, workers: int, path: Path,
+                     writer: storage.ResultsWriter) -> None:
+    """Refuse, before the file is created, a sweep whose runs in flight exceed the memory limit or whose
+    results cannot fit on the disk (their journal, then the file's final copy: about twice the data)."""
+    if not pending:
+        return
+    steps = {h: validation.grid_size(h, cfg.T) for h in {s.h for s in pending}}
+    N = max(steps.values())
+    stored = validation.stored_bytes(N, n, store_trajectories=cfg.store_trajectories)
+    try:  # each worker holds a run's buffers and its result message; the client the message and its record
+        validation.check_run_memory(N, n, copies=min(workers, len(pending)), extra=2 * stored, limit=cfg.max_memory,
+                                    field="h", hint=", or raise max_memory in the config (e.g. max_memory: 32GB) or "
+                                                    "the VCIRUN_MAX_MEMORY environment variable")
+    except ValueError as e:
+        raise SweepError(f"{_one_line(e)} (with {min(workers, len(pending))} worker(s); fewer --workers need less)") \
+            from None
+    need = sum(validation.stored_bytes(steps[s.h], n, store_trajectories=cfg.store_trajectories) for s in pending)
+    size = path.stat().st_size if path.exists() and not writer.force else 0
+    total = size + 2 * need
+    where = next((d for d in [path.parent, *path.parent.parents] if d.exists()), Path("."))
+    try:
+        free = shutil.disk_usage(where).free
+    except OSError:
+        return
+    if total > free:
+        raise SweepError(f"{path}: the {len(pending)} pending runs need about {validation.format_bytes(total)} on disk "
+                         f"(their journal and the final copy of the file), {validation.format_bytes(free)} free in "
+                         f"{where}; free space, choose another --output"
+                         + (" or set store_trajectories: false" if cfg.store_trajectories else ""))
+
+
+def _final_hooks(cfg: SweepConfig) -> list:
+    """The sweep finished and the file is final: callables f(h5py.File) that run inside the last rewrite
+    of a complete sweep (on the copy that then atomically replaces the file), e.g. a summary group of
+    every run (issue 19). This is the one place where 'the file is final' happens."""
+    return []
 
 
 def _root_attrs(cfg: SweepConfig, config_text: str, config_path, specs: list[RunSpec]) -> dict:
@@ -450,22 +266,11 @@ def _root_attrs(cfg: SweepConfig, config_text: str, config_path, specs: list[Run
     return attrs
 
 
-def _terminate_pool(executor: cf.ProcessPoolExecutor) -> None:
-    procs = list(getattr(executor, "_processes", {}) .values())
-    executor.shutdown(wait=False, cancel_futures=True)
-    for p in procs:
-        with contextlib.suppress(Exception):
-            p.terminate()
-    for p in procs:
-        with contextlib.suppress(Exception):
-            p.join(timeout=5)
-
-
 def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=None, output=None,
               force: bool = False, workers: int | None = None, retry_failed: bool = False,
               console=None, progress: bool = True, argv: list | None = None,
               start_method: str | None = None, scheduler: str | None = None, task_size: int | None = None,
-              worker_cache_dir: str | None = None) -> SweepSummary:
+              worker_cache_dir: str | None = None, commit_interval: float | None = None) -> SweepSummary:
     """Compute every run of `cfg` missing from its results file; returns counts.
 
     output: results path (default cfg.output, else results/<name>.h5); force: start a new file;
@@ -473,14 +278,20 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
     retry_failed: recompute stored runs whose status is not ok; start_method: multiprocessing start
     method of the pool (default fork where available, else spawn). scheduler: a Dask scheduler address
     (or "local"), winning over cfg.executor; task_size: runs per task (default automatic);
-    worker_cache_dir: VCIRUN_CACHE_DIR of the Dask workers. Raises SweepError (unusable file, a method
-    the core rejects, a worker that died, a lost scheduler) and storage.StorageError.
+    worker_cache_dir: VCIRUN_CACHE_DIR of the Dask workers. commit_interval: seconds between journal
+    commits (default 1, or VCIRUN_COMMIT_INTERVAL): the most a hard kill can lose. Raises SweepError
+    (unusable file, a method the core rejects, not enough memory or disk, a worker that died, a lost
+    scheduler) and storage.StorageError (a file that cannot be read or written).
     """
     from . import executors
 
     t_start = time.monotonic()
     path = Path(output) if output else cfg.output_path()
     workers = int(workers or cfg.workers or default_workers())
+    most = max(8, 4 * default_workers())
+    if workers > most and scheduler is None and (cfg.executor is None or cfg.executor.kind == "local"):
+        raise SweepError(f"workers: {workers} local worker processes on {default_workers()} core(s) is too many "
+                         f"(at most {most}); lower --workers, or use a Dask cluster (--scheduler)")
     ex_spec = executors.resolve_spec(cfg.executor, scheduler=scheduler, task_size=task_size,
                                      cache_dir=worker_cache_dir)
     specs = expand(cfg)
@@ -491,7 +302,9 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
     summary = SweepSummary(path=path, total=len(specs), workers=workers, executor=ex_spec.kind)
     session = {"argv": list(argv if argv is not None else sys.argv), "workers": workers, "pid": os.getpid()}
     writer = storage.ResultsWriter(path, root_attrs=_root_attrs(cfg, config_text, config_path, specs),
-                                   config_key=cfg.canonical_sha256(), force=force, session=session)
+                                   config_key=cfg.canonical_sha256(), force=force, session=session,
+                                   commit_interval=commit_interval)
+    writer.final_hooks = _final_hooks(cfg)
     writer.acquire()
     executor = None
     try:
@@ -504,20 +317,23 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
         pending = [s for s in specs if s.run_id not in writer.complete_runs]
         summary.skipped = len(specs) - len(pending)
         summary.deleted_incomplete = len(writer.incomplete)
-        if not pending:
+        pending_ics = {s.ic.key for s in pending}
+        ref_only = [ic for ic in missing_references(cfg, writer) if ic.key not in pending_ics]
+        if not pending and not ref_only:
             changed = writer.has_changes()
             if changed:
                 writer.finish("complete")
-            _finalize(path, summary, if_missing=not changed)  # a no-op resume leaves the file untouched
+            _finalize(writer, summary, if_missing=not changed)  # a no-op resume leaves the file untouched
             summary.status_counts = _status_counts(writer)
             summary.wall_time = time.monotonic() - t_start
             return summary
         from vcirun.codegen.build import BUILD_LOG
 
         t_pre, n_log = time.monotonic(), len(BUILD_LOG)
-        _preflight(cfg, pending)
+        n = _preflight(cfg, pending or [specs[0]])
         summary.prepare_time = time.monotonic() - t_pre  # kernels loaded or compiled: not run time
         summary.compiled = sum(not e["cached"] for e in BUILD_LOG[n_log:])
+        _check_resources(cfg, pending, n, workers, writer.path, writer)
         executor = executors.make_executor(ex_spec, workers=workers, start_method=start_method)
         executor.connect()  # a Dask cluster: reached (or a one-line error) before the file is created
         summary.workers = executor.workers
@@ -531,10 +347,11 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
         for h in cfg.h:
             if grid_note(h, cfg.T):
                 reporter.log(f"note: {grid_note(h, cfg.T)}")
-        if summary.skipped:
+        if summary.skipped or summary.deleted_incomplete:
             reporter.log(f"resuming {path}: {summary.skipped} of {len(specs)} runs already stored"
-                         + (f", {summary.deleted_incomplete} incomplete groups discarded"
-                            if summary.deleted_incomplete else ""))
+                         + (f", {summary.deleted_incomplete} incomplete or damaged groups discarded"
+                            if summary.deleted_incomplete else "")
+                         + (f", {len(ref_only)} missing reference(s) to recompute" if ref_only else ""))
         ref_T, ref_h = reference_horizon(cfg), min(cfg.h)
         status, broken = "complete", ""
         on_main = threading.current_thread() is threading.main_thread()
@@ -557,8 +374,10 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
 
         try:
             # The local pool forks its workers in start(): before the progress thread starts.
-            executor.start(cfg, pending, set(writer.references), needs_ref, ref_T, ref_h)
+            executor.start(cfg, pending, set(writer.references), needs_ref, ref_T, ref_h, reference_ics=ref_only)
+            writer.start_background_compaction()  # a forked child: before any thread of ours starts
             reporter.start()
+            writer.start_autocommit()  # after the forks: commits while the client waits for results
             for result in executor.results():
                 take(result)
         except KeyboardInterrupt as e:
@@ -578,7 +397,7 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
                 reporter.stop()
                 t0 = time.perf_counter()
                 writer.finish(status)  # every finished run is committed, whatever happened
-                _finalize(path, summary)  # the file is final: its summary group (issue 19)
+                _finalize(writer, summary)  # the file is final: its summary group (issue 19)
                 summary.write_time += time.perf_counter() - t0
             if on_main:
                 signal.signal(signal.SIGTERM, old_term)
@@ -600,14 +419,19 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
         writer.close()
 
 
-def _finalize(path: Path, summary: SweepSummary, if_missing: bool = False) -> None:
+def _finalize(writer: storage.ResultsWriter, summary: SweepSummary, if_missing: bool = False) -> None:
     """Write the file's summary group (vcirun.experiments.summary); a failure there is reported in
-    the summary, never allowed to cost the runs."""
+    the summary, never allowed to cost the runs. Not after a failed write (a full disk), at the
+    resolved path (an output that is a symlink stays one), and in a forked child like every HDF5 write
+    of the sweep (storage.run_isolated: an HDF5 crash there is an error here)."""
+    if writer.failed:
+        return
     from .summary import write_summary
 
     try:
-        write_summary(path, if_missing=if_missing)
-    except storage.StorageError as e:
+        storage.run_isolated(lambda: write_summary(writer.path, if_missing=if_missing), writer.path,
+                             isolate=writer.isolate)
+    except (storage.StorageError, RuntimeError, OSError) as e:
         summary.summary_error = _one_line(e)
 
 

@@ -19,6 +19,7 @@ import math
 import numbers
 import operator
 import re
+import unicodedata
 
 import sympy
 
@@ -28,12 +29,14 @@ __all__ = [
     "ExpressionError",
     "MAX_DEPTH",
     "MAX_LENGTH",
+    "MAX_NODES",
     "parse_expression",
     "parse_matrix",
 ]
 
 MAX_LENGTH = 10_000  # characters; bounds parse time and memory
 MAX_DEPTH = 100  # nesting levels of the syntax tree; keeps the walker's recursion shallow
+MAX_NODES = 5_000  # numbers, names and operations of one expression (the generated kernels grow with it)
 # Exact integers/rationals are capped so "9**9**9" (or sympy's root extraction on huge
 # integers) cannot eat the machine; 1024 bits (~308 digits) is far beyond physical needs.
 _MAX_INT_BITS = 1024
@@ -344,6 +347,20 @@ def _number(value, field: str) -> sympy.Expr:
     return number
 
 
+def _check_ascii(text: str, field: str) -> None:
+    """Expressions are ASCII: Python's parser reads identifiers through NFKC normalisation, so a
+    full-width or mathematical letter would silently become its ASCII look-alike ('ｋ' is read as 'k')."""
+    if text.isascii():
+        return
+    col, ch = next((i, c) for i, c in enumerate(text) if not c.isascii())
+    norm = unicodedata.normalize("NFKC", ch)
+    hint = (f"write {norm!r}" if norm.isascii() and norm.strip()
+            else "use ASCII names, digits and operators only")
+    raise ExpressionError(field, ch, f"non-ASCII character {ch!r} (U+{ord(ch):04X} "
+                                     f"{unicodedata.name(ch, 'unnamed character')}) at column {col + 1}; "
+                                     f"expressions must be ASCII ({hint})")
+
+
 def parse_expression(text: str, symbols: dict[str, sympy.Symbol], field: str) -> sympy.Expr:
     """Parse ``text`` against the whitelist and return the sympy expression it denotes.
 
@@ -362,6 +379,7 @@ def parse_expression(text: str, symbols: dict[str, sympy.Symbol], field: str) ->
         tok = _short(text)
         raise ExpressionError(field, tok, f"expression {tok!r} is {len(text)} characters "
                                           f"long; the limit is {MAX_LENGTH}")
+    _check_ascii(text, field)
     stripped = text.strip()
     if not stripped:
         raise ExpressionError(field, "", "expression is empty; write e.g. 0 or m*g*y")
@@ -375,6 +393,11 @@ def parse_expression(text: str, symbols: dict[str, sympy.Symbol], field: str) ->
         tok = _short(stripped)
         raise ExpressionError(field, tok, f"expression {tok!r} is too deeply nested or too "
                                           "complex to parse; simplify it") from None
+    n_nodes = sum(1 for node in ast.walk(tree.body) if not isinstance(node, (ast.operator, ast.unaryop, ast.Load)))
+    if n_nodes > MAX_NODES:
+        tok = _short(stripped)
+        raise ExpressionError(field, tok, f"expression {tok!r} has {n_nodes} numbers, names and operations; "
+                                          f"the limit is {MAX_NODES} (split it with parameters or simplify it)")
     expr = _Builder(stripped, symbols, field).walk(tree.body, 0)
     # 1/0 or log(0) give zoo/nan in sympy instead of raising: refuse them here.
     if isinstance(expr, sympy.Basic) and expr.has(sympy.zoo, sympy.nan, sympy.oo, -sympy.oo):

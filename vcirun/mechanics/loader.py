@@ -12,7 +12,9 @@
     q0: [0.5, 0.0]                       # optional default initial state (with p0 or qdot0)
     qdot0: [0.0, 1.0]
 
-Every expression goes through the whitelist parser (never eval/sympify of user text).
+Every expression goes through the whitelist parser (never eval/sympify of user text). Files are
+parsed like sweep configs (`vcirun.validation.yaml_load`: YAML 1.2 numbers such as 1e-3, duplicate
+keys rejected, aliases and sizes capped); names must be ASCII and distinct after NFKC normalisation.
 """
 from __future__ import annotations
 
@@ -22,7 +24,8 @@ import numpy as np
 import sympy as sp
 import yaml
 
-from .expressions import ExpressionError, parse_expression, parse_matrix
+from .. import validation
+from .expressions import ALLOWED_FUNCTIONS, ExpressionError, parse_expression, parse_matrix
 from .system import Constraint, MechanicalSystem
 
 _KEYS = {"name", "coordinates", "parameters", "mass_matrix", "potential", "constraint", "constraints", "forcing",
@@ -32,46 +35,24 @@ _CONSTRAINT_KEYS = {"name", "phi", "restitution"}
 
 def load_system_yaml(source, field_prefix: str = "system") -> MechanicalSystem:
     """Build a MechanicalSystem from a YAML file path or a mapping; errors name the field."""
-    if isinstance(source, (str, Path)):
-        path = Path(source)
-        if not path.is_file():
-            raise ValueError(f"{field_prefix}: file not found: {path}")
-        try:
-            data = yaml.safe_load(path.read_text())
-        except yaml.YAMLError as e:
-            raise ValueError(f"{field_prefix}: invalid YAML in {path}: {str(e).splitlines()[0]}") from None
-    else:
-        data = source
+    data = _read_yaml(Path(source), field_prefix) if isinstance(source, (str, Path)) else source
     if not isinstance(data, dict):
         raise ValueError(f"{field_prefix}: expected a mapping with keys {', '.join(sorted(_KEYS))}")
     extra = set(data) - _KEYS
     if extra:
-        raise ValueError(f"{field_prefix}.{sorted(extra)[0]}: unknown key (allowed: {', '.join(sorted(_KEYS))})")
+        raise ValueError(f"{field_prefix}.{sorted(map(str, extra))[0]}: unknown key (allowed: {', '.join(sorted(_KEYS))})")
     for k in ("coordinates", "mass_matrix", "potential"):
         if k not in data:
             raise ValueError(f"{field_prefix}.{k}: required")
     if ("constraint" in data) == ("constraints" in data):
         raise ValueError(f"{field_prefix}.constraint: give exactly one of constraint (one expression) or "
                          "constraints (a list)")
-    coords = data["coordinates"]
-    if not (isinstance(coords, list) and coords and all(isinstance(c, str) and c.isidentifier() for c in coords)):
-        raise ValueError(f"{field_prefix}.coordinates: must be a non-empty list of names")
-    params = data.get("parameters") or {}
-    if not isinstance(params, dict):
-        raise ValueError(f"{field_prefix}.parameters: must be a mapping name -> value")
-    for k, v in params.items():
-        if not isinstance(k, str) or not k.isidentifier() or k.startswith("_"):
-            raise ValueError(f"{field_prefix}.parameters.{k}: not a valid name")
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise ValueError(f"{field_prefix}.parameters.{k}: must be a number (got {v!r})")
-    names = list(coords) + list(params)
-    if len(set(names)) != len(names) or {"t"} & set(names):
-        raise ValueError(f"{field_prefix}: coordinate and parameter names must be distinct and not 't'")
+    coords, params = _declared_names(data, field_prefix)
     q = [sp.Symbol(c) for c in coords]
     qd = [sp.Symbol(f"{c}_dot") for c in coords]
     sym = {s.name: s for s in q + [sp.Symbol(p) for p in params]}
     M = parse_matrix(data["mass_matrix"], sym, f"{field_prefix}.mass_matrix")
-    V = parse_expression(str(data["potential"]), sym, f"{field_prefix}.potential")
+    V = parse_expression(_expression(data["potential"], f"{field_prefix}.potential"), sym, f"{field_prefix}.potential")
     constraints = _constraints(data, sym, params, field_prefix)
     forcing = None
     if data.get("forcing") is not None:
@@ -79,7 +60,8 @@ def load_system_yaml(source, field_prefix: str = "system") -> MechanicalSystem:
         if not isinstance(fs, list) or len(fs) != len(q):
             raise ValueError(f"{field_prefix}.forcing: must be a list of {len(q)} expressions")
         fsym = sym | {s.name: s for s in qd} | {"t": sp.Symbol("t")}
-        forcing = sp.Matrix([parse_expression(str(e), fsym, f"{field_prefix}.forcing[{i}]") for i, e in enumerate(fs)])
+        forcing = sp.Matrix([parse_expression(_expression(e, f"{field_prefix}.forcing[{i}]"), fsym,
+                                              f"{field_prefix}.forcing[{i}]") for i, e in enumerate(fs)])
     n = len(q)
     if M.shape != (n, n):
         raise ValueError(f"{field_prefix}.mass_matrix: must be {n}x{n} for {n} coordinates")
@@ -88,8 +70,9 @@ def load_system_yaml(source, field_prefix: str = "system") -> MechanicalSystem:
         q0 = _vector(data["q0"], n, f"{field_prefix}.q0")
         if data.get("p0") is not None:
             p0 = _vector(data["p0"], n, f"{field_prefix}.p0")
-    system = MechanicalSystem(name=str(data.get("name", "user_system")), q=q, qd=qd, params=params, M=M, V=V,
-                              constraints=constraints, forcing=forcing, description=str(data.get("description", "")))
+    system = MechanicalSystem(name=_system_name(data.get("name", "user_system"), field_prefix), q=q, qd=qd,
+                              params=params, M=M, V=V, constraints=constraints, forcing=forcing,
+                              description=_description(data.get("description", ""), field_prefix))
     if q0 is not None:
         if p0 is None:
             qdot0 = _vector(data.get("qdot0", [0.0] * n), n, f"{field_prefix}.qdot0")
@@ -104,12 +87,15 @@ def _constraints(data: dict, sym: dict, params: dict, field_prefix: str) -> list
     """The Constraint list of `constraint:` (one elastic) or `constraints:` (items: an expression, or
     {name, phi, restitution}; restitution a number in [0, 1] or a parameter name)."""
     if "constraint" in data:
-        return [Constraint("phi", parse_expression(str(data["constraint"]), sym, f"{field_prefix}.constraint"))]
+        fld = f"{field_prefix}.constraint"
+        return [Constraint("phi", parse_expression(_expression(data["constraint"], fld), sym, fld))]
     items = data["constraints"]
     if not isinstance(items, list) or not items:
         raise ValueError(f"{field_prefix}.constraints: must be a non-empty list of expressions or "
                          "{name, phi, restitution} mappings")
-    out = []
+    if len(items) > validation.MAX_COORDINATES:
+        raise ValueError(f"{field_prefix}.constraints: {len(items)} constraints; the limit is {validation.MAX_COORDINATES}")
+    out, names = [], {}
     for i, item in enumerate(items):
         fld = f"{field_prefix}.constraints[{i}]"
         if isinstance(item, dict):
@@ -118,8 +104,9 @@ def _constraints(data: dict, sym: dict, params: dict, field_prefix: str) -> list
                 raise ValueError(f"{fld}.{sorted(map(str, extra))[0]}: unknown key (allowed: name, phi, restitution)")
             if "phi" not in item:
                 raise ValueError(f"{fld}.phi: required")
-            name = str(item.get("name", f"c{i}"))
-            phi = parse_expression(str(item["phi"]), sym, f"{fld}.phi")
+            name = item.get("name", f"c{i}")
+            names[f"constraints[{i}].name"] = name if isinstance(name, str) else str(name)
+            phi = parse_expression(_expression(item["phi"], f"{fld}.phi"), sym, f"{fld}.phi")
             e = item.get("restitution", 1.0)
             if isinstance(e, str):
                 if e not in params:
@@ -131,9 +118,103 @@ def _constraints(data: dict, sym: dict, params: dict, field_prefix: str) -> list
             else:
                 e = sp.Float(float(e)) if float(e) != 1.0 else sp.Integer(1)
         else:
-            name, phi, e = f"c{i}", parse_expression(str(item), sym, fld), sp.Integer(1)
+            name, phi, e = f"c{i}", parse_expression(_expression(item, fld), sym, fld), sp.Integer(1)
         out.append(Constraint(name, phi, e))
+    validation.check_distinct_names(names, field_prefix)  # (they name contacts in records)
     return out
+
+
+MAX_FILE_BYTES = 4_000_000  # a system file is a few kB
+
+
+def _read_yaml(path: Path, field_prefix: str):
+    """A system file's mapping, parsed like a sweep config (YAML 1.2 numbers, no duplicate keys, capped)."""
+    if not path.is_file():
+        raise ValueError(f"{field_prefix}: file not found: {path}" if not path.exists()
+                         else f"{field_prefix}: not a regular file: {path}")
+    try:
+        size = path.stat().st_size
+        if size > MAX_FILE_BYTES:
+            raise ValueError(f"{field_prefix}: {path} is {size:,} bytes; a system file is a few kB "
+                             f"(limit {MAX_FILE_BYTES:,})")
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as e:
+        raise ValueError(f"{field_prefix}: cannot read {path}: {' '.join(str(e).split())}") from None
+    try:
+        return validation.yaml_load(text)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        problem = getattr(e, "problem", None) or str(e).splitlines()[0]
+        raise ValueError(f"{field_prefix}: invalid YAML in {path}{where}: {problem}") from None
+
+
+def _declared_names(data: dict, field_prefix: str) -> tuple[list, dict]:
+    """(coordinates, parameters) after the name rules: ASCII identifiers, distinct after NFKC (also from
+    the velocities <coord>_dot and the time t of forcing expressions), within the size caps."""
+    coords = data["coordinates"]
+    if not (isinstance(coords, list) and coords):
+        raise ValueError(f"{field_prefix}.coordinates: must be a non-empty list of names")
+    if len(coords) > validation.MAX_COORDINATES:
+        raise ValueError(f"{field_prefix}.coordinates: {len(coords)} coordinates; the limit is "
+                         f"{validation.MAX_COORDINATES}")
+    params = data.get("parameters") or {}
+    if not isinstance(params, dict):
+        raise ValueError(f"{field_prefix}.parameters: must be a mapping name -> value")
+    if len(params) > validation.MAX_PARAMETERS:
+        raise ValueError(f"{field_prefix}.parameters: {len(params)} parameters; the limit is "
+                         f"{validation.MAX_PARAMETERS}")
+    names = {f"coordinates[{i}]": c for i, c in enumerate(coords)}
+    for i, c in enumerate(coords):
+        if not isinstance(c, str):
+            raise ValueError(f"{field_prefix}.coordinates[{i}]: must be a name (got {validation.describe(c)})")
+    for k in params:
+        if not isinstance(k, str):
+            raise ValueError(f"{field_prefix}.parameters: names must be strings (got {validation.describe(k)})")
+        names[f"parameters.{k}"] = k
+    validation.check_distinct_names({**names, "t (time)": "t",
+                                     **{f"velocity of coordinates[{i}]": f"{c}_dot" for i, c in enumerate(coords)}},
+                                    field_prefix)
+    for fld, name in names.items():
+        validation.check_identifier(name, f"{field_prefix}.{fld}")
+        if name in ALLOWED_FUNCTIONS:
+            raise ValueError(f"{field_prefix}.{fld}: {name!r} is a function name; choose another name")
+    for k, v in params.items():
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(float(v)):
+            raise ValueError(f"{field_prefix}.parameters.{k}: must be a finite number (got {validation.describe(v)})")
+    return list(coords), params
+
+
+def _expression(value, field: str):
+    """An expression as given (text or number); anything else (a list, a mapping, true) is refused here,
+    before a str() of it could build a huge string."""
+    if isinstance(value, bool):
+        raise ExpressionError(field, str(value), f"boolean {str(value).lower()} is not an expression; write 1 or 0")
+    if isinstance(value, (str, int, float)):
+        return value
+    raise ExpressionError(field, type(value).__name__,
+                          f"must be an expression string or a number (got {validation.describe(value)})")
+
+
+def _system_name(name, field_prefix: str) -> str:
+    if not isinstance(name, str) or not name.strip():
+        raise ValueError(f"{field_prefix}.name: must be a non-empty name (got {validation.describe(name)})")
+    problem = validation.ascii_name_problem(name)
+    if problem:
+        raise ValueError(f"{field_prefix}.name: {problem}")
+    if not all(c.isalnum() or c in "_.-" for c in name):
+        raise ValueError(f"{field_prefix}.name: use letters, digits, '_', '-' and '.' only (got {name!r})")
+    return name
+
+
+def _description(text, field_prefix: str) -> str:
+    if text is None:
+        return ""
+    if not isinstance(text, str):
+        raise ValueError(f"{field_prefix}.description: must be text (got {validation.describe(text)})")
+    if len(text) > 10_000:
+        raise ValueError(f"{field_prefix}.description: {len(text):,} characters; the limit is 10,000")
+    return text
 
 
 def _vector(v, n, field):
