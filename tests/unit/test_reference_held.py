@@ -1,0 +1,352 @@
+"""The held-contact machinery of the exact reference (vcirun.reference_held; docs/contacts.md,
+"Held contacts in the reference"), against closed forms (vcirun.oracles) and independent solves
+written here from the equations of motion (never vcirun kernels):
+
+  * a bead on a circle (e = 0), held from the start at the top (case (c)) or by a plastic impact
+    there (case (b)): the release angle cos theta = 2/3 + v0^2 / (3 g R), time and state against
+    oracles.bead_release, the multiplier against the closed-form normal force;
+  * the cart-pendulum held on its floor y = 0: the multiplier against the hand-derived normal force
+    (m1 + m2) g - m2 g sin^2 theta + m2 L theta'^2 cos theta (the coupled mass matrix: the Mdot v
+    term), theta(t) against the simple pendulum solved here, the lift-off against that solve's
+    event N = 0;
+  * the Zeno ball (e = 0.8): the impacts of vcirun.reference up to a flight below ZENO_FLIGHT, the
+    extrapolated t_inf against oracles.zeno_ball's, rest afterwards; the extrapolation on a
+    non-geometric sequence (drag) computed here, error O(flight^2);
+  * a ball sliding on the floor of ball_in_box (frictionless, held) between the side walls: the wall
+    impacts and states against oracles.ball_in_box_exact, mu = m g;
+  * projection, the held-set decision and bad input.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+from scipy.optimize import brentq
+
+from vcirun import reference_held as rh
+from vcirun.codegen.build import SYSTEM_KERNELS, load_module
+from vcirun.mechanics import get_scene
+from vcirun.mechanics.loader import load_system_yaml
+from vcirun.oracles import ball_in_box_exact, bead_release, zeno_ball
+
+BEAD = {"name": "bead_circle", "coordinates": ["x", "y"], "parameters": {"m": 1.0, "g": 9.81, "R": 1.0},
+        "mass_matrix": [["m", "0"], ["0", "m"]], "potential": "m*g*y",
+        "constraints": [{"name": "surface", "phi": "sqrt(x**2 + y**2) - R", "restitution": 0}]}
+ZENO = {"name": "zeno_ball", "coordinates": ["y"], "parameters": {"m": 1.0, "g": 9.81, "e": 0.8},
+        "mass_matrix": [["m"]], "potential": "m*g*y",
+        "constraints": [{"name": "floor", "phi": "y", "restitution": "e"}]}
+
+
+def _module(system):
+    return system, load_module(system, SYSTEM_KERNELS)
+
+
+@pytest.fixture(scope="module")
+def bead():
+    return _module(load_system_yaml(BEAD))
+
+
+@pytest.fixture(scope="module")
+def box():
+    return _module(get_scene("ball_in_box"))
+
+
+@pytest.fixture(scope="module")
+def cart():
+    return _module(get_scene("cart_pendulum"))
+
+
+# --- the bead on a circle ------------------------------------------------------------------------
+
+BEADS = [(1.0, 9.81, 0.5, 1.0), (0.7, 9.81, 0.05, 2.0), (2.0, 1.0, 1.3, 0.3)]
+
+
+def _check_release(seg, b, m):
+    assert seg.reason == "release" and seg.contact == 0 and seg.held == (0,)
+    assert abs(seg.t1 - b.t_r) <= 1e-8 * max(1.0, b.t_r)
+    q, v = seg.y1[:2], seg.y1[2:] / m
+    assert abs(q[1] / np.hypot(*q) - b.cos_r) <= 1e-8
+    np.testing.assert_allclose(q, b.q_r, rtol=0, atol=1e-8 * b.R)
+    np.testing.assert_allclose(v, b.v_r, rtol=0, atol=1e-8 * max(1.0, np.linalg.norm(b.v_r)))
+    # the segment's dense output and multiplier along the circle
+    tt = np.linspace(0.0, seg.t1, 41)
+    qs, vs = b.state(tt)
+    y = seg.sol(tt)
+    assert np.max(np.abs(y[:2].T - qs)) <= 1e-9 * b.R
+    assert np.max(np.abs(y[2:].T / m - vs)) <= 1e-9 * max(1.0, b.v0)
+    assert np.max(np.abs(seg.mu(tt)[0] - b.normal_force(tt))) <= 1e-9 * m * b.g
+    assert abs(seg.mu(seg.t1)[0]) <= 1e-9 * m * b.g
+    assert max(seg.drift) <= 1e-11
+
+
+@pytest.mark.parametrize("R,g,v0,m", BEADS)
+def test_bead_held_from_the_start_releases_where_the_normal_force_vanishes(bead, R, g, v0, m):
+    system, mod = bead
+    prm = system.param_values({"R": R, "g": g, "m": m})
+    q0, p0 = np.array([0.0, R]), m * np.array([v0, 0.0])
+    A = rh.initially_held(mod, q0, p0, prm)                      # case (c)
+    assert A == (0,)
+    mu0 = rh.held_multipliers(mod, 0.0, q0, p0, prm, A)
+    assert abs(mu0[0] - m * (g - v0 * v0 / R)) <= 1e-12 * m * g  # N = m (g - v0^2 / R) at the top
+    b = bead_release(R, g, v0, m)
+    assert abs(b.cos_r - (2.0 / 3.0 + v0 * v0 / (3.0 * g * R))) <= 1e-15
+    seg = rh.held_segment(mod, 0.0, np.r_[q0, p0], 10.0 * b.t_r + 1.0, A, None, prm)
+    _check_release(seg, b, m)
+    tr = rh.after_held_event(mod, seg, prm)
+    assert tr.held == () and tr.released == 0 and tr.rest == (0,) and tr.impacts == []
+    # after the release the free motion leaves the circle: |q| grows like t^3 (oracle's flight)
+    s = 1e-2
+    q1, _ = bead_release(R, g, v0, m).state(seg.t1 + s)
+    assert np.hypot(*q1) > R
+
+
+def test_bead_plastic_impact_at_the_top_then_held(bead):
+    """Case (b): arriving at the top with a normal velocity -w, the plastic impact (e = 0) leaves the
+    tangential v0 and zero normal velocity; the bead is then held and releases as from rest on it."""
+    system, mod = bead
+    R, g, v0, w, m = 1.0, 9.81, 0.5, 0.7, 1.0
+    prm = system.param_values({"R": R, "g": g, "m": m})
+    q0, pm = np.array([0.0, R]), m * np.array([v0, -w])
+    assert rh.initially_held(mod, q0, pm, prm) == ()  # approaching: not at rest
+    d, lam, active = np.empty(2), np.empty(1), np.empty(1, dtype=np.int64)
+    k, s0, dE = mod.impact_direction(q0.copy(), pm.copy(), 1.0, 2.5e-11, prm, d, lam, active)
+    assert k == 1 and abs(dE - 0.5 * m * w * w) <= 1e-14
+    pp = pm + s0 * d
+    A = rh.plastic_entry(mod, 0.0, q0, pp, prm, [0])
+    assert A == (0,)
+    seg = rh.held_segment(mod, 0.0, np.r_[q0, pp], 5.0, A, None, prm)
+    _check_release(seg, bead_release(R, g, v0, m), m)
+
+
+def test_bead_fast_at_the_top_is_not_held(bead):
+    """v0^2 > g R: the free normal acceleration v0^2 / R - g is positive, no force is needed."""
+    system, mod = bead
+    prm = system.param_values({"R": 1.0, "g": 9.81, "m": 1.0})
+    q0, p0 = np.array([0.0, 1.0]), np.array([3.5, 0.0])
+    assert rh.initially_held(mod, q0, p0, prm) == ()
+    acc = rh.free_normal_accelerations(mod, 0.0, q0, p0, prm)
+    assert abs(acc[0] - (3.5 ** 2 - 9.81)) <= 1e-12
+
+
+# --- the cart-pendulum on its floor: a coupled mass matrix ---------------------------------------
+
+def _pendulum(th0, w0, g, L, m1, m2, T):
+    """The cart held at y = 0 leaves theta'' = -(g/L) sin theta; the floor's force
+    N = (m1 + m2) g + m2 d^2/dt^2 (-L cos theta) = (m1 + m2) g - m2 g sin^2 th + m2 L th'^2 cos th."""
+    def N(t, z):
+        return (m1 + m2) * g - m2 * g * math.sin(z[0]) ** 2 + m2 * L * z[1] ** 2 * math.cos(z[0])
+
+    N.terminal, N.direction = True, -1.0
+    sol = solve_ivp(lambda t, z: [z[1], -(g / L) * math.sin(z[0])], (0.0, T), [th0, w0], method="DOP853",
+                    rtol=1e-13, atol=1e-15, events=N, dense_output=True)
+    return sol, N
+
+
+def test_cart_pendulum_held_force_motion_and_lift_off(cart):
+    system, mod = cart
+    prm = system.param_values()
+    m1, m2, L, g = (system.params[k] for k in ("m1", "m2", "L", "g"))
+    th0, w0 = 0.3, 8.0  # swings over the top: the centrifugal pull lifts the cart off
+    M0 = np.array([[m1 + m2, m2 * L * math.sin(th0)], [m2 * L * math.sin(th0), m2 * L * L]])
+    q0, p0 = np.array([0.0, th0]), M0 @ np.array([0.0, w0])
+    assert rh.initially_held(mod, q0, p0, prm) == (0,)
+    sol, N = _pendulum(th0, w0, g, L, m1, m2, 5.0)
+    assert sol.status == 1
+    t_off = float(sol.t_events[0][0])
+    seg = rh.held_segment(mod, 0.0, np.r_[q0, p0], 5.0, (0,), None, prm)
+    assert seg.reason == "release" and seg.contact == 0
+    assert abs(seg.t1 - t_off) <= 1e-10
+    tt = np.linspace(0.0, seg.t1, 37)
+    y = seg.sol(tt)
+    z = sol.sol(tt)
+    # the cart stays on the floor: 1e-13 at DOP853's steps, ~1e-11 between them (its dense output)
+    assert np.max(np.abs(y[0])) <= 2e-11
+    assert np.max(np.abs(y[1] - z[0])) <= 1e-9
+    # p = M(q) qdot with ydot = 0: p_theta = m2 L^2 theta', p_y = m2 L sin(theta) theta'
+    assert np.max(np.abs(y[3] - m2 * L * L * z[1])) <= 1e-9 * m2 * L * L * w0
+    assert np.max(np.abs(y[2] - m2 * L * np.sin(z[0]) * z[1])) <= 1e-9 * m2 * L * w0
+    Nref = np.array([N(0.0, z[:, k]) for k in range(tt.size)])
+    assert np.max(np.abs(seg.mu(tt)[0] - Nref)) <= 1e-9 * (m1 + m2) * g
+    tr = rh.after_held_event(mod, seg, prm)
+    assert tr.held == () and tr.released == 0 and tr.rest == (0,)
+
+
+def test_project_onto_the_held_manifold(cart, bead):
+    rng = np.random.default_rng(18)
+    system, mod = bead
+    prm = system.param_values()
+    for _ in range(20):
+        ang = rng.uniform(-1.0, 1.0)
+        q = (1.0 + rng.uniform(-1e-3, 1e-3)) * np.array([math.sin(ang), math.cos(ang)])
+        p = rng.normal(size=2)
+        qp, pp = rh.project(mod, q, p, prm, (0,))
+        assert abs(np.hypot(*qp) - 1.0) <= 4e-16
+        assert abs(qp @ pp) <= 1e-15 * (1.0 + np.linalg.norm(p))          # u = grad phi . M^-1 p = 0
+        # the tangential momentum is kept: p changes along grad phi only
+        n = qp / np.hypot(*qp)
+        assert abs((p - pp) @ np.array([-n[1], n[0]])) <= 1e-15 * (1.0 + np.linalg.norm(p))
+    system, mod = cart
+    prm = system.param_values()
+    m1, m2, L = (system.params[k] for k in ("m1", "m2", "L"))
+    q, p = np.array([1e-4, 0.7]), np.array([0.3, -1.1])
+    qp, pp = rh.project(mod, q, p, prm, (0,))
+    assert qp[0] == 0.0
+    M = np.array([[m1 + m2, m2 * L * math.sin(qp[1])], [m2 * L * math.sin(qp[1]), m2 * L * L]])
+    v = np.linalg.solve(M, pp)
+    assert abs(v[0]) <= 1e-15
+    # along M^-1 grad phi: the theta coordinate moves by -(M^-1)_{21} / (M^-1)_{11} times the y shift
+    Mi = np.linalg.inv(np.array([[m1 + m2, m2 * L * math.sin(0.7)], [m2 * L * math.sin(0.7), m2 * L * L]]))
+    assert abs((qp[1] - 0.7) - (-1e-4) * Mi[1, 0] / Mi[0, 0]) <= 1e-9
+
+
+# --- the Zeno ball -------------------------------------------------------------------------------
+
+def test_zeno_ball_extrapolated_and_at_rest_after():
+    import vcirun
+
+    system, mod = _module(load_system_yaml(ZENO))
+    prm = system.param_values()
+    y0, g, e, m = 1.0, 9.81, 0.8, 1.0
+    z = zeno_ball(y0, 0.0, g, e)
+    # the reference resolves the bounces; stop at the first flight below ZENO_FLIGHT, as the loop will
+    ref = vcirun.reference(system, T=z.t_inf - 1e-10, q0=[y0], p0=[0.0], check_accuracy=False)
+    ts = ref.impacts
+    k = next(j for j in range(len(ts)) if rh.accumulating(ts[:j + 1]))
+    assert ts[k] - ts[k - 1] < rh.ZENO_FLIGHT <= ts[k - 1] - ts[k - 2]
+    np.testing.assert_allclose(ts[:k + 1], z.impact_times(k + 1), rtol=0, atol=1e-12)
+    yk = ref.state(ts[k])                                    # right-continuous: after impact k
+    t_inf, seg = rh.zeno_entry(mod, ts[k], yk, prm, 0, ts[:k + 1])
+    assert abs(t_inf - z.t_inf) <= 1e-8
+    assert seg.reason == "end" and seg.t1 == t_inf and seg.held == (0,)
+    assert abs(seg.y1[0]) <= 1e-15 and abs(seg.y1[1]) <= 1e-15
+    rest = rh.held_segment(mod, t_inf, seg.y1, t_inf + 3.0, (0,), None, prm)
+    assert rest.reason == "end" and rest.t1 == t_inf + 3.0
+    tt = np.linspace(t_inf, t_inf + 3.0, 31)
+    y = rest.sol(tt)
+    assert np.max(np.abs(y)) <= 1e-15                         # y = 0, p = 0 to round-off
+    assert np.max(np.abs(rest.mu(tt) - m * g)) <= 1e-12 * m * g
+    assert np.max(np.abs(z.state(tt)[0])) <= 1e-15            # the oracle rests there too
+
+
+def _drag_bounces(v1, g, k, e, d_min):
+    """Impact times of a ball leaving the floor at t = 0 with speed v1 under y'' = -g - k y' and
+    restitution e, solved here: each flight's time T is the root of y(T) = 0 with
+    y(s) = -(g/k) s + (v + g/k)(1 - exp(-k s)) / k, the return speed g/k - (v + g/k) exp(-k T)."""
+    ts, t, v = [0.0], 0.0, v1
+    while True:
+        y = lambda s: -(g / k) * s + (v + g / k) * (-math.expm1(-k * s)) / k  # noqa: E731
+        T0 = 2.0 * v / g
+        T = brentq(y, 0.5 * T0, 1.01 * T0, xtol=1e-300, rtol=1e-15)
+        t += T
+        ts.append(t)
+        v = e * (g / k - (v + g / k) * math.exp(-k * T))
+        if T < d_min:
+            return np.array(ts)
+
+
+def test_zeno_extrapolation_exact_for_geometric_and_second_order_in_the_flight():
+    z = zeno_ball(1.0, 0.0, 9.81, 0.8)
+    for n in (3, 10, 40):
+        assert abs(rh.zeno_extrapolation(z.impact_times(n)) - z.t_inf) <= 1e-14 * z.t_inf
+    # drag: the flight ratio drifts by O(flight); the accumulation time of the full sequence (flights
+    # summed down to 1e-13 s, their tail below 1e-12 s) against the extrapolation from a cut
+    g, k, e = 9.81, 0.7, 0.8
+    ts = _drag_bounces(2.0, g, k, e, 1e-13)
+    t_inf = ts[-1] + (ts[-1] - ts[-2]) * e / (1 - e)
+    # second order, with the constant of docs/contacts.md: the flight ratio r_j = e (1 - k (1 + e) d_j / 6)
+    # gives t_inf(extrapolated) - t_inf = -k d^2 / (6 (1 - e)^2) + O(d^3)
+    c = k / (6.0 * (1.0 - e) ** 2)
+    for d in (1e-2, 1e-3, 1e-4):
+        j = next(i for i in range(2, len(ts)) if ts[i] - ts[i - 1] < d)
+        d2 = ts[j] - ts[j - 1]
+        assert abs((rh.zeno_extrapolation(ts[:j + 1]) - t_inf) / d2 ** 2 + c) <= 0.02 * c
+    j = next(i for i in range(2, len(ts)) if ts[i] - ts[i - 1] < rh.ZENO_FLIGHT)
+    assert abs(rh.zeno_extrapolation(ts[:j + 1]) - t_inf) <= 1e-13  # the round-off of the summed times
+    assert rh.accumulating(ts[:j + 1]) and not rh.accumulating(ts[:j])
+    with pytest.raises(ValueError, match="times"):
+        rh.zeno_extrapolation([0.0, 1.0])
+    with pytest.raises(ValueError, match="do not shrink"):
+        rh.zeno_extrapolation([0.0, 1.0, 2.0])
+    with pytest.raises(ValueError, match="increase"):
+        rh.zeno_extrapolation([0.0, 1.0, 1.0])
+
+
+def test_zeno_entry_carries_the_tangential_motion(box):
+    """The ball in the box bounces on the floor with e = 0.8 while moving sideways: the held state at
+    t_inf from the last resolved impact (oracle times and state) against the oracle's t_rest."""
+    system, mod = box
+    params = {"e": 0.8, "width": 50.0, "height": 5.0}
+    prm = system.param_values(params)
+    x0, y0, vx0 = 0.5, 1.0, 0.9
+    ex = ball_in_box_exact(np.array([10.0]), x0, y0, vx0, 0.0, width=50.0, height=5.0, g=9.81, e=0.8)
+    floor = ex.impact_times[ex.impact_contact == 0]
+    k = next(j for j in range(len(floor)) if rh.accumulating(floor[:j + 1], 1e-6))
+    tk = floor[k]
+    s = ball_in_box_exact(np.array([tk, ex.t_rest, ex.t_rest + 1.0]), x0, y0, vx0, 0.0, width=50.0, height=5.0,
+                          g=9.81, e=0.8)
+    yk = np.array([s.x[0], s.y[0], s.vx[0], s.vy[0]])
+    t_inf, seg = rh.zeno_entry(mod, tk, yk, prm, 0, floor[:k + 1])
+    assert abs(t_inf - ex.t_rest) <= 1e-12
+    np.testing.assert_allclose(seg.y1, [s.x[1], 0.0, s.vx[1], 0.0], rtol=0, atol=1e-12)
+    after = rh.held_segment(mod, t_inf, seg.y1, t_inf + 1.0, (0,), None, prm)
+    np.testing.assert_allclose(after.y1, [s.x[2], 0.0, s.vx[2], 0.0], rtol=0, atol=1e-12)
+
+
+# --- sliding on the floor of the box between the walls -------------------------------------------
+
+def test_ball_slides_on_the_floor_and_meets_the_walls(box):
+    system, mod = box
+    m, e, W = 1.7, 0.5, 2.0
+    params = {"e": e, "m": m, "width": W}
+    prm = system.param_values(params)
+    x0, vx0, T = 0.5, 0.9, 14.0
+    y = np.array([x0, 0.0, m * vx0, 0.0])
+    A = rh.initially_held(mod, y[:2], y[2:], prm)
+    assert A == (0,)
+    t, mask, impacts, segs = 0.0, None, [], []
+    while t < T:
+        seg = rh.held_segment(mod, t, y, T, A, mask, prm)
+        segs.append(seg)
+        tr = rh.after_held_event(mod, seg, prm)
+        impacts += tr.impacts
+        t, y, A = tr.t, tr.y, tr.held
+        assert A == (0,)                                    # the floor stays held through wall impacts
+        mask = np.zeros(4, dtype=np.int64)
+        mod.touching_mask(y[:2].copy(), y[2:].copy(), 1.0, 2.5e-11, prm, mask)
+        if seg.reason == "end":
+            break
+    ex = ball_in_box_exact(np.linspace(0.0, T, 57), x0, 0.0, vx0, 0.0, width=W, height=1.0, g=9.81, e=e, m=m)
+    assert [i for _, i, _ in impacts] == list(ex.impact_contact) == [3, 2]
+    np.testing.assert_allclose([a for a, _, _ in impacts], ex.impact_times, rtol=0, atol=1e-12)
+    np.testing.assert_allclose([lam for _, _, lam in impacts], ex.impact_impulse, rtol=1e-12)
+    tt = np.linspace(0.0, T, 57)
+    for seg in segs:
+        sel = (tt >= seg.t0) & (tt < seg.t1)
+        if sel.any():
+            yy = seg.sol(tt[sel])
+            np.testing.assert_allclose(yy[0], ex.x[sel], rtol=0, atol=1e-12)
+            np.testing.assert_allclose(yy[2] / m, ex.vx[sel], rtol=0, atol=1e-12)
+            assert np.max(np.abs(yy[1])) == 0.0 and np.max(np.abs(yy[3])) == 0.0
+            assert np.max(np.abs(seg.mu(tt[sel]) - m * 9.81)) <= 1e-12 * m * 9.81
+
+
+def test_held_set_needs_a_compressive_force(box):
+    system, mod = box
+    prm = system.param_values({"width": 2.0})
+    # in the corner at rest: the floor carries m g, the wall nothing (gravity is vertical): floor only
+    assert rh.initially_held(mod, np.array([0.0, 0.0]), np.zeros(2), prm) == (0,)
+    assert rh.at_rest(mod, 0.0, np.array([0.0, 0.0]), np.zeros(2), prm) == (0, 2)
+    # at rest against the ceiling: pulled away by gravity, not held
+    assert rh.initially_held(mod, np.array([1.0, 1.0]), np.zeros(2), prm) == ()
+    # on the floor but lifting off (normal velocity), or slightly above it: not held
+    assert rh.initially_held(mod, np.array([1.0, 0.0]), np.array([0.0, 1e-3]), prm) == ()
+    assert rh.initially_held(mod, np.array([1.0, 1e-6]), np.zeros(2), prm) == ()
+
+
+def test_bad_input(box):
+    system, mod = box
+    prm = system.param_values()
+    with pytest.raises(ValueError, match="A: "):
+        rh.held_segment(mod, 0.0, np.zeros(4), 1.0, (), None, prm)
