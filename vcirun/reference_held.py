@@ -242,7 +242,8 @@ def zeno_extrapolation(times) -> float:
     t_{k-2} < t_{k-1} < t_k: flights d1 = t_{k-1} - t_{k-2}, d2 = t_k - t_{k-1}, ratio r = d2 / d1,
     t_inf = t_k + d2 r / (1 - r) (the geometric sum of the remaining flights). Exact for a geometric
     sequence (constant normal acceleration, restitution e: r = e); in general the ratio drifts by
-    O(flight) and t_inf is off by O(d2^2) (docs/contacts.md). ValueError unless 0 < r < 1."""
+    O(flight) and t_inf is off by O(d2^2) (docs/contacts.md 6.4: -k d2^2 / (6 (1 - e)^2) for linear drag k).
+    ValueError unless 0 < r < 1."""
     ts = np.asarray(times, dtype=float).ravel()
     if ts.size < 3 or not np.all(np.isfinite(ts[-3:])):
         raise ValueError(f"times: need the last three finite impact times of the contact (got {ts.size})")
@@ -271,8 +272,9 @@ def zeno_entry(mod, t_k, y_k, prm, contact, times, held=(), mask=None, rtol=1e-1
     impact times (at least the last three), t_inf = zeno_extrapolation(times) and the held state at
     t_inf: y_k projected onto the held set held + (contact,) (the plastic limit of the remaining
     bounces, which carry a total normal impulse of u_k+ / W plus the held force's), then moved by
-    the held flow over [t_k, t_inf]. The remaining bounces have normal amplitude O(d^2) (d the last
-    flight), so this state is exact to O(d^2) (docs/contacts.md). Returns (t_inf, HeldSegment on
+    the held flow over [t_k, t_inf]. The O(d^2) differences from the remaining bounces (d the last
+    flight) are multiples of int u dt = 0 over them, so this state, and every later one, is exact to
+    O(d^3) (docs/contacts.md 6.4); t_inf itself to O(d^2). Returns (t_inf, HeldSegment on
     [t_k, t_inf]) whose y1 is the held state at t_inf and whose dense output covers the interval."""
     t_inf = zeno_extrapolation(times)
     A = tuple(sorted(set(int(i) for i in held) | {int(contact)}))
@@ -418,7 +420,6 @@ def held_segment(mod, t0, y0, T, A, mask, prm, rtol=1e-13, atol=None, *, release
                 if hit is not None and tm >= hit[0]:
                     break
                 if mod.gap(ym[:n].copy(), prm, watch) < 0.0:
-                    from .reference import _first_root
                     te = _first_root(lambda s: mod.gap(sol.sol(s)[:n].copy(), prm, watch), t, float(tm))
                     hit = (te, next(k for k, kd in enumerate(kinds) if kd == ("impact", -1)))
                     break
@@ -445,6 +446,20 @@ def held_segment(mod, t0, y0, T, A, mask, prm, rtol=1e-13, atol=None, *, release
             i = min(free, key=lambda j: phis[j])
         return HeldSegment(t0, t_end, y_end, kind, int(i), A, tuple(worst), pieces, mu_at)
     raise RuntimeError(f"reference: more than {max_restarts} drift restarts in a held phase by t={t:.6g}")
+
+
+def _first_root(g, a, b, samples=64):
+    """First sign change of g on [a, b] (g(a) >= 0 > g(b)): dense samples bracket it, brentq refines
+    (as vcirun.reference's; not imported from there, which imports this module)."""
+    from scipy.optimize import brentq
+
+    ts = np.linspace(a, b, samples + 1)
+    prev = ts[0]
+    for s in ts[1:]:
+        if g(s) < 0.0:
+            return float(brentq(g, prev, s, xtol=1e-15, rtol=4 * _EPS))
+        prev = s
+    return float(b)
 
 
 class _Constant:
@@ -498,7 +513,8 @@ def after_held_event(mod, seg: HeldSegment, prm, event_tol=2.5e-11, tol=HELD_TOL
       compressive force (held_set; at the release mu_i = 0, so the others' forces are continuous);
     - "impact" of contact j: the impact law of the integrators (mod.impact_direction: Newton's law
       for one contact, Moreau's LCP over the touching contacts, the held ones included with
-      u- = 0), p+ = p- + s0 d, one impact entry per contact with lam > 0; then the held set is
+      u- = 0), p+ = p- + s0 d, one impact entry per contact with lam > 0 that is not held (issue 18:
+      no impact is recorded for a held contact; its impulse is the constraint's); then the held set is
       held_set over all contacts at (q, p+) (the held contacts that kept u = 0 and a compressive
       force, and j itself if its impact was plastic and it is pressed: case (b));
     - "end": nothing changes.
@@ -519,8 +535,8 @@ def after_held_event(mod, seg: HeldSegment, prm, event_tol=2.5e-11, tol=HELD_TOL
             raise RuntimeError(f"reference: the impact law has no solution at t={t:.6g} (case {k})")
         if k > 0:  # k == 0: the contact reached phi = 0 without approaching (a grazing touch)
             y[n:2 * n] += s0 * d
-            for i in np.flatnonzero(active):
-                if m == 1 or lam[i] > 0.0:
+            for i in np.flatnonzero(active):  # held contacts take part (u- = 0) but record nothing
+                if (m == 1 or lam[i] > 0.0) and int(i) not in seg.held:
                     impacts.append((t, int(i), float(s0 if m == 1 else lam[i])))
         held = held_set(mod, t, y[:n], y[n:2 * n], prm, None, tol)
     else:
