@@ -107,7 +107,7 @@ _FIRST_CALLS: set = set()
 
 
 def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, constrained=None,
-             t0=0.0, energies=True, **options) -> tr.Trajectory:
+             t0=0.0, energies=True, resting_contact=True, **options) -> tr.Trajectory:
     """Simulate `system` with `method` on the grid t_k = t0 + k h, k = 0..N, N = floor(T / h).
 
     system : built-in name ('cart_pendulum', 'double_pendulum', 'oscillator_wall', ...), YAML path,
@@ -118,6 +118,10 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     beta   : the scene's initial-condition map (Xi(beta) for the cart-pendulum); or give q0 and p0.
     params : parameter overrides; constrained: False ignores the constraint (default: per method).
     options: newton_tol, event_tol, max_iter, max_impacts_step.
+    resting_contact: True (default) holds contacts that come to rest (accumulating impacts, a start
+             resting on a surface, a small bounce with e < 1) and releases them where the contact
+             force turns tensile (issue 18); False stops such runs with status `accumulation` (and
+             a resting start with `reset_failed`), as before.
     energies: False skips H, Ed (and the MCVA family's Hmod) along the grid, leaving NaN after t0;
              for runs that only need the trajectory, e.g. timing against solve_ivp, which does
              not evaluate H either.
@@ -147,7 +151,8 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
         import warnings
 
         warnings.warn(note, GridWarning, stacklevel=2)  # Python shows each distinct note once
-    settings = record.settings_vector(constrained=bool(constrained), energies=bool(energies), **tol)
+    settings = record.settings_vector(constrained=bool(constrained), energies=bool(energies),
+                                      resting_contact=bool(resting_contact), **tol)
     if mod.__name__ not in _FIRST_CALLS:
         # numba's first call of the loop (load from its cache, or compile) is not integration: one
         # untimed step with arguments of the same types, so wall_time measures the integration only
@@ -186,7 +191,7 @@ def _split_options(options: dict) -> tuple[dict, dict]:
     unknown = set(options) - set(DEFAULT_TOLERANCES)
     if unknown:
         raise ValueError(f"options: unknown option {sorted(unknown)[0]!r} (known: "
-                         f"{', '.join(sorted(set(DEFAULT_TOLERANCES) | _METHOD_OPTIONS | {'params', 'constrained', 'energies'}))})")
+                         f"{', '.join(sorted(set(DEFAULT_TOLERANCES) | _METHOD_OPTIONS | {'params', 'constrained', 'energies', 'resting_contact'}))})")
     return mopts, DEFAULT_TOLERANCES | options
 
 
@@ -196,14 +201,14 @@ def _run_loop(mod, q0, p0, t0, h, N, prm, settings, n, max_impacts_step) -> tupl
     impacts accumulating (issue 8): then it reruns with room for every impact the caps allow."""
     cap_imp, most = max(64, N // 4 + 16), N * max_impacts_step + 16
     while True:
-        out = record.allocate(N, n, cap_imp, 2 * cap_imp + 16)
+        out = record.allocate(N, n, cap_imp, 2 * cap_imp + 16, m=int(mod.NCON), cap_releases=cap_imp)
         info = np.zeros(len(record.COUNTERS), dtype=np.int64)
         # (issue 8) no np.errstate here: the compiled loop never touches numpy's error state, and
         # with NUMBA_DISABLE_JIT=1 the caller's np.errstate(all="raise") must reach the numerics
         # (the floating-point hygiene check of tests/extremes runs the whole loop that way).
         mod.integrate(q0, p0, t0, h, N, prm, settings, out, info)
         counters = dict(zip(record.COUNTERS, info.tolist()))
-        full_record = counters["n_impacts"] >= cap_imp
+        full_record = counters["n_impacts"] + int(mod.NCON) > cap_imp  # (an impact adds up to NCON entries)
         if not (counters["status"] == record.STATUS_OF["accumulation"] and full_record) or cap_imp >= most:
             return out, counters
         cap_imp = min(4 * cap_imp, most)

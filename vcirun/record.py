@@ -25,15 +25,17 @@ AXES = {
     "step": "N grid steps k -> k+1",
     "impact": "one entry per impact, in time order",
     "partial": "one entry per partial step of Algorithm 1",
+    "release": "one entry per release of a held contact, in time order",
 }
 
 
 @dataclass(frozen=True)
 class Field:
-    """One array of the record. axis: a key of AXES; dof: a trailing axis of length n; fill: the
-    value the buffer starts with (None: np.empty, the loop writes every entry that is read back);
-    stored: "impacts" (always stored), "trajectory" (stored with store_trajectories), "no";
-    only: None, or "modified" (the MCVA family; None in the Trajectory of other methods)."""
+    """One array of the record. axis: a key of AXES; dof: a trailing axis of length n; contacts: a
+    trailing axis of length m (one per constraint); fill: the value the buffer starts with (None:
+    np.empty, the loop writes every entry that is read back); stored: "impacts" (always stored),
+    "trajectory" (stored with store_trajectories), "no"; only: None, or "modified" (the MCVA family;
+    None in the Trajectory of other methods)."""
 
     name: str
     axis: str
@@ -43,6 +45,10 @@ class Field:
     stored: str
     doc: str
     only: str | None = None
+    contacts: bool = False
+
+    def shape(self, rows: int, n: int, m: int) -> tuple:
+        return (rows,) + ((n,) if self.dof else ()) + ((m,) if self.contacts else ())
 
     @property
     def index_name(self) -> str:
@@ -69,12 +75,20 @@ FIELDS = (
     Field("impact_step", "step", False, "bool", 0, "trajectory", "True where step k -> k+1 contained an impact"),
     Field("partial_steps", "partial", False, "float64", None, "impacts", "every partial step length Delta tau taken"),
     Field("newton_iters", "step", False, "int64", 0, "trajectory", "Newton iterations spent in step k -> k+1"),
+    # held (resting) contacts, issue 18
+    Field("contact_active", "grid", False, "bool", 0, "trajectory", "True where contact i is held at t_k",
+          contacts=True),
+    Field("contact_force", "grid", False, "float64", 0.0, "trajectory",
+          "multiplier of each held contact at t_k (its contact force along grad phi_i, >= 0; 0 when free)",
+          contacts=True),
+    Field("releases", "release", False, "float64", None, "impacts", "times at which a held contact is released"),
+    Field("release_contact", "release", False, "int64", None, "impacts", "index of each released constraint"),
 )
 FIELD = {f.name: f for f in FIELDS}
 
-COUNTERS = ("status", "fail_step", "n_impacts", "n_partial", "steps")
+COUNTERS = ("status", "fail_step", "n_impacts", "n_partial", "steps", "n_releases")
 
-SETTINGS = ("constrained", "newton_tol", "max_iter", "event_tol", "max_impacts_step", "energies")
+SETTINGS = ("constrained", "newton_tol", "max_iter", "event_tol", "max_impacts_step", "energies", "resting_contact")
 
 # (name, meaning) in code order: the module's ST_<NAME> = code, Trajectory.status = name
 STATUSES = (
@@ -107,12 +121,12 @@ def settings_vector(**values) -> np.ndarray:
     return np.array([float(values[s]) for s in SETTINGS], dtype=np.float64)
 
 
-def allocate(N: int, n: int, cap_impacts: int, cap_partial: int) -> tuple:
-    """The loop's output tuple, one buffer per FIELDS row in table order."""
-    rows = {"grid": N + 1, "step": N, "impact": cap_impacts, "partial": cap_partial}
+def allocate(N: int, n: int, cap_impacts: int, cap_partial: int, m: int = 1, cap_releases: int = 64) -> tuple:
+    """The loop's output tuple, one buffer per FIELDS row in table order (m: constraints)."""
+    rows = {"grid": N + 1, "step": N, "impact": cap_impacts, "partial": cap_partial, "release": cap_releases}
     out = []
     for f in FIELDS:
-        shape = (rows[f.axis], n) if f.dof else (rows[f.axis],)
+        shape = f.shape(rows[f.axis], n, m)
         dt = np.bool_ if f.dtype == "bool" else np.dtype(f.dtype)
         out.append(np.empty(shape, dt) if f.fill is None else np.full(shape, f.fill, dt))
     return tuple(out)
@@ -122,7 +136,8 @@ def trim(out: tuple, counters: dict, modified: bool) -> dict:
     """{name: array} of a finished loop: grid rows up to the last state reached, step rows up to the
     steps taken, impacts and partial steps up to their counts (copies where the buffer is larger)."""
     steps = counters["steps"]
-    used = {"grid": steps + 1, "step": steps, "impact": counters["n_impacts"], "partial": counters["n_partial"]}
+    used = {"grid": steps + 1, "step": steps, "impact": counters["n_impacts"], "partial": counters["n_partial"],
+            "release": counters["n_releases"]}
     arrays = {}
     for f, buf in zip(FIELDS, out):
         if f.only == "modified" and not modified:
@@ -143,12 +158,13 @@ def schema_markdown() -> str:
     hdf = {"float64": "f8", "int64": "i8", "bool": "u1"}
     lines = ["| dataset | shape, dtype | stored | meaning |", "|---|---|---|---|",
              "| `t` | (N+1,) f8 | with trajectories | grid times t0 + k h |"]
-    size = {"grid": "N+1", "step": "N", "impact": "m", "partial": "K"}
+    size = {"grid": "N+1", "step": "N", "impact": "K_i", "partial": "K_p", "release": "K_r"}
     when = {"impacts": "always", "trajectory": "with trajectories"}
     for f in FIELDS:
         if f.stored == "no":
             continue
-        shape = f"({size[f.axis]}, n)" if f.dof else f"({size[f.axis]},)"
+        dims = [size[f.axis]] + (["n"] if f.dof else []) + (["m"] if f.contacts else [])
+        shape = f"({', '.join(dims)})" if len(dims) > 1 else f"({dims[0]},)"
         note = " (MCVA family only)" if f.only == "modified" else ""
         lines.append(f"| `{f.name}` | {shape} {hdf[f.dtype]} | {when[f.stored]} | {f.doc}{note} |")
     return "\n".join(lines)

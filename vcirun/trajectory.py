@@ -60,7 +60,7 @@ class Trajectory:
         for f in record.FIELDS:
             if getattr(self, f.name) is None and f.only is None:
                 dt = np.bool_ if f.dtype == "bool" else np.dtype(f.dtype)
-                setattr(self, f.name, np.zeros((0, n) if f.dof else (0,), dt))
+                setattr(self, f.name, np.zeros(f.shape(0, n, 0), dt))
 
     @property
     def ok(self) -> bool:
@@ -234,11 +234,13 @@ class Trajectory:
                 f"steps={self.n_steps}, impacts={len(self.impacts)}, status={self.status!r})")
 
 
-_SIZES = {"grid": "N+1", "step": "N", "impact": "m", "partial": "K"}
+_SIZES = {"grid": "N+1", "step": "N", "impact": "K_i", "partial": "K_p", "release": "K_r"}
 Trajectory.__doc__ = (
     "Time-major record of a run on the grid t_k = t0 + k h (N = grid steps taken, n = degrees of freedom,\n"
-    "m = impacts, K = partial steps). t (N+1,) grid times; the arrays, one per vcirun.record.FIELDS row:\n"
-    + "\n".join(f"  {f.name} ({_SIZES[f.axis]}{', n' if f.dof else ''}{',' if not f.dof else ''}) {f.dtype}: {f.doc}"
+    "m = constraints, K_i impacts, K_p partial steps, K_r releases). t (N+1,) grid times; the arrays, one\n"
+    "per vcirun.record.FIELDS row:\n"
+    + "\n".join(f"  {f.name} ({_SIZES[f.axis]}{', n' if f.dof else ''}{', m' if f.contacts else ''}"
+                f"{',' if not (f.dof or f.contacts) else ''}) {f.dtype}: {f.doc}"
                 + (" (None for other methods)" if f.only == "modified" else "") for f in record.FIELDS)
     + "\nand status, message, fail_step, fail_time, beta, wall_time, tolerances, options.")
 

@@ -68,8 +68,15 @@ UNITS = (
                    "mh_terms", "mh_energy", "mh_gradient", "mh_field", "gauss_partial"),
          requires=("NDOF", "FORCED", "MH_ORDER", "MH_M", "MH_NSTAGE", "MH_FLOW_S", "mh_FA", "mh_value", "mh_grad",
                    "mh_hess", "sys_force", "sys_force_jac", "velocity_guess", "solve_small")),
-    Unit("collision/events.py", provides=("N_SCAN", "N_MODEL", "step_admissible", "collision_time", "search_collision"),
-         requires=("NCON", "partial", "sys_phi", "gap", "gap_slope", "touching_mask", "unmask_penetrating")),
+    Unit("maps/held.py",
+         provides=("contact_forces", "project_momentum", "held_stage", "held_step", "normal_acceleration"),
+         requires=("NDOF", "NCON", "NODE_LEN", "FULL_STAGES", "FULL_FRACS", "dynamics_rhs", "sys_Mdotv", "sys_ddphis",
+                   "sys_dphis", "sys_phis", "sys_M", "sys_node", "ld_PmJc", "ld_Ppc", "ld_Ed", "velocity_guess",
+                   "solve_small", "copy_into")),
+    Unit("collision/events.py",
+         provides=("N_SCAN", "N_MODEL", "step_admissible", "partial_map", "collision_time", "search_collision"),
+         requires=("NCON", "partial", "held_step", "sys_phi", "gap", "gap_slope", "touching_mask",
+                   "unmask_penetrating")),
     Unit("collision/impact_law.py", provides=IMPACT_LAW_PROVIDES, requires=()),
     Unit("collision/impact.py",
          provides=("impact_direction", "touch_tolerance", "gap", "gap_slope", "normal_velocities", "touching_mask",
@@ -83,9 +90,11 @@ UNITS = (
                    "solve_small")),
     Unit("collision/reset_mcva.py", provides=("MH_RESET_ETOL", "reset_mcva"),
          requires=("NDOF", "MH_M", "mh_guess", "mh_gradient")),
-    Unit("collision/algorithm1.py", provides=("integrate", "no_modified_energy"),
+    Unit("collision/algorithm1.py", provides=("integrate", "no_modified_energy", "initially_held"),
          requires=("NDOF", "NCON", "PARTIAL_IS_FULL", "full", "reset", "modified_energy", "search_collision",
-                   "step_admissible", "impact_direction", "hamiltonian", "copy_into", "set_row")
+                   "step_admissible", "impact_direction", "hamiltonian", "copy_into", "set_row", "held_step",
+                   "contact_forces", "project_momentum", "normal_acceleration", "normal_velocities",
+                   "touch_tolerance", "sys_phis", "sys_restitution")
          + tuple(f.index_name for f in record.FIELDS) + tuple(f"I_{c.upper()}" for c in record.COUNTERS)
          + tuple(f"S_{s.upper()}" for s in record.SETTINGS) + tuple(f"ST_{n.upper()}" for n, _ in record.STATUSES)),
 )

@@ -22,17 +22,23 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
     """Run N grid steps of Algorithm 1 from (q0, p0) at t0.
 
     settings: the loop's scalar inputs (vcirun.record.SETTINGS: constrained, newton_tol, max_iter,
-    event_tol, max_impacts_step, energies). out: one preallocated buffer per vcirun.record.FIELDS
-    row, in table order (vcirun.record.allocate). info receives the counters (vcirun.record.COUNTERS:
-    status, fail_step, n_impacts, n_partial, steps). energies = 0 skips H, the discrete energy Ed and
-    the modified energy along the grid (set at t0 only): a run that only needs the trajectory saves
-    their per-step cost."""
+    event_tol, max_impacts_step, energies, resting_contact). out: one preallocated buffer per
+    vcirun.record.FIELDS row, in table order (vcirun.record.allocate). info receives the counters
+    (vcirun.record.COUNTERS). energies = 0 skips H, the discrete energy Ed and the modified energy
+    along the grid (set at t0 only): a run that only needs the trajectory saves their per-step cost.
+
+    Held contacts (issue 18, resting_contact = 1; docs/contacts.md): a contact is held when the run
+    starts resting on it, when its impacts accumulate, or when an impact with restitution e < 1
+    leaves it a normal velocity below |d^2 phi/dt^2| h; while held every step is the constrained map
+    (maps/held.py); it is released where its contact force would turn tensile (located within the
+    step by the linear interpolation of the force), and the step goes on free from there."""
     constrained = settings[S_CONSTRAINED] != 0.0
     ntol = settings[S_NEWTON_TOL]
     maxit = int(settings[S_MAX_ITER])
     event_tol = settings[S_EVENT_TOL]
     max_impacts_step = int(settings[S_MAX_IMPACTS_STEP])
     energies = settings[S_ENERGIES] != 0.0
+    resting = constrained and settings[S_RESTING_CONTACT] != 0.0
     Q = out[O_Q]
     P = out[O_P]
     H = out[O_H]
@@ -46,10 +52,16 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
     pt = np.empty(NDOF)
     vt = np.empty(NDOF)
     work = np.empty((4, NDOF))
+    held = np.zeros(NCON, dtype=np.int64)
+    mu = np.zeros(NCON)
+    mu_end = np.zeros(NCON)
+    imp = np.empty(NCON)
     set_row(Q, 0, q)
     set_row(P, 0, p)
     info[I_N_IMPACTS] = 0
     info[I_N_PARTIAL] = 0
+    info[I_N_RELEASES] = 0
+    nheld = initially_held(q, p, t0, h, event_tol, prm, held) if resting else 0
     # (issue 8) accumulation across steps: dense = [time of the last impact, start of the current
     # run of impacts that each follow the previous one by less than one grid step h, its length]
     # (see _accumulating)
@@ -59,7 +71,12 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
     i = 0
     while i < N:
         t = t0 + i * h
-        it, E = full(q, p, h, t, prm, ntol, maxit, qt, pt, vt, energies or i == 0)
+        if nheld > 0:  # (the rows start false / 0)
+            _record_contacts(out, i, q, p, t, prm, held, nheld, mu)
+        if nheld == 0:
+            it, E = full(q, p, h, t, prm, ntol, maxit, qt, pt, vt, energies or i == 0)
+        else:
+            it, E = held_step(q, p, h, t, prm, ntol, maxit, held, qt, pt, vt, imp)
         if energies or i == 0:
             H[i] = hamiltonian(q, p, prm)
             Hmod[i] = modified_energy(q, p, h, prm)
@@ -69,17 +86,29 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
             fail = i
             break
         iters = it
-        if (not constrained) or step_admissible(q, p, qt, h, event_tol, prm):
+        frac = -1.0
+        c = -1
+        if nheld > 0:
+            contact_forces(qt, pt, t + h, prm, held, mu_end)
+            frac, c = _release_fraction(mu, mu_end, held)
+        if c >= 0:
+            impact_step[i] = True  # a step with an event inside (a release)
+            status, itc, nheld = _release_step(q, p, h, t, frac * h, c, prm, ntol, maxit, event_tol,
+                                               max_impacts_step, resting, qt, pt, vt, work, dense, out, info,
+                                               held, nheld)
+            iters += itc
+        elif (not constrained) or step_admissible(q, p, qt, h, event_tol, prm, held, nheld):
             copy_into(q, qt)
             copy_into(p, pt)
         else:
             impact_step[i] = True
-            status, itc = _impact_step(q, p, h, t, prm, ntol, maxit, event_tol, max_impacts_step, qt, pt, vt,
-                                       work, dense, out, info)
+            status, itc, nheld = _impact_step(q, p, h, h, t, PARTIAL_IS_FULL and nheld == 0, prm, ntol, maxit,
+                                              event_tol, max_impacts_step, resting, qt, pt, vt, work, dense,
+                                              out, info, held, nheld)
             iters += itc
-            if status != ST_OK:
-                fail = i
-                break
+        if status != ST_OK:
+            fail = i
+            break
         if not (_finite(q) and _finite(p)):
             status = ST_NONFINITE
             fail = i
@@ -88,9 +117,14 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
         set_row(Q, i + 1, q)
         set_row(P, i + 1, p)
         i += 1
+    if status == ST_OK and nheld > 0:
+        _record_contacts(out, N, q, p, t0 + N * h, prm, held, nheld, mu)
     if status == ST_OK and energies:
         # energies at the last grid state (its discrete energy from one more trial step)
-        it, E = full(q, p, h, t0 + N * h, prm, ntol, maxit, qt, pt, vt)
+        if nheld == 0:
+            it, E = full(q, p, h, t0 + N * h, prm, ntol, maxit, qt, pt, vt)
+        else:
+            it, E = held_step(q, p, h, t0 + N * h, prm, ntol, maxit, held, qt, pt, vt, imp)
         H[N] = hamiltonian(q, p, prm)
         Ed[N] = E
         Hmod[N] = modified_energy(q, p, h, prm)
@@ -101,11 +135,68 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _impact_step(q, p, h, t, prm, ntol, maxit, event_tol, max_impacts_step, qt, pt, vt, work, dense, out, info):
-    """Lines 5-17 of Algorithm 1: the step from (q, p) at t whose full step left the admissible set,
-    by partial steps to each collision and resets. (qt, pt, vt) hold that full step on entry (reused
-    as the first partial step when the partial map is the full map); work: 4 x NDOF scratch. On
-    success (q, p) hold the state at t + h. Returns (status, Newton iterations)."""
+def _record_contacts(out, k, q, p, t, prm, held, nheld, mu):
+    """contact_active[k] and contact_force[k] at grid state k; mu receives the held contacts' forces."""
+    active = out[O_CONTACT_ACTIVE]
+    force = out[O_CONTACT_FORCE]
+    if nheld > 0:
+        contact_forces(q, p, t, prm, held, mu)
+    else:
+        for j in range(NCON):
+            mu[j] = 0.0
+    for j in range(NCON):
+        active[k, j] = held[j] != 0
+        force[k, j] = mu[j]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _release_fraction(mu, mu_end, held):
+    """(fraction of the step, contact) of the first held contact whose force turns tensile inside the
+    step, by linear interpolation of its force between the step's start (mu) and end (mu_end): O(h^2)
+    in the release time; (-1, -1) if none."""
+    best = 2.0
+    c = -1
+    for j in range(NCON):
+        if held[j] != 0 and mu_end[j] < 0.0:
+            f = 0.0 if mu[j] <= 0.0 else mu[j] / (mu[j] - mu_end[j])
+            if f < best:
+                best = f
+                c = j
+    return (best if c >= 0 else -1.0), c
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _release_step(q, p, h, t, tau, c, prm, ntol, maxit, event_tol, max_impacts_step, resting, qt, pt, vt, work,
+                  dense, out, info, held, nheld):
+    """A step in which held contact c is released after tau: the constrained map to t + tau, the
+    release (recorded), then the rest of the step as Algorithm 1 from there. Returns (status,
+    iterations, held count)."""
+    imp = np.empty(NCON)
+    it = 0
+    if tau > 0.0:
+        it, _ = held_step(q, p, tau, t, prm, ntol, maxit, held, qt, pt, vt, imp)
+        if it < 0:
+            return ST_NEWTON_FAILED, -it, nheld
+        copy_into(q, qt)
+        copy_into(p, pt)
+    held[c] = 0
+    nheld -= 1
+    _record_release(out, info, t + tau, c)
+    status, itc, nheld = _impact_step(q, p, h, h - tau, t + tau, False, prm, ntol, maxit, event_tol,
+                                      max_impacts_step, resting, qt, pt, vt, work, dense, out, info, held, nheld)
+    return status, it + itc, nheld
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _impact_step(q, p, h, tau_max, t, have_end, prm, ntol, maxit, event_tol, max_impacts_step, resting, qt, pt, vt,
+                 work, dense, out, info, held, nheld):
+    """Lines 5-17 of Algorithm 1: the step of length tau_max (<= the grid step h) from (q, p) at t whose full step left the
+    admissible set, by partial steps to each collision and resets. have_end: (qt, pt, vt) hold that
+    full step on entry (reused as the first partial step when the partial map is the full map);
+    work: 4 x NDOF scratch. On success (q, p) hold the state at t + tau_max. With held contacts the
+    partial steps are the constrained map and the impacts of the others follow the impact law
+    (R^CVA with restitution: the paper's energy-based resets are not defined for the constrained
+    map). Returns (status, Newton iterations, held count)."""
     qh = work[0]
     ph = work[1]
     pp = work[2]
@@ -114,18 +205,16 @@ def _impact_step(q, p, h, t, prm, ntol, maxit, event_tol, max_impacts_step, qt, 
     active = np.empty(NCON, dtype=np.int64)
     copy_into(qh, q)
     copy_into(ph, p)
-    tau_max = h
     tc = t
     k_imp = 0
     iters = 0
-    have_end = PARTIAL_IS_FULL
     while tau_max > 0.0:
         code, dtau, Epre, itc = search_collision(qh, ph, tau_max, h, tc, prm, ntol, maxit, event_tol,
-                                                 qt, pt, vt, have_end)
+                                                 qt, pt, vt, have_end, held, nheld)
         have_end = False
         iters += itc
         if code < 0:
-            return (ST_NEWTON_FAILED if code == -1 else ST_EVENT_FAILED), iters
+            return (ST_NEWTON_FAILED if code == -1 else ST_EVENT_FAILED), iters, nheld
         _log_partial(out[O_PARTIAL_STEPS], info, dtau)
         tau_rem = tau_max - dtau
         if code == 1:
@@ -133,15 +222,31 @@ def _impact_step(q, p, h, t, prm, ntol, maxit, event_tol, max_impacts_step, qt, 
             # method's reset along its direction
             k, s0, dE = impact_direction(qt, pt, h, event_tol, prm, d, lam, active)
             if k <= 0:
-                return ST_RESET_FAILED, iters  # no approaching contact (grazing), or no LCP solution
-            itr, s = reset(qt, pt, d, s0, dE, Epre, vt, dtau, tau_rem, h, tc + dtau, prm, ntol, maxit, pp)
-            iters += abs(itr)
-            if itr < 0:
-                return ST_RESET_FAILED, iters
+                if not resting:
+                    return ST_RESET_FAILED, iters, nheld  # no approaching contact (grazing), or no LCP solution
+                k, s0 = _grazing_hold(qt, pt, tc + dtau, h, event_tol, prm, held, active, lam)
+                if k <= 0:
+                    return ST_RESET_FAILED, iters, nheld
+                nheld = _count(held)
+                copy_into(pp, pt)
+                s = s0
+            elif nheld > 0:
+                for j in range(NDOF):
+                    pp[j] = pt[j] + s0 * d[j]
+                s = s0
+            else:
+                itr, s = reset(qt, pt, d, s0, dE, Epre, vt, dtau, tau_rem, h, tc + dtau, prm, ntol, maxit, pp)
+                iters += abs(itr)
+                if itr < 0:
+                    return ST_RESET_FAILED, iters, nheld
             k_imp += 1
-            if (_accumulating(dense, tc + dtau, h, max_impacts_step) or k_imp > max_impacts_step
-                    or info[I_N_IMPACTS] + k > out[O_IMPACTS].shape[0]):
-                return ST_ACCUMULATION, iters
+            accumulating = _accumulating(dense, tc + dtau, h, max_impacts_step) or k_imp > max_impacts_step
+            if accumulating and not resting:
+                return ST_ACCUMULATION, iters, nheld
+            if info[I_N_IMPACTS] + k > out[O_IMPACTS].shape[0]:
+                return ST_ACCUMULATION, iters, nheld  # (the record is full: the caller reruns with room)
+            if resting:
+                nheld = _settle(qt, pp, tc + dtau, h, prm, held, active, lam, s, s0, accumulating, out, info)
             _record_impacts(out, info, tc + dtau, qt, pt, pp, s, s0, lam, active)
             copy_into(qh, qt)
             copy_into(ph, pp)
@@ -153,7 +258,101 @@ def _impact_step(q, p, h, t, prm, ntol, maxit, event_tol, max_impacts_step, qt, 
             tau_max = 0.0
     copy_into(q, qh)
     copy_into(p, ph)
-    return ST_OK, iters
+    return ST_OK, iters, nheld
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _count(held):
+    k = 0
+    for j in range(NCON):
+        k += 1 if held[j] != 0 else 0
+    return k
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _settle(q, pp, t, h, prm, held, active, lam, s, s0, accumulating, out, info):
+    """After an impact (p+ = pp): hold the impact's contacts that come to rest -- all of them when
+    impacts accumulate, else those with restitution < 1 left a normal velocity below |d^2 phi/dt^2| h
+    while pressed in -- with a plastic projection (their normal velocities zeroed, the impulse added
+    to the impact's record through lam); release the held contacts the impulse pulled away.
+    Returns the held count."""
+    e = np.empty(NCON)
+    sys_restitution(prm, e)
+    u = normal_velocities(q, pp, prm)
+    changed = False
+    for j in range(NCON):
+        if active[j] == 0:
+            continue
+        if held[j] != 0:
+            if u[j] > 0.0 and lam[j] == 0.0:  # pulled off its surface by the others' impulses
+                held[j] = 0
+                _record_release(out, info, t, j)
+            continue
+        a = normal_acceleration(q, pp, t, prm, j)
+        if accumulating or (e[j] < 1.0 and a < 0.0 and u[j] <= -a * h):
+            held[j] = 1
+            changed = True
+    if changed:
+        pi = np.empty(NCON)
+        project_momentum(q, pp, prm, held, pi)
+        for j in range(NCON):
+            if active[j] != 0:
+                lam[j] += pi[j] * (s0 / s) if s != 0.0 else pi[j]
+    return _count(held)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _grazing_hold(q, p, t, h, event_tol, prm, held, active, lam):
+    """An impact with no approaching contact (normal velocity ~0: grazing or resting) when held
+    contacts are allowed: hold the touching contacts the motion presses into (the multiplier test of
+    `initially_held`). Returns (contacts now held at this state, 1.0); their entries are impacts of
+    zero impulse."""
+    k = initially_held(q, p, t, h, event_tol, prm, held)
+    for j in range(NCON):
+        active[j] = held[j]
+        lam[j] = 0.0
+    return k, 1.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def initially_held(q, p, t, h, event_tol, prm, held):
+    """Hold the contacts the state rests on: touching (phi_i within its tolerance), normal velocity
+    at most |d^2 phi_i/dt^2| h, pressed in, and with a compressive multiplier when held together
+    (contact_forces > 0; contacts whose multiplier is not are dropped, in turn). Returns the count."""
+    phis = np.empty(NCON)
+    sys_phis(q, prm, phis)
+    u = normal_velocities(q, p, prm)
+    for j in range(NCON):
+        held[j] = 0
+        if phis[j] <= touch_tolerance(q, prm, j, u[j], h, event_tol) + abs(u[j]) * h:
+            a = normal_acceleration(q, p, t, prm, j)
+            if a < 0.0 and abs(u[j]) <= -a * h:
+                held[j] = 1
+    mu = np.empty(NCON)
+    for _ in range(NCON):
+        if _count(held) == 0 or not contact_forces(q, p, t, prm, held, mu):
+            break
+        worst = -1
+        for j in range(NCON):
+            if held[j] != 0 and mu[j] <= 0.0 and (worst < 0 or mu[j] < mu[worst]):
+                worst = j
+        if worst < 0:
+            break
+        held[worst] = 0
+    k = _count(held)
+    if k > 0:
+        pi = np.empty(NCON)
+        project_momentum(q, p, prm, held, pi)
+    return k
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _record_release(out, info, t, c):
+    k = info[I_N_RELEASES]
+    if k < out[O_RELEASES].shape[0]:
+        out[O_RELEASES][k] = t
+        out[O_RELEASE_CONTACT][k] = c
+        info[I_N_RELEASES] = k + 1
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")

@@ -63,18 +63,29 @@ def _model_first_root(a, ga, da, b, gb, db):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def step_admissible(q, p, qt, h, event_tol, prm):
-    """Algorithm 1's precondition (31) for the full step q -> qt: phi(qt) > 0 (one constraint), or every
-    contact not touching at q positive at qt and the touching ones not penetrating."""
-    if NCON == 1:
+def step_admissible(q, p, qt, h, event_tol, prm, held, nheld):
+    """Algorithm 1's precondition (31) for the full step q -> qt: phi(qt) > 0 (one constraint, none
+    held), or every contact neither held nor touching at q positive at qt and the touching ones not
+    penetrating."""
+    if NCON == 1 and nheld == 0:
         return sys_phi(qt, prm) > 0.0
     mask = np.empty(NCON, dtype=np.int64)
-    touching_mask(q, p, h, event_tol, prm, mask)
-    return gap(qt, prm, mask) > 0.0 and unmask_penetrating(qt, prm, mask) == 0
+    touching_mask(q, p, h, event_tol, prm, mask, held)
+    return gap(qt, prm, mask) > 0.0 and unmask_penetrating(qt, prm, mask, held) == 0
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def partial_map(q0, p0, tau, h, t, prm, ntol, maxit, q1, p1, v1, held, nheld):
+    """Phi^partial_tau, or with contacts held the constrained map of the full step's discrete
+    Lagrangian (maps/held.py: every method, issue 18)."""
+    if nheld > 0:
+        imp = np.empty(NCON)
+        return held_step(q0, p0, tau, t, prm, ntol, maxit, held, q1, p1, v1, imp)
+    return partial(q0, p0, tau, h, t, prm, ntol, maxit, q1, p1, v1)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def collision_time(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt, vt):
+def collision_time(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt, vt, held):
     """First root tau in (0, tau_max] of the gap g(tau) = min_i phi_i(q(tau)), q(tau) from
     Phi^partial_tau(qh, ph).
 
@@ -84,13 +95,18 @@ def collision_time(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt, v
     The root is located to |Delta tau| <= event_tol * h; a start on the surface (g(0) <= 0, e.g.
     right after an impact) is not a root: the search first steps forward to a point with g > 0.
     See search_collision for the method."""
-    return search_collision(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt, vt, False)
+    nheld = 0
+    for i in range(NCON):
+        nheld += 1 if held[i] != 0 else 0
+    return search_collision(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt, vt, False, held, nheld)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def search_collision(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt, vt, have_end):
+def search_collision(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt, vt, have_end, held, nheld):
     """collision_time; have_end: (qt, pt) already hold Phi^partial_{tau_max}(qh, ph) (Algorithm 1's
-    full step, when the partial map is the full one), so it is not recomputed.
+    full step, when the partial map is the full one), so it is not recomputed. held (NCON), nheld:
+    the held contacts (issue 18): partial steps are then the constrained map and the held contacts
+    stay out of the gap.
 
     Method. g(0) > 0 > g(tau_max) brackets a root; CollisionTime is a set and the FIRST root is
     wanted. The cubic Hermite model of g from the values and the flow's slopes at both ends
@@ -100,22 +116,22 @@ def search_collision(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt,
     per impact, against 10-12 for bracketing alone.
     """
     mask = np.empty(NCON, dtype=np.int64)
-    touching_mask(qh, ph, h, event_tol, prm, mask)
+    touching_mask(qh, ph, h, event_tol, prm, mask, held)
     iters = 0
     E = np.nan
     if not have_end:
-        it, E = partial(qh, ph, tau_max, h, t, prm, ntol, maxit, qt, pt, vt)
+        it, E = partial_map(qh, ph, tau_max, h, t, prm, ntol, maxit, qt, pt, vt, held, nheld)
         if it < 0:
             return -1, tau_max, E, -it
         iters += it
     if NCON > 1:
-        unmask_penetrating(qt, prm, mask)
+        unmask_penetrating(qt, prm, mask, held)
     gb = gap(qt, prm, mask)
     if not math.isfinite(gb) and (NCON == 1 or not gb > 0.0):  # (+inf: every contact masked)
         return -1, tau_max, E, iters
     if gb >= 0.0:
         if have_end:  # the caller's full step knows E; recompute only when asked for the state's energy
-            it, E = partial(qh, ph, tau_max, h, t, prm, ntol, maxit, qt, pt, vt)
+            it, E = partial_map(qh, ph, tau_max, h, t, prm, ntol, maxit, qt, pt, vt, held, nheld)
             iters += abs(it)
         return 0, tau_max, E, iters
     db = gap_slope(qt, pt, prm, mask)
@@ -126,22 +142,24 @@ def search_collision(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt,
     tol = event_tol * h
     if ga <= 0.0:
         code, a, ga, da, b, gb, db, E, itc = _leave_surface(qh, ph, tau_max, h, t, prm, ntol, maxit, tol, qt, pt,
-                                                              vt, mask, b, gb, db)
+                                                              vt, mask, b, gb, db, held, nheld)
         iters += itc
         if code != 0:
             return code, (a if code == 1 else b), E, iters
     c = _model_first_root(a, ga, da, b, gb, db)
     if c < 0.0:
-        code, c, a, ga, b, gb, E, itc = _scan_bracket(qh, ph, h, t, prm, ntol, maxit, qt, pt, vt, mask, a, ga, b, gb)
+        code, c, a, ga, b, gb, E, itc = _scan_bracket(qh, ph, h, t, prm, ntol, maxit, qt, pt, vt, mask, a, ga, b, gb,
+                                                      held, nheld)
         iters += itc
         if code != 0:
             return code, c, E, iters
-    code, tau, E, itc = _refine_root(qh, ph, h, t, prm, ntol, maxit, tol, qt, pt, vt, mask, c, a, ga, b, gb)
+    code, tau, E, itc = _refine_root(qh, ph, h, t, prm, ntol, maxit, tol, qt, pt, vt, mask, c, a, ga, b, gb, held,
+                                     nheld)
     return code, tau, E, iters + itc
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _leave_surface(qh, ph, tau_max, h, t, prm, ntol, maxit, tol, qt, pt, vt, mask, b, gb, db):
+def _leave_surface(qh, ph, tau_max, h, t, prm, ntol, maxit, tol, qt, pt, vt, mask, b, gb, db, held, nheld):
     """On (or numerically just past) the surface at tau = 0: the trivial root at 0 is not a
     collision. Halve towards 0 until g > 0; the first collision lies before any point with g < 0.
     Returns (code, a, ga, da, b, gb, db, E, iters): code 0 with the bracket [a, b]; 1 = moving into the
@@ -152,7 +170,7 @@ def _leave_surface(qh, ph, tau_max, h, t, prm, ntol, maxit, tol, qt, pt, vt, mas
     E = np.nan
     while s > 1e-3 * tol:
         s *= 0.5
-        it, E = partial(qh, ph, s, h, t, prm, ntol, maxit, qt, pt, vt)
+        it, E = partial_map(qh, ph, s, h, t, prm, ntol, maxit, qt, pt, vt, held, nheld)
         if it < 0:
             return -1, 0.0, 0.0, 0.0, s, gb, db, E, iters - it
         iters += it
@@ -162,12 +180,12 @@ def _leave_surface(qh, ph, tau_max, h, t, prm, ntol, maxit, tol, qt, pt, vt, mas
         b = s
         gb = gs
         db = gap_slope(qt, pt, prm, mask)
-    it, E = partial(qh, ph, 0.0, h, t, prm, ntol, maxit, qt, pt, vt)
+    it, E = partial_map(qh, ph, 0.0, h, t, prm, ntol, maxit, qt, pt, vt, held, nheld)
     return 1, 0.0, 0.0, 0.0, b, gb, db, E, iters + abs(it)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _scan_bracket(qh, ph, h, t, prm, ntol, maxit, qt, pt, vt, mask, a, ga, b, gb):
+def _scan_bracket(qh, ph, h, t, prm, ntol, maxit, qt, pt, vt, mask, a, ga, b, gb, held, nheld):
     """The cubic model is unsure (several sign changes, or no slopes): sample the bracket for the first
     sign change, as a plain bracket would skip an earlier root. Returns (code, c, a, ga, b, gb, E,
     iters): code 0 with the false-position point c of the narrowed bracket; 1 = a sample landed on
@@ -178,7 +196,7 @@ def _scan_bracket(qh, ph, h, t, prm, ntol, maxit, qt, pt, vt, mask, a, ga, b, gb
     E = np.nan
     for j in range(1, N_SCAN):
         c = a0 + span * j / N_SCAN
-        it, E = partial(qh, ph, c, h, t, prm, ntol, maxit, qt, pt, vt)
+        it, E = partial_map(qh, ph, c, h, t, prm, ntol, maxit, qt, pt, vt, held, nheld)
         if it < 0:
             return -1, c, a, ga, b, gb, E, iters - it
         iters += it
@@ -196,7 +214,7 @@ def _scan_bracket(qh, ph, h, t, prm, ntol, maxit, qt, pt, vt, mask, a, ga, b, gb
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _refine_root(qh, ph, h, t, prm, ntol, maxit, tol, qt, pt, vt, mask, c, a, ga, b, gb):
+def _refine_root(qh, ph, h, t, prm, ntol, maxit, tol, qt, pt, vt, mask, c, a, ga, b, gb, held, nheld):
     """From c in the bracket [a, b] (g(a) > 0 > g(b)): secant on the partial map's own g (Newton with
     the flow's slope for the first correction), safeguarded by the bracket: a step that leaves it, or
     a bracket that stops shrinking, falls back to Illinois / bisection. Stops when the correction is
@@ -211,7 +229,7 @@ def _refine_root(qh, ph, h, t, prm, ntol, maxit, tol, qt, pt, vt, mask, c, a, ga
     iters = 0
     E = np.nan
     for k in range(200):
-        it, E = partial(qh, ph, c, h, t, prm, ntol, maxit, qt, pt, vt)
+        it, E = partial_map(qh, ph, c, h, t, prm, ntol, maxit, qt, pt, vt, held, nheld)
         if it < 0:
             return -1, c, E, iters - it
         iters += it
@@ -253,7 +271,7 @@ def _refine_root(qh, ph, h, t, prm, ntol, maxit, tol, qt, pt, vt, mask, c, a, ga
             # bracket collapsed: report the end closer to the surface, with its state
             tau = a if abs(ga) < abs(gb) else b
             if tau != c:
-                it, E = partial(qh, ph, tau, h, t, prm, ntol, maxit, qt, pt, vt)
+                it, E = partial_map(qh, ph, tau, h, t, prm, ntol, maxit, qt, pt, vt, held, nheld)
                 iters += abs(it)
             return 1, tau, E, iters
         xp = c

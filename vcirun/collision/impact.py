@@ -152,7 +152,7 @@ def touch_tolerance(q, prm, i, u, h, event_tol):
 def gap(q, prm, mask):
     """min over the constraints not masked of phi_i(q) (+inf if all are masked)."""
     if NCON == 1:
-        return sys_phi(q, prm)
+        return sys_phi(q, prm) if mask[0] == 0 else np.inf
     phis = np.empty(NCON)
     sys_phis(q, prm, phis)
     g = np.inf
@@ -166,7 +166,7 @@ def gap(q, prm, mask):
 def gap_slope(q, p, prm, mask):
     """d/dtau of the gap along the flow through (q, p): grad phi_k . M^-1 p, k its smallest unmasked phi_i."""
     if NCON == 1:
-        return gdot(q, p, prm)
+        return gdot(q, p, prm) if mask[0] == 0 else np.nan
     phis = np.empty(NCON)
     sys_phis(q, prm, phis)
     k = -1
@@ -200,34 +200,37 @@ def normal_velocities(q, p, prm):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def touching_mask(q, p, h, event_tol, prm, mask):
-    """mask[i] = 1 for the contacts touching at (q, p) and not approaching (see the unit's header);
-    returns how many. For one constraint nothing is masked."""
+def touching_mask(q, p, h, event_tol, prm, mask, held):
+    """mask[i] = 1 for the contacts touching at (q, p) and not approaching (see the unit's header)
+    and for the held ones (issue 18: they move on phi_i = 0); returns how many. For one constraint
+    nothing but a held contact is masked."""
+    k = 0
     for i in range(NCON):
-        mask[i] = 0
+        mask[i] = 1 if held[i] != 0 else 0
+        k += mask[i]
     if NCON == 1:
-        return 0
+        return k
     phis = np.empty(NCON)
     sys_phis(q, prm, phis)
     u = normal_velocities(q, p, prm)
-    k = 0
     for i in range(NCON):
-        if phis[i] <= touch_tolerance(q, prm, i, u[i], h, event_tol) and u[i] >= 0.0:
+        if mask[i] == 0 and phis[i] <= touch_tolerance(q, prm, i, u[i], h, event_tol) and u[i] >= 0.0:
             mask[i] = 1
             k += 1
     return k
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def unmask_penetrating(q, prm, mask):
-    """Unmask the masked contacts that penetrate at q (phi_i below minus its round-off); returns how many."""
+def unmask_penetrating(q, prm, mask, held):
+    """Unmask the masked contacts that penetrate at q (phi_i below minus its round-off), held ones
+    aside; returns how many."""
     if NCON == 1:
         return 0
     phis = np.empty(NCON)
     sys_phis(q, prm, phis)
     k = 0
     for i in range(NCON):
-        if mask[i] == 1 and phis[i] < -touch_tolerance(q, prm, i, 0.0, 1.0, 0.0):
+        if mask[i] == 1 and held[i] == 0 and phis[i] < -touch_tolerance(q, prm, i, 0.0, 1.0, 0.0):
             mask[i] = 0
             k += 1
     return k

@@ -147,7 +147,7 @@ def trajectory_from_group(g):
             arrays[f.name] = g[f.name][()] if f.name in g else None
             continue
         dt = np.uint8 if f.dtype == "bool" else np.dtype(f.dtype)
-        value = arr(f.name, (0, n) if f.dof else (0,), dt)
+        value = arr(f.name, f.shape(0, n, 0), dt)
         arrays[f.name] = value.astype(bool) if f.dtype == "bool" else value
     return Trajectory(
         method=a.get("core_method", a.get("method", "")), system=a.get("system", ""), h=float(a["h"]),

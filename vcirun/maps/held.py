@@ -1,0 +1,274 @@
+# numba source unit: held (resting) contacts, issue 18 (docs/contacts.md, "Held contacts").
+# Contract: vcirun.codegen.units.
+#
+# While the contacts of a set A are held, phi_A(q) = 0 is a bilateral constraint and every method
+# takes the constrained variational step of its discrete Lagrangian (RATTLE form, Marsden & West,
+# Discrete mechanics and variational integrators, Sec. 3.5; Leimkuhler & Reich, Sec. 7): per explicit
+# stage of length hs from (q0, p0),
+#     Pm(q0, v, hs) = p0 + G_A(q0)^T lam          (forced DEL momentum, with the constraint impulse)
+#     phi_A(q0 + hs v) = 0                         (solved for (v, lam) by Newton)
+#     p1 = Pp(q0, v, hs) + G_A(q1)^T mu,  G_A(q1) M(q1)^-1 p1 = 0   (the hidden constraint)
+# a symplectic map of the cotangent bundle of the constraint manifold (the discrete Lagrangian
+# restricted to it), so the held phase keeps the VI structure. lam + mu is the stage's contact
+# impulse. The instantaneous contact force of the continuous motion (the index-reduced multiplier,
+# `contact_forces`) decides holding (compressive, > 0) and release (it would turn tensile).
+import math
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def contact_forces(q, p, t, prm, held, mu):
+    """mu_A: the multipliers of the held contacts in the continuous motion through (q, p) at t,
+    pdot = F + G_A^T mu, F = -dH/dq + f, from d^2/dt^2 phi_A = 0 with v = M^-1 p:
+        G M^-1 G^T mu = -(G M^-1 (F - Mdot v) + (v^T Hess phi_i v)_i).
+    mu_i > 0 compresses (pushes along +grad phi_i); mu_i = 0 for contacts not held. Returns False
+    if the held contacts' Delassus matrix is singular."""
+    for i in range(NCON):
+        mu[i] = 0.0
+    k = 0
+    idx = np.empty(NCON, dtype=np.int64)
+    for i in range(NCON):
+        if held[i] != 0:
+            idx[k] = i
+            k += 1
+    if k == 0:
+        return True
+    y = np.empty(2 * NDOF)
+    f = np.empty(2 * NDOF)
+    for j in range(NDOF):
+        y[j] = q[j]
+        y[NDOF + j] = p[j]
+    dynamics_rhs(t, y, prm, f)          # f[:n] = v, f[n:] = F
+    v = f[:NDOF].copy()
+    mdv = np.empty(NDOF)
+    sys_Mdotv(q, v, prm, mdv)
+    dd = np.empty(NCON)
+    sys_ddphis(q, v, prm, dd)
+    G = np.empty((NCON, NDOF))
+    sys_dphis(q, prm, G)
+    A = np.empty((NDOF, NDOF))
+    sys_M(q, prm, A)
+    rhs = np.empty(NDOF)
+    for j in range(NDOF):
+        rhs[j] = f[NDOF + j] - mdv[j]
+    X = np.empty((k, NDOF))     # rows M^-1 grad phi_i
+    for a in range(k):
+        for j in range(NDOF):
+            X[a, j] = G[idx[a], j]
+        B = A.copy()
+        if not solve_small(B, X[a], NDOF):
+            return False
+    B = A.copy()
+    if not solve_small(B, rhs, NDOF):
+        return False
+    W = np.empty((k, k))
+    b = np.empty(k)
+    for a in range(k):
+        s = dd[idx[a]]
+        for j in range(NDOF):
+            s += G[idx[a], j] * rhs[j]
+        b[a] = -s
+        for c in range(k):
+            w = 0.0
+            for j in range(NDOF):
+                w += G[idx[a], j] * X[c, j]
+            W[a, c] = w
+    if not solve_small(W, b, k):
+        return False
+    for a in range(k):
+        mu[idx[a]] = b[a]
+    return True
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def project_momentum(q, p, prm, held, imp):
+    """p <- p + G_A^T pi with G_A M^-1 p = 0 after (the held contacts' normal velocities zeroed, a
+    plastic impact on them); imp[i] receives pi_i (0 for contacts not held)."""
+    k = 0
+    idx = np.empty(NCON, dtype=np.int64)
+    for i in range(NCON):
+        imp[i] = 0.0
+        if held[i] != 0:
+            idx[k] = i
+            k += 1
+    if k == 0:
+        return True
+    G = np.empty((NCON, NDOF))
+    sys_dphis(q, prm, G)
+    A = np.empty((NDOF, NDOF))
+    sys_M(q, prm, A)
+    X = np.empty((k, NDOF))
+    for a in range(k):
+        for j in range(NDOF):
+            X[a, j] = G[idx[a], j]
+        B = A.copy()
+        if not solve_small(B, X[a], NDOF):
+            return False
+    W = np.empty((k, k))
+    b = np.empty(k)
+    for a in range(k):
+        s = 0.0
+        for j in range(NDOF):
+            s += X[a, j] * p[j]
+        b[a] = -s
+        for c in range(k):
+            w = 0.0
+            for j in range(NDOF):
+                w += G[idx[c], j] * X[a, j]
+            W[a, c] = w
+    if not solve_small(W, b, k):
+        return False
+    for a in range(k):
+        imp[idx[a]] = b[a]
+        for j in range(NDOF):
+            p[j] += b[a] * G[idx[a], j]
+    return True
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def held_stage(sid, q0, p0, hs, t, prm, ntol, maxit, held, v, q1, p1, imp):
+    """One constrained explicit stage (see the unit's header); v: Newton's start on entry, the step
+    velocity on exit; imp[i] += lam_i + mu_i. Returns Newton iterations (< 0 on failure)."""
+    k = 0
+    idx = np.empty(NCON, dtype=np.int64)
+    for i in range(NCON):
+        if held[i] != 0:
+            idx[k] = i
+            k += 1
+    m = NDOF + k
+    x = np.zeros(m)
+    for j in range(NDOF):
+        x[j] = v[j]
+    c = np.empty(NODE_LEN)
+    cn = np.empty(NODE_LEN)
+    sys_node(q0, prm, c)
+    r = np.empty(NDOF)
+    J = np.empty((NDOF, NDOF))
+    G0 = np.empty((NCON, NDOF))
+    G1 = np.empty((NCON, NDOF))
+    phis = np.empty(NCON)
+    sys_dphis(q0, prm, G0)
+    F = np.empty(m)
+    JJ = np.empty((m, m))
+    qn = np.empty(NDOF)
+    it = 0
+    ok = False
+    dprev = np.inf
+    while it < maxit:
+        it += 1
+        ld_PmJc(sid, q0, x[:NDOF], hs, t, prm, c, r, J)
+        for j in range(NDOF):
+            qn[j] = q0[j] + hs * x[j]
+        sys_phis(qn, prm, phis)
+        sys_dphis(qn, prm, G1)
+        for i in range(NDOF):
+            s = r[i] - p0[i]
+            for a in range(k):
+                s -= G0[idx[a], i] * x[NDOF + a]
+            F[i] = s
+            for j in range(NDOF):
+                JJ[i, j] = J[i, j]
+            for a in range(k):
+                JJ[i, NDOF + a] = -G0[idx[a], i]
+        for a in range(k):
+            # phi(q0 + hs v) / hs, whose v-derivative is G(q1): regular as hs -> 0 (then G(q0) v)
+            if hs != 0.0:
+                F[NDOF + a] = phis[idx[a]] / hs
+            else:
+                s = 0.0
+                for j in range(NDOF):
+                    s += G0[idx[a], j] * x[j]
+                F[NDOF + a] = s
+            for j in range(NDOF):
+                JJ[NDOF + a, j] = G1[idx[a], j]
+            for b in range(k):
+                JJ[NDOF + a, NDOF + b] = 0.0
+        if not solve_small(JJ, F, m):
+            break
+        dn = 0.0
+        xn = 0.0
+        for j in range(m):
+            x[j] -= F[j]
+            dn = max(dn, abs(F[j]))
+            xn = max(xn, abs(x[j]))
+        if not math.isfinite(dn):
+            break
+        if dn <= ntol * (1.0 + xn):
+            ok = True
+            break
+        if it >= 3 and dn >= dprev and dn <= math.sqrt(ntol) * (1.0 + xn):  # round-off floor
+            ok = True
+            break
+        dprev = dn
+    for j in range(NDOF):
+        v[j] = x[j]
+        q1[j] = q0[j] + hs * x[j]
+    ld_Ppc(sid, q0, x[:NDOF], hs, t, prm, c, p1, cn)
+    pi = np.empty(NCON)
+    if not project_momentum(q1, p1, prm, held, pi):
+        return -it
+    for a in range(k):
+        imp[idx[a]] += x[NDOF + a] + pi[idx[a]]
+    return it if ok else -it
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def held_step(q0, p0, h, t, prm, ntol, maxit, held, q1, p1, vlast, imp):
+    """The constrained map of the scene's discrete Lagrangian (its explicit stages in turn, each
+    constrained) over h from (q0, p0) with the contacts `held` held; imp (NCON) receives the
+    contact impulses. Returns (iterations, < 0 on failure; discrete energy -D3 Ld of the stages)."""
+    for i in range(NCON):
+        imp[i] = 0.0
+    v = np.empty(NDOF)
+    velocity_guess(q0, p0, prm, v)
+    qa = q0.copy()
+    pa = p0.copy()
+    total = 0
+    Ed = 0.0
+    ts = t
+    for s in range(FULL_STAGES.shape[0]):
+        hs = FULL_FRACS[s] * h
+        if s > 0:
+            velocity_guess(qa, pa, prm, v)
+        it = held_stage(FULL_STAGES[s], qa, pa, hs, ts, prm, ntol, maxit, held, v, q1, p1, imp)
+        if it < 0:
+            return it - total, np.nan
+        total += it
+        Ed += FULL_FRACS[s] * ld_Ed(FULL_STAGES[s], qa, v, hs, prm)
+        ts += hs
+        copy_into(qa, q1)
+        copy_into(pa, p1)
+    copy_into(vlast, v)
+    return total, Ed
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def normal_acceleration(q, p, t, prm, i):
+    """d^2 phi_i / dt^2 of the free (unheld) motion through (q, p): negative when the motion is pressed
+    into contact i."""
+    y = np.empty(2 * NDOF)
+    f = np.empty(2 * NDOF)
+    for j in range(NDOF):
+        y[j] = q[j]
+        y[NDOF + j] = p[j]
+    dynamics_rhs(t, y, prm, f)
+    v = f[:NDOF].copy()
+    mdv = np.empty(NDOF)
+    sys_Mdotv(q, v, prm, mdv)
+    dd = np.empty(NCON)
+    sys_ddphis(q, v, prm, dd)
+    G = np.empty((NCON, NDOF))
+    sys_dphis(q, prm, G)
+    A = np.empty((NDOF, NDOF))
+    sys_M(q, prm, A)
+    w = np.empty(NDOF)
+    for j in range(NDOF):
+        w[j] = f[NDOF + j] - mdv[j]
+    if not solve_small(A, w, NDOF):
+        return np.nan
+    s = dd[i]
+    for j in range(NDOF):
+        s += G[i, j] * w[j]
+    return s
