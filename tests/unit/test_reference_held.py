@@ -219,7 +219,7 @@ def test_zeno_ball_extrapolated_and_at_rest_after():
     # the bounces solved here, up to the first flight below ZENO_FLIGHT (as the reference's loop will)
     ts, zk = _bounce_until(lambda t, zz: [zz[1], -g], lambda zz: zz[0], newton, [y0, 0.0], rh.ZENO_FLIGHT, g)
     k = len(ts) - 1
-    assert rh.accumulating(ts) and not rh.accumulating(ts[:-1])
+    assert rh.accumulating(ts, e=e) and not rh.accumulating(ts[:-1], e=e)
     assert ts[k] - ts[k - 1] < rh.ZENO_FLIGHT <= ts[k - 1] - ts[k - 2]
     np.testing.assert_allclose(ts, z.impact_times(k + 1), rtol=0, atol=1e-12)
     t_inf, seg = rh.zeno_entry(mod, ts[k], np.array([zk[0], m * zk[1]]), prm, 0, ts)
@@ -268,8 +268,15 @@ def test_zeno_extrapolation_exact_for_geometric_and_second_order_in_the_flight()
         d2 = ts[j] - ts[j - 1]
         assert abs((rh.zeno_extrapolation(ts[:j + 1]) - t_inf) / d2 ** 2 + c) <= 0.02 * c
     j = next(i for i in range(2, len(ts)) if ts[i] - ts[i - 1] < rh.ZENO_FLIGHT)
-    assert abs(rh.zeno_extrapolation(ts[:j + 1]) - t_inf) <= 1e-13  # the round-off of the summed times
+    d2 = ts[j] - ts[j - 1]
+    # + the round-off of the summed times
+    assert abs(rh.zeno_extrapolation(ts[:j + 1]) - t_inf) <= 1.02 * c * d2 ** 2 + 1e-13
     assert rh.accumulating(ts[:j + 1]) and not rh.accumulating(ts[:j])
+    assert rh.accumulating(ts[:j + 1], e=e) and not rh.accumulating(ts[:j + 1], e=0.7)
+    # shrinking flights that do not accumulate (e = 1 with drag: d_j ~ 1 / j, ratio -> 1)
+    harmonic = np.cumsum(1e-6 * 1000.0 / (1000.0 + np.arange(50)))
+    assert rh.accumulating(harmonic)  # the flights alone do not tell ...
+    assert not rh.accumulating(harmonic, e=1.0) and not rh.accumulating(harmonic, e=0.8)  # ... the ratio does
     with pytest.raises(ValueError, match="times"):
         rh.zeno_extrapolation([0.0, 1.0])
     with pytest.raises(ValueError, match="do not shrink"):
