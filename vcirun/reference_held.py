@@ -77,6 +77,18 @@ class _Geometry:
         W, _ = self.W(A)
         return np.linalg.solve(W, -self.free_acc(A))
 
+    def held_acc(self, A):
+        """d^2/dt^2 phi_i of every contact along the held flow of A (0 for i in A, up to round-off):
+        G M^-1 (F + G_A^T mu - Mdot v) + c."""
+        f = self.F - self.Mdv
+        if A:
+            f = f + self.G[list(A)].T @ self.mu(A)
+        return self.G @ np.linalg.solve(self.M, f) + self.c
+
+    def acc_scale(self):
+        return max(float(np.max(np.abs(self.G @ np.linalg.solve(self.M, self.F)))), float(np.max(np.abs(self.c))),
+                   _EPS)
+
 
 def held_multipliers(mod, t, q, p, prm, A) -> np.ndarray:
     """mu (len(A)) of the held contacts A at (t, q, p): the solution of
@@ -298,7 +310,8 @@ class HeldSegment:
 
     sol(t) -> y (dense, (len(y),) or (len(y), len(t))), y1 the end state (projected onto the held
     manifold), reason "release" (contact `contact` released: mu crossed 0 downwards), "impact"
-    (contact `contact`, not held, reached phi = 0) or "end" (T reached); held the held set A;
+    (contact `contact`, not held, reached phi = 0), "pressed" (contact `contact`, at rest and not held,
+    is pushed into its constraint) or "end" (T reached); held the held set A;
     mu(t) the multipliers along the segment (len(A)) or (len(A), len(t))); drift: max |phi_A| and
     max |G_A v| seen before any projection (the index reduction's drift, at the restarts and the end)."""
 
@@ -338,16 +351,21 @@ def held_segment(mod, t0, y0, T, A, mask, prm, rtol=1e-13, atol=None, *, release
                  drift_tol=None, max_restarts=1000) -> HeldSegment:
     """Integrate the held dynamics of the set A (DOP853, dense output) from y0 (projected first) at
     t0 until the first of: a release (mu_i, i in A, crosses 0 downwards; solve_ivp's event, located
-    by brentq to ~4 eps relative on the dense output), an impact of a contact neither held nor
-    masked (the gap over them crosses 0 downwards; a dip of the gap below 0 inside one step is found
-    on the dense output, as in the free segments), a masked contact (touching and not approaching at
-    t0) pressed below -64 eps (1 + |q| |grad phi|) (reported as an impact), or T.
+    by brentq to ~4 eps relative on the dense output), an impact of a contact not held (the gap over
+    the watched contacts crosses 0 downwards; a dip of the gap below 0 inside one step is found on
+    the dense output, as in the free segments), a masked contact at rest pressed in ("pressed": its
+    normal acceleration along the held flow crosses 0 downwards; at t0 already if it is negative
+    there), or T.
 
     mask: int array (m) of the contacts touching and not approaching at t0 (vcirun's touching_mask),
-    or None. atol defaults to rtol max(1, |y0|). If the constraint drift max |phi_A| exceeds
-    drift_tol (default 1e3 atol) the solve stops, projects and continues (a restart, recorded in
-    pieces); the jump of a restart is at most drift_tol. The end state is projected onto A.
-    release_events=False: no release event (zeno_entry's short settle interval)."""
+    or None. A masked contact at rest (phi_i and u_i ~ 0, `at_rest`) is not watched by the gap but by
+    its acceleration, with a fallback impact event at phi_i = -64 eps (1 + |q| |grad phi_i|) should
+    it leave and come back; a masked contact that leaves (u_i > 0) is watched by the gap, with the
+    first step at most 0.05 u_i / |phi_i''| so that a short flight is not inside it (its phi at t0 is
+    round-off of either sign). atol defaults to rtol max(1, |y0|). If the constraint drift
+    max |phi_A| exceeds drift_tol (default 1e3 atol) the solve stops, projects and continues (a
+    restart, recorded in pieces); the jump of a restart is at most drift_tol. The end state is
+    projected onto A. release_events=False: no release event (zeno_entry's short settle interval)."""
     from scipy.integrate import solve_ivp  # here: `import vcirun` stays light
 
     A = tuple(sorted(int(i) for i in A))
@@ -360,10 +378,24 @@ def held_segment(mod, t0, y0, T, A, mask, prm, rtol=1e-13, atol=None, *, release
     drift_tol = 1e3 * atol if drift_tol is None else float(drift_tol)
     rhs = held_rhs(mod, prm, A)
     mask0 = np.zeros(m, dtype=np.int64) if mask is None else np.asarray(mask, dtype=np.int64).copy()
-    watch = np.zeros(m, dtype=np.int64)   # 1 = not watched by the gap event (held or masked)
+    g0 = _Geometry(mod, t0, y[:n], y[n:2 * n], prm)
+    rest0 = at_rest(mod, t0, y[:n], y[n:2 * n], prm)
+    acc0, u0 = g0.held_acc(A), g0.G @ g0.v
+    watch = np.zeros(m, dtype=np.int64)   # 1 = not watched by the gap event (held, or masked at rest)
     watch[list(A)] = 1
-    watch |= mask0
-    masked = [i for i in range(m) if mask0[i] and i not in A]
+    resting, first_step = [], None
+    for i in range(m):
+        if not mask0[i] or i in A:
+            continue
+        if i in rest0:
+            watch[i] = 1
+            resting.append(i)
+            if acc0[i] < -HELD_TOL * g0.acc_scale():   # pushed in from the start: hold it (the caller)
+                return HeldSegment(t0, t0, y, "pressed", i, A, (0.0, 0.0), [(t0, t0, _Constant(y))],
+                                   lambda t, yy: _Geometry(mod, t, yy[:n], yy[n:2 * n], prm).mu(A))
+        elif u0[i] > 0.0 and acc0[i] < 0.0:
+            fs = 0.05 * u0[i] / -acc0[i]
+            first_step = fs if first_step is None else min(first_step, fs)
     free = [i for i in range(m) if not watch[i]]
 
     def mu_at(t, yy):
@@ -389,15 +421,21 @@ def held_segment(mod, t0, y0, T, A, mask, prm, rtol=1e-13, atol=None, *, release
         dip.terminal, dip.direction = False, 1.0
         events.append(dip)
         kinds.append(("dip", -1))
-    for i in masked:
+    for i in resting:
         def pressed(t, yy, i=i):
+            return _Geometry(mod, t, yy[:n], yy[n:2 * n], prm).held_acc(A)[i]
+        pressed.terminal, pressed.direction = True, -1.0
+        events.append(pressed)
+        kinds.append(("pressed", i))
+
+        def back(t, yy, i=i):
             phis = np.empty(m)
             mod.sys_phis(yy[:n].copy(), prm, phis)
             gn = np.empty((m, n))
             mod.sys_dphis(yy[:n].copy(), prm, gn)
             return phis[i] + 64 * _EPS * (1.0 + np.max(np.abs(yy[:n])) * np.max(np.abs(gn[i])))
-        pressed.terminal, pressed.direction = True, -1.0
-        events.append(pressed)
+        back.terminal, back.direction = True, -1.0
+        events.append(back)
         kinds.append(("impact", i))
 
     def drift(t, yy):
@@ -414,7 +452,9 @@ def held_segment(mod, t0, y0, T, A, mask, prm, rtol=1e-13, atol=None, *, release
         if not t < T:
             pieces.append((t, t, _Constant(y)))
             return HeldSegment(t0, t, y, "end", -1, A, tuple(worst), pieces, mu_at)
-        sol = solve_ivp(rhs, (t, T), y, method="DOP853", rtol=rtol, atol=atol, events=events, dense_output=True)
+        fs = None if first_step is None or t > t0 else min(first_step, T - t)
+        sol = solve_ivp(rhs, (t, T), y, method="DOP853", rtol=rtol, atol=atol, events=events, dense_output=True,
+                        first_step=fs)
         if sol.status < 0:
             raise RuntimeError(f"reference: DOP853 failed in a held phase at t={sol.t[-1]:.6g}: {sol.message}")
         hit = None  # (time, kind index)
@@ -525,6 +565,7 @@ def after_held_event(mod, seg: HeldSegment, prm, event_tol=2.5e-11, tol=HELD_TOL
       no impact is recorded for a held contact; its impulse is the constraint's); then the held set is
       held_set over all contacts at (q, p+) (the held contacts that kept u = 0 and a compressive
       force, and j itself if its impact was plastic and it is pressed: case (b));
+    - "pressed" (contact j at rest pushed in): held_set over A + {j}, no impact;
     - "end": nothing changes.
     The state is projected onto the new held set. event_tol: the impact law's simultaneity
     tolerance in seconds (vcirun.reference uses SIMULTANEOUS / 4)."""
@@ -536,6 +577,8 @@ def after_held_event(mod, seg: HeldSegment, prm, event_tol=2.5e-11, tol=HELD_TOL
     if seg.reason == "release":
         released = seg.contact
         held = held_set(mod, t, y[:n], y[n:2 * n], prm, [i for i in seg.held if i != released], tol)
+    elif seg.reason == "pressed":  # a contact at rest now needs a force: hold it (no impact)
+        held = held_set(mod, t, y[:n], y[n:2 * n], prm, sorted(set(seg.held) | {seg.contact}), tol)
     elif seg.reason == "impact":
         d, lam, active = np.empty(n), np.empty(m), np.empty(m, dtype=np.int64)
         k, s0, _ = mod.impact_direction(y[:n].copy(), y[n:2 * n].copy(), 1.0, event_tol, prm, d, lam, active)
@@ -548,7 +591,7 @@ def after_held_event(mod, seg: HeldSegment, prm, event_tol=2.5e-11, tol=HELD_TOL
                     impacts.append((t, int(i), float(s0 if m == 1 else lam[i])))
         held = held_set(mod, t, y[:n], y[n:2 * n], prm, None, tol)
     else:
-        raise ValueError(f"seg.reason: {seg.reason!r} is not release, impact or end")
+        raise ValueError(f"seg.reason: {seg.reason!r} is not release, impact, pressed or end")
     if held:
         y = _project_y(mod, y, prm, held)
     rest = tuple(i for i in at_rest(mod, t, y[:n], y[n:2 * n], prm, tol) if i not in held)

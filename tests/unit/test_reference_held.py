@@ -33,8 +33,9 @@ from vcirun.mechanics import get_scene
 from vcirun.mechanics.loader import load_system_yaml
 from vcirun.oracles import ball_in_box_exact, bead_release, zeno_ball
 
-BEAD = {"name": "bead_circle_e", "coordinates": ["x", "y"], "parameters": {"m": 1.0, "g": 9.81, "R": 1.0, "e": 0.0},
-        "mass_matrix": [["m", "0"], ["0", "m"]], "potential": "m*g*y",
+BEAD = {"name": "bead_circle_drag", "coordinates": ["x", "y"],
+        "parameters": {"m": 1.0, "g": 9.81, "R": 1.0, "e": 0.0, "c": 0.0},
+        "mass_matrix": [["m", "0"], ["0", "m"]], "potential": "m*g*y", "forcing": ["-c*x_dot", "-c*y_dot"],
         "constraints": [{"name": "surface", "phi": "sqrt(x**2 + y**2) - R", "restitution": "e"}]}
 ZENO = {"name": "zeno_ball", "coordinates": ["y"], "parameters": {"m": 1.0, "g": 9.81, "e": 0.8},
         "mass_matrix": [["m"]], "potential": "m*g*y",
@@ -130,6 +131,35 @@ def test_bead_fast_at_the_top_is_not_held(bead):
     assert rh.initially_held(mod, q0, p0, prm) == ()
     acc = rh.free_normal_accelerations(mod, 0.0, q0, p0, prm)
     assert abs(acc[0] - (3.5 ** 2 - 9.81)) <= 1e-12
+
+
+def test_bead_with_drag_carries_the_work_and_releases_later(bead):
+    """A forced held phase: linear drag f = -c v (tangential on the circle, so the normal force is
+    still m (g cos theta - R theta'^2)) and the work W = int f . v as a last state component (as the
+    reference's forced solves carry it): the release against the 1-DOF ODE
+    R theta'' = g sin theta - (c/m) R theta' with the event N = 0, and H(t) - H(0) = W(t)."""
+    system, mod = bead
+    R, g, v0, m, c = 1.0, 9.81, 0.5, 1.0, 0.8
+    prm = system.param_values({"R": R, "g": g, "m": m, "c": c})
+    assert bool(mod.FORCED)
+    q0, p0 = np.array([0.0, R]), m * np.array([v0, 0.0])
+    assert rh.initially_held(mod, q0, p0, prm) == (0,)
+    seg = rh.held_segment(mod, 0.0, np.r_[q0, p0, 0.0], 10.0, (0,), None, prm)
+
+    def N(t, z):
+        return g * math.cos(z[0]) - R * z[1] ** 2
+    N.terminal, N.direction = True, -1.0
+    sol = solve_ivp(lambda t, z: [z[1], (g / R) * math.sin(z[0]) - (c / m) * z[1]], (0.0, 10.0), [0.0, v0 / R],
+                    method="DOP853", rtol=1e-13, atol=1e-15, events=N, dense_output=True)
+    t_r = float(sol.t_events[0][0])
+    assert seg.reason == "release" and abs(seg.t1 - t_r) <= 1e-10
+    assert t_r > bead_release(R, g, v0, m).t_r                       # drag: later than without
+    tt = np.linspace(0.0, seg.t1, 41)
+    y = seg.sol(tt)
+    th = sol.sol(tt)[0]
+    assert np.max(np.abs(y[0] - R * np.sin(th))) <= 1e-9 and np.max(np.abs(y[1] - R * np.cos(th))) <= 1e-9
+    H = 0.5 * (y[2] ** 2 + y[3] ** 2) / m + m * g * y[1]
+    assert np.max(np.abs(H - H[0] - y[4])) <= 1e-11 and y[4, -1] < -1e-3    # energy balance, W < 0
 
 
 # --- the cart-pendulum on its floor: a coupled mass matrix ---------------------------------------
@@ -471,11 +501,12 @@ def test_ball_slides_on_the_floor_and_meets_the_walls(box):
 
 
 OBSTACLES = {"name": "floor_and_obstacles", "coordinates": ["x", "y", "z"],
-             "parameters": {"m": 1.0, "g": 9.81, "a": 2.0, "b": 1.0, "c": 2.0, "d": 1.0, "r": 1.0},
+             "parameters": {"m": 1.0, "g": 9.81, "a": 2.0, "b": 1.0, "c": 2.0, "d": 1.0, "r": 1.0, "rho": 100.0},
              "mass_matrix": [["m", "0", "0"], ["0", "m", "0"], ["0", "0", "m"]], "potential": "m*g*y",
              "constraints": [{"name": "floor", "phi": "y", "restitution": 0},
                              {"name": "bump", "phi": "(x - a)**2 + (y - b)**2 - r**2", "restitution": 1},
-                             {"name": "post", "phi": "(x - c)**2 + (z - d)**2 - r**2", "restitution": 1}]}
+                             {"name": "post", "phi": "(x - c)**2 + (z - d)**2 - r**2", "restitution": 1},
+                             {"name": "ring", "phi": "rho**2 - x**2 - z**2", "restitution": 1}]}
 
 
 @pytest.fixture(scope="module")
@@ -524,6 +555,44 @@ def test_an_impact_that_presses_into_the_held_floor(obstacles):
     # the LCP of the bump (e = 1, normal n) and the floor (u- = 0): both active, vy+ = 0 and
     # n . v+ = -n . v- = -n_x, so vx+ = -1: the ball is sent back at its speed
     assert abs(tr.y[3] - (-1.0)) <= 1e-12
+
+
+@pytest.mark.parametrize("start", ["held", "pressed"])
+def test_two_held_contacts_ball_running_round_inside_a_ring(obstacles, start):
+    """A ball on the floor running round the inside of a vertical ring wall x^2 + z^2 = rho^2 at
+    speed v: two held contacts, the floor with m g and the ring with m v^2 / rho (the multiplier of
+    grad phi = -2 (x, 0, z), |grad phi| = 2 rho: mu = m v^2 / (2 rho^2)), uniform circular motion.
+    Held from the start by (c), or started held on the floor only with the ring masked (touching,
+    not approaching): then the segment ends at once "pressed" and the transition holds both."""
+    system, mod = obstacles
+    rho, v, m, g = 1.5, 2.0, 1.0, 9.81
+    prm = system.param_values({"rho": rho, "b": 50.0, "d": 50.0})
+    y0 = np.array([rho, 0.0, 0.0, 0.0, 0.0, m * v])
+    if start == "held":
+        A = rh.initially_held(mod, y0[:3], y0[3:], prm)
+        assert A == (0, 3)
+    else:
+        mask, hv = np.zeros(4, dtype=np.int64), np.zeros(4, dtype=np.int64)
+        hv[0] = 1
+        mod.touching_mask(y0[:3].copy(), y0[3:].copy(), 1.0, 2.5e-11, prm, mask, hv)
+        assert list(mask) == [1, 0, 0, 1]
+        seg = rh.held_segment(mod, 0.0, y0, 5.0, (0,), mask, prm)
+        assert seg.reason == "pressed" and seg.contact == 3 and seg.t1 == 0.0
+        tr = rh.after_held_event(mod, seg, prm)
+        assert tr.held == (0, 3) and tr.impacts == []
+        A, y0 = tr.held, tr.y
+    T = 2.0 * math.pi * rho / v          # one turn
+    seg = rh.held_segment(mod, 0.0, y0, T, A, None, prm)
+    assert seg.reason == "end" and seg.held == (0, 3)
+    tt = np.linspace(0.0, T, 73)
+    y = seg.sol(tt)
+    w = v / rho
+    assert np.max(np.abs(y[0] - rho * np.cos(w * tt))) <= 1e-9 and np.max(np.abs(y[2] - rho * np.sin(w * tt))) <= 1e-9
+    assert np.max(np.abs(y[1])) <= 1e-14
+    mu = seg.mu(tt)
+    assert np.max(np.abs(mu[0] - m * g)) <= 1e-12 * m * g
+    assert np.max(np.abs(mu[1] - m * v * v / (2.0 * rho * rho))) <= 1e-9 * m * v * v / rho
+    assert abs(np.hypot(seg.y1[3], seg.y1[5]) - m * v) <= 1e-9           # the speed is kept
 
 
 def test_held_set_needs_a_compressive_force(box):
