@@ -183,7 +183,7 @@ class Trajectory:
         df.attrs.update(system=self.system, method=self.method, h=self.h, status=self.status)
         return df
 
-    def save(self, path) -> "Path":
+    def save(self, path):
         """Write the run to `path` by its suffix: .h5/.hdf5 (group `trajectory`, the layout of a results
         file's run group; read back with `vcirun.trajectory.read_trajectory`), .nc (netCDF via
         `to_xarray`, needs h5netcdf or netCDF4), .csv (`to_dataframe`), .npz (numpy arrays)."""
@@ -197,13 +197,13 @@ class Trajectory:
         if suffix in (".h5", ".hdf5"):
             import h5py
 
-            from .experiments import storage
+            from . import trajectory_io
 
-            attrs, arrays = storage.trajectory_payload(self)
+            attrs, arrays = trajectory_io.trajectory_payload(self)
             attrs["coordinates"] = self.coordinate_names
             with h5py.File(path, "w") as f:
                 f.attrs["format"] = "vcirun-trajectory"
-                storage._write_group(f, "trajectory", {k: v for k, v in attrs.items() if k != "coordinates"}, arrays)
+                trajectory_io._write_group(f, "trajectory", {k: v for k, v in attrs.items() if k != "coordinates"}, arrays)
                 f["trajectory"].attrs["coordinates"] = np.array(self.coordinate_names, dtype=h5py.string_dtype())
         elif suffix == ".nc":
             self.to_xarray().to_netcdf(path)
@@ -245,16 +245,42 @@ Trajectory.__doc__ = (
     + "\nand status, message, fail_step, fail_time, beta, wall_time, tolerances, options.")
 
 
+def trajectory_from_group(g):
+    """Rebuild a `Trajectory` from a run group (arrays that were not stored come back empty)."""
+    from . import trajectory_io
+
+    a = trajectory_io.decode_attrs(g.attrs)
+    n = int(g["impact_q"].shape[1]) if "impact_q" in g and g["impact_q"].ndim == 2 else 0
+
+    def arr(name, shape=(0,), dtype=float):
+        return g[name][()] if name in g else np.zeros(shape, dtype)
+
+    beta = a.get("beta", float("nan"))
+    arrays = {}
+    for f in record.FIELDS:  # one per row of the run record; a row not stored comes back empty
+        if f.only is not None:
+            arrays[f.name] = g[f.name][()] if f.name in g else None
+            continue
+        dt = np.uint8 if f.dtype == "bool" else np.dtype(f.dtype)
+        value = arr(f.name, f.shape(0, n, 0), dt)
+        arrays[f.name] = value.astype(bool) if f.dtype == "bool" else value
+    return Trajectory(
+        method=a.get("core_method", a.get("method", "")), system=a.get("system", ""), h=float(a["h"]),
+        T=float(a["T"]), t=arr("t"), **arrays,
+        status=a.get("status", ""), message=a.get("message", ""), fail_step=int(a.get("fail_step", -1)),
+        fail_time=float(a.get("fail_time", float("nan"))),
+        beta=None if beta is None or not np.isfinite(beta) else float(beta), wall_time=float(a.get("wall_time", 0.0)),
+        tolerances=a.get("tolerances") or {}, options=a.get("options") or {})
+
+
 def read_trajectory(path) -> Trajectory:
     """A Trajectory saved by `Trajectory.save(... .h5)` (dense output re-attaches for built-in scenes)."""
     import h5py
 
-    from .experiments import storage
-
     with h5py.File(path, "r") as f:
         if "trajectory" not in f:
             raise ValueError(f"{path}: no 'trajectory' group (written by Trajectory.save / vcirun simulate --output?)")
-        tr = storage.trajectory_from_group(f["trajectory"])
+        tr = trajectory_from_group(f["trajectory"])
         c = f["trajectory"].attrs.get("coordinates")
         if c is not None:
             tr.coordinates = [x.decode() if isinstance(x, bytes) else str(x) for x in c]

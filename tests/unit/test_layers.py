@@ -23,8 +23,8 @@ LAYERS = (
     ("code generation", ("codegen", "cache")),
     ("numba units", ("maps", "collision")),
     ("methods", ("methods",)),
-    ("Python API", ("resolve", "trajectory", "api", "diagnosis")),
-    ("reference", ("reference",)),
+    ("Python API", ("resolve", "trajectory", "trajectory_io", "api", "diagnosis")),
+    ("reference", ("reference", "reference_held")),
     ("analysis", ("verification", "results", "experiments")),
 )
 OUTSIDE = ("__init__", "cli", "__main__")

@@ -244,7 +244,7 @@ def _compiled_expanded(system, ks, directory):
                          ids=[f"{s}-{m}" + "".join(f"-{v}" for v in o.values()) for s, m, o, _ in SIMS])
 def test_simulation_agrees_with_expanded_path(system_name, method, mopts, kw, tmp_path, monkeypatch):
     import vcirun
-    import vcirun.api as api
+    import vcirun.resolve as resolve
     from vcirun.codegen.build import load_module
     from vcirun.methods import resolve_method
 

@@ -43,16 +43,16 @@ CHILD = r"""
 import json, sys
 args = json.loads(sys.argv[1])
 import vcirun
-from vcirun import api
+from vcirun import api, resolve
 from vcirun.codegen import build
 from vcirun.methods import resolve_method
 out = []
 for system, method, kw, force_cold, instance in args["runs"]:
     if force_cold:  # delete the index entry: the symbolic path must run (and write it again)
-        ident = api._warm_ident(system)[0]
+        ident = resolve._warm_ident(system)[0]
         build._index_path(ident, resolve_method(method).kernel_set()).unlink(missing_ok=True)
     if instance:
-        system = api.resolve_system(system)
+        system = resolve.resolve_system(system)
     n0 = len(build.BUILD_LOG)
     tr = vcirun.simulate(system, method, **kw)
     fields = {f: getattr(tr, f) for f in args["fields"]}
@@ -167,12 +167,12 @@ def test_warm_key_follows_the_hashed_files(tmp_path, monkeypatch):
 def test_corrupt_or_stale_index_entries_fall_back_to_the_symbolic_path():
     ks = METHODS["CVA"].kernel_set()
     ident = ("scene", "cart_pendulum")
-    api._WARM_HITS.clear()
-    d, load, sysm = api.resolve_numeric("cart_pendulum", ks)
+    resolve._WARM_HITS.clear()
+    d, load, sysm = resolve.resolve_numeric("cart_pendulum", ks)
     load()
     path = build._index_path(ident, ks)
     assert path.is_file()
-    assert api.resolve_numeric("cart_pendulum", ks)[2] is None  # indexed: no symbolic system
+    assert resolve.resolve_numeric("cart_pendulum", ks)[2] is None  # indexed: no symbolic system
     ref = vcirun.simulate("cart_pendulum", "CVA", h=2e-2, T=2.0, beta=3.2)
     good = path.read_text()
     entry = json.loads(good)
@@ -182,27 +182,27 @@ def test_corrupt_or_stale_index_entries_fall_back_to_the_symbolic_path():
                    json.dumps({k: v for k, v in entry.items() if k != "module"})]
     for bad in bad_entries:
         path.write_text(bad)
-        api._WARM_HITS.clear()  # a new process: the per-process memo of index hits is empty
-        d, load, sysm = api.resolve_numeric("cart_pendulum", ks)
+        resolve._WARM_HITS.clear()  # a new process: the per-process memo of index hits is empty
+        d, load, sysm = resolve.resolve_numeric("cart_pendulum", ks)
         assert sysm is not None, bad  # the symbolic path
         tr = vcirun.simulate("cart_pendulum", "CVA", h=2e-2, T=2.0, beta=3.2)
         assert np.array_equal(tr.q, ref.q) and np.array_equal(tr.p, ref.p)
         assert json.loads(path.read_text())["module"] == entry["module"]  # rewritten by the fallback
     path.unlink()
-    api._WARM_HITS.clear()
+    resolve._WARM_HITS.clear()
     tr = vcirun.simulate("cart_pendulum", "CVA", h=2e-2, T=2.0, beta=3.2)
     assert np.array_equal(tr.q, ref.q) and path.is_file()
 
 
 def test_yaml_index_entry_fields(yaml_file):
     ks = METHODS["CVA"].kernel_set()
-    ident, raw = api._warm_ident(str(yaml_file))
+    ident, raw = resolve._warm_ident(str(yaml_file))
     assert ident[0] == "yaml" and raw == yaml_file.read_bytes()
     build._index_path(ident, ks).unlink(missing_ok=True)
-    d, load, sysm = api.resolve_numeric(str(yaml_file), ks)
+    d, load, sysm = resolve.resolve_numeric(str(yaml_file), ks)
     assert sysm is not None
     load()
-    d2, _, sysm2 = api.resolve_numeric(str(yaml_file), ks)
+    d2, _, sysm2 = resolve.resolve_numeric(str(yaml_file), ks)
     assert sysm2 is None
     assert (d2.name, d2.n, d2.params, d2.description, d2.ic_map) == (d.name, d.n, d.params, d.description, None)
     assert np.array_equal(d2.default_q0, d.default_q0) and np.array_equal(d2.default_p0, d.default_p0)
@@ -218,7 +218,7 @@ def test_substituted_load_module_disables_the_warm_index(monkeypatch):
         return build.load_module(system, ks)
 
     ks = METHODS["CVA"].kernel_set()
-    api.resolve_numeric("cart_pendulum", ks)[1]()  # indexed
+    resolve.resolve_numeric("cart_pendulum", ks)[1]()  # indexed
     monkeypatch.setattr(resolve, "load_module", fake)
     vcirun.simulate("cart_pendulum", "CVA", h=2e-2, T=1.0, beta=3.2)
     assert calls == ["cart_pendulum"]

@@ -10,6 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..trajectory_io import energy_summary, masked_discrete_energy  # noqa: F401  (the trajectory's own summary)
+
 __all__ = ["l2_error", "energy_summary", "masked_discrete_energy", "mean_ci", "TimingStat", "timing_stats",
            "l2_series"]
 
@@ -19,36 +21,6 @@ def l2_error(traj, ref) -> float:
     import vcirun
 
     return float(vcirun.l2_error(traj, ref))
-
-
-def masked_discrete_energy(traj) -> np.ndarray:
-    """-D3 Ld per grid point, NaN where the step from that point contained an impact (there the
-    recorded value belongs to the rejected trial step, not to the step taken)."""
-    Ed = np.array(traj.Ed, dtype=float, copy=True)
-    imp = np.asarray(traj.impact_step, bool)
-    k = min(len(imp), len(Ed))
-    Ed[:k][imp[:k]] = np.nan
-    return Ed
-
-
-def _finite_range(x) -> float:
-    x = np.asarray(x, float)
-    x = x[np.isfinite(x)]
-    return float(x.max() - x.min()) if x.size else math.nan
-
-
-def energy_summary(traj) -> dict:
-    """H0, max |H - H0|, and the ranges (max - min over the run) of H, of -D3 Ld with impact steps
-    masked, and of the truncated modified Hamiltonian (NaN where not defined)."""
-    H = np.asarray(traj.H, float)
-    H0 = float(H[0]) if H.size else math.nan
-    return {
-        "H0": H0,
-        "max_abs_dH": float(np.nanmax(np.abs(H - H0))) if H.size and np.isfinite(H0) else math.nan,
-        "H_range": _finite_range(H),
-        "Ed_range": _finite_range(masked_discrete_energy(traj)) if len(traj.Ed) else math.nan,
-        "Hmod_range": _finite_range(traj.Hmod) if traj.Hmod is not None else math.nan,
-    }
 
 
 def mean_ci(values, level: float = 0.95) -> tuple[float, float, int]:

@@ -54,7 +54,10 @@ import h5py
 import numpy as np
 
 from .. import record
-from .metrics import energy_summary
+# the run-group codec is the Python API's (Trajectory.save writes the same group); re-exported here
+from ..trajectory_io import (IMPACT_ARRAYS, TRAJECTORY_ARRAYS, _decode_attr, _encode_attr,  # noqa: F401
+                             _group_attrs, _write_encoded, _write_group, decode_attrs, trajectory_payload)
+from ..trajectory import trajectory_from_group  # noqa: F401  (re-exported)
 
 __all__ = ["FORMAT", "SCHEMA_VERSION", "StorageError", "ResultsWriter", "RunInfo", "Results", "read_results",
            "load_trajectory", "load_reference", "trajectory_payload", "trajectory_from_group",
@@ -65,16 +68,6 @@ FORMAT = "vcirun-sweep"
 SCHEMA_VERSION = 1
 LIBVER = "latest"
 DEFAULT_COMMIT_INTERVAL = 1.0  # seconds between journal commits (the loss bound of a hard kill)
-
-# Attributes holding JSON text (decoded by the readers here; plain h5py users call json.loads).
-JSON_ATTRS = {"tolerances", "options", "method_spec", "history", "config_canonical", "versions", "h_values",
-              "methods", "ic_keys", "system_spec", "resolved_method"}
-# Per-step arrays dropped when store_trajectories is false; the impact record is always kept.
-# the run record's rows (vcirun.record.FIELDS): per-step arrays with store_trajectories, the impact
-# record always
-TRAJECTORY_ARRAYS = ("t",) + record.stored_names("trajectory")
-IMPACT_ARRAYS = record.stored_names("impacts")
-
 
 class StorageError(RuntimeError):
     """A results file that cannot be used (unreadable, foreign, written by another config, locked,
@@ -89,144 +82,6 @@ def _os_text(e: BaseException) -> str:
     """The OS reason of an error in one line (strerror when there is one)."""
     text = getattr(e, "strerror", None) or str(e)
     return " ".join(str(text).split()) or type(e).__name__
-
-
-# --- attribute encoding -----------------------------------------------------------------------------
-def _encode_attr(key, value):
-    if key in JSON_ATTRS:
-        return json.dumps(value, sort_keys=True, default=_json_default)
-    if value is None:
-        return np.nan if key in _FLOAT_ATTRS else ""
-    if isinstance(value, (bool, np.bool_)):
-        return bool(value)
-    if isinstance(value, (list, tuple)):
-        return np.asarray(value, dtype=float)
-    if isinstance(value, str):
-        return _clean_text(value)
-    return value
-
-
-def _clean_text(s: str) -> str:
-    """Text HDF5 can store: no NUL (variable-length strings end at one) and valid UTF-8 (no lone surrogates)."""
-    if "\x00" in s:
-        s = s.replace("\x00", "\ufffd")
-    try:
-        s.encode("utf-8")
-    except UnicodeEncodeError:
-        s = s.encode("utf-8", "replace").decode("utf-8")
-    return s
-
-
-def _json_default(o):
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    return str(o)
-
-
-def _decode_attr(key, value):
-    if isinstance(value, bytes):
-        value = value.decode("utf-8", "replace")
-    if key in JSON_ATTRS and isinstance(value, str):
-        try:
-            return json.loads(value)
-        except ValueError:
-            return None  # damaged (not JSON): absent rather than text where a mapping or list is expected
-    if isinstance(value, np.ndarray):
-        return value.tolist() if value.ndim else value.item()
-    if isinstance(value, np.generic):
-        return value.item()
-    return value
-
-
-def decode_attrs(attrs) -> dict:
-    return {k: _decode_attr(k, v) for k, v in attrs.items()}
-
-
-_FLOAT_ATTRS = {"beta", "l2_error", "fail_time", "H0", "max_abs_dH", "H_range", "Ed_range", "Hmod_range",
-                "accuracy", "rtol", "ref_h", "wall_time", "wall_time_call", "T", "T_requested", "h"}
-
-
-# --- Trajectory <-> HDF5 -----------------------------------------------------------------------------
-def trajectory_payload(traj, *, store_arrays: bool = True) -> tuple[dict, dict]:
-    """(attrs, arrays) of a `vcirun.trajectory.Trajectory` for one run group."""
-    attrs = {
-        "core_method": traj.method, "system": traj.system, "h": float(traj.h), "T": float(traj.T),
-        "status": traj.status, "message": " ".join(str(traj.message).split()),
-        "fail_step": int(traj.fail_step), "fail_time": float(traj.fail_time),
-        "beta": float("nan") if traj.beta is None else float(traj.beta),
-        "wall_time": float(traj.wall_time), "n_steps": int(len(traj.t) - 1), "n_impacts": int(len(traj.impacts)),
-        "n_partial_steps": int(len(traj.partial_steps)),
-        "newton_iters_total": int(np.sum(traj.newton_iters)) if len(traj.newton_iters) else 0,
-        "has_Hmod": traj.Hmod is not None, "has_trajectory": bool(store_arrays),
-        "tolerances": dict(traj.tolerances), "options": dict(traj.options),
-    }
-    attrs.update(energy_summary(traj))
-    arrays = {name: getattr(traj, name) for name in IMPACT_ARRAYS}
-    if store_arrays:
-        for name in TRAJECTORY_ARRAYS:
-            value = getattr(traj, name)
-            if value is None:
-                continue
-            if name in record.FIELD and record.FIELD[name].dtype == "bool":
-                value = np.asarray(value, dtype=np.uint8)  # 0/1: portable, unlike HDF5's bool enum
-            arrays[name] = value
-    return attrs, {k: np.asarray(v) for k, v in arrays.items()}
-
-
-def trajectory_from_group(g):
-    """Rebuild a `Trajectory` from a run group (arrays that were not stored come back empty)."""
-    from vcirun.trajectory import Trajectory
-
-    a = decode_attrs(g.attrs)
-    n = int(g["impact_q"].shape[1]) if "impact_q" in g and g["impact_q"].ndim == 2 else 0
-
-    def arr(name, shape=(0,), dtype=float):
-        return g[name][()] if name in g else np.zeros(shape, dtype)
-
-    beta = a.get("beta", float("nan"))
-    arrays = {}
-    for f in record.FIELDS:  # one per row of the run record; a row not stored comes back empty
-        if f.only is not None:
-            arrays[f.name] = g[f.name][()] if f.name in g else None
-            continue
-        dt = np.uint8 if f.dtype == "bool" else np.dtype(f.dtype)
-        value = arr(f.name, f.shape(0, n, 0), dt)
-        arrays[f.name] = value.astype(bool) if f.dtype == "bool" else value
-    return Trajectory(
-        method=a.get("core_method", a.get("method", "")), system=a.get("system", ""), h=float(a["h"]),
-        T=float(a["T"]), t=arr("t"), **arrays,
-        status=a.get("status", ""), message=a.get("message", ""), fail_step=int(a.get("fail_step", -1)),
-        fail_time=float(a.get("fail_time", float("nan"))),
-        beta=None if beta is None or not np.isfinite(beta) else float(beta), wall_time=float(a.get("wall_time", 0.0)),
-        tolerances=a.get("tolerances") or {}, options=a.get("options") or {})
-
-
-def _group_attrs(attrs: dict) -> dict:
-    """The attributes of a run/reference group as stored (encoded; `complete` excluded)."""
-    return {key: _encode_attr(key, value) for key, value in attrs.items()
-            if key != "complete" and not (value is None and key not in _FLOAT_ATTRS)}
-    # (None is absent rather than a placeholder; float attributes use NaN)
-
-
-def _write_encoded(f: h5py.File, path: str, enc_attrs: dict, arrays) -> None:
-    """Write one group from encoded attributes and (name, array) pairs; `complete` goes last. (No flush
-    per group: groups are only ever written into a copy that replaces the file once it is complete,
-    and a flush per group made a 2000-run compaction 20x slower.)"""
-    if path in f:
-        del f[path]
-    g = f.create_group(path)
-    for name, value in arrays:
-        g.create_dataset(name, data=np.asarray(value))
-    for key, value in enc_attrs.items():
-        g.attrs[key] = value
-    g.attrs["complete"] = True
-
-
-def _write_group(f: h5py.File, path: str, attrs: dict, arrays: dict) -> None:
-    """Write one run/reference group from a payload (attributes as `trajectory_payload` gives them)."""
-    _write_encoded(f, path, _group_attrs(attrs), arrays.items())
 
 
 # --- what a complete group must hold (resume trusts only what it verifies) ----------------------------
@@ -292,13 +147,17 @@ def run_problem(g, attrs: dict | None = None) -> str | None:
     if n is None or n < 1:
         return "cannot tell the number of coordinates (no q0 attribute nor impact_q dataset)"
     k = _int_attr(a, "n_partial_steps")
-    size = {"grid": N + 1, "step": N, "impact": m, "partial": k}
+    # n_releases and n_contacts came with held contacts (issue 18): absent in older files, whose
+    # release rows and per-contact rows are then not checked
+    size = {"grid": N + 1, "step": N, "impact": m, "partial": k, "release": _int_attr(a, "n_releases")}
+    mc = _int_attr(a, "n_contacts")
     want = {"t": ((N + 1,), True)} if a.get("has_trajectory") is True else {}
     for f in record.FIELDS:  # each stored row of the run record, at its declared length
         if f.stored == "no" or (f.stored == "trajectory" and a.get("has_trajectory") is not True) \
-                or (f.only == "modified" and a.get("has_Hmod") is not True) or size[f.axis] is None:
+                or (f.only == "modified" and a.get("has_Hmod") is not True) or size[f.axis] is None \
+                or (f.contacts and mc is None):
             continue
-        want[f.name] = (((size[f.axis], n) if f.dof else (size[f.axis],)), f.name in _ALWAYS_WRITTEN)
+        want[f.name] = (f.shape(size[f.axis], n, mc or 0), f.name in _ALWAYS_WRITTEN)
     for name, (shape, required) in want.items():
         got = _shape_of(g, name)
         if got is None and not required:

@@ -1,0 +1,178 @@
+"""A Trajectory as one HDF5 group (and the pieces to read it back): the attribute encoding (JSON attributes, NaN for absent
+floats, clean UTF-8 text), the run record's rows as datasets, and the energy summary stored with each
+run. `Trajectory.save(".h5")`, `read_trajectory` and the sweep's results files (vcirun.experiments.storage)
+all write and read run groups through this module, so there is one codec and the Python API layer does
+not import the experiment layer (tests/unit/test_layers.py).
+"""
+from __future__ import annotations
+
+import json
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from . import record
+
+if TYPE_CHECKING:  # h5py is imported by the callers that write files
+    import h5py
+
+# Attributes holding JSON text (decoded by the readers here; plain h5py users call json.loads).
+JSON_ATTRS = {"tolerances", "options", "method_spec", "history", "config_canonical", "versions", "h_values",
+              "methods", "ic_keys", "system_spec", "resolved_method"}
+# Per-step arrays dropped when store_trajectories is false; the impact record is always kept.
+# the run record's rows (vcirun.record.FIELDS): per-step arrays with store_trajectories, the impact
+# record always
+TRAJECTORY_ARRAYS = ("t",) + record.stored_names("trajectory")
+IMPACT_ARRAYS = record.stored_names("impacts")
+
+
+
+# --- attribute encoding -----------------------------------------------------------------------------
+def _encode_attr(key, value):
+    if key in JSON_ATTRS:
+        return json.dumps(value, sort_keys=True, default=_json_default)
+    if value is None:
+        return np.nan if key in _FLOAT_ATTRS else ""
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (list, tuple)):
+        return np.asarray(value, dtype=float)
+    if isinstance(value, str):
+        return _clean_text(value)
+    return value
+
+
+def _clean_text(s: str) -> str:
+    """Text HDF5 can store: no NUL (variable-length strings end at one) and valid UTF-8 (no lone surrogates)."""
+    if "\x00" in s:
+        s = s.replace("\x00", "\ufffd")
+    try:
+        s.encode("utf-8")
+    except UnicodeEncodeError:
+        s = s.encode("utf-8", "replace").decode("utf-8")
+    return s
+
+
+def _json_default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    return str(o)
+
+
+def _decode_attr(key, value):
+    if isinstance(value, bytes):
+        value = value.decode("utf-8", "replace")
+    if key in JSON_ATTRS and isinstance(value, str):
+        try:
+            return json.loads(value)
+        except ValueError:
+            return None  # damaged (not JSON): absent rather than text where a mapping or list is expected
+    if isinstance(value, np.ndarray):
+        return value.tolist() if value.ndim else value.item()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def decode_attrs(attrs) -> dict:
+    return {k: _decode_attr(k, v) for k, v in attrs.items()}
+
+
+
+_FLOAT_ATTRS = {"beta", "l2_error", "fail_time", "H0", "max_abs_dH", "H_range", "Ed_range", "Hmod_range",
+                "accuracy", "rtol", "ref_h", "wall_time", "wall_time_call", "T", "T_requested", "h"}
+
+
+
+# --- Trajectory <-> HDF5 -----------------------------------------------------------------------------
+def _n_contacts(traj) -> int:
+    """m, the number of constraints: the trailing axis of the per-contact rows (1 when none is recorded)."""
+    ca = getattr(traj, "contact_active", None)
+    return int(np.shape(ca)[1]) if ca is not None and np.ndim(ca) == 2 else 1
+
+
+def trajectory_payload(traj, *, store_arrays: bool = True) -> tuple[dict, dict]:
+    """(attrs, arrays) of a `vcirun.trajectory.Trajectory` for one run group."""
+    attrs = {
+        "core_method": traj.method, "system": traj.system, "h": float(traj.h), "T": float(traj.T),
+        "status": traj.status, "message": " ".join(str(traj.message).split()),
+        "fail_step": int(traj.fail_step), "fail_time": float(traj.fail_time),
+        "beta": float("nan") if traj.beta is None else float(traj.beta),
+        "wall_time": float(traj.wall_time), "n_steps": int(len(traj.t) - 1), "n_impacts": int(len(traj.impacts)),
+        "n_partial_steps": int(len(traj.partial_steps)), "n_releases": int(len(traj.releases)),
+        "n_contacts": _n_contacts(traj),
+        "newton_iters_total": int(np.sum(traj.newton_iters)) if len(traj.newton_iters) else 0,
+        "has_Hmod": traj.Hmod is not None, "has_trajectory": bool(store_arrays),
+        "tolerances": dict(traj.tolerances), "options": dict(traj.options),
+    }
+    attrs.update(energy_summary(traj))
+    arrays = {name: getattr(traj, name) for name in IMPACT_ARRAYS}
+    if store_arrays:
+        for name in TRAJECTORY_ARRAYS:
+            value = getattr(traj, name)
+            if value is None:
+                continue
+            if name in record.FIELD and record.FIELD[name].dtype == "bool":
+                value = np.asarray(value, dtype=np.uint8)  # 0/1: portable, unlike HDF5's bool enum
+            arrays[name] = value
+    return attrs, {k: np.asarray(v) for k, v in arrays.items()}
+
+
+def _group_attrs(attrs: dict) -> dict:
+    """The attributes of a run/reference group as stored (encoded; `complete` excluded)."""
+    return {key: _encode_attr(key, value) for key, value in attrs.items()
+            if key != "complete" and not (value is None and key not in _FLOAT_ATTRS)}
+    # (None is absent rather than a placeholder; float attributes use NaN)
+
+
+def _write_encoded(f: "h5py.File", path: str, enc_attrs: dict, arrays) -> None:
+    """Write one group from encoded attributes and (name, array) pairs; `complete` goes last. (No flush
+    per group: groups are only ever written into a copy that replaces the file once it is complete,
+    and a flush per group made a 2000-run compaction 20x slower.)"""
+    if path in f:
+        del f[path]
+    g = f.create_group(path)
+    for name, value in arrays:
+        g.create_dataset(name, data=np.asarray(value))
+    for key, value in enc_attrs.items():
+        g.attrs[key] = value
+    g.attrs["complete"] = True
+
+
+def _write_group(f: "h5py.File", path: str, attrs: dict, arrays: dict) -> None:
+    """Write one run/reference group from a payload (attributes as `trajectory_payload` gives them)."""
+    _write_encoded(f, path, _group_attrs(attrs), arrays.items())
+
+
+# --- energy summary of a run ---------------------------------------------------------------------------
+def masked_discrete_energy(traj) -> np.ndarray:
+    """-D3 Ld per grid point, NaN where the step from that point contained an impact (there the
+    recorded value belongs to the rejected trial step, not to the step taken)."""
+    Ed = np.array(traj.Ed, dtype=float, copy=True)
+    imp = np.asarray(traj.impact_step, bool)
+    k = min(len(imp), len(Ed))
+    Ed[:k][imp[:k]] = np.nan
+    return Ed
+
+
+def _finite_range(x) -> float:
+    x = np.asarray(x, float)
+    x = x[np.isfinite(x)]
+    return float(x.max() - x.min()) if x.size else math.nan
+
+
+def energy_summary(traj) -> dict:
+    """H0, max |H - H0|, and the ranges (max - min over the run) of H, of -D3 Ld with impact steps
+    masked, and of the truncated modified Hamiltonian (NaN where not defined)."""
+    H = np.asarray(traj.H, float)
+    H0 = float(H[0]) if H.size else math.nan
+    return {
+        "H0": H0,
+        "max_abs_dH": float(np.nanmax(np.abs(H - H0))) if H.size and np.isfinite(H0) else math.nan,
+        "H_range": _finite_range(H),
+        "Ed_range": _finite_range(masked_discrete_energy(traj)) if len(traj.Ed) else math.nan,
+        "Hmod_range": _finite_range(traj.Hmod) if traj.Hmod is not None else math.nan,
+    }
