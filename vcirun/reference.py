@@ -42,6 +42,10 @@ class Reference:
         self.accuracy = accuracy
         self.kind = kind
         self.energy_balance = np.nan  # forced exact solves: max |H(t) - H(0) - int f . qdot|
+        # held contacts (issue 18): release times and contacts, held phases (t0, t1, held set)
+        self.releases = np.zeros(0)
+        self.release_contact = np.zeros(0, np.int64)
+        self.held_intervals = []
         self._width = 2 * n if width is None else width
 
     def __repr__(self) -> str:
@@ -133,12 +137,22 @@ class _HermiteSegment:
 SIMULTANEOUS = 1e-10  # contacts whose roots lie within this many seconds impact together (LCP)
 
 
-def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000):
-    """(segments, impacts, H(q0, p0), work) of the exact solve; impacts: [(time, contact, impulse)];
-    work is None for an unforced system, else a callable t -> W(t) = int_0^t f . qdot (the extra
-    state of every segment). The event is the gap min_i phi_i (sys_phi): its first root is the first
-    contact of any constraint."""
+def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000, resting_contact=True):
+    """(segments, impacts, H(q0, p0), work, held) of the exact solve; impacts: [(time, contact,
+    impulse)]; work is None for an unforced system, else a callable t -> W(t) = int_0^t f . qdot (the
+    extra state of every segment); held: {"releases": [(time, contact)], "intervals": [(t0, t1, A)]}.
+    The event is the gap min_i phi_i over the contacts not masked: its first root is the first
+    contact of any constraint.
+
+    Held contacts (resting_contact, issue 18; vcirun/reference_held.py, docs/contacts.md 6): a start
+    at rest on a surface with a compressive force, a plastic impact that leaves a contact at rest
+    pressed in, or a contact whose impacts accumulate (its Zeno time extrapolated from its flights)
+    continues on the constrained (index-reduced) dynamics until the contact force turns tensile
+    (release) or another contact is hit. resting_contact=False keeps the old behaviour: such runs
+    raise (a contact pressed in; more than max_impacts impacts)."""
     from scipy.integrate import solve_ivp  # here, not at module level: `import vcirun` stays light
+
+    from . import reference_held as rh
 
     mod = load_module(system, SYSTEM_KERNELS)  # system kernels + the continuous dynamics
     n = system.n
@@ -154,6 +168,9 @@ def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000):
 
     m = int(mod.NCON)
     mask = np.zeros(m, dtype=np.int64)  # contacts touching and not approaching at the segment's start
+    rest = np.zeros(m, dtype=np.int64)  # contacts left at rest on their surface by a release (masked)
+    e_of = np.empty(m)
+    mod.sys_restitution(prm, e_of)
 
     def event(t, y):  # the gap over the contacts not touching (collision/impact.py: gap)
         return mod.gap(y[:n], prm, mask)
@@ -167,30 +184,53 @@ def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000):
     dip.terminal = False  # recorded, checked after the solve (a terminal event at a minimum would
     dip.direction = 1.0   # restart where d phi/dt = 0 and fire again at once)
 
-    def pressed(t, y):  # a touching contact pushed into its constraint: resting contact (issue 18)
+    def _pushed_in(y):  # the deepest masked contact, below minus its round-off
         phis = np.empty(m)
         mod.sys_phis(y[:n], prm, phis)
         return float(np.min(np.where(mask == 1, phis, np.inf))) + 1e-12 * (1.0 + float(np.max(np.abs(y[:n]))))
+
+    def pressed(t, y):  # a touching contact pushed into its constraint: resting contact (issue 18)
+        return _pushed_in(y)
 
     pressed.terminal = True
     pressed.direction = -1.0
     y = np.concatenate([q0, p0] + ([[0.0]] if forced else []))
     t = 0.0
     segments, impacts = [], []  # impacts: (time, contact index, impulse), one entry per contact impact
+    releases, intervals = [], []
+    times_of = [[] for _ in range(m)]  # each contact's impact times (accumulation)
     d, lam, active = np.empty(n), np.empty(m), np.empty(m, dtype=np.int64)
-    held = np.zeros(m, dtype=np.int64)  # contacts held (resting), issue 18
+    held = np.zeros(m, dtype=np.int64)  # contacts held (resting): in the held segments, never here
     atol = rtol * max(1.0, float(np.max(np.abs(y))))
+    A = rh.initially_held(mod, q0, p0, prm) if resting_contact else ()
     while t < T:
+        if A:  # a held phase: the constrained dynamics until a release, an impact or T
+            mod.touching_mask(y[:n].copy(), y[n:2 * n].copy(), 1.0, SIMULTANEOUS / 4, prm, mask, held)
+            mask[rest == 1] = 1
+            seg = rh.held_segment(mod, t, y, T, A, mask.copy(), prm, rtol, atol)
+            segments.extend(seg.pieces)
+            intervals.append((seg.t0, seg.t1, tuple(seg.held)))
+            tr = rh.after_held_event(mod, seg, prm, SIMULTANEOUS / 4)
+            for imp in tr.impacts:
+                impacts.append(imp)
+                times_of[imp[1]].append(imp[0])
+            if tr.released >= 0:
+                releases.append((tr.t, tr.released))
+            rest[:] = 0
+            rest[list(tr.rest)] = 1
+            t, y, A = tr.t, tr.y, tr.held
+            if seg.reason == "end":
+                break
+            continue
         mod.touching_mask(y[:n].copy(), y[n:2 * n].copy(), 1.0, SIMULTANEOUS / 4, prm, mask, held)
-        events = (event, dip, pressed) if mask.any() else (event, dip)
+        mask[rest == 1] = 1  # at rest after a release: u is round-off of either sign; watched by `back`
+        events = [event, dip] + ([pressed] if mask.any() else [])
         sol = solve_ivp(rhs, (t, T), y, method="DOP853", rtol=rtol, atol=atol, events=events,
                         dense_output=True)
-        if len(events) == 3 and sol.status == 1 and sol.t_events[2].size:
-            raise RuntimeError(f"reference: a touching contact is pushed into its constraint at t="
-                               f"{float(sol.t_events[2][0]):.6g} (resting contact)")
         if sol.status < 0:
             raise RuntimeError(f"reference: DOP853 failed at t={sol.t[-1]:.6g}: {sol.message}")
         te = None
+        tp = float(sol.t_events[2][0]) if len(events) == 3 and sol.status == 1 and sol.t_events[2].size else None
         if sol.status == 1 and sol.t_events[0].size:
             te = float(sol.t_events[0][0])
             ye = sol.y_events[0][0].copy()
@@ -205,23 +245,74 @@ def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000):
                 te = _first_root(lambda s: mod.gap(sol.sol(s)[:n], prm, mask), t, float(tm))
                 ye = sol.sol(te).copy()
                 break
+        if tp is not None and (te is None or tp < te):
+            # a masked contact (touching and not approaching, or left at rest by a release) went
+            # below its surface: it came back (an impact: its root on the dense output) or, at rest,
+            # is pushed in (resting contact: hold it)
+            yp = sol.y_events[2][0].copy()
+            ids = [int(i) for i in np.flatnonzero(mask)]
+            phis = np.empty(m)
+            mod.sys_phis(yp[:n], prm, phis)
+            j = min(ids, key=lambda i: phis[i])
+            geo = rh._Geometry(mod, tp, yp[:n], yp[n:2 * n], prm)
+            u, gn = float(geo.G[j] @ geo.v), float(np.max(np.abs(geo.G[j])))
+            if resting_contact and u < -1e-6 * gn * (1.0 + float(np.max(np.abs(geo.v)))):
+                def phi_j(s_, j=j):
+                    mod.sys_phis(sol.sol(s_)[:n], prm, phis)
+                    return phis[j]
+                te = _first_root(phi_j, t, tp)
+                ye = sol.sol(te).copy()
+            else:
+                A = rh.held_set(mod, tp, yp[:n], yp[n:2 * n], prm, [j], 1e-6) if resting_contact else ()
+                if not A:
+                    raise RuntimeError(f"reference: a touching contact is pushed into its constraint at t="
+                                       f"{tp:.6g} (resting contact"
+                                       + (")" if resting_contact else "; resting_contact=True holds it)"))
+                segments.append((t, tp, sol.sol))
+                t, y, rest[:] = tp, rh._project_y(mod, yp, prm, A), 0
+                continue
         segments.append((t, sol.t[-1] if te is None else te, sol.sol))
         if te is not None:
+            rest[:] = 0
             # the impact law of the integrators (collision/impact.py): one contact, Newton's law;
             # several within SIMULTANEOUS seconds of each other, Moreau's LCP
             k, s0, _ = mod.impact_direction(ye[:n].copy(), ye[n:2 * n].copy(), 1.0, SIMULTANEOUS / 4, prm, d, lam,
                                             active)
             if k == 0:
-                raise RuntimeError(f"reference: grazing contact at t={te:.6g} (zero normal velocity)")
+                A = rh.held_set(mod, te, ye[:n], ye[n:2 * n], prm, None, 1e-6) if resting_contact else ()
+                if not A:
+                    raise RuntimeError(f"reference: grazing contact at t={te:.6g} (zero normal velocity)")
+                t, y = te, rh._project_y(mod, ye, prm, A)
+                continue
             if k < 0:
                 raise RuntimeError(f"reference: the impact law has no solution at t={te:.6g} (case {k})")
             ye[n:2 * n] = ye[n:2 * n] + s0 * d
+            hit = []
             for i in np.flatnonzero(active):
                 if m == 1 or lam[i] > 0.0:
                     impacts.append((te, int(i), float(s0 if m == 1 else lam[i])))
+                    times_of[int(i)].append(te)
+                    hit.append(int(i))
             if len(impacts) > max_impacts:
-                raise RuntimeError(f"reference: more than {max_impacts} impacts (accumulation?) by t={te:.6g}")
+                raise RuntimeError(f"reference: more than {max_impacts} impacts (accumulation?) by t={te:.6g}"
+                                   + ("" if resting_contact else "; resting_contact=True holds such contacts"))
             t, y = te, ye
+            if resting_contact:
+                # (b) a plastic impact leaving a contact at rest pressed in; (a) accumulating impacts
+                A = rh.plastic_entry(mod, te, y[:n], y[n:2 * n], prm, hit)
+                if A:
+                    y = rh._project_y(mod, y, prm, A)
+                    continue
+                acc = [i for i in hit if rh.accumulating(times_of[i], e=e_of[i])]
+                if acc:
+                    mod.touching_mask(y[:n].copy(), y[n:2 * n].copy(), 1.0, SIMULTANEOUS / 4, prm, mask, held)
+                    t_inf, seg = rh.zeno_entry(mod, te, y, prm, acc[0], times_of[acc[0]], mask=mask.copy(),
+                                               rtol=rtol, atol=atol)
+                    if t_inf < T:
+                        segments.extend(seg.pieces)
+                        intervals.append((te, t_inf, tuple(seg.held)))
+                        t, y, A = t_inf, seg.y1, tuple(seg.held)
+                        continue
             # Step off the surface before restarting: right after the reset phi is ~0 (often -1e-17)
             # and solve_ivp only sees a crossing from a start value >= 0, so a hop shorter than its
             # first step would go unnoticed. One RK4 micro step (<= 1e-9, local error ~1e-45) to
@@ -239,7 +330,8 @@ def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000):
         whole = Reference(segments, n, [], np.nan, T, width=2 * n + 1)
         work = lambda tt: whole.state(tt)[:, 2 * n]  # noqa: E731
         segments = [(a, b, _Slice(f, 2 * n)) for a, b, f in segments]
-    return segments, impacts, float(mod.hamiltonian(q0, p0, prm)), work
+    return (segments, impacts, float(mod.hamiltonian(q0, p0, prm)), work,
+            {"releases": releases, "intervals": intervals})
 
 
 class _Slice:
@@ -267,13 +359,16 @@ def _check_start(system, q0, prm) -> None:
 
 
 def reference(system, *, T, beta=None, q0=None, p0=None, params=None, rtol=1e-13, method="exact", h=None,
-              check_accuracy=True) -> Reference:
+              check_accuracy=True, resting_contact=True) -> Reference:
     """The nonsmooth solution on [0, T] from (q0, p0) or the scene's initial-condition map at beta.
 
     method='exact' (default): DOP853 + event location + exact elastic reset, at rtol; accuracy is
     estimated against a second solve at rtol / 10 (check_accuracy=False skips it).
     method='CVA' (or any method name) with h: a fine-step simulation, interpolated by cubic Hermite
-    on (q, qdot = M^-1 p) between its grid points (exact at the grid points)."""
+    on (q, qdot = M^-1 p) between its grid points (exact at the grid points).
+    resting_contact (as simulate's): contacts that come to rest are held on their surface and
+    released where their force turns tensile (ref.releases, ref.release_contact, ref.held_intervals);
+    False raises where a contact would have to be held."""
     from .api import resolve_system, simulate
     from .validation import check_reference_args
 
@@ -286,25 +381,32 @@ def reference(system, *, T, beta=None, q0=None, p0=None, params=None, rtol=1e-13
     if method != "exact":
         if h is None:
             raise ValueError("reference.h: a fine step is required for a method reference")
-        tr = simulate(sysm, method, h=h, T=T, q0=q0, p0=p0, params=params)
+        tr = simulate(sysm, method, h=h, T=T, q0=q0, p0=p0, params=params, resting_contact=resting_contact)
         if tr.status != "ok":
             raise RuntimeError(f"reference: {method} at h={h} failed: {tr.message}")
         return _grid_reference(sysm, tr, prm)
     _check_start(sysm, q0, prm)
     try:
-        segs, imps, H0, work = _exact(sysm, q0, p0, prm, T, rtol)
+        segs, imps, H0, work, held = _exact(sysm, q0, p0, prm, T, rtol, resting_contact=resting_contact)
         acc = np.nan
         ref = Reference(segs, sysm.n, [i[0] for i in imps], H0, T, kind="exact",
                         impact_contact=[i[1] for i in imps], impact_impulse=[i[2] for i in imps])
+        ref.releases = np.array([r[0] for r in held["releases"]], float)
+        ref.release_contact = np.array([r[1] for r in held["releases"]], np.int64)
+        ref.held_intervals = list(held["intervals"])
         if check_accuracy:
             # estimate the returned solve's error against a tighter one (scipy's floor is ~2.2e-14)
-            segs2, imps2, _, _ = _exact(sysm, q0, p0, prm, T, max(rtol / 10, 2.3e-14))
+            segs2, imps2, _, _, held2 = _exact(sysm, q0, p0, prm, T, max(rtol / 10, 2.3e-14),
+                                               resting_contact=resting_contact)
             tt = np.linspace(0.0, T, 2001)
             acc = float(np.max(np.abs(ref(tt) - Reference(segs2, sysm.n, [], H0, T)(tt))))
-            if [i[1] for i in imps] != [i[1] for i in imps2]:
-                acc = np.inf  # the tighter solve sees another impact sequence: nothing is accurate
-            elif imps:
-                acc = max(acc, float(np.max(np.abs(np.subtract([i[0] for i in imps], [i[0] for i in imps2])))))
+            rel, rel2 = held["releases"], held2["releases"]
+            if [i[1] for i in imps] != [i[1] for i in imps2] or [r[1] for r in rel] != [r[1] for r in rel2]:
+                acc = np.inf  # the tighter solve sees another event sequence: nothing is accurate
+            else:
+                dt = [a[0] - b[0] for a, b in zip(imps + rel, imps2 + rel2)]
+                if dt:
+                    acc = max(acc, float(np.max(np.abs(dt))))
             ref.accuracy = acc
         if work is not None:
             ref.energy_balance = _energy_balance(sysm, ref, work, prm, T)

@@ -88,7 +88,10 @@ def test_gauss_converges_at_full_step(ld, s, h):
 # ---- R^MCVA ---------------------------------------------------------------------------------------
 def _reset(mod, q, pm, h):
     pp = np.empty(2)
-    it, lam = mod.reset_mcva(q, pm, np.nan, pm, 0.0, 0.5 * h, h, 0.0, PRM, 1e-12, 50, pp)
+    n, m = len(q), int(mod.NCON)
+    d, lmb, act = np.empty(n), np.empty(m), np.empty(m, dtype=np.int64)
+    _, s0, dE = mod.impact_direction(q, pm, h, 1e-13, PRM, d, lmb, act)  # the impact law (issue 17)
+    it, lam = mod.reset_mcva(q, pm, d, s0, dE, np.nan, pm, 0.0, 0.5 * h, h, 0.0, PRM, 1e-12, 50, pp)
     return it, lam, pp
 
 

@@ -38,18 +38,22 @@ def test_plain_newton_failure_has_no_invented_cause():
 
 
 def test_resting_contact_cause():
+    """With held contacts off, a start resting on the surface is the old failure with its cause; with
+    them (the default) the cart is held from t0 (issue 18)."""
     s = vcirun.api.resolve_system("cart_pendulum")
     q0, p0 = s.legendre(np.array([0.0, 0.3]), np.zeros(2))
-    tr = vcirun.simulate("cart_pendulum", "CVA", h=1e-2, T=1.0, q0=q0, p0=p0)
+    tr = vcirun.simulate("cart_pendulum", "CVA", h=1e-2, T=1.0, q0=q0, p0=p0, resting_contact=False)
     assert tr.status == "reset_failed" and tr.fail_step == 0
     assert "; cause: zero normal velocity at the contact" in tr.message
+    held = vcirun.simulate("cart_pendulum", "CVA", h=1e-2, T=1.0, q0=q0, p0=p0)
+    assert held.status == "ok" and held.contact_active[0, 0]
 
 
 @pytest.mark.parametrize("method", ["CVA", "VCI"])
 def test_accumulation_message_names_the_onset(method):
     """max_impacts_step = 2 on a ball bouncing every 0.0089 s with h = 0.02 (up to 3 impacts per step)."""
     tr = vcirun.simulate("bouncing_ball", method, h=0.02, T=1.0, q0=np.array([1e-4]), p0=np.array([0.0]),
-                         max_impacts_step=2)
+                         max_impacts_step=2, resting_contact=False)
     assert tr.status == "accumulation"
     onset = accumulation_onset(tr.impacts, tr.h)
     assert f"accumulation began at t = {onset:.9g}" in tr.message

@@ -33,6 +33,16 @@ SCENES = ["cart_pendulum", "double_pendulum", "oscillator_wall"]
 NTOL, MAXIT, ETOL = 1e-12, 50, 1e-13
 
 
+
+def _law(mod, q, pm, prm):
+    """(d, s0, dE) of the impact law at (q, p-) (collision/impact.py: impact_direction), the arguments
+    every reset takes since issue 17 (restitution, several contacts)."""
+    n, m = len(q), int(mod.NCON)
+    d, lam, active = np.empty(n), np.empty(m), np.empty(m, dtype=np.int64)
+    _, s0, dE = mod.impact_direction(np.ascontiguousarray(q, float), np.ascontiguousarray(pm, float), 1.0, 1e-13,
+                                     prm, d, lam, active)
+    return d, s0, dE
+
 def _mods(scene):
     s = resolve_system(scene)
     return s, s.param_values(None), load_module(s, METHODS["CVA"].kernel_set()), load_module(s, METHODS["VCI"].kernel_set())
@@ -120,7 +130,7 @@ def _check_along_grad_and_reflecting(mod, prm, q, pm, pp, lam):
 
 def _cva_check(mc, prm, q, pm):
     pp = np.empty_like(pm)
-    it, lam = mc.reset_cva(q, pm, 0.0, pm, 0.0, 0.0, 0.0, 0.0, prm, NTOL, MAXIT, pp)
+    it, lam = mc.reset_cva(q, pm, *_law(mc, q, pm, prm), 0.0, pm, 0.0, 0.0, 0.0, 0.0, prm, NTOL, MAXIT, pp)
     assert it > 0
     H_m, H_p = mc.hamiltonian(q, pm, prm), mc.hamiltonian(q, pp, prm)
     kin = 0.5 * pm @ _Minv(mc, q, prm) @ pm
@@ -149,7 +159,7 @@ def _solve_w(mv, q, pp, tau, prm):
 
 def _vci_check(mv, prm, q, pm, Epre, tau_rem, h):
     pp = np.empty_like(pm)
-    it, lam = mv.reset_vci(q, pm, Epre, pm, 0.0, tau_rem, h, 0.0, prm, NTOL, MAXIT, pp)
+    it, lam = mv.reset_vci(q, pm, *_law(mv, q, pm, prm), Epre, pm, 0.0, tau_rem, h, 0.0, prm, NTOL, MAXIT, pp)
     assert it > 0, (q, pm, Epre, tau_rem)
     w, r = _solve_w(mv, q, pp, tau_rem, prm)
     res_p = np.max(np.abs(r - pp)) / max(1.0, np.max(np.abs(pp)))
@@ -191,7 +201,7 @@ def test_vci_reset_random_states(scene):
     worst, failed = 0.0, 0
     for q, pm, E, _, tr, h in _random_impacts(scene, 150, 2):
         pp = np.empty_like(pm)
-        it, _ = mv.reset_vci(q.copy(), pm.copy(), E, pm.copy(), 0.0, tr, h, 0.0, prm, NTOL, MAXIT, pp)
+        it, _ = mv.reset_vci(q.copy(), pm.copy(), *_law(mv, q, pm, prm), E, pm.copy(), 0.0, tr, h, 0.0, prm, NTOL, MAXIT, pp)
         if it < 0:
             failed += 1
             exists, Fmin = _vci_has_reflecting_root(mv, mc, prm, q, pm, E, tr)
@@ -244,7 +254,7 @@ def test_vci_reset_reports_failure_when_eq33_has_no_solution():
     Emin = c - b * b / (4 * a)
     for dE in (1e-4, 1e-2, 1.0):
         pp = np.zeros(1)
-        it, _ = mv.reset_vci(q, pm, Emin - dE, pm, 0.0, tau, 0.1, 0.0, prm, NTOL, MAXIT, pp)
+        it, _ = mv.reset_vci(q, pm, *_law(mv, q, pm, prm), Emin - dE, pm, 0.0, tau, 0.1, 0.0, prm, NTOL, MAXIT, pp)
         assert it < 0
 
 
@@ -259,5 +269,5 @@ def test_vci_reset_finds_reflecting_root_when_one_exists():
         w = np.roots([a, b, c - E])
         lam_ref = np.max(m * w + tau * k * q[0] / 2) - pm[0]   # the reflecting root (p+ > 0)
         pp = np.zeros(1)
-        it, lam = mv.reset_vci(q, pm, E, pm, 0.0, tau, 0.1, 0.0, prm, NTOL, MAXIT, pp)
+        it, lam = mv.reset_vci(q, pm, *_law(mv, q, pm, prm), E, pm, 0.0, tau, 0.1, 0.0, prm, NTOL, MAXIT, pp)
         assert it > 0 and abs(lam - lam_ref) <= 1e-10 * abs(lam_ref), (dE, it, lam, lam_ref)

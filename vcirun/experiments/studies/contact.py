@@ -322,8 +322,9 @@ def accumulation_case(method, *, h, T, y0=1.0, c=2.0, m=1.0, g=10.0, **opts) -> 
     """The bouncing ball with linear drag c (forced DEL) settling on the floor. The exact flights
     shrink like 3 m / (c n): impacts become denser than any grid at the exact onset (the impact
     after which every flight is shorter than h). Outcome: status accumulation with the onset it
-    reports (vcirun.api.accumulation_onset), or an ok run whose late bounce height is the error
-    against the exact motion (which lies on the floor to within g h^2 / 8 after the onset)."""
+    reports (vcirun.api.accumulation_onset; with resting_contact=False), or an ok run whose late bounce
+    height is the error against the exact motion (which lies on the floor to within g h^2 / 8 after the
+    onset); with held contacts (the default) the run records when the floor is first held."""
     params = {"c": c, "m": m, "g": g}
     tr, crash = run("bouncing_ball", method, h=h, T=T, q0=np.array([y0]), p0=np.array([0.0]), params=params, **opts)
     times, speeds = ball_exact(y0, g, c / m, T, min_flight=1e-2 * h)  # later: y_exact < g (h/100)^2 / 8
@@ -335,6 +336,9 @@ def accumulation_case(method, *, h, T, y0=1.0, c=2.0, m=1.0, g=10.0, **opts) -> 
     out.update(impacts=int(len(tr.impacts)), fail_time=tr.fail_time, wall_time=tr.wall_time)
     if tr.status == "accumulation":
         out["onset"] = accumulation_onset(tr.impacts, h)
+    held = np.flatnonzero(np.asarray(tr.contact_active).any(axis=1)) if np.size(tr.contact_active) else []
+    if len(held):  # resting contact (issue 18): the floor is held from here on
+        out["held_from"] = float(tr.t[held[0]])
     yex = ball_position(tr.t, y0, g, c / m, times, speeds)
     err = np.abs(tr.q[:, 0] - yex)
     out["err"] = float(err.max())

@@ -166,7 +166,8 @@ def _overview_table(res: dict) -> list:
         if r["status"] == "accumulation":
             return f"accumulation, onset {_g(r.get('onset'), '.3g')} (exact {_g(r['exact_onset'], '.3g')}), h = {r['h']:g}"
         if r["status"] == "ok":
-            return f"ok: settles, err {_g(r.get('err_after_onset'))} after onset, h = {r['h']:g}"
+            held = f", held from t = {_g(r['held_from'], '.4g')}" if "held_from" in r else ""
+            return f"ok: settles{held}, err {_g(r.get('err_after_onset'))} after onset, h = {r['h']:g}"
         return r["status"].split(":")[0] + (" (forced system)" if "forced" in r["status"] else "")
 
     top_beta = max((y["beta"] for y in res.get("energy", [])), default=None)
@@ -356,11 +357,11 @@ def _surface_table(res):
 
 
 def _accumulation_table(res):
-    L = ["| method | h | status | reported onset | exact onset | stopped at | impacts | err after onset |",
-         "|---|---|---|---|---|---|---|---|"]
+    L = ["| method | h | status | reported onset | exact onset | held from | stopped at | impacts | err after onset |",
+         "|---|---|---|---|---|---|---|---|---|"]
     for r in res["accumulation"]:
         L.append(f"| {r['method']} | {_num(r['h'])} | {r['status']} | {_g(r.get('onset'), '.4g')} | "
-                 f"{_g(r['exact_onset'], '.4g')} | {_g(r.get('fail_time'), '.4g')} | {r.get('impacts', '-')} | "
+                 f"{_g(r['exact_onset'], '.4g')} | {_g(r.get('held_from'), '.4g')} | {_g(r.get('fail_time'), '.4g')} | {r.get('impacts', '-')} | "
                  f"{_g(r.get('err_after_onset'))} |")
     return L
 
