@@ -281,7 +281,9 @@ def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000, resting_contact=Tru
             if k == 0:
                 A = rh.held_set(mod, te, ye[:n], ye[n:2 * n], prm, None, 1e-6) if resting_contact else ()
                 if not A:
-                    raise RuntimeError(f"reference: grazing contact at t={te:.6g} (zero normal velocity)")
+                    raise RuntimeError(f"reference: grazing contact at t={te:.6g} (zero normal velocity"
+                                       + (")" if resting_contact else "; resting_contact=True holds a contact "
+                                          "pressed in)"))
                 t, y = te, rh._project_y(mod, ye, prm, A)
                 continue
             if k < 0:

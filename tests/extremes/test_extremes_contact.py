@@ -122,6 +122,7 @@ def test_sustained_dense_impacts_are_reported_as_accumulation():
     are reported as accumulation even without dissipation (the ball above for 250 steps); raising
     max_impacts_step lets the run through, exactly."""
     kw = dict(h=0.02, T=5.0, q0=np.array([1e-4]), p0=np.array([0.0]))
+    # (elastic and undamped: energy does not leave, so held contacts do not take these over either)
     tr = _guarded(lambda: vcirun.simulate("bouncing_ball", "CVA", **kw))
     assert tr.status == "accumulation" and "accumulation began at t = " in tr.message
     assert accumulation_onset(tr.impacts, 0.02) == pytest.approx(tr.impacts[0])
@@ -155,10 +156,15 @@ def test_start_on_the_surface(method, scene, kind):
 @pytest.mark.parametrize("method", METHODS)
 def test_start_in_resting_contact(method):
     """Cart on the floor at rest, pendulum hanging: gravity presses it into the floor with zero
-    normal velocity; no elastic motion exists. Outcome: reset_failed at step 0, cause named."""
-    r = contact.surface_case("cart_pendulum", method, "rest", h=1e-2, T=2.0)
+    normal velocity; no elastic motion exists. Without held contacts: reset_failed at step 0, cause
+    named. With them (the default, issue 18): held from t = 0, the pendulum swings on the fixed
+    cart, and the run agrees with the exact reference (also held from t = 0)."""
+    r = contact.surface_case("cart_pendulum", method, "rest", h=1e-2, T=2.0, resting_contact=False)
     assert r["status"] == "reset_failed"
     assert r["cause"].startswith("zero normal velocity at the contact")
+    r = contact.surface_case("cart_pendulum", method, "rest", h=1e-2, T=2.0)
+    assert r["status"] == "ok" and r["impacts"] == r["ref_impacts"] == 0
+    assert r["l2"] <= 1e-3, r
 
 
 # --- impact accumulation ------------------------------------------------------------------------
@@ -169,7 +175,7 @@ def test_accumulation_cva_reports_onset(h):
     (h = 1e-2), 10.25 (1e-3). CVA: status accumulation, reported onset 7.49 / 10.96 (its bounces
     decay a little slower than the exact ones), stopped 0.6 / 0.06 s later; the position error
     after the onset is 1.9e-4 / 2.0e-6."""
-    r = _guarded(lambda: contact.accumulation_case("CVA", h=h, T=30.0))
+    r = _guarded(lambda: contact.accumulation_case("CVA", h=h, T=30.0, resting_contact=False))
     assert r["status"] == "accumulation"
     assert "accumulation began at t = " in r["cause"]
     assert abs(r["onset"] - r["exact_onset"]) <= 0.15 * r["exact_onset"]
@@ -192,7 +198,7 @@ def test_accumulation_mcva_reports_onset():
     with the onset it reports (measured 7.08 against the exact 6.80) and an error after the onset
     within 2 h^2 g (measured 1.6e-4)."""
     for m in ("MCVAA", "MCVAC"):
-        r = _guarded(lambda: contact.accumulation_case(m, h=1e-2, T=30.0))
+        r = _guarded(lambda: contact.accumulation_case(m, h=1e-2, T=30.0, resting_contact=False))
         assert r["status"] == "accumulation" and "accumulation began at t = " in r["cause"]
         assert abs(r["onset"] - r["exact_onset"]) <= 0.15 * r["exact_onset"]
         assert r["err_after_onset"] <= 2 * 1e-4 * 10
@@ -201,5 +207,22 @@ def test_accumulation_mcva_reports_onset():
 def test_accumulation_never_loops():
     """A long horizon of a settling ball with a tight per-step cap returns promptly with the status."""
     tr = _guarded(lambda: vcirun.simulate("bouncing_ball", "CVA", h=1e-2, T=1000.0, q0=np.array([1.0]),
-                                          p0=np.array([0.0]), params={"c": 2.0}, max_impacts_step=4), timeout=30)
+                                          p0=np.array([0.0]), params={"c": 2.0}, max_impacts_step=4,
+                                          resting_contact=False), timeout=30)
     assert tr.status == "accumulation" and tr.fail_time < 30
+    # held contacts: the same run settles and goes to T = 1000 (the held steps cost one Newton solve each)
+    tr = _guarded(lambda: vcirun.simulate("bouncing_ball", "CVA", h=1e-2, T=1000.0, q0=np.array([1.0]),
+                                          p0=np.array([0.0]), params={"c": 2.0}, max_impacts_step=4), timeout=60)
+    assert tr.status == "ok" and tr.contact_active[-1, 0] and tr.q[-1, 0] == 0.0
+
+
+@pytest.mark.parametrize("method", ["CVA", "MCVAC"])
+@pytest.mark.parametrize("h", [1e-2, 1e-3])
+def test_accumulation_settles_with_held_contacts(method, h):
+    """The damped ball of the accumulation case with held contacts (the default): the floor is held
+    near the exact onset (every flight shorter than h afterwards) and the run ends ok; afterwards the
+    ball lies on the floor, where the exact one is within g h^2 / 8."""
+    r = _guarded(lambda: contact.accumulation_case(method, h=h, T=30.0))
+    assert r["status"] == "ok", r
+    assert 0.5 * r["exact_onset"] <= r["held_from"] <= 1.5 * r["exact_onset"], r
+    assert r["err_after_onset"] <= 2 * h ** 2 * 10, r

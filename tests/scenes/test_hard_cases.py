@@ -387,11 +387,13 @@ def test_start_on_surface_moving_into_it_reflects_immediately(method):
 @pytest.mark.parametrize("method", ["CVA", "VCI"])
 def test_resting_contact_is_a_reported_failure(method):
     """On the wall at rest, pushed into it by the spring (wall on the spring's side): zero normal
-    velocity, so no elastic reset exists (R^CVA's lam = 0). Expected: a failure status at step 0
-    with time and state."""
-    tr = _sim(method, H, 1.0, 0.5, 0.0, params=BOUNCE)
+    velocity, so no elastic reset exists (R^CVA's lam = 0). Without held contacts: a failure status
+    at step 0 with time and state. With them (the default): held on the wall for good, exactly."""
+    tr = _sim(method, H, 1.0, 0.5, 0.0, params=BOUNCE, resting_contact=False)
     assert tr.status in ("reset_failed", "accumulation")
     _assert_failure_record(tr, tr.status, 0)
+    tr = _sim(method, H, 1.0, 0.5, 0.0, params=BOUNCE)
+    assert tr.status == "ok" and tr.contact_active.all() and np.all(tr.q[:, 0] == 0.5) and np.all(tr.p == 0.0)
 
 
 # --- failures come back as data ------------------------------------------------------------------

@@ -287,14 +287,15 @@ def surface_state(system, kind, params=None):
     return s.legendre(q, np.asarray(qd, float), prm)
 
 
-def surface_case(system, method, kind, *, h, T, params=None) -> dict:
+def surface_case(system, method, kind, *, h, T, params=None, resting_contact=True) -> dict:
     """Start on phi = 0 (see surface_state); ok runs are compared with the exact reference, which for
-    'in' starts from the reflected state (R^CVA's exact elastic reset at t = 0)."""
+    'in' starts from the reflected state (R^CVA's exact elastic reset at t = 0). 'rest' is held from
+    t = 0 by both (issue 18) unless resting_contact=False (then the run fails: no elastic motion)."""
     s = resolve_system(system)
     prm, mod = s.param_values(params), load_module(s, SYSTEM_KERNELS)
     q0, p0 = surface_state(system, kind, params)
     phi0 = float(mod.sys_phi(q0, prm))
-    tr, crash = run(system, method, h=h, T=T, q0=q0, p0=p0, params=params)
+    tr, crash = run(system, method, h=h, T=T, q0=q0, p0=p0, params=params, resting_contact=resting_contact)
     out = {"system": str(system), "method": method, "kind": kind, "phi0": phi0, "status": outcome(tr, crash),
            "cause": cause(tr)}
     if tr is None or not tr.ok:
@@ -305,7 +306,7 @@ def surface_case(system, method, kind, *, h, T, params=None) -> dict:
         lam = mod.cva_lambda(q0, p0, prm, g)
         pr = p0 + lam * g
     try:
-        ref = reference(system, T=T, q0=qr, p0=pr, params=params)
+        ref = reference(system, T=T, q0=qr, p0=pr, params=params, resting_contact=resting_contact)
     except RuntimeError as e:
         out["ref"] = str(e)
         return out
