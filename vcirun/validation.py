@@ -145,16 +145,20 @@ def grid_size(h, T, *, h_field: str = "h", T_field: str = "T") -> int:
     return N
 
 
-def run_bytes(N: int, n: int) -> int:
-    """Bytes `vcirun.simulate` allocates for an N-step run of n coordinates: the loop's buffers (q, p,
-    three energies, the impact record sized N/4 + 16, the partial-step log, step flags and Newton
-    counts) and the time grid."""
-    N, n = int(N), int(n)
+def run_bytes(N: int, n: int, m: int = 1) -> int:
+    """Bytes `vcirun.simulate` allocates for an N-step run of n coordinates and m constraints: one
+    buffer per row of the run record (vcirun.record.FIELDS, sized as api._run sizes them: impacts
+    N/4 + 16, partial steps twice that, releases as impacts) and the time grid."""
+    from . import record  # (foundation layer: numpy only)
+
+    N, n, m = int(N), int(n), int(m)
     cap = max(64, N // 4 + 16)
-    per_point = 8 * (2 * n + 3) + 16      # Q, P, H, Ed, Hmod; t and its integer arange
-    per_step = 1 + 8                      # impact_step, newton_iters
-    per_impact = 8 * (1 + 3 * n) + 16     # time, q, p-, p+; two partial steps
-    return (N + 1) * per_point + N * per_step + cap * per_impact + 128
+    rows = {"grid": N + 1, "step": N, "impact": cap, "partial": 2 * cap + 16, "release": cap}
+    b = 0
+    for f in record.FIELDS:
+        size = int(np.prod(f.shape(rows[f.axis], n, m)))
+        b += size * (1 if f.dtype == "bool" else np.dtype(f.dtype).itemsize)
+    return b + 16 * (N + 1) + 128  # t and its integer arange
 
 
 def stored_bytes(N: int, n: int, *, store_trajectories: bool = True, impacts: int = 0) -> int:

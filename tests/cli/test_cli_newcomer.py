@@ -89,6 +89,8 @@ def test_compile_announcement(monkeypatch, tmp_path, capsys):
 
     monkeypatch.setenv("VCIRUN_CACHE_DIR", str(tmp_path / "empty"))
     monkeypatch.setattr(cache, "COMPILE_CALLBACKS", [])
+    from vcirun.codegen import build
+    monkeypatch.setattr(build, "_loaded", {})  # (another test may have loaded it in this process)
     cli._announce_compiles()
     ks = resolve_method("MCVAC").kernel_set()
     assert cache.announce_if_cold(get_scene("cart_pendulum"), ks)

@@ -232,8 +232,11 @@ def test_constraint_without_coordinates_is_rejected():
 def test_reference_names_its_failures():
     """No bare scipy error: a solve that cannot proceed says which solve failed and why."""
     with pytest.raises((RuntimeError, ValueError)) as exc:
-        vcirun.reference("bouncing_ball", T=1.0, q0=[0.0], p0=[0.0])  # at rest on the floor: grazing
+        # at rest on the floor without held contacts: grazing (with them, issue 18, it rests there)
+        vcirun.reference("bouncing_ball", T=1.0, q0=[0.0], p0=[0.0], resting_contact=False)
     assert str(exc.value).startswith(("reference", "initial state"))
+    ref = vcirun.reference("bouncing_ball", T=1.0, q0=[0.0], p0=[0.0])
+    assert ref.held_intervals == [(0.0, 1.0, (0,))] and float(np.max(np.abs(ref.state(np.linspace(0, 1, 11))))) == 0.0
 
 
 def test_sweep_of_a_forced_system_stores_true_l2_errors(tmp_path):

@@ -96,7 +96,7 @@ def test_settings_vector_names_every_setting():
     with pytest.raises(ValueError, match="missing"):
         record.settings_vector(constrained=True)
     v = record.settings_vector(constrained=True, newton_tol=1e-12, max_iter=50, event_tol=1e-13,
-                               max_impacts_step=64, energies=False)
+                               max_impacts_step=64, energies=False, resting_contact=True)
     assert v.dtype == np.float64 and v[record.SETTINGS.index("max_iter")] == 50
 
 
