@@ -27,6 +27,10 @@ Sections (`--only a,b,...` to pick; `--quick` for a short smoke run):
             cart-pendulum also on the numba backend (VCIRUN_KERNEL_BACKEND=numba; set
             VCIRUN_BENCH_NUMBA_ALL=1 for every case: the 8-link MCVAA takes ~10 minutes); the
             issue's target table with wall and CPU seconds and the load average beside each
+  contacts  cost of an added inactive constraint (issue 17): microseconds per step of the
+            cart-pendulum declared in YAML with its floor only, and with a second constraint that is
+            never touched (a ceiling 100 m up), every method in its constrained loop before the first
+            impact (h = 1e-5, t < 0.729); the difference against the smooth SVC step (target < 10 %)
   wp        the work-precision studies (configs/work_precision.yaml, work_precision_double.yaml,
             long_horizon.yaml) through `vcirun study` (vcirun.experiments.studies), with their figures; the
             10x target is read on vcirun's front (best method at each accuracy) of the two T = 5 studies
@@ -597,9 +601,49 @@ def section_tensor(res):
         pass
 
 
+# --- contacts -----------------------------------------------------------------------------------------
+_CART_YAML = {"coordinates": ["y", "theta"], "parameters": {"m1": 1.0, "m2": 0.2, "L": 2.0, "g": 10.0},
+              "mass_matrix": [["m1 + m2", "m2*L*sin(theta)"], ["m2*L*sin(theta)", "m2*L**2"]],
+              "potential": "(m1 + m2)*g*y - m2*g*L*cos(theta)"}
+
+
+def section_contacts(res):
+    """us per step with one constraint and with an added inactive one (issue 17's acceptance)."""
+    from vcirun.mechanics.loader import load_system_yaml
+
+    log("== cost of an added inactive constraint (cart-pendulum in YAML, constrained loop before the first"
+        " impact, h = 1e-5; median of 7, CPU)")
+    one = load_system_yaml(_CART_YAML | {"name": "cart_one", "constraints": [{"name": "floor", "phi": "y"}]})
+    two = load_system_yaml(_CART_YAML | {"name": "cart_two", "constraints": [{"name": "floor", "phi": "y"},
+                                                                             {"name": "ceiling", "phi": "100 - y"}]})
+    h, T = 1e-5, 0.7
+    Nc = int(round(T / h))
+    q0, p0 = np.array([3.2, 0.0]), np.array([0.0, 3.5 - 0.18 * 3.2])  # the scene's Xi(3.2)
+    vcirun.simulate("cart_pendulum", "SVC", h=1e-3, T=0.01, beta=3.2, constrained=False)
+    _, _, c_svc, _ = median_walls(lambda: vcirun.simulate("cart_pendulum", "SVC", h=h, T=T, beta=3.2,
+                                                          constrained=False), 3 if QUICK else 7)
+    svc_us = c_svc / Nc * 1e6
+    log(f"  smooth SVC step (constraint ignored)       {svc_us:7.3f} us")
+    out = {"svc_us": svc_us}
+    for m in METHODS:
+        row = {}
+        for label, sysm in (("one", one), ("two", two)):
+            vcirun.simulate(sysm, m, h=h, T=10 * h, q0=q0, p0=p0)
+            _, _, c, tr = median_walls(lambda: vcirun.simulate(sysm, m, h=h, T=T, q0=q0, p0=p0), 3 if QUICK else 7)
+            assert len(tr.impacts) == 0
+            row[label] = c / Nc * 1e6
+        row["added_us"] = row["two"] - row["one"]
+        row["added_pct_of_svc"] = 100.0 * row["added_us"] / svc_us
+        out[m] = row
+        log(f"  {m:6s} one constraint {row['one']:7.3f} us, two {row['two']:7.3f} us: added "
+            f"{row['added_us']:+.3f} us = {row['added_pct_of_svc']:+.1f} % of a smooth step")
+    res["inactive_constraint"] = out
+
+
+
 SECTIONS = {"steps": section_steps, "sim5": section_sim5, "impact": section_impact, "build": section_build,
             "sweep": section_sweep, "yardstick": section_yardstick, "scaling": section_scaling, "dof": section_dof,
-            "tensor": section_tensor, "wp": section_wp, "coldbuild": section_coldbuild}
+            "tensor": section_tensor, "wp": section_wp, "coldbuild": section_coldbuild, "contacts": section_contacts}
 
 
 def main(argv=None):

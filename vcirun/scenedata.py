@@ -183,12 +183,14 @@ def newton_cradle(n: int = 3, **overrides) -> SystemData:
 
 
 def double_pendulum_walls(**overrides) -> SystemData:
-    q0 = np.array([-np.pi / 2, -np.pi / 2])
+    # hanging straight down and kicked (the double pendulum's horizontal start would put the tip at
+    # x = -2, inside the left wall x = -w): Xi(beta) = (0, 0), beta (2, 1); the default beta = 3 gives
+    # three impacts in [0, 3], on the right, left and right walls
     return SystemData(
         name="double_pendulum_walls", n=2,
         params=merge_params({"m1": 1.0, "m2": 1.0, "l1": 1.0, "l2": 1.0, "g": 9.81, "w": 1.2, "e": 1.0}, overrides),
-        ic_map=lambda beta: (beta * q0 / (np.pi / 2), np.zeros(2)),
-        default_q0=q0, default_p0=np.zeros(2),
+        ic_map=lambda beta: (np.zeros(2), beta * np.array([2.0, 1.0])),
+        default_q0=np.zeros(2), default_p0=np.array([6.0, 3.0]),
         description="double pendulum whose second tip stays between the walls x = -w and x = w (restitution e)")
 
 

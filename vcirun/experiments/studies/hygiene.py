@@ -51,7 +51,9 @@ def hygiene_case(cases, *, timeout=600.0) -> dict:
     reset then executes as numpy scalar arithmetic, so a hidden overflow, invalid operation or
     division by zero raises FloatingPointError. Includes a positive control (an overflow that must
     raise). The compiled path uses the same source, so its arithmetic is what was checked."""
-    env = dict(os.environ, NUMBA_DISABLE_JIT="1")
+    # the numba kernel backend: C kernels are called through numba intrinsics, which do not run
+    # uncompiled (the C backend's arithmetic is the same expressions, emitted as C)
+    env = dict(os.environ, NUMBA_DISABLE_JIT="1", VCIRUN_KERNEL_BACKEND="numba")
     t0 = time.perf_counter()
     p = subprocess.run([sys.executable, "-c", _HYGIENE_SCRIPT, json.dumps(cases)], capture_output=True, text=True,
                        env=env, timeout=timeout)
