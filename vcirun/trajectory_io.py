@@ -19,7 +19,7 @@ if TYPE_CHECKING:  # h5py is imported by the callers that write files
 
 # Attributes holding JSON text (decoded by the readers here; plain h5py users call json.loads).
 JSON_ATTRS = {"tolerances", "options", "method_spec", "history", "config_canonical", "versions", "h_values",
-              "methods", "ic_keys", "system_spec", "resolved_method"}
+              "methods", "ic_keys", "system_spec", "resolved_method", "constraints"}
 # Per-step arrays dropped when store_trajectories is false; the impact record is always kept.
 # the run record's rows (vcirun.record.FIELDS): per-step arrays with store_trajectories, the impact
 # record always

@@ -188,3 +188,36 @@ def test_single_constraint_declarations_are_unchanged():
             "potential": "0.5*k*x**2", "constraint": "x + 0.5"}
     s = load_system_yaml(decl)
     assert s.m == 1 and s.constraints[0].name == "phi" and s.phi == s.constraints[0].phi
+
+
+def test_results_file_records_constraint_names_and_restitutions(tmp_path):
+    """A sweep's root attributes carry the constraints in declaration order (what impact_contact
+    indexes), with their restitution expressions."""
+    from vcirun.experiments import storage
+    from vcirun.experiments.config import load_config
+    from vcirun.experiments.sweep import run_sweep
+
+    cfg_path = tmp_path / "box.yaml"
+    cfg_path.write_text(f"""name: box
+system: {{name: ball_in_box, params: {{e: 0.9}}}}
+methods: [CVA]
+h: [1.0e-2]
+initial_states: [{{q0: [0.3, 0.6], p0: [0.7, 0.0]}}]
+T: 1.5
+reference: {{kind: none}}
+output: {tmp_path / 'box.h5'}
+workers: 1
+""")
+    run_sweep(load_config(cfg_path), progress=False)
+    res = storage.read_results(tmp_path / "box.h5")
+    cons = res.attrs["constraints"]
+    assert [c["name"] for c in cons] == ["floor", "ceiling", "left", "right"]
+    assert {c["restitution"] for c in cons} == {"e"}
+    assert [r.status for r in res.runs] == ["ok"]
+
+
+def test_solve_ivp_baselines_refuse_several_constraints():
+    from vcirun.experiments.baselines import solve_ivp_run
+
+    with pytest.raises(ValueError, match="one elastic constraint; ball_in_box declares 4"):
+        solve_ivp_run("ball_in_box", h=1e-2, T=1.0, rtol=1e-8)

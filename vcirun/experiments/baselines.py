@@ -153,6 +153,12 @@ def solve_ivp_run(system, method: str = "DOP853", *, h, T, rtol, atol=None, beta
     if not (rtol > 0 and np.isfinite(rtol)):
         raise ValueError(f"rtol: must be positive (got {rtol})")
     sysm = resolve_system(system)
+    if sysm.m != 1 or any(c.restitution != 1 for c in sysm.constraints):
+        # the baselines' event loop and reset are the paper's: one elastic constraint (issue 17's
+        # impact law lives in the compiled loop and the exact reference)
+        raise ValueError(f"system: the solve_ivp baselines take one elastic constraint; {sysm.name} declares "
+                         f"{sysm.m} (restitutions {[str(c.restitution) for c in sysm.constraints]}); "
+                         "use vcirun.simulate or vcirun.reference")
     prm = sysm.param_values(params)
     q0, p0 = sysm.initial_state(beta=beta, q0=q0, p0=p0, params=prm)
     model = _model(sysm, prm, kernels)

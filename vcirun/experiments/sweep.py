@@ -261,6 +261,9 @@ def _root_attrs(cfg: SweepConfig, config_text: str, config_path, specs: list[Run
         "ic_keys": [ic.key for ic in cfg.initial_conditions()], "n_runs_expected": len(specs),
         "reference_kind": cfg.reference.kind, "tolerances": tol, "store_trajectories": cfg.store_trajectories,
         "timing_repeats": cfg.timing_repeats,
+        # the unilateral constraints in declaration order (impact_contact indexes them), issue 17
+        "constraints": [{"name": c.name, "phi": str(c.phi), "restitution": str(c.restitution)}
+                        for c in build_system(cfg)[2].constraints],
     }
     attrs.update(storage.environment_attrs())
     return attrs
