@@ -214,6 +214,11 @@ workers: 1
     assert [c["name"] for c in cons] == ["floor", "ceiling", "left", "right"]
     assert {c["restitution"] for c in cons} == {"e"}
     assert [r.status for r in res.runs] == ["ok"]
+    from vcirun.experiments.figures import contacts_energy
+
+    fig = contacts_energy(res)   # H(t) per method, impacts marked by contact
+    labels = fig.axes[0].get_legend_handles_labels()[1]
+    assert {"impact: floor", "impact: right"} <= set(labels) and len(fig.axes) == 1
 
 
 def test_solve_ivp_baselines_refuse_several_constraints():

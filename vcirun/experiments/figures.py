@@ -7,6 +7,9 @@
   one panel per method, one shared y axis.
 - Figure 1: energy H(t) of the same run with and without the impact constraint.
 - Work-precision: mean computation time against median L2 error per method, one point per h.
+- Contacts: energy H(t) against time, one panel per method (several constraints or restitution < 1,
+  issue 17), the run at the smallest h, impacts as vertical lines coloured by contact (the results
+  file's constraint names), held phases (resting contact) shaded.
 - `trajectory_figure(tr)` (`Trajectory.plot()`): coordinates and energy of one run.
 
 Notebook safety: every builder returns a `matplotlib.figure.Figure` that is not registered with
@@ -28,7 +31,7 @@ import numpy as np
 from ..plotting import _COLORS, _MARKERS, _STYLES, STYLE, _figure, _fmt_h, _styled, style, trajectory_figure  # noqa: F401
 from . import metrics, storage
 
-__all__ = ["FigureSkipped", "figure4", "figure3", "figure1", "work_precision", "trajectory_figure", "make_figures",
+__all__ = ["FigureSkipped", "figure4", "figure3", "figure1", "work_precision", "contacts_energy", "trajectory_figure", "make_figures",
            "plot_results", "PlotReport", "save_figure", "STYLE"]
 
 class FigureSkipped(Exception):
@@ -324,9 +327,60 @@ def work_precision(results) -> "Figure":
     return fig
 
 
-FIGURES = {"fig4": figure4, "fig3": figure3, "fig1": figure1, "work_precision": work_precision}
+@_styled
+def contacts_energy(results) -> "Figure":
+    """H(t) per method at the smallest stored h (first initial state), impacts marked by contact."""
+    results = _as_results(results)
+    cons = results.attrs.get("constraints") or []
+    if len(cons) < 2 and all(str(c.get("restitution", "1")) in ("1", "1.0") for c in cons):
+        raise FigureSkipped("for scenes with several constraints or restitution < 1 (issue 17); this results "
+                            "file declares one elastic constraint (or predates the constraints record)")
+    runs = [r for r in results.runs if r.attrs.get("has_trajectory") and r.attrs.get("n_steps", 0) > 0]
+    if not runs:
+        raise FigureSkipped("needs stored trajectories (store_trajectories: true)")
+    h = min(float(r.attrs["h"]) for r in runs)
+    ic = sorted({r.attrs["ic_key"] for r in runs})[0]
+    runs = [r for r in runs if float(r.attrs["h"]) == h and r.attrs["ic_key"] == ic]
+    names = [c.get("name", f"c{i}") for i, c in enumerate(cons)]
+    fig, axes = _figure(1, len(runs), figsize=(3.4 * len(runs), 3.2), squeeze=False, sharey=True)
+    seen = set()
+    for ax, r in zip(axes[0], runs):
+        tr = storage.load_trajectory(results.path, r.run_id)
+        ax.plot(tr.t, tr.H, color="k", linewidth=1.0, label=r"$H$")
+        for ti, c in zip(tr.impacts, tr.impact_contact):
+            lab = None if c in seen else f"impact: {names[c] if c < len(names) else c}"
+            seen.add(int(c))
+            ax.axvline(ti, color=_COLORS[int(c) % len(_COLORS)], linestyle=(0, (4, 3)), linewidth=0.7, label=lab)
+        held = np.asarray(tr.contact_active).any(axis=1) if np.size(tr.contact_active) else np.zeros(0, bool)
+        if held.any():
+            ax.fill_between(tr.t, 0, 1, where=held, transform=ax.get_xaxis_transform(), color="0.85",
+                            label="held contact" if "held" not in seen else None)
+            seen.add("held")
+        ax.set_title(f"{r.attrs['label']}" + ("" if r.attrs.get("status") == "ok" else f" [{r.attrs['status']}]"),
+                     fontsize=9)
+        ax.set_xlabel(r"$t$ [s]")
+        ax.grid(True, linewidth=0.3, alpha=0.5)
+    axes[0][0].set_ylabel("energy H [J]")
+    handles, labels = [], []
+    for ax in axes[0]:
+        for hd, lb in zip(*ax.get_legend_handles_labels()):
+            if lb not in labels:
+                handles.append(hd)
+                labels.append(lb)
+    axes[0][-1].legend(handles, labels, frameon=False, fontsize=7)
+    spec = results.attrs.get("system_spec")
+    prm = (spec.get("params") or {}) if isinstance(spec, dict) else {}
+    rest = [str(prm.get(str(c.get("restitution")), c.get("restitution"))) for c in cons]  # parameter -> value
+    e = ("e = " + rest[0]) if len(set(rest)) == 1 else ", ".join(f"{n}: e = {v}" for n, v in zip(names, rest))
+    fig.suptitle(f"{results.attrs.get('system', '')}, {len(cons)} contacts, {e}; {ic}, h = {_fmt_h(h)}", fontsize=8)
+    return fig
+
+
+
+FIGURES = {"fig4": figure4, "fig3": figure3, "fig1": figure1, "work_precision": work_precision,
+           "contacts": contacts_energy}
 _STEMS = {"fig4": "fig4_l2_error_vs_beta", "fig3": "fig3_energy_evolution", "fig1": "fig1_energy_with_without_impacts",
-          "work_precision": "work_precision"}
+          "work_precision": "work_precision", "contacts": "contacts_energy"}
 
 
 def figures(results, which=None) -> tuple[dict, dict[str, str]]:
