@@ -75,7 +75,7 @@ UNITS = (
                    "solve_small", "copy_into")),
     Unit("collision/events.py",
          provides=("N_SCAN", "N_MODEL", "step_admissible", "partial_map", "collision_time", "search_collision"),
-         requires=("NCON", "partial", "held_step", "sys_phi", "gap", "gap_slope", "touching_mask",
+         requires=("NCON", "partial", "held_step", "sys_phi", "sys_phis", "gap", "gap_slope", "touching_mask",
                    "unmask_penetrating")),
     Unit("collision/impact_law.py", provides=IMPACT_LAW_PROVIDES, requires=()),
     Unit("collision/impact.py",

@@ -56,6 +56,7 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
     mu = np.zeros(NCON)
     mu_end = np.zeros(NCON)
     imp = np.empty(NCON)
+    phis = np.empty(NCON)  # step_admissible's scratch (no allocation per step)
     set_row(Q, 0, q)
     set_row(P, 0, p)
     info[I_N_IMPACTS] = 0
@@ -97,7 +98,7 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
                                                max_impacts_step, resting, qt, pt, vt, work, dense, out, info,
                                                held, nheld)
             iters += itc
-        elif (not constrained) or step_admissible(q, p, qt, h, event_tol, prm, held, nheld):
+        elif (not constrained) or step_admissible(q, p, qt, h, event_tol, prm, held, nheld, phis):
             copy_into(q, qt)
             copy_into(p, pt)
         else:

@@ -63,12 +63,23 @@ def _model_first_root(a, ga, da, b, gb, db):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def step_admissible(q, p, qt, h, event_tol, prm, held, nheld):
+def step_admissible(q, p, qt, h, event_tol, prm, held, nheld, phis):
     """Algorithm 1's precondition (31) for the full step q -> qt: phi(qt) > 0 (one constraint, none
     held), or every contact neither held nor touching at q positive at qt and the touching ones not
-    penetrating."""
+    penetrating. phis: scratch of length NCON."""
     if NCON == 1 and nheld == 0:
         return sys_phi(qt, prm) > 0.0
+    # every phi_i(qt) > 0: admissible whatever is touching or held (the gap over any mask is > 0 and
+    # nothing penetrates): the common smooth step pays one evaluation of the constraints, not the
+    # touching test's mass-matrix solve (issue 17: the cost of an inactive constraint)
+    sys_phis(qt, prm, phis)
+    ok = True
+    for i in range(NCON):
+        if not phis[i] > 0.0:
+            ok = False
+            break
+    if ok:
+        return True
     mask = np.empty(NCON, dtype=np.int64)
     touching_mask(q, p, h, event_tol, prm, mask, held)
     return gap(qt, prm, mask) > 0.0 and unmask_penetrating(qt, prm, mask, held) == 0
