@@ -38,6 +38,8 @@ def family(ks) -> str:
     """Short name of a kernel set: CVA[SVC], VCI[SVC], MCVA[SVA,s=4], CVA[SVC x5] ..."""
     if ks.modified is not None:
         return f"MCVA[{ks.modified[0]},s={ks.modified[1]}]"
+    if ks.reset is None:
+        return "system"  # the system-only kernels (reference, dense output, verify)
     names = [s for s, _ in ks.full_stages]
     if len(names) == 1:
         stages = names[0]
@@ -65,7 +67,7 @@ def estimate_compile_s(ks, n: int) -> float:
     if same:
         m, v = max(same)
         return v * max(1.0, n / m)
-    return _DEFAULT_S.get(ks.reset.upper(), 15.0) * max(1.0, n / 2)
+    return _DEFAULT_S.get((ks.reset or "system").upper(), 15.0) * max(1.0, n / 2)
 
 
 def announce_if_cold(system, ks) -> bool:

@@ -84,7 +84,8 @@ def test_ball_in_box_corner_hit_gives_two_entries():
 # --- Newton's cradle --------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("e", [1.0, 0.5])
-@pytest.mark.parametrize("method", ["CVA", "VCI", "MCVAC"])
+@pytest.mark.parametrize("method", ["CVA", pytest.param("VCI", marks=pytest.mark.slow),
+                                    pytest.param("MCVAC", marks=pytest.mark.slow)])  # (a cold build each)
 def test_newton_cradle(method, e):
     """3 equal balls, the last two touching, the first approaching at speed 1: Moreau's law gives
     (-1/3, 2/3, 2/3) for e = 1 (not the sequential textbook answer (0, 0, 1): docs/contacts.md) and
@@ -115,7 +116,7 @@ def test_cradle_reference_and_five_balls():
 # --- double pendulum between two walls ----------------------------------------------------------------
 
 @pytest.mark.parametrize("e", [1.0, 0.9])
-@pytest.mark.parametrize("method", ["CVA", "VCI", "MCVAC"])
+@pytest.mark.parametrize("method", ["CVA", pytest.param("VCI", marks=pytest.mark.slow), "MCVAC"])
 def test_double_pendulum_walls_orders(method, e):
     """Against the exact reference (same impact law): the reference's contact sequence at every h and
     L2 order 2."""

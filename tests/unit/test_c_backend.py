@@ -201,6 +201,7 @@ def _run(cache, **env):
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow  # two cold builds in fresh processes (~80 s cold); `make test-all`
 def test_c_module_is_cached_across_processes_and_matches_numba(tmp_path):
     cold = _run(tmp_path / "c", VCIRUN_C_MIN_STATEMENTS="0")   # every leaf kernel in C (they are small)
     warm = _run(tmp_path / "c", VCIRUN_C_MIN_STATEMENTS="0")

@@ -320,5 +320,5 @@ def test_figures_explain_what_they_cannot_draw(tmp_path):
     path = write(tmp_path / "one.h5", {"x": (attrs, arrays)})
     written, skipped = figures.make_figures(storage.read_results(path), tmp_path / "fig")
     assert written == []
-    assert set(skipped) == {"fig4", "fig3", "fig1", "work_precision"}
+    assert set(skipped) == {"fig4", "fig3", "fig1", "work_precision", "contacts"}
     assert "beta" in skipped["fig4"] and "store_trajectories" in skipped["fig3"]

@@ -240,6 +240,7 @@ def _compiled_expanded(system, ks, directory):
     return mod
 
 
+@pytest.mark.slow  # each case builds the expanded-path module too (40-90 s cold); `make test-all`
 @pytest.mark.parametrize("system_name, method, mopts, kw", SIMS,
                          ids=[f"{s}-{m}" + "".join(f"-{v}" for v in o.values()) for s, m, o, _ in SIMS])
 def test_simulation_agrees_with_expanded_path(system_name, method, mopts, kw, tmp_path, monkeypatch):
