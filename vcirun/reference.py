@@ -10,6 +10,11 @@ least scipy's floor of ~2.2e-14). A forced system also carries the work W(t) = i
 an extra state, and `energy_balance` = max |H(t) - H(0) - W(t)| on a dense grid: a check of the
 solve that does not rest on a second solve of the same equations.
 
+Held contacts (issue 18, resting_contact=True): a contact that starts at rest on its surface, is
+left at rest by a plastic impact, or whose impacts accumulate (Zeno time extrapolated from its
+flights) is held on the index-reduced constrained dynamics (vcirun/reference_held.py) and released
+where its contact force turns tensile; docs/contacts.md section 6.
+
 Also: a fine-step method reference (the paper's choice: CVA at a small h). Closed forms (the
 oscillator against a wall, the bouncing ball) are in vcirun.oracles.
 """
@@ -184,13 +189,10 @@ def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000, resting_contact=Tru
     dip.terminal = False  # recorded, checked after the solve (a terminal event at a minimum would
     dip.direction = 1.0   # restart where d phi/dt = 0 and fire again at once)
 
-    def _pushed_in(y):  # the deepest masked contact, below minus its round-off
+    def pressed(t, y):  # a masked contact below minus its round-off: pushed in, or back (issue 18)
         phis = np.empty(m)
         mod.sys_phis(y[:n], prm, phis)
         return float(np.min(np.where(mask == 1, phis, np.inf))) + 1e-12 * (1.0 + float(np.max(np.abs(y[:n]))))
-
-    def pressed(t, y):  # a touching contact pushed into its constraint: resting contact (issue 18)
-        return _pushed_in(y)
 
     pressed.terminal = True
     pressed.direction = -1.0
@@ -223,7 +225,7 @@ def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000, resting_contact=Tru
                 break
             continue
         mod.touching_mask(y[:n].copy(), y[n:2 * n].copy(), 1.0, SIMULTANEOUS / 4, prm, mask, held)
-        mask[rest == 1] = 1  # at rest after a release: u is round-off of either sign; watched by `back`
+        mask[rest == 1] = 1  # at rest after a release: u is round-off of either sign; `pressed` watches it
         events = [event, dip] + ([pressed] if mask.any() else [])
         sol = solve_ivp(rhs, (t, T), y, method="DOP853", rtol=rtol, atol=atol, events=events,
                         dense_output=True)
