@@ -3,8 +3,8 @@
 Dimensions: `method` (the config's labels, in config order), `h` (the config's steps) and the
 initial-condition axis: `beta` (its values) when the config sweeps beta, else `initial_condition`
 (the run groups' ic keys: `state=0`, ..., or `default`). Every scalar a run records is a variable
-over (method, h, <ic>) (select a method with `.sel({"method": "MCVAA"})`: xarray reserves the
-keyword `method`): l2_error, wall_time, wall_time_call, n_steps, n_impacts, n_partial_steps,
+over (method, h, <ic>) (`.sel(method="MCVAA", h=0.01)` selects on the method dimension: see
+vcirun/results_xr.py): l2_error, wall_time, wall_time_call, n_steps, n_impacts, n_partial_steps,
 newton_iters_total, H0, max_abs_dH, H_range, Ed_range, Hmod_range, fail_step, fail_time, t_end (the
 grid's end N h), and the strings status, message, l2_note, run_id. Per initial condition: q0, p0
 (over `coordinate`, named from the system), reference_accuracy, reference_n_impacts.
@@ -178,9 +178,10 @@ def open_results(path):
         ds.l2_error.loc["MCVAA", 0.01]                     # the same, by position of the dims
         ds.wall_time.mean("beta").to_pandas()              # Table II's means, method x h
 
-    `method` is a keyword of xarray's own `.sel(..., method="nearest")` (inexact matching), so the
-    method dimension is selected with the dict form `.sel({"method": ...})`: `.sel(method="MCVAA")`
-    would be read by xarray as a fill method and fails ("Invalid fill method").
+    `method` is also the keyword of xarray's own `.sel(..., method="nearest")` (inexact matching).
+    The Dataset returned here (and every DataArray taken from it) reads `.sel(method="MCVAA", h=0.01)`
+    as a selection on the method dimension when the value is not one of xarray's fill methods
+    (vcirun.results_xr); `.sel({"method": "MCVAA"}, method="nearest")` still does both.
     """
     import xarray as xr
 
@@ -197,4 +198,6 @@ def open_results(path):
     data = {}
     for name, (dims, arr, attrs) in tab.variables.items():
         data[name] = (dims, arr.astype(str) if arr.dtype == object else arr, attrs)
-    return xr.Dataset(data, coords=coords, attrs=tab.attrs)
+    from vcirun.results_xr import ResultsDataset
+
+    return ResultsDataset(data, coords=coords, attrs=tab.attrs)

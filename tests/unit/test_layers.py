@@ -25,7 +25,7 @@ LAYERS = (
     ("methods", ("methods",)),
     ("Python API", ("resolve", "trajectory", "trajectory_io", "api", "diagnosis")),
     ("reference", ("reference", "reference_held")),
-    ("analysis", ("verification", "results", "experiments")),
+    ("analysis", ("verification", "results", "results_xr", "experiments")),
 )
 OUTSIDE = ("__init__", "cli", "__main__")
 

@@ -7,6 +7,7 @@ import sys
 
 import h5py
 import numpy as np
+import xarray as xr
 import pytest
 
 import vcirun
@@ -33,8 +34,12 @@ def test_open_results_dims_and_values(sweep_file):
     assert list(ds.method.values) == ["CVA", "R-VCI"]
     np.testing.assert_array_equal(ds.h.values, [3.2e-2, 1.0e-2])
     np.testing.assert_allclose(ds.beta.values, [3.2, 3.7, 4.2])
-    curve = ds.l2_error.sel({"method": "CVA", "h": 0.01})   # xarray reserves sel(method=...)
+    curve = ds.l2_error.sel({"method": "CVA", "h": 0.01})
     assert curve.dims == ("beta",)
+    # the keyword form, though `method` is also xarray's fill-method keyword (vcirun.results_xr)
+    np.testing.assert_array_equal(ds.l2_error.sel(method="CVA", h=0.01).values, curve.values)
+    np.testing.assert_array_equal(ds.sel(method="CVA", h=0.01).l2_error.values, curve.values)
+    np.testing.assert_array_equal(ds.l2_error.sel(method="CVA").sel(h=0.01).values, curve.values)
     np.testing.assert_array_equal(ds.l2_error.loc["CVA", 0.01].values, curve.values)
     res = storage.read_results(sweep_file)
     want = sorted((r.attrs["beta"], r.attrs["l2_error"]) for r in res.runs
@@ -94,3 +99,23 @@ def test_open_results_bad_file(tmp_path):
     p.write_bytes(b"not hdf5")
     with pytest.raises(ValueError, match="not a readable HDF5"):
         vcirun.open_results(p)
+
+
+def test_sel_method_keyword_keeps_xarray_fill_methods(sweep_file):
+    """`method=` is a label of the method dimension unless it is one of xarray's fill methods."""
+    import pickle
+
+    ds = vcirun.open_results(sweep_file)
+    near = ds.l2_error.sel(method="CVA").sel(h=0.0101, method="nearest")   # xarray's inexact match
+    np.testing.assert_array_equal(near.values, ds.l2_error.sel(method="CVA", h=0.01).values)
+    with pytest.raises(ValueError, match="given twice"):
+        ds.l2_error.sel({"method": "CVA"}, method="R-VCI")
+    np.testing.assert_array_equal(ds.l2_error.sel(h=0.0101, method="nearest").sel(method="CVA").values,
+                                  near.values)
+    with pytest.raises(KeyError):
+        ds.l2_error.sel(method="no such method")
+    # the selection survives xarray operations and pickling (dask, multiprocessing)
+    back = pickle.loads(pickle.dumps(ds))
+    np.testing.assert_array_equal(back.wall_time.mean("beta").sel(method="R-VCI").values,
+                                  ds.wall_time.mean("beta").sel({"method": "R-VCI"}).values)
+    assert isinstance(ds.l2_error, xr.DataArray) and isinstance(ds, xr.Dataset)
