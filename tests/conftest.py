@@ -29,3 +29,27 @@ def compiled():
 @pytest.fixture
 def rng():
     return np.random.default_rng(20140527)
+
+
+@pytest.fixture(autouse=True)
+def _build_log(request):
+    """With $VCIRUN_TEST_BUILD_LOG set: one JSON line per test that generated a kernel module (its
+    node id, the modules, the test's wall time), to find the tests that pay the cold builds."""
+    import os
+
+    path = os.environ.get("VCIRUN_TEST_BUILD_LOG")
+    if not path:
+        yield
+        return
+    import json
+    import time
+
+    from vcirun.codegen import build
+
+    n0, t0 = len(build.BUILD_LOG), time.perf_counter()
+    yield
+    new = [e for e in build.BUILD_LOG[n0:] if not e["cached"]]
+    if new:
+        with open(path, "a") as f:
+            f.write(json.dumps({"test": request.node.nodeid, "wall_s": round(time.perf_counter() - t0, 2),
+                                "modules": [f"{e['system']}|{e['kernels']}" for e in new]}) + "\n")

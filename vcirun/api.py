@@ -155,11 +155,12 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     if mod.__name__ not in _FIRST_CALLS:
         # numba's first call of the loop (load from its cache, or compile) is not integration: one
         # untimed step with arguments of the same types, so wall_time measures the integration only
+        from .cache import first_call_lock, note_first_call
+
         _FIRST_CALLS.add(mod.__name__)
         t_first = time.perf_counter()
-        _run_loop(mod, q0, p0, float(t0), h, 1, prm, settings, sysd.n, int(tol["max_impacts_step"]))
-        from .cache import note_first_call
-
+        with first_call_lock(mod):  # one compile per module across processes (sweep and test workers)
+            _run_loop(mod, q0, p0, float(t0), h, 1, prm, settings, sysd.n, int(tol["max_impacts_step"]))
         note_first_call(mod, meth.kernel_set(), time.perf_counter() - t_first)
     t_start = time.perf_counter()
     out, counters = _run_loop(mod, q0, p0, float(t0), h, N, prm, settings, sysd.n, int(tol["max_impacts_step"]))

@@ -10,15 +10,17 @@ vcirun version adds modules and nothing removes old ones: the cache grows until 
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
 import shutil
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
 __all__ = ["CacheInfo", "info", "clear", "cache_root", "announce_if_cold", "note_first_call", "estimate_compile_s",
-           "family", "COMPILE_CALLBACKS"]
+           "family", "COMPILE_CALLBACKS", "first_call_lock"]
 
 COMPILE_CALLBACKS: list = []   # f(message) on a cold build; the CLI prints the message on stderr
 _log = logging.getLogger("vcirun.build")
@@ -26,6 +28,7 @@ _TIMES_FILE = "build_times.json"
 # first estimates before this cache has timed a build (measured on this 2-core machine: CVA on the
 # cart-pendulum 9 s, MCVAC 14-20 s)
 _DEFAULT_S = {"CVA": 10.0, "VCI": 10.0, "MCVA": 20.0}
+LOCK_TIMEOUT_S = 1800.0  # first_call_lock: the longest cold build measured is MCVAA at n = 8 (~500 s)
 
 
 def cache_root() -> Path:
@@ -104,6 +107,43 @@ def note_first_call(mod, ks, seconds: float) -> None:
         os.replace(tmp, path)
     except (OSError, TypeError, ValueError, AttributeError):
         pass
+
+
+@contextlib.contextmanager
+def first_call_lock(mod, timeout_s: float = LOCK_TIMEOUT_S):
+    """Held around numba's first call of a module's loop, across processes: the sweep workers (or
+    test workers) that start on the same cold module wait for the one compiling it and then load its
+    machine code from numba's cache, instead of each compiling the same code at once (2 workers, 2
+    compiles of 30-100 s each). An advisory lock on `kernels/vk_<key>.lock` (released by the kernel
+    when its holder dies); past `timeout_s` of waiting, or where locks are unavailable, the call goes
+    ahead unlocked (only time is lost then, never a result)."""
+    from .codegen import build
+
+    key = mod.__name__.rsplit("_", 1)[-1]
+    fd = None
+    try:
+        import fcntl
+
+        fd = os.open(build.cache_dir() / f"vk_{key}.lock", os.O_RDWR | os.O_CREAT, 0o644)
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                if time.monotonic() > deadline:
+                    break
+                time.sleep(0.05)
+    except (ImportError, OSError):
+        pass
+    try:
+        yield
+    finally:
+        if fd is not None:
+            try:
+                os.close(fd)  # closing releases the lock
+            except OSError:
+                pass
 
 
 @dataclass

@@ -73,7 +73,7 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
     while i < N:
         t = t0 + i * h
         if nheld > 0:  # (the rows start false / 0)
-            _record_contacts(out, i, q, p, t, prm, held, nheld, mu)
+            _record_contacts(out, np.int64(i), q, p, t, prm, held, nheld, mu)
         if nheld == 0:
             it, E = full(q, p, h, t, prm, ntol, maxit, qt, pt, vt, energies or i == 0)
         else:
@@ -123,7 +123,7 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
     if status == ST_OK and energies:
         # energies at the last grid state (its discrete energy from one more trial step)
         if nheld == 0:
-            it, E = full(q, p, h, t0 + N * h, prm, ntol, maxit, qt, pt, vt)
+            it, E = full(q, p, h, t0 + N * h, prm, ntol, maxit, qt, pt, vt, np.bool_(True))
         else:
             it, E = held_step(q, p, h, t0 + N * h, prm, ntol, maxit, held, qt, pt, vt, imp)
         H[N] = hamiltonian(q, p, prm)
@@ -183,7 +183,7 @@ def _release_step(q, p, h, t, tau, c, prm, ntol, maxit, event_tol, max_impacts_s
     held[c] = 0
     nheld -= 1
     _record_release(out, info, t + tau, c)
-    status, itc, nheld = _impact_step(q, p, h, h - tau, t + tau, False, prm, ntol, maxit, event_tol,
+    status, itc, nheld = _impact_step(q, p, h, h - tau, t + tau, np.bool_(False), prm, ntol, maxit, event_tol,
                                       max_impacts_step, resting, qt, pt, vt, work, dense, out, info, held, nheld)
     return status, it + itc, nheld
 

@@ -109,7 +109,8 @@ def collision_time(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt, v
     nheld = 0
     for i in range(NCON):
         nheld += 1 if held[i] != 0 else 0
-    return search_collision(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt, vt, False, held, nheld)
+    return search_collision(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt, vt, np.bool_(False), held,
+                            nheld)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

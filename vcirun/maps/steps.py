@@ -135,4 +135,4 @@ def ld_step(q0, p0, h, t, prm, newton_tol, max_iter, q1, p1, vlast, want_E=True)
 @njit(cache=True, nogil=True, error_model="numpy")
 def ld_partial(q0, p0, tau, h, t, prm, newton_tol, max_iter, q1, p1, vlast):
     """Phi^partial = Phi^full_tau (CVA, VCI): the same discrete Lagrangian at step tau."""
-    return ld_step(q0, p0, tau, t, prm, newton_tol, max_iter, q1, p1, vlast)
+    return ld_step(q0, p0, tau, t, prm, newton_tol, max_iter, q1, p1, vlast, np.bool_(True))
