@@ -19,6 +19,31 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def _free_motion(q, p, t, prm):
+    """The terms of d^2 phi / dt^2 along the free motion through (q, p) at t, with v = M^-1 p and
+    F = -dH/dq + f: (dd_i = v^T Hess phi_i v, G = grad phi, M, F - Mdot v)."""
+    y = np.empty(2 * NDOF)
+    f = np.empty(2 * NDOF)
+    for j in range(NDOF):
+        y[j] = q[j]
+        y[NDOF + j] = p[j]
+    dynamics_rhs(t, y, prm, f)          # f[:n] = v, f[n:] = F
+    v = f[:NDOF].copy()
+    mdv = np.empty(NDOF)
+    sys_Mdotv(q, v, prm, mdv)
+    dd = np.empty(NCON)
+    sys_ddphis(q, v, prm, dd)
+    G = np.empty((NCON, NDOF))
+    sys_dphis(q, prm, G)
+    A = np.empty((NDOF, NDOF))
+    sys_M(q, prm, A)
+    w = np.empty(NDOF)
+    for j in range(NDOF):
+        w[j] = f[NDOF + j] - mdv[j]
+    return dd, G, A, w
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def contact_forces(q, p, t, prm, held, mu):
     """mu_A: the multipliers of the held contacts in the continuous motion through (q, p) at t,
     pdot = F + G_A^T mu, F = -dH/dq + f, from d^2/dt^2 phi_A = 0 with v = M^-1 p:
@@ -35,24 +60,7 @@ def contact_forces(q, p, t, prm, held, mu):
             k += 1
     if k == 0:
         return True
-    y = np.empty(2 * NDOF)
-    f = np.empty(2 * NDOF)
-    for j in range(NDOF):
-        y[j] = q[j]
-        y[NDOF + j] = p[j]
-    dynamics_rhs(t, y, prm, f)          # f[:n] = v, f[n:] = F
-    v = f[:NDOF].copy()
-    mdv = np.empty(NDOF)
-    sys_Mdotv(q, v, prm, mdv)
-    dd = np.empty(NCON)
-    sys_ddphis(q, v, prm, dd)
-    G = np.empty((NCON, NDOF))
-    sys_dphis(q, prm, G)
-    A = np.empty((NDOF, NDOF))
-    sys_M(q, prm, A)
-    rhs = np.empty(NDOF)
-    for j in range(NDOF):
-        rhs[j] = f[NDOF + j] - mdv[j]
+    dd, G, A, rhs = _free_motion(q, p, t, prm)
     X = np.empty((k, NDOF))     # rows M^-1 grad phi_i
     for a in range(k):
         for j in range(NDOF):
@@ -248,24 +256,7 @@ def held_step(q0, p0, h, t, prm, ntol, maxit, held, q1, p1, vlast, imp):
 def normal_acceleration(q, p, t, prm, i):
     """d^2 phi_i / dt^2 of the free (unheld) motion through (q, p): negative when the motion is pressed
     into contact i."""
-    y = np.empty(2 * NDOF)
-    f = np.empty(2 * NDOF)
-    for j in range(NDOF):
-        y[j] = q[j]
-        y[NDOF + j] = p[j]
-    dynamics_rhs(t, y, prm, f)
-    v = f[:NDOF].copy()
-    mdv = np.empty(NDOF)
-    sys_Mdotv(q, v, prm, mdv)
-    dd = np.empty(NCON)
-    sys_ddphis(q, v, prm, dd)
-    G = np.empty((NCON, NDOF))
-    sys_dphis(q, prm, G)
-    A = np.empty((NDOF, NDOF))
-    sys_M(q, prm, A)
-    w = np.empty(NDOF)
-    for j in range(NDOF):
-        w[j] = f[NDOF + j] - mdv[j]
+    dd, G, A, w = _free_motion(q, p, t, prm)
     if not solve_small(A, w, NDOF):
         return np.nan
     s = dd[i]
