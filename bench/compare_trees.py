@@ -229,7 +229,7 @@ def report(tag):
 """
 
 
-def _nrt_child(path, system, method, h, T, beta, out):
+def _nrt_child(path, system, method, h, T, beta, out, resting=True):
     """Run under gdb by nrt_count: stop (SIGUSR1) after setup, after a one-step call, after the N-step call."""
     import signal
 
@@ -268,7 +268,7 @@ def _nrt_child(path, system, method, h, T, beta, out):
 
         m._mod = _CaptureNew()
     resolve.load_module = lambda s, k: m
-    tr = vcirun.simulate(system, method, h=h, T=T, beta=beta, energies=False)
+    tr = vcirun.simulate(system, method, h=h, T=T, beta=beta, energies=False, resting_contact=resting)
     args = list(captured["args"])
     cres = next(iter(raw.overloads.values()))
     lib = nrt.rtsys.library
@@ -286,7 +286,7 @@ def _nrt_child(path, system, method, h, T, beta, out):
     os.kill(os.getpid(), signal.SIGUSR1)
 
 
-def nrt_count(path, system, method, h, T, beta) -> dict:
+def nrt_count(path, system, method, h, T, beta, resting=True) -> dict:
     """NRT_incref + NRT_decref calls of one module's integrate: one-step call, N-step call, the
     per-step and per-impact estimates ((N-step - one-step) / (N - 1) is per step including the
     impact steps' share), and the call sites (return-address offsets from integrate's entry)."""
@@ -296,7 +296,7 @@ def nrt_count(path, system, method, h, T, beta) -> dict:
     gscript = out + ".gdb.py"
     Path(gscript).write_text(f"OUT = {out!r}\n" + _GDB_SCRIPT)
     child = [sys.executable, str(Path(__file__).resolve()), "--nrt-child", path, system, method, repr(h), repr(T),
-             repr(beta), out]
+             repr(beta), out, "on" if resting else "off"]
     cmd = ["gdb", "-q", "-batch", "-ex", "set pagination off", "-ex", "handle SIGUSR1 stop print nopass",
            "-ex", "run", "-ex", f"source {gscript}", "-ex", "continue", "-ex", "python report('one')",
            "-ex", "continue", "-ex", "python report('full')", "-ex", "continue", "--args"] + child
@@ -321,8 +321,9 @@ def nrt_count(path, system, method, h, T, beta) -> dict:
 
 def main(argv=None):
     if argv is None and len(sys.argv) > 1 and sys.argv[1] == "--nrt-child":
-        path, system, method, h, T, beta, out = sys.argv[2:9]
-        return _nrt_child(path, system, method, float(h), float(T), None if beta == "None" else float(beta), out)
+        path, system, method, h, T, beta, out, resting = sys.argv[2:10]
+        return _nrt_child(path, system, method, float(h), float(T), None if beta == "None" else float(beta), out,
+                          resting == "on")
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("old_tree", type=Path)
     ap.add_argument("--system", default="cart_pendulum", help="comma-separated built-in scenes")
@@ -386,7 +387,7 @@ def main(argv=None):
                 if a.nrt_count:
                     r = rows[-1]
                     for tag, pth in (("old", po), ("new", pn)):
-                        c = nrt_count(pth, system, method, h, a.T, beta)
+                        c = nrt_count(pth, system, method, h, a.T, beta, a.resting_contact == "on")
                         r[f"nrt_{tag}"] = c
                     co, cn = r["nrt_old"], r["nrt_new"]
                     print(f"    NRT incref+decref calls: run old {co['full']}, new {cn['full']}; one-step call "
