@@ -63,7 +63,10 @@ def env():
 class Sweep:
     """A sweep subprocess whose stderr progress lines are read on a thread."""
 
-    def __init__(self, tmp_path: Path, workers: int, delay: float = 0.05):
+    # delay: seconds added to each timed run, so that the 64 runs outlast the first commit by several
+    # seconds on a loaded machine (at 0.05 s a sweep whose workers found the kernels compiled could
+    # finish between its first commit and the signal, exiting 0)
+    def __init__(self, tmp_path: Path, workers: int, delay: float = 0.25):
         (tmp_path / "slow_cli.py").write_text(SLOW_CLI)
         self.cfg = tmp_path / "interrupt.yaml"
         self.cfg.write_text(CONFIG)
