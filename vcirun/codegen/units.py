@@ -94,7 +94,7 @@ UNITS = (
          requires=("NDOF", "NCON", "PARTIAL_IS_FULL", "full", "reset", "modified_energy", "search_collision",
                    "step_admissible", "impact_direction", "hamiltonian", "copy_into", "set_row", "held_step",
                    "contact_forces", "project_momentum", "normal_acceleration", "normal_velocities",
-                   "touch_tolerance", "sys_phis", "sys_restitution", "FORCED", "force_power", "velocity_guess")
+                   "touch_tolerance", "sys_phi", "sys_phis", "sys_restitution", "FORCED", "force_power", "velocity_guess")
          + tuple(f.index_name for f in record.FIELDS) + tuple(f"I_{c.upper()}" for c in record.COUNTERS)
          + tuple(f"S_{s.upper()}" for s in record.SETTINGS) + tuple(f"ST_{n.upper()}" for n, _ in record.STATUSES)),
 )

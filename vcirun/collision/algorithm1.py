@@ -98,7 +98,10 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
                                                max_impacts_step, resting, qt, pt, vt, work, dense, out, info,
                                                held, nheld)
             iters += itc
-        elif (not constrained) or step_admissible(q, p, qt, h, event_tol, prm, held, nheld, phis):
+        elif (not constrained) or ((sys_phi(qt, prm) > 0.0) if (NCON == 1 and nheld == 0)
+                                   else step_admissible(q, p, qt, h, event_tol, prm, held, nheld, phis)):
+            # (the one-constraint test in the loop itself: through step_admissible it cost ~0.1 us of
+            # reference counting per step, its six array arguments; bench/compare_trees.py --nrt-count)
             copy_into(q, qt)
             copy_into(p, pt)
         else:
@@ -248,7 +251,8 @@ def _impact_step(q, p, h, tau_max, t, have_end, prm, ntol, maxit, event_tol, max
                 return ST_ACCUMULATION, iters, nheld
             if info[I_N_IMPACTS] + k > out[O_IMPACTS].shape[0]:
                 return ST_ACCUMULATION, iters, nheld  # (the record is full: the caller reruns with room)
-            if resting:
+            if resting and (accumulating or nheld > 0 or _inelastic(prm, active)):
+                # (_settle holds or releases nothing otherwise: skipped, the same result)
                 nheld = _settle(qt, pp, tc + dtau, h, prm, held, active, lam, s, s0, accumulating, out, info)
             _record_impacts(out, info, tc + dtau, qt, pt, pp, s, s0, lam, active)
             copy_into(qh, qt)
@@ -273,6 +277,12 @@ def _dissipative(q, p, t, prm, active):
     velocity_guess(q, p, prm, v)
     if FORCED and force_power(q, v, t, prm) < 0.0:
         return True
+    return _inelastic(prm, active)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _inelastic(prm, active):
+    """True if a contact of the impact has restitution < 1 (only those can come to rest in _settle)."""
     e = np.empty(NCON)
     sys_restitution(prm, e)
     for j in range(NCON):
@@ -400,7 +410,7 @@ def _log_partial(log, info, dtau):
         info[I_N_PARTIAL] = k + 1
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _record_impacts(out, info, t_imp, q, pm, pp, s, s0, lam, active):
     """One entry of every per-impact row of vcirun.record.FIELDS per contact that took an impulse
     (simultaneous impacts: one entry each, at the same time and state). The reset's multiplier s
