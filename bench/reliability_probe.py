@@ -829,17 +829,45 @@ def render(cases: list[Case], meta: dict) -> str:
         rows.append(f"| {label} | {len(cs)} | " + " | ".join(str(n) for n in counts) + " |")
     bad = [c for c in cases if c.outcome not in ("ok", "skipped")]
     loss = [c for c in cases if c.section == "loss" and "seconds_lost" in c.numbers]
-    text = TEMPLATE.format(date=meta["date"], machine=meta["machine"], command=meta["command"],
-                           seconds=meta["seconds"], table="\n".join(rows))
+    table = "\n".join(rows) + "\n"
+    secs = meta.get("sections", {})
+    if secs:
+        table += ("\nWhen each section was run (the probe runs sections separately with `--only`; the load is the "
+                 "1-minute load average of the machine, shared with other work, at the section's start and end):"
+                 "\n\n| section | run at | seconds | load at start / end | mode |\n|---|---|---:|---|---|\n")
+        for s in sections:
+            m = secs.get(s)
+            if m:
+                table += (f"| {s} | {m['date']} | {m['seconds']:.0f} | {m['load'][0]:.2f} / {m['load'][1]:.2f} | "
+                         f"{'--quick' if m.get('quick') else 'full'} |\n")
+    text = TEMPLATE.format(machine=meta["machine"], table=table.rstrip("\n"))
     if loss:
-        text += ("\n### The loss bound, measured\n\nSIGKILL at a random moment of a 2000-run sweep "
-                 "(`cart_pendulum`, CVA VCI MCVAA MCVAC x 2 steps x 250 betas, T = 5, 2 workers, "
-                 "commit_interval = 1 s):\n\n| killed at | runs the client had | committed | lost | "
-                 "= the runs of the last | sweep rate |\n|---:|---:|---:|---:|---:|---:|\n")
+        import yaml
+
+        lc = yaml.safe_load(LOSS_CFG)
+        interval = secs.get("loss", {}).get("commit_interval", "1 (the default)")
+        whole = next((c for c in cases if c.section == "loss" and "run_phase" in c.numbers), None)
+        text += ("\n### The loss bound, measured\n\nSIGKILL at a random moment of the run phase of a 2000-run sweep "
+                 f"(`{lc['system']}`, {' '.join(lc['methods'])} x {len(lc['h'])} steps x {lc['beta']['num']} betas, "
+                 f"T = {lc['T']}, no trajectories stored, 2 workers, commit_interval = {interval} s). "
+                 "`lost` = runs the client had received (its last progress line) minus the runs committed (read back "
+                 "with `storage.read_results` after the kill); `= the runs of the last` = the kill time minus the "
+                 "moment the client had received as many runs as were committed; the rate is the client's over the "
+                 "5 s before the kill.")
+        if whole:
+            n = whole.numbers
+            text += (f" The uninterrupted sweep: start-up {n['startup']:.1f} s, run phase {n['run_phase']:.1f} s "
+                     f"({2000 / n['run_phase']:.0f} runs/s on average), final compaction {n['compaction']:.1f} s.")
+        text += ("\n\n| killed at | runs the client had | committed | lost | = the runs of the last | sweep rate |"
+                 "\n|---:|---:|---:|---:|---:|---:|\n")
         for c in loss:
             n = c.numbers
             text += (f"| {n['t_kill']:.1f} s | {n['have']} | {n['committed']} | {n['numbers_lost']} | "
                      f"{n['seconds_lost']:.2f} s | {n['rate']:.0f} runs/s |\n")
+        worst = max(c.numbers["seconds_lost"] for c in loss)
+        most = max(c.numbers["numbers_lost"] for c in loss)
+        text += (f"\nWorst case over {len(loss)} kills: {most} runs lost; the longest span lost was {worst:.2f} s "
+                 "of the sweep's output (a case counts `ok` up to 3 s).\n")
     text += "\n### Every case\n\n| section | case | outcome | detail |\n|---|---|---|---|\n"
     for c in cases:
         detail = c.detail.replace("|", "\\|")
@@ -851,8 +879,8 @@ def render(cases: list[Case], meta: dict) -> str:
 
 TEMPLATE = """# Reliability under hostile and broken input (issue 22)
 
-Counts from `bench/reliability_probe.py` ({command}), run on {date} on {machine}
-in {seconds:.0f} s. Each case is a real `vcirun` command or API call on hostile input or under an
+Counts from `bench/reliability_probe.py` (`.venv/bin/python bench/reliability_probe.py [--only SECTION]`;
+the table below is regenerated from `results/reliability.json` each time), on {machine}. Each case is a real `vcirun` command or API call on hostile input or under an
 injected fault; outcomes: `ok` = the expected behaviour (a one-line `error:` naming the field or the
 file and a non-zero exit, no traceback, no new file left behind; or, for controls and resumes, a
 correct complete result), `segfault`, `traceback`, `hang` (no answer within the case's timeout),
@@ -925,26 +953,43 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="fewer kill trials and tmpfs sizes")
     ap.add_argument("--json", default=str(ROOT / "results" / "reliability.json"))
     ap.add_argument("--doc", default=str(ROOT / "docs" / "reliability.md"))
+    ap.add_argument("--render-only", action="store_true", help="rewrite the doc from the JSON, run nothing")
     args = ap.parse_args(argv)
+    if args.render_only:
+        prev = json.loads(Path(args.json).read_text())
+        cases = [Case(**c) for c in prev["cases"]]
+        Path(args.doc).write_text(render(cases, prev["meta"]))
+        return 0 if all(c.outcome in ("ok", "skipped") for c in cases) else 1
     sections = args.only or ["config", "api", "output", "corrupt", "disk", "kill", "loss"]
     t0 = time.monotonic()
+    section_meta = {}
     with tempfile.TemporaryDirectory(prefix="vcirun-probe-") as tmpd:
         tmp = Path(tmpd)
         for s in sections:
+            ts, load0 = time.monotonic(), os.getloadavg()[0]
             fn = {"config": run_config_section, "api": run_api_section, "output": run_output_section,
                   "corrupt": run_corrupt_section}.get(s)
             if fn is not None:
                 fn(tmp)
             elif s in ("disk", "kill", "loss"):
                 {"disk": run_disk_section, "kill": run_kill_section, "loss": run_loss_section}[s](tmp, args.quick)
+            section_meta[s] = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+                               "seconds": round(time.monotonic() - ts, 1),
+                               "load": [round(load0, 2), round(os.getloadavg()[0], 2)],
+                               "quick": bool(args.quick),
+                               "commit_interval": os.environ.get("VCIRUN_COMMIT_INTERVAL", "1 (the default)")}
     meta = {"date": time.strftime("%Y-%m-%d"), "machine": f"{os.cpu_count()} cores, Linux {os.uname().release}",
             "command": "`.venv/bin/python bench/reliability_probe.py" + (" --quick" if args.quick else "")
                        + (f" --only {' '.join(args.only)}" if args.only else "") + "`",
             "seconds": time.monotonic() - t0}
     out_json = Path(args.json)
     old = []
-    if args.only and out_json.exists():  # keep the other sections' cases
-        old = [Case(**c) for c in json.loads(out_json.read_text())["cases"] if c["section"] not in sections]
+    if args.only and out_json.exists():  # keep the other sections' cases (and when they were run)
+        prev = json.loads(out_json.read_text())
+        old = [Case(**c) for c in prev["cases"] if c["section"] not in sections]
+        kept = {c.section for c in old}
+        section_meta = {**{k: v for k, v in prev["meta"].get("sections", {}).items() if k in kept}, **section_meta}
+    meta["sections"] = section_meta
     cases = old + CASES
     out_json.parent.mkdir(parents=True, exist_ok=True)
     out_json.write_text(json.dumps({"meta": meta, "cases": [asdict(c) for c in cases]}, indent=1))
