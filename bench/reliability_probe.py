@@ -192,6 +192,10 @@ def config_cases() -> list[tuple[str, str, dict]]:
          {"sys.yaml": SYSTEM.replace("{k: 4.0}", "{k: 4.0, x_dot: 1.0}")}),
         ("system file: a list as potential", TINY.replace("system: cart_pendulum", "system: sys.yaml"),
          {"sys.yaml": SYSTEM.replace('potential: "0.5*k*x**2"', "potential: [[1, 2], [3, 4]]")}),
+        ("parameter named like a kernel placeholder (vcTQ0)", inline(params="{k: 4.0, vcTQ0: 400.0}",
+                                                                     potential='"0.5*vcTQ0*x**2"'), {}),
+        ("system file: parameter named like a step slot (hh)", TINY.replace("system: cart_pendulum", "system: sys.yaml"),
+         {"sys.yaml": SYSTEM.replace("{k: 4.0}", "{k: 4.0, hh: 1.0}")}),
         ("inline potential: true", inline(potential="true"), {}),
         ("parameter override true", TINY.replace("system: cart_pendulum", "system: {name: cart_pendulum, params: {m1: true}}"), {}),
         ("T: true", TINY.replace("T: 0.5", "T: true"), {}),
@@ -333,7 +337,7 @@ for kind, name, expect, system, method, kw in cases:
     out.append({"kind": kind, "name": name, "expect": expect, "result": res, "seconds": time.time() - t0})
     print(json.dumps(out[-1]), flush=True)
 # a MechanicalSystem built in Python with a full-width parameter
-for pname in ("ｋ",):
+for pname in ("ｋ", "vcTQ0"):
     t0 = time.time()
     try:
         tr = vcirun.simulate(user_system(pname), "CVA", h=0.01, T=0.1)

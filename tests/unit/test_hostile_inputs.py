@@ -234,6 +234,35 @@ def test_full_width_parameter_in_a_system_file_and_a_python_system(tmp_path):
         vcirun.simulate(m, "CVA", h=0.01, T=0.1)
 
 
+
+@pytest.mark.parametrize("params,potential,coords,field", [
+    ("{k: 4.0, vcTQ0: 400.0}", '"0.5*vcTQ0*x**2"', "[x]", "system.parameters.vcTQ0"),  # read as x by the kernels
+    ("{hh: 4.0}", '"0.5*hh*x**2"', "[x]", "system.parameters.hh"),
+    ("{k: 4.0, mh_p0: 1.0}", '"0.5*k*mh_p0*x**2"', "[x]", "system.parameters.mh_p0"),
+    ("{k: 4.0}", '"0.5*k*qa0**2"', "[qa0]", "system.coordinates[0]"),
+    ("{k: 4.0}", '"0.5*k*cse2**2"', "[cse2]", "system.coordinates[0]"),
+])
+def test_names_of_the_generated_code_are_reserved(tmp_path, params, potential, coords, field):
+    """A parameter named vcTQ0 (the tensor kernels' placeholder of coordinate 0) ran with status ok and
+    q(T) 0.682 instead of 0.529: the kernels read the coordinate for it. Such names are refused."""
+    text = inline(potential=potential, params=params, coords=coords).replace('"x + 0.5"', f'"{coords[1:-1]} + 0.5"')
+    one_line_config_error(tmp_path, text, f"{field}: ", "is reserved", "choose another name")
+
+
+def test_reserved_names_in_a_python_system_and_names_that_are_not_reserved():
+    import sympy as sp
+
+    from vcirun.mechanics.system import MechanicalSystem
+
+    x, k = sp.Symbol("x"), sp.Symbol("vcTQ0")
+    m = MechanicalSystem(name="u", q=[x], params={"vcTQ0": 4.0}, M=sp.Matrix([[1]]), V=k * x**2 / 2, phi=x + 1,
+                         default_q0=np.array([0.2]), default_p0=np.array([0.0]))
+    with pytest.raises(ValueError, match="system.parameters.vcTQ0: 'vcTQ0' is reserved"):
+        vcirun.simulate(m, "CVA", h=0.01, T=0.1)
+    for name in ("th", "qa", "hhh", "t1", "cse", "theta1", "m1", "x1", "vc", "mh"):
+        assert validation.reserved_name_problem(name) is None, name
+    for name in ("hh", "tt", "qa12", "va0", "qb3", "cse0", "xm1", "vcTT", "vcTC7", "mh_u0"):
+        assert "is reserved" in validation.reserved_name_problem(name), name
 # --- the Python API ----------------------------------------------------------------------------------------------
 BASE = dict(h=0.01, T=1.0, beta=3.2)
 
