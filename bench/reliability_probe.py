@@ -305,6 +305,8 @@ ref("rtol=nan", T=1.0, beta=3.2, rtol=nan)
 ref("rtol=-1", T=1.0, beta=3.2, rtol=-1)
 ref("rtol=0.5", T=1.0, beta=3.2, rtol=0.5)
 ref("method reference h=0", T=1.0, beta=3.2, method="CVA", h=0)
+ref("beta=1e20 (steps collapse)", T=1.0, beta=1e20)
+ref("T=1e6", T=1e6, beta=3.2)
 ref("control: exact reference", expect="ok", T=0.5, beta=3.2, rtol=1e-10)
 
 def user_system(pname):

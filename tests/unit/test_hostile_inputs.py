@@ -316,6 +316,20 @@ def test_reference_validates_before_solving(kw, message):
     assert time.perf_counter() - t0 < 5.0  # rtol=0 used to hang inside solve_ivp
 
 
+@pytest.mark.parametrize("kw", [{"T": 1.0, "beta": 1e20}, {"T": 1e6, "beta": 3.2}])
+def test_an_exact_reference_beyond_its_budget_is_refused(monkeypatch, kw):
+    """beta = 1e20 (velocities ~1e19) collapsed DOP853's steps: the solve ran for hours. The solve's
+    right-hand-side evaluations are projected to T and refused above MAX_RHS_EVALS (checked here from
+    2,000 evaluations instead of 200,000, to keep the test short)."""
+    import sys
+
+    ref_mod = sys.modules["vcirun.reference"]
+    monkeypatch.setattr(ref_mod, "MIN_RHS_EVALS_FOR_PROJECTION", 2_000)
+    with pytest.raises(ValueError, match=r"^T: the exact reference would need about .* right-hand-side evaluations"):
+        vcirun.reference("cart_pendulum", rtol=1e-10, check_accuracy=False, **kw)
+    vcirun.reference("cart_pendulum", T=0.5, beta=3.2, rtol=1e-10)  # a normal solve stays under it
+
+
 @pytest.mark.parametrize("system,kw", [("oscillator_wall", {"q0": [1e300], "p0": [0.0]}),
                                        ("oscillator_wall", {"q0": [0.1], "p0": [1e200]})])
 def test_non_finite_initial_energy_is_a_failure_with_a_cause(system, kw):
