@@ -289,6 +289,10 @@ for k, v in [("max_iter", 0), ("max_iter", -1), ("max_iter", 2.5), ("t0", nan), 
              ("params", {"m1": nan}), ("params", {"m1": True}), ("params", "m1=2")]:
     sim(f"{k}={v!r}", **{**base, k: v})
 sim("q0=[nan, 0]", h=0.01, T=1.0, q0=[nan, 0.0], p0=[0.0, 0.0])
+sim("resting_contact='no'", h=0.01, T=1.0, beta=3.2, resting_contact="no")
+sim("beta and q0/p0 both", h=0.01, T=1.0, beta=3.2, q0=[0.1, 0.2], p0=[0.0, 0.0])
+ref("resting_contact='no'", T=1.0, beta=3.2, resting_contact="no")
+ref("beta and q0/p0 both", T=1.0, beta=3.2, q0=[0.1, 0.2], p0=[0.0, 0.0])
 sim("q0 2-D", h=0.01, T=1.0, q0=[[0.1, 0.2]], p0=[0.0, 0.0])
 sim("p0 of strings", h=0.01, T=1.0, q0=[0.1, 0.2], p0=["a", "b"])
 sim("T=1e9, h=1e-6", h=1e-6, T=1e9, beta=3.2)

@@ -407,7 +407,7 @@ def reference(system, *, T, beta=None, q0=None, p0=None, params=None, rtol=1e-13
     from .validation import check_reference_args
 
     check_reference_args(T=T, rtol=rtol, method=method, h=h, beta=beta, q0=q0, p0=p0, params=params,
-                         system=system)  # (issue 22)
+                         system=system, resting_contact=resting_contact, check_accuracy=check_accuracy)  # (issue 22)
     sysm = resolve_system(system)
     prm = sysm.param_values(params)
     q0, p0 = sysm.initial_state(beta=beta, q0=q0, p0=p0, params=prm)

@@ -302,14 +302,22 @@ def check_scene_size(system, field: str = "system") -> None:
                              f"{MAX_COORDINATES}")
 
 
+def check_one_start(beta, q0, p0) -> None:
+    """Either beta or q0/p0: given both, one of them would be silently ignored (q0/p0 won)."""
+    if beta is not None and (q0 is not None or p0 is not None):
+        raise ValueError("beta: give either beta or q0 and p0, not both (the initial state would ignore one)")
+
+
 def check_simulate_args(*, h, T, t0=0.0, beta=None, q0=None, p0=None, params=None, constrained=None,
-                        energies=True, tolerances: dict | None = None, system=None) -> int:
+                        energies=True, tolerances: dict | None = None, system=None, resting_contact=True) -> int:
     """Validate `vcirun.simulate`'s arguments (same bounds and messages as a sweep config); returns N."""
     N = grid_size(h, T)
     t0 = check_number("t0", t0)
     h = float(h)
     if not math.isfinite(t0 + float(T)) or t0 + h == t0:
         raise ValueError(f"t0: h = {h:g} is below the resolution of times near t0 = {t0:g}; use a smaller |t0|")
+    check_one_start(beta, q0, p0)
+    check_bool("resting_contact", resting_contact)
     if beta is not None:
         check_number("beta", beta)
     if q0 is not None:
@@ -329,9 +337,12 @@ def check_simulate_args(*, h, T, t0=0.0, beta=None, q0=None, p0=None, params=Non
 
 
 def check_reference_args(*, T, rtol=1e-13, method="exact", h=None, beta=None, q0=None, p0=None,
-                         params=None, system=None) -> None:
+                         params=None, system=None, resting_contact=True, check_accuracy=True) -> None:
     """Validate `vcirun.reference`'s arguments (the config layer's bounds on reference.rtol, T, h)."""
     check_number("T", T, gt=0)
+    check_one_start(beta, q0, p0)
+    check_bool("resting_contact", resting_contact)
+    check_bool("check_accuracy", check_accuracy)
     check_scene_size(system)
     if not isinstance(method, str):
         raise ValueError(f"method: must be 'exact' or a method name (got {describe(method)})")

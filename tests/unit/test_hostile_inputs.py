@@ -288,6 +288,10 @@ BASE = dict(h=0.01, T=1.0, beta=3.2)
     ({"beta": math.inf}, "beta: must be a finite number (got inf)"),
     ({"params": {"m1": math.nan}}, "params.m1: must be a finite number (got nan)"),
     ({"beta": None, "q0": [math.nan, 0.0], "p0": [0.0, 0.0]}, "q0: must be a list of finite numbers"),
+    # 'no' is truthy: resting contacts were held (status ok) where the caller asked for them not to be
+    ({"resting_contact": "no"}, "resting_contact: must be true or false (got 'no')"),
+    # both: q0/p0 won and beta was silently ignored
+    ({"q0": [0.1, 0.2], "p0": [0.0, 0.0]}, "beta: give either beta or q0 and p0, not both"),
 ])
 def test_simulate_validates_like_the_config_layer(kw, message):
     with pytest.raises(ValueError) as ei:
@@ -308,6 +312,9 @@ def test_same_message_as_the_config_layer(tmp_path):
     ({"rtol": 0}, "rtol: must be >= 2.3e-14 (got 0)"),
     ({"rtol": math.nan}, "rtol: must be a finite number (got nan)"),
     ({"method": "CVA", "h": 0}, "h: must be > 0 (got 0)"),
+    ({"resting_contact": "no"}, "resting_contact: must be true or false (got 'no')"),
+    ({"check_accuracy": "no"}, "check_accuracy: must be true or false (got 'no')"),
+    ({"q0": [0.1, 0.2], "p0": [0.0, 0.0]}, "beta: give either beta or q0 and p0, not both"),
 ])
 def test_reference_validates_before_solving(kw, message):
     t0 = time.perf_counter()
