@@ -591,6 +591,26 @@ def run_corrupt_section(tmp: Path) -> None:
         else:
             outcome, detail = classify_error(rc, o, e)
         record("corrupt", f"{name} [sweep resume]", outcome, detail, s)
+    # not a file at all, and a --out that cannot be a folder (nothing may be left behind)
+    if hasattr(os, "mkfifo"):
+        fifo = d / "fifo.h5"
+        os.mkfifo(fifo)
+        for cmd in ("info", "plot"):
+            rc, o, e, s = vcirun(cmd, fifo, cwd=d, timeout=60)
+            record("corrupt", f"results file is a FIFO [{cmd}]", *classify_error(rc, o, e), s)
+    (d / "afile").write_text("x")
+    before = listing(d)
+    for name, out in [("--out under a file", d / "afile" / "figs"), ("--out is a file", d / "afile")]:
+        rc, o, e, s = vcirun("plot", good, "--out", out, cwd=d, timeout=120)
+        outcome, detail = classify_error(rc, o, e, left=sorted(listing(d) - before))
+        if outcome == "ok" and "--out" not in detail:
+            outcome, detail = "bad_message", "does not name --out: " + detail
+        record("corrupt", f"plot {name}", outcome, detail, s)
+    (d / "text.h5").write_text("not HDF5\n")
+    before = listing(d)
+    rc, o, e, s = vcirun("plot", d / "text.h5", "--out", d / "newfig" / "a", cwd=d, timeout=120)
+    record("corrupt", "plot of a damaged file into a new --out [nothing left]",
+           *classify_error(rc, o, e, left=sorted(listing(d) - before)), s)
 
 
 # --- disk full ----------------------------------------------------------------------------------------------------

@@ -499,3 +499,33 @@ def test_pool_workers_stream_each_run(tmp_path):
         ex.close()
     assert len(got) == len(pending) == 4 and all(len(r["runs"]) == 1 for r in got)
     assert {r["runs"][0]["run_id"] for r in got} == {s.run_id for s in pending}
+
+
+# --- info / plot on unusual paths ----------------------------------------------------------------------------------
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs here")
+def test_a_fifo_given_to_info_or_plot_is_one_line_not_a_hang(tmp_path, monkeypatch):
+    """`vcirun info FIFO` blocked in h5py's open until a writer appeared (forever)."""
+    monkeypatch.chdir(tmp_path)
+    fifo = tmp_path / "r.h5"
+    os.mkfifo(fifo)
+    for args in (["info", fifo], ["plot", fifo]):
+        one_line(cli(*args), "not a regular file")
+    with pytest.raises(StorageError, match="not a regular file"):
+        storage.read_results(fifo)
+
+
+def test_plot_out_that_cannot_be_a_folder_names_it_and_leaves_nothing(tiny, tmp_path):
+    """A --out under a file was reported as `good.h5: cannot read the results file ... it may be
+    damaged`; a failed plot into a new --out left its empty folders behind."""
+    good = tmp_path / "good.h5"
+    run_sweep(load_config(tiny), output=good, workers=1, progress=False)
+    (tmp_path / "afile").write_text("x")
+    line = one_line(cli("plot", good, "--out", tmp_path / "afile" / "figs"), "--out", "cannot create the folder",
+                    "choose another --out")
+    assert "damaged" not in line and "good.h5" not in line
+    one_line(cli("plot", good, "--out", tmp_path / "afile"), "is a file, not a folder")
+    bad = tmp_path / "bad.h5"
+    bad.write_text("not HDF5\n")
+    before = set(tmp_path.rglob("*"))
+    one_line(cli("plot", bad, "--out", tmp_path / "new" / "a" / "b"), "bad.h5")
+    assert set(tmp_path.rglob("*")) == before

@@ -1329,6 +1329,8 @@ def _open_read(path) -> h5py.File:
         raise StorageError(f"{path}: file not found")
     if path.is_dir():
         raise StorageError(f"{path}: is a directory, not a results file")
+    if not path.is_file():  # a FIFO: opening it blocks until someone writes (`vcirun info FIFO` hung)
+        raise StorageError(f"{path}: not a regular file (a FIFO, device or socket), not a results file")
     try:
         f = h5py.File(path, "r")
     except Exception as e:  # noqa: BLE001 - OSError, or anything a damaged superblock raises
