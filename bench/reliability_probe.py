@@ -171,6 +171,8 @@ def config_cases() -> list[tuple[str, str, dict]]:
         ("h = 1e-300", TINY.replace("h: [3.2e-2, 1.0e-2]", "h: [1.0e-300]"), {}),
         ("T = 1e9 with h = 1e-6", TINY.replace("h: [3.2e-2, 1.0e-2]", "h: [1.0e-6]").replace("T: 0.5", "T: 1.0e9"), {}),
         ("T = 1e4 with h = 1e-6", TINY.replace("h: [3.2e-2, 1.0e-2]", "h: [1.0e-6]").replace("T: 0.5", "T: 1.0e4"), {}),
+        ("method reference at h = 1e-12", TINY.replace("reference: {kind: exact, rtol: 1.0e-10}",
+                                                        "reference: {kind: method, method: CVA, h: 1.0e-12}"), {}),
         ("memory above max_memory", TINY.replace("h: [3.2e-2, 1.0e-2]", "h: [1.0e-5]").replace("T: 0.5", "T: 1000")
          + "max_memory: 1GB\n", {}),
         ("full-width parameter beside its ASCII twin", inline(params="{k: 4.0, ｋ: 400.0}"), {}),
@@ -864,7 +866,7 @@ def render(cases: list[Case], meta: dict) -> str:
     if secs:
         table += ("\nWhen each section was run (the probe runs sections separately with `--only`; the load is the "
                  "1-minute load average of the machine, shared with other work, at the section's start and end):"
-                 "\n\n| section | run at | seconds | load at start / end | mode |\n|---|---|---:|---|---|\n")
+                 "\n\n| section | finished at | seconds | load at start / end | mode |\n|---|---|---:|---|---|\n")
         for s in sections:
             m = secs.get(s)
             if m:

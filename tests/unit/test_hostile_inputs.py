@@ -132,6 +132,16 @@ def test_grid_and_memory_bounds(tmp_path, h, T, words):
     one_line_config_error(tmp_path, CONFIG.replace("h: [1.0e-2]", f"h: [{h}]").replace("T: 0.5", f"T: {T}"), *words)
 
 
+def test_a_method_reference_is_a_run_whose_memory_is_checked_by_validate(tmp_path):
+    """reference: {kind: method, h: 1e-12}: `validate` said ok and the sweep stopped at its preflight with
+    `reference: T: 1e+10 steps ...` (the field named wrongly)."""
+    text = CONFIG.replace("reference: {kind: none}", "reference: {kind: method, method: CVA, h: 1.0e-12}")
+    one_line_config_error(tmp_path, text, "reference.h: ", "steps of 2 coordinates need about", "raise reference.h")
+    ok = CONFIG.replace("reference: {kind: none}", "reference: {kind: method, method: CVA, h: 1.0e-4}")
+    (tmp_path / "ok.yaml").write_text(ok)
+    load_config(tmp_path / "ok.yaml")
+
+
 def test_max_memory_is_configurable_and_not_part_of_the_results(tmp_path):
     text = CONFIG.replace("h: [1.0e-2]", "h: [1.0e-5]").replace("T: 0.5", "T: 100")  # 1e7 steps, ~0.9 GiB
     one_line_config_error(tmp_path, text + "max_memory: 100MB\n", "h[0]", "limit 95.4 MiB", "max_memory")
