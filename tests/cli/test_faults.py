@@ -102,6 +102,35 @@ def test_commits_append_to_the_journal_and_never_touch_the_file(tmp_path):
     assert not w.journal_path.exists() and not w.tmp_path.exists()
 
 
+@pytest.mark.parametrize("end", ["finish", "close"])
+def test_queued_runs_are_journalled_before_waiting_for_a_compaction_round(tmp_path, monkeypatch, end):
+    """finish() (and close()) stopped the autocommit, then waited for the background compaction round
+    under way (seconds: it copies the whole file) and only then committed: the runs that reached the
+    client meanwhile were not durable, and a kill lost the runs of the last 2 s of a 2000-run sweep.
+    They are appended to the journal before the wait now."""
+    path = tmp_path / "r.h5"
+    w = ResultsWriter(path, root_attrs={"name": "t"}, config_key=KEY)
+    w.acquire()
+    w.start()
+    for rid, (a, arr) in runs(2).items():
+        w.add_run(rid, a, arr)
+    w.commit()
+    for rid, (a, arr) in runs(3, seed=2).items():  # reached the client after the last commit
+        w.add_run(rid, a, arr)
+    seen = []
+
+    def waiting_for_the_compactor(*args, **kwargs):  # a kill here must not lose r0002..r0004
+        j = storage.read_journal(w.journal_path)  # (None at close() after finish: the journal is folded in)
+        seen.append(sorted(r.key for r in j.records if r.kind == "run") if j is not None else None)
+
+    monkeypatch.setattr(w, "stop_background_compaction", waiting_for_the_compactor)
+    getattr(w, end)(*(["complete"] if end == "finish" else []))
+    if end == "finish":
+        w.close()
+    assert seen and seen[0] == [f"r{i:04d}" for i in range(5)]
+    assert {r.run_id for r in storage.read_results(path).runs} == {f"r{i:04d}" for i in range(5)}
+
+
 def test_a_torn_journal_tail_is_ignored_and_resume_folds_the_rest_in(tmp_path):
     path = tmp_path / "r.h5"
     w = ResultsWriter(path, root_attrs={"name": "t"}, config_key=KEY)
