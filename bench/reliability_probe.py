@@ -930,6 +930,9 @@ fault), `bad_message` (non-zero exit without exactly one `error:` line, or files
   commit_interval plus one commit. Pool workers send each run to the client as soon as it is
   computed (a task of many runs is not held back). A SIGKILL at any moment therefore loses at most
   the runs that reached the client in the last commit_interval (plus the runs still being computed).
+  When the sweep ends (or is interrupted) the queued runs are appended to the journal before
+  anything waits for a background compaction round (a round copies the whole file and takes
+  seconds; runs used to wait out that round uncommitted).
   A commit costs what the new runs weigh, independent of the file's size; the HDF5 file is never
   written in place: rewrites (copy, apply, fsync, atomic rename) happen when a session starts, in
   the background while it runs (a forked child folds the journal in, in rounds at least 10 s and 4
@@ -952,13 +955,20 @@ fault), `bad_message` (non-zero exit without exactly one `error:` line, or files
   message) + the client's copy) refused above the limit (`max_memory` in a config, `VCIRUN_MAX_MEMORY`,
   default half the physical memory) before anything is allocated or created; the disk space a
   sweep's results need (journal and final copy) checked against the free space before the file is
-  created.
+  created. A method reference is a run too: its grid (T / reference.h) and memory are checked
+  alike. The exact reference's solver work is bounded: its right-hand-side evaluations are
+  projected to T once 200,000 are spent and refused above 5e7 (an initial state so large that the
+  solver's steps collapse, beta = 1e20, or T = 1e6), in a few seconds instead of hours.
 - **Identifiers.** Python reads identifiers through NFKC normalisation, so a full-width `ｋ` in
   generated code is `k`. Parameter, coordinate, constraint and system names must be ASCII, and
   distinct after NFKC (also from the velocities `<coord>_dot` and the time `t`); expressions must be
-  ASCII (the message names the character and its ASCII form).
+  ASCII (the message names the character and its ASCII form). Names the generated kernels use for
+  their own symbols are reserved (`hh`, `tt`, `qa<k>`, `va<k>`, `qb<k>`, `cse<k>`, `xm<k>`,
+  `vcT...`, `mh_...`): a parameter named `vcTQ0` was read as coordinate 0 by the kernels.
 - **The Python API validates like the config layer** (`vcirun.validation`): `simulate` and `reference`
-  raise one `ValueError` naming the argument (`max_iter: must be >= 1 (got 0)`). A run whose initial
+  raise one `ValueError` naming the argument (`max_iter: must be >= 1 (got 0)`); flags
+  (`constrained`, `energies`, `resting_contact`, `check_accuracy`) must be booleans, and `beta`
+  with `q0`/`p0` is refused (one of them would be ignored). A run whose initial
   energy is not finite (q0 = 1e300) ends with status `nonfinite` and its cause, not `ok`.
 - **Faults of the file system** are one line naming the path: read-only directories, a parent that
   is a file, an output that is a directory or a device, symlink loops and links into missing
@@ -971,7 +981,9 @@ fault), `bad_message` (non-zero exit without exactly one `error:` line, or files
   crashed (signal 11) while writing .NAME.h5.partial`), its partial copy is removed, nothing
   committed is lost and the same command resumes once there is space. Damaged results files given to
   `info`, `plot` or a resuming `sweep` end in one line, or are repaired by the resume where the
-  damage is confined to groups.
+  damage is confined to groups. A results path that is a FIFO is refused (opening it blocked
+  forever); `plot --out` creates its folder first, names `--out` when it cannot, and removes the
+  folders it created when the plot fails.
 - **Cost.** Reading a 2000-run file verifies every run's datasets (low-level HDF5 API): about 25 %
   more than reading its attributes alone. The HDF5 writes themselves (about 33 attributes and 13
   datasets per run) are the same work as before, done by the background compactor instead of the

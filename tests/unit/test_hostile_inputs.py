@@ -121,6 +121,24 @@ def test_special_config_files(tmp_path):
         load_config(big)
 
 
+def test_a_system_file_that_is_not_a_file_says_what_it_is(tmp_path):
+    """A FIFO, a directory or a dangling link named as the system file was reported as 'not found'."""
+    import os
+
+    cfg = CONFIG.replace("system: cart_pendulum", "system: sys.yaml")
+    (tmp_path / "sys.yaml").mkdir()
+    one_line_config_error(tmp_path, cfg, "system: system file ", "sys.yaml is a directory")
+    (tmp_path / "sys.yaml").rmdir()
+    (tmp_path / "sys.yaml").symlink_to(tmp_path / "nowhere.yaml")
+    one_line_config_error(tmp_path, cfg, "sys.yaml is a symbolic link loop or points nowhere")
+    (tmp_path / "sys.yaml").unlink()
+    if hasattr(os, "mkfifo"):
+        os.mkfifo(tmp_path / "sys.yaml")
+        one_line_config_error(tmp_path, cfg, "sys.yaml is not a regular file")  # never blocks
+        (tmp_path / "sys.yaml").unlink()
+    one_line_config_error(tmp_path, cfg, "system file not found: ", "sys.yaml")
+
+
 # --- grid, memory, sizes ------------------------------------------------------------------------------------
 @pytest.mark.parametrize("h,T,words", [
     ("1.0e-320", "5", ["h[0]", "must be >= 1e-50"]),

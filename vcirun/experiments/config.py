@@ -793,7 +793,11 @@ def build_system(cfg: SweepConfig):
         return s.name, (dict(s.params) or None), sysm
     if isinstance(s, FileSystem):
         if not Path(s.file).is_file():
-            raise _Semantic("system", f"system file not found: {s.file}")
+            fp = Path(s.file)
+            why = ("is a directory" if fp.is_dir() else "is not a regular file (a FIFO, device or socket)"
+                   if fp.exists() else "is a symbolic link loop or points nowhere" if fp.is_symlink() else None)
+            raise _Semantic("system", f"system file {s.file} {why}; expected a YAML file" if why
+                            else f"system file not found: {s.file}")
         sysm = load_system_yaml(s.file)
         return str(Path(s.file).resolve()), (dict(s.params) or None), sysm
     sysm = load_system_yaml(s.declaration(), field_prefix="system")
