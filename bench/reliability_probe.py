@@ -171,6 +171,8 @@ def config_cases() -> list[tuple[str, str, dict]]:
         ("h = 1e-300", TINY.replace("h: [3.2e-2, 1.0e-2]", "h: [1.0e-300]"), {}),
         ("T = 1e9 with h = 1e-6", TINY.replace("h: [3.2e-2, 1.0e-2]", "h: [1.0e-6]").replace("T: 0.5", "T: 1.0e9"), {}),
         ("T = 1e4 with h = 1e-6", TINY.replace("h: [3.2e-2, 1.0e-2]", "h: [1.0e-6]").replace("T: 0.5", "T: 1.0e4"), {}),
+        ("method reference at h = 1e-12", TINY.replace("reference: {kind: exact, rtol: 1.0e-10}",
+                                                        "reference: {kind: method, method: CVA, h: 1.0e-12}"), {}),
         ("memory above max_memory", TINY.replace("h: [3.2e-2, 1.0e-2]", "h: [1.0e-5]").replace("T: 0.5", "T: 1000")
          + "max_memory: 1GB\n", {}),
         ("full-width parameter beside its ASCII twin", inline(params="{k: 4.0, ｋ: 400.0}"), {}),
@@ -192,6 +194,10 @@ def config_cases() -> list[tuple[str, str, dict]]:
          {"sys.yaml": SYSTEM.replace("{k: 4.0}", "{k: 4.0, x_dot: 1.0}")}),
         ("system file: a list as potential", TINY.replace("system: cart_pendulum", "system: sys.yaml"),
          {"sys.yaml": SYSTEM.replace('potential: "0.5*k*x**2"', "potential: [[1, 2], [3, 4]]")}),
+        ("parameter named like a kernel placeholder (vcTQ0)", inline(params="{k: 4.0, vcTQ0: 400.0}",
+                                                                     potential='"0.5*vcTQ0*x**2"'), {}),
+        ("system file: parameter named like a step slot (hh)", TINY.replace("system: cart_pendulum", "system: sys.yaml"),
+         {"sys.yaml": SYSTEM.replace("{k: 4.0}", "{k: 4.0, hh: 1.0}")}),
         ("inline potential: true", inline(potential="true"), {}),
         ("parameter override true", TINY.replace("system: cart_pendulum", "system: {name: cart_pendulum, params: {m1: true}}"), {}),
         ("T: true", TINY.replace("T: 0.5", "T: true"), {}),
@@ -242,6 +248,20 @@ def run_config_section(tmp: Path) -> None:
         record("config", "config is a FIFO [validate]", *classify_error(rc, out, err), sec)
     rc, out, err, sec = vcirun("validate", d, cwd=d, timeout=60)
     record("config", "config is a directory [validate]", *classify_error(rc, out, err), sec)
+    # the system file named by a config is a FIFO or a directory (never blocks, says what it is)
+    (d / "uses_sys.yaml").write_text(TINY.replace("system: cart_pendulum", "system: special_sys.yaml"))
+    kinds = ([("FIFO", lambda p: os.mkfifo(p))] if with_fifo else []) + [("directory", lambda p: p.mkdir())]
+    for kind, make in kinds:
+        sp_ = d / "special_sys.yaml"
+        make(sp_)
+        for cmd in ("validate", "sweep"):
+            args = [cmd, d / "uses_sys.yaml"] + (["--output", d / "sp_out.h5", "--workers", "1", "-q"] if cmd == "sweep" else [])
+            rc, out, err, sec = vcirun(*args, cwd=d, timeout=60)
+            outcome, detail = classify_error(rc, out, err, left=[p for p in [d / "sp_out.h5"] if p.exists()])
+            if outcome == "ok" and "not found" in detail:
+                outcome, detail = "bad_message", "says 'not found' for a " + kind + ": " + detail
+            record("config", f"system file is a {kind} [{cmd}]", outcome, detail, sec)
+        sp_.rmdir() if sp_.is_dir() else sp_.unlink()
     # positive controls: parsed like configs, so these must work
     (d / "sys.yaml").write_text(SYSTEM.replace("{k: 4.0}", "{k: 4.0, c: 1e-3}"))
     (d / "ok.yaml").write_text(TINY.replace("system: cart_pendulum", "system: sys.yaml").replace("beta: {start: 3.2, stop: 5.2, num: 3}\n", "")
@@ -285,6 +305,10 @@ for k, v in [("max_iter", 0), ("max_iter", -1), ("max_iter", 2.5), ("t0", nan), 
              ("params", {"m1": nan}), ("params", {"m1": True}), ("params", "m1=2")]:
     sim(f"{k}={v!r}", **{**base, k: v})
 sim("q0=[nan, 0]", h=0.01, T=1.0, q0=[nan, 0.0], p0=[0.0, 0.0])
+sim("resting_contact='no'", h=0.01, T=1.0, beta=3.2, resting_contact="no")
+sim("beta and q0/p0 both", h=0.01, T=1.0, beta=3.2, q0=[0.1, 0.2], p0=[0.0, 0.0])
+ref("resting_contact='no'", T=1.0, beta=3.2, resting_contact="no")
+ref("beta and q0/p0 both", T=1.0, beta=3.2, q0=[0.1, 0.2], p0=[0.0, 0.0])
 sim("q0 2-D", h=0.01, T=1.0, q0=[[0.1, 0.2]], p0=[0.0, 0.0])
 sim("p0 of strings", h=0.01, T=1.0, q0=[0.1, 0.2], p0=["a", "b"])
 sim("T=1e9, h=1e-6", h=1e-6, T=1e9, beta=3.2)
@@ -301,6 +325,8 @@ ref("rtol=nan", T=1.0, beta=3.2, rtol=nan)
 ref("rtol=-1", T=1.0, beta=3.2, rtol=-1)
 ref("rtol=0.5", T=1.0, beta=3.2, rtol=0.5)
 ref("method reference h=0", T=1.0, beta=3.2, method="CVA", h=0)
+ref("beta=1e20 (steps collapse)", T=1.0, beta=1e20)
+ref("T=1e6", T=1e6, beta=3.2)
 ref("control: exact reference", expect="ok", T=0.5, beta=3.2, rtol=1e-10)
 
 def user_system(pname):
@@ -333,7 +359,7 @@ for kind, name, expect, system, method, kw in cases:
     out.append({"kind": kind, "name": name, "expect": expect, "result": res, "seconds": time.time() - t0})
     print(json.dumps(out[-1]), flush=True)
 # a MechanicalSystem built in Python with a full-width parameter
-for pname in ("ｋ",):
+for pname in ("ｋ", "vcTQ0"):
     t0 = time.time()
     try:
         tr = vcirun.simulate(user_system(pname), "CVA", h=0.01, T=0.1)
@@ -581,6 +607,26 @@ def run_corrupt_section(tmp: Path) -> None:
         else:
             outcome, detail = classify_error(rc, o, e)
         record("corrupt", f"{name} [sweep resume]", outcome, detail, s)
+    # not a file at all, and a --out that cannot be a folder (nothing may be left behind)
+    if hasattr(os, "mkfifo"):
+        fifo = d / "fifo.h5"
+        os.mkfifo(fifo)
+        for cmd in ("info", "plot"):
+            rc, o, e, s = vcirun(cmd, fifo, cwd=d, timeout=60)
+            record("corrupt", f"results file is a FIFO [{cmd}]", *classify_error(rc, o, e), s)
+    (d / "afile").write_text("x")
+    before = listing(d)
+    for name, out in [("--out under a file", d / "afile" / "figs"), ("--out is a file", d / "afile")]:
+        rc, o, e, s = vcirun("plot", good, "--out", out, cwd=d, timeout=120)
+        outcome, detail = classify_error(rc, o, e, left=sorted(listing(d) - before))
+        if outcome == "ok" and "--out" not in detail:
+            outcome, detail = "bad_message", "does not name --out: " + detail
+        record("corrupt", f"plot {name}", outcome, detail, s)
+    (d / "text.h5").write_text("not HDF5\n")
+    before = listing(d)
+    rc, o, e, s = vcirun("plot", d / "text.h5", "--out", d / "newfig" / "a", cwd=d, timeout=120)
+    record("corrupt", "plot of a damaged file into a new --out [nothing left]",
+           *classify_error(rc, o, e, left=sorted(listing(d) - before)), s)
 
 
 # --- disk full ----------------------------------------------------------------------------------------------------
@@ -829,19 +875,50 @@ def render(cases: list[Case], meta: dict) -> str:
         rows.append(f"| {label} | {len(cs)} | " + " | ".join(str(n) for n in counts) + " |")
     bad = [c for c in cases if c.outcome not in ("ok", "skipped")]
     loss = [c for c in cases if c.section == "loss" and "seconds_lost" in c.numbers]
-    text = TEMPLATE.format(date=meta["date"], machine=meta["machine"], command=meta["command"],
-                           seconds=meta["seconds"], table="\n".join(rows))
+    table = "\n".join(rows) + "\n"
+    secs = meta.get("sections", {})
+    if secs:
+        table += ("\nWhen each section was run (the probe runs sections separately with `--only`; the load is the "
+                 "1-minute load average of the machine, shared with other work, at the section's start and end):"
+                 "\n\n| section | finished at | seconds | load at start / end | mode |\n|---|---|---:|---|---|\n")
+        for s in sections:
+            m = secs.get(s)
+            if m:
+                table += (f"| {s} | {m['date']} | {m['seconds']:.0f} | {m['load'][0]:.2f} / {m['load'][1]:.2f} | "
+                         f"{'--quick' if m.get('quick') else 'full'} |\n")
+    text = TEMPLATE.format(machine=meta["machine"], table=table.rstrip("\n"))
     if loss:
-        text += ("\n### The loss bound, measured\n\nSIGKILL at a random moment of a 2000-run sweep "
-                 "(`cart_pendulum`, CVA VCI MCVAA MCVAC x 2 steps x 250 betas, T = 5, 2 workers, "
-                 "commit_interval = 1 s):\n\n| killed at | runs the client had | committed | lost | "
-                 "= the runs of the last | sweep rate |\n|---:|---:|---:|---:|---:|---:|\n")
+        import yaml
+
+        lc = yaml.safe_load(LOSS_CFG)
+        interval = str(secs.get("loss", {}).get("commit_interval", "1 (the default)"))
+        ci = float(interval.split()[0]) if interval.split() and interval.split()[0].replace(".", "", 1).isdigit() else 1.0
+        interval = interval.replace(" (the default)", " s (the default)") if "default" in interval else interval + " s"
+        whole = next((c for c in cases if c.section == "loss" and "run_phase" in c.numbers), None)
+        text += ("\n### The loss bound, measured\n\nSIGKILL at a random moment of the run phase of a 2000-run sweep "
+                 f"(`{lc['system']}`, {' '.join(lc['methods'])} x {len(lc['h'])} steps x {lc['beta']['num']} betas, "
+                 f"T = {lc['T']}, no trajectories stored, 2 workers, commit_interval = {interval}). "
+                 "`lost` = runs the client had received (its last progress line) minus the runs committed (read back "
+                 "with `storage.read_results` after the kill); `= the runs of the last` = the kill time minus the "
+                 "moment the client had received as many runs as were committed; the rate is the client's over the "
+                 "5 s before the kill.")
+        if whole:
+            n = whole.numbers
+            text += (f" The uninterrupted sweep: start-up {n['startup']:.1f} s, run phase {n['run_phase']:.1f} s "
+                     f"({2000 / n['run_phase']:.0f} runs/s on average), final compaction {n['compaction']:.1f} s.")
+        text += ("\n\n| killed at | runs the client had | committed | lost | = the runs of the last | sweep rate | "
+                 "rate x commit_interval |\n|---:|---:|---:|---:|---:|---:|---:|\n")
         for c in loss:
             n = c.numbers
             text += (f"| {n['t_kill']:.1f} s | {n['have']} | {n['committed']} | {n['numbers_lost']} | "
-                     f"{n['seconds_lost']:.2f} s | {n['rate']:.0f} runs/s |\n")
+                     f"{n['seconds_lost']:.2f} s | {n['rate']:.0f} runs/s | {n['rate'] * ci:.0f} runs |\n")
+        worst = max(c.numbers["seconds_lost"] for c in loss)
+        most = max(c.numbers["numbers_lost"] for c in loss)
+        text += (f"\nWorst case over {len(loss)} kills: {most} runs lost; the longest span lost was {worst:.2f} s "
+                 f"of the sweep's output, against the stated bound of commit_interval ({ci:g} s) plus one commit "
+                 "(a case counts `ok` up to 3 s).\n")
     text += "\n### Every case\n\n| section | case | outcome | detail |\n|---|---|---|---|\n"
-    for c in cases:
+    for c in sorted(cases, key=lambda c: sections.index(c.section)):
         detail = c.detail.replace("|", "\\|")
         text += f"| {c.section} | {c.name.replace('|', '/')} | {c.outcome} | {detail[:160]} |\n"
     if bad:
@@ -851,8 +928,8 @@ def render(cases: list[Case], meta: dict) -> str:
 
 TEMPLATE = """# Reliability under hostile and broken input (issue 22)
 
-Counts from `bench/reliability_probe.py` ({command}), run on {date} on {machine}
-in {seconds:.0f} s. Each case is a real `vcirun` command or API call on hostile input or under an
+Counts from `bench/reliability_probe.py` (`.venv/bin/python bench/reliability_probe.py [--only SECTION]`;
+the table below is regenerated from `results/reliability.json` each time), on {machine}. Each case is a real `vcirun` command or API call on hostile input or under an
 injected fault; outcomes: `ok` = the expected behaviour (a one-line `error:` naming the field or the
 file and a non-zero exit, no traceback, no new file left behind; or, for controls and resumes, a
 correct complete result), `segfault`, `traceback`, `hang` (no answer within the case's timeout),
@@ -870,6 +947,9 @@ fault), `bad_message` (non-zero exit without exactly one `error:` line, or files
   commit_interval plus one commit. Pool workers send each run to the client as soon as it is
   computed (a task of many runs is not held back). A SIGKILL at any moment therefore loses at most
   the runs that reached the client in the last commit_interval (plus the runs still being computed).
+  When the sweep ends (or is interrupted) the queued runs are appended to the journal before
+  anything waits for a background compaction round (a round copies the whole file and takes
+  seconds; runs used to wait out that round uncommitted).
   A commit costs what the new runs weigh, independent of the file's size; the HDF5 file is never
   written in place: rewrites (copy, apply, fsync, atomic rename) happen when a session starts, in
   the background while it runs (a forked child folds the journal in, in rounds at least 10 s and 4
@@ -892,13 +972,20 @@ fault), `bad_message` (non-zero exit without exactly one `error:` line, or files
   message) + the client's copy) refused above the limit (`max_memory` in a config, `VCIRUN_MAX_MEMORY`,
   default half the physical memory) before anything is allocated or created; the disk space a
   sweep's results need (journal and final copy) checked against the free space before the file is
-  created.
+  created. A method reference is a run too: its grid (T / reference.h) and memory are checked
+  alike. The exact reference's solver work is bounded: its right-hand-side evaluations are
+  projected to T once 200,000 are spent and refused above 5e7 (an initial state so large that the
+  solver's steps collapse, beta = 1e20, or T = 1e6), in a few seconds instead of hours.
 - **Identifiers.** Python reads identifiers through NFKC normalisation, so a full-width `ｋ` in
   generated code is `k`. Parameter, coordinate, constraint and system names must be ASCII, and
   distinct after NFKC (also from the velocities `<coord>_dot` and the time `t`); expressions must be
-  ASCII (the message names the character and its ASCII form).
+  ASCII (the message names the character and its ASCII form). Names the generated kernels use for
+  their own symbols are reserved (`hh`, `tt`, `qa<k>`, `va<k>`, `qb<k>`, `cse<k>`, `xm<k>`,
+  `vcT...`, `mh_...`): a parameter named `vcTQ0` was read as coordinate 0 by the kernels.
 - **The Python API validates like the config layer** (`vcirun.validation`): `simulate` and `reference`
-  raise one `ValueError` naming the argument (`max_iter: must be >= 1 (got 0)`). A run whose initial
+  raise one `ValueError` naming the argument (`max_iter: must be >= 1 (got 0)`); flags
+  (`constrained`, `energies`, `resting_contact`, `check_accuracy`) must be booleans, and `beta`
+  with `q0`/`p0` is refused (one of them would be ignored). A run whose initial
   energy is not finite (q0 = 1e300) ends with status `nonfinite` and its cause, not `ok`.
 - **Faults of the file system** are one line naming the path: read-only directories, a parent that
   is a file, an output that is a directory or a device, symlink loops and links into missing
@@ -911,7 +998,9 @@ fault), `bad_message` (non-zero exit without exactly one `error:` line, or files
   crashed (signal 11) while writing .NAME.h5.partial`), its partial copy is removed, nothing
   committed is lost and the same command resumes once there is space. Damaged results files given to
   `info`, `plot` or a resuming `sweep` end in one line, or are repaired by the resume where the
-  damage is confined to groups.
+  damage is confined to groups. A results path that is a FIFO is refused (opening it blocked
+  forever); `plot --out` creates its folder first, names `--out` when it cannot, and removes the
+  folders it created when the plot fails.
 - **Cost.** Reading a 2000-run file verifies every run's datasets (low-level HDF5 API): about 25 %
   more than reading its attributes alone. The HDF5 writes themselves (about 33 attributes and 13
   datasets per run) are the same work as before, done by the background compactor instead of the
@@ -925,26 +1014,43 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="fewer kill trials and tmpfs sizes")
     ap.add_argument("--json", default=str(ROOT / "results" / "reliability.json"))
     ap.add_argument("--doc", default=str(ROOT / "docs" / "reliability.md"))
+    ap.add_argument("--render-only", action="store_true", help="rewrite the doc from the JSON, run nothing")
     args = ap.parse_args(argv)
+    if args.render_only:
+        prev = json.loads(Path(args.json).read_text())
+        cases = [Case(**c) for c in prev["cases"]]
+        Path(args.doc).write_text(render(cases, prev["meta"]))
+        return 0 if all(c.outcome in ("ok", "skipped") for c in cases) else 1
     sections = args.only or ["config", "api", "output", "corrupt", "disk", "kill", "loss"]
     t0 = time.monotonic()
+    section_meta = {}
     with tempfile.TemporaryDirectory(prefix="vcirun-probe-") as tmpd:
         tmp = Path(tmpd)
         for s in sections:
+            ts, load0 = time.monotonic(), os.getloadavg()[0]
             fn = {"config": run_config_section, "api": run_api_section, "output": run_output_section,
                   "corrupt": run_corrupt_section}.get(s)
             if fn is not None:
                 fn(tmp)
             elif s in ("disk", "kill", "loss"):
                 {"disk": run_disk_section, "kill": run_kill_section, "loss": run_loss_section}[s](tmp, args.quick)
+            section_meta[s] = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+                               "seconds": round(time.monotonic() - ts, 1),
+                               "load": [round(load0, 2), round(os.getloadavg()[0], 2)],
+                               "quick": bool(args.quick),
+                               "commit_interval": os.environ.get("VCIRUN_COMMIT_INTERVAL", "1 (the default)")}
     meta = {"date": time.strftime("%Y-%m-%d"), "machine": f"{os.cpu_count()} cores, Linux {os.uname().release}",
             "command": "`.venv/bin/python bench/reliability_probe.py" + (" --quick" if args.quick else "")
                        + (f" --only {' '.join(args.only)}" if args.only else "") + "`",
             "seconds": time.monotonic() - t0}
     out_json = Path(args.json)
     old = []
-    if args.only and out_json.exists():  # keep the other sections' cases
-        old = [Case(**c) for c in json.loads(out_json.read_text())["cases"] if c["section"] not in sections]
+    if args.only and out_json.exists():  # keep the other sections' cases (and when they were run)
+        prev = json.loads(out_json.read_text())
+        old = [Case(**c) for c in prev["cases"] if c["section"] not in sections]
+        kept = {c.section for c in old}
+        section_meta = {**{k: v for k, v in prev["meta"].get("sections", {}).items() if k in kept}, **section_meta}
+    meta["sections"] = section_meta
     cases = old + CASES
     out_json.parent.mkdir(parents=True, exist_ok=True)
     out_json.write_text(json.dumps({"meta": meta, "cases": [asdict(c) for c in cases]}, indent=1))

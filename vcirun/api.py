@@ -130,7 +130,8 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     """
     mopts, tol = _split_options(options)
     validation.check_simulate_args(h=h, T=T, t0=t0, beta=beta, q0=q0, p0=p0, params=params, constrained=constrained,
-                                   energies=energies, tolerances=tol, system=system)  # (issue 22)
+                                   energies=energies, tolerances=tol, system=system,
+                                   resting_contact=resting_contact)  # (issue 22)
     h, T, N = grid_steps(h, T)
     if not _warmable(system):
         system = resolve_system(system)  # bad names and files raise here, before a bad method does

@@ -372,6 +372,7 @@ def plot(
             _fail(f"--out: {len(files)} results files under {d}/ would overwrite each other; name one file")
     else:
         files = [results]
+    created = _make_out_folder(out) if out is not None else None
     console = _console()
     for path in files:
         try:
@@ -380,8 +381,10 @@ def plot(
             if results is None and "no complete runs" in str(e):
                 typer.echo(f"(skipped {path}: {e})")
                 continue
+            _remove_empty_folders(out, created)
             _fail(str(e))
         except _expected_errors() as e:
+            _remove_empty_folders(out, created)
             _fail(str(e))
         for table in report.tables:
             print_table(table, console)
@@ -390,6 +393,47 @@ def plot(
             typer.echo(f"  {p}")
         for name, why in report.skipped.items():
             typer.echo(f"  (skipped {name}: {why})")
+
+
+def _make_out_folder(out: Path) -> Path | None:
+    """Create the --out folder before plotting, or fail in one line naming it: a parent that is a file
+    (or a place where no folder can be made) was reported as a damaged results file. Returns the
+    outermost folder created (None if it existed), for _remove_empty_folders after a failed plot."""
+    import os
+
+    if out.exists() and not out.is_dir():
+        _fail(f"--out {out}: is a file, not a folder; choose another --out")
+    first = None
+    p = out
+    while not p.exists() and not p.is_symlink() and p != p.parent:
+        first, p = p, p.parent
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        where = e.filename or out
+        _fail(f"--out {out}: cannot create the folder {where} ({e.strerror or type(e).__name__}); "
+              "choose another --out")
+    if not os.access(out, os.W_OK | os.X_OK):
+        _remove_empty_folders(out, first)
+        _fail(f"--out {out}: cannot write in it; choose a writable --out")
+    return first
+
+
+def _remove_empty_folders(out: Path, first: Path | None) -> None:
+    """Remove the empty folders _make_out_folder created (out up to `first`), leaving nothing behind."""
+    import os
+
+    if first is None:
+        return
+    p = out
+    while True:
+        try:
+            os.rmdir(p)
+        except OSError:
+            return
+        if p == first:
+            return
+        p = p.parent
 
 
 # --- validate -----------------------------------------------------------------------------------------

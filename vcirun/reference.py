@@ -142,6 +142,18 @@ class _HermiteSegment:
 SIMULTANEOUS = 1e-10  # contacts whose roots lie within this many seconds impact together (LCP)
 
 
+# The exact solve's budget of right-hand-side evaluations (issue 22): a normal solve needs 500 to 1,300
+# per unit of time at rtol 1e-13 (~15 us each), so 5e7 is ten minutes or more. An initial state so large
+# that the solver's steps collapse (beta = 1e20: velocities ~1e19) or a T far beyond it would otherwise
+# run for hours; the projection is checked once MIN evaluations are spent (a few seconds).
+MAX_RHS_EVALS = 5e7
+MIN_RHS_EVALS_FOR_PROJECTION = 200_000
+
+
+class ReferenceCostError(ValueError):
+    """The exact solve would exceed MAX_RHS_EVALS (a ValueError: the arguments ask for it)."""
+
+
 def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000, resting_contact=True):
     """(segments, impacts, H(q0, p0), work, held) of the exact solve; impacts: [(time, contact,
     impulse)]; work is None for an unforced system, else a callable t -> W(t) = int_0^t f . qdot (the
@@ -164,7 +176,12 @@ def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000, resting_contact=Tru
     forced = bool(mod.FORCED)
     buf = np.empty(2 * n)
 
+    evals = [0]
+
     def rhs(t, y):
+        evals[0] += 1
+        if evals[0] >= MIN_RHS_EVALS_FOR_PROJECTION and evals[0] % 1000 == 0:
+            _check_cost(evals[0], t, T, q0, p0)
         mod.dynamics_rhs(t, y[:2 * n], prm, buf)
         if not forced:
             return buf.copy()
@@ -348,6 +365,19 @@ class _Slice:
         return self.f(t)[: self.k]
 
 
+def _check_cost(evals: int, t: float, T: float, q0, p0) -> None:
+    """Raise ReferenceCostError when `evals` right-hand-side evaluations reached only time t and the
+    projection to T exceeds MAX_RHS_EVALS."""
+    projected = evals * T / t if t > 0 else np.inf
+    if evals >= MAX_RHS_EVALS or projected > MAX_RHS_EVALS:
+        scale = float(max(np.max(np.abs(q0)), np.max(np.abs(p0))))
+        raise ReferenceCostError(
+            f"T: the exact reference would need about {projected:.1e} right-hand-side evaluations to reach "
+            f"T = {T:g} ({evals:,} reached t = {t:.3g}; the limit is {MAX_RHS_EVALS:.0e}): the initial state "
+            f"(max |q0|, |p0| = {scale:.3g}) is too large or T too long for an exact solve; lower T, give a smaller "
+            "initial state, or use a method reference (method='CVA', h=...)")
+
+
 def _check_start(system, q0, prm) -> None:
     """A start inside the constraint is bad input, named as such (not a grazing or accumulation
     failure later): phi(q0) < 0 beyond round-off relative to the size of q0 and grad phi."""
@@ -377,7 +407,7 @@ def reference(system, *, T, beta=None, q0=None, p0=None, params=None, rtol=1e-13
     from .validation import check_reference_args
 
     check_reference_args(T=T, rtol=rtol, method=method, h=h, beta=beta, q0=q0, p0=p0, params=params,
-                         system=system)  # (issue 22)
+                         system=system, resting_contact=resting_contact, check_accuracy=check_accuracy)  # (issue 22)
     sysm = resolve_system(system)
     prm = sysm.param_values(params)
     q0, p0 = sysm.initial_state(beta=beta, q0=q0, p0=p0, params=prm)
@@ -414,6 +444,8 @@ def reference(system, *, T, beta=None, q0=None, p0=None, params=None, rtol=1e-13
             ref.accuracy = acc
         if work is not None:
             ref.energy_balance = _energy_balance(sysm, ref, work, prm, T)
+    except ReferenceCostError:
+        raise
     except (ArithmeticError, ValueError, IndexError, np.linalg.LinAlgError) as e:
         # scipy's and numpy's own messages (e.g. brentq's "f(a) and f(b) must have different signs")
         # say nothing about the run: name the solve and the cause instead

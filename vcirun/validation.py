@@ -35,7 +35,7 @@ import yaml
 __all__ = ["MAX_STEPS", "MIN_H", "MAX_YAML_CHARS", "MAX_YAML_NODES", "MAX_COORDINATES", "MAX_PARAMETERS",
            "check_number", "check_simulate_args", "check_scene_size", "check_reference_args", "check_state_vector", "grid_size",
            "run_bytes", "stored_bytes", "memory_limit", "set_memory_limit", "limit_memory", "parse_bytes", "format_bytes",
-           "check_run_memory", "check_identifier", "check_distinct_names", "ascii_name_problem",
+           "check_run_memory", "check_identifier", "check_distinct_names", "ascii_name_problem", "reserved_name_problem",
            "yaml_load", "YAMLLimitError", "nonfinite_start", "describe"]
 
 # Grid: N = round(T / h) steps. Beyond 1e12 nothing fits in memory anyway (and T / h stops being an
@@ -283,6 +283,10 @@ def check_system_names(system) -> None:
     names = {f"coordinates[{i}]": getattr(s, "name", str(s)) for i, s in enumerate(q)}
     names.update({f"parameters.{k}": k for k in params})
     check_distinct_names(names, "system")
+    for fld, name in names.items():
+        problem = reserved_name_problem(name)
+        if problem:
+            raise ValueError(f"system.{fld}: {problem}")
 
 
 def check_scene_size(system, field: str = "system") -> None:
@@ -298,14 +302,22 @@ def check_scene_size(system, field: str = "system") -> None:
                              f"{MAX_COORDINATES}")
 
 
+def check_one_start(beta, q0, p0) -> None:
+    """Either beta or q0/p0: given both, one of them would be silently ignored (q0/p0 won)."""
+    if beta is not None and (q0 is not None or p0 is not None):
+        raise ValueError("beta: give either beta or q0 and p0, not both (the initial state would ignore one)")
+
+
 def check_simulate_args(*, h, T, t0=0.0, beta=None, q0=None, p0=None, params=None, constrained=None,
-                        energies=True, tolerances: dict | None = None, system=None) -> int:
+                        energies=True, tolerances: dict | None = None, system=None, resting_contact=True) -> int:
     """Validate `vcirun.simulate`'s arguments (same bounds and messages as a sweep config); returns N."""
     N = grid_size(h, T)
     t0 = check_number("t0", t0)
     h = float(h)
     if not math.isfinite(t0 + float(T)) or t0 + h == t0:
         raise ValueError(f"t0: h = {h:g} is below the resolution of times near t0 = {t0:g}; use a smaller |t0|")
+    check_one_start(beta, q0, p0)
+    check_bool("resting_contact", resting_contact)
     if beta is not None:
         check_number("beta", beta)
     if q0 is not None:
@@ -325,9 +337,12 @@ def check_simulate_args(*, h, T, t0=0.0, beta=None, q0=None, p0=None, params=Non
 
 
 def check_reference_args(*, T, rtol=1e-13, method="exact", h=None, beta=None, q0=None, p0=None,
-                         params=None, system=None) -> None:
+                         params=None, system=None, resting_contact=True, check_accuracy=True) -> None:
     """Validate `vcirun.reference`'s arguments (the config layer's bounds on reference.rtol, T, h)."""
     check_number("T", T, gt=0)
+    check_one_start(beta, q0, p0)
+    check_bool("resting_contact", resting_contact)
+    check_bool("check_accuracy", check_accuracy)
     check_scene_size(system)
     if not isinstance(method, str):
         raise ValueError(f"method: must be 'exact' or a method name (got {describe(method)})")
@@ -377,6 +392,23 @@ def ascii_name_problem(name: str) -> str | None:
     return None
 
 
+# Names the generated code gives its own symbols (vcirun.discrete slot symbols qa0.., va0.., qb0.., hh,
+# tt; vcirun.codegen.tensor placeholders vcTQ0.., vcTV0.., vcTT, temporaries vcTC0.., outputs vcTG0..;
+# CSE temporaries cse0..; vcirun.modified symbols mh_*; MechanicalSystem's numeric helpers xm0..). A
+# coordinate or parameter with such a name is the same sympy Symbol or the same printed name as the
+# generated one, so the kernels silently read the wrong value: a parameter named vcTQ0 is read as the
+# first coordinate by the tensor kernels (status ok, a wrong trajectory).
+_RESERVED_NAME = re.compile(r"hh|tt|(?:qa|va|qb|cse|xm)\d+|vcT\w*|mh_\w*")
+
+
+def reserved_name_problem(name) -> str | None:
+    """Why `name` cannot name a coordinate or parameter because generated code uses it, or None."""
+    if isinstance(name, str) and _RESERVED_NAME.fullmatch(name):
+        return (f"{name!r} is reserved: the generated kernels use it for their own symbols (reserved: hh, tt, "
+                "qa<k>, va<k>, qb<k>, cse<k>, xm<k>, vcT..., mh_...); choose another name")
+    return None
+
+
 def check_identifier(name, field: str, *, reserved=()) -> str:
     """An ASCII Python identifier, not a keyword, not starting with '_', not reserved."""
     if not isinstance(name, str):
@@ -390,6 +422,9 @@ def check_identifier(name, field: str, *, reserved=()) -> str:
         raise ValueError(f"{field}: {name!r} is a Python keyword; choose another name")
     if name in reserved:
         raise ValueError(f"{field}: {name!r} is reserved; choose another name")
+    problem = reserved_name_problem(name)
+    if problem:
+        raise ValueError(f"{field}: {problem}")
     return name
 
 

@@ -102,6 +102,35 @@ def test_commits_append_to_the_journal_and_never_touch_the_file(tmp_path):
     assert not w.journal_path.exists() and not w.tmp_path.exists()
 
 
+@pytest.mark.parametrize("end", ["finish", "close"])
+def test_queued_runs_are_journalled_before_waiting_for_a_compaction_round(tmp_path, monkeypatch, end):
+    """finish() (and close()) stopped the autocommit, then waited for the background compaction round
+    under way (seconds: it copies the whole file) and only then committed: the runs that reached the
+    client meanwhile were not durable, and a kill lost the runs of the last 2 s of a 2000-run sweep.
+    They are appended to the journal before the wait now."""
+    path = tmp_path / "r.h5"
+    w = ResultsWriter(path, root_attrs={"name": "t"}, config_key=KEY)
+    w.acquire()
+    w.start()
+    for rid, (a, arr) in runs(2).items():
+        w.add_run(rid, a, arr)
+    w.commit()
+    for rid, (a, arr) in runs(3, seed=2).items():  # reached the client after the last commit
+        w.add_run(rid, a, arr)
+    seen = []
+
+    def waiting_for_the_compactor(*args, **kwargs):  # a kill here must not lose r0002..r0004
+        j = storage.read_journal(w.journal_path)  # (None at close() after finish: the journal is folded in)
+        seen.append(sorted(r.key for r in j.records if r.kind == "run") if j is not None else None)
+
+    monkeypatch.setattr(w, "stop_background_compaction", waiting_for_the_compactor)
+    getattr(w, end)(*(["complete"] if end == "finish" else []))
+    if end == "finish":
+        w.close()
+    assert seen and seen[0] == [f"r{i:04d}" for i in range(5)]
+    assert {r.run_id for r in storage.read_results(path).runs} == {f"r{i:04d}" for i in range(5)}
+
+
 def test_a_torn_journal_tail_is_ignored_and_resume_folds_the_rest_in(tmp_path):
     path = tmp_path / "r.h5"
     w = ResultsWriter(path, root_attrs={"name": "t"}, config_key=KEY)
@@ -499,3 +528,33 @@ def test_pool_workers_stream_each_run(tmp_path):
         ex.close()
     assert len(got) == len(pending) == 4 and all(len(r["runs"]) == 1 for r in got)
     assert {r["runs"][0]["run_id"] for r in got} == {s.run_id for s in pending}
+
+
+# --- info / plot on unusual paths ----------------------------------------------------------------------------------
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs here")
+def test_a_fifo_given_to_info_or_plot_is_one_line_not_a_hang(tmp_path, monkeypatch):
+    """`vcirun info FIFO` blocked in h5py's open until a writer appeared (forever)."""
+    monkeypatch.chdir(tmp_path)
+    fifo = tmp_path / "r.h5"
+    os.mkfifo(fifo)
+    for args in (["info", fifo], ["plot", fifo]):
+        one_line(cli(*args), "not a regular file")
+    with pytest.raises(StorageError, match="not a regular file"):
+        storage.read_results(fifo)
+
+
+def test_plot_out_that_cannot_be_a_folder_names_it_and_leaves_nothing(tiny, tmp_path):
+    """A --out under a file was reported as `good.h5: cannot read the results file ... it may be
+    damaged`; a failed plot into a new --out left its empty folders behind."""
+    good = tmp_path / "good.h5"
+    run_sweep(load_config(tiny), output=good, workers=1, progress=False)
+    (tmp_path / "afile").write_text("x")
+    line = one_line(cli("plot", good, "--out", tmp_path / "afile" / "figs"), "--out", "cannot create the folder",
+                    "choose another --out")
+    assert "damaged" not in line and "good.h5" not in line
+    one_line(cli("plot", good, "--out", tmp_path / "afile"), "is a file, not a folder")
+    bad = tmp_path / "bad.h5"
+    bad.write_text("not HDF5\n")
+    before = set(tmp_path.rglob("*"))
+    one_line(cli("plot", bad, "--out", tmp_path / "new" / "a" / "b"), "bad.h5")
+    assert set(tmp_path.rglob("*")) == before

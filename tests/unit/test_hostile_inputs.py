@@ -121,6 +121,24 @@ def test_special_config_files(tmp_path):
         load_config(big)
 
 
+def test_a_system_file_that_is_not_a_file_says_what_it_is(tmp_path):
+    """A FIFO, a directory or a dangling link named as the system file was reported as 'not found'."""
+    import os
+
+    cfg = CONFIG.replace("system: cart_pendulum", "system: sys.yaml")
+    (tmp_path / "sys.yaml").mkdir()
+    one_line_config_error(tmp_path, cfg, "system: system file ", "sys.yaml is a directory")
+    (tmp_path / "sys.yaml").rmdir()
+    (tmp_path / "sys.yaml").symlink_to(tmp_path / "nowhere.yaml")
+    one_line_config_error(tmp_path, cfg, "sys.yaml is a symbolic link loop or points nowhere")
+    (tmp_path / "sys.yaml").unlink()
+    if hasattr(os, "mkfifo"):
+        os.mkfifo(tmp_path / "sys.yaml")
+        one_line_config_error(tmp_path, cfg, "sys.yaml is not a regular file")  # never blocks
+        (tmp_path / "sys.yaml").unlink()
+    one_line_config_error(tmp_path, cfg, "system file not found: ", "sys.yaml")
+
+
 # --- grid, memory, sizes ------------------------------------------------------------------------------------
 @pytest.mark.parametrize("h,T,words", [
     ("1.0e-320", "5", ["h[0]", "must be >= 1e-50"]),
@@ -130,6 +148,16 @@ def test_special_config_files(tmp_path):
 ])
 def test_grid_and_memory_bounds(tmp_path, h, T, words):
     one_line_config_error(tmp_path, CONFIG.replace("h: [1.0e-2]", f"h: [{h}]").replace("T: 0.5", f"T: {T}"), *words)
+
+
+def test_a_method_reference_is_a_run_whose_memory_is_checked_by_validate(tmp_path):
+    """reference: {kind: method, h: 1e-12}: `validate` said ok and the sweep stopped at its preflight with
+    `reference: T: 1e+10 steps ...` (the field named wrongly)."""
+    text = CONFIG.replace("reference: {kind: none}", "reference: {kind: method, method: CVA, h: 1.0e-12}")
+    one_line_config_error(tmp_path, text, "reference.h: ", "steps of 2 coordinates need about", "raise reference.h")
+    ok = CONFIG.replace("reference: {kind: none}", "reference: {kind: method, method: CVA, h: 1.0e-4}")
+    (tmp_path / "ok.yaml").write_text(ok)
+    load_config(tmp_path / "ok.yaml")
 
 
 def test_max_memory_is_configurable_and_not_part_of_the_results(tmp_path):
@@ -234,6 +262,35 @@ def test_full_width_parameter_in_a_system_file_and_a_python_system(tmp_path):
         vcirun.simulate(m, "CVA", h=0.01, T=0.1)
 
 
+
+@pytest.mark.parametrize("params,potential,coords,field", [
+    ("{k: 4.0, vcTQ0: 400.0}", '"0.5*vcTQ0*x**2"', "[x]", "system.parameters.vcTQ0"),  # read as x by the kernels
+    ("{hh: 4.0}", '"0.5*hh*x**2"', "[x]", "system.parameters.hh"),
+    ("{k: 4.0, mh_p0: 1.0}", '"0.5*k*mh_p0*x**2"', "[x]", "system.parameters.mh_p0"),
+    ("{k: 4.0}", '"0.5*k*qa0**2"', "[qa0]", "system.coordinates[0]"),
+    ("{k: 4.0}", '"0.5*k*cse2**2"', "[cse2]", "system.coordinates[0]"),
+])
+def test_names_of_the_generated_code_are_reserved(tmp_path, params, potential, coords, field):
+    """A parameter named vcTQ0 (the tensor kernels' placeholder of coordinate 0) ran with status ok and
+    q(T) 0.682 instead of 0.529: the kernels read the coordinate for it. Such names are refused."""
+    text = inline(potential=potential, params=params, coords=coords).replace('"x + 0.5"', f'"{coords[1:-1]} + 0.5"')
+    one_line_config_error(tmp_path, text, f"{field}: ", "is reserved", "choose another name")
+
+
+def test_reserved_names_in_a_python_system_and_names_that_are_not_reserved():
+    import sympy as sp
+
+    from vcirun.mechanics.system import MechanicalSystem
+
+    x, k = sp.Symbol("x"), sp.Symbol("vcTQ0")
+    m = MechanicalSystem(name="u", q=[x], params={"vcTQ0": 4.0}, M=sp.Matrix([[1]]), V=k * x**2 / 2, phi=x + 1,
+                         default_q0=np.array([0.2]), default_p0=np.array([0.0]))
+    with pytest.raises(ValueError, match="system.parameters.vcTQ0: 'vcTQ0' is reserved"):
+        vcirun.simulate(m, "CVA", h=0.01, T=0.1)
+    for name in ("th", "qa", "hhh", "t1", "cse", "theta1", "m1", "x1", "vc", "mh"):
+        assert validation.reserved_name_problem(name) is None, name
+    for name in ("hh", "tt", "qa12", "va0", "qb3", "cse0", "xm1", "vcTT", "vcTC7", "mh_u0"):
+        assert "is reserved" in validation.reserved_name_problem(name), name
 # --- the Python API ----------------------------------------------------------------------------------------------
 BASE = dict(h=0.01, T=1.0, beta=3.2)
 
@@ -259,6 +316,10 @@ BASE = dict(h=0.01, T=1.0, beta=3.2)
     ({"beta": math.inf}, "beta: must be a finite number (got inf)"),
     ({"params": {"m1": math.nan}}, "params.m1: must be a finite number (got nan)"),
     ({"beta": None, "q0": [math.nan, 0.0], "p0": [0.0, 0.0]}, "q0: must be a list of finite numbers"),
+    # 'no' is truthy: resting contacts were held (status ok) where the caller asked for them not to be
+    ({"resting_contact": "no"}, "resting_contact: must be true or false (got 'no')"),
+    # both: q0/p0 won and beta was silently ignored
+    ({"q0": [0.1, 0.2], "p0": [0.0, 0.0]}, "beta: give either beta or q0 and p0, not both"),
 ])
 def test_simulate_validates_like_the_config_layer(kw, message):
     with pytest.raises(ValueError) as ei:
@@ -279,12 +340,29 @@ def test_same_message_as_the_config_layer(tmp_path):
     ({"rtol": 0}, "rtol: must be >= 2.3e-14 (got 0)"),
     ({"rtol": math.nan}, "rtol: must be a finite number (got nan)"),
     ({"method": "CVA", "h": 0}, "h: must be > 0 (got 0)"),
+    ({"resting_contact": "no"}, "resting_contact: must be true or false (got 'no')"),
+    ({"check_accuracy": "no"}, "check_accuracy: must be true or false (got 'no')"),
+    ({"q0": [0.1, 0.2], "p0": [0.0, 0.0]}, "beta: give either beta or q0 and p0, not both"),
 ])
 def test_reference_validates_before_solving(kw, message):
     t0 = time.perf_counter()
     with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)").replace("+", r"\+")):
         vcirun.reference("cart_pendulum", **{"T": 1.0, "beta": 3.2, **kw})
     assert time.perf_counter() - t0 < 5.0  # rtol=0 used to hang inside solve_ivp
+
+
+@pytest.mark.parametrize("kw", [{"T": 1.0, "beta": 1e20}, {"T": 1e6, "beta": 3.2}])
+def test_an_exact_reference_beyond_its_budget_is_refused(monkeypatch, kw):
+    """beta = 1e20 (velocities ~1e19) collapsed DOP853's steps: the solve ran for hours. The solve's
+    right-hand-side evaluations are projected to T and refused above MAX_RHS_EVALS (checked here from
+    2,000 evaluations instead of 200,000, to keep the test short)."""
+    import sys
+
+    ref_mod = sys.modules["vcirun.reference"]
+    monkeypatch.setattr(ref_mod, "MIN_RHS_EVALS_FOR_PROJECTION", 2_000)
+    with pytest.raises(ValueError, match=r"^T: the exact reference would need about .* right-hand-side evaluations"):
+        vcirun.reference("cart_pendulum", rtol=1e-10, check_accuracy=False, **kw)
+    vcirun.reference("cart_pendulum", T=0.5, beta=3.2, rtol=1e-10)  # a normal solve stays under it
 
 
 @pytest.mark.parametrize("system,kw", [("oscillator_wall", {"q0": [1e300], "p0": [0.0]}),

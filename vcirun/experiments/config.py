@@ -793,7 +793,11 @@ def build_system(cfg: SweepConfig):
         return s.name, (dict(s.params) or None), sysm
     if isinstance(s, FileSystem):
         if not Path(s.file).is_file():
-            raise _Semantic("system", f"system file not found: {s.file}")
+            fp = Path(s.file)
+            why = ("is a directory" if fp.is_dir() else "is not a regular file (a FIFO, device or socket)"
+                   if fp.exists() else "is a symbolic link loop or points nowhere" if fp.is_symlink() else None)
+            raise _Semantic("system", f"system file {s.file} {why}; expected a YAML file" if why
+                            else f"system file not found: {s.file}")
         sysm = load_system_yaml(s.file)
         return str(Path(s.file).resolve()), (dict(s.params) or None), sysm
     sysm = load_system_yaml(s.declaration(), field_prefix="system")
@@ -876,3 +880,15 @@ def check_memory_of(cfg: SweepConfig, n: int, *, source: str = "<config>", worke
                                      hint=", or raise max_memory in the config (e.g. max_memory: 32GB)")
     except ValueError as e:
         raise ConfigError(str(e).partition(": ")[2], source=source, field=f"h[{i}]") from None
+    ref = cfg.reference
+    if isinstance(ref, MethodReference):
+        # the reference is a run too, on [0, T] (or the last grid point past it) at reference.h: `validate`
+        # said ok to reference.h = 1e-12 and the sweep stopped at its preflight with `reference: T: ...`
+        T_ref = max([cfg.T] + [round(cfg.T / h) * h for h in cfg.h])
+        try:
+            N_ref = _validation.grid_size(ref.h, T_ref)
+            _validation.check_run_memory(N_ref, n, copies=workers, limit=cfg.max_memory, field="x",
+                                         hint=", or raise max_memory in the config (e.g. max_memory: 32GB)")
+        except ValueError as e:
+            raise ConfigError(str(e).partition(": ")[2].replace("raise h ", "raise reference.h "), source=source,
+                              field="reference.h") from None

@@ -1231,7 +1231,10 @@ class ResultsWriter:
         `self.final_hooks`) run inside that last rewrite, on the open file, when status is 'complete'.
         After a failed write nothing more is written (the file and journal keep every committed run)."""
         self.stop_autocommit()
-        self.stop_background_compaction()
+        try:
+            self._commit_before_waiting()
+        finally:
+            self.stop_background_compaction()
         with self._mutex:
             if self._failed is not None:
                 return
@@ -1253,9 +1256,23 @@ class ResultsWriter:
                 self.journal_path.unlink()
             _fsync_path(self.path.parent, directory=True)
 
+    def _commit_before_waiting(self) -> None:
+        """Append what is queued to the journal before waiting for a background compaction round to end:
+        a round takes seconds (the whole file is copied), and the runs that reached the client meanwhile
+        were not durable while finish() waited with the autocommit stopped (a kill then lost the runs of
+        the last 2 s of a 2000-run sweep, beyond commit_interval + one commit)."""
+        with self._mutex:
+            if (self._jfd is not None and self._failed is None and self._lock_fd is not None
+                    and (self._pending or self._deletions)):
+                self.commit()
+
     def close(self) -> None:
         self.stop_autocommit()
-        self.stop_background_compaction()
+        try:
+            with contextlib.suppress(StorageError):
+                self._commit_before_waiting()
+        finally:
+            self.stop_background_compaction()
         try:
             if self._pending and self._lock_fd is not None and self._failed is None:
                 with contextlib.suppress(StorageError):
@@ -1329,6 +1346,8 @@ def _open_read(path) -> h5py.File:
         raise StorageError(f"{path}: file not found")
     if path.is_dir():
         raise StorageError(f"{path}: is a directory, not a results file")
+    if not path.is_file():  # a FIFO: opening it blocks until someone writes (`vcirun info FIFO` hung)
+        raise StorageError(f"{path}: not a regular file (a FIFO, device or socket), not a results file")
     try:
         f = h5py.File(path, "r")
     except Exception as e:  # noqa: BLE001 - OSError, or anything a damaged superblock raises
