@@ -66,7 +66,7 @@ class Sweep:
     # delay: seconds added to each timed run, so that the 64 runs outlast the first commit by several
     # seconds on a loaded machine (at 0.05 s a sweep whose workers found the kernels compiled could
     # finish between its first commit and the signal, exiting 0)
-    def __init__(self, tmp_path: Path, workers: int, delay: float = 0.25):
+    def __init__(self, tmp_path: Path, workers: int, delay: float = 0.5):
         (tmp_path / "slow_cli.py").write_text(SLOW_CLI)
         self.cfg = tmp_path / "interrupt.yaml"
         self.cfg.write_text(CONFIG)
