@@ -98,10 +98,11 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
                                                max_impacts_step, resting, qt, pt, vt, work, dense, out, info,
                                                held, nheld)
             iters += itc
-        elif (not constrained) or ((sys_phi(qt, prm) > 0.0) if (NCON == 1 and nheld == 0)
-                                   else step_admissible(q, p, qt, h, event_tol, prm, held, nheld, phis)):
-            # (the one-constraint test in the loop itself: through step_admissible it cost ~0.1 us of
-            # reference counting per step, its six array arguments; bench/compare_trees.py --nrt-count)
+        elif (not constrained) or ((sys_phi(qt, prm) > 0.0) if (NCON == 1 and nheld == 0) else (
+                _phis_positive(qt, prm, phis) or step_admissible(q, p, qt, h, event_tol, prm, held, nheld, phis))):
+            # (step_admissible's common cases first, called directly: through it, its six array
+            # arguments cost ~0.1 us of numba reference counting per step; bench/compare_trees.py
+            # --nrt-count, and make bench's contacts section for several constraints)
             copy_into(q, qt)
             copy_into(p, pt)
         else:
@@ -189,6 +190,17 @@ def _release_step(q, p, h, t, tau, c, prm, ntol, maxit, event_tol, max_impacts_s
     status, itc, nheld = _impact_step(q, p, h, h - tau, t + tau, np.bool_(False), prm, ntol, maxit, event_tol,
                                       max_impacts_step, resting, qt, pt, vt, work, dense, out, info, held, nheld)
     return status, it + itc, nheld
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _phis_positive(qt, prm, phis):
+    """Every phi_i(qt) > 0 (phis: scratch): a full step with several contacts is admissible then,
+    whatever is touching or held (step_admissible's first test, without its other arguments)."""
+    sys_phis(qt, prm, phis)
+    for j in range(NCON):
+        if not phis[j] > 0.0:
+            return False
+    return True
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
