@@ -40,10 +40,15 @@ SLOW_CLI = """\
 import sys, time
 import vcirun
 DELAY = float(sys.argv[1])
+HOLD = 120.0
 _simulate = vcirun.simulate
 def slow(*args, **kw):
     if kw.get("T", 0) >= 0.5:
         time.sleep(DELAY)
+        if abs(kw.get("beta", 0.0) - 5.2) < 1e-9:
+            # the last initial condition holds its worker: the sweep cannot finish before the test's
+            # signal, however its first commit and the signal are timed
+            time.sleep(HOLD)
     return _simulate(*args, **kw)
 vcirun.simulate = slow
 from vcirun.cli import app
@@ -63,10 +68,9 @@ def env():
 class Sweep:
     """A sweep subprocess whose stderr progress lines are read on a thread."""
 
-    # delay: seconds added to each timed run, so that the 64 runs outlast the first commit by several
-    # seconds on a loaded machine (at 0.05 s a sweep whose workers found the kernels compiled could
-    # finish between its first commit and the signal, exiting 0)
-    def __init__(self, tmp_path: Path, workers: int, delay: float = 0.5):
+    # delay: seconds added to each timed run; the runs of the last beta are held for HOLD seconds (the
+    # sweep could otherwise finish between its first reported commit and the signal, exiting 0)
+    def __init__(self, tmp_path: Path, workers: int, delay: float = 0.05):
         (tmp_path / "slow_cli.py").write_text(SLOW_CLI)
         self.cfg = tmp_path / "interrupt.yaml"
         self.cfg.write_text(CONFIG)
