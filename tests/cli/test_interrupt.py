@@ -40,7 +40,7 @@ SLOW_CLI = """\
 import sys, time
 import vcirun
 DELAY = float(sys.argv[1])
-HOLD = 120.0
+HOLD = 3.0
 _simulate = vcirun.simulate
 def slow(*args, **kw):
     if kw.get("T", 0) >= 0.5:
