@@ -65,6 +65,13 @@ def env():
     return e
 
 
+def _default_sigint():
+    # A process that starts with SIGINT ignored keeps ignoring it (Python installs its KeyboardInterrupt
+    # handler only over the default disposition), and an ignored disposition survives exec: a test
+    # runner's worker that ignores SIGINT would hand that to the sweep, which then ran to the end.
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 class Sweep:
     """A sweep subprocess whose stderr progress lines are read on a thread."""
 
@@ -77,7 +84,8 @@ class Sweep:
         self.proc = subprocess.Popen(
             [sys.executable, str(tmp_path / "slow_cli.py"), str(delay), "sweep", str(self.cfg),
              "--workers", str(workers)],
-            cwd=tmp_path, env=env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            cwd=tmp_path, env=env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            preexec_fn=_default_sigint)
         self.lines: queue.Queue = queue.Queue()
         self.stderr: list[str] = []
         self._reader = threading.Thread(target=self._pump, daemon=True)
