@@ -181,10 +181,8 @@ def open_results(path):
     `method` is also the keyword of xarray's own `.sel(..., method="nearest")` (inexact matching).
     The Dataset returned here (and every DataArray taken from it) reads `.sel(method="MCVAA", h=0.01)`
     as a selection on the method dimension when the value is not one of xarray's fill methods
-    (vcirun.results_xr); `.sel({"method": "MCVAA"}, method="nearest")` still does both.
+    (vcirun.results_xr); a fill method keeps xarray's meaning: `.sel(h=0.011, method="nearest")`.
     """
-    import xarray as xr
-
     from vcirun.experiments import storage
 
     path = Path(path)

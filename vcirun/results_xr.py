@@ -5,8 +5,9 @@ A results table's first dimension is named `method` (the paper's method labels),
 also the keyword of xarray's own `.sel(..., method="nearest")` (inexact matching), so plain xarray
 reads `ds.l2_error.sel(method="MCVAA", h=0.01)` as a fill method and fails ("Invalid fill method").
 Here a `method=` value that is not one of xarray's fill methods (nor None) is a label of the method
-dimension; a fill method keeps xarray's meaning (`.sel({"method": "MCVAA"}, method="nearest")` does
-both). Everything else is xarray's own: the subclasses define empty __slots__ as xarray asks, live at
+dimension; a fill method keeps xarray's meaning (`.sel(h=0.011, method="nearest")` is inexact
+matching on h, and `.sel({"method": "MCVAA", "h": 0.011}, method="nearest")` would apply it to the
+string labels too, which xarray refuses). Everything else is xarray's own: the subclasses define empty __slots__ as xarray asks, live at
 module level so datasets pickle (dask, multiprocessing), and operations that build new objects
 return these classes or plain xarray ones.
 """
