@@ -46,11 +46,26 @@ def test_other_modules_do_not_wait(tmp_path, monkeypatch):
     monkeypatch.setenv("VCIRUN_CACHE_DIR", str(tmp_path))
     a = types.SimpleNamespace(__name__="vcirun_kernels_aaaaaaaaaaaaaaaaaaaa")
     b = types.SimpleNamespace(__name__="vcirun_kernels_bbbbbbbbbbbbbbbbbbbb")
+    import fcntl
+
+    def held(m):  # is m's lock taken? (a probe on a separate descriptor)
+        fd = os.open(tmp_path / "kernels" / f"vk_{m.__name__.rsplit('_', 1)[-1]}.lock", os.O_RDWR)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return False
+        except BlockingIOError:
+            return True
+        finally:
+            os.close(fd)
+
     with cache.first_call_lock(a):
-        with cache.first_call_lock(b, timeout_s=0.0):  # another module's lock is free: no wait, no timeout path
-            pass
-        with cache.first_call_lock(a, timeout_s=0.0):  # the same module from the same process (another
-            pass                                        # descriptor): gives up at once and goes ahead
+        assert held(a)
+        with cache.first_call_lock(b, timeout_s=0.0):  # another module's lock is free: taken, no wait
+            assert held(b)
+        assert not held(b)                              # released on leaving
+        with cache.first_call_lock(a, timeout_s=0.0):  # the same module on another descriptor: gives up
+            pass                                        # at once and goes ahead
+    assert not held(a)
 
 
 def test_unwritable_cache_goes_ahead_unlocked(tmp_path, monkeypatch):
