@@ -28,6 +28,9 @@ _TIMES_FILE = "build_times.json"
 # first estimates before this cache has timed a build (measured on this 2-core machine: CVA on the
 # cart-pendulum 9 s, MCVAC 14-20 s)
 _DEFAULT_S = {"CVA": 10.0, "VCI": 10.0, "MCVA": 20.0}
+# shared build: a scene's kernels (cart-pendulum CVA 2-3 s, MCVAC 5 s) and a core (45-55 s, once per machine)
+_DEFAULT_SCENE_S = {"CVA": 3.0, "VCI": 3.0, "MCVA": 6.0}
+_DEFAULT_CORE_S = 50.0
 LOCK_TIMEOUT_S = 1800.0  # first_call_lock: the longest cold build measured is MCVAA at n = 8 (~500 s)
 
 
@@ -62,7 +65,18 @@ def _times() -> dict:
 
 def estimate_compile_s(ks, n: int) -> float:
     """Seconds a cold build of (ks, n) is expected to take: this cache's last build of the same family
-    and size, else of the same family at another size (scaled linearly in n), else a first estimate."""
+    and size, else of the same family at another size (scaled linearly in n), else a first estimate.
+    Shared build (vcirun.codegen.shared): the scene's kernels, plus the core if numba has not cached it."""
+    from .codegen import build
+
+    if build.build_mode() == "shared":
+        times, fam = _times(), "scene|" + family(ks)
+        same = [(int(k.rsplit("|", 1)[1]), float(v)) for k, v in times.items() if k.rsplit("|", 1)[0] == fam]
+        m, v = max(same) if same else (2, _DEFAULT_SCENE_S.get((ks.reset or "system").upper(), 3.0))
+        scene = float(times.get(f"{fam}|{n}", v * max(1.0, n / m)))
+        key = build.core_key_of(ks, n)
+        core = 0.0 if build.core_compiled(key) else float(times.get(f"core|{key}", _DEFAULT_CORE_S))
+        return scene + core
     times, fam = _times(), family(ks)
     if f"{fam}|{n}" in times:
         return float(times[f"{fam}|{n}"])
@@ -80,7 +94,8 @@ def announce_if_cold(system, ks) -> bool:
 
     key = build.module_key(system, ks)
     if key in build._loaded or (build.cache_dir() / f"vk_{key}.py").exists():
-        return False
+        if build.build_mode() != "shared" or build.core_compiled(build.core_key_of(ks, system.n)):
+            return False
     msg = (f"compiling kernels for {system.name}/{family(ks)} (first time, about "
            f"{estimate_compile_s(ks, system.n):.0f} s; cached in {cache_root()})")
     _log.info(msg)
@@ -96,11 +111,17 @@ def note_first_call(mod, ks, seconds: float) -> None:
 
     key = mod.__name__.rsplit("_", 1)[-1]
     entry = next((e for e in reversed(build.BUILD_LOG) if e["key"] == key), None)
-    if entry is None or entry["cached"]:
+    if entry is None or (entry["cached"] and not entry.get("core_cold")):
         return
     try:
         times = _times()
-        times[f"{family(ks)}|{int(mod.NDOF)}"] = round(float(entry["generate_s"]) + float(seconds), 2)
+        if "link_s" in entry:   # shared build: the scene's kernels, and the core's first compile apart
+            if not entry["cached"]:
+                times[f"scene|{family(ks)}|{int(mod.NDOF)}"] = round(float(entry["generate_s"]) + float(entry["link_s"]), 2)
+            if entry.get("core_cold"):
+                times[f"core|{entry['core_key']}"] = round(float(seconds), 2)
+        else:
+            times[f"{family(ks)}|{int(mod.NDOF)}"] = round(float(entry["generate_s"]) + float(seconds), 2)
         path = cache_root() / _TIMES_FILE
         tmp = path.with_suffix(f".tmp{os.getpid()}")
         tmp.write_text(json.dumps(times, sort_keys=True))
@@ -119,7 +140,8 @@ def first_call_lock(mod, timeout_s: float = LOCK_TIMEOUT_S):
     ahead unlocked (only time is lost then, never a result)."""
     from .codegen import build
 
-    key = mod.__name__.rsplit("_", 1)[-1]
+    # a shared-build module's loop is its kernel set's core (vcirun.codegen.shared): lock on that
+    key = getattr(mod, "LOCK_KEY", None) or mod.__name__.rsplit("_", 1)[-1]
     fd = None
     try:
         import fcntl
@@ -153,6 +175,7 @@ class CacheInfo:
     index_entries: int    # warm-start index entries (wi_*.json)
     files: int
     bytes: int
+    cores: int = 0        # shared cores (core_*.py, vcirun.codegen.shared)
 
 
 def _walk(root: Path):
@@ -172,7 +195,7 @@ def info() -> CacheInfo:
     k = root / "kernels"
     return CacheInfo(root, len(list(k.glob("vk_*.py"))) if k.is_dir() else 0,
                      len(list(k.glob("wi_*.json"))) if k.is_dir() else 0, len(files),
-                     sum(_size(p) for p in files))
+                     sum(_size(p) for p in files), len(list(k.glob("core_*.py"))) if k.is_dir() else 0)
 
 
 def clear() -> CacheInfo:

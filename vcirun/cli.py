@@ -693,7 +693,7 @@ def cache_info():
     from vcirun import cache
 
     i = cache.info()
-    typer.echo(f"{i.path}: {i.modules} compiled modules, {i.index_entries} warm-start entries, {i.files} files, "
+    typer.echo(f"{i.path}: {i.modules} compiled modules, {i.cores} shared cores, {i.index_entries} warm-start entries, {i.files} files, "
                f"{_mb(i.bytes)}")
     typer.echo("It grows with every vcirun version and system; `vcirun cache clear` empties it (the next run of "
                "each system compiles again).")

@@ -64,8 +64,10 @@ def test_cache_info_and_clear(runner, tmp_path, monkeypatch):
     k.mkdir(parents=True)
     (k / "vk_00000000000000000000.py").write_text("x = 1\n" * 100)
     (k / "wi_1.json").write_text("{}")
+    (k / "core_00000000000000000000.py").write_text("x = 1\n")
     r = invoke(runner, "cache", "info")
-    assert r.exit_code == 0 and f"{tmp_path / 'c'}: 1 compiled modules, 1 warm-start entries, 2 files" in r.stdout
+    assert r.exit_code == 0 and (f"{tmp_path / 'c'}: 1 compiled modules, 1 shared cores, 1 warm-start entries, 3 files"
+                                 in r.stdout)
     r = invoke(runner, "cache", "clear")
     assert r.exit_code == 0 and "removed 1 compiled modules" in r.stdout
     assert not k.exists()

@@ -40,6 +40,7 @@ _PKG = Path(__file__).resolve().parent.parent
 _GENERATOR_FILES = ["codegen/kernels.py", "codegen/printer.py", "codegen/build.py", "codegen/derive.py",
                     "codegen/kernel_set.py",
                     "codegen/tensor.py", "codegen/units.py", "record.py", "codegen/c_emit.py", "codegen/cc.py",
+                    "codegen/shared.py", "codegen/kcall.py",
                     "discrete/lagrangians.py",
                     "mechanics/system.py"]
 # ... and, only for the MCVA family's modules (so that editing them does not invalidate CVA/VCI caches)
@@ -71,7 +72,7 @@ _keys: dict = {}
 
 
 def module_key(system, ks: KernelSet) -> str:
-    memo = (id(system), system.fingerprint(), ks, os.environ.get("VCIRUN_KERNEL_PATH", ""))
+    memo = (id(system), system.fingerprint(), ks, os.environ.get("VCIRUN_KERNEL_PATH", ""), build_mode())
     if memo not in _keys:
         _keys[memo] = _module_key(system, ks)
     return _keys[memo]
@@ -84,11 +85,26 @@ def _key_files(ks: KernelSet) -> set:
     return files
 
 
+def build_mode() -> str:
+    """"shared" (default): a scene module holds only its kernels and links to the shared core of its
+    kernel set (vcirun.codegen.shared), compiled once per machine; "specialized": one module with the
+    scene's kernels and every unit compiled together (a faster loop, a cold build of 35-40 s per
+    scene). VCIRUN_BUILD selects it; uncompiled runs (NUMBA_DISABLE_JIT=1) are always specialized,
+    since the core calls kernels by machine address."""
+    mode = os.environ.get("VCIRUN_BUILD", "shared").strip().lower() or "shared"
+    if mode not in ("shared", "specialized"):
+        raise ValueError(f"VCIRUN_BUILD: {mode!r} is not a build mode (use shared or specialized)")
+    if os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0"):
+        return "specialized"
+    return mode
+
+
 def _versions() -> bytes:
     # + the step-kernel path (codegen.derive: tensor or expanded), so the two never share a module,
-    # + the kernel backend (codegen.cc: numba, or C with this compiler and flags)
+    # + the kernel backend (codegen.cc: numba, or C with this compiler and flags), + the build mode
     path = os.environ.get("VCIRUN_KERNEL_PATH", "")
-    return f"{__version__}|{numba.__version__}|{sys.version_info[:2]}|kernels={path}|{_backend_id()}".encode()
+    return (f"{__version__}|{numba.__version__}|{sys.version_info[:2]}|kernels={path}|{_backend_id()}"
+            f"|build={build_mode()}|core_ndof={os.environ.get('VCIRUN_CORE_NDOF', '')}").encode()
 
 
 def _backend_id() -> str:
@@ -116,15 +132,31 @@ def _module_key(system, ks: KernelSet) -> str:
     return h.hexdigest()[:20]
 
 
-def _exec_module(key: str, path: Path, system_name: str, ks: KernelSet, cached: bool, generate_s: float,
-                 warm_index: bool):
-    name = f"vcirun_kernels_{key}"
+def _import(name: str, path: Path):
     spec = importlib.util.spec_from_file_location(name, path)
     mod = importlib.util.module_from_spec(spec)
     sys.modules[name] = mod
     spec.loader.exec_module(mod)
+    return mod
+
+
+def _exec_module(key: str, path: Path, system_name: str, ks: KernelSet, cached: bool, generate_s: float,
+                 warm_index: bool):
+    name = f"vcirun_kernels_{key}"
+    extra = {}
+    if _is_scene_file(path):
+        from . import shared
+
+        t0 = time.perf_counter()
+        scene = _import(f"vcirun_scene_{key}", path)
+        core = load_core(ks, int(scene.NDOF))
+        mod = shared.link(name, scene, core, ks)   # compiles (or loads) the scene's kernels
+        extra = {"link_s": time.perf_counter() - t0, "core_key": core.CORE_KEY,
+                 "core_cold": not core_compiled(core.CORE_KEY)}
+    else:
+        mod = _import(name, path)
     BUILD_LOG.append({"key": key, "system": system_name, "kernels": ks.key_text(), "cached": cached,
-                      "generate_s": generate_s, "warm_index": warm_index})
+                      "generate_s": generate_s, "warm_index": warm_index, **extra})
     _loaded[key] = mod
     return mod
 
@@ -140,11 +172,70 @@ def load_module(system, ks: KernelSet):
     if not cached:
         from .derive import module_source  # sympy work happens only here, on a cache miss
 
-        text = module_source(system, ks, c_dir=cache_dir())
+        if build_mode() == "shared":
+            from .derive import scene_source
+
+            text = scene_source(system, ks, c_dir=cache_dir())
+        else:
+            text = module_source(system, ks, c_dir=cache_dir())
         tmp = path.with_suffix(f".tmp{os.getpid()}")
         tmp.write_text(text)
         os.replace(tmp, path)  # atomic: parallel workers never import a half-written file
     return _exec_module(key, path, system.name, ks, cached, time.perf_counter() - t0, False)
+
+
+def _is_scene_file(path: Path) -> bool:
+    from .shared import SCENE_MARK
+
+    with open(path) as f:
+        return f.readline().startswith(SCENE_MARK)
+
+
+_cores: dict = {}      # core key -> module
+_core_keys: dict = {}  # (kernel set, fixed n) -> core key
+_core_texts: dict = {}  # core key -> module text
+
+
+def core_compiled(core_key: str) -> bool:
+    """Has numba's cache the core's loop (its index file for `integrate`, or for the system-only
+    core's `hamiltonian`)?"""
+    d = cache_dir() / "__pycache__"
+    return any(d.glob(f"core_{core_key}.integrate-*.nbi")) or any(d.glob(f"core_{core_key}.hamiltonian-*.nbi"))
+
+
+def core_key_of(ks: KernelSet, n: int) -> str:
+    """The key of the core `load_core(ks, n)` loads (without loading it)."""
+    load_core(ks, n, load=False)
+    return _core_keys[(ks, n if os.environ.get("VCIRUN_CORE_NDOF", "") == "fixed" else None)]
+
+
+def load_core(ks: KernelSet, n: int, load: bool = True):
+    """The shared core of `ks` (vcirun.codegen.shared): from memory, or its module file in the
+    cache (written now if missing); numba compiles it on its first call, or loads it from its cache.
+    VCIRUN_CORE_NDOF=fixed makes n a compile-time constant of the core (one core per n).
+    load=False: only find its key (core_key_of)."""
+    from . import shared
+
+    ndof = n if os.environ.get("VCIRUN_CORE_NDOF", "") == "fixed" else None
+    memo = (ks, ndof)
+    if memo not in _core_keys:
+        text = shared.core_source(ks, ndof)
+        # numba's cache of the core is stamped by the core file alone: kcall.py's code generation is
+        # part of the key, so changing it makes a new core
+        key = hashlib.sha256(_versions() + text.encode() + (_PKG / "codegen/kcall.py").read_bytes()).hexdigest()[:20]
+        _core_keys[memo] = key
+        _core_texts[key] = text
+    key = _core_keys[memo]
+    if load and key not in _cores:   # kernel sets with the same units and bindings share the core
+        text = _core_texts[key]
+        path = cache_dir() / f"core_{key}.py"
+        if not path.exists() or path.read_text() != text:
+            tmp = path.with_suffix(f".tmp{os.getpid()}")
+            tmp.write_text(text)
+            os.replace(tmp, path)
+        _cores[key] = _import(f"vcirun_core_{key}", path)
+        _cores[key].CORE_KEY = key
+    return _cores.get(key)
 
 
 # --- warm index: name or YAML file -> module key and numeric data, without the symbolic system ----

@@ -243,6 +243,15 @@ def module_source(system, ks, kernel_path: str | None = None, c_dir=None) -> str
     return units.assemble(_kernels_backend(generated_source(system, ks, kernel_path), c_dir), ks)
 
 
+def scene_source(system, ks, kernel_path: str | None = None, c_dir=None) -> str:
+    """The scene module of the shared build (vcirun.codegen.shared): the generated part alone, with the
+    kernel backend applied; the units come from the kernel set's shared core."""
+    from .shared import SCENE_MARK
+
+    return f"{SCENE_MARK}: the kernels of one scene; the loop is the shared core's\n" + \
+        _kernels_backend(generated_source(system, ks, kernel_path), c_dir)
+
+
 def generated_source(system, ks, kernel_path: str | None = None) -> str:
     """The generated part of a module, by the parts of vcirun.codegen.units.GENERATED: the system
     kernels and the record's constants always; the step kernels of the full map's stages (with

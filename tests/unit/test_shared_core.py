@@ -1,0 +1,160 @@
+"""The shared build (issue 21, vcirun.codegen.shared): a scene module holds only its kernels and calls
+into its kernel set's core, compiled once and loaded by every scene.
+
+- the shared build gives the specialized build's trajectory bit for bit (several contacts with
+  restitution; the forced MCVA family in the slow set);
+- a NEW scene in a fresh process compiles its kernels and nothing of the core (the point of the
+  design: the loop is not compiled again per scene);
+- the kernel ABI is enforced at compile time (a non-contiguous array cannot reach a kernel);
+- threads running different scenes at once get their own scene's kernels (the slot table is
+  process-global; calls are serialised).
+"""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+import threading
+import uuid
+
+import numpy as np
+import pytest
+
+import vcirun
+from vcirun.codegen import build
+
+
+def _both(monkeypatch, system, method, **kw):
+    out = {}
+    for mode in ("specialized", "shared"):
+        monkeypatch.setenv("VCIRUN_BUILD", mode)
+        out[mode] = vcirun.simulate(system, method, **kw)
+    return out["specialized"], out["shared"]
+
+
+def _same(a, b):
+    assert a.status == b.status
+    np.testing.assert_array_equal(a.q, b.q)
+    np.testing.assert_array_equal(a.p, b.p)
+    np.testing.assert_array_equal(a.impacts, b.impacts)
+    np.testing.assert_array_equal(a.impact_contact, b.impact_contact)
+    np.testing.assert_array_equal(a.impact_impulse, b.impact_impulse)
+    np.testing.assert_array_equal(a.H, b.H)
+
+
+def test_shared_build_equals_specialized_several_contacts(monkeypatch):
+    spec, shar = _both(monkeypatch, "ball_in_box", "CVA", h=0.01, T=3.0, params={"e": 0.9})
+    assert len(shar.impacts) > 3
+    _same(spec, shar)
+    assert any(hasattr(m, "SHARED_CORE") for m in build._loaded.values())
+    assert any(not hasattr(m, "SHARED_CORE") for m in build._loaded.values())
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("method", ["MCVAC", "VCI"])
+def test_shared_build_equals_specialized_forced(monkeypatch, method):
+    spec, shar = _both(monkeypatch, "bouncing_ball", method, h=0.01, T=3.0, params={"c": 0.3})
+    _same(spec, shar)
+
+
+_YAML = """\
+name: shared_core_probe_{tag}
+coordinates: [x, y]
+parameters: {{m: 1.0, g: 9.81, c: {c}}}
+mass_matrix: [[m, 0], [0, m]]
+potential: "m*g*y + c*x**2"
+constraint: "y"
+"""
+
+_PROBE = r"""
+import json, sys
+from numba.core import event
+compiled = []
+class L(event.Listener):
+    def on_start(self, ev): compiled.append(ev.data["dispatcher"].py_func.__module__)
+    def on_end(self, ev): pass
+event.register("numba:compile", L())
+import vcirun
+tr = vcirun.simulate(sys.argv[1], "CVA", h=0.01, T=1.0, q0=[0.0, 1.0], p0=[0.3, 0.0])
+print(json.dumps({"status": tr.status, "impacts": len(tr.impacts), "modules": sorted(set(compiled))}))
+"""
+
+
+def test_new_scene_compiles_no_core_in_a_fresh_process(tmp_path, monkeypatch):
+    monkeypatch.delenv("VCIRUN_BUILD", raising=False)
+    first = tmp_path / "first.yaml"
+    first.write_text(_YAML.format(tag="a", c=0.25))
+    vcirun.simulate(str(first), "CVA", h=0.01, T=0.1, q0=[0.0, 1.0], p0=[0.3, 0.0])  # the core of CVA exists now
+    new = tmp_path / "new.yaml"  # a scene no cache has seen: its own kernels must be compiled
+    new.write_text(_YAML.format(tag=uuid.uuid4().hex[:8], c=0.5 + int(uuid.uuid4().int % 1000) / 1e4))
+    env = {k: v for k, v in os.environ.items() if k != "VCIRUN_BUILD"}
+    r = subprocess.run([sys.executable, "-c", _PROBE, str(new)], capture_output=True, text=True, env=env,
+                       timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    got = json.loads(r.stdout.strip().splitlines()[-1])
+    assert got["status"] == "ok" and got["impacts"] >= 1
+    assert any(m.startswith("vcirun_scene_") for m in got["modules"]), got  # its kernels were compiled
+    assert not [m for m in got["modules"] if m.startswith("vcirun_core_")], got  # the loop was not
+
+
+def test_kernel_abi_refuses_a_strided_array():
+    from numba import njit
+    from numba.core.errors import TypingError
+
+    from vcirun.codegen.kcall import kcall
+
+    @njit
+    def bad(x):
+        return kcall(0, 0, "a", (x[::2],))
+
+    with pytest.raises(TypingError, match="kernel ABI"):
+        bad(np.zeros(4))
+
+
+def test_threads_running_different_scenes_get_their_own_kernels(monkeypatch):
+    monkeypatch.delenv("VCIRUN_BUILD", raising=False)
+    runs = [("cart_pendulum", {"beta": 3.2}), ("double_pendulum", {})]
+    want = [vcirun.simulate(s, "CVA", h=0.01, T=2.0, **kw) for s, kw in runs]
+    got, errors = {}, []
+
+    def work(i):
+        try:
+            s, kw = runs[i % 2]
+            got[i] = vcirun.simulate(s, "CVA", h=0.01, T=2.0, **kw)
+        except Exception as e:  # noqa: BLE001 (reported below)
+            errors.append(e)
+
+    threads = [threading.Thread(target=work, args=(i,)) for i in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(120)
+    assert not errors
+    for i, tr in got.items():
+        np.testing.assert_array_equal(tr.q, want[i % 2].q)
+
+
+def test_core_text_reads_the_scene_sizes_at_run_time():
+    """In the core, the scene's sizes are slot reads (NDOF -> slot(0)); the kernel set's constants stay
+    compile-time constants; with a fixed n, NDOF is a constant again."""
+    import io
+    import tokenize
+
+    from vcirun.codegen import shared
+    from vcirun.methods import METHODS
+
+    def names(text):
+        return {t.string for t in tokenize.generate_tokens(io.StringIO(text).readline) if t.type == tokenize.NAME}
+
+    read = set(shared.SCALARS) | {a for a, _ in shared.ARRAYS}
+    ks = METHODS["MCVAC"].kernel_set()
+    text = shared.core_source(ks)
+    assert not names(text) & read
+    assert "slot(0)" in text and "(slot(4) != 0)" in text and "_slot_i8s(9)" in text and "MH_FLOW_S = 2" in text
+    fixed = shared.core_source(ks, ndof=3)
+    assert "NDOF = 3" in fixed and names(fixed) & read == {"NDOF"}
+    # CVA on SVC, on SE1 + SE2 and a 17-stage composition share one core
+    cores = {shared.core_source(METHODS[m].kernel_set()) for m in ("CVA", "CVA6")}
+    assert len(cores) == 1
