@@ -148,6 +148,9 @@ def test_core_text_reads_the_scene_sizes_at_run_time():
     def names(text):
         return {t.string for t in tokenize.generate_tokens(io.StringIO(text).readline) if t.type == tokenize.NAME}
 
+    from vcirun.codegen.kcall import NSLOTS
+
+    assert len(shared.LAYOUT) <= NSLOTS
     read = set(shared.SCALARS) | {a for a, _ in shared.ARRAYS}
     ks = METHODS["MCVAC"].kernel_set()
     text = shared.core_source(ks)

@@ -1,10 +1,18 @@
-"""Assemble, cache and load one compiled module per (scene, kernel set).
+"""Assemble, cache and load the compiled module of a (scene, kernel set).
 
-The module text = generated kernels (one CSE pass each) + the numba *source units* of the numeric
-layers (vcirun/maps, vcirun/collision) + the bindings `full`, `partial`, `reset`,
-`modified_energy`. Everything lives in one file so that numba's on-disk cache works for the whole
-event loop: numba cannot cache a function that takes another jitted function as an argument, and
-a compiled loop calling compiled kernels is what makes a 500-step simulation take microseconds.
+Two builds (`build_mode`, VCIRUN_BUILD):
+
+- "shared" (default, issue 21): the scene's module file holds the generated kernels alone
+  (`derive.scene_source`); the numba *source units* of the numeric layers (vcirun/maps,
+  vcirun/collision) with the bindings `full`, `partial`, `reset`, `modified_energy` are the kernel
+  set's *shared core* (`load_core`, vcirun.codegen.shared: one file `core_<key>.py` per family,
+  compiled once per machine), which calls the scene's kernels by address; `shared.link` joins the two.
+- "specialized": one file per (scene, kernel set) = generated kernels + units + bindings, compiled
+  together (the loop ~15 % faster, 35-40 s per scene cold).
+
+Either way the whole event loop is compiled and cached by numba: numba cannot cache a function that
+takes another jitted function as an argument, and a compiled loop calling compiled kernels is what
+makes a 500-step simulation take microseconds.
 
 Cache key = hash(system's symbolic content, kernel set, source of the units and of this package's
 code generator, vcirun and numba versions). A warm start finds the file by key before any symbolic

@@ -41,10 +41,6 @@ def install(values) -> None:
         _TABLE[i] = v
 
 
-def table() -> list:
-    return list(_TABLE)
-
-
 def _table_ptr(builder):
     mod = builder.module
     try:

@@ -1,4 +1,4 @@
-"""The shared core: the numeric units compiled once per kernel set, not once per scene (issue 21).
+"""The shared core: the numeric units compiled once per kernel-set family, not once per scene (issue 21).
 
 A *specialized* module (vcirun.codegen.units.assemble) is one scene's generated kernels + every unit
 of vcirun/maps and vcirun/collision, compiled together: numba types, lowers and optimises the
@@ -6,12 +6,14 @@ scene-independent loop again for every scene, 90 % of a cold build (docs/perform
 builds*). The shared build splits it in two:
 
 - the **scene module**: the generated part alone (the kernels and their constants), each kernel
-  compiled for the one signature of `KERNEL_ABI` (a few seconds);
+  compiled for the one signature of the ABI tables below (`SYSTEM_ABI`, `STAGE_ABI`, `VCI_ABI`,
+  `MODIFIED_ABI`; a few seconds);
 - the **core**: the units of the kernel set with a stub for every kernel the units call, which calls
-  the scene's compiled kernel by address (vcirun.codegen.kcall), and the scene's sizes (NDOF, NCON,
-  NODE_LEN, MH_M) read from the same slot table at run time. Its text depends on the kernel set and
-  on whether the system is forced, not on the scene; numba caches it once on disk and every scene of
-  the family loads it.
+  the scene's compiled kernel by address (vcirun.codegen.kcall), and every other name the units read
+  from the generated part (`SCALARS`: the scene's sizes and flags; `ARRAYS`: the kernel set's stage
+  data) read from the same slot table at run time. Its text depends only on which units and role
+  bindings the kernel set has (and MH_FLOW_S, a module-level choice of maps/gauss.py), not on the
+  scene or the Ld: numba caches it once on disk and every scene of the family loads it.
 
 `link` joins the two into one module object with the names of a specialized module (the contract of
 vcirun.codegen.units: ENTRY points, constants, kernels), whose core functions install the scene's
@@ -19,16 +21,16 @@ slot table before they run. The table is process-global: calls into the core fro
 at once are serialised by a lock.
 
 What the core loses against the specialized build: the kernels are not inlined into the loop (an
-indirect call each), and NDOF is not a compile-time constant; measured in docs/performance.md.
+indirect call each), and NDOF is not a compile-time constant (`core_source(ks, ndof=n)` makes it
+one, VCIRUN_CORE_NDOF=fixed); measured in docs/performance.md, *The shared build*.
 """
 from __future__ import annotations
 
-import hashlib
 import re
 import threading
+import types as pytypes
 
 import numpy as np
-import types as pytypes
 
 from .. import record
 from . import units
