@@ -65,8 +65,18 @@ def module_path(tree: Path, cache: str, system: str, method: str, beta) -> str:
     return r.stdout.strip().splitlines()[-1]
 
 
-def load(path: str):
+def load(path: str, method: str | None = None):
     key = Path(path).stem[3:]
+    with open(path) as f:
+        shared_scene = f.readline().startswith("# vcirun scene module")
+    if shared_scene:
+        # a scene module of the shared build (issue 21): linked to THIS tree's core of the method's
+        # kernel set (for an OLD_TREE of the shared build, run it with VCIRUN_BUILD=specialized)
+        from vcirun.codegen import build
+        from vcirun.methods import resolve_method
+
+        ks = resolve_method(method).kernel_set()
+        return _Timed(build._exec_module(key, Path(path), "compare_trees", ks, True, 0.0, False), "record")
     spec = importlib.util.spec_from_file_location(f"vcirun_kernels_{key}", path)  # the name numba's cache knows
     mod = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = mod
@@ -239,7 +249,7 @@ def _nrt_child(path, system, method, h, T, beta, out, resting=True):
     from vcirun import resolve
 
     warnings.simplefilter("ignore")
-    m = load(path)
+    m = load(path, method)
     inner = m._mod
     captured = {}
     if m.abi == "positional":   # the adapter calls inner._mod.integrate with the positional arguments
@@ -365,7 +375,7 @@ def main(argv=None):
                 po = module_path(a.old_tree.resolve(), str(a.old_tree.resolve() / ".vcirun_cache"), system, method,
                                  beta)
                 pn = module_path(ROOT, new_cache, system, method, beta)
-            mods = {"old": load(po), "new": load(pn)}
+            mods = {"old": load(po, method), "new": load(pn, method)}
             po, pn = str(po), str(pn)
             print(f"{system} {method}: old module {mods['old'].__name__} ({mods['old'].abi} ABI), "
                   f"new {mods['new'].__name__} ({mods['new'].abi} ABI)", flush=True)
