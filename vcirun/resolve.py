@@ -116,7 +116,7 @@ def resolve_numeric(system, ks: build.KernelSet):
     genuine = load_module is build.load_module
     ident, raw = _warm_ident(system) if genuine else (None, None)
     if ident is not None:
-        memo = (ident, ks, os.environ.get("VCIRUN_KERNEL_PATH", ""), build.build_mode())
+        memo = (ident, ks, os.environ.get("VCIRUN_KERNEL_PATH", ""), build.build_id())
         hit = _WARM_HITS.get(memo)
         if hit is not None:   # this process has read the entry already: no file access per call
             return hit

@@ -161,3 +161,14 @@ def test_core_text_reads_the_scene_sizes_at_run_time():
     cva = [m for m in METHODS.values() if m.kernel_set().reset == "cva" and m.kernel_set().modified is None]
     assert len({m.kernel_set() for m in cva}) >= 3
     assert len({shared.core_source(m.kernel_set()) for m in cva}) == 1
+
+
+@pytest.mark.slow
+def test_fixed_ndof_core_equals_run_time_ndof_core(monkeypatch):
+    """VCIRUN_CORE_NDOF=fixed (one core per n, NDOF a compile-time constant) gives the same bits."""
+    monkeypatch.delenv("VCIRUN_BUILD", raising=False)
+    monkeypatch.delenv("VCIRUN_CORE_NDOF", raising=False)
+    a = vcirun.simulate("double_pendulum", "CVA", h=0.01, T=2.0)
+    monkeypatch.setenv("VCIRUN_CORE_NDOF", "fixed")
+    b = vcirun.simulate("double_pendulum", "CVA", h=0.01, T=2.0)
+    _same(a, b)

@@ -80,7 +80,7 @@ _keys: dict = {}
 
 
 def module_key(system, ks: KernelSet) -> str:
-    memo = (id(system), system.fingerprint(), ks, os.environ.get("VCIRUN_KERNEL_PATH", ""), build_mode())
+    memo = (id(system), system.fingerprint(), ks, os.environ.get("VCIRUN_KERNEL_PATH", ""), build_id())
     if memo not in _keys:
         _keys[memo] = _module_key(system, ks)
     return _keys[memo]
@@ -107,12 +107,17 @@ def build_mode() -> str:
     return mode
 
 
+def build_id() -> str:
+    """The build mode with the core's NDOF choice (VCIRUN_CORE_NDOF): what keys and memos must tell apart."""
+    return f"{build_mode()}|core_ndof={os.environ.get('VCIRUN_CORE_NDOF', '')}"
+
+
 def _versions() -> bytes:
     # + the step-kernel path (codegen.derive: tensor or expanded), so the two never share a module,
     # + the kernel backend (codegen.cc: numba, or C with this compiler and flags), + the build mode
     path = os.environ.get("VCIRUN_KERNEL_PATH", "")
     return (f"{__version__}|{numba.__version__}|{sys.version_info[:2]}|kernels={path}|{_backend_id()}"
-            f"|build={build_mode()}|core_ndof={os.environ.get('VCIRUN_CORE_NDOF', '')}").encode()
+            f"|build={build_id()}").encode()
 
 
 def _backend_id() -> str:
