@@ -246,10 +246,11 @@ def module_source(system, ks, kernel_path: str | None = None, c_dir=None) -> str
 def scene_source(system, ks, kernel_path: str | None = None, c_dir=None) -> str:
     """The scene module of the shared build (vcirun.codegen.shared): the generated part alone, with the
     kernel backend applied; the units come from the kernel set's shared core."""
-    from .shared import SCENE_MARK
+    from .shared import SCENE_MARK, pointer_wrappers
 
-    return f"{SCENE_MARK}: the kernels of one scene; the loop is the shared core's\n" + \
-        _kernels_backend(generated_source(system, ks, kernel_path), c_dir)
+    return (f"{SCENE_MARK}: the kernels of one scene; the loop is the shared core's\n"
+            + _kernels_backend(generated_source(system, ks, kernel_path), c_dir)
+            + f"\n\nNPRM = {len(system.param_symbols)}\n\n" + pointer_wrappers(ks))
 
 
 def generated_source(system, ks, kernel_path: str | None = None) -> str:

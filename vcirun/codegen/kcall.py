@@ -8,12 +8,13 @@ intrinsics do it:
 - `slot(k)`: the int64 in slot k (a size such as NDOF, or a kernel's address). The table is an
   external LLVM global, bound to a ctypes buffer by `llvmlite.binding.add_symbol`, so code loaded
   from numba's on-disk cache in another process binds to that process's buffer.
-- `kcall(addr, ret, spec, args)`: call the numba-compiled function at `addr` with numba's own
-  calling convention (arrays passed as numba passes them, so a kernel is the same compiled code in
-  both builds), returning the type of `ret` (0 -> int64, 0.0 -> float64). `spec` is a literal
-  string, one letter per argument ('a' 1-d / 'b' 2-d C-contiguous float64 array, 'f' float64,
-  'i' int64): the arguments are cast to it and an array of another type is a typing error, so the
-  call cannot disagree with the signature the scene compiled its kernel for (`SPEC_TYPES`).
+- `kcall(addr, ret, spec, args)`: call the numba-compiled function at `addr` (numba's calling
+  convention) returning the type of `ret` (0 -> int64, 0.0 -> float64). `spec` is a literal string,
+  one letter per argument ('a' 1-d / 'b' 2-d C-contiguous float64 array, 'f' float64, 'i' int64):
+  scalars are cast to it, an array of another type is a typing error, and an array is passed as
+  its data pointer (`POINTER_TYPES`): the callee is the scene's `_p_<kernel>` wrapper, which
+  rebuilds the arrays with the scene's shapes and calls the kernel, the same compiled code as in
+  the specialized build.
 """
 from __future__ import annotations
 
@@ -30,6 +31,9 @@ NSLOTS = 64
 
 SPEC_TYPES = {"a": types.Array(types.float64, 1, "C"), "b": types.Array(types.float64, 2, "C"),
               "f": types.float64, "i": types.int64}
+# what the callee (the scene's `_p_<kernel>` wrapper, vcirun.codegen.shared) takes: arrays as data pointers
+POINTER_TYPES = {"a": types.CPointer(types.float64), "b": types.CPointer(types.float64),
+                 "f": types.float64, "i": types.int64}
 
 _TABLE = (ctypes.c_int64 * NSLOTS)()
 binding.add_symbol(SYMBOL, ctypes.addressof(_TABLE))
@@ -77,17 +81,24 @@ def kcall(typingctx, addr, ret, spec, args):
             raise errors.TypingError(f"kcall: argument {i} is {got}, the kernel ABI wants {want[i]}")
     resty = types.unliteral(ret)
 
+    callee = tuple(POINTER_TYPES[c] for c in code)
+
     def codegen(context, builder, signature, llargs):
-        vals = [context.cast(builder, builder.extract_value(llargs[3], i), args.types[i], want[i])
-                for i in range(len(want))]
+        vals = []
+        for i, c in enumerate(code):
+            v = builder.extract_value(llargs[3], i)
+            if c in "ab":   # the array's data pointer (its shape is the scene's, rebuilt by the wrapper)
+                vals.append(context.make_array(want[i])(context, builder, v).data)
+            else:
+                vals.append(context.cast(builder, v, args.types[i], want[i]))
         call_conv = context.call_conv
-        fnty = call_conv.get_function_type(resty, want)
+        fnty = call_conv.get_function_type(resty, callee)
         fptr = builder.inttoptr(llargs[0], fnty.as_pointer())
         retty = call_conv.get_return_type(resty).pointee
         retvaltmp = cgutils.alloca_once(builder, retty)
         builder.store(cgutils.get_null_value(retty), retvaltmp)
         excinfoptr = cgutils.alloca_once(builder, ir.PointerType(excinfo_t), name="excinfo")
-        realargs = [retvaltmp, excinfoptr] + list(call_conv._get_arg_packer(want).as_arguments(builder, vals))
+        realargs = [retvaltmp, excinfoptr] + list(call_conv._get_arg_packer(callee).as_arguments(builder, vals))
         builder.call(fptr, realargs)
         return context.get_returned_value(builder, resty, builder.load(retvaltmp))
 
