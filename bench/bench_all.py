@@ -577,7 +577,8 @@ def section_coldbuild(res):
         table.append({"case": case, "today_s": today, "target_s": target, "core_cached": cell(d),
                       "nothing_cached": cell(nothing), "met_wall": met, "met_cpu": met_cpu})
         log(f"    {case:22s} today {today:6.1f} s  target <= {target:4.0f} s | core cached {cell(d):28s} "
-            f"{'met' if met else 'met in CPU time' if met_cpu else 'NOT met'} | nothing cached {cell(nothing)}")
+            f"{'not measured' if met is None else 'met' if met else 'met in CPU time' if met_cpu else 'NOT met'} | "
+            f"nothing cached {cell(nothing)}")
     res["coldbuild"] = {"rows": rows, "targets": table}
 
 
