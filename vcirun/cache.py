@@ -69,22 +69,22 @@ def estimate_compile_s(ks, n: int) -> float:
     Shared build (vcirun.codegen.shared): the scene's kernels, plus the core if numba has not cached it."""
     from .codegen import build
 
-    if build.build_mode() == "shared":
-        times, fam = _times(), "scene|" + family(ks)
-        same = [(int(k.rsplit("|", 1)[1]), float(v)) for k, v in times.items() if k.rsplit("|", 1)[0] == fam]
-        m, v = max(same) if same else (2, _DEFAULT_SCENE_S.get((ks.reset or "system").upper(), 3.0))
-        scene = float(times.get(f"{fam}|{n}", v * max(1.0, n / m)))
-        key = build.core_key_of(ks, n)
-        core = 0.0 if build.core_compiled(key) else float(times.get(f"core|{key}", _DEFAULT_CORE_S))
-        return scene + core
-    times, fam = _times(), family(ks)
+    times, kind = _times(), (ks.reset or "system").upper()
+    if build.build_mode() != "shared":
+        return _by_family(times, family(ks), n, _DEFAULT_S.get(kind, 15.0))
+    key = build.core_key_of(ks, n)
+    core = 0.0 if build.core_compiled(key) else float(times.get(f"core|{key}", _DEFAULT_CORE_S))
+    return _by_family(times, "scene|" + family(ks), n, _DEFAULT_SCENE_S.get(kind, 3.5)) + core
+
+
+def _by_family(times: dict, fam: str, n: int, first: float) -> float:
+    """The recorded time of (fam, n), else of fam's largest recorded n scaled linearly, else `first`
+    (a 2-DOF figure) scaled."""
     if f"{fam}|{n}" in times:
         return float(times[f"{fam}|{n}"])
     same = [(int(k.rsplit("|", 1)[1]), float(v)) for k, v in times.items() if k.rsplit("|", 1)[0] == fam]
-    if same:
-        m, v = max(same)
-        return v * max(1.0, n / m)
-    return _DEFAULT_S.get((ks.reset or "system").upper(), 15.0) * max(1.0, n / 2)
+    m, v = max(same) if same else (2, first)
+    return v * max(1.0, n / m)
 
 
 def announce_if_cold(system, ks) -> bool:
@@ -93,7 +93,9 @@ def announce_if_cold(system, ks) -> bool:
     from .codegen import build
 
     key = build.module_key(system, ks)
-    if key in build._loaded or (build.cache_dir() / f"vk_{key}.py").exists():
+    if key in build._loaded:   # (no file access on the path of every later call)
+        return False
+    if (build.cache_dir() / f"vk_{key}.py").exists():
         if build.build_mode() != "shared" or build.core_compiled(build.core_key_of(ks, system.n)):
             return False
     msg = (f"compiling kernels for {system.name}/{family(ks)} (first time, about "

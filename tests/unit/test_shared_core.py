@@ -172,3 +172,29 @@ def test_fixed_ndof_core_equals_run_time_ndof_core(monkeypatch):
     monkeypatch.setenv("VCIRUN_CORE_NDOF", "fixed")
     b = vcirun.simulate("double_pendulum", "CVA", h=0.01, T=2.0)
     _same(a, b)
+
+
+@pytest.mark.parametrize("var, value", [("VCIRUN_BUILD", "fast"), ("VCIRUN_CORE_NDOF", "3")])
+def test_bad_build_choice_is_one_line_naming_the_variable(monkeypatch, var, value):
+    monkeypatch.setenv(var, value)
+    with pytest.raises(ValueError, match=var):
+        vcirun.simulate("cart_pendulum", "CVA", h=0.01, T=0.1, beta=3.2)
+
+
+def test_cold_build_estimate_counts_the_core_only_until_it_is_compiled(tmp_path, monkeypatch):
+    """Shared build: scene kernels from this cache's record (scaled in n), plus the core's recorded
+    time while numba has not cached it."""
+    from vcirun import cache
+    from vcirun.methods import METHODS
+
+    monkeypatch.setenv("VCIRUN_CACHE_DIR", str(tmp_path))
+    monkeypatch.delenv("VCIRUN_BUILD", raising=False)
+    ks = METHODS["CVA"].kernel_set()
+    key = build.core_key_of(ks, 2)
+    (tmp_path / "build_times.json").write_text(json.dumps({"scene|CVA[SVC]|2": 3.0, f"core|{key}": 50.0}))
+    assert cache.estimate_compile_s(ks, 2) == pytest.approx(53.0)
+    assert cache.estimate_compile_s(ks, 4) == pytest.approx(56.0)   # the scene part linear in n
+    pyc = build.cache_dir() / "__pycache__"
+    pyc.mkdir(parents=True, exist_ok=True)
+    (pyc / f"core_{key}.integrate-21.py311.nbi").write_bytes(b"")
+    assert cache.estimate_compile_s(ks, 2) == pytest.approx(3.0)

@@ -107,9 +107,17 @@ def build_mode() -> str:
     return mode
 
 
+def _core_ndof() -> str:
+    """VCIRUN_CORE_NDOF: "" / "runtime" (default: one core per family, n read at run time) or "fixed"."""
+    v = os.environ.get("VCIRUN_CORE_NDOF", "").strip().lower()
+    if v not in ("", "runtime", "fixed"):
+        raise ValueError(f"VCIRUN_CORE_NDOF: {v!r} is not a choice (use runtime or fixed)")
+    return "fixed" if v == "fixed" else ""
+
+
 def build_id() -> str:
     """The build mode with the core's NDOF choice (VCIRUN_CORE_NDOF): what keys and memos must tell apart."""
-    return f"{build_mode()}|core_ndof={os.environ.get('VCIRUN_CORE_NDOF', '')}"
+    return f"{build_mode()}|core_ndof={_core_ndof()}"
 
 
 def _versions() -> bytes:
@@ -217,19 +225,11 @@ def core_compiled(core_key: str) -> bool:
 
 
 def core_key_of(ks: KernelSet, n: int) -> str:
-    """The key of the core `load_core(ks, n)` loads (without loading it)."""
-    load_core(ks, n, load=False)
-    return _core_keys[(ks, n if os.environ.get("VCIRUN_CORE_NDOF", "") == "fixed" else None)]
-
-
-def load_core(ks: KernelSet, n: int, load: bool = True):
-    """The shared core of `ks` (vcirun.codegen.shared): from memory, or its module file in the
-    cache (written now if missing); numba compiles it on its first call, or loads it from its cache.
-    VCIRUN_CORE_NDOF=fixed makes n a compile-time constant of the core (one core per n).
-    load=False: only find its key (core_key_of)."""
+    """The key of the shared core of (ks, n) (vcirun.codegen.shared): one per kernel-set family, or
+    per (family, n) with VCIRUN_CORE_NDOF=fixed, which makes n a compile-time constant of the core."""
     from . import shared
 
-    ndof = n if os.environ.get("VCIRUN_CORE_NDOF", "") == "fixed" else None
+    ndof = n if _core_ndof() == "fixed" else None
     memo = (ks, ndof)
     if memo not in _core_keys:
         text = shared.core_source(ks, ndof)
@@ -238,8 +238,14 @@ def load_core(ks: KernelSet, n: int, load: bool = True):
         key = hashlib.sha256(_versions() + text.encode() + (_PKG / "codegen/kcall.py").read_bytes()).hexdigest()[:20]
         _core_keys[memo] = key
         _core_texts[key] = text
-    key = _core_keys[memo]
-    if load and key not in _cores:   # kernel sets with the same units and bindings share the core
+    return _core_keys[memo]
+
+
+def load_core(ks: KernelSet, n: int):
+    """The shared core of (ks, n): from memory, or its module file in the cache (written now if
+    missing); numba compiles it on its first call, or loads it from its cache."""
+    key = core_key_of(ks, n)
+    if key not in _cores:   # kernel sets with the same units and bindings share the core
         text = _core_texts[key]
         path = cache_dir() / f"core_{key}.py"
         if not path.exists() or path.read_text() != text:
@@ -248,7 +254,7 @@ def load_core(ks: KernelSet, n: int, load: bool = True):
             os.replace(tmp, path)
         _cores[key] = _import(f"vcirun_core_{key}", path)
         _cores[key].CORE_KEY = key
-    return _cores.get(key)
+    return _cores[key]
 
 
 # --- warm index: name or YAML file -> module key and numeric data, without the symbolic system ----
