@@ -285,6 +285,12 @@ def _nrt_child(path, system, method, h, T, beta, out, resting=True):
     info = {"incref": lib.get_pointer_to_function("NRT_incref"), "decref": lib.get_pointer_to_function("NRT_decref"),
             "integrate": cres.library.get_pointer_to_function(cres.fndesc.llvm_func_name),
             "N": args[4], "impacts": int(tr.impacts.size), "newton": int(tr.newton_iters.sum())}
+    try:   # the JIT functions' entries (a module compiled in this process: see nrt_count), for per-function counts
+        from profile_loop import jit_symbols
+
+        info["symbols"] = [(a - info["integrate"], n) for a, n in jit_symbols(cres.library)]
+    except Exception:
+        info["symbols"] = []
     Path(out + ".addr").write_text(json.dumps(info))
     raw(*args)
     os.kill(os.getpid(), signal.SIGUSR1)
@@ -310,7 +316,10 @@ def nrt_count(path, system, method, h, T, beta, resting=True) -> dict:
     cmd = ["gdb", "-q", "-batch", "-ex", "set pagination off", "-ex", "handle SIGUSR1 stop print nopass",
            "-ex", "run", "-ex", f"source {gscript}", "-ex", "continue", "-ex", "python report('one')",
            "-ex", "continue", "-ex", "python report('full')", "-ex", "continue", "--args"] + child
-    r = subprocess.run(cmd, capture_output=True, text=True, env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    # a fresh numba cache: the child compiles the module, so its function symbols are known
+    env = dict(os.environ, PYTHONPATH=f"{ROOT}{os.pathsep}{ROOT / 'bench'}",
+               NUMBA_CACHE_DIR=tempfile.mkdtemp(prefix="nrtcount_numba_"))
+    r = subprocess.run(cmd, capture_output=True, text=True, env=env)
     try:
         info = json.loads(Path(out + ".addr").read_text())
         one = json.loads(Path(out + ".one").read_text())
@@ -324,8 +333,19 @@ def nrt_count(path, system, method, h, T, beta, resting=True) -> dict:
     cN = sum(full["counts"].values())
     N = info["N"]
     steady = sum(c for c in full["sites"].values() if c >= N - 1)   # sites hit (about) once per grid step
+    by_fn = {}
+    syms = info.get("symbols") or []
+    if syms:
+        import bisect
+
+        starts = [s for s, _ in syms]
+        for site, c in full["sites"].items():
+            k = bisect.bisect_right(starts, int(site)) - 1
+            name = syms[k][1] if k >= 0 else "?"
+            by_fn[name] = by_fn.get(name, 0) + c
     return dict(N=N, impacts=info["impacts"], one_step=c1, full=cN, per_step=(cN - c1) / max(N - 1, 1),
                 per_smooth_step=steady / N, rest=cN - steady,
+                by_function=dict(sorted(by_fn.items(), key=lambda kv: -kv[1])),
                 sites={k: v for k, v in sorted(full["sites"].items(), key=lambda kv: int(kv[0]))})
 
 
@@ -404,6 +424,10 @@ def main(argv=None):
                           f"{co['one_step']} / {cn['one_step']}; per smooth step {co['per_smooth_step']:.1f} / "
                           f"{cn['per_smooth_step']:.1f}; the rest (impact steps, setup) {co['rest']} / {cn['rest']} "
                           f"({cn['impacts']} impacts)", flush=True)
+                    for tag, c in (("old", co), ("new", cn)):
+                        if c["by_function"]:
+                            print(f"      {tag}, by calling function (per grid step): " + ", ".join(
+                                f"{n} {v / c['N']:.2f}" for n, v in list(c["by_function"].items())[:10]))
                 if a.json:
                     a.json.write_text(json.dumps(rows, indent=1))
 

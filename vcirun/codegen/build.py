@@ -48,7 +48,7 @@ _PKG = Path(__file__).resolve().parent.parent
 _GENERATOR_FILES = ["codegen/kernels.py", "codegen/printer.py", "codegen/build.py", "codegen/derive.py",
                     "codegen/kernel_set.py",
                     "codegen/tensor.py", "codegen/units.py", "record.py", "codegen/c_emit.py", "codegen/cc.py",
-                    "codegen/shared.py", "codegen/kcall.py",
+                    "codegen/shared.py", "codegen/kcall.py", "codegen/frame.py",
                     "discrete/lagrangians.py",
                     "mechanics/system.py"]
 # ... and, only for the MCVA family's modules (so that editing them does not invalidate CVA/VCI caches)
@@ -233,9 +233,10 @@ def core_key_of(ks: KernelSet, n: int) -> str:
     memo = (ks, ndof)
     if memo not in _core_keys:
         text = shared.core_source(ks, ndof)
-        # numba's cache of the core is stamped by the core file alone: kcall.py's code generation is
-        # part of the key, so changing it makes a new core
-        key = hashlib.sha256(_versions() + text.encode() + (_PKG / "codegen/kcall.py").read_bytes()).hexdigest()[:20]
+        # numba's cache of the core is stamped by the core file alone: the intrinsics' code generation
+        # (kcall.py, frame.py) is part of the key, so changing it makes a new core
+        key = hashlib.sha256(_versions() + text.encode() + (_PKG / "codegen/kcall.py").read_bytes()
+                             + (_PKG / "codegen/frame.py").read_bytes()).hexdigest()[:20]
         _core_keys[memo] = key
         _core_texts[key] = text
     return _core_keys[memo]

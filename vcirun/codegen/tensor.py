@@ -493,10 +493,10 @@ def _wrapper_source(name) -> str:
     callers outside the full step and for the tests."""
     return (_header(f"{name}_PmJ", "q0, v, h, t, prm, r, J",
                     f"{name}_PmJc with the node data of q0 computed here (vcirun.codegen.tensor).")
-            + f"    c = np.empty(NODE_LEN)\n    sys_node(q0, prm, c)\n    return {name}_PmJc(q0, v, h, t, prm, c, r, J)\n\n\n"
+            + f"    c = scratch(NODE_LEN)\n    sys_node(q0, prm, c)\n    return {name}_PmJc(q0, v, h, t, prm, c, r, J)\n\n\n"
             + _header(f"{name}_Pp", "q0, v, h, t, prm, out",
                       f"{name}_Ppc with the node data of q0 computed here (vcirun.codegen.tensor).")
-            + f"    c = np.empty(NODE_LEN)\n    cn = np.empty(NODE_LEN)\n    sys_node(q0, prm, c)\n"
+            + f"    c = scratch(NODE_LEN)\n    cn = scratch(NODE_LEN)\n    sys_node(q0, prm, c)\n"
             f"    return {name}_Ppc(q0, v, h, t, prm, c, out, cn)\n")
 
 

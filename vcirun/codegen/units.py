@@ -23,6 +23,7 @@ No sympy here: the selection runs on the warm path too (the cache key hashes the
 """
 from __future__ import annotations
 
+import ast
 import builtins
 import functools
 import symtable
@@ -59,7 +60,8 @@ UNITS = (
     Unit("maps/dynamics.py",
          provides=("velocity_from", "velocity_guess", "hamiltonian", "hamilton_rhs", "dynamics_rhs", "force_power",
                    "gdot", "cva_lambda", "mass_matrix_ok"),
-         requires=("NDOF", "FORCED", "sys_M", "sys_V", "sys_dHq", "sys_dphi", "sys_force", "solve_small")),
+         requires=("NDOF", "FORCED", "sys_M", "sys_V", "sys_dHq", "sys_dphi", "sys_force", "solve_small",
+                   "copy_into")),
     Unit("maps/steps.py", provides=("guess_from_node", "explicit_step", "ld_step", "ld_partial"),
          requires=("NDOF", "NODE_LEN", "FULL_STAGES", "FULL_FRACS", "ld_PmJc", "ld_Ppc", "ld_Ed", "sys_node",
                    "sys_node_M", "velocity_from", "solve_small", "copy_into")),
@@ -238,6 +240,48 @@ def check_unit(u: Unit) -> None:
                             "(vcirun.codegen.units.UNITS: requires)")
     if set(u.requires) - read:
         raise ContractError(f"{u.path}: declares {sorted(set(u.requires) - read)} as required but never uses it")
+    check_frame(u.text, u.path)
+
+
+def check_frame(text: str, filename: str = "<unit>") -> None:
+    """The stack-scratch rules of vcirun.codegen.frame on a unit's source: a `scratch*` array is not
+    allocated inside a loop (a dynamic alloca grows the frame each pass) or in an inline="always"
+    function (numba pastes it into its caller's loops), and is not returned (its memory ends with
+    the frame)."""
+    from .frame import SCRATCH
+
+    def is_scratch(node):
+        return isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in SCRATCH
+
+    for fn in ast.walk(ast.parse(text, filename)):
+        if not isinstance(fn, ast.FunctionDef):
+            continue
+        inline = any(isinstance(k, ast.keyword) and k.arg == "inline" for d in fn.decorator_list
+                     if isinstance(d, ast.Call) for k in d.keywords)
+        local = set()
+
+        def visit(node, in_loop):
+            for child in ast.iter_child_nodes(node):
+                if isinstance(child, (ast.FunctionDef, ast.Lambda)):
+                    continue
+                if is_scratch(child):
+                    where = f"{filename}:{child.lineno} ({fn.name})"
+                    if inline:
+                        raise ContractError(f"{where}: {child.func.id} in an inline function (vcirun.codegen.frame)")
+                    if in_loop:
+                        raise ContractError(f"{where}: {child.func.id} inside a loop (vcirun.codegen.frame): "
+                                            "allocate it before the loop")
+                if isinstance(child, ast.Assign) and is_scratch(child.value):
+                    local.update(t.id for t in child.targets if isinstance(t, ast.Name))
+                if isinstance(child, ast.Return) and child.value is not None:
+                    vals = child.value.elts if isinstance(child.value, ast.Tuple) else [child.value]
+                    for v in vals:
+                        if isinstance(v, ast.Name) and v.id in local:
+                            raise ContractError(f"{filename}:{child.lineno} ({fn.name}): returns the stack array "
+                                                f"{v.id} (vcirun.codegen.frame): its memory ends with the frame")
+                visit(child, in_loop or isinstance(child, (ast.For, ast.While)))
+
+        visit(fn, False)
 
 
 def check_generated(text: str, ks) -> None:

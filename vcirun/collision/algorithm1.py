@@ -8,6 +8,8 @@ import math
 import numpy as np
 from numba import njit
 
+from vcirun.codegen.frame import borrow, scratch, scratch2, scratch_i
+
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _finite(x):
@@ -39,6 +41,10 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
     max_impacts_step = int(settings[S_MAX_IMPACTS_STEP])
     energies = settings[S_ENERGIES] != 0.0
     resting = constrained and settings[S_RESTING_CONTACT] != 0.0
+    # (vcirun.codegen.frame) the caller's arrays borrowed and the loop's own on this frame: nothing
+    # the loop passes down is reference-counted (about half the loop time otherwise)
+    out = borrow(out)
+    prm = borrow(prm)
     Q = out[O_Q]
     P = out[O_P]
     H = out[O_H]
@@ -46,17 +52,23 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
     Hmod = out[O_HMOD]
     impact_step = out[O_IMPACT_STEP]
     newton_iters = out[O_NEWTON_ITERS]
-    q = q0.copy()
-    p = p0.copy()
-    qt = np.empty(NDOF)
-    pt = np.empty(NDOF)
-    vt = np.empty(NDOF)
-    work = np.empty((4, NDOF))
-    held = np.zeros(NCON, dtype=np.int64)
-    mu = np.zeros(NCON)
-    mu_end = np.zeros(NCON)
-    imp = np.empty(NCON)
-    phis = np.empty(NCON)  # step_admissible's scratch (no allocation per step)
+    q = scratch(NDOF)
+    p = scratch(NDOF)
+    copy_into(q, q0)
+    copy_into(p, p0)
+    qt = scratch(NDOF)
+    pt = scratch(NDOF)
+    vt = scratch(NDOF)
+    work = scratch2(4, NDOF)
+    held = scratch_i(NCON)
+    mu = scratch(NCON)
+    mu_end = scratch(NCON)
+    imp = scratch(NCON)
+    phis = scratch(NCON)  # step_admissible's scratch (no allocation per step)
+    for j in range(NCON):
+        held[j] = 0
+        mu[j] = 0.0
+        mu_end[j] = 0.0
     set_row(Q, 0, q)
     set_row(P, 0, p)
     info[I_N_IMPACTS] = 0
@@ -66,7 +78,10 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
     # (issue 8) accumulation across steps: dense = [time of the last impact, start of the current
     # run of impacts that each follow the previous one by less than one grid step h, its length]
     # (see _accumulating)
-    dense = np.array([-math.inf, 0.0, 0.0])
+    dense = scratch(3)
+    dense[0] = -math.inf
+    dense[1] = 0.0
+    dense[2] = 0.0
     status = ST_OK
     fail = -1
     i = 0
@@ -176,7 +191,7 @@ def _release_step(q, p, h, t, tau, c, prm, ntol, maxit, event_tol, max_impacts_s
     """A step in which held contact c is released after tau: the constrained map to t + tau, the
     release (recorded), then the rest of the step as Algorithm 1 from there. Returns (status,
     iterations, held count)."""
-    imp = np.empty(NCON)
+    imp = scratch(NCON)
     it = 0
     if tau > 0.0:
         it, _ = held_step(q, p, tau, t, prm, ntol, maxit, held, qt, pt, vt, imp)
@@ -217,8 +232,8 @@ def _impact_step(q, p, h, tau_max, t, have_end, prm, ntol, maxit, event_tol, max
     ph = work[1]
     pp = work[2]
     d = work[3]
-    lam = np.empty(NCON)
-    active = np.empty(NCON, dtype=np.int64)
+    lam = scratch(NCON)
+    active = scratch_i(NCON)
     copy_into(qh, q)
     copy_into(ph, p)
     tc = t
@@ -285,7 +300,7 @@ def _dissipative(q, p, t, prm, active):
     """True if an impacting contact has restitution < 1 or the force does negative work at (q, p, t)
     (drag): dense impacts then accumulate (their energy goes) and are held; elastic impacts of a
     conservative motion are sustained (flights shorter than h, not a Zeno point) and are not."""
-    v = np.empty(NDOF)
+    v = scratch(NDOF)
     velocity_guess(q, p, prm, v)
     if FORCED and force_power(q, v, t, prm) < 0.0:
         return True
@@ -295,7 +310,7 @@ def _dissipative(q, p, t, prm, active):
 @njit(cache=True, nogil=True, error_model="numpy")
 def _inelastic(prm, active):
     """True if a contact of the impact has restitution < 1 (only those can come to rest in _settle)."""
-    e = np.empty(NCON)
+    e = scratch(NCON)
     sys_restitution(prm, e)
     for j in range(NCON):
         if active[j] != 0 and e[j] < 1.0:
@@ -318,7 +333,7 @@ def _settle(q, pp, t, h, prm, held, active, lam, s, s0, accumulating, out, info)
     while pressed in -- with a plastic projection (their normal velocities zeroed, the impulse added
     to the impact's record through lam); release the held contacts the impulse pulled away.
     Returns the held count."""
-    e = np.empty(NCON)
+    e = scratch(NCON)
     sys_restitution(prm, e)
     u = normal_velocities(q, pp, prm)
     changed = False
@@ -335,7 +350,7 @@ def _settle(q, pp, t, h, prm, held, active, lam, s, s0, accumulating, out, info)
             held[j] = 1
             changed = True
     if changed:
-        pi = np.empty(NCON)
+        pi = scratch(NCON)
         project_momentum(q, pp, prm, held, pi)
         for j in range(NCON):
             if active[j] != 0:
@@ -361,7 +376,7 @@ def initially_held(q, p, t, h, event_tol, prm, held):
     """Hold the contacts the state rests on: touching (phi_i within its tolerance), normal velocity
     at most |d^2 phi_i/dt^2| h, pressed in, and with a compressive multiplier when held together
     (contact_forces > 0; contacts whose multiplier is not are dropped, in turn). Returns the count."""
-    phis = np.empty(NCON)
+    phis = scratch(NCON)
     sys_phis(q, prm, phis)
     u = normal_velocities(q, p, prm)
     for j in range(NCON):
@@ -370,7 +385,7 @@ def initially_held(q, p, t, h, event_tol, prm, held):
             a = normal_acceleration(q, p, t, prm, j)
             if a < 0.0 and abs(u[j]) <= -a * h:
                 held[j] = 1
-    mu = np.empty(NCON)
+    mu = scratch(NCON)
     for _ in range(NCON):
         if _count(held) == 0 or not contact_forces(q, p, t, prm, held, mu):
             break
@@ -383,7 +398,7 @@ def initially_held(q, p, t, h, event_tol, prm, held):
         held[worst] = 0
     k = _count(held)
     if k > 0:
-        pi = np.empty(NCON)
+        pi = scratch(NCON)
         project_momentum(q, p, prm, held, pi)
     return k
 

@@ -12,6 +12,8 @@ import math
 import numpy as np
 from numba import njit
 
+from vcirun.codegen.frame import scratch, scratch_i
+
 N_SCAN = 4  # interior samples of the initial bracket (first-root search), when the cubic model is unsure
 N_MODEL = 32  # samples of the cubic Hermite model of g on the bracket (no partial steps: free)
 
@@ -85,12 +87,12 @@ def step_admissible(q, p, qt, h, event_tol, prm, held, nheld, phis):
     return gap(qt, prm, mask) > 0.0 and unmask_penetrating(qt, prm, mask, held) == 0
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@njit(cache=True, nogil=True, error_model="numpy")
 def partial_map(q0, p0, tau, h, t, prm, ntol, maxit, q1, p1, v1, held, nheld):
     """Phi^partial_tau, or with contacts held the constrained map of the full step's discrete
     Lagrangian (maps/held.py: every method, issue 18)."""
     if nheld > 0:
-        imp = np.empty(NCON)
+        imp = scratch(NCON)
         return held_step(q0, p0, tau, t, prm, ntol, maxit, held, q1, p1, v1, imp)
     return partial(q0, p0, tau, h, t, prm, ntol, maxit, q1, p1, v1)
 
@@ -127,7 +129,7 @@ def search_collision(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt,
     the iteration is secant on the partial map's own g (`_refine_root`). Typically 2-3 partial steps
     per impact, against 10-12 for bracketing alone.
     """
-    mask = np.empty(NCON, dtype=np.int64)
+    mask = scratch_i(NCON)
     masked = touching_mask(qh, ph, h, event_tol, prm, mask, held)
     iters = 0
     E = np.nan

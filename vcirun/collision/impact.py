@@ -24,10 +24,12 @@ import math
 import numpy as np
 from numba import njit
 
+from vcirun.codegen.frame import scratch, scratch2, scratch_i
+
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def impact_direction(q, pm, h, event_tol, prm, d, lam, active):
-    e = np.empty(NCON)
+    e = scratch(NCON)
     sys_restitution(prm, e)
     for i in range(NCON):
         lam[i] = 0.0
@@ -49,9 +51,11 @@ def _newton_loss_one(q, pm, prm, g, e):
     """(1 - e^2) u^2 / (2 W) of one contact with gradient g (0.0 exactly for e = 1)."""
     if e == 1.0:
         return 0.0
-    A = np.empty((NDOF, NDOF))
+    A = scratch2(NDOF, NDOF)
     sys_M(q, prm, A)
-    x = g.copy()
+    x = scratch(NDOF)
+    for i in range(NDOF):
+        x[i] = g[i]
     if not solve_small(A, x, NDOF):
         return 0.0
     W = 0.0
@@ -64,18 +68,21 @@ def _newton_loss_one(q, pm, prm, g, e):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _impact_several(q, pm, h, event_tol, prm, e, d, lam, active):
-    phis = np.empty(NCON)
-    G = np.empty((NCON, NDOF))
+    phis = scratch(NCON)
+    G = scratch2(NCON, NDOF)
     sys_phis(q, prm, phis)
     sys_dphis(q, prm, G)
-    A = np.empty((NDOF, NDOF))
+    A = scratch2(NDOF, NDOF)
     sys_M(q, prm, A)
-    X = np.empty((NCON, NDOF))  # rows M^-1 grad phi_i
-    u = np.empty(NCON)
+    X = scratch2(NCON, NDOF)  # rows M^-1 grad phi_i
+    u = scratch(NCON)
+    B = scratch2(NDOF, NDOF)
     for i in range(NCON):
         for j in range(NDOF):
             X[i, j] = G[i, j]
-        B = A.copy()
+        for a in range(NDOF):
+            for b in range(NDOF):
+                B[a, b] = A[a, b]
         solve_small(B, X[i], NDOF)
         s = 0.0
         for j in range(NDOF):
@@ -87,7 +94,7 @@ def _impact_several(q, pm, h, event_tol, prm, e, d, lam, active):
     for i in range(1, NCON):
         if phis[i] < phis[i0]:
             i0 = i
-    idx = np.empty(NCON, dtype=np.int64)
+    idx = scratch_i(NCON)
     k = 0
     for i in range(NCON):
         if i == i0 or phis[i] <= touch_tolerance(q, prm, i, u[i], h, event_tol):
@@ -99,9 +106,9 @@ def _impact_several(q, pm, h, event_tol, prm, e, d, lam, active):
             approaching = True
     if not approaching:
         return 0, 0.0, 0.0
-    W = np.empty((k, k))
-    um = np.empty(k)
-    ea = np.empty(k)
+    W = scratch2(k, k)
+    um = scratch(k)
+    ea = scratch(k)
     for a in range(k):
         um[a] = u[idx[a]]
         # a touching contact that separates takes no restitution: with e > 0 a coupled separating
@@ -112,7 +119,7 @@ def _impact_several(q, pm, h, event_tol, prm, e, d, lam, active):
             for j in range(NDOF):
                 s += G[idx[a], j] * X[idx[b], j]
             W[a, b] = s
-    la = np.empty(k)
+    la = scratch(k)
     case = impact_law(W, um, ea, la)
     if case < 0:
         return case, 0.0, 0.0
@@ -134,11 +141,11 @@ def _impact_several(q, pm, h, event_tol, prm, e, d, lam, active):
     return k, 1.0, max(dE, 0.0)
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@njit(cache=True, nogil=True, error_model="numpy")
 def touch_tolerance(q, prm, i, u, h, event_tol):
     """How close to phi_i = 0 counts as touching: the event tolerance's worth of motion, or round-off
     of phi_i near q (64 eps (1 + |q| |grad phi_i|), as a start on the surface)."""
-    G = np.empty((NCON, NDOF))
+    G = scratch2(NCON, NDOF)
     sys_dphis(q, prm, G)
     gq = 0.0
     qn = 0.0
@@ -151,12 +158,12 @@ def touch_tolerance(q, prm, i, u, h, event_tol):
 # --- contact geometry: the gap over the contacts not touching (shared by the event search and the
 # exact reference)
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@njit(cache=True, nogil=True, error_model="numpy")
 def gap(q, prm, mask):
     """min over the constraints not masked of phi_i(q) (+inf if all are masked)."""
     if NCON == 1:
         return sys_phi(q, prm) if mask[0] == 0 else np.inf
-    phis = np.empty(NCON)
+    phis = scratch(NCON)
     sys_phis(q, prm, phis)
     g = np.inf
     for i in range(NCON):
@@ -165,12 +172,12 @@ def gap(q, prm, mask):
     return g
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@njit(cache=True, nogil=True, error_model="numpy")
 def gap_slope(q, p, prm, mask):
     """d/dtau of the gap along the flow through (q, p): grad phi_k . M^-1 p, k its smallest unmasked phi_i."""
     if NCON == 1:
         return gdot(q, p, prm) if mask[0] == 0 else np.nan
-    phis = np.empty(NCON)
+    phis = scratch(NCON)
     sys_phis(q, prm, phis)
     k = -1
     for i in range(NCON):
@@ -178,28 +185,37 @@ def gap_slope(q, p, prm, mask):
             k = i
     if k < 0:
         return np.nan
-    return normal_velocities(q, p, prm)[k]
+    u = scratch(NCON)
+    _normal_velocities_into(q, p, prm, u)
+    return u[k]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def normal_velocities(q, p, prm):
-    """u_i = grad phi_i(q) . M(q)^-1 p for every constraint."""
-    A = np.empty((NDOF, NDOF))
-    x = p.copy()
-    sys_M(q, prm, A)
+    """u_i = grad phi_i(q) . M(q)^-1 p for every constraint (a new array)."""
     u = np.empty(NCON)
+    _normal_velocities_into(q, p, prm, u)
+    return u
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _normal_velocities_into(q, p, prm, u):
+    A = scratch2(NDOF, NDOF)
+    x = scratch(NDOF)
+    for i in range(NDOF):
+        x[i] = p[i]
+    sys_M(q, prm, A)
     if not solve_small(A, x, NDOF):
         for i in range(NCON):
             u[i] = np.nan
-        return u
-    G = np.empty((NCON, NDOF))
+        return
+    G = scratch2(NCON, NDOF)
     sys_dphis(q, prm, G)
     for i in range(NCON):
         s = 0.0
         for j in range(NDOF):
             s += G[i, j] * x[j]
         u[i] = s
-    return u
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -213,9 +229,10 @@ def touching_mask(q, p, h, event_tol, prm, mask, held):
         k += mask[i]
     if NCON == 1:
         return k
-    phis = np.empty(NCON)
+    phis = scratch(NCON)
     sys_phis(q, prm, phis)
-    u = normal_velocities(q, p, prm)
+    u = scratch(NCON)
+    _normal_velocities_into(q, p, prm, u)
     for i in range(NCON):
         if mask[i] == 0 and phis[i] <= touch_tolerance(q, prm, i, u[i], h, event_tol) and u[i] >= 0.0:
             mask[i] = 1
@@ -229,7 +246,7 @@ def unmask_penetrating(q, prm, mask, held):
     aside; returns how many."""
     if NCON == 1:
         return 0
-    phis = np.empty(NCON)
+    phis = scratch(NCON)
     sys_phis(q, prm, phis)
     k = 0
     for i in range(NCON):

@@ -6,6 +6,8 @@ import math
 import numpy as np
 from numba import njit
 
+from vcirun.codegen.frame import scratch, scratch2
+
 MH_RESET_ETOL = 8.0 * 2.220446049250313e-16  # R^MCVA accepts lam once H~ is conserved to this (relative)
 
 
@@ -25,10 +27,10 @@ def reset_mcva(q, pm, d, s0, dE, E_pre, vpre, dtau, tau_rem, h, t, prm, ntol, ma
     if lam0 == 0.0 or not math.isfinite(lam0):
         return -1, lam0
     nz = 2 * NDOF
-    u = np.empty(MH_M)
-    W = np.empty((MH_M, MH_M))
-    grad = np.empty(nz)
-    hess = np.empty((0, 0))  # not needed by the reset
+    u = scratch(MH_M)
+    W = scratch2(MH_M, MH_M)
+    grad = scratch(nz)
+    hess = scratch2(0, 0)  # not needed by the reset
     mh_guess(q, pm, prm, u)
     it0, E0 = mh_gradient(q, pm, h, prm, u, W, grad, hess)
     if it0 < 0 or not math.isfinite(E0):

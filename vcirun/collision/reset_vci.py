@@ -5,6 +5,8 @@ import math
 import numpy as np
 from numba import njit
 
+from vcirun.codegen.frame import scratch, scratch2
+
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def reset_vci(q, pm, d, s0, dE, E_pre, vpre, dtau, tau_rem, h, t, prm, ntol, maxit, pp):
@@ -43,21 +45,21 @@ def reset_vci(q, pm, d, s0, dE, E_pre, vpre, dtau, tau_rem, h, t, prm, ntol, max
 def _vci_newton(q, pm, E_target, tau_rem, t, prm, ntol, maxit, g, lam_start, pp):
     """Newton on (w, lam) for eq. (33) (forced: its energy condition with the work terms, see
     reset_vci) from lam_start; returns (iterations or -iterations, lam)."""
-    w = np.empty(NDOF)
+    w = scratch(NDOF)
     for i in range(NDOF):
         pp[i] = pm[i] + lam_start * g[i]
     velocity_guess(q, pp, prm, w)
     lam = lam_start
     m = NDOF + 1
-    F = np.empty(m)
-    JJ = np.empty((m, m))
-    r = np.empty(NDOF)
-    J = np.empty((NDOF, NDOF))
-    ev = np.empty(NDOF)
-    c = np.empty(NODE_LEN)
-    fo = np.empty(NDOF)
-    fq = np.empty((NDOF, NDOF))
-    fv = np.empty((NDOF, NDOF))
+    F = scratch(m)
+    JJ = scratch2(m, m)
+    r = scratch(NDOF)
+    J = scratch2(NDOF, NDOF)
+    ev = scratch(NDOF)
+    c = scratch(NODE_LEN)
+    fo = scratch(NDOF)
+    fq = scratch2(NDOF, NDOF)
+    fv = scratch2(NDOF, NDOF)
     aw = FORCE_A[VCI_STAGE] * tau_rem  # W^-(w) = aw f(q, w, t) . w
     sys_node(q, prm, c)  # q is fixed: its node data once, not per iteration
     it = 0

@@ -8,6 +8,8 @@ import math
 import numpy as np
 from numba import njit
 
+from vcirun.codegen.frame import scratch, scratch2
+
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def velocity_from(A, p, v):
@@ -22,7 +24,7 @@ def velocity_from(A, p, v):
 @njit(cache=True, nogil=True, error_model="numpy")
 def velocity_guess(q, p, prm, v):
     """v = M(q)^{-1} p: the continuous velocity, Newton's starting point for every step."""
-    A = np.empty((NDOF, NDOF))
+    A = scratch2(NDOF, NDOF)
     sys_M(q, prm, A)
     velocity_from(A, p, v)
 
@@ -30,8 +32,9 @@ def velocity_guess(q, p, prm, v):
 @njit(cache=True, nogil=True, error_model="numpy")
 def hamiltonian(q, p, prm):
     """H(q, p) = 1/2 p^T M(q)^{-1} p + V(q)."""
-    A = np.empty((NDOF, NDOF))
-    x = p.copy()
+    A = scratch2(NDOF, NDOF)
+    x = scratch(NDOF)
+    copy_into(x, p)
     sys_M(q, prm, A)
     solve_small(A, x, NDOF)
     s = 0.0
@@ -45,11 +48,12 @@ def hamilton_rhs(y, prm, out):
     """Hamilton's equations (6)-(7) on y = (q, p): qdot = M^-1 p, pdot = -dH/dq."""
     q = y[:NDOF]
     p = y[NDOF:]
-    A = np.empty((NDOF, NDOF))
-    x = p.copy()
+    A = scratch2(NDOF, NDOF)
+    x = scratch(NDOF)
+    copy_into(x, p)
     sys_M(q, prm, A)
     solve_small(A, x, NDOF)
-    g = np.empty(NDOF)
+    g = scratch(NDOF)
     sys_dHq(q, x, prm, g)
     for i in range(NDOF):
         out[i] = x[i]
@@ -62,7 +66,7 @@ def dynamics_rhs(t, y, prm, out):
     (= hamilton_rhs for an unforced system: FORCED is a module constant)."""
     hamilton_rhs(y, prm, out)
     if FORCED:
-        f = np.empty(NDOF)
+        f = scratch(NDOF)
         sys_force(y[:NDOF], out[:NDOF], t, prm, f)
         for i in range(NDOF):
             out[NDOF + i] += f[i]
@@ -73,7 +77,7 @@ def force_power(q, v, t, prm):
     """f(q, v, t) . v: the power of the generalized force at velocity v (0 for an unforced system)."""
     if not FORCED:
         return 0.0
-    f = np.empty(NDOF)
+    f = scratch(NDOF)
     sys_force(q, v, t, prm, f)
     s = 0.0
     for i in range(NDOF):
@@ -86,12 +90,13 @@ def gdot(q, p, prm):
     """d/dtau phi(q(tau)) along the continuous flow through (q, p): grad phi(q) . M(q)^{-1} p. The
     partial map's own tau-derivative differs by O(tau^r) relatively (r its order): a model, never a
     decision (the bracket keeps the root search safe)."""
-    A = np.empty((NDOF, NDOF))
-    x = p.copy()
+    A = scratch2(NDOF, NDOF)
+    x = scratch(NDOF)
+    copy_into(x, p)
     sys_M(q, prm, A)
     if not solve_small(A, x, NDOF):
         return np.nan
-    g = np.empty(NDOF)
+    g = scratch(NDOF)
     sys_dphi(q, prm, g)
     s = 0.0
     for i in range(NDOF):
@@ -104,9 +109,10 @@ def cva_lambda(q, pm, prm, g):
     """Nontrivial root of H(q, pm + lam g) = H(q, pm): H is quadratic in p, so
     lam = -2 g^T M^-1 pm / g^T M^-1 g (the root lam = 0 is divided out)."""
     sys_dphi(q, prm, g)
-    A = np.empty((NDOF, NDOF))
+    A = scratch2(NDOF, NDOF)
     sys_M(q, prm, A)
-    x = g.copy()
+    x = scratch(NDOF)
+    copy_into(x, g)
     if not solve_small(A, x, NDOF):
         return 0.0
     gWg = 0.0

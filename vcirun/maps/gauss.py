@@ -8,6 +8,8 @@ import math
 import numpy as np
 from numba import njit
 
+from vcirun.codegen.frame import scratch, scratch2
+
 # Gauss-Legendre collocation tableaux (Hairer-Wanner II, Table IV.5.1/5.2). D = b^T A^{-1}: the
 # update y1 = y0 + sum_i D_i Z_i needs no extra evaluation of the vector field.
 _S3 = math.sqrt(3.0)
@@ -30,7 +32,7 @@ MH_U_MAXIT = 50
 @njit(cache=True, nogil=True, error_model="numpy")
 def mh_guess(q, p, prm, u):
     """Newton's start for u: the continuous velocity M(q)^{-1} p in every stage."""
-    v = np.empty(NDOF)
+    v = scratch(NDOF)
     velocity_guess(q, p, prm, v)
     for st in range(MH_NSTAGE):
         for i in range(NDOF):
@@ -43,10 +45,10 @@ def mh_solve(q, p, h, prm, u, W):
     Newton from the u given (mh_guess or a nearby solution); W = (dF/du)^{-1} at u*. Returns the
     number of iterations, < 0 on failure. (No flag arguments: a literal argument would make numba
     compile the whole call chain once more.)"""
-    F = np.empty(MH_M)
-    A = np.empty((MH_M, MH_M))
-    B = np.empty((MH_M, MH_M))
-    x = np.empty(MH_M)
+    F = scratch(MH_M)
+    A = scratch2(MH_M, MH_M)
+    B = scratch2(MH_M, MH_M)
+    x = scratch(MH_M)
     it = 0
     small = False
     while True:
@@ -86,14 +88,14 @@ def mh_solve(q, p, h, prm, u, W):
 @njit(cache=True, nogil=True, error_model="numpy")
 def mh_terms(q, p, h, prm, out):
     """out[i] = H_{i+1}(q, p) (out[0] = eta) for i < MH_ORDER, NaN beyond; returns H~^{O(h^s)}."""
-    u = np.empty(MH_M)
-    W = np.empty((MH_M, MH_M))
+    u = scratch(MH_M)
+    W = scratch2(MH_M, MH_M)
     for i in range(out.shape[0]):
         out[i] = np.nan
     mh_guess(q, p, prm, u)
     if mh_solve(q, p, h, prm, u, W) < 0:
         return np.nan
-    terms = np.empty(MH_ORDER)
+    terms = scratch(MH_ORDER)
     val = mh_value(q, p, u, W, h, prm, terms)
     for i in range(min(MH_ORDER, out.shape[0])):
         out[i] = terms[i]
@@ -103,12 +105,12 @@ def mh_terms(q, p, h, prm, out):
 @njit(cache=True, nogil=True, error_model="numpy")
 def mh_energy(q, p, h, prm):
     """H~^{O(h^s)}(q, p) = eta + h H2 + ... + h^{s-1} H_s (NaN if eta's stationary point is not found)."""
-    u = np.empty(MH_M)
-    W = np.empty((MH_M, MH_M))
+    u = scratch(MH_M)
+    W = scratch2(MH_M, MH_M)
     mh_guess(q, p, prm, u)
     if mh_solve(q, p, h, prm, u, W) < 0:
         return np.nan
-    terms = np.empty(MH_ORDER)
+    terms = scratch(MH_ORDER)
     return mh_value(q, p, u, W, h, prm, terms)
 
 
@@ -137,7 +139,7 @@ def mh_field(y, t, h, prm, u, W, grad, hess, f):
         f[i] = grad[NDOF + i]
         f[NDOF + i] = -grad[i]
     if FORCED:
-        fo = np.empty(NDOF)
+        fo = scratch(NDOF)
         sys_force(q, f[:NDOF], t, prm, fo)
         for i in range(NDOF):
             f[NDOF + i] += fo[i]
@@ -164,15 +166,15 @@ def gauss_partial(q0, p0, tau, h, t, prm, ntol, maxit, q1, p1, vlast):
         p1[i] = p0[i]
     if tau == 0.0:
         return 0, np.nan
-    y0 = np.empty(nz)
+    y0 = scratch(nz)
     for i in range(NDOF):
         y0[i] = q0[i]
         y0[NDOF + i] = p0[i]
-    U = np.empty((s, MH_M))
-    W = np.empty((MH_M, MH_M))
-    grad = np.empty(nz)
-    hess = np.empty((nz, nz))
-    f0 = np.empty(nz)
+    U = scratch2(s, MH_M)
+    W = scratch2(MH_M, MH_M)
+    grad = scratch(nz)
+    hess = scratch2(nz, nz)
+    f0 = scratch(nz)
     mh_guess(q0, p0, prm, U[0])
     it0 = mh_field(y0, t, h, prm, U[0], W, grad, hess, f0)
     if it0 < 0:
@@ -181,14 +183,14 @@ def gauss_partial(q0, p0, tau, h, t, prm, ntol, maxit, q1, p1, vlast):
         for i in range(MH_M):
             U[k, i] = U[0, i]
     # J0 = d/dy (H_p, -H_q + F(q, H_p, t)) with eta's Hessian for H~'s
-    J0 = np.empty((nz, nz))
+    J0 = scratch2(nz, nz)
     for i in range(NDOF):
         for j in range(nz):
             J0[i, j] = hess[NDOF + i, j]
             J0[NDOF + i, j] = -hess[i, j]
     if FORCED:
-        fq = np.empty((NDOF, NDOF))
-        fv = np.empty((NDOF, NDOF))
+        fq = scratch2(NDOF, NDOF)
+        fv = scratch2(NDOF, NDOF)
         sys_force_jac(q0, f0[:NDOF], t, prm, fq, fv)
         for i in range(NDOF):
             for j in range(nz):
@@ -197,21 +199,21 @@ def gauss_partial(q0, p0, tau, h, t, prm, ntol, maxit, q1, p1, vlast):
                     acc += fv[i, k] * J0[k, j]
                 J0[NDOF + i, j] += acc
     m = s * nz
-    N = np.empty((m, m))
+    N = scratch2(m, m)
     for a in range(s):
         for b in range(s):
             for i in range(nz):
                 for j in range(nz):
                     N[a * nz + i, b * nz + j] = -tau * GAUSS_A[a, b] * J0[i, j] + (1.0 if (a == b and i == j) else 0.0)
-    NN = np.empty((m, m))
-    Z = np.empty((s, nz))
+    NN = scratch2(m, m)
+    Z = scratch2(s, nz)
     for a in range(s):
         for i in range(nz):
             Z[a, i] = GAUSS_C[a] * tau * f0[i]
-    Fs = np.empty((s, nz))
-    nohess = np.empty((0, 0))  # J0 above is the only use of eta's Hessian
-    Y = np.empty(nz)
-    R = np.empty(m)
+    Fs = scratch2(s, nz)
+    nohess = scratch2(0, 0)  # J0 above is the only use of eta's Hessian
+    Y = scratch(nz)
+    R = scratch(m)
     ynorm = 0.0
     for i in range(nz):
         ynorm = max(ynorm, abs(y0[i]))

@@ -17,30 +17,37 @@ import math
 import numpy as np
 from numba import njit
 
+from vcirun.codegen.frame import scratch, scratch2, scratch_i
+
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _free_motion(q, p, t, prm):
+def _free_motion(q, p, t, prm, dd, G, A, w):
     """The terms of d^2 phi / dt^2 along the free motion through (q, p) at t, with v = M^-1 p and
-    F = -dH/dq + f: (dd_i = v^T Hess phi_i v, G = grad phi, M, F - Mdot v)."""
-    y = np.empty(2 * NDOF)
-    f = np.empty(2 * NDOF)
+    F = -dH/dq + f, into the caller's arrays: dd_i = v^T Hess phi_i v (NCON), G = grad phi
+    (NCON x NDOF), A = M (NDOF x NDOF), w = F - Mdot v (NDOF)."""
+    y = scratch(2 * NDOF)
+    f = scratch(2 * NDOF)
     for j in range(NDOF):
         y[j] = q[j]
         y[NDOF + j] = p[j]
     dynamics_rhs(t, y, prm, f)          # f[:n] = v, f[n:] = F
-    v = f[:NDOF].copy()
-    mdv = np.empty(NDOF)
+    v = scratch(NDOF)
+    mdv = scratch(NDOF)
+    for j in range(NDOF):
+        v[j] = f[j]
     sys_Mdotv(q, v, prm, mdv)
-    dd = np.empty(NCON)
     sys_ddphis(q, v, prm, dd)
-    G = np.empty((NCON, NDOF))
     sys_dphis(q, prm, G)
-    A = np.empty((NDOF, NDOF))
     sys_M(q, prm, A)
-    w = np.empty(NDOF)
     for j in range(NDOF):
         w[j] = f[NDOF + j] - mdv[j]
-    return dd, G, A, w
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _copy2(dst, src):
+    for i in range(src.shape[0]):
+        for j in range(src.shape[1]):
+            dst[i, j] = src[i, j]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -53,26 +60,31 @@ def contact_forces(q, p, t, prm, held, mu):
     for i in range(NCON):
         mu[i] = 0.0
     k = 0
-    idx = np.empty(NCON, dtype=np.int64)
+    idx = scratch_i(NCON)
     for i in range(NCON):
         if held[i] != 0:
             idx[k] = i
             k += 1
     if k == 0:
         return True
-    dd, G, A, rhs = _free_motion(q, p, t, prm)
-    X = np.empty((k, NDOF))     # rows M^-1 grad phi_i
+    dd = scratch(NCON)
+    G = scratch2(NCON, NDOF)
+    A = scratch2(NDOF, NDOF)
+    rhs = scratch(NDOF)
+    _free_motion(q, p, t, prm, dd, G, A, rhs)
+    X = scratch2(k, NDOF)     # rows M^-1 grad phi_i
+    B = scratch2(NDOF, NDOF)
     for a in range(k):
         for j in range(NDOF):
             X[a, j] = G[idx[a], j]
-        B = A.copy()
+        _copy2(B, A)
         if not solve_small(B, X[a], NDOF):
             return False
-    B = A.copy()
+    _copy2(B, A)
     if not solve_small(B, rhs, NDOF):
         return False
-    W = np.empty((k, k))
-    b = np.empty(k)
+    W = scratch2(k, k)
+    b = scratch(k)
     for a in range(k):
         s = dd[idx[a]]
         for j in range(NDOF):
@@ -95,7 +107,7 @@ def project_momentum(q, p, prm, held, imp):
     """p <- p + G_A^T pi with G_A M^-1 p = 0 after (the held contacts' normal velocities zeroed, a
     plastic impact on them); imp[i] receives pi_i (0 for contacts not held)."""
     k = 0
-    idx = np.empty(NCON, dtype=np.int64)
+    idx = scratch_i(NCON)
     for i in range(NCON):
         imp[i] = 0.0
         if held[i] != 0:
@@ -103,19 +115,20 @@ def project_momentum(q, p, prm, held, imp):
             k += 1
     if k == 0:
         return True
-    G = np.empty((NCON, NDOF))
+    G = scratch2(NCON, NDOF)
     sys_dphis(q, prm, G)
-    A = np.empty((NDOF, NDOF))
+    A = scratch2(NDOF, NDOF)
     sys_M(q, prm, A)
-    X = np.empty((k, NDOF))
+    X = scratch2(k, NDOF)
+    B = scratch2(NDOF, NDOF)
     for a in range(k):
         for j in range(NDOF):
             X[a, j] = G[idx[a], j]
-        B = A.copy()
+        _copy2(B, A)
         if not solve_small(B, X[a], NDOF):
             return False
-    W = np.empty((k, k))
-    b = np.empty(k)
+    W = scratch2(k, k)
+    b = scratch(k)
     for a in range(k):
         s = 0.0
         for j in range(NDOF):
@@ -140,27 +153,27 @@ def held_stage(sid, q0, p0, hs, t, prm, ntol, maxit, held, v, q1, p1, imp):
     """One constrained explicit stage (see the unit's header); v: Newton's start on entry, the step
     velocity on exit; imp[i] += lam_i + mu_i. Returns Newton iterations (< 0 on failure)."""
     k = 0
-    idx = np.empty(NCON, dtype=np.int64)
+    idx = scratch_i(NCON)
     for i in range(NCON):
         if held[i] != 0:
             idx[k] = i
             k += 1
     m = NDOF + k
-    x = np.zeros(m)
-    for j in range(NDOF):
-        x[j] = v[j]
-    c = np.empty(NODE_LEN)
-    cn = np.empty(NODE_LEN)
+    x = scratch(m)
+    for j in range(m):
+        x[j] = v[j] if j < NDOF else 0.0
+    c = scratch(NODE_LEN)
+    cn = scratch(NODE_LEN)
     sys_node(q0, prm, c)
-    r = np.empty(NDOF)
-    J = np.empty((NDOF, NDOF))
-    G0 = np.empty((NCON, NDOF))
-    G1 = np.empty((NCON, NDOF))
-    phis = np.empty(NCON)
+    r = scratch(NDOF)
+    J = scratch2(NDOF, NDOF)
+    G0 = scratch2(NCON, NDOF)
+    G1 = scratch2(NCON, NDOF)
+    phis = scratch(NCON)
     sys_dphis(q0, prm, G0)
-    F = np.empty(m)
-    JJ = np.empty((m, m))
-    qn = np.empty(NDOF)
+    F = scratch(m)
+    JJ = scratch2(m, m)
+    qn = scratch(NDOF)
     it = 0
     ok = False
     dprev = np.inf
@@ -214,7 +227,7 @@ def held_stage(sid, q0, p0, hs, t, prm, ntol, maxit, held, v, q1, p1, imp):
         v[j] = x[j]
         q1[j] = q0[j] + hs * x[j]
     ld_Ppc(sid, q0, x[:NDOF], hs, t, prm, c, p1, cn)
-    pi = np.empty(NCON)
+    pi = scratch(NCON)
     if not project_momentum(q1, p1, prm, held, pi):
         return -it
     for a in range(k):
@@ -229,10 +242,12 @@ def held_step(q0, p0, h, t, prm, ntol, maxit, held, q1, p1, vlast, imp):
     contact impulses. Returns (iterations, < 0 on failure; discrete energy -D3 Ld of the stages)."""
     for i in range(NCON):
         imp[i] = 0.0
-    v = np.empty(NDOF)
+    v = scratch(NDOF)
     velocity_guess(q0, p0, prm, v)
-    qa = q0.copy()
-    pa = p0.copy()
+    qa = scratch(NDOF)
+    pa = scratch(NDOF)
+    copy_into(qa, q0)
+    copy_into(pa, p0)
     total = 0
     Ed = 0.0
     ts = t
@@ -256,7 +271,11 @@ def held_step(q0, p0, h, t, prm, ntol, maxit, held, q1, p1, vlast, imp):
 def normal_acceleration(q, p, t, prm, i):
     """d^2 phi_i / dt^2 of the free (unheld) motion through (q, p): negative when the motion is pressed
     into contact i."""
-    dd, G, A, w = _free_motion(q, p, t, prm)
+    dd = scratch(NCON)
+    G = scratch2(NCON, NDOF)
+    A = scratch2(NDOF, NDOF)
+    w = scratch(NDOF)
+    _free_motion(q, p, t, prm, dd, G, A, w)
     if not solve_small(A, w, NDOF):
         return np.nan
     s = dd[i]

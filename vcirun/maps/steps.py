@@ -6,11 +6,13 @@
 # there. A step keeps the node data of its start point q0, so the node at q0 (C = 0) costs nothing
 # per Newton iteration; Pp writes the data of its end point, which is the start point of the next
 # stage of a composition (the same bits). SVC stages: 3 node evaluations instead of 7, and the work
-# arrays are allocated once per step, not per stage.
+# arrays are on the step's stack frame (vcirun.codegen.frame: no allocation, no reference count).
 import math
 
 import numpy as np
 from numba import njit
+
+from vcirun.codegen.frame import scratch, scratch2
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -81,11 +83,11 @@ def ld_step(q0, p0, h, t, prm, newton_tol, max_iter, q1, p1, vlast, want_E=True)
     SE1 then SE2 half steps). Returns (iterations >= 0, or < 0 on failure, discrete energy -D3 Ld;
     NaN with want_E=False, which saves one kernel call per stage: 17 per SVC8 step).
     vlast receives the last stage's step velocity."""
-    v = np.empty(NDOF)
-    c = np.empty(NODE_LEN)
-    cn = np.empty(NODE_LEN)
-    r = np.empty(NDOF)
-    J = np.empty((NDOF, NDOF))
+    v = scratch(NDOF)
+    c = scratch(NODE_LEN)
+    cn = scratch(NODE_LEN)
+    r = scratch(NDOF)
+    J = scratch2(NDOF, NDOF)
     sys_node(q0, prm, c)
     guess_from_node(c, p0, v, J)  # (J as scratch: PmJc overwrites it)
     if FULL_STAGES.shape[0] == 1:  # explicit Ld: no intermediate nodes to copy
@@ -94,9 +96,11 @@ def ld_step(q0, p0, h, t, prm, newton_tol, max_iter, q1, p1, vlast, want_E=True)
         if it < 0 or not want_E:
             return it, np.nan
         return it, ld_Ed(FULL_STAGES[0], q0, v, h, prm)
-    qa = q0.copy()
-    pa = p0.copy()
-    vprev = np.empty(NDOF)
+    qa = scratch(NDOF)
+    pa = scratch(NDOF)
+    copy_into(qa, q0)
+    copy_into(pa, p0)
+    vprev = scratch(NDOF)
     total = 0
     Ed = 0.0
     ts = t
