@@ -10,8 +10,11 @@ method's kernel set (e.g. to run `vcirun.simulate` uncompiled by substituting it
 """
 from __future__ import annotations
 
+import re
 import types
 from functools import lru_cache
+
+from . import frame
 
 
 def _njit(*args, **kwargs):
@@ -27,8 +30,10 @@ def python_module_for(system, ks):
 
     text = module_source(system, ks)
     text = text.replace("from numba import njit", "")
+    text = re.sub(r"^from vcirun\.codegen\.frame import .*$", "", text, flags=re.M)
     mod = types.ModuleType(f"vcirun_python_{system.name}_{abs(hash(ks))}")
     mod.__dict__["njit"] = _njit
+    mod.__dict__.update(frame.PYTHON)   # the stack / borrowed arrays as plain numpy
     exec(compile(text, mod.__name__, "exec"), mod.__dict__)
     return mod
 

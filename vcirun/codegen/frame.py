@@ -22,12 +22,13 @@ The arithmetic is untouched: results are bit for bit those of np.empty and owned
 """
 from __future__ import annotations
 
+import numpy as np
 from numba import config, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
 SCRATCH = ("scratch", "scratch2", "scratch_i")   # the names the unit check knows as stack arrays
-NAMES = SCRATCH + ("borrow", "keep")
+NAMES = ("borrow", "keep") + SCRATCH
 
 
 def _borrowed(context, builder, ty, val):
@@ -111,20 +112,32 @@ def scratch_i(typingctx, n):
     return _scratch(types.int64, 1)(typingctx, n)
 
 
-if config.DISABLE_JIT:   # the uncompiled loop (NUMBA_DISABLE_JIT=1, the hygiene study): plain numpy
-    import numpy as np
 
-    def borrow(x):
-        return x
+# --- plain Python equivalents: the uncompiled loop (NUMBA_DISABLE_JIT=1, the hygiene study) and
+# vcirun.codegen.evaluate's uncompiled modules
 
-    def keep(x):
-        return None
+def _py_borrow(x):
+    return x
 
-    def scratch(n):
-        return np.empty(n)
 
-    def scratch2(m, n):
-        return np.empty((m, n))
+def _py_keep(x):
+    return None
 
-    def scratch_i(n):
-        return np.empty(n, dtype=np.int64)
+
+def _py_scratch(n):
+    return np.empty(n)
+
+
+def _py_scratch2(m, n):
+    return np.empty((m, n))
+
+
+def _py_scratch_i(n):
+    return np.empty(n, dtype=np.int64)
+
+
+PYTHON = {"borrow": _py_borrow, "keep": _py_keep, "scratch": _py_scratch, "scratch2": _py_scratch2,
+          "scratch_i": _py_scratch_i}
+
+if config.DISABLE_JIT:
+    borrow, keep, scratch, scratch2, scratch_i = (PYTHON[k] for k in NAMES)
