@@ -17,7 +17,7 @@ import types
 import numpy as np
 import pytest
 
-from vcirun.codegen import derive
+from vcirun.codegen import derive, frame
 from vcirun.codegen.tensor import quadrature_nodes
 from vcirun.discrete.lagrangians import LIBRARY, ExplicitLd
 from vcirun.mechanics import get_scene
@@ -62,6 +62,7 @@ def _python_kernels(system, ld: str, path: str):
             + "\n\n" + derive.ld_kernels_source(system, [ld], ld, path))
     mod = types.ModuleType(f"tensor_test_{system.name}_{ld}_{path}")
     mod.__dict__["njit"] = _njit
+    mod.__dict__.update(frame.PYTHON)   # the header's stack arrays, as numpy
     exec(compile(text, mod.__name__, "exec"), mod.__dict__)
     return mod
 
@@ -206,6 +207,7 @@ def test_tensor_dhq_equals_expanded(system_name, rng):
         text = "import math\nimport numpy as np\n\n" + derive.system_kernels_source(system, path)
         mods[path] = types.ModuleType(f"dhq_test_{system_name}_{path}")
         mods[path].__dict__["njit"] = _njit
+        mods[path].__dict__.update(frame.PYTHON)
         exec(compile(text, mods[path].__name__, "exec"), mods[path].__dict__)
     prm = system.param_values()
     for _ in range(5):
