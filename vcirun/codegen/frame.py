@@ -15,8 +15,11 @@ run). An array whose meminfo is NULL is not counted (NRT_incref/decref return at
   ends with the function's frame, so it must not escape: not returned, not stored, and (a dynamic
   alloca grows the frame each time it runs) not allocated inside a loop or in an inline="always"
   function, which numba pastes into its caller's loops. vcirun.codegen.units checks these three
-  rules on every unit (`check_unit`). Sizes are NDOF, NCON, NODE_LEN: n x n doubles for the largest
-  (8 DOF: 512 bytes).
+  rules on every unit (`check_unit`). Sizes follow NDOF, NCON, NODE_LEN: mostly n or n x n doubles
+  (8 DOF: 512 bytes); the largest are the Gauss flow's two Newton matrices, (2 s n)^2 doubles each
+  (s stages: 32 KB at 8 DOF and s = 4), far inside a thread's stack (8 MB by default on Linux).
+  The alloca is where the call is, also for sizes known when compiled: an entry-block (static)
+  alloca for those measured the same loop time (CVA, MCVAA: 0.97-1.04), so there is one code path.
 
 The arithmetic is untouched: results are bit for bit those of np.empty and owned arrays.
 """
