@@ -21,7 +21,9 @@ run). An array whose meminfo is NULL is not counted (NRT_incref/decref return at
   The alloca is where the call is, also for sizes known when compiled: an entry-block (static)
   alloca for those measured the same loop time (CVA, MCVAA: 0.97-1.04), so there is one code path.
 
-The arithmetic is untouched: results are bit for bit those of np.empty and owned arrays.
+The arithmetic is untouched (the same operations in the same order): the trajectories are those of
+np.empty and owned arrays, bit for bit but for the MCVA family's last digits, which vary from one
+compilation to another (docs/performance.md, *The loop without reference counting*).
 """
 from __future__ import annotations
 
@@ -113,7 +115,6 @@ def scratch2(typingctx, m, n):
 @intrinsic
 def scratch_i(typingctx, n):
     return _scratch(types.int64, 1)(typingctx, n)
-
 
 
 # --- plain Python equivalents: the uncompiled loop (NUMBA_DISABLE_JIT=1, the hygiene study) and

@@ -48,7 +48,7 @@ def mh_solve(q, p, h, prm, u, W):
     F = scratch(MH_M)
     A = scratch2(MH_M, MH_M)
     B = scratch2(MH_M, MH_M)
-    x = np.full(MH_M, 1e300)
+    x = scratch(MH_M)
     it = 0
     small = False
     while True:
