@@ -156,7 +156,7 @@ def run_bytes(N: int, n: int, m: int = 1) -> int:
     rows = {"grid": N + 1, "step": N, "impact": cap, "partial": 2 * cap + 16, "release": cap}
     b = 0
     for f in record.FIELDS:
-        size = int(np.prod(f.shape(rows[f.axis], n, m)))
+        size = math.prod(f.shape(rows[f.axis], n, m))   # (math.prod: np.prod costs ~5 us a call, 18 per run)
         b += size * (1 if f.dtype == "bool" else np.dtype(f.dtype).itemsize)
     return b + 16 * (N + 1) + 128  # t and its integer arange
 
