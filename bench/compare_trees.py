@@ -41,6 +41,7 @@ import argparse
 import importlib.util
 import json
 import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -239,47 +240,52 @@ def report(tag):
 """
 
 
+def capture_loop(m, system, method, h, T, beta, resting=True):
+    """(the compiled integrate of module m (a `load` result), the arguments `vcirun.simulate` gives it,
+    the trajectory): to call the loop itself again (nrt_count, bench/profile_loop.py). An old module of
+    the positional ABI sits one level further in; its positional arguments are captured."""
+    import vcirun
+    from vcirun import resolve
+
+    holder = m._mod._mod if m.abi == "positional" else m._mod
+    raw = holder.integrate
+    captured = {}
+
+    class _Capture:
+        def __getattr__(self, name):
+            return getattr(holder, name)
+
+        def integrate(self, *args):
+            captured["args"] = args
+            return raw(*args)
+
+    if m.abi == "positional":
+        m._mod._mod = _Capture()
+    else:
+        m._mod = _Capture()
+    orig = resolve.load_module
+    resolve.load_module = lambda s, k: m
+    try:
+        tr = vcirun.simulate(system, method, h=h, T=T, beta=beta, energies=False, resting_contact=resting)
+    finally:
+        resolve.load_module = orig
+        if m.abi == "positional":
+            m._mod._mod = holder
+        else:
+            m._mod = holder
+    return raw, captured["args"], tr
+
+
 def _nrt_child(path, system, method, h, T, beta, out, resting=True):
     """Run under gdb by nrt_count: stop (SIGUSR1) after setup, after a one-step call, after the N-step call."""
     import signal
 
     sys.path.insert(0, str(ROOT))
-    import vcirun
     from numba.core.runtime import nrt
-    from vcirun import resolve
 
     warnings.simplefilter("ignore")
-    m = load(path, method)
-    inner = m._mod
-    captured = {}
-    if m.abi == "positional":   # the adapter calls inner._mod.integrate with the positional arguments
-        oldmod = inner._mod
-        raw = oldmod.integrate
-
-        class _Capture:
-            def __getattr__(self, name):
-                return getattr(oldmod, name)
-
-            def integrate(self, *args):
-                captured["args"] = args
-                return raw(*args)
-
-        inner._mod = _Capture()
-    else:
-        raw = inner.integrate
-
-        class _CaptureNew:
-            def __getattr__(self, name):
-                return getattr(inner, name)
-
-            def integrate(self, *args):
-                captured["args"] = args
-                return raw(*args)
-
-        m._mod = _CaptureNew()
-    resolve.load_module = lambda s, k: m
-    tr = vcirun.simulate(system, method, h=h, T=T, beta=beta, energies=False, resting_contact=resting)
-    args = list(captured["args"])
+    raw, args, tr = capture_loop(load(path, method), system, method, h, T, beta, resting)
+    args = list(args)
     cres = next(iter(raw.overloads.values()))
     lib = nrt.rtsys.library
     info = {"incref": lib.get_pointer_to_function("NRT_incref"), "decref": lib.get_pointer_to_function("NRT_decref"),
@@ -317,9 +323,12 @@ def nrt_count(path, system, method, h, T, beta, resting=True) -> dict:
            "-ex", "run", "-ex", f"source {gscript}", "-ex", "continue", "-ex", "python report('one')",
            "-ex", "continue", "-ex", "python report('full')", "-ex", "continue", "--args"] + child
     # a fresh numba cache: the child compiles the module, so its function symbols are known
-    env = dict(os.environ, PYTHONPATH=f"{ROOT}{os.pathsep}{ROOT / 'bench'}",
-               NUMBA_CACHE_DIR=tempfile.mkdtemp(prefix="nrtcount_numba_"))
-    r = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    numba_cache = tempfile.mkdtemp(prefix="nrtcount_numba_")
+    env = dict(os.environ, PYTHONPATH=f"{ROOT}{os.pathsep}{ROOT / 'bench'}", NUMBA_CACHE_DIR=numba_cache)
+    try:
+        r = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    finally:
+        shutil.rmtree(numba_cache, ignore_errors=True)
     try:
         info = json.loads(Path(out + ".addr").read_text())
         one = json.loads(Path(out + ".one").read_text())

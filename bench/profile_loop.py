@@ -19,7 +19,7 @@ from __future__ import annotations
 import argparse
 import bisect
 import os
-import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -74,44 +74,26 @@ def main(argv=None):
     ap.add_argument("--top", type=int, default=30)
     ap.add_argument("--resting-contact", choices=("on", "off"), default="on")
     a = ap.parse_args(argv)
-    if "NUMBA_CACHE_DIR" not in os.environ or not os.environ.get("_PROFILE_LOOP_CHILD"):
+    if not os.environ.get("_PROFILE_LOOP_CHILD"):
+        if shutil.which("perf") is None:
+            raise SystemExit("profile_loop: needs `perf` (linux-tools) on PATH")
         # fresh numba cache: the function symbols exist only for a module compiled in this process
-        env = dict(os.environ, NUMBA_CACHE_DIR=tempfile.mkdtemp(prefix="profile_loop_numba_"),
-                   _PROFILE_LOOP_CHILD="1", PYTHONPATH=str(ROOT))
-        raise SystemExit(subprocess.call([sys.executable, __file__] + (argv or sys.argv[1:]), env=env))
+        cache = tempfile.mkdtemp(prefix="profile_loop_numba_")
+        env = dict(os.environ, NUMBA_CACHE_DIR=cache, _PROFILE_LOOP_CHILD="1", PYTHONPATH=str(ROOT))
+        try:
+            rc = subprocess.call([sys.executable, __file__] + (argv or sys.argv[1:]), env=env)
+        finally:
+            shutil.rmtree(cache, ignore_errors=True)
+        raise SystemExit(rc)
 
     import warnings
 
-    import vcirun
-    from vcirun import resolve
-
     sys.path.insert(0, str(ROOT / "bench"))
-    from compare_trees import load
+    from compare_trees import capture_loop, load
 
     warnings.simplefilter("ignore")
-    m = load(a.module, a.method)
-    # the compiled integrate itself (an old module of the positional ABI sits one level further in)
-    holder = m._mod._mod if hasattr(m._mod, "integrate_timed") else m._mod
-    raw = holder.integrate
-    captured = {}
-
-    class _Capture:
-        def __getattr__(self, name):
-            return getattr(raw_mod, name)
-
-        def integrate(self, *args):
-            captured["args"] = args
-            return raw(*args)
-
-    raw_mod = holder
-    if holder is m._mod:
-        m._mod = _Capture()
-    else:
-        m._mod._mod = _Capture()
-    resolve.load_module = lambda s, k: m
-    tr = vcirun.simulate(a.system, a.method, h=a.h, T=a.T, beta=a.beta, energies=False,
-                         resting_contact=a.resting_contact == "on")
-    args = captured["args"]
+    raw, args, tr = capture_loop(load(a.module, a.method), a.system, a.method, a.h, a.T, a.beta,
+                                 a.resting_contact == "on")
     cres = next(iter(raw.overloads.values()))
     syms = jit_symbols(cres.library)
     entries = [s[0] for s in syms]
