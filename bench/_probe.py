@@ -60,8 +60,8 @@ def main():
     mopts = a.get("method_options", {})
     out = {"args": a, "import_s": t_import}
     if a["mode"] == "derive":
-        from vcirun.mechanics.scenes import get_scene  # symbolic: imported only in this mode
-        from vcirun.methods import resolve_method
+        from vcirun.scenes.declarations import get_scene  # symbolic: imported only in this mode
+        from vcirun.methods.table import resolve_method
 
         s = get_scene(a["system"])
         ks = resolve_method(a["method"], **mopts).kernel_set()

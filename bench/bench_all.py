@@ -169,9 +169,9 @@ def _impact_driver(mod):
 
 
 def section_impact(res):
-    from vcirun.api import resolve_system
+    from vcirun.run.api import resolve_system
     from vcirun.codegen.build import load_module
-    from vcirun.methods import METHODS as MT
+    from vcirun.methods.table import METHODS as MT
 
     log("== cost of one impact (instrumented: compiled loop over one impact step vs one smooth step; CPU time; "
         "an N = 1 call of the loop also allocates its work arrays and evaluates the energies of the end state)")
@@ -229,8 +229,8 @@ def section_build(res):
             fl = None
             if m == "CVA":  # the floor: the cached module loaded by path, nothing else imported
                 from vcirun.codegen.build import module_key
-                from vcirun.mechanics.scenes import get_scene
-                from vcirun.methods import METHODS as MT
+                from vcirun.scenes.declarations import get_scene
+                from vcirun.methods.table import METHODS as MT
 
                 key = module_key(get_scene("cart_pendulum"), MT["CVA"].kernel_set())
                 fl = probe({"mode": "floor", "module_path": str(Path(d) / "kernels" / f"vk_{key}.py"),

@@ -27,7 +27,7 @@ copy of a generated module, to test where a difference comes from).
 
 Module ABIs understood:
 - the record ABI of this tree: integrate(q0, p0, t0, h, N, prm, settings, out, info), `out` the
-  tuple of vcirun.record.FIELDS, NCON constraints (sys_phis/sys_dphis);
+  tuple of vcirun.core.record.FIELDS, NCON constraints (sys_phis/sys_dphis);
 - the positional ABI before issue 16 (up to 624193a: integrate with 25 arguments, one constraint
   sys_phi/sys_dphi, info of 5 counters, no held contacts, no impact_contact/impact_impulse), adapted
   by `_PositionalLoop`: the rows the old loop has no buffer for keep their fill (contact_active
@@ -74,7 +74,7 @@ def load(path: str, method: str | None = None):
         # a scene module of the shared build (issue 21): linked to THIS tree's core of the method's
         # kernel set (for an OLD_TREE of the shared build, run it with VCIRUN_BUILD=specialized)
         from vcirun.codegen import build
-        from vcirun.methods import resolve_method
+        from vcirun.methods.table import resolve_method
 
         ks = resolve_method(method).kernel_set()
         return _Timed(build._exec_module(key, Path(path), "compare_trees", ks, True, 0.0, False), "record")
@@ -137,7 +137,7 @@ class _PositionalLoop:
         self.integrate_timed(q0, p0, t0, h, N, prm, settings, out, info)
 
     def integrate_timed(self, q0, p0, t0, h, N, prm, settings, out, info) -> float:
-        from vcirun import record
+        from vcirun.core import record
 
         S = dict(zip(record.SETTINGS, settings.tolist()))
         o = dict(zip([f.name for f in record.FIELDS], out))
@@ -245,7 +245,7 @@ def capture_loop(m, system, method, h, T, beta, resting=True):
     the trajectory): to call the loop itself again (nrt_count, bench/profile_loop.py). An old module of
     the positional ABI sits one level further in; its positional arguments are captured."""
     import vcirun
-    from vcirun import resolve
+    from vcirun.run import resolve
 
     holder = m._mod._mod if m.abi == "positional" else m._mod
     raw = holder.integrate
@@ -387,8 +387,8 @@ def main(argv=None):
     a = ap.parse_args(argv)
     sys.path.insert(0, str(ROOT))
     import vcirun
-    from vcirun import resolve
-    from vcirun.api import GridWarning, grid_count
+    from vcirun.run import resolve
+    from vcirun.run.api import GridWarning, grid_count
 
     warnings.simplefilter("ignore", GridWarning)   # T = 5 is not a multiple of 3.2e-2: N = 156 for both trees
 

@@ -4,7 +4,7 @@ than 5%") on the double pendulum against a wall?
 Usage:  python bench/fig1_study.py [--out docs/fig1.md]
 
 Scene (the paper gives neither parameters nor initial state; ours, unchanged for this study, see
-vcirun.mechanics.scenes.double_pendulum): unit masses and lengths, g = 9.81, wall x = w = 1.2 for
+vcirun.scenes.declarations.double_pendulum): unit masses and lengths, g = 9.81, wall x = w = 1.2 for
 the second tip (phi = w - l1 sin th1 - l2 sin th2), released from rest with both links horizontal
 pointing away from the wall, th = (-pi/2, -pi/2). T = 10. CVA (SVC + R^CVA), with the constraint
 and without it (constrained=False, same SVC steps).
@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 import vcirun
-from vcirun.api import resolve_system
+from vcirun.run.api import resolve_system
 
 T = 10.0
 H_MAIN = [1e-2, 3.2e-3, 1e-3, 3.2e-4, 1e-4]
@@ -57,7 +57,7 @@ def measure(h, beta=None, event_tol=None):
     sysm = resolve_system("double_pendulum")
     prm = sysm.param_values(None)
     from vcirun.codegen.build import load_module
-    from vcirun.methods import METHODS
+    from vcirun.methods.table import METHODS
 
     mod = load_module(sysm, METHODS["CVA"].kernel_set())
     steps = np.flatnonzero(c.impact_step)

@@ -25,8 +25,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import vcirun  # noqa: E402
-from vcirun import api  # noqa: E402
-from vcirun.methods import resolve_method  # noqa: E402
+from vcirun.run import api  # noqa: E402
+from vcirun.methods.table import resolve_method  # noqa: E402
 
 CART_DRAG = {
     "name": "cart_drag", "coordinates": ["y", "theta"],
@@ -115,7 +115,7 @@ def main(argv=None):
     from vcirun.mechanics.loader import load_system_yaml
 
     scenes = [("damped_oscillator (c = 0.5, wall d = 0.5)",
-               vcirun.api.resolve_system("damped_oscillator"), dict(c=0.5, d=0.5), [1.5], [0.0]),
+               vcirun.run.api.resolve_system("damped_oscillator"), dict(c=0.5, d=0.5), [1.5], [0.0]),
               ("cart_drag (2-DOF, drag + drive)", load_system_yaml(CART_DRAG), {}, [1.5, 0.0], [0.0, 0.6])]
     hs = [2e-2, 1e-2, 5e-3, 2.5e-3]
     cases = [("MCVA", dict(ld="SVC", mh_order=s)) for s in (2, 3, 4)] + [("MCVA", dict(ld="SVA", mh_order=4))]

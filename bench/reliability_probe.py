@@ -66,7 +66,7 @@ def record(section, name, outcome, detail="", seconds=0.0, **numbers):
 def vcirun(*args, cwd=None, timeout=300, script=None, wrap=None):
     """(rc, stdout, stderr, seconds) of `vcirun ARGS` in a subprocess; rc None on timeout. `script`
     runs a Python file instead of the CLI module (fault injection); `wrap` prefixes the command."""
-    cmd = [PY, script] if script else [PY, "-m", "vcirun.cli"]
+    cmd = [PY, script] if script else [PY, "-m", "vcirun.cli.main"]
     cmd = cmd + [str(a) for a in args]
     if wrap:
         cmd = wrap + [" ".join(_q(c) for c in cmd)]
@@ -456,7 +456,7 @@ def run_output_section(tmp: Path) -> None:
     # a second writer on the same file
     slow = d / "slow.yaml"
     slow.write_text(TINY.replace("num: 3", "num: 40").replace("T: 0.5", "T: 5"))
-    p = subprocess.Popen([PY, "-m", "vcirun.cli", "sweep", str(slow), "--output", str(d / "two.h5"), "--workers", "1"],
+    p = subprocess.Popen([PY, "-m", "vcirun.cli.main", "sweep", str(slow), "--output", str(d / "two.h5"), "--workers", "1"],
                          cwd=d, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
     while not (d / ".two.h5.lock").exists() and time.monotonic() < deadline:
@@ -574,7 +574,7 @@ def run_corrupt_section(tmp: Path) -> None:
     print("corrupt: damaged results files", flush=True)
     import h5py
 
-    from vcirun.experiments import storage
+    from vcirun.io import storage
 
     d = tmp / "corrupt"
     d.mkdir()
@@ -635,7 +635,7 @@ import sys
 from vcirun.experiments import storage, sweep
 sweep._check_resources = lambda *a, **k: None           # the sweep's disk estimate off, and the writer's
 storage.ResultsWriter._space_needed = lambda self, j: 0  # free-space check: meet ENOSPC in the writes
-from vcirun.cli import app
+from vcirun.cli.main import app
 sys.argv = ["vcirun"] + sys.argv[1:]
 app()
 """
@@ -656,7 +656,7 @@ def run_disk_section(tmp: Path, quick: bool) -> None:
         # 20m: room for the journal but not for the final copy (ENOSPC inside the HDF5 rewrite)
         for size in sizes + ["12k"] + ([] if checked else ["20m"]):
             out = mnt / "fig4.h5"
-            py = f"{_q(PY)} {_q(nocheck)}" if not checked else f"{_q(PY)} -m vcirun.cli"
+            py = f"{_q(PY)} {_q(nocheck)}" if not checked else f"{_q(PY)} -m vcirun.cli.main"
             errfile = tmp / "disk_err.txt"
             inner = (f"mount -t tmpfs -o size={size} tmpfs {mnt} && {py} sweep {cfg} --output {out} -q --workers 2 "
                      f"2>{errfile}; echo RC=$?; ls -a {mnt}; "
@@ -677,7 +677,7 @@ def run_disk_section(tmp: Path, quick: bool) -> None:
     out = mnt / "fig4.h5"
     inner = (f"mount -t tmpfs -o size=2m tmpfs {mnt} && {_q(PY)} {_q(nocheck)} sweep {cfg} --output {out} -q 2>/dev/null; "
              f"{_q(PY)} -c 'from vcirun.experiments import storage; print(\"SAVED=%d\" % len(storage.read_results(\"{out}\").runs))'; "
-             f"mount -o remount,size=64m {mnt} && {_q(PY)} -m vcirun.cli sweep {cfg} --output {out} -q; echo RC=$?; "
+             f"mount -o remount,size=64m {mnt} && {_q(PY)} -m vcirun.cli.main sweep {cfg} --output {out} -q; echo RC=$?; "
              f"{_q(PY)} -c 'import h5py; f=h5py.File(\"{out}\",\"r\"); print(\"FINAL=%d\" % len(f[\"runs\"]))'")
     t0 = time.monotonic()
     p = subprocess.run(UNSHARE + ["sh", "-c", inner], env=ENV, capture_output=True, text=True,
@@ -709,7 +709,7 @@ class Progress:
 
     def __init__(self, cfg: Path, out: Path, workers: int, extra=()):
         self.t0 = time.monotonic()
-        self.proc = subprocess.Popen([PY, "-m", "vcirun.cli", "sweep", str(cfg), "--output", str(out), "--workers",
+        self.proc = subprocess.Popen([PY, "-m", "vcirun.cli.main", "sweep", str(cfg), "--output", str(out), "--workers",
                                       str(workers), *extra], env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                      text=True, cwd=cfg.parent)
         self.points: list[tuple[float, int, int]] = []  # (seconds, runs the client has, runs saved)
@@ -750,7 +750,7 @@ def run_kill_section(tmp: Path, quick: bool) -> None:
     import h5py
     import numpy as np
 
-    from vcirun.experiments import storage
+    from vcirun.io import storage
 
     d = tmp / "kill"
     d.mkdir()
@@ -813,7 +813,7 @@ store_trajectories: false
 
 def run_loss_section(tmp: Path, quick: bool) -> None:
     print("loss: SIGKILL during a 2000-run sweep", flush=True)
-    from vcirun.experiments import storage
+    from vcirun.io import storage
 
     d = tmp / "loss"
     d.mkdir()
@@ -982,7 +982,7 @@ fault), `bad_message` (non-zero exit without exactly one `error:` line, or files
   ASCII (the message names the character and its ASCII form). Names the generated kernels use for
   their own symbols are reserved (`hh`, `tt`, `qa<k>`, `va<k>`, `qb<k>`, `cse<k>`, `xm<k>`,
   `vcT...`, `mh_...`): a parameter named `vcTQ0` was read as coordinate 0 by the kernels.
-- **The Python API validates like the config layer** (`vcirun.validation`): `simulate` and `reference`
+- **The Python API validates like the config layer** (`vcirun.core.validation`): `simulate` and `reference`
   raise one `ValueError` naming the argument (`max_iter: must be >= 1 (got 0)`); flags
   (`constrained`, `energies`, `resting_contact`, `check_accuracy`) must be booleans, and `beta`
   with `q0`/`p0` is refused (one of them would be ignored). A run whose initial

@@ -21,7 +21,7 @@ ROOT = Path(__file__).resolve().parents[1]
 CHILD = r"""
 import json, sys, time
 from vcirun.mechanics import get_scene
-from vcirun.methods import resolve_method
+from vcirun.methods.table import resolve_method
 from vcirun.codegen.mh_kernels import modified_kernels_source
 K, meth = int(sys.argv[1]), sys.argv[2]
 s = get_scene(f"n_pendulum_{K}")

@@ -190,8 +190,8 @@ def tensor_module(system, cache):
 def measure(K, cache):
     import vcirun
     from vcirun.codegen.build import load_module
-    from vcirun.mechanics.scenes import get_scene
-    from vcirun.methods import METHODS
+    from vcirun.scenes.declarations import get_scene
+    from vcirun.methods.table import METHODS
 
     s = get_scene(f"n_pendulum_{K}" if isinstance(K, int) else K)
     mod, t_sym, t_numba, chars = tensor_module(s, cache)

@@ -13,8 +13,8 @@ import pytest
 def _compiled(system, method):
     """(MechanicalSystem, compiled module, parameter vector) for a built-in name or a system."""
     from vcirun.codegen.build import load_module
-    from vcirun.mechanics import get_scene
-    from vcirun.methods import resolve_method
+    from vcirun.scenes.declarations import get_scene
+    from vcirun.methods.table import resolve_method
 
     s = get_scene(system) if isinstance(system, str) else system
     return s, load_module(s, resolve_method(method).kernel_set()), s.param_values()

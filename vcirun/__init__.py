@@ -3,7 +3,7 @@
 Python API: `simulate`, `reference`, `l2_error`, `open_results`; command line: `vcirun --help`.
 
 The API names are loaded on first use (PEP 562), so `import vcirun` costs next to nothing and a warm
-`vcirun.simulate` imports neither sympy nor scipy.integrate (issue 7).
+`vcirun.simulate` imports neither sympy nor scipy.integrate.
 """
 import sys as _sys
 import types as _types
@@ -12,9 +12,9 @@ __version__ = "0.1.0"
 
 __all__ = ["simulate", "reference", "l2_error", "Trajectory", "open_results", "__version__"]
 
-_LAZY = {"simulate": ("api", "simulate"), "reference": ("reference", "reference"),
-         "l2_error": ("reference", "l2_error"), "Trajectory": ("trajectory", "Trajectory"),
-         "open_results": ("results", "open_results"), "verify": ("verification", "verify")}
+_LAZY = {"simulate": ("run.api", "simulate"), "reference": ("reference", "reference"),
+         "l2_error": ("reference", "l2_error"), "Trajectory": ("run.trajectory", "Trajectory"),
+         "open_results": ("io.results", "open_results"), "verify": ("verification", "verify")}
 
 
 def __getattr__(name):
@@ -33,9 +33,9 @@ def __dir__():
 
 
 class _Package(_types.ModuleType):
-    """`vcirun.reference` is the function, as it was when this file imported it eagerly: importing the
-    submodule vcirun.reference (e.g. `from vcirun.reference import oscillator_wall_exact`) makes the
-    import system bind the package attribute of the same name to the submodule; keep the function."""
+    """`vcirun.reference` is the function: importing the subpackage vcirun.reference (e.g.
+    `from vcirun.reference.exact import l2_error`) makes the import system bind the package attribute
+    of the same name to the subpackage; keep the function."""
 
     def __setattr__(self, name, value):
         if name == "reference" and isinstance(value, _types.ModuleType) and hasattr(value, "reference"):

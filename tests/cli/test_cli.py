@@ -12,8 +12,8 @@ import pytest
 from typer.testing import CliRunner
 
 import vcirun
-from vcirun.cli import app
-from vcirun.experiments import storage
+from vcirun.cli.main import app
+from vcirun.io import storage
 from vcirun.experiments.config import load_config
 from vcirun.experiments.sweep import expand, run_sweep
 

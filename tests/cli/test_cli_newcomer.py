@@ -10,7 +10,7 @@ import pytest
 from typer.testing import CliRunner
 
 import vcirun
-from vcirun.cli import app
+from vcirun.cli.main import app
 
 TINY = """\
 name: {name}
@@ -74,7 +74,7 @@ def test_cache_info_and_clear(runner, tmp_path, monkeypatch):
 
 
 def test_one_default_cache_for_every_entry_point(monkeypatch, tmp_path):
-    from vcirun import cache
+    from vcirun.codegen import cache
 
     monkeypatch.delenv("VCIRUN_CACHE_DIR", raising=False)
     monkeypatch.setenv("HOME", str(tmp_path))
@@ -85,9 +85,10 @@ def test_one_default_cache_for_every_entry_point(monkeypatch, tmp_path):
 
 def test_compile_announcement(monkeypatch, tmp_path, capsys):
     """A module missing from the cache is announced before it is built (without building it here)."""
-    from vcirun import cache, cli
-    from vcirun.mechanics import get_scene
-    from vcirun.methods import resolve_method
+    from vcirun.codegen import cache
+    from vcirun.cli import main as cli
+    from vcirun.scenes.declarations import get_scene
+    from vcirun.methods.table import resolve_method
 
     monkeypatch.setenv("VCIRUN_CACHE_DIR", str(tmp_path / "empty"))
     monkeypatch.setattr(cache, "COMPILE_CALLBACKS", [])
@@ -109,7 +110,7 @@ def test_simulate_q0_p0_output_and_energy_scale(runner, tmp_path):
     rel = float(re.search(r"relative ([0-9.e+-]+) to the energy scale", r.stdout).group(1))
     assert rel < 1e-2   # H0 ~ 0 here: relative to |H0| alone this was 1e13 .. 1e16
     assert "s integrating;" in r.stdout
-    from vcirun.trajectory import read_trajectory
+    from vcirun.run.trajectory import read_trajectory
 
     tr = read_trajectory(out)
     np.testing.assert_array_equal(tr.q[0], [-1.5, -1.5])
@@ -128,10 +129,10 @@ def test_grid_note_once(runner):
     assert r.exit_code == 0
     assert r.stderr.count("note: T = 1 is not a multiple of h = 0.03: the grid ends at N h = 0.99") == 1
     assert "T = 0.99" in r.stdout
-    with pytest.warns(vcirun.api.GridWarning, match="N = floor"):
+    with pytest.warns(vcirun.run.api.GridWarning, match="N = floor"):
         tr = vcirun.simulate("cart_pendulum", "CVA", h=0.03, T=1, beta=3.2)
     assert tr.T == pytest.approx(0.99) and tr.n_steps == 33
-    assert vcirun.api.grid_steps(1e-3, 5)[2] == 5000 and vcirun.api.grid_steps(3.2e-2, 5)[2] == 156
+    assert vcirun.run.api.grid_steps(1e-3, 5)[2] == 5000 and vcirun.run.api.grid_steps(3.2e-2, 5)[2] == 156
 
 
 def test_sweep_strict_and_plot_every_file(runner, tmp_path, monkeypatch):

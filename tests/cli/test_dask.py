@@ -18,8 +18,9 @@ import pytest
 from typer.testing import CliRunner
 
 import vcirun
-from vcirun.cli import app
-from vcirun.experiments import executors, storage
+from vcirun.cli.main import app
+from vcirun.experiments import executors
+from vcirun.io import storage
 from vcirun.experiments.config import ConfigError, load_config, parse_config
 from vcirun.experiments.sweep import SweepError, expand, run_sweep
 

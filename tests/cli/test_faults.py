@@ -18,10 +18,11 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from vcirun.cli import app
-from vcirun.experiments import storage, sweep
+from vcirun.cli.main import app
+from vcirun.io import storage
+from vcirun.experiments import sweep
 from vcirun.experiments.config import load_config
-from vcirun.experiments.storage import ResultsWriter, StorageError
+from vcirun.io.storage import ResultsWriter, StorageError
 from vcirun.experiments.sweep import SweepError, expand, run_sweep
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "unit"))
@@ -188,7 +189,7 @@ def test_sigkill_leaves_an_h5py_readable_file_and_the_journal_holds_every_saved_
 import sys, os, signal
 sys.path.insert(0, {str(ROOT / 'tests' / 'unit')!r})
 from test_storage import KEY, make_traj, run_attrs
-from vcirun.experiments.storage import ResultsWriter
+from vcirun.io.storage import ResultsWriter
 w = ResultsWriter({str(path)!r}, root_attrs={{"name": "t"}}, config_key=KEY)
 w.acquire(); w.start()
 for i in range(5):
@@ -338,10 +339,11 @@ needs_mount = pytest.mark.skipif(UNSHARE is None, reason="no private mount names
 
 NOCHECK = """\
 import sys
-from vcirun.experiments import storage, sweep
+from vcirun.experiments import sweep
+from vcirun.io import storage
 sweep._check_resources = lambda *a, **k: None           # meet the full disk in the writes themselves
 storage.ResultsWriter._space_needed = lambda self, j: 0
-from vcirun.cli import app
+from vcirun.cli.main import app
 sys.argv = ["vcirun"] + sys.argv[1:]
 app()
 """
@@ -358,7 +360,7 @@ def test_read_only_directory(tiny, tmp_path):
     ro = tmp_path / "ro"
     ro.mkdir()
     p = in_namespace(f"mount --bind {ro} {ro} && mount -o remount,bind,ro {ro}",
-                     f"{sys.executable} -m vcirun.cli sweep {tiny} --output {ro}/r.h5 -q", tmp_path)
+                     f"{sys.executable} -m vcirun.cli.main sweep {tiny} --output {ro}/r.h5 -q", tmp_path)
     assert p.returncode == 1 and p.stderr.strip().count("\n") == 0, p.stderr
     assert "cannot write in" in p.stderr and "Read-only file system" in p.stderr
 
@@ -373,14 +375,14 @@ def test_full_disk_is_one_line_and_keeps_every_committed_run(tiny, tmp_path, siz
     mnt = tmp_path / "mnt"
     mnt.mkdir()
     (tmp_path / "nocheck.py").write_text(NOCHECK)
-    exe = f"{sys.executable} -m vcirun.cli" if checks else f"{sys.executable} {tmp_path / 'nocheck.py'}"
+    exe = f"{sys.executable} -m vcirun.cli.main" if checks else f"{sys.executable} {tmp_path / 'nocheck.py'}"
     out = mnt / "r.h5"
-    count = (f"{sys.executable} -c 'from vcirun.experiments import storage; import sys; "
+    count = (f"{sys.executable} -c 'from vcirun.io import storage; import sys; "
              f"print(\"SAVED\", len(storage.read_results(sys.argv[1]).runs))' {out} 2>/dev/null")
     p = in_namespace(f"mount -t tmpfs -o size={size} tmpfs {mnt}",
                      f"{exe} sweep {tiny} --output {out} -q --workers 1 2>{tmp_path}/err; echo RC=$?; {count}; "
                      f"ls -a {mnt}; mount -o remount,size=64m {mnt}; "
-                     f"{sys.executable} -m vcirun.cli sweep {tiny} --output {out} -q --workers 1; echo RC2=$?; "
+                     f"{sys.executable} -m vcirun.cli.main sweep {tiny} --output {out} -q --workers 1; echo RC2=$?; "
                      f"{sys.executable} -c 'import h5py, sys; print(\"FINAL\", len(h5py.File(sys.argv[1])[\"runs\"]))' {out}",
                      tmp_path)
     err = (tmp_path / "err").read_text()

@@ -17,7 +17,7 @@ from pathlib import Path
 import h5py
 import pytest
 
-from vcirun.experiments import storage
+from vcirun.io import storage
 from vcirun.experiments.config import load_config
 from vcirun.experiments.sweep import expand
 
@@ -51,7 +51,7 @@ def slow(*args, **kw):
             time.sleep(HOLD)
     return _simulate(*args, **kw)
 vcirun.simulate = slow
-from vcirun.cli import app
+from vcirun.cli.main import app
 sys.argv = ["vcirun"] + sys.argv[2:]
 app()
 """
@@ -148,7 +148,7 @@ def resume(tmp_path: Path, cfg: Path, monkeypatch):
     """The same command again, in this process (saves a second interpreter start-up)."""
     from typer.testing import CliRunner
 
-    from vcirun.cli import app
+    from vcirun.cli.main import app
 
     monkeypatch.chdir(tmp_path)
     r = CliRunner().invoke(app, ["sweep", str(cfg), "--workers", "1"], catch_exceptions=False)

@@ -7,9 +7,9 @@ import pytest
 from typer.testing import CliRunner
 
 import vcirun
-from vcirun.cli import app
+from vcirun.cli.main import app
 from vcirun.verification import checks as ck
-from vcirun.verification.runner import VerifyResult
+from vcirun.verification.suite import VerifyResult
 
 
 @pytest.fixture

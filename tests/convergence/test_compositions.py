@@ -17,7 +17,7 @@ import pytest
 import vcirun
 from convergence.helpers import exact_smooth, fit_order, map_jacobian, run_map, step, symplecticity_defect
 from vcirun.discrete import lagrangians as L
-from vcirun.reference import oscillator_wall_exact
+from vcirun.scenes.oracles import oscillator_wall_exact
 
 WEIGHTS = {"SVC4": (L.SVC4_WEIGHTS, 4), "SVC6": (L.SVC6_WEIGHTS, 6), "SVC8": (L.SVC8_WEIGHTS, 8)}
 TOL = 0.35

@@ -14,8 +14,8 @@ import pytest
 
 import vcirun
 from vcirun.experiments.studies import contact
-from vcirun.oracles import ball_exact
-from vcirun.api import accumulation_onset
+from vcirun.scenes.oracles import ball_exact
+from vcirun.run.api import accumulation_onset
 from guards import guarded
 
 METHODS = ["CVA", "VCI", "MCVAA", "MCVAC"]

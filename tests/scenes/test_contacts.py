@@ -1,7 +1,7 @@
 """Several unilateral constraints, restitution and simultaneous impacts (issue 17).
 
-Oracles: the ball in a box (decoupled: closed form, vcirun.oracles.ball_in_box_exact), Newton's
-cradle (Moreau's law in closed form, vcirun.oracles.newton_cradle_velocities), and for the double
+Oracles: the ball in a box (decoupled: closed form, vcirun.scenes.oracles.ball_in_box_exact), Newton's
+cradle (Moreau's law in closed form, vcirun.scenes.oracles.newton_cradle_velocities), and for the double
 pendulum between two walls the exact reference, itself checked against the oracles here.
 Derivations: docs/contacts.md.
 """
@@ -14,7 +14,7 @@ import vcirun
 from convergence.helpers import fit_order
 from vcirun.codegen import build
 from vcirun.mechanics.loader import load_system_yaml
-from vcirun.oracles import ball_in_box_exact, newton_cradle_velocities
+from vcirun.scenes.oracles import ball_in_box_exact, newton_cradle_velocities
 
 BOX = dict(width=1.0, height=1.0, g=9.81)
 BOX_Q0, BOX_V0, BOX_T = (0.3, 0.6), (0.7, 0.0), 3.0   # the scene's default state
@@ -157,7 +157,7 @@ def test_double_pendulum_walls_energy_loss_is_newtons():
     """e = 0.9: CVA's reset is Newton's law itself, so H drops at each impact by exactly the
     continuous loss (1 - e^2) u^2 / (2 W) (u, W at the recorded impact state); VCI and MCVAC lose it
     from their own energies, so their H drops by it to O(h^2)."""
-    from vcirun.mechanics.scenes import get_scene
+    from vcirun.scenes.declarations import get_scene
 
     s = get_scene("double_pendulum_walls")
     prm = s.param_values({"e": 0.9})
@@ -212,7 +212,7 @@ def test_single_constraint_declarations_are_unchanged():
 def test_results_file_records_constraint_names_and_restitutions(tmp_path):
     """A sweep's root attributes carry the constraints in declaration order (what impact_contact
     indexes), with their restitution expressions."""
-    from vcirun.experiments import storage
+    from vcirun.io import storage
     from vcirun.experiments.config import load_config
     from vcirun.experiments.sweep import run_sweep
 

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 import vcirun
-from vcirun.api import resolve_system
+from vcirun.run.api import resolve_system
 from vcirun.codegen.build import load_module
-from vcirun.methods import METHODS
+from vcirun.methods.table import METHODS
 
 T = 10.0
 E_SCALE = 2 * 9.81 * 1.0 + 9.81 * 1.0   # H0 - min V for the default release (H0 = 0)

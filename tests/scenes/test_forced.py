@@ -242,7 +242,7 @@ def test_reference_names_its_failures():
 def test_sweep_of_a_forced_system_stores_true_l2_errors(tmp_path):
     """A sweep of damped_oscillator stores L2 errors equal to those against the closed form (before
     issue 15 the stored reference was the unforced motion: 1.14 where the true error is 6e-7)."""
-    from vcirun.experiments import storage
+    from vcirun.io import storage
     from vcirun.experiments.config import load_config
     from vcirun.experiments.sweep import run_sweep
 

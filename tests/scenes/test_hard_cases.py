@@ -21,11 +21,11 @@ import sympy as sp
 import vcirun
 
 NO_HELD = np.zeros(1, dtype=np.int64)  # collision_time's held contacts (issue 18): none
-from vcirun.api import resolve_system
+from vcirun.run.api import resolve_system
 from vcirun.codegen.build import load_module
 from vcirun.mechanics.system import MechanicalSystem
-from vcirun.methods import METHODS
-from vcirun.oracles import oscillator_wall_exact
+from vcirun.methods.table import METHODS
+from vcirun.scenes.oracles import oscillator_wall_exact
 from guards import guarded
 
 D = 0.5

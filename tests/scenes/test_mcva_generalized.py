@@ -1,7 +1,7 @@
 """Acceptance (issue 5): the generalized MCVA (Section 4.4) runs on every discrete Lagrangian of the
 library for s = 1, 2, 3 (and 4), and refuses an unsupported combination with a clear message.
 
-The default suite runs the generated module uncompiled (vcirun.resolve.load_module replaced by
+The default suite runs the generated module uncompiled (vcirun.run.resolve.load_module replaced by
 vcirun.codegen.evaluate.python_module_for: same source text, no numba compile) on a short run with
 one impact; the compiled runs of the whole matrix on the Figure 3 setting are marked slow
 (one numba compile of ~10-20 s per combination).
@@ -12,21 +12,21 @@ import numpy as np
 import pytest
 
 import vcirun
-import vcirun.api
+import vcirun.run.api
 from vcirun.discrete.lagrangians import LIBRARY
 from vcirun.modified import MH_LDS
-from vcirun.methods import METHODS, resolve_method
-from vcirun.methods import generalized_mcva
+from vcirun.methods.table import METHODS, resolve_method
+from vcirun.methods.table import generalized_mcva
 from vcirun.codegen.evaluate import python_module_for
 
 
 @pytest.fixture
 def uncompiled(monkeypatch):
-    monkeypatch.setattr(vcirun.resolve, "load_module", python_module_for)
+    monkeypatch.setattr(vcirun.run.resolve, "load_module", python_module_for)
 
 
 def _short_state():
-    s = vcirun.api.resolve_system("cart_pendulum")
+    s = vcirun.run.api.resolve_system("cart_pendulum")
     q0 = np.array([0.3, 0.2])
     return q0, s.mass_matrix(q0) @ np.array([-1.0, 1.0])
 

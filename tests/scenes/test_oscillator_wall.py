@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 import vcirun
-from vcirun.reference import oscillator_wall_exact
+from vcirun.scenes.oracles import oscillator_wall_exact
 
 X0, V0, T, D = 1.0, 0.0, 50.0, 0.5
 H_DENSE = 0.1 * 2.0 ** (-np.arange(17) / 4.0)   # 0.1 .. 0.00625, 4 per octave

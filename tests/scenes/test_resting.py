@@ -1,12 +1,12 @@
 """Resting contact and release (issue 18): held contacts in the integrators and in the exact reference.
 
 Exact cases, none built from vcirun's integrators:
-- the Zeno ball (e = 0.8): impacts accumulate at t_inf = t1 + 2 e v1 / (g (1 - e)) (vcirun.oracles.zeno_ball),
+- the Zeno ball (e = 0.8): impacts accumulate at t_inf = t1 + 2 e v1 / (g (1 - e)) (vcirun.scenes.oracles.zeno_ball),
   then the ball lies on the floor;
 - the ball in the box (e = 0.8), settling on the floor while it still hits the side walls
-  (vcirun.oracles.ball_in_box_exact): the floor is held through the wall impacts;
+  (vcirun.scenes.oracles.ball_in_box_exact): the floor is held through the wall impacts;
 - the bead on top of a circle, released where the normal force m g cos(theta) - m v^2 / R vanishes
-  (vcirun.oracles.bead_release);
+  (vcirun.scenes.oracles.bead_release);
 - a particle in a circular bowl, held for ever: a simple pendulum, solved here by solve_ivp;
 - the cart-pendulum held on the floor, lifting off where the floor force
   N = (m1 + m2) g + m2 L (cos(theta) theta'^2 + sin(theta) theta'') vanishes (a pendulum with a fixed
@@ -22,7 +22,7 @@ from scipy.integrate import solve_ivp
 import vcirun
 from convergence.helpers import fit_order
 from vcirun.mechanics.loader import load_system_yaml
-from vcirun.oracles import ball_in_box_exact, bead_release, zeno_ball
+from vcirun.scenes.oracles import ball_in_box_exact, bead_release, zeno_ball
 
 G = 9.81
 ZENO = {"name": "zeno_ball", "coordinates": ["y"], "parameters": {"g": G, "m": 1.0, "e": 0.8},

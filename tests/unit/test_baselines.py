@@ -15,7 +15,7 @@ import pytest
 
 import vcirun
 from vcirun.experiments.baselines import BASELINES, solve_ivp_run
-from vcirun.oracles import oscillator_wall_exact
+from vcirun.scenes.oracles import oscillator_wall_exact
 
 T, BETA, H = 5.0, 3.2, 1e-2
 
@@ -63,9 +63,9 @@ def test_dop853_agrees_with_the_exact_reference_to_its_tolerance(dop, ref):
 
 
 def test_reset_is_the_exact_elastic_reflection(dop):
-    from vcirun.api import resolve_system
+    from vcirun.run.api import resolve_system
     from vcirun.codegen.build import load_module
-    from vcirun.methods import METHODS
+    from vcirun.methods.table import METHODS
 
     b = dop[1e-12]
     s = resolve_system("cart_pendulum")

@@ -23,8 +23,8 @@ import pytest
 
 from vcirun.codegen import c_emit, cc, derive
 from vcirun.codegen.build import _PKG
-from vcirun.mechanics import get_scene
-from vcirun.methods import resolve_method
+from vcirun.scenes.declarations import get_scene
+from vcirun.methods.table import resolve_method
 
 pytestmark = pytest.mark.skipif(cc.compiler() is None, reason="no C compiler")
 

@@ -1,4 +1,4 @@
-"""vcirun.cache.first_call_lock: processes that start on the same cold module take turns at its
+"""vcirun.codegen.cache.first_call_lock: processes that start on the same cold module take turns at its
 first call (one compiles, the others then load numba's cache), and a lock that cannot be made does
 not stop the call."""
 from __future__ import annotations
@@ -10,7 +10,7 @@ import types
 
 import pytest
 
-from vcirun import cache
+from vcirun.codegen import cache
 
 
 def _holder(cache_dir, log, ready, hold_s):

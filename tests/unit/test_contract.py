@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 import vcirun
-from vcirun import record
+from vcirun.core import record
 from vcirun.codegen import units
 from vcirun.codegen.build import SYSTEM_KERNELS, KernelSet
-from vcirun.experiments import storage
-from vcirun.methods import METHODS, resolve_method
-from vcirun.trajectory import Trajectory
+from vcirun.io import storage
+from vcirun.methods.table import METHODS, resolve_method
+from vcirun.run.trajectory import Trajectory
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -70,7 +70,7 @@ def test_bindings_come_from_the_method_data():
 
 def test_generated_part_defines_its_declared_names():
     from vcirun.codegen.derive import generated_source
-    from vcirun.mechanics.scenes import get_scene
+    from vcirun.scenes.declarations import get_scene
 
     s = get_scene("oscillator_wall")
     for ks in (SYSTEM_KERNELS, METHODS["VCI"].kernel_set(), resolve_method("SVA").kernel_set()):
@@ -86,7 +86,7 @@ def test_trajectory_storage_and_schema_follow_the_record_table():
     assert set(storage.TRAJECTORY_ARRAYS) == {"t"} | set(record.stored_names("trajectory"))
     doc = (ROOT / "docs" / "results_schema.md").read_text()
     assert record.schema_markdown() in doc, "docs/results_schema.md: regenerate the datasets table from " \
-                                            "vcirun.record.schema_markdown()"
+                                            "vcirun.core.record.schema_markdown()"
     consts = record.module_constants()
     for f in record.FIELDS:
         assert f"{f.index_name} = " in consts
@@ -111,7 +111,7 @@ def test_impact_impulse_is_the_recorded_momentum_jump(method):
         assert np.allclose(pp - pm, lam * grad, rtol=1e-13, atol=1e-13)
         assert lam > 0
     if method == "CVA":
-        from vcirun.mechanics.scenes import get_scene
+        from vcirun.scenes.declarations import get_scene
 
         s = get_scene("cart_pendulum")
         for lam, q, pm in zip(tr.impact_impulse, tr.impact_q, tr.impact_p_minus):

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import vcirun
-from vcirun.trajectory import DenseOutput
+from vcirun.run.trajectory import DenseOutput
 
 
 @pytest.fixture(scope="module")
@@ -91,7 +91,7 @@ def test_pickle_and_reattach(run):
 
 
 def test_stored_trajectory_dense_output(tmp_path, run):
-    from vcirun.experiments import storage
+    from vcirun.io import storage
 
     attrs, arrays = storage.trajectory_payload(run)
     import h5py

@@ -8,7 +8,8 @@ import pytest
 from matplotlib.figure import Figure
 from test_storage import make_traj, run_attrs, synthetic_results, write
 
-from vcirun.experiments import figures, storage
+from vcirun.experiments import figures
+from vcirun.io import storage
 
 
 def _snapshot():

@@ -13,7 +13,7 @@ import pytest
 import yaml
 
 import vcirun
-from vcirun import validation
+from vcirun.core import validation
 from vcirun.experiments.config import ConfigError, load_config, parse_config
 from vcirun.mechanics import load_system_yaml
 
@@ -356,9 +356,9 @@ def test_an_exact_reference_beyond_its_budget_is_refused(monkeypatch, kw):
     """beta = 1e20 (velocities ~1e19) collapsed DOP853's steps: the solve ran for hours. The solve's
     right-hand-side evaluations are projected to T and refused above MAX_RHS_EVALS (checked here from
     2,000 evaluations instead of 200,000, to keep the test short)."""
-    import sys
+    import importlib
 
-    ref_mod = sys.modules["vcirun.reference"]
+    ref_mod = importlib.import_module("vcirun.reference.exact")
     monkeypatch.setattr(ref_mod, "MIN_RHS_EVALS_FOR_PROJECTION", 2_000)
     with pytest.raises(ValueError, match=r"^T: the exact reference would need about .* right-hand-side evaluations"):
         vcirun.reference("cart_pendulum", rtol=1e-10, check_accuracy=False, **kw)

@@ -16,18 +16,22 @@ import pytest
 PKG = Path(__file__).resolve().parents[2] / "vcirun"
 
 LAYERS = (
-    ("foundation", ("record", "scenedata", "validation", "oracles", "catalog", "plotting")),
+    ("core", ("core",)),
     ("symbolic model", ("mechanics",)),
+    ("scenes", ("scenes",)),
     ("discrete mechanics", ("discrete",)),
     ("backward error", ("modified",)),
-    ("code generation", ("codegen", "cache")),
+    ("code generation", ("codegen",)),
     ("numba units", ("maps", "collision")),
     ("methods", ("methods",)),
-    ("Python API", ("resolve", "trajectory", "trajectory_io", "api", "diagnosis")),
-    ("reference", ("reference", "reference_held")),
-    ("analysis", ("verification", "results", "results_xr", "experiments")),
+    ("run", ("run",)),
+    ("reference", ("reference",)),
+    ("files", ("io",)),
+    ("experiments", ("experiments",)),
+    ("verification", ("verification",)),
+    ("interface", ("cli",)),
 )
-OUTSIDE = ("__init__", "cli", "__main__")
+OUTSIDE = ("__init__", "__main__")
 
 
 def _layer_of(mod: str) -> int | None:
@@ -120,8 +124,8 @@ def test_no_import_cycle():
 
 
 @pytest.mark.parametrize("module", ["vcirun.maps", "vcirun.collision", "vcirun.experiments", "vcirun.reference",
-                                    "vcirun.experiments.sweep", "vcirun.experiments.storage",
-                                    "vcirun.experiments.config", "vcirun.api", "vcirun.record"])
+                                    "vcirun.experiments.sweep", "vcirun.io.storage",
+                                    "vcirun.experiments.config", "vcirun.run.api", "vcirun.core.record"])
 def test_numeric_layers_load_no_sympy_and_compile_nothing(module):
     code = (f"import sys, importlib; importlib.import_module({module!r}); "
             "bad = [m for m in sys.modules if m == 'sympy' or m.startswith('vcirun_kernels_')]; "

@@ -1,4 +1,4 @@
-"""The closed-form oracles of several contacts (vcirun.oracles; docs/contacts.md, section 4), each
+"""The closed-form oracles of several contacts (vcirun.scenes.oracles; docs/contacts.md, section 4), each
 against an independent numerical solve written here from the equations of motion:
 
   * ball_in_box_exact, zeno_ball: scipy solve_ivp (DOP853) on the unconstrained equations with one
@@ -18,8 +18,7 @@ import pytest
 from scipy.integrate import solve_ivp
 from scipy.optimize import nnls
 
-from vcirun.oracles import (ball_in_box_exact, bead_release, newton_cradle_impulses, newton_cradle_velocities,
-                            zeno_ball)
+from vcirun.scenes.oracles import (ball_in_box_exact, bead_release, newton_cradle_impulses, newton_cradle_velocities, zeno_ball)
 
 RTOL, ATOL = 1e-13, 1e-15
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import vcirun
-from vcirun.reference import oscillator_wall_exact
+from vcirun.scenes.oracles import oscillator_wall_exact
 
 
 @pytest.mark.parametrize("eps", [1e-2, 1e-4, 1e-6, 1e-8])

@@ -1,5 +1,5 @@
-"""The held-contact machinery of the exact reference (vcirun.reference_held; docs/contacts.md,
-"Held contacts in the reference"), against closed forms (vcirun.oracles) and independent solves
+"""The held-contact machinery of the exact reference (vcirun.reference.held; docs/contacts.md,
+"Held contacts in the reference"), against closed forms (vcirun.scenes.oracles) and independent solves
 written here from the equations of motion (never vcirun kernels):
 
   * a bead on a circle (e = 0), held from the start at the top (case (c)) or by a plastic impact
@@ -27,11 +27,11 @@ import pytest
 from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
-from vcirun import reference_held as rh
+from vcirun.reference import held as rh
 from vcirun.codegen.build import SYSTEM_KERNELS, load_module
-from vcirun.mechanics import get_scene
+from vcirun.scenes.declarations import get_scene
 from vcirun.mechanics.loader import load_system_yaml
-from vcirun.oracles import ball_in_box_exact, bead_release, zeno_ball
+from vcirun.scenes.oracles import ball_in_box_exact, bead_release, zeno_ball
 
 BEAD = {"name": "bead_circle_drag", "coordinates": ["x", "y"],
         "parameters": {"m": 1.0, "g": 9.81, "R": 1.0, "e": 0.0, "c": 0.0},

@@ -25,9 +25,9 @@ import pytest
 import vcirun
 
 NO_HELD = np.zeros(1, dtype=np.int64)  # collision_time's held contacts (issue 18): none
-from vcirun.api import resolve_system
+from vcirun.run.api import resolve_system
 from vcirun.codegen.build import load_module
-from vcirun.methods import METHODS
+from vcirun.methods.table import METHODS
 
 SCENES = ["cart_pendulum", "double_pendulum", "oscillator_wall"]
 NTOL, MAXIT, ETOL = 1e-12, 50, 1e-13

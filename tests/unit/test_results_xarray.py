@@ -11,7 +11,7 @@ import xarray as xr
 import pytest
 
 import vcirun
-from vcirun.experiments import storage
+from vcirun.io import storage
 from vcirun.experiments.config import parse_config
 from vcirun.experiments.sweep import run_sweep
 
@@ -36,7 +36,7 @@ def test_open_results_dims_and_values(sweep_file):
     np.testing.assert_allclose(ds.beta.values, [3.2, 3.7, 4.2])
     curve = ds.l2_error.sel({"method": "CVA", "h": 0.01})
     assert curve.dims == ("beta",)
-    # the keyword form, though `method` is also xarray's fill-method keyword (vcirun.results_xr)
+    # the keyword form, though `method` is also xarray's fill-method keyword (vcirun.io.xr)
     np.testing.assert_array_equal(ds.l2_error.sel(method="CVA", h=0.01).values, curve.values)
     np.testing.assert_array_equal(ds.sel(method="CVA", h=0.01).l2_error.values, curve.values)
     np.testing.assert_array_equal(ds.l2_error.sel(method="CVA").sel(h=0.01).values, curve.values)

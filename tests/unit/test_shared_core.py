@@ -142,7 +142,7 @@ def test_core_text_reads_the_scene_sizes_at_run_time():
     import tokenize
 
     from vcirun.codegen import shared
-    from vcirun.methods import METHODS
+    from vcirun.methods.table import METHODS
 
     def names(text):
         return {t.string for t in tokenize.generate_tokens(io.StringIO(text).readline) if t.type == tokenize.NAME}
@@ -184,8 +184,8 @@ def test_bad_build_choice_is_one_line_naming_the_variable(monkeypatch, var, valu
 def test_cold_build_estimate_counts_the_core_only_until_it_is_compiled(tmp_path, monkeypatch):
     """Shared build: scene kernels from this cache's record (scaled in n), plus the core's recorded
     time while numba has not cached it."""
-    from vcirun import cache
-    from vcirun.methods import METHODS
+    from vcirun.codegen import cache
+    from vcirun.methods.table import METHODS
 
     monkeypatch.setenv("VCIRUN_CACHE_DIR", str(tmp_path))
     monkeypatch.delenv("VCIRUN_BUILD", raising=False)

@@ -10,10 +10,11 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from vcirun.experiments import metrics, storage
-from vcirun.experiments.storage import ResultsWriter, StorageError
-from vcirun import record
-from vcirun.trajectory import Trajectory
+from vcirun.experiments import metrics
+from vcirun.io import storage
+from vcirun.io.storage import ResultsWriter, StorageError
+from vcirun.core import record
+from vcirun.run.trajectory import Trajectory
 
 KEY = "k" * 64
 

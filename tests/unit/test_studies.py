@@ -1,5 +1,5 @@
 """The study system without running a study: the schema (one validated model per `study:` kind, one-line
-errors naming the field), the report template syntax, and the closed-form oracles of vcirun.oracles."""
+errors naming the field), the report template syntax, and the closed-form oracles of vcirun.scenes.oracles."""
 from __future__ import annotations
 
 import math
@@ -11,7 +11,7 @@ import pytest
 from vcirun.experiments.config import ConfigError
 from vcirun.experiments.studies.report import extremes_context, render, render_extremes
 from vcirun.experiments.studies.schema import ExtremesStudy, WorkPrecisionStudy, load_study, parse_study
-from vcirun.oracles import ball_exact, ball_exact_onset, ball_position
+from vcirun.scenes.oracles import ball_exact, ball_exact_onset, ball_position
 
 ROOT = Path(__file__).resolve().parents[2]
 TEMPLATE = ROOT / "docs" / "templates" / "extremes.md"

@@ -12,7 +12,8 @@ import sympy as sp
 import yaml
 
 import vcirun
-from vcirun.mechanics import BUILTIN_SCENES, get_scene, load_system_yaml
+from vcirun.scenes.declarations import BUILTIN_SCENES, get_scene
+from vcirun.mechanics import load_system_yaml
 
 CART_YAML = """
 name: cart_pendulum_yaml
@@ -112,7 +113,7 @@ def test_warm_path_checks_the_mass_matrix_at_q0_compiled(monkeypatch):
     """A built-in scene served from the warm index never builds the symbolic system, so the
     hyperregularity check at q0 is the module's compiled mass_matrix_ok (a Cholesky attempt); numpy's
     check_mass_matrix then words the error. Cart-pendulum M = [[m1 + m2, m2 L sin], [., m2 L^2]]."""
-    from vcirun import api, resolve
+    from vcirun.run import api, resolve
 
     vcirun.simulate("cart_pendulum", "CVA", h=0.1, T=0.2, beta=3.2)  # compiles and indexes the module
 

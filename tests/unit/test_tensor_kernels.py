@@ -20,7 +20,7 @@ import pytest
 from vcirun.codegen import derive, frame
 from vcirun.codegen.tensor import quadrature_nodes
 from vcirun.discrete.lagrangians import LIBRARY, ExplicitLd
-from vcirun.mechanics import get_scene
+from vcirun.scenes.declarations import get_scene
 
 SYSTEMS = ("cart_pendulum", "double_pendulum", "n_pendulum_3", "damped_oscillator", "forced_2dof")
 LDS = ("SE1", "SE2", "SVC", "midpoint")
@@ -247,9 +247,9 @@ def _compiled_expanded(system, ks, directory):
                          ids=[f"{s}-{m}" + "".join(f"-{v}" for v in o.values()) for s, m, o, _ in SIMS])
 def test_simulation_agrees_with_expanded_path(system_name, method, mopts, kw, tmp_path, monkeypatch):
     import vcirun
-    import vcirun.resolve as resolve
+    import vcirun.run.resolve as resolve
     from vcirun.codegen.build import load_module
-    from vcirun.methods import resolve_method
+    from vcirun.methods.table import resolve_method
 
     monkeypatch.delenv(derive.KERNEL_PATH_ENV, raising=False)
     system = get_scene(system_name)

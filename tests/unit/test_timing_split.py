@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 import vcirun
-from vcirun import api, resolve
+from vcirun.run import api, resolve
 from vcirun.codegen import build
 
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import vcirun
-from vcirun.reference import oscillator_wall_exact
+from vcirun.scenes.oracles import oscillator_wall_exact
 from vcirun.verification import checks as ck
 from vcirun.verification.fd import Probe, check_kernels
 from vcirun.verification.orders import fit_order
@@ -141,7 +141,7 @@ class _Perturbed:
 def test_derivative_table_catches_a_perturbed_kernel(compiled):
     system, mod, prm = compiled("oscillator_wall", "CVA")
     probes = [Probe(np.array([0.3]), np.array([-0.7]), 0.0, 0.04), Probe(np.array([-0.2]), np.array([0.5]), 1.0, 0.04)]
-    ks = vcirun.methods.resolve_method("CVA").kernel_set()
+    ks = vcirun.methods.table.resolve_method("CVA").kernel_set()
     rows = check_kernels(mod, prm, probes, full_stages=ks.full_stages)
     ok = {r["kernel"]: r["worst"] for r in rows}
     assert all(r["worst"] <= 0.1 * r["thresholds"][0] for r in rows), rows   # well inside each pass threshold
@@ -153,7 +153,7 @@ def test_derivative_table_catches_a_perturbed_kernel(compiled):
 
 
 def test_symplecticity_defect_sees_a_dissipative_map(compiled):
-    from vcirun.verification.runner import _symplecticity_rows
+    from vcirun.verification.suite import _symplecticity_rows
 
     probes = [Probe(np.array([0.4]), np.array([-0.3]), 0.0, 0.1)]
     _, mod, prm = compiled("damped_oscillator", "SVC")

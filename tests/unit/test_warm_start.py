@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 
 import vcirun
-import vcirun.api as api
-import vcirun.resolve as resolve
+import vcirun.run.api as api
+import vcirun.run.resolve as resolve
 from vcirun.codegen import build
-from vcirun.methods import METHODS
+from vcirun.methods.table import METHODS
 
 YAML = """name: warm_cart_yaml
 description: the cart-pendulum as a YAML system (warm-start test)
@@ -43,9 +43,9 @@ CHILD = r"""
 import json, sys
 args = json.loads(sys.argv[1])
 import vcirun
-from vcirun import api, resolve
+from vcirun.run import api, resolve
 from vcirun.codegen import build
-from vcirun.methods import resolve_method
+from vcirun.methods.table import resolve_method
 out = []
 for system, method, kw, force_cold, instance in args["runs"]:
     if force_cold:  # delete the index entry: the symbolic path must run (and write it again)
@@ -143,7 +143,8 @@ def test_warm_key_follows_the_hashed_files(tmp_path, monkeypatch):
     assert k0 == build.warm_key(ident, ks)
     assert build.warm_key(("scene", "double_pendulum"), ks) != k0
     assert build.warm_key(ident, METHODS["VCI"].kernel_set()) != k0
-    for rel in ["scenedata.py", "mechanics/scenes.py", "mechanics/loader.py", "collision/reset_cva.py",
+    for rel in ["scenes/data.py", "core/system_data.py", "scenes/declarations.py", "mechanics/loader.py",
+                "collision/reset_cva.py",
                 "codegen/derive.py", "mechanics/system.py"]:
         f = pkg / rel
         text = f.read_text()
@@ -210,7 +211,7 @@ def test_yaml_index_entry_fields(yaml_file):
 
 
 def test_substituted_load_module_disables_the_warm_index(monkeypatch):
-    """Tests run modules uncompiled by monkeypatching vcirun.resolve.load_module: that must win."""
+    """Tests run modules uncompiled by monkeypatching vcirun.run.resolve.load_module: that must win."""
     calls = []
 
     def fake(system, ks):
@@ -225,12 +226,12 @@ def test_substituted_load_module_disables_the_warm_index(monkeypatch):
 
 
 def test_import_vcirun_is_light_and_names_resolve():
-    code = ("import sys, vcirun; light = 'vcirun.api' not in sys.modules and 'numpy' not in sys.modules; "
-            "from vcirun.reference import oscillator_wall_exact; "  # binds the submodule's name in the package...
-            "import vcirun.api, vcirun.trajectory, vcirun.reference as R; "
+    code = ("import sys, vcirun; light = 'vcirun.run.api' not in sys.modules and 'numpy' not in sys.modules; "
+            "from vcirun.reference.exact import l2_error as _l2; "  # binds the subpackage's name in the package...
+            "import vcirun.run.api, vcirun.run.trajectory, vcirun.reference as R; "
             "from vcirun import simulate, reference, l2_error, Trajectory; "
-            "ok = (simulate is vcirun.api.simulate and reference is vcirun.reference is R and callable(reference) "
-            "and l2_error is sys.modules['vcirun.reference'].l2_error and Trajectory is vcirun.trajectory.Trajectory "
+            "ok = (simulate is vcirun.run.api.simulate and reference is vcirun.reference is R and callable(reference) "
+            "and l2_error is sys.modules['vcirun.reference'].l2_error and Trajectory is vcirun.run.trajectory.Trajectory "
             "and reference is sys.modules['vcirun.reference'].reference); "  # ...but vcirun.reference is the function
             "print(light, ok, sorted(vcirun.__all__), 'scipy.integrate' in sys.modules, 'sympy' in sys.modules)")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
@@ -243,6 +244,6 @@ def test_import_vcirun_is_light_and_names_resolve():
 
 
 def test_methods_and_lagrangians_import_without_sympy():
-    code = "import sys, vcirun.methods, vcirun.discrete.lagrangians; print('sympy' in sys.modules)"
+    code = "import sys, vcirun.methods.table, vcirun.discrete.lagrangians; print('sympy' in sys.modules)"
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert r.returncode == 0 and r.stdout.strip() == "False", r.stderr

@@ -47,14 +47,15 @@ _PKG = Path(__file__).resolve().parent.parent
 # files whose text changes the generated code: hashed into the key
 _GENERATOR_FILES = ["codegen/kernels.py", "codegen/printer.py", "codegen/build.py", "codegen/derive.py",
                     "codegen/kernel_set.py",
-                    "codegen/tensor.py", "codegen/units.py", "record.py", "codegen/c_emit.py", "codegen/cc.py",
+                    "codegen/tensor.py", "codegen/units.py", "core/record.py", "codegen/c_emit.py", "codegen/cc.py",
                     "codegen/shared.py", "codegen/kcall.py", "codegen/frame.py",
                     "discrete/lagrangians.py",
                     "mechanics/system.py"]
 # ... and, only for the MCVA family's modules (so that editing them does not invalidate CVA/VCI caches)
 _MODIFIED_GENERATOR_FILES = ["codegen/mh_kernels.py", "modified/eta.py", "modified/series.py"]
 # ... and, for the warm index only: the files that turn a scene name or a YAML file into a symbolic system
-_SYSTEM_FILES = ["scenedata.py", "mechanics/scenes.py", "mechanics/loader.py", "mechanics/expressions.py"]
+_SYSTEM_FILES = ["core/system_data.py", "scenes/data.py", "scenes/declarations.py", "mechanics/loader.py",
+                 "mechanics/expressions.py"]
 WARM_FORMAT = 1
 
 _loaded: dict[str, object] = {}
@@ -146,10 +147,8 @@ def _module_key(system, ks: KernelSet) -> str:
     h.update(system.fingerprint().encode())
     h.update(ks.key_text().encode())
     h.update(_versions())
-    for rel in sorted(_key_files(ks)):
-        p = _PKG / rel
-        if p.exists():
-            h.update(p.read_bytes())
+    for rel in sorted(_key_files(ks)):  # every listed file exists (a missing one is a packaging error)
+        h.update((_PKG / rel).read_bytes())
     return h.hexdigest()[:20]
 
 
@@ -283,10 +282,8 @@ def warm_key(ident: tuple, ks: KernelSet) -> str:
     h.update(_versions())
     h.update(_dependency_stamp())
     for rel in sorted(_key_files(ks) | set(_SYSTEM_FILES)):
-        p = _PKG / rel
-        if p.exists():
-            h.update(f"|{rel}|".encode())
-            h.update(p.read_bytes())
+        h.update(f"|{rel}|".encode())
+        h.update((_PKG / rel).read_bytes())
     return h.hexdigest()[:24]
 
 

@@ -258,7 +258,7 @@ def generated_source(system, ks, kernel_path: str | None = None) -> str:
     """The generated part of a module, by the parts of vcirun.codegen.units.GENERATED: the system
     kernels and the record's constants always; the step kernels of the full map's stages (with
     their dispatchers by stage id); R^VCI's dEd/dv; the modified Hamiltonian's kernels."""
-    from ..record import module_constants
+    from ..core.record import module_constants
 
     parts = [HEADER, f"NDOF = {system.n}", f"FORCED = {bool(system.is_forced)}",
              system_kernels_source(system, kernel_path), module_constants()]

@@ -40,13 +40,13 @@ def python_module_for(system, ks):
 
 def python_module(system, ld: str = "SVC", mh_order: int = 3, flow_order: int = 4):
     """The scene's MCVA module for (ld, mh_order, flow_order), executed as plain Python (the kernel set
-    of vcirun.methods.generalized_mcva, built here: codegen does not import methods)."""
+    of vcirun.methods.table.generalized_mcva, built here: codegen does not import methods)."""
     from ..discrete.lagrangians import get_ld
     from ..modified import check_mcva_options
     from .build import KernelSet
 
     if isinstance(system, str):
-        from ..mechanics.scenes import get_scene
+        from ..scenes.declarations import get_scene
 
         system = get_scene(system)
     ld, s, flow = check_mcva_options(ld, int(mh_order), int(flow_order))

@@ -1,5 +1,5 @@
 """What one compiled module must contain (a KernelSet), without importing numba or sympy: the
-method registry (vcirun.methods) and the config layer read it on every start."""
+method registry (vcirun.methods.table) and the config layer read it on every start."""
 from __future__ import annotations
 
 from dataclasses import dataclass

@@ -32,7 +32,7 @@ import types as pytypes
 
 import numpy as np
 
-from .. import record
+from ..core import record
 from . import units
 from .kernel_set import KernelSet
 

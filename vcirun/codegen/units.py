@@ -13,8 +13,8 @@ is where those names are written down:
   Hamiltonian's kernels; the record's index and status constants). `check_generated` holds it
   against the generated text.
 - PARTIALS, RESETS, MODIFIED_ENERGY: the role bindings, chosen by the method's data
-  (vcirun.methods.Method.partial / .reset / .mh_order), never by an `if` in a unit.
-- ENTRY: the names Python calls on a module (vcirun.api, vcirun.reference, baselines, verify).
+  (vcirun.methods.table.Method.partial / .reset / .mh_order), never by an `if` in a unit.
+- ENTRY: the names Python calls on a module (vcirun.run.api, vcirun.reference, baselines, verify).
 
 `select_units(ks)` includes every unit whose requirements the generated part, the bindings and the
 other included units meet (so a CVA module has reset_cva but not reset_vci, which needs ld_Edv),
@@ -30,7 +30,7 @@ import symtable
 from dataclasses import dataclass
 from pathlib import Path
 
-from .. import record
+from ..core import record
 
 PKG = Path(__file__).resolve().parent.parent
 

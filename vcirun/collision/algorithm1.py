@@ -1,7 +1,7 @@
 # numba source unit: Algorithm 1 (event-driven collision integration), compiled as a whole so the
 # event loop itself runs native. It knows only `full`, `partial`, `reset` (and the scene's phi, H and
 # the optional modified energy); which method it runs is decided by what the module binds to them
-# (vcirun.codegen.units). Its inputs, outputs and status codes are the rows of vcirun.record:
+# (vcirun.codegen.units). Its inputs, outputs and status codes are the rows of vcirun.core.record:
 # settings[S_*], out[O_*], info[I_*], ST_*.
 import math
 
@@ -23,10 +23,10 @@ def _finite(x):
 def integrate(q0, p0, t0, h, N, prm, settings, out, info):
     """Run N grid steps of Algorithm 1 from (q0, p0) at t0.
 
-    settings: the loop's scalar inputs (vcirun.record.SETTINGS: constrained, newton_tol, max_iter,
+    settings: the loop's scalar inputs (vcirun.core.record.SETTINGS: constrained, newton_tol, max_iter,
     event_tol, max_impacts_step, energies, resting_contact). out: one preallocated buffer per
-    vcirun.record.FIELDS row, in table order (vcirun.record.allocate). info receives the counters
-    (vcirun.record.COUNTERS). energies = 0 skips H, the discrete energy Ed and the modified energy
+    vcirun.core.record.FIELDS row, in table order (vcirun.core.record.allocate). info receives the counters
+    (vcirun.core.record.COUNTERS). energies = 0 skips H, the discrete energy Ed and the modified energy
     along the grid (set at t0 only): a run that only needs the trajectory saves their per-step cost.
 
     Held contacts (issue 18, resting_contact = 1; docs/contacts.md): a contact is held when the run
@@ -418,7 +418,7 @@ def _accumulating(dense, t_imp, h, max_impacts_step):
     the previous one by less than one grid step h, since dense[1]. Such a run longer than
     max_impacts_step steps is an accumulation, like more than max_impacts_step impacts inside one
     step: a motion settling into contact stops in bounded work even when no single step reaches the
-    per-step cap (a short chatter burst does not). vcirun.api reads the onset off the impact times."""
+    per-step cap (a short chatter burst does not). vcirun.run.api reads the onset off the impact times."""
     if t_imp - dense[0] < h:
         if dense[2] == 0.0:
             dense[1] = dense[0]
@@ -439,7 +439,7 @@ def _log_partial(log, info, dtau):
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _record_impacts(out, info, t_imp, q, pm, pp, s, s0, lam, active):
-    """One entry of every per-impact row of vcirun.record.FIELDS per contact that took an impulse
+    """One entry of every per-impact row of vcirun.core.record.FIELDS per contact that took an impulse
     (simultaneous impacts: one entry each, at the same time and state). The reset's multiplier s
     scales the impact law's impulses: contact i took lam_i s / s0 (one contact: s itself)."""
     for i in range(NCON):

@@ -5,7 +5,7 @@ equations qdot = M^-1 p, pdot = -dH/dq with a terminal event on phi(q) = 0 (dire
 constraint), applies the exact elastic reset p+ = p- + lam grad phi, lam = -2 g^T M^-1 p- / g^T M^-1 g
 (H conserved; the same formula as `vcirun.reference`), restarts, and reports the solution on the
 run's grid t_k = t0 + k h, k = 0..N, N = round(T / h) through `t_eval` (as a vcirun method would
-report it). The result is a `vcirun.trajectory.Trajectory`, so `vcirun.l2_error(traj, ref)` and the
+report it). The result is a `vcirun.run.trajectory.Trajectory`, so `vcirun.l2_error(traj, ref)` and the
 energy metrics apply unchanged; `wall_time` is the time of the solve loop (right-hand side calls,
 event location, resets, dense output on the grid), the analogue of a vcirun run's compiled-loop time.
 H on the grid is computed after the timed loop (a vcirun run computes it inside its loop).
@@ -27,8 +27,8 @@ import time
 
 import numpy as np
 
-from .. import trajectory as tr
-from ..reference import step_off_surface
+from ..run import trajectory as tr
+from ..reference.exact import step_off_surface
 
 __all__ = ["BASELINES", "solve_ivp_run", "is_baseline", "hamiltonian_on_grid"]
 
@@ -144,7 +144,7 @@ def solve_ivp_run(system, method: str = "DOP853", *, h, T, rtol, atol=None, beta
     grid after the timed part)."""
     from scipy.integrate import solve_ivp
 
-    from ..api import grid_steps, resolve_system
+    from ..run.api import grid_steps, resolve_system
 
     if method not in BASELINES:
         raise ValueError(f"method: expected one of {', '.join(BASELINES)} (got {method!r})")
@@ -270,7 +270,7 @@ def solve_ivp_run(system, method: str = "DOP853", *, h, T, rtol, atol=None, beta
 
 def hamiltonian_on_grid(system, q, p, params=None, kernels: str = "compiled") -> np.ndarray:
     """H(q_k, p_k) for the rows of q, p (what `energies=True` computes, callable outside a timed run)."""
-    from ..api import resolve_system
+    from ..run.api import resolve_system
 
     sysm = resolve_system(system)
     prm = sysm.param_values(params)

@@ -40,14 +40,14 @@ import yaml
 from pydantic import (BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationError, field_validator,
                       model_validator)
 
-from .. import validation as _validation
+from ..core import validation as _validation
 from ..discrete.lagrangians import LIBRARY
-from ..methods import METHODS
+from ..methods.table import METHODS
 
 __all__ = ["ConfigError", "SweepConfig", "MethodSpec", "InitialCondition", "ExecutorSpec", "load_config", "parse_config",
            "COLLISION_METHODS", "SMOOTH_METHODS", "DISCRETE_LAGRANGIANS", "yaml_load"]
 
-# Names `vcirun.simulate` accepts, read from the core's registries (vcirun.methods.METHODS,
+# Names `vcirun.simulate` accepts, read from the core's registries (vcirun.methods.table.METHODS,
 # vcirun.discrete.lagrangians.LIBRARY): one list each (issue 16).
 COLLISION_METHODS = tuple(METHODS) + ("MCVA",)
 DISCRETE_LAGRANGIANS = tuple(LIBRARY)
@@ -130,7 +130,7 @@ PositiveFloat = Annotated[float, Field(gt=0)]
 
 # --- system ---------------------------------------------------------------------------------------
 class BuiltinSystem(_Model):
-    """A built-in scene (`vcirun.scenedata.BUILTIN_SCENE_DATA`) with optional parameter overrides."""
+    """A built-in scene (`vcirun.scenes.data.BUILTIN_SCENE_DATA`) with optional parameter overrides."""
     name: str = Field(min_length=1)
     params: dict[str, float] = Field(default_factory=dict)
 
@@ -511,13 +511,13 @@ class _FieldError(ValueError):
 
 
 # --- YAML ----------------------------------------------------------------------------------------------
-# The loader lives in vcirun.validation (system files are parsed by the same rules): YAML 1.2 numbers,
+# The loader lives in vcirun.core.validation (system files are parsed by the same rules): YAML 1.2 numbers,
 # duplicate keys rejected, alias expansion and text size capped before anything walks the value.
 _Loader = _validation.SafeLoader
 
 
 def yaml_load(text: str):
-    """Parse YAML config text (see `vcirun.validation.SafeLoader`)."""
+    """Parse YAML config text (see `vcirun.core.validation.SafeLoader`)."""
     return _validation.yaml_load(text)
 
 
@@ -775,12 +775,12 @@ def config_text(path) -> str:
 def build_system(cfg: SweepConfig):
     """(system argument for vcirun.simulate/reference, parameter overrides or None, MechanicalSystem)."""
     from vcirun.mechanics import load_system_yaml
-    from vcirun.mechanics.scenes import get_scene
-    from vcirun.scenedata import BUILTIN_SCENE_DATA, scene_args
+    from vcirun.scenes.declarations import get_scene
+    from vcirun.scenes.data import BUILTIN_SCENE_DATA, scene_args
 
     s = cfg.system
     if isinstance(s, BuiltinSystem):
-        if scene_args(s.name) is None:  # the one scene registry (vcirun.scenedata)
+        if scene_args(s.name) is None:  # the one scene registry (vcirun.scenes.data)
             hint = difflib.get_close_matches(s.name, list(BUILTIN_SCENE_DATA), n=1)
             raise _Semantic("system",
                             f"unknown built-in system {s.name!r}" + (f"; did you mean {hint[0]!r}?" if hint else "")
@@ -834,7 +834,7 @@ def check_semantics_of(cfg: SweepConfig, *, source: str = "<config>") -> None:
         fld, msg = _strip_field(str(e), "system.params")
         raise ConfigError(msg, source=source, field="system." + fld if not fld.startswith("system") else fld) from None
     check_memory_of(cfg, sysm.n, source=source)
-    from vcirun.methods import resolve_method
+    from vcirun.methods.table import resolve_method
 
     for i, m in enumerate(cfg.methods):
         try:

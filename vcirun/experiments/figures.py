@@ -28,11 +28,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..plotting import _COLORS, _MARKERS, _STYLES, STYLE, _figure, _fmt_h, _styled, style, trajectory_figure  # noqa: F401
-from . import metrics, storage
+from ..run.plotting import COLORS, MARKERS, LINE_STYLES, STYLE, new_figure, fmt_h, styled, style, trajectory_figure  # noqa: F401
+from ..io.results import reference_note
+from . import metrics
+from ..io import storage
 
 __all__ = ["FigureSkipped", "figure4", "figure3", "figure1", "work_precision", "contacts_energy", "trajectory_figure", "make_figures",
            "plot_results", "PlotReport", "save_figure", "STYLE"]
+
 
 class FigureSkipped(Exception):
     """The results hold nothing this figure can show; str() says why."""
@@ -68,21 +71,6 @@ def _method_order(runs) -> list[str]:
 
 
 
-def reference_note(results: storage.Results) -> str:
-    """The reference the L2 errors were measured against, in words (from the stored config)."""
-    a = results.attrs
-    spec = (a.get("config_canonical") or {}).get("reference") or {"kind": a.get("reference_kind", "?")}
-    kind = spec.get("kind")
-    if kind == "exact":
-        acc = [float(r.get("accuracy")) for r in results.references.values()
-               if r.get("accuracy") is not None and np.isfinite(r.get("accuracy"))]
-        txt = f"reference: exact nonsmooth solution (DOP853, event location, rtol {spec.get('rtol', 1e-13):g})"
-        return txt + (f", self-reported accuracy <= {max(acc):.1e}" if acc else "")
-    if kind == "method":
-        return f"reference: {spec.get('method', 'CVA')} at h = {_fmt_h(float(spec.get('h')))}"
-    return "no reference"
-
-
 def _runs_by_series(runs):
     """{(label, h): [(beta, l2 or nan, status, l2_note)]} sorted by beta, runs with a finite beta."""
     acc = defaultdict(list)
@@ -112,7 +100,7 @@ def _coincident(series: dict, tol: float = 0.02) -> dict:
     return out
 
 
-@_styled
+@styled
 def figure4(results) -> "Figure":
     """L2 error against beta for each method and h (the paper's Figure 4)."""
     from matplotlib.lines import Line2D
@@ -129,23 +117,23 @@ def figure4(results) -> "Figure":
     keys = sorted(drawable, key=lambda k: (labels.index(k[0]), -k[1]))
     curves = {k: (np.array([p[0] for p in drawable[k]]), np.array([p[1] for p in drawable[k]])) for k in keys}
     same = _coincident(curves)
-    fig, ax = _figure(figsize=(6.4, 4.8))
+    fig, ax = new_figure(figsize=(6.4, 4.8))
     handles, failed_handles = [], []
     for idx, key in enumerate(keys):
         label, h = key
         b, e = curves[key]
         i, j = labels.index(label), hs.index(h)
-        color = _COLORS[i % len(_COLORS)]
+        color = COLORS[i % len(COLORS)]
         every = max(1, len(b) // 12)
         # markers of different series at different betas, wider lines drawn first: a curve lying on
         # another stays visible (Figure 4's CVA and MCVAC at h = 1e-2 nearly coincide)
-        base = text = f"{label}, h = {_fmt_h(h)}"
+        base = text = f"{label}, h = {fmt_h(h)}"
         if key in same:
-            text += f" (on {same[key][0]}, h = {_fmt_h(same[key][1])})"
+            text += f" (on {same[key][0]}, h = {fmt_h(same[key][1])})"
         if np.isfinite(e).any():
-            (ln,) = ax.semilogy(b, e, color=color, linestyle=_STYLES[j % len(_STYLES)],
+            (ln,) = ax.semilogy(b, e, color=color, linestyle=LINE_STYLES[j % len(LINE_STYLES)],
                                 linewidth=max(0.8, 2.4 - 0.35 * idx), zorder=2 + idx,
-                                marker=_MARKERS[i % len(_MARKERS)], markevery=((idx * max(1, every // len(keys))) % every, every),
+                                marker=MARKERS[i % len(MARKERS)], markevery=((idx * max(1, every // len(keys))) % every, every),
                                 markersize=4, markerfacecolor="white" if j else color, label=text)
             handles.append(ln)
         status = [p[2] for p in drawable[key]]
@@ -188,7 +176,7 @@ def _mh_order(r) -> int | None:
     if isinstance(m, dict) and m.get("mh_order"):
         return int(m["mh_order"])
     try:
-        from vcirun.methods import resolve_method
+        from vcirun.methods.table import resolve_method
 
         spec = r.attrs.get("method_spec") or {"name": r.attrs.get("method")}
         mm = resolve_method(spec["name"], **{k: v for k, v in spec.items() if k in ("ld", "mh_order", "flow_order")})
@@ -197,7 +185,7 @@ def _mh_order(r) -> int | None:
         return None
 
 
-@_styled
+@styled
 def figure3(results) -> "Figure":
     """H, -D3 Ld and the truncated modified Hamiltonian over time, one panel per MH method."""
     results = _as_results(results)
@@ -210,14 +198,14 @@ def figure3(results) -> "Figure":
         raise FigureSkipped("needs stored trajectories of an MCVA-family run (store_trajectories: true; "
                             "methods MCVAA, MCVAC or MCVA)")
     runs = [r for r in results.runs if want(r) and float(r.attrs["h"]) == h and r.attrs["ic_key"] == ic]
-    fig, axes = _figure(1, len(runs), figsize=(3.4 * len(runs), 3.2), squeeze=False, sharey=True)
+    fig, axes = new_figure(1, len(runs), figsize=(3.4 * len(runs), 3.2), squeeze=False, sharey=True)
     for ax, r in zip(axes[0], runs):
         tr = storage.load_trajectory(results.path, r.run_id)
         s = _mh_order(r)
-        ax.plot(tr.t, tr.H, color=_COLORS[0], label=r"$H$")
-        ax.plot(tr.t, metrics.masked_discrete_energy(tr), color=_COLORS[1], linestyle="--",
+        ax.plot(tr.t, tr.H, color=COLORS[0], label=r"$H$")
+        ax.plot(tr.t, metrics.masked_discrete_energy(tr), color=COLORS[1], linestyle="--",
                 label=r"$-D_3L_d$ (impact steps masked)")
-        ax.plot(tr.t, tr.Hmod, color=_COLORS[2], linestyle="-.",
+        ax.plot(tr.t, tr.Hmod, color=COLORS[2], linestyle="-.",
                 label="truncated MH" + (f", mh_order = {s}" if s else ""))
         for ti in tr.impacts:
             ax.axvline(ti, color="0.4", linestyle=(0, (4, 3)), linewidth=0.7)
@@ -229,11 +217,11 @@ def figure3(results) -> "Figure":
     axes[0][0].set_ylabel("energy [J]")
     b = runs[0].attrs.get("beta")
     where = f"beta = {b:g}" if b is not None and np.isfinite(b) else ic
-    fig.suptitle(f"{results.attrs.get('system', '')}: {where}, h = {_fmt_h(h)}; dashed lines: impacts", fontsize=9)
+    fig.suptitle(f"{results.attrs.get('system', '')}: {where}, h = {fmt_h(h)}; dashed lines: impacts", fontsize=9)
     return fig
 
 
-@_styled
+@styled
 def figure1(results) -> "Figure":
     """H(t) of a run with impacts against the same method without the constraint (Figure 1)."""
     results = _as_results(results)
@@ -254,12 +242,12 @@ def figure1(results) -> "Figure":
                             "(a second method entry with options: {constrained: false})")
     pairs.sort(key=lambda p: (-float(p[0].attrs["h"]), p[0].attrs.get("method_index", 0)))
     pairs = pairs[:4]
-    fig, axes = _figure(len(pairs), 1, figsize=(6.0, 2.9 * len(pairs)), squeeze=False)
+    fig, axes = new_figure(len(pairs), 1, figsize=(6.0, 2.9 * len(pairs)), squeeze=False)
     for ax, (rc, rf) in zip(axes[:, 0], pairs):
         tc = storage.load_trajectory(results.path, rc.run_id)
         tf = storage.load_trajectory(results.path, rf.run_id)
-        ax.plot(tf.t, tf.H, color=_COLORS[0], label="without impacts")
-        ax.plot(tc.t, tc.H, color=_COLORS[1], label="with impacts")
+        ax.plot(tf.t, tf.H, color=COLORS[0], label="without impacts")
+        ax.plot(tc.t, tc.H, color=COLORS[1], label="with impacts")
         for ti in tc.impacts:
             ax.axvline(ti, color="0.4", linestyle=(0, (4, 3)), linewidth=0.7)
         # |H0| can be 0 (it depends on the zero of V), so the jump is compared with the range of H's
@@ -270,7 +258,7 @@ def figure1(results) -> "Figure":
         if smooth > 0:
             txt += f" = {jump / smooth:.2g} x the range of H without impacts ({smooth:.2g})"
         # in the title, not over the data: an annotation box inside the axes covered the legend
-        ax.set_title(f"{rc.attrs['label']}, h = {_fmt_h(float(rc.attrs['h']))}\n{txt}", fontsize=8)
+        ax.set_title(f"{rc.attrs['label']}, h = {fmt_h(float(rc.attrs['h']))}\n{txt}", fontsize=8)
         ax.set_ylabel(r"$H$ [J]")
         ax.grid(True, linewidth=0.3, alpha=0.5)
     axes[-1, 0].set_xlabel(r"$t$ [s]; dashed lines: impacts")
@@ -285,7 +273,7 @@ def _largest_impact_jump(tr) -> float:
     return float(np.max(np.abs(tr.H[steps + 1] - tr.H[steps]))) if steps.size else 0.0
 
 
-@_styled
+@styled
 def work_precision(results) -> "Figure":
     """Median L2 error against mean computation time, one marker per h, one line per method."""
     results = _as_results(results)
@@ -303,14 +291,14 @@ def work_precision(results) -> "Figure":
     if not points or max(len(v) for v in points.values()) < 2:
         raise FigureSkipped("work-precision needs finite L2 errors (a reference) and timings at two or more h")
     labels = _method_order(results.runs)
-    fig, ax = _figure(figsize=(5.0, 3.8))
+    fig, ax = new_figure(figsize=(5.0, 3.8))
     for label in labels:
         pts = sorted(points.get(label, []))
         if not pts:
             continue
         i = labels.index(label)
-        ax.loglog([p[0] for p in pts], [p[1] for p in pts], color=_COLORS[i % len(_COLORS)],
-                  marker=_MARKERS[i % len(_MARKERS)], markersize=4, label=label)
+        ax.loglog([p[0] for p in pts], [p[1] for p in pts], color=COLORS[i % len(COLORS)],
+                  marker=MARKERS[i % len(MARKERS)], markersize=4, label=label)
     from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
     # a log axis spanning less than a decade: label 1, 2, 5 x 10^k instead of colliding minor labels
@@ -318,7 +306,7 @@ def work_precision(results) -> "Figure":
     ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: f"{x:g}"))
     ax.xaxis.set_minor_formatter(NullFormatter())
     hs = sorted({p[2] for v in points.values() for p in v}, reverse=True)
-    ax.set_title("one point per h: " + ", ".join(_fmt_h(h) for h in hs) + " (larger h: less time)\n"
+    ax.set_title("one point per h: " + ", ".join(fmt_h(h) for h in hs) + " (larger h: less time)\n"
                  + reference_note(results), fontsize=7)
     ax.set_xlabel("mean computation time per run [s]")
     ax.set_ylabel(r"median $L^2$ error")
@@ -327,7 +315,7 @@ def work_precision(results) -> "Figure":
     return fig
 
 
-@_styled
+@styled
 def contacts_energy(results) -> "Figure":
     """H(t) per method at the smallest stored h (first initial state), impacts marked by contact."""
     results = _as_results(results)
@@ -342,7 +330,7 @@ def contacts_energy(results) -> "Figure":
     ic = sorted({r.attrs["ic_key"] for r in runs})[0]
     runs = [r for r in runs if float(r.attrs["h"]) == h and r.attrs["ic_key"] == ic]
     names = [c.get("name", f"c{i}") for i, c in enumerate(cons)]
-    fig, axes = _figure(1, len(runs), figsize=(3.4 * len(runs), 3.2), squeeze=False, sharey=True)
+    fig, axes = new_figure(1, len(runs), figsize=(3.4 * len(runs), 3.2), squeeze=False, sharey=True)
     seen = set()
     for ax, r in zip(axes[0], runs):
         tr = storage.load_trajectory(results.path, r.run_id)
@@ -350,7 +338,7 @@ def contacts_energy(results) -> "Figure":
         for ti, c in zip(tr.impacts, tr.impact_contact):
             lab = None if c in seen else f"impact: {names[c] if c < len(names) else c}"
             seen.add(int(c))
-            ax.axvline(ti, color=_COLORS[int(c) % len(_COLORS)], linestyle=(0, (4, 3)), linewidth=0.7, label=lab)
+            ax.axvline(ti, color=COLORS[int(c) % len(COLORS)], linestyle=(0, (4, 3)), linewidth=0.7, label=lab)
         held = np.asarray(tr.contact_active).any(axis=1) if np.size(tr.contact_active) else np.zeros(0, bool)
         if held.any():
             ax.fill_between(tr.t, 0, 1, where=held, transform=ax.get_xaxis_transform(), color="0.85",
@@ -372,7 +360,7 @@ def contacts_energy(results) -> "Figure":
     prm = (spec.get("params") or {}) if isinstance(spec, dict) else {}
     rest = [str(prm.get(str(c.get("restitution")), c.get("restitution"))) for c in cons]  # parameter -> value
     e = ("e = " + rest[0]) if len(set(rest)) == 1 else ", ".join(f"{n}: e = {v}" for n, v in zip(names, rest))
-    fig.suptitle(f"{results.attrs.get('system', '')}, {len(cons)} contacts, {e}; {ic}, h = {_fmt_h(h)}", fontsize=8)
+    fig.suptitle(f"{results.attrs.get('system', '')}, {len(cons)} contacts, {e}; {ic}, h = {fmt_h(h)}", fontsize=8)
     return fig
 
 

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..trajectory_io import energy_summary, masked_discrete_energy  # noqa: F401  (the trajectory's own summary)
+from ..run.trajectory_files import energy_summary, masked_discrete_energy  # noqa: F401  (the trajectory's own summary)
 
 __all__ = ["l2_error", "energy_summary", "masked_discrete_energy", "mean_ci", "TimingStat", "timing_stats",
            "l2_series"]

@@ -6,8 +6,8 @@ see named dimensions:
     h5py: f["summary/l2_error"].dims[0][0] is f["summary/method"]
 
 Written once when a sweep finishes (also after an interruption: it covers the runs the file holds),
-from `vcirun.results.collect`, the table behind `vcirun.open_results`. Strings are UTF-8
-variable-length; missing runs are NaN / "missing" (see vcirun.results). The write is atomic like the
+from `vcirun.io.results.collect`, the table behind `vcirun.open_results`. Strings are UTF-8
+variable-length; missing runs are NaN / "missing" (see vcirun.io.results). The write is atomic like the
 sweep's commits (copy, write, fsync, rename) and happens while the sweep still holds the file's lock.
 """
 from __future__ import annotations
@@ -20,7 +20,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from . import storage
+from ..io import storage
 
 __all__ = ["write_summary", "GROUP"]
 
@@ -59,7 +59,7 @@ def write_summary(path, if_missing: bool = False) -> Path:
     """(Re)write the summary group of the results file at `path` atomically (with `if_missing`, only
     if the file has none); returns the path. StorageError if the file cannot be read or written (the
     file is then unchanged)."""
-    from vcirun.results import collect
+    from vcirun.io.results import collect
 
     path = Path(path)
     if if_missing:

@@ -39,8 +39,8 @@ from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .. import validation
-from . import storage
+from ..core import validation
+from ..io import storage
 from .config import InitialCondition, MethodReference, MethodSpec, NoReference, SweepConfig, build_system
 # the worker side (re-exported: these names were sweep's)
 from .worker import (RunSpec, SweepError, Task, _default_start_method, _execute, _execute_streamed,  # noqa: F401
@@ -247,7 +247,7 @@ def _final_hooks(cfg: SweepConfig) -> list:
 def _root_attrs(cfg: SweepConfig, config_text: str, config_path, specs: list[RunSpec]) -> dict:
     tol = cfg.tolerances.model_dump(exclude_none=True)
     try:
-        from vcirun.api import DEFAULT_TOLERANCES
+        from vcirun.run.api import DEFAULT_TOLERANCES
 
         tol = {**DEFAULT_TOLERANCES, **tol}
     except ImportError:  # pragma: no cover
@@ -345,7 +345,7 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
         needs_ref = not isinstance(cfg.reference, NoReference)
         reporter = _Reporter(console, len(pending), f"{cfg.name}: {len(pending)} runs on {executor.describe()}",
                              progress)
-        from vcirun.api import grid_note
+        from vcirun.run.api import grid_note
 
         for h in cfg.h:
             if grid_note(h, cfg.T):

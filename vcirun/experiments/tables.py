@@ -7,7 +7,8 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from . import metrics, storage
+from . import metrics
+from ..io import storage
 
 __all__ = ["Table", "table1", "table2", "runs_table", "write_table", "print_table", "to_markdown"]
 
@@ -40,8 +41,8 @@ def _mark(value) -> str:
 
 
 def table1(names=None) -> Table:
-    """Table I of the paper, generated from `vcirun.methods.METHODS[name].properties`."""
-    from vcirun.methods import METHODS
+    """Table I of the paper, generated from `vcirun.methods.table.METHODS[name].properties`."""
+    from vcirun.methods.table import METHODS
 
     names = list(names or [n for n in PAPER_METHODS if n in METHODS] + [n for n in METHODS if n not in PAPER_METHODS])
     rows, csv_rows = [], []
@@ -53,7 +54,7 @@ def table1(names=None) -> Table:
     return Table("Table I: properties of the impact integration methods",
                  ["Method"] + [title for _, title in PROPERTY_COLUMNS], rows,
                  ["method", "ld"] + [k for k, _ in PROPERTY_COLUMNS], csv_rows,
-                 caption="Generated from vcirun.methods.METHODS" + (
+                 caption="Generated from vcirun.methods.table.METHODS" + (
                      f"; not available in this build: {', '.join(missing)}" if missing else ""))
 
 

@@ -24,8 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import validation
-from . import storage
+from ..core import validation
+from ..io import storage
 from .config import InitialCondition, MethodReference, MethodSpec, NoReference, SweepConfig, build_system
 
 __all__ = ["SweepError", "RunSpec", "Task", "make_tasks"]
@@ -83,7 +83,7 @@ class _WorkerState:
         import warnings
 
         import vcirun  # noqa: F401 - once per process; kernels and scenes are cached inside
-        from vcirun.api import GridWarning
+        from vcirun.run.api import GridWarning
 
         warnings.simplefilter("ignore", GridWarning)  # the client says it once for the sweep
 
@@ -188,7 +188,7 @@ def _reference_payload(st: _WorkerState, ic: InitialCondition, ref) -> tuple[dic
 def _resolved_method(spec: MethodSpec) -> dict:
     """What a method spec resolves to (name, ld, partial, reset, mh_order, flow_order): provenance.
     The config layer has already resolved every method, so a failure here is a bug and raises."""
-    from vcirun.methods import resolve_method
+    from vcirun.methods.table import resolve_method
 
     m = resolve_method(spec.name, **{k: v for k, v in spec.simulate_kwargs().items()
                                      if k in ("ld", "mh_order", "flow_order")})

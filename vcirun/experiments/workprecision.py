@@ -133,7 +133,7 @@ def _call(run: _Run, system, params, time_limit):
 
 def run_study(cfg: WorkPrecisionStudy, *, quick: bool = False, log=print, extra_methods: dict | None = None) -> dict:
     """Run every run of the study (see the module docstring) and return the JSON-able result.
-    extra_methods: {label: vcirun.methods.Method} run beside the config's methods (prototypes that
+    extra_methods: {label: vcirun.methods.table.Method} run beside the config's methods (prototypes that
     have no name in the method registry, e.g. from bench/)."""
     import vcirun
 
@@ -261,7 +261,7 @@ def run_study(cfg: WorkPrecisionStudy, *, quick: bool = False, log=print, extra_
         recs.append(rec)
     out["runs"] = recs
     ics = []
-    from ..api import resolve_system
+    from ..run.api import resolve_system
 
     sysm = resolve_system(system)
     for b in betas:

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from . import workprecision as wp
-from .figures import _COLORS, _MARKERS, _figure, _fmt_h, _styled, save_figure
+from .figures import COLORS, MARKERS, new_figure, fmt_h, styled, save_figure
 
 __all__ = ["plot_study", "work_precision_figure", "long_horizon_figure", "print_study_tables", "is_study_file"]
 
@@ -61,14 +61,14 @@ def _baseline_grid(res, prefer=1e-2) -> float | None:
     return min(hs, key=lambda h: abs(math.log(h / prefer))) if hs else None
 
 
-@_styled
+@styled
 def work_precision_figure(res: dict):
     """The work-precision Figure of a loaded study (not registered with pyplot; see figures)."""
     labels = _vcirun_labels(res)
     T = sorted({p["T"] for p in res["summary"]})[0]
     pts = [p for p in res["summary"] if p["T"] == T]
     hb = _baseline_grid(res)
-    fig, axes = _figure(1, 3, figsize=(14.0, 4.4), sharey=True)
+    fig, axes = new_figure(1, 3, figsize=(14.0, 4.4), sharey=True)
     for ax, timing, xlabel in ((axes[0], "wall", "median compiled-loop wall time per simulation [s]"),
                                (axes[1], "call", "median wall time per call\n(simulate() / solve_ivp_run()) [s]"),
                                (axes[2], "cpu", "median CPU time per call (thread_time) [s]")):
@@ -79,11 +79,11 @@ def work_precision_figure(res: dict):
                 continue
             x = [p.get(timing, math.nan) for p in mine]
             y = [p["err"] for p in mine]
-            ax.loglog(x, y, color=_COLORS[i % len(_COLORS)], marker=_MARKERS[i % len(_MARKERS)], markersize=4,
+            ax.loglog(x, y, color=COLORS[i % len(COLORS)], marker=MARKERS[i % len(MARKERS)], markersize=4,
                       label=label)
             if i == 0:
                 for p in mine:
-                    ax.annotate(f"h={_fmt_h(p['h'])}", (p.get(timing, math.nan), p["err"]), fontsize=6, color="0.35",
+                    ax.annotate(f"h={fmt_h(p['h'])}", (p.get(timing, math.nan), p["err"]), fontsize=6, color="0.35",
                                 xytext=(3, 3), textcoords="offset points")
         for s, (col, mk, ls) in _BASE_STYLE.items():
             theirs = sorted([p for p in pts if p["kind"] == "baseline" and p["label"] == s and p["h"] == hb
@@ -100,12 +100,12 @@ def work_precision_figure(res: dict):
     axes[0].set_ylabel(r"median $L^2$ error against the exact solution")
     axes[0].legend(frameon=False, fontsize=7, loc="lower left")
     nb = len({r["beta"] for r in res["runs"]})
-    grid = f"; solve_ivp output on the h = {_fmt_h(hb)} grid" if hb else ""
+    grid = f"; solve_ivp output on the h = {fmt_h(hb)} grid" if hb else ""
     fig.suptitle(f"{res['config']['system']}, T = {T:g}, medians over {nb} initial conditions{grid}", fontsize=9)
     return fig
 
 
-@_styled
+@styled
 def long_horizon_figure(res: dict, timing: str = "cpu"):
     """The long-horizon Figure. x axis: CPU time of the whole call (default; runs of seconds are
     preempted on a loaded machine, so their wall time is inflated more than that of short runs) or
@@ -113,11 +113,11 @@ def long_horizon_figure(res: dict, timing: str = "cpu"):
     tkey = lambda p: p.get(timing, math.nan)  # noqa: E731
     labels = _vcirun_labels(res)
     Ts = sorted({p["T"] for p in res["summary"]})
-    fig, axes = _figure(1, len(Ts), figsize=(5.0 * len(Ts), 4.2), squeeze=False)
+    fig, axes = new_figure(1, len(Ts), figsize=(5.0 * len(Ts), 4.2), squeeze=False)
     for ax, T in zip(axes[0], Ts):
         pts = [p for p in res["summary"] if p["T"] == T]
         for i, label in enumerate(labels):
-            col, mk = _COLORS[i % len(_COLORS)], _MARKERS[i % len(_MARKERS)]
+            col, mk = COLORS[i % len(COLORS)], MARKERS[i % len(MARKERS)]
             mine = sorted([p for p in pts if p["kind"] == "vcirun" and p["label"] == label], key=lambda p: -p["h"])
             ok = [p for p in mine if np.isfinite(p["err"])]
             if ok:
@@ -125,7 +125,7 @@ def long_horizon_figure(res: dict, timing: str = "cpu"):
                           label=f"{label} max|H-H0|")
                 if i == 0:
                     for p in ok:
-                        ax.annotate(f"h={_fmt_h(p['h'])}", (tkey(p), p["err"]), fontsize=6, color="0.35",
+                        ax.annotate(f"h={fmt_h(p['h'])}", (tkey(p), p["err"]), fontsize=6, color="0.35",
                                     xytext=(3, 3), textcoords="offset points")
             hm = [p for p in ok if np.isfinite(p.get("dHmod", math.nan))]
             if hm:

@@ -128,7 +128,7 @@ def cva_lambda(q, pm, prm, g):
 @njit(cache=True, nogil=True, error_model="numpy")
 def mass_matrix_ok(q, prm, A):
     """A = M(q); True if M(q) is finite and its symmetric part is positive definite (its Cholesky
-    factorisation exists): the hyperregularity check of vcirun.api at the initial state, compiled
+    factorisation exists): the hyperregularity check of vcirun.run.api at the initial state, compiled
     because simulate runs it on every call (numpy's cholesky cost 10 us per call there)."""
     sys_M(q, prm, A)
     n = A.shape[0]

@@ -13,7 +13,7 @@
     qdot0: [0.0, 1.0]
 
 Every expression goes through the whitelist parser (never eval/sympify of user text). Files are
-parsed like sweep configs (`vcirun.validation.yaml_load`: YAML 1.2 numbers such as 1e-3, duplicate
+parsed like sweep configs (`vcirun.core.validation.yaml_load`: YAML 1.2 numbers such as 1e-3, duplicate
 keys rejected, aliases and sizes capped); names must be ASCII and distinct after NFKC normalisation.
 """
 from __future__ import annotations
@@ -24,7 +24,7 @@ import numpy as np
 import sympy as sp
 import yaml
 
-from .. import validation
+from ..core import validation
 from .expressions import ALLOWED_FUNCTIONS, ExpressionError, parse_expression, parse_matrix
 from .system import Constraint, MechanicalSystem
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import sympy as sp
 
-from ..scenedata import check_mass_matrix, param_vector, requested_start
+from ..core.system_data import check_mass_matrix, param_vector, requested_start
 
 
 @dataclass(eq=False)

@@ -1,6 +1,6 @@
 """Backward error analysis from the discrete Lagrangian and the MCVA family (Sections 3.4, 4.3-4.4).
 
-Symbolic only (this package never imports vcirun.codegen or vcirun.methods):
+Symbolic only (this package never imports vcirun.codegen or vcirun.methods.table):
 - `series.py`: the symplectic-Euler backward-error functionals H_i[K], derived from the
   Hamilton-Jacobi equation (every VI is symplectic Euler applied to eta, eq. 23-24).
 - `eta.py`: eta as a stationary value, its exact derivatives (implicit function theorem on a DAG
@@ -9,9 +9,9 @@ Symbolic only (this package never imports vcirun.codegen or vcirun.methods):
   vcirun/collision/reset_mcva.py (reset_mcva), compiled into the scene's module by vcirun.codegen.
 The generated module executed uncompiled (tests, exploration): vcirun/codegen/evaluate.py.
 
-`vcirun.methods.generalized_mcva(ld, mh_order, flow_order)` returns the Method of Section 4.4 (its
+`vcirun.methods.table.generalized_mcva(ld, mh_order, flow_order)` returns the Method of Section 4.4 (its
 options checked by `check_mcva_options` here); MCVAA and MCVAC (Section 5.2) are entries of
-vcirun.methods.METHODS.
+vcirun.methods.table.METHODS.
 
 What checking the paper found (tests/convergence/test_modified_series.py):
 - H4 does NOT vanish for SVA (Section 5.2 claims it does). The eta-based series depends on h through
@@ -39,7 +39,7 @@ def check_mcva_options(ld: str = "SVC", mh_order: int = 3, flow_order: int = 4, 
     """(ld, mh_order, flow_order) of a generalized MCVA (Section 4.4), validated: full steps of
     discrete Lagrangian `ld`, partial steps by the `flow_order` Gauss collocation flow of the truncated
     modified Hamiltonian H~^{O(h^mh_order)}, reset R^MCVA conserving that truncation. Raises ValueError
-    naming the offending field. (vcirun.methods.generalized_mcva makes the Method.)"""
+    naming the offending field. (vcirun.methods.table.generalized_mcva makes the Method.)"""
     if unknown:
         raise ValueError(f"options: {sorted(unknown)[0]!r} is not an option of method MCVA "
                          "(use ld=, mh_order=, flow_order=)")

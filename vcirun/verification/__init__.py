@@ -6,15 +6,15 @@ suite shares with it.
                generated kernels (a table: kernel -> against which lower-level kernel)
 - harness.py : Python drivers of the compiled maps (step, run_map), the exact smooth solution
 - checks.py  : the verdicts (pass / warn / fail / skip, the number, the threshold)
-- runner.py  : `verify(...)` -> VerifyResult
-- report.py  : the Markdown report and the log-log figure
+- suite.py   : `verify(...)` -> VerifyResult
+- verdict.py : the Markdown report and the log-log figure
 """
 from __future__ import annotations
 
 
 def __getattr__(name):
     if name in ("verify", "VerifyResult"):
-        from . import runner
+        from . import suite as runner
 
         return getattr(runner, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

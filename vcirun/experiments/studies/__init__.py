@@ -15,7 +15,7 @@
 | `report` | docs/extremes.md from the results and a Markdown template (prose lives in docs/templates/) |
 
 The work-precision study's runner and analysis are `vcirun.experiments.workprecision`. Exact closed
-forms (the bouncing ball, the oscillator against a wall) are `vcirun.oracles`.
+forms (the bouncing ball, the oscillator against a wall) are `vcirun.scenes.oracles`.
 
 Nothing is imported here: `import vcirun.experiments.studies.schema` does not load the runners.
 """

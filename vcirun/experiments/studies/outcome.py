@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...api import resolve_system, simulate
+from ...run.api import resolve_system, simulate
 from ...codegen.build import load_module
-from ...methods import resolve_method
+from ...methods.table import resolve_method
 
 __all__ = ["run", "outcome", "cause", "energy_error", "compiled"]
 
@@ -32,7 +32,7 @@ def outcome(tr, crash) -> str:
 
 
 def cause(tr) -> str:
-    """The cause vcirun.api appended to a failure message ('' if none)."""
+    """The cause vcirun.run.api appended to a failure message ('' if none)."""
     if tr is None or "; cause: " not in tr.message:
         return ""
     return tr.message.split("; cause: ", 1)[1]

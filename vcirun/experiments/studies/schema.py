@@ -373,14 +373,14 @@ def load_any(path, *, check_semantics: bool = True):
 # --- semantic checks (cheap: no kernel is compiled, no sympy for built-in scenes) ---------------------
 def _check_system(name: str, params: dict | None, field: str, source: str, *, params_field: str = "params",
                   needs_ic_map: bool = False):
-    from ...scenedata import scene_args, scene_data
+    from ...scenes.data import scene_args, scene_data
 
     if scene_args(name) is None:
         if name.endswith((".yaml", ".yml")) or Path(name).is_file():
             if not Path(name).is_file():
                 raise ConfigError(f"system file not found: {name}", source=source, field=field)
             return
-        from ...scenedata import BUILTIN_SCENE_DATA
+        from ...scenes.data import BUILTIN_SCENE_DATA
 
         hint = difflib.get_close_matches(name, list(BUILTIN_SCENE_DATA), n=1)
         raise ConfigError(f"unknown built-in system {name!r}" + (f"; did you mean {hint[0]!r}?" if hint else "")
@@ -397,7 +397,7 @@ def _check_system(name: str, params: dict | None, field: str, source: str, *, pa
 
 
 def _check_method(name: str, options: dict, field: str, source: str):
-    from ...methods import resolve_method
+    from ...methods.table import resolve_method
 
     try:
         resolve_method(name, **options)

@@ -1,8 +1,8 @@
 """What the built-in scenes mean: coordinates, parameters, units (sympy-free; `vcirun systems`,
 `Trajectory.to_xarray`).
 
-The numbers (defaults, initial-condition maps) live in `vcirun.scenedata`, the symbolic M, V, phi in
-`vcirun.mechanics.scenes`; this module only describes them. SI units throughout, angles in radians.
+The numbers (defaults, initial-condition maps) live in `vcirun.scenes.data`, the symbolic M, V, phi in
+`vcirun.scenes.declarations`; this module only describes them. SI units throughout, angles in radians.
 A YAML-declared system has coordinate names but no declared units (its units are the user's).
 """
 from __future__ import annotations

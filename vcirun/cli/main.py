@@ -44,7 +44,7 @@ def _main(version: bool = typer.Option(False, "--version", callback=_version_cal
 def _announce_compiles() -> None:
     """Print the build module's "compiling kernels for <scene>/<family> (first time, about N s)" line
     on stderr (once per process)."""
-    from vcirun import cache
+    from vcirun.codegen import cache
 
     if _say_compile not in cache.COMPILE_CALLBACKS:
         cache.COMPILE_CALLBACKS.append(_say_compile)
@@ -68,7 +68,7 @@ def _console(stderr: bool = False):
 def _expected_errors():
     """The exception types that are user errors, not bugs."""
     from vcirun.experiments.config import ConfigError
-    from vcirun.experiments.storage import StorageError
+    from vcirun.io.storage import StorageError
     from vcirun.experiments.sweep import SweepError
 
     return (ConfigError, StorageError, SweepError, CliError)
@@ -129,7 +129,7 @@ def simulate_once(system: str, method: str, *, h: float, T: float, beta: float |
     import warnings
 
     import vcirun
-    from vcirun.api import GridWarning
+    from vcirun.run.api import GridWarning
     from vcirun.codegen import build
 
     kw = {k: v for k, v in dict(ld=ld, mh_order=mh_order, flow_order=flow_order, params=params or None,
@@ -232,7 +232,7 @@ def simulate(
     p0: Optional[str] = typer.Option(None, "--p0", metavar="P1,P2,...", help="Initial momenta p = M(q) qdot."),
     output: Optional[Path] = typer.Option(None, "--output", "-o",
                                           help="Save the trajectory: .h5 (read with "
-                                               "vcirun.trajectory.read_trajectory), .nc, .csv or .npz."),
+                                               "vcirun.run.trajectory.read_trajectory), .nc, .csv or .npz."),
 ):
     """Simulate one run and print a summary (steps, impacts, status, energy error, wall time)."""
     _announce_compiles()
@@ -352,7 +352,7 @@ def plot(
 ):
     """Write the figures (PNG and PDF) and tables (CSV and Markdown) a results file supports."""
     from vcirun.experiments.figures import plot_results
-    from vcirun.experiments.storage import StorageError
+    from vcirun.io.storage import StorageError
     from vcirun.experiments.tables import print_table
     from vcirun.experiments.wp_figures import is_study_file, plot_study, print_study_tables
 
@@ -468,7 +468,7 @@ def validate(config: Path = typer.Argument(..., help="YAML sweep or study config
     else:
         typer.echo(f"  initial   {len(ics)} state(s)")
     typer.echo(f"  T         {cfg.T:g}")
-    from vcirun.api import grid_note
+    from vcirun.run.api import grid_note
 
     for h in cfg.h:
         if grid_note(h, cfg.T):
@@ -521,7 +521,7 @@ def info(
 ):
     """Summarize a results file: provenance, then a table of runs (method, h, beta, status, impacts,
     L2 error, wall time) and the messages of failed runs."""
-    from vcirun.experiments.storage import read_results
+    from vcirun.io.storage import read_results
     from vcirun.experiments.tables import print_table, runs_table
 
     try:
@@ -624,7 +624,7 @@ def verify_command(
     t = Table(title=f"vcirun verify {res.system} ({res.seconds:.1f} s)", box=None, pad_edge=False)
     for col in ("check", "method", "verdict", "value", "threshold"):
         t.add_column(col)
-    from vcirun.verification.report import _value
+    from vcirun.verification.verdict import _value
 
     for c in res.checks:
         t.add_row(c.name, c.method or "-", f"[{style[c.verdict]}]{c.verdict}[/]", _value(c), c.threshold)
@@ -645,8 +645,8 @@ def verify_command(
 def systems(name: Optional[str] = typer.Argument(None, help="One scene (default: all).", show_default=False)):
     """The built-in scenes: coordinates, parameters (default, unit, meaning), constraint and initial
     states. Any scene also runs with `n_pendulum_K` for K links; YAML files declare your own."""
-    from vcirun.catalog import BUILTIN_INFO, momentum_unit, scene_info
-    from vcirun.scenedata import scene_data
+    from vcirun.scenes.catalog import BUILTIN_INFO, momentum_unit, scene_info
+    from vcirun.scenes.data import scene_data
 
     names = [name] if name else list(BUILTIN_INFO) + ["n_pendulum_3"]
     console = _console()
@@ -690,7 +690,7 @@ def _mb(n: int) -> str:
 @cache_app.command("info", epilog="Example:\n\n  vcirun cache info")
 def cache_info():
     """Where the compiled kernels are and how much space they take."""
-    from vcirun import cache
+    from vcirun.codegen import cache
 
     i = cache.info()
     typer.echo(f"{i.path}: {i.modules} compiled modules, {i.cores} shared cores, {i.index_entries} warm-start entries, {i.files} files, "
@@ -702,7 +702,7 @@ def cache_info():
 @cache_app.command("clear", epilog="Example:\n\n  vcirun cache clear")
 def cache_clear():
     """Delete every cached kernel."""
-    from vcirun import cache
+    from vcirun.codegen import cache
 
     i = cache.clear()
     typer.echo(f"removed {i.modules} compiled modules ({_mb(i.bytes)}) from {i.path}")

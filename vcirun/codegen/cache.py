@@ -35,7 +35,7 @@ LOCK_TIMEOUT_S = 1800.0  # first_call_lock: the longest cold build measured is M
 
 
 def cache_root() -> Path:
-    from .codegen.build import cache_dir
+    from .build import cache_dir
 
     return cache_dir().parent
 
@@ -67,7 +67,7 @@ def estimate_compile_s(ks, n: int) -> float:
     """Seconds a cold build of (ks, n) is expected to take: this cache's last build of the same family
     and size, else of the same family at another size (scaled linearly in n), else a first estimate.
     Shared build (vcirun.codegen.shared): the scene's kernels, plus the core if numba has not cached it."""
-    from .codegen import build
+    from . import build
 
     times, kind = _times(), (ks.reset or "system").upper()
     if build.build_mode() != "shared":
@@ -90,7 +90,7 @@ def _by_family(times: dict, fam: str, n: int, first: float) -> float:
 def announce_if_cold(system, ks) -> bool:
     """Before loading the module of (system, ks): if it must be generated and compiled, say so
     ("compiling kernels for <scene>/<family> (first time, about N s)") to the logger and callbacks."""
-    from .codegen import build
+    from . import build
 
     key = build.module_key(system, ks)
     if key in build._loaded:   # (no file access on the path of every later call)
@@ -109,7 +109,7 @@ def announce_if_cold(system, ks) -> bool:
 def note_first_call(mod, ks, seconds: float) -> None:
     """After numba's first call of a module's loop: if the module was generated in this process,
     record generation + first call as the build time of its family and size (the next estimate)."""
-    from .codegen import build
+    from . import build
 
     key = mod.__name__.rsplit("_", 1)[-1]
     entry = next((e for e in reversed(build.BUILD_LOG) if e["key"] == key), None)
@@ -140,7 +140,7 @@ def first_call_lock(mod, timeout_s: float = LOCK_TIMEOUT_S):
     compiles of 30-100 s each). An advisory lock on `kernels/vk_<key>.lock` (released by the kernel
     when its holder dies); past `timeout_s` of waiting, or where locks are unavailable, the call goes
     ahead unlocked (only time is lost then, never a result)."""
-    from .codegen import build
+    from . import build
 
     # a shared-build module's loop is its kernel set's core (vcirun.codegen.shared): lock on that
     key = getattr(mod, "LOCK_KEY", None) or mod.__name__.rsplit("_", 1)[-1]

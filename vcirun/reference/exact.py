@@ -12,18 +12,18 @@ solve that does not rest on a second solve of the same equations.
 
 Held contacts (issue 18, resting_contact=True): a contact that starts at rest on its surface, is
 left at rest by a plastic impact, or whose impacts accumulate (Zeno time extrapolated from its
-flights) is held on the index-reduced constrained dynamics (vcirun/reference_held.py) and released
+flights) is held on the index-reduced constrained dynamics (vcirun/reference/held.py) and released
 where its contact force turns tensile; docs/contacts.md section 6.
 
 Also: a fine-step method reference (the paper's choice: CVA at a small h). Closed forms (the
-oscillator against a wall, the bouncing ball) are in vcirun.oracles.
+oscillator against a wall, the bouncing ball) are in vcirun.scenes.oracles.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from .codegen.build import SYSTEM_KERNELS, load_module
-from .scenedata import start_tolerance
+from ..codegen.build import SYSTEM_KERNELS, load_module
+from ..core.system_data import start_tolerance
 
 
 class Reference:
@@ -161,7 +161,7 @@ def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000, resting_contact=Tru
     The event is the gap min_i phi_i over the contacts not masked: its first root is the first
     contact of any constraint.
 
-    Held contacts (resting_contact, issue 18; vcirun/reference_held.py, docs/contacts.md 6): a start
+    Held contacts (resting_contact, issue 18; vcirun/reference/held.py, docs/contacts.md 6): a start
     at rest on a surface with a compressive force, a plastic impact that leaves a contact at rest
     pressed in, or a contact whose impacts accumulate (its Zeno time extrapolated from its flights)
     continues on the constrained (index-reduced) dynamics until the contact force turns tensile
@@ -169,7 +169,7 @@ def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000, resting_contact=Tru
     raise (a contact pressed in; more than max_impacts impacts)."""
     from scipy.integrate import solve_ivp  # here, not at module level: `import vcirun` stays light
 
-    from . import reference_held as rh
+    from . import held as rh
 
     mod = load_module(system, SYSTEM_KERNELS)  # system kernels + the continuous dynamics
     n = system.n
@@ -403,8 +403,8 @@ def reference(system, *, T, beta=None, q0=None, p0=None, params=None, rtol=1e-13
     resting_contact (as simulate's): contacts that come to rest are held on their surface and
     released where their force turns tensile (ref.releases, ref.release_contact, ref.held_intervals);
     False raises where a contact would have to be held."""
-    from .api import resolve_system, simulate
-    from .validation import check_reference_args
+    from ..run.api import resolve_system, simulate
+    from ..core.validation import check_reference_args
 
     check_reference_args(T=T, rtol=rtol, method=method, h=h, beta=beta, q0=q0, p0=p0, params=params,
                          system=system, resting_contact=resting_contact, check_accuracy=check_accuracy)  # (issue 22)
@@ -499,7 +499,3 @@ def l2_error(traj, ref) -> float:
     points k = 0..N of the run (a Riemann sum of the continuous L2 norm of q - q_ref on [0, T])."""
     d = traj.q - ref(traj.t)
     return float(np.sqrt(traj.h * np.sum(d * d)))
-
-
-# the closed form moved to vcirun.oracles (no compiled module needed); this name stays importable
-from .oracles import oscillator_wall_exact  # noqa: E402,F401

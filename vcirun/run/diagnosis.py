@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .record import STATUSES
+from ..core.record import STATUSES
 
 OK, NEWTON_FAILED, EVENT_FAILED, RESET_FAILED, ACCUMULATION, NONFINITE = (name for name, _ in STATUSES)
 

@@ -52,12 +52,12 @@ class VerifyResult:
         return next((c for c in self.checks if c.name == name and c.method == method), None)
 
     def to_markdown(self, figure=None) -> str:
-        from .report import markdown
+        from .verdict import markdown
 
         return markdown(self, figure)
 
     def figure(self, path):
-        from .report import figure
+        from .verdict import figure
 
         return figure(self, path)
 
@@ -98,7 +98,7 @@ def _ladder(h, T):
 
 
 def _methods(methods):
-    from ..methods import resolve_method
+    from ..methods.table import resolve_method
 
     if methods is None:
         methods = DEFAULT_METHODS
@@ -165,9 +165,9 @@ class _Session:
     """The state of one verification: the system, start state, ladder, references, and the results."""
 
     def __init__(self, system, methods, q0, p0, beta, T, h, params, progress):
-        from ..api import resolve_system
+        from ..run.api import resolve_system
         from ..codegen.build import load_module
-        from ..methods import METHODS
+        from ..methods.table import METHODS
 
         self.say = progress or (lambda msg: None)
         self.t_start = time.perf_counter()
@@ -189,7 +189,7 @@ class _Session:
         self.force = None if f is None else (lambda q, v, t: np.asarray(f(q, v, t, prm), float).ravel())
         self.res = VerifyResult(system=sysm.name, n=self.n, methods=[m.name for m in self.meths], q0=self.q0,
                                 p0=self.p0, T=T, h=self.hs, params=dict(zip(sysm.params, prm.tolist())))
-        from ..api import grid_count
+        from ..run.api import grid_count
 
         short = [x for x in self.hs if abs(grid_count(x, T) * x - T) > 1e-9 * T]
         if short:
@@ -233,7 +233,7 @@ class _Session:
     def simulate(self, meth, h, **kw):
         import warnings
 
-        from ..api import GridWarning, simulate
+        from ..run.api import GridWarning, simulate
 
         with warnings.catch_warnings():   # said once, in the report's notes (see __init__)
             warnings.simplefilter("ignore", GridWarning)
@@ -242,11 +242,11 @@ class _Session:
     # --- the exact solutions ------------------------------------------------------------------------
     def references(self):
         """The exact smooth solution on the coarsest grid (constraint ignored) and vcirun.reference."""
-        from ..reference import reference
+        from ..reference.exact import reference
 
         T, hs = self.T, self.hs
         self.say("exact smooth solution (DOP853, constraint ignored)")
-        from ..api import grid_count
+        from ..run.api import grid_count
 
         self.N0 = N0 = grid_count(hs[0], T)
         # nested ladder (every grid contains the coarsest one, same end): the test suite's error measure
@@ -402,7 +402,7 @@ class _Session:
                 elif nimp != nref:
                     excl.append((x, f"{nimp} impacts, reference {nref}"))
                 else:
-                    from ..reference import l2_error
+                    from ..reference.exact import l2_error
 
                     l2_h.append(x)
                     l2.append(l2_error(tr, ref))
@@ -512,7 +512,7 @@ def _smooth_error(tr, h, T, N0, nested, t_smooth, qs_ref):
     """max |q_k - q_exact(t_k)| over the coarsest grid (nested ladders: the test suite's measure) or
     over the run's own grid."""
     if nested:
-        from ..api import grid_count
+        from ..run.api import grid_count
 
         stride = grid_count(h, T) // N0
         return float(np.max(np.abs(tr.q[::stride] - qs_ref)))

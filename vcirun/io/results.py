@@ -4,7 +4,7 @@ Dimensions: `method` (the config's labels, in config order), `h` (the config's s
 initial-condition axis: `beta` (its values) when the config sweeps beta, else `initial_condition`
 (the run groups' ic keys: `state=0`, ..., or `default`). Every scalar a run records is a variable
 over (method, h, <ic>) (`.sel(method="MCVAA", h=0.01)` selects on the method dimension: see
-vcirun/results_xr.py): l2_error, wall_time, wall_time_call, n_steps, n_impacts, n_partial_steps,
+vcirun/io/xr.py): l2_error, wall_time, wall_time_call, n_steps, n_impacts, n_partial_steps,
 newton_iters_total, H0, max_abs_dH, H_range, Ed_range, Hmod_range, fail_step, fail_time, t_end (the
 grid's end N h), and the strings status, message, l2_note, run_id. Per initial condition: q0, p0
 (over `coordinate`, named from the system), reference_accuracy, reference_n_impacts.
@@ -78,10 +78,27 @@ def _beta_of_key(key: str):
         return None
 
 
+def reference_note(results) -> str:
+    """The reference the L2 errors were measured against, in words (from the stored config)."""
+    from vcirun.run.plotting import fmt_h
+
+    a = results.attrs
+    spec = (a.get("config_canonical") or {}).get("reference") or {"kind": a.get("reference_kind", "?")}
+    kind = spec.get("kind")
+    if kind == "exact":
+        acc = [float(r.get("accuracy")) for r in results.references.values()
+               if r.get("accuracy") is not None and np.isfinite(r.get("accuracy"))]
+        txt = f"reference: exact nonsmooth solution (DOP853, event location, rtol {spec.get('rtol', 1e-13):g})"
+        return txt + (f", self-reported accuracy <= {max(acc):.1e}" if acc else "")
+    if kind == "method":
+        return f"reference: {spec.get('method', 'CVA')} at h = {fmt_h(float(spec.get('h')))}"
+    return "no reference"
+
+
 def collect(results) -> Table:
     """The (method, h, initial condition) table of a `storage.Results` (or a path)."""
-    from vcirun.catalog import coordinate_names
-    from vcirun.experiments import figures, storage
+    from vcirun.scenes.catalog import coordinate_names
+    from vcirun.io import storage
 
     res = results if isinstance(results, storage.Results) else storage.read_results(results)
     a = res.attrs
@@ -161,7 +178,7 @@ def collect(results) -> Table:
     else:
         coord_attrs[ic_dim] = {"long_name": "initial-condition parameter beta of the scene's map"}
     attrs = {"name": res.name, "system": str(a.get("system", "")), "T": float(a.get("T", np.nan)),
-             "reference": figures.reference_note(res), "source": str(res.path),
+             "reference": reference_note(res), "source": str(res.path),
              "n_runs": len(res.runs), "n_runs_expected": int(a.get("n_runs_expected", math.prod(shape)) or 0)}
     for k in ("vcirun_version", "git_commit", "created", "updated", "config_sha256"):
         if a.get(k) not in (None, ""):
@@ -181,9 +198,9 @@ def open_results(path):
     `method` is also the keyword of xarray's own `.sel(..., method="nearest")` (inexact matching).
     The Dataset returned here (and every DataArray taken from it) reads `.sel(method="MCVAA", h=0.01)`
     as a selection on the method dimension when the value is not one of xarray's fill methods
-    (vcirun.results_xr); a fill method keeps xarray's meaning: `.sel(h=0.011, method="nearest")`.
+    (vcirun.io.xr); a fill method keeps xarray's meaning: `.sel(h=0.011, method="nearest")`.
     """
-    from vcirun.experiments import storage
+    from vcirun.io import storage
 
     path = Path(path)
     try:
@@ -196,6 +213,6 @@ def open_results(path):
     data = {}
     for name, (dims, arr, attrs) in tab.variables.items():
         data[name] = (dims, arr.astype(str) if arr.dtype == object else arr, attrs)
-    from vcirun.results_xr import ResultsDataset
+    from vcirun.io.xr import ResultsDataset
 
     return ResultsDataset(data, coords=coords, attrs=tab.attrs)

@@ -53,11 +53,10 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from .. import record
+from ..core import record
 # the run-group codec is the Python API's (Trajectory.save writes the same group); re-exported here
-from ..trajectory_io import (IMPACT_ARRAYS, TRAJECTORY_ARRAYS, _decode_attr, _encode_attr,  # noqa: F401
-                             _group_attrs, _write_encoded, _write_group, decode_attrs, trajectory_payload)
-from ..trajectory import trajectory_from_group  # noqa: F401  (re-exported)
+from ..run.trajectory_files import (IMPACT_ARRAYS, TRAJECTORY_ARRAYS, _decode_attr, _encode_attr, _group_attrs, _write_encoded, _write_group, decode_attrs, trajectory_payload)
+from ..run.trajectory import trajectory_from_group  # noqa: F401  (re-exported)
 
 __all__ = ["FORMAT", "SCHEMA_VERSION", "StorageError", "ResultsWriter", "RunInfo", "Results", "read_results",
            "load_trajectory", "load_reference", "trajectory_payload", "trajectory_from_group",
@@ -1301,7 +1300,7 @@ def _short(v) -> str:
 
 
 def _fmt_bytes(b: float) -> str:
-    from vcirun.validation import format_bytes
+    from vcirun.core.validation import format_bytes
 
     return format_bytes(b)
 

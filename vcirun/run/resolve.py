@@ -10,9 +10,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .codegen import build
-from .codegen.build import load_module
-from .scenedata import SystemData, scene_args, scene_data
+from ..codegen import build
+from ..codegen.build import load_module
+from ..core.system_data import SystemData
+from ..scenes.data import scene_args, scene_data
 
 
 def _is_yaml_source(s: str) -> bool:
@@ -23,7 +24,7 @@ def _is_yaml_source(s: str) -> bool:
 
 def resolve_system(system, params: dict | None = None):
     """A MechanicalSystem from a built-in name, a YAML file path, or an instance (symbolic: imports sympy)."""
-    from .mechanics.system import MechanicalSystem
+    from ..mechanics.system import MechanicalSystem
 
     if isinstance(system, MechanicalSystem):
         if params:
@@ -32,10 +33,10 @@ def resolve_system(system, params: dict | None = None):
     if isinstance(system, (str, Path)):
         s = str(system)
         if _is_yaml_source(s):
-            from .mechanics.loader import load_system_yaml
+            from ..mechanics.loader import load_system_yaml
 
             return load_system_yaml(s)
-        from .mechanics.scenes import get_scene
+        from ..scenes.declarations import get_scene
 
         return get_scene(s)
     raise ValueError(f"system: expected a built-in name, a YAML path or a MechanicalSystem, got {type(system).__name__}")
@@ -93,7 +94,7 @@ def _data_from_entry(ident, entry) -> SystemData | None:
 
 def _entry_data(sysm) -> dict:
     """What the warm index stores about a symbolic system (built-in scenes take the rest from
-    vcirun.scenedata; YAML systems have no initial-condition map)."""
+    vcirun.scenes.data; YAML systems have no initial-condition map)."""
     vec = lambda a: None if a is None else np.asarray(a, float).tolist()  # noqa: E731
     return {"name": sysm.name, "n": sysm.n, "params": [[k, v] for k, v in sysm.params.items()],
             "default_q0": vec(sysm.default_q0), "default_p0": vec(sysm.default_p0),
@@ -131,7 +132,7 @@ def resolve_numeric(system, ks: build.KernelSet):
 
     def load():
         if genuine:
-            from .cache import announce_if_cold
+            from ..codegen.cache import announce_if_cold
 
             announce_if_cold(sysm, ks)  # "compiling kernels for <scene>/<family> (first time, about N s)"
         mod = load_module(sysm, ks)

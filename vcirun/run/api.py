@@ -6,13 +6,13 @@ import time
 
 import numpy as np
 
-from . import record
+from ..core import record
 from . import trajectory as tr
-from . import validation
+from ..core import validation
 from .diagnosis import accumulation_onset, failure_cause  # noqa: F401 (accumulation_onset: public here)
-from .methods import resolve_method
+from ..methods.table import resolve_method
 from .resolve import _warmable, resolve_numeric, resolve_system  # noqa: F401 (public here)
-from .scenedata import SystemData, check_mass_matrix, requested_start, start_tolerance
+from ..core.system_data import SystemData, check_mass_matrix, requested_start, start_tolerance
 
 DEFAULT_TOLERANCES = {"newton_tol": 1e-12, "event_tol": 1e-13, "max_iter": 50, "max_impacts_step": 64}
 _METHOD_OPTIONS = {"ld", "mh_order", "flow_order"}
@@ -156,7 +156,7 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     if mod.__name__ not in _FIRST_CALLS:
         # numba's first call of the loop (load from its cache, or compile) is not integration: one
         # untimed step with arguments of the same types, so wall_time measures the integration only
-        from .cache import first_call_lock, note_first_call
+        from ..codegen.cache import first_call_lock, note_first_call
 
         _FIRST_CALLS.add(mod.__name__)
         t_first = time.perf_counter()

@@ -3,7 +3,7 @@ a harmonic oscillator against a wall (closed-form oracle), an n-link pendulum (s
 linearly damped oscillator (forced DEL check) and a bouncing ball with drag (impact accumulation).
 
 The numeric parts of each scene (parameter defaults, initial-condition map, default state,
-description) live in the sympy-free `vcirun.scenedata`; this module adds the symbolic M, V, phi
+description) live in the sympy-free `vcirun.scenes.data`; this module adds the symbolic M, V, phi
 and forcing."""
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ import functools
 
 import sympy as sp
 
-from .. import scenedata as sd
-from .system import Constraint, MechanicalSystem
+from . import data as sd
+from ..mechanics.system import Constraint, MechanicalSystem
 
 
 def _system(d: sd.SystemData, q, M, V, phi, **kw) -> MechanicalSystem:
@@ -95,7 +95,7 @@ def n_pendulum(n: int = 2, **overrides) -> MechanicalSystem:
 def ball_in_box(**overrides) -> MechanicalSystem:
     """Issue 17: a point mass m in the box 0 <= x <= width, 0 <= y <= height under gravity g, four
     walls in this order: floor y >= 0, ceiling height - y >= 0, left x >= 0, right width - x >= 0,
-    each with restitution e (a parameter). Decoupled motion: closed form in vcirun.oracles."""
+    each with restitution e (a parameter). Decoupled motion: closed form in vcirun.scenes.oracles."""
     d = sd.ball_in_box(**overrides)
     x, y = sp.symbols("x y")
     m, g, W, Hh, e = sp.symbols("m g width height e")
@@ -128,7 +128,7 @@ def double_pendulum_walls(**overrides) -> MechanicalSystem:
     return _system(d, [t1, t2], M, V, None, constraints=[Constraint("right", w - xt, e), Constraint("left", xt + w, e)])
 
 
-# One registry of built-in scenes: the names (and numeric parts) are vcirun.scenedata's; each has its
+# One registry of built-in scenes: the names (and numeric parts) are vcirun.scenes.data's; each has its
 # symbolic part here under the same name.
 BUILTIN_SCENES = {name: globals()[name] for name in sd.BUILTIN_SCENE_DATA}
 

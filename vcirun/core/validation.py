@@ -147,7 +147,7 @@ def grid_size(h, T, *, h_field: str = "h", T_field: str = "T") -> int:
 
 def run_bytes(N: int, n: int, m: int = 1) -> int:
     """Bytes `vcirun.simulate` allocates for an N-step run of n coordinates and m constraints: one
-    buffer per row of the run record (vcirun.record.FIELDS, sized as api._run sizes them: impacts
+    buffer per row of the run record (vcirun.core.record.FIELDS, sized as api._run sizes them: impacts
     N/4 + 16, partial steps twice that, releases as impacts) and the time grid."""
     from . import record  # (foundation layer: numpy only)
 

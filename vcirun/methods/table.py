@@ -4,9 +4,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from functools import lru_cache
 
-from .codegen.kernel_set import KernelSet
-from .discrete.lagrangians import LIBRARY, get_ld
-from .modified import check_mcva_options
+from ..codegen.kernel_set import KernelSet
+from ..discrete.lagrangians import LIBRARY, get_ld
+from ..modified import check_mcva_options
 
 
 @dataclass(frozen=True)

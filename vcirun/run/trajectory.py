@@ -17,16 +17,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import record
+from ..core import record
 
-# Status strings a run can end with (codes and meanings: vcirun.record.STATUSES). Failures are data:
+# Status strings a run can end with (codes and meanings: vcirun.core.record.STATUSES). Failures are data:
 # they carry the step, time and state.
 OK, NEWTON_FAILED, EVENT_FAILED, RESET_FAILED, ACCUMULATION, NONFINITE = (name for name, _ in record.STATUSES)
 STATUS_CODES = record.STATUS_CODES
 
 
 def _record_fields(cls):
-    """One dataclass field per vcirun.record.FIELDS row, default None (`__post_init__` makes it an
+    """One dataclass field per vcirun.core.record.FIELDS row, default None (`__post_init__` makes it an
     empty array of the row's dtype, except rows defined only for some methods, e.g. Hmod)."""
     for f in record.FIELDS:
         cls.__annotations__[f.name] = "np.ndarray | None"
@@ -75,7 +75,7 @@ class Trajectory:
     # --- dense output -----------------------------------------------------------------------------
     @property
     def coordinate_names(self) -> list[str]:
-        from .catalog import coordinate_names
+        from ..scenes.catalog import coordinate_names
 
         return coordinate_names(self.system, self.q.shape[1], self.coordinates)
 
@@ -83,7 +83,7 @@ class Trajectory:
         """Attach the continuous dynamics dense output needs (a trajectory read from a results file or
         unpickled has none): `system` a built-in name, YAML path or MechanicalSystem (default: this
         run's system name, which works for built-in scenes); `params` default: the run's. Returns self."""
-        from .codegen.build import SYSTEM_KERNELS
+        from ..codegen.build import SYSTEM_KERNELS
         from .resolve import resolve_numeric
 
         sysd, load, _ = resolve_numeric(self.system if system is None else system, SYSTEM_KERNELS)
@@ -99,7 +99,7 @@ class Trajectory:
                 raise ValueError("dense output: this trajectory holds no grid states (stored with "
                                  "store_trajectories: false?)")
             if self.dynamics is None:
-                from .catalog import scene_info
+                from ..scenes.catalog import scene_info
 
                 if scene_info(self.system) is None:
                     raise ValueError(f"dense output: the dynamics of system {self.system!r} are not attached; "
@@ -124,7 +124,7 @@ class Trajectory:
 
     # --- conversions ------------------------------------------------------------------------------
     def _units(self) -> tuple[list, list, str]:
-        from .catalog import momentum_unit, scene_info, units_for
+        from ..scenes.catalog import momentum_unit, scene_info, units_for
 
         names = self.coordinate_names
         qu = units_for(self.system, names)
@@ -185,7 +185,7 @@ class Trajectory:
 
     def save(self, path):
         """Write the run to `path` by its suffix: .h5/.hdf5 (group `trajectory`, the layout of a results
-        file's run group; read back with `vcirun.trajectory.read_trajectory`), .nc (netCDF via
+        file's run group; read back with `vcirun.run.trajectory.read_trajectory`), .nc (netCDF via
         `to_xarray`, needs h5netcdf or netCDF4), .csv (`to_dataframe`), .npz (numpy arrays)."""
         from pathlib import Path
 
@@ -197,13 +197,13 @@ class Trajectory:
         if suffix in (".h5", ".hdf5"):
             import h5py
 
-            from . import trajectory_io
+            from . import trajectory_files
 
-            attrs, arrays = trajectory_io.trajectory_payload(self)
+            attrs, arrays = trajectory_files.trajectory_payload(self)
             attrs["coordinates"] = self.coordinate_names
             with h5py.File(path, "w") as f:
                 f.attrs["format"] = "vcirun-trajectory"
-                trajectory_io._write_group(f, "trajectory", {k: v for k, v in attrs.items() if k != "coordinates"}, arrays)
+                trajectory_files._write_group(f, "trajectory", {k: v for k, v in attrs.items() if k != "coordinates"}, arrays)
                 f["trajectory"].attrs["coordinates"] = np.array(self.coordinate_names, dtype=h5py.string_dtype())
         elif suffix == ".nc":
             self.to_xarray().to_netcdf(path)
@@ -238,7 +238,7 @@ _SIZES = {"grid": "N+1", "step": "N", "impact": "K_i", "partial": "K_p", "releas
 Trajectory.__doc__ = (
     "Time-major record of a run on the grid t_k = t0 + k h (N = grid steps taken, n = degrees of freedom,\n"
     "m = constraints, K_i impacts, K_p partial steps, K_r releases). t (N+1,) grid times; the arrays, one\n"
-    "per vcirun.record.FIELDS row:\n"
+    "per vcirun.core.record.FIELDS row:\n"
     + "\n".join(f"  {f.name} ({_SIZES[f.axis]}{', n' if f.dof else ''}{', m' if f.contacts else ''}"
                 f"{',' if not (f.dof or f.contacts) else ''}) {f.dtype}: {f.doc}"
                 + (" (None for other methods)" if f.only == "modified" else "") for f in record.FIELDS)
@@ -247,9 +247,9 @@ Trajectory.__doc__ = (
 
 def trajectory_from_group(g):
     """Rebuild a `Trajectory` from a run group (arrays that were not stored come back empty)."""
-    from . import trajectory_io
+    from . import trajectory_files
 
-    a = trajectory_io.decode_attrs(g.attrs)
+    a = trajectory_files.decode_attrs(g.attrs)
     n = int(g["impact_q"].shape[1]) if "impact_q" in g and g["impact_q"].ndim == 2 else 0
 
     def arr(name, shape=(0,), dtype=float):

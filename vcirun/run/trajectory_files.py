@@ -1,6 +1,6 @@
 """A Trajectory as one HDF5 group (and the pieces to read it back): the attribute encoding (JSON attributes, NaN for absent
 floats, clean UTF-8 text), the run record's rows as datasets, and the energy summary stored with each
-run. `Trajectory.save(".h5")`, `read_trajectory` and the sweep's results files (vcirun.experiments.storage)
+run. `Trajectory.save(".h5")`, `read_trajectory` and the sweep's results files (vcirun.io.storage)
 all write and read run groups through this module, so there is one codec and the Python API layer does
 not import the experiment layer (tests/unit/test_layers.py).
 """
@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from . import record
+from ..core import record
 
 if TYPE_CHECKING:  # h5py is imported by the callers that write files
     import h5py
@@ -21,7 +21,7 @@ if TYPE_CHECKING:  # h5py is imported by the callers that write files
 JSON_ATTRS = {"tolerances", "options", "method_spec", "history", "config_canonical", "versions", "h_values",
               "methods", "ic_keys", "system_spec", "resolved_method", "constraints"}
 # Per-step arrays dropped when store_trajectories is false; the impact record is always kept.
-# the run record's rows (vcirun.record.FIELDS): per-step arrays with store_trajectories, the impact
+# the run record's rows (vcirun.core.record.FIELDS): per-step arrays with store_trajectories, the impact
 # record always
 TRAJECTORY_ARRAYS = ("t",) + record.stored_names("trajectory")
 IMPACT_ARRAYS = record.stored_names("impacts")
@@ -95,7 +95,7 @@ def _n_contacts(traj) -> int:
 
 
 def trajectory_payload(traj, *, store_arrays: bool = True) -> tuple[dict, dict]:
-    """(attrs, arrays) of a `vcirun.trajectory.Trajectory` for one run group."""
+    """(attrs, arrays) of a `vcirun.run.trajectory.Trajectory` for one run group."""
     attrs = {
         "core_method": traj.method, "system": traj.system, "h": float(traj.h), "T": float(traj.T),
         "status": traj.status, "message": " ".join(str(traj.message).split()),

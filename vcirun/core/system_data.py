@@ -1,0 +1,102 @@
+"""The numeric side of a system, without sympy: what a run needs besides the compiled kernel module.
+
+`SystemData` holds n, the parameter names and default values, an initial-condition map
+beta -> (q0, qdot0), a default state and a description. A `MechanicalSystem` (symbolic) and a
+built-in scene's numeric data (`vcirun.scenes.data`) both reduce to it, so a warm start (kernel
+module cached, see `vcirun.codegen.build.warm_lookup`) resolves a system without importing sympy.
+The rules for a run's initial state (`requested_start`, `check_mass_matrix`, `start_tolerance`)
+live here once, for the symbolic and the numeric paths alike.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(eq=False)
+class SystemData:
+    """name, n, params (ordered name -> default value), ic_map (beta -> (q0, qdot0)) or None,
+    default_q0 / default_p0 or None, description."""
+
+    name: str
+    n: int
+    params: dict
+    ic_map: object = None
+    default_q0: np.ndarray | None = None
+    default_p0: np.ndarray | None = None
+    description: str = ""
+    coordinates: list | None = None   # coordinate names (None: vcirun.scenes.catalog's for built-in scenes)
+
+    def param_values(self, overrides: dict | None = None) -> np.ndarray:
+        """Parameter vector in declaration order, with overrides applied (unknown names rejected)."""
+        return param_vector(self.name, self.params, overrides)
+
+    @classmethod
+    def of(cls, system) -> "SystemData":
+        """The numeric view of a `MechanicalSystem` (or of anything with the same attributes)."""
+        return cls(name=system.name, n=system.n, params=dict(system.params), ic_map=system.ic_map,
+                   default_q0=system.default_q0, default_p0=system.default_p0, description=system.description,
+                   coordinates=[str(c) for c in system.q])
+
+
+def param_vector(name: str, params: dict, overrides: dict | None = None) -> np.ndarray:
+    """Parameter vector in declaration order, with overrides applied (unknown names rejected);
+    shared by SystemData and MechanicalSystem."""
+    vals = dict(params)
+    for k, v in (overrides or {}).items():
+        if k not in vals:
+            raise ValueError(f"params.{k}: unknown parameter of system {name} (known: {', '.join(vals)})")
+        vals[k] = float(v)
+    return np.array([float(vals[k]) for k in params], dtype=float)
+
+
+def check_mass_matrix(name: str, q, Mq) -> None:
+    """The Legendre transform must be invertible: M(q) finite, symmetric positive definite (the
+    hyperregularity check of MechanicalSystem and of the warm path)."""
+    q = np.asarray(q, float).tolist()
+    if not np.all(np.isfinite(Mq)):
+        raise ValueError(f"system {name}: mass_matrix is not finite at q0={q}")
+    S = 0.5 * (Mq + Mq.T)
+    try:
+        np.linalg.cholesky(S)
+    except np.linalg.LinAlgError:
+        raise ValueError(f"system {name}: mass_matrix is not positive definite at q0={q} "
+                         f"(eigenvalues {np.linalg.eigvalsh(S)}); the Lagrangian must be hyperregular") from None
+
+
+def requested_start(d, beta=None, q0=None, p0=None) -> tuple:
+    """The one rule for a run's initial state (vcirun.simulate and MechanicalSystem.initial_state):
+    ("state", q0, p0) from explicit values or the system's default, or ("legendre", q0, qdot0) from
+    its initial-condition map at beta (p0 = M(q0) qdot0 is the caller's: compiled or symbolic M).
+    d: anything with name, n, ic_map, default_q0, default_p0. ValueError names what is missing."""
+    if q0 is not None or p0 is not None:
+        if q0 is None or p0 is None:
+            raise ValueError("initial state: give both q0 and p0 (or beta)")
+        kind, q0, p0 = "state", np.asarray(q0, float).ravel(), np.asarray(p0, float).ravel()
+    elif beta is not None:
+        if d.ic_map is None:
+            raise ValueError(f"beta: system {d.name} has no initial-condition map; give q0 and p0")
+        qq, qdot = d.ic_map(float(beta))
+        kind, q0, p0 = "legendre", np.array(qq, dtype=float), np.array(qdot, dtype=float)
+    elif d.default_q0 is not None:
+        kind, q0, p0 = "state", np.array(d.default_q0, float), np.array(d.default_p0, float)
+    else:
+        raise ValueError(f"initial state: system {d.name} needs q0 and p0 (or beta)")
+    if q0.shape != (d.n,) or p0.shape != (d.n,):
+        raise ValueError(f"initial state: q0 and p0 must have length {d.n}")
+    return kind, q0, p0
+
+
+def start_tolerance(q0, grad_phi) -> float:
+    """How far below 0 a start's phi(q0) may lie and still count as on the surface: round-off of
+    phi near q0, 64 eps (1 + |q0| |grad phi|) (a state built on phi = 0 in floating point). Used by
+    vcirun.simulate and vcirun.reference alike."""
+    return 64 * np.finfo(float).eps * (1.0 + float(np.max(np.abs(q0))) * float(np.max(np.abs(grad_phi))))
+
+
+def merge_params(defaults: dict, overrides: dict) -> dict:
+    unknown = set(overrides) - set(defaults)
+    if unknown:
+        raise ValueError(f"params.{sorted(unknown)[0]}: unknown parameter (known: {', '.join(defaults)})")
+    return {k: float(overrides.get(k, v)) for k, v in defaults.items()}
