@@ -574,12 +574,13 @@ def run_corrupt_section(tmp: Path) -> None:
     print("corrupt: damaged results files", flush=True)
     import h5py
 
-    from vcirun.io import storage
+    from vcirun.io.checks import run_problem
+    from vcirun.io.reader import load_trajectory, read_results
 
     d = tmp / "corrupt"
     d.mkdir()
     good = _good_file(d)
-    expected = {r.run_id for r in storage.read_results(good).runs}
+    expected = {r.run_id for r in read_results(good).runs}
     for name, path in corruptions(good, d):
         for cmd in ("info", "plot"):
             args = [cmd, path] + (["--out", d / "fig" / path.stem] if cmd == "plot" else [])
@@ -593,13 +594,13 @@ def run_corrupt_section(tmp: Path) -> None:
         if rc == 0 and "Traceback" not in e:
             # a resume must leave every run verified and present, each exactly once
             try:
-                res = storage.read_results(path)
+                res = read_results(path)
                 with h5py.File(path, "r") as f:
-                    problems = [storage.run_problem(g) for g in f["runs"].values()]
+                    problems = [run_problem(g) for g in f["runs"].values()]
                     nref = len(f["references"])
                 good_runs = {r.run_id for r in res.runs} == expected and not any(problems) and nref == 3
                 for r in res.runs:
-                    storage.load_trajectory(path, r.run_id)
+                    load_trajectory(path, r.run_id)
                 outcome = "ok" if good_runs else "wrong_ok"
                 detail = f"resumed: {len(res.runs)} runs, {nref} references, problems {sum(map(bool, problems))}"
             except Exception as ex:  # noqa: BLE001
@@ -632,9 +633,10 @@ def run_corrupt_section(tmp: Path) -> None:
 # --- disk full ----------------------------------------------------------------------------------------------------
 NOCHECK = """\
 import sys
-from vcirun.experiments import storage, sweep
+from vcirun.experiments import sweep
+from vcirun.io.writer import ResultsWriter
 sweep._check_resources = lambda *a, **k: None           # the sweep's disk estimate off, and the writer's
-storage.ResultsWriter._space_needed = lambda self, j: 0  # free-space check: meet ENOSPC in the writes
+ResultsWriter._space_needed = lambda self, j: 0          # free-space check: meet ENOSPC in the writes
 from vcirun.cli.main import app
 sys.argv = ["vcirun"] + sys.argv[1:]
 app()
@@ -676,7 +678,7 @@ def run_disk_section(tmp: Path, quick: bool) -> None:
     # resume after the disk is enlarged: every committed run kept, the sweep completes
     out = mnt / "fig4.h5"
     inner = (f"mount -t tmpfs -o size=2m tmpfs {mnt} && {_q(PY)} {_q(nocheck)} sweep {cfg} --output {out} -q 2>/dev/null; "
-             f"{_q(PY)} -c 'from vcirun.experiments import storage; print(\"SAVED=%d\" % len(storage.read_results(\"{out}\").runs))'; "
+             f"{_q(PY)} -c 'from vcirun.io.reader import read_results; print(\"SAVED=%d\" % len(read_results(\"{out}\").runs))'; "
              f"mount -o remount,size=64m {mnt} && {_q(PY)} -m vcirun.cli.main sweep {cfg} --output {out} -q; echo RC=$?; "
              f"{_q(PY)} -c 'import h5py; f=h5py.File(\"{out}\",\"r\"); print(\"FINAL=%d\" % len(f[\"runs\"]))'")
     t0 = time.monotonic()
@@ -750,7 +752,7 @@ def run_kill_section(tmp: Path, quick: bool) -> None:
     import h5py
     import numpy as np
 
-    from vcirun.io import storage
+    from vcirun.io.reader import load_trajectory, read_results
 
     d = tmp / "kill"
     d.mkdir()
@@ -762,7 +764,7 @@ def run_kill_section(tmp: Path, quick: bool) -> None:
     if p.proc.returncode != 0:
         record("kill", "uninterrupted sweep", "traceback", "".join(p.err)[-300:], duration)
         return
-    ref_runs = {r.run_id: r for r in storage.read_results(ref).runs}
+    ref_runs = {r.run_id: r for r in read_results(ref).runs}
     rng = random.Random(2222)
     trials = 3 if quick else 8
     for k in range(trials):
@@ -775,18 +777,18 @@ def run_kill_section(tmp: Path, quick: bool) -> None:
         try:
             with h5py.File(out, "r") as f:  # plain h5py
                 h5_runs = len(f["runs"])
-            now = len(storage.read_results(out).runs)
+            now = len(read_results(out).runs)
         except FileNotFoundError:
             h5_runs = now = 0
         except Exception as ex:  # noqa: BLE001
             record("kill", f"SIGKILL at {t_kill:.1f} s ({workers} workers)", "lost", f"file unreadable: {ex}")
             continue
         rc, o, e, s = vcirun("sweep", cfg, "--output", out, "--workers", "2", "-q", cwd=d, timeout=900)
-        final = storage.read_results(out) if rc == 0 else None
+        final = read_results(out) if rc == 0 else None
         same = final is not None and {r.run_id for r in final.runs} == set(ref_runs)
         if same:  # every run bit for bit as the uninterrupted sweep's (wall times aside)
             for r in final.runs:
-                a, b = storage.load_trajectory(out, r.run_id), storage.load_trajectory(ref, r.run_id)
+                a, b = load_trajectory(out, r.run_id), load_trajectory(ref, r.run_id)
                 same &= all(np.array_equal(getattr(a, n), getattr(b, n)) for n in ("t", "q", "p", "H", "impacts"))
             with h5py.File(out, "r") as f:
                 same &= len(f["runs"]) == len(ref_runs) and not (d / f".k{k}.h5.journal").exists()
@@ -813,7 +815,7 @@ store_trajectories: false
 
 def run_loss_section(tmp: Path, quick: bool) -> None:
     print("loss: SIGKILL during a 2000-run sweep", flush=True)
-    from vcirun.io import storage
+    from vcirun.io.reader import read_results
 
     d = tmp / "loss"
     d.mkdir()
@@ -843,7 +845,7 @@ def run_loss_section(tmp: Path, quick: bool) -> None:
             record("loss", f"kill at {t_kill:.1f} s", "skipped", "no progress line before the kill")
             continue
         have = pts[-1][1]                 # runs the client had received when it was killed
-        committed = len(storage.read_results(out).runs)
+        committed = len(read_results(out).runs)
         lost = max(0, have - committed)
         # the sweep's own rate over the second before the kill, and when the client had `committed` runs
         t_c = next((t for t, n, _ in pts if n >= committed), pts[-1][0]) if committed else pts[0][0]
@@ -899,7 +901,7 @@ def render(cases: list[Case], meta: dict) -> str:
                  f"(`{lc['system']}`, {' '.join(lc['methods'])} x {len(lc['h'])} steps x {lc['beta']['num']} betas, "
                  f"T = {lc['T']}, no trajectories stored, 2 workers, commit_interval = {interval}). "
                  "`lost` = runs the client had received (its last progress line) minus the runs committed (read back "
-                 "with `storage.read_results` after the kill); `= the runs of the last` = the kill time minus the "
+                 "with `vcirun.io.reader.read_results` after the kill); `= the runs of the last` = the kill time minus the "
                  "moment the client had received as many runs as were committed; the rate is the client's over the "
                  "5 s before the kill.")
         if whole:
@@ -959,7 +961,7 @@ fault), `bad_message` (non-zero exit without exactly one `error:` line, or files
   `vcirun sweep` of the config resumes. After any kill the HDF5 file opens with plain h5py; a torn
   journal tail (a kill inside an append) is ignored by CRC.
 - **Resume verifies what it trusts.** A run group counts as stored only with `complete=True` and its
-  datasets present with the shapes its attributes declare (`storage.run_problem`, from the run record
+  datasets present with the shapes its attributes declare (`vcirun.io.checks.run_problem`, from the run record
   table: grid rows N+1, step rows N, impact rows m, partial steps K); references alike. Anything else
   is deleted and recomputed; lost `runs`/`references` groups are recreated, missing references
   recomputed (also when every run is stored).

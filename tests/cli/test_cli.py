@@ -13,7 +13,8 @@ from typer.testing import CliRunner
 
 import vcirun
 from vcirun.cli.main import app
-from vcirun.io import storage
+from vcirun.io.errors import StorageError
+from vcirun.io.reader import load_trajectory, read_results
 from vcirun.experiments.config import load_config
 from vcirun.experiments.sweep import expand, run_sweep
 
@@ -78,7 +79,7 @@ def test_sweep_info_plot_resume_force(runner, tiny, count_runs):
     assert "8 runs (8 computed, 0 already stored; 8 ok)" in r.stdout
     assert len(count_runs) == 8 and len(set(count_runs)) == 8
 
-    res = storage.read_results(out)
+    res = read_results(out)
     assert len(res.runs) == 8 and res.incomplete == []
     assert {r.run_id for r in res.runs} == {s.run_id for s in expand(load_config(tiny))}
     assert all(r.attrs["status"] == "ok" and np.isfinite(r.attrs["l2_error"]) for r in res.runs)
@@ -122,26 +123,26 @@ def test_sweep_info_plot_resume_force(runner, tiny, count_runs):
     r = invoke(runner, "sweep", tiny, "--workers", "1")
     assert r.exit_code == 0 and "0 computed, 8 already stored" in r.stdout
     assert count_runs == [] and out.stat().st_mtime_ns == before
-    assert {x.run_id: x.attrs["committed_at"] for x in storage.read_results(out).runs} == stamps
+    assert {x.run_id: x.attrs["committed_at"] for x in read_results(out).runs} == stamps
 
     # --force recomputes everything into a new file
     r = invoke(runner, "sweep", tiny, "--workers", "1", "--force")
     assert r.exit_code == 0 and "8 computed, 0 already stored" in r.stdout
     assert len(count_runs) == 8
-    assert len(storage.read_results(out).runs) == 8
-    assert storage.read_results(out).attrs["history"][-1]["status"] == "complete"
+    assert len(read_results(out).runs) == 8
+    assert read_results(out).attrs["history"][-1]["status"] == "complete"
 
 
 def test_parallel_workers_give_identical_results(runner, tiny, tmp_path):
     one = invoke(runner, "sweep", tiny, "--workers", "1", "--quiet", "--output", tmp_path / "one.h5")
     two = invoke(runner, "sweep", tiny, "--workers", "2", "--quiet", "--output", tmp_path / "two.h5")
     assert one.exit_code == 0 and two.exit_code == 0, (one.output, two.output)
-    a, b = storage.read_results(tmp_path / "one.h5"), storage.read_results(tmp_path / "two.h5")
+    a, b = read_results(tmp_path / "one.h5"), read_results(tmp_path / "two.h5")
     assert [r.run_id for r in a.runs] == [r.run_id for r in b.runs]
     assert {r.attrs["worker_pid"] for r in b.runs} != {r.attrs["worker_pid"] for r in a.runs}
     for ra, rb in zip(a.runs, b.runs):
         assert ra.attrs["l2_error"] == rb.attrs["l2_error"]
-        ta, tb = storage.load_trajectory(a.path, ra.run_id), storage.load_trajectory(b.path, rb.run_id)
+        ta, tb = load_trajectory(a.path, ra.run_id), load_trajectory(b.path, rb.run_id)
         np.testing.assert_array_equal(ta.q, tb.q)
         np.testing.assert_array_equal(ta.impacts, tb.impacts)
 
@@ -152,7 +153,7 @@ def test_resume_after_partial_sweep_computes_only_the_rest(tiny, count_runs, tmp
     first = run_sweep(half, output=tmp_path / "part.h5", workers=1, progress=False)
     assert first.computed == 4
     # Same runs, other config key: refused, with the way out in the message.
-    with pytest.raises(storage.StorageError, match="--force"):
+    with pytest.raises(StorageError, match="--force"):
         run_sweep(cfg, output=tmp_path / "part.h5", workers=1, progress=False)
     count_runs.clear()
     full = run_sweep(cfg, output=tmp_path / "full.h5", workers=1, progress=False)
@@ -174,7 +175,7 @@ def test_failed_runs_are_recorded_and_the_sweep_goes_on(runner, tmp_path, monkey
     r = invoke(runner, "sweep", cfg, "--workers", "1")
     assert r.exit_code == 0, r.output
     assert "did not finish with status ok" in r.stdout
-    res = storage.read_results("results/fail.h5")
+    res = read_results("results/fail.h5")
     assert len(res.runs) == 8
     by_status = {}
     for run in res.runs:
@@ -277,7 +278,7 @@ def test_history_records_each_session(tiny, tmp_path):
     out = tmp_path / "h.h5"
     run_sweep(cfg, output=out, workers=1, progress=False, argv=["first"])
     run_sweep(cfg, output=out, workers=1, progress=False, argv=["second"], force=True)
-    hist = storage.read_results(out).attrs["history"]
+    hist = read_results(out).attrs["history"]
     assert [h["argv"] for h in hist] == [["second"]]  # --force starts a new file
     with h5py.File(out, "r") as f:
         assert json.loads(f.attrs["history"])[0]["computed"] == 8
@@ -313,18 +314,18 @@ def test_a_dead_worker_stops_the_sweep_and_keeps_finished_runs(tiny, tmp_path, m
     out = tmp_path / "crash.h5"
     with pytest.raises(SweepError, match=r"a worker process died unexpectedly .*rerun the same command"):
         run_sweep(load_config(tiny), output=out, workers=2, progress=False)
-    res = storage.read_results(out)
+    res = read_results(out)
     assert res.attrs["history"][-1]["status"] == "worker_died" and res.incomplete == []
     assert len(res.runs) < 8
     monkeypatch.setattr(vcirun, "simulate", original)
     s = run_sweep(load_config(tiny), output=out, workers=2, progress=False)
-    assert s.computed == 8 - len(res.runs) and len(storage.read_results(out).runs) == 8
+    assert s.computed == 8 - len(res.runs) and len(read_results(out).runs) == 8
 
 
 def test_timing_repeats_keep_the_fastest(tiny, tmp_path, count_runs):
     cfg = load_config(tiny).model_copy(update={"timing_repeats": 3})
     run_sweep(cfg, output=tmp_path / "rep.h5", workers=1, progress=False)
     assert len(count_runs) == 3 * 8 and len(set(count_runs)) == 8
-    for r in storage.read_results(tmp_path / "rep.h5").runs:
+    for r in read_results(tmp_path / "rep.h5").runs:
         reps = r.attrs["wall_time_repeats"]
         assert len(reps) == 3 and r.attrs["wall_time"] == min(reps)

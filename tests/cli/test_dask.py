@@ -20,7 +20,8 @@ from typer.testing import CliRunner
 import vcirun
 from vcirun.cli.main import app
 from vcirun.experiments import executors
-from vcirun.io import storage
+from vcirun.io.reader import Results, load_reference, load_trajectory, read_results
+from vcirun.io.writer import ResultsWriter
 from vcirun.experiments.config import ConfigError, load_config, parse_config
 from vcirun.experiments.sweep import SweepError, expand, run_sweep
 
@@ -112,10 +113,10 @@ def worker_pids(client) -> dict:
     return client.run(os.getpid)
 
 
-def check_file(path: Path, expected_ids: set) -> storage.Results:
+def check_file(path: Path, expected_ids: set) -> Results:
     with h5py.File(path, "r") as f:  # plain h5py opens it; every group in it is complete
         assert all(bool(f["runs"][g].attrs["complete"]) for g in f["runs"])
-    res = storage.read_results(path)
+    res = read_results(path)
     ids = [r.run_id for r in res.runs]
     assert res.incomplete == [] and len(ids) == len(set(ids)) and set(ids) <= expected_ids
     return res
@@ -127,13 +128,13 @@ class FirstResult:
     def __init__(self, monkeypatch, action):
         self.event = threading.Event()
         self.error = None
-        original = storage.ResultsWriter.add_run
+        original = ResultsWriter.add_run
 
         def add_run(writer, *a, **kw):
             self.event.set()
             return original(writer, *a, **kw)
 
-        monkeypatch.setattr(storage.ResultsWriter, "add_run", add_run)
+        monkeypatch.setattr(ResultsWriter, "add_run", add_run)
         self.thread = threading.Thread(target=self._run, args=(action,), daemon=True)
         self.thread.start()
 
@@ -162,7 +163,7 @@ def test_local_task_size_splits_tasks_and_gives_the_same_runs(tmp_path):
     cfg = load_config(write_config(tmp_path))
     s = run_sweep(cfg, output=tmp_path / "a.h5", workers=2, task_size=1, progress=False)
     assert s.computed == 12 and s.executor_stats["tasks"] == 12
-    assert {r.run_id for r in storage.read_results(tmp_path / "a.h5").runs} == {x.run_id for x in expand(cfg)}
+    assert {r.run_id for r in read_results(tmp_path / "a.h5").runs} == {x.run_id for x in expand(cfg)}
 
 
 def test_executor_section_of_the_config(tmp_path):
@@ -274,19 +275,19 @@ def test_dask_sweep_matches_the_local_pool_bit_for_bit(tmp_path, monkeypatch, cl
     assert "12 runs (12 computed, 0 already stored; 12 ok)" in dask.stdout
     assert "on 2 worker threads; measured" in dask.stdout  # tasks, task size and measured costs
 
-    a, b = storage.read_results("local.h5"), storage.read_results("dask.h5")
+    a, b = read_results("local.h5"), read_results("dask.h5")
     assert [r.run_id for r in a.runs] == [r.run_id for r in b.runs] == [s.run_id for s in expand(load_config(cfg))]
     assert [r.attrs["status"] for r in a.runs] == [r.attrs["status"] for r in b.runs]
     pids = set(worker_pids(client).values())
     assert {r.attrs["worker_pid"] for r in b.runs} <= pids  # computed on the cluster's workers
     for ra, rb in zip(a.runs, b.runs):
         assert ra.attrs["l2_error"] == rb.attrs["l2_error"] and ra.attrs["n_impacts"] == rb.attrs["n_impacts"]
-        ta, tb = storage.load_trajectory(a.path, ra.run_id), storage.load_trajectory(b.path, rb.run_id)
+        ta, tb = load_trajectory(a.path, ra.run_id), load_trajectory(b.path, rb.run_id)
         for name in ("t", "q", "p", "H", "impacts", "impact_q", "impact_p_plus"):
             np.testing.assert_array_equal(getattr(ta, name), getattr(tb, name), err_msg=name)
     assert a.references.keys() == b.references.keys()
     for key in a.references:
-        ra, rb = storage.load_reference(a.path, key), storage.load_reference(b.path, key)
+        ra, rb = load_reference(a.path, key), load_reference(b.path, key)
         np.testing.assert_array_equal(ra["q"], rb["q"])
     hist = b.attrs["history"][-1]
     assert hist["status"] == "complete" and hist["executor"]["kind"] == "dask"

@@ -19,10 +19,13 @@ import pytest
 from typer.testing import CliRunner
 
 from vcirun.cli.main import app
-from vcirun.io import storage
 from vcirun.experiments import sweep
 from vcirun.experiments.config import load_config
-from vcirun.io.storage import ResultsWriter, StorageError
+from vcirun.io.checks import run_problem
+from vcirun.io.errors import StorageError
+from vcirun.io.journal import read_journal
+from vcirun.io.reader import load_trajectory, read_results
+from vcirun.io.writer import ResultsWriter
 from vcirun.experiments.sweep import SweepError, expand, run_sweep
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "unit"))
@@ -90,9 +93,9 @@ def test_commits_append_to_the_journal_and_never_touch_the_file(tmp_path):
     assert (path.stat().st_ino, path.read_bytes()) == before
     steps = np.diff(sizes)
     assert np.all(steps > 0) and np.ptp(steps) < 64
-    res = storage.read_results(path)  # readers see the journalled runs at once
+    res = read_results(path)  # readers see the journalled runs at once
     assert len(res.runs) == 6 and res.in_journal == 6
-    back = storage.load_trajectory(path, "r0003")
+    back = load_trajectory(path, "r0003")
     np.testing.assert_array_equal(back.q, make_traj(seed=3).q)
     with h5py.File(path, "r") as f:  # plain h5py: the file is valid, its runs come at compaction
         assert len(f["runs"]) == 0 and f.attrs["journal"] == w._token
@@ -121,7 +124,7 @@ def test_queued_runs_are_journalled_before_waiting_for_a_compaction_round(tmp_pa
     seen = []
 
     def waiting_for_the_compactor(*args, **kwargs):  # a kill here must not lose r0002..r0004
-        j = storage.read_journal(w.journal_path)  # (None at close() after finish: the journal is folded in)
+        j = read_journal(w.journal_path)  # (None at close() after finish: the journal is folded in)
         seen.append(sorted(r.key for r in j.records if r.kind == "run") if j is not None else None)
 
     monkeypatch.setattr(w, "stop_background_compaction", waiting_for_the_compactor)
@@ -129,7 +132,7 @@ def test_queued_runs_are_journalled_before_waiting_for_a_compaction_round(tmp_pa
     if end == "finish":
         w.close()
     assert seen and seen[0] == [f"r{i:04d}" for i in range(5)]
-    assert {r.run_id for r in storage.read_results(path).runs} == {f"r{i:04d}" for i in range(5)}
+    assert {r.run_id for r in read_results(path).runs} == {f"r{i:04d}" for i in range(5)}
 
 
 def test_a_torn_journal_tail_is_ignored_and_resume_folds_the_rest_in(tmp_path):
@@ -148,9 +151,9 @@ def test_a_torn_journal_tail_is_ignored_and_resume_folds_the_rest_in(tmp_path):
     w._release_lock()
     with open(w.journal_path, "r+b") as fh:  # the kill hit the middle of the last append
         fh.truncate(good + 100)
-    j = storage.read_journal(w.journal_path)
+    j = read_journal(w.journal_path)
     assert j.torn and sum(r.kind == "run" for r in j.records) == 3
-    assert {r.run_id for r in storage.read_results(path).runs} == {"r0000", "r0001", "r0002"}
+    assert {r.run_id for r in read_results(path).runs} == {"r0000", "r0001", "r0002"}
     w2 = ResultsWriter(path, root_attrs={"name": "t"}, config_key=KEY).acquire()
     assert set(w2.complete_runs) == {"r0000", "r0001", "r0002"}
     w2.start()  # the old journal is folded into the file, a new one opened
@@ -158,7 +161,7 @@ def test_a_torn_journal_tail_is_ignored_and_resume_folds_the_rest_in(tmp_path):
     w2.close()
     with h5py.File(path, "r") as f:
         assert sorted(f["runs"]) == ["r0000", "r0001", "r0002"]
-    hist = storage.read_results(path).attrs["history"]
+    hist = read_results(path).attrs["history"]
     assert [h["status"] for h in hist] == ["running", "complete"] and hist[0]["computed"] == 3  # the 4th run was torn
 
 
@@ -174,7 +177,7 @@ def test_a_stale_journal_is_ignored(tmp_path):
     w.finish("complete")
     w.close()
     w.journal_path.write_bytes(stale)  # e.g. a kill between the final rename and the journal's removal
-    assert len(storage.read_results(path).runs) == 2  # its token is not the file's: not applied twice
+    assert len(read_results(path).runs) == 2  # its token is not the file's: not applied twice
     with ResultsWriter(path, root_attrs={"name": "t"}, config_key=KEY) as w2:
         assert len(w2.complete_runs) == 2
         w2.finish("complete")
@@ -189,7 +192,7 @@ def test_sigkill_leaves_an_h5py_readable_file_and_the_journal_holds_every_saved_
 import sys, os, signal
 sys.path.insert(0, {str(ROOT / 'tests' / 'unit')!r})
 from test_storage import KEY, make_traj, run_attrs
-from vcirun.io.storage import ResultsWriter
+from vcirun.io.writer import ResultsWriter
 w = ResultsWriter({str(path)!r}, root_attrs={{"name": "t"}}, config_key=KEY)
 w.acquire(); w.start()
 for i in range(5):
@@ -237,7 +240,7 @@ def test_background_compaction_folds_the_journal_in_while_the_sweep_runs(tmp_pat
     for rid, (a, arr) in items[4:]:
         w.add_run(rid, a, arr)
         w.commit()
-    res = storage.read_results(path)  # the file's four and the journal's tail, each once
+    res = read_results(path)  # the file's four and the journal's tail, each once
     assert sorted(r.run_id for r in res.runs) == sorted(k for k, _ in items) and res.in_journal <= 2
     w.finish("complete")
     w.close()
@@ -256,16 +259,16 @@ def test_resume_recomputes_runs_whose_datasets_are_missing_or_misshapen(tiny):
         del f["runs"][names[0]]["q"]
         del f["runs"][names[1]]["t"]
         f["runs"][names[1]]["t"] = np.zeros(3)
-    res = storage.read_results(out)
+    res = read_results(out)
     assert {r.run_id for r in res.runs} == expected - set(names[:2])
     assert "dataset q missing" in res.damaged[f"runs/{names[0]}"]
     assert "dataset t has shape (3,)" in res.damaged[f"runs/{names[1]}"]
     with pytest.raises(StorageError, match=r"is damaged \(dataset q missing\)"):  # never a q of shape (0, n), ok
-        storage.load_trajectory(out, names[0])
+        load_trajectory(out, names[0])
     s = run_sweep(load_config(tiny), output=out, workers=1, progress=False)
     assert s.computed == 2 and s.deleted_incomplete == 2
     with h5py.File(out, "r") as f:
-        assert not any(storage.run_problem(g) for g in f["runs"].values()) and set(f["runs"]) == expected
+        assert not any(run_problem(g) for g in f["runs"].values()) and set(f["runs"]) == expected
 
 
 def test_a_lost_references_group_is_recreated_and_recomputed(tiny):
@@ -317,7 +320,7 @@ def test_a_symlinked_output_is_written_through(tiny, tmp_path):
     link.symlink_to(tmp_path / "store" / "target.h5")
     assert cli("sweep", tiny, "--output", link, "-q", "--workers", "1").exit_code == 0
     assert cli("sweep", tiny, "--output", link, "-q", "--workers", "1", "--force").exit_code == 0
-    assert link.is_symlink() and len(storage.read_results(link).runs) == 8
+    assert link.is_symlink() and len(read_results(link).runs) == 8
     assert not list((tmp_path / "store").glob(".*"))  # no lock, journal or partial left beside the target
 
 
@@ -340,9 +343,9 @@ needs_mount = pytest.mark.skipif(UNSHARE is None, reason="no private mount names
 NOCHECK = """\
 import sys
 from vcirun.experiments import sweep
-from vcirun.io import storage
+from vcirun.io.writer import ResultsWriter
 sweep._check_resources = lambda *a, **k: None           # meet the full disk in the writes themselves
-storage.ResultsWriter._space_needed = lambda self, j: 0
+ResultsWriter._space_needed = lambda self, j: 0
 from vcirun.cli.main import app
 sys.argv = ["vcirun"] + sys.argv[1:]
 app()
@@ -377,8 +380,8 @@ def test_full_disk_is_one_line_and_keeps_every_committed_run(tiny, tmp_path, siz
     (tmp_path / "nocheck.py").write_text(NOCHECK)
     exe = f"{sys.executable} -m vcirun.cli.main" if checks else f"{sys.executable} {tmp_path / 'nocheck.py'}"
     out = mnt / "r.h5"
-    count = (f"{sys.executable} -c 'from vcirun.io import storage; import sys; "
-             f"print(\"SAVED\", len(storage.read_results(sys.argv[1]).runs))' {out} 2>/dev/null")
+    count = (f"{sys.executable} -c 'from vcirun.io.reader import read_results; import sys; "
+             f"print(\"SAVED\", len(read_results(sys.argv[1]).runs))' {out} 2>/dev/null")
     p = in_namespace(f"mount -t tmpfs -o size={size} tmpfs {mnt}",
                      f"{exe} sweep {tiny} --output {out} -q --workers 1 2>{tmp_path}/err; echo RC=$?; {count}; "
                      f"ls -a {mnt}; mount -o remount,size=64m {mnt}; "
@@ -411,15 +414,15 @@ def test_simulated_enospc_in_the_journal_truncates_it_and_keeps_every_commit(tmp
             raise OSError(errno.ENOSPC, "No space left on device")
         return real_write(fd, data)
 
-    monkeypatch.setattr(storage.os, "write", full)
+    monkeypatch.setattr(os, "write", full)
     w.add_run(items[1][0], *items[1][1])
     with pytest.raises(StorageError, match=r"\.r\.h5\.journal: cannot write results \(No space left on device\).*1 in"):
         w.commit()
     monkeypatch.undo()
     assert w.journal_path.stat().st_size == good  # cut back to the last complete record
-    assert [r.run_id for r in storage.read_results(path).runs] == [items[0][0]]
+    assert [r.run_id for r in read_results(path).runs] == [items[0][0]]
     w.commit()  # space again: the retry appends right after the last complete record
-    assert {r.run_id for r in storage.read_results(path).runs} == {items[0][0], items[1][0]}
+    assert {r.run_id for r in read_results(path).runs} == {items[0][0], items[1][0]}
     w.finish("complete")
     w.close()
     with h5py.File(path, "r") as f:
@@ -441,7 +444,7 @@ def test_an_hdf5_crash_during_a_rewrite_stays_in_the_child(tmp_path):
         w.finish("complete", final_hooks=[lambda f: os.kill(os.getpid(), signal.SIGSEGV)])
     w.close()
     assert path.read_bytes() == before and not w.tmp_path.exists()
-    assert len(storage.read_results(path).runs) == 3
+    assert len(read_results(path).runs) == 3
     with ResultsWriter(path, root_attrs={"name": "t"}, config_key=KEY) as w2:
         w2.finish("complete")
     with h5py.File(path, "r") as f:
@@ -492,7 +495,7 @@ def test_damaged_results_files_are_one_line_for_info_plot_and_sweep(tiny, tmp_pa
                 one_line(r)
             elif args[0] == "sweep":  # repaired by the resume: every run there, each verified
                 with h5py.File(p, "r") as f:
-                    assert len(f["runs"]) == 8 and not any(storage.run_problem(g) for g in f["runs"].values())
+                    assert len(f["runs"]) == 8 and not any(run_problem(g) for g in f["runs"].values())
 
 
 # --- the sweep's own checks ----------------------------------------------------------------------------------------
@@ -542,7 +545,7 @@ def test_a_fifo_given_to_info_or_plot_is_one_line_not_a_hang(tmp_path, monkeypat
     for args in (["info", fifo], ["plot", fifo]):
         one_line(cli(*args), "not a regular file")
     with pytest.raises(StorageError, match="not a regular file"):
-        storage.read_results(fifo)
+        read_results(fifo)
 
 
 def test_plot_out_that_cannot_be_a_folder_names_it_and_leaves_nothing(tiny, tmp_path):

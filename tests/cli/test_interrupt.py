@@ -17,7 +17,7 @@ from pathlib import Path
 import h5py
 import pytest
 
-from vcirun.io import storage
+from vcirun.io.reader import Results, read_results
 from vcirun.experiments.config import load_config
 from vcirun.experiments.sweep import expand
 
@@ -133,11 +133,11 @@ def worker_processes_of(cfg: Path) -> list[int]:
     return pids
 
 
-def check_file(path: Path, expected_ids: set[str]) -> storage.Results:
+def check_file(path: Path, expected_ids: set[str]) -> Results:
     with h5py.File(path, "r") as f:  # opens with plain h5py
         groups = set(f["runs"])
         assert all(bool(f["runs"][g].attrs["complete"]) for g in groups)
-    res = storage.read_results(path)
+    res = read_results(path)
     assert res.incomplete == []
     ids = [r.run_id for r in res.runs]
     assert len(ids) == len(set(ids)) and set(ids) <= expected_ids

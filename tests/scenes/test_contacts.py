@@ -212,7 +212,7 @@ def test_single_constraint_declarations_are_unchanged():
 def test_results_file_records_constraint_names_and_restitutions(tmp_path):
     """A sweep's root attributes carry the constraints in declaration order (what impact_contact
     indexes), with their restitution expressions."""
-    from vcirun.io import storage
+    from vcirun.io.reader import read_results
     from vcirun.experiments.config import load_config
     from vcirun.experiments.sweep import run_sweep
 
@@ -228,7 +228,7 @@ output: {tmp_path / 'box.h5'}
 workers: 1
 """)
     run_sweep(load_config(cfg_path), progress=False)
-    res = storage.read_results(tmp_path / "box.h5")
+    res = read_results(tmp_path / "box.h5")
     cons = res.attrs["constraints"]
     assert [c["name"] for c in cons] == ["floor", "ceiling", "left", "right"]
     assert {c["restitution"] for c in cons} == {"e"}

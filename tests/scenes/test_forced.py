@@ -242,7 +242,7 @@ def test_reference_names_its_failures():
 def test_sweep_of_a_forced_system_stores_true_l2_errors(tmp_path):
     """A sweep of damped_oscillator stores L2 errors equal to those against the closed form (before
     issue 15 the stored reference was the unforced motion: 1.14 where the true error is 6e-7)."""
-    from vcirun.io import storage
+    from vcirun.io.reader import load_trajectory, read_results
     from vcirun.experiments.config import load_config
     from vcirun.experiments.sweep import run_sweep
 
@@ -258,10 +258,10 @@ output: {tmp_path / 'forced.h5'}
 """)
     summary = run_sweep(load_config(cfg_path), workers=1, progress=False)
     assert summary.ok
-    res = storage.read_results(tmp_path / "forced.h5")
+    res = read_results(tmp_path / "forced.h5")
     assert len(res.runs) == 6
     for run in res.runs:
-        tr = storage.load_trajectory(tmp_path / "forced.h5", run.run_id)
+        tr = load_trajectory(tmp_path / "forced.h5", run.run_id)
         x, _, _ = damped_wall_exact(tr.t, X0, V0, **DAMPED)
         true = float(np.sqrt(tr.h * np.sum((tr.q[:, 0] - x) ** 2)))
         assert run.attrs["l2_error"] == pytest.approx(true, rel=1e-4, abs=1e-12), run.attrs["label"]

@@ -11,7 +11,7 @@ import vcirun
 from vcirun.core import record
 from vcirun.codegen import units
 from vcirun.codegen.build import SYSTEM_KERNELS, KernelSet
-from vcirun.io import storage
+from vcirun.run.trajectory_files import IMPACT_ARRAYS, TRAJECTORY_ARRAYS, trajectory_payload
 from vcirun.methods.table import METHODS, resolve_method
 from vcirun.run.trajectory import Trajectory
 
@@ -82,8 +82,8 @@ def test_generated_part_defines_its_declared_names():
 def test_trajectory_storage_and_schema_follow_the_record_table():
     names = {f.name for f in dataclasses.fields(Trajectory)}
     assert {f.name for f in record.FIELDS} <= names
-    assert set(storage.IMPACT_ARRAYS) == set(record.stored_names("impacts"))
-    assert set(storage.TRAJECTORY_ARRAYS) == {"t"} | set(record.stored_names("trajectory"))
+    assert set(IMPACT_ARRAYS) == set(record.stored_names("impacts"))
+    assert set(TRAJECTORY_ARRAYS) == {"t"} | set(record.stored_names("trajectory"))
     doc = (ROOT / "docs" / "results_schema.md").read_text()
     assert record.schema_markdown() in doc, "docs/results_schema.md: regenerate the datasets table from " \
                                             "vcirun.core.record.schema_markdown()"
@@ -121,5 +121,5 @@ def test_impact_impulse_is_the_recorded_momentum_jump(method):
 
 def test_impact_impulse_is_stored_and_read_back(tmp_path):
     tr = vcirun.simulate("oscillator_wall", "CVA", h=1e-2, T=5.0)
-    attrs, arrays = storage.trajectory_payload(tr, store_arrays=False)
+    attrs, arrays = trajectory_payload(tr, store_arrays=False)
     assert np.array_equal(arrays["impact_impulse"], tr.impact_impulse)

@@ -9,7 +9,7 @@ from matplotlib.figure import Figure
 from test_storage import make_traj, run_attrs, synthetic_results, write
 
 from vcirun.experiments import figures
-from vcirun.io import storage
+from vcirun.io.reader import read_results
 
 
 def _snapshot():
@@ -25,7 +25,7 @@ def _same(before, after):
 
 def test_plot_functions_leave_matplotlib_state_unchanged(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    res = storage.read_results(synthetic_results(tmp_path))
+    res = read_results(synthetic_results(tmp_path))
     before = _snapshot()
     made = [figures.figure4(res), figures.figure3(res), figures.figure1(res), figures.work_precision(res.path)]
     tr = make_traj(with_hmod=True)
@@ -43,7 +43,7 @@ def test_plot_functions_leave_matplotlib_state_unchanged(tmp_path, monkeypatch):
 
 
 def test_cli_writer_keeps_state_too(tmp_path):
-    res = storage.read_results(synthetic_results(tmp_path))
+    res = read_results(synthetic_results(tmp_path))
     before = _snapshot()
     written, skipped = figures.make_figures(res, tmp_path / "fig")
     _same(before, _snapshot())

@@ -124,7 +124,7 @@ def test_no_import_cycle():
 
 
 @pytest.mark.parametrize("module", ["vcirun.maps", "vcirun.collision", "vcirun.experiments", "vcirun.reference",
-                                    "vcirun.experiments.sweep", "vcirun.io.storage",
+                                    "vcirun.experiments.sweep", "vcirun.io.writer", "vcirun.io.reader",
                                     "vcirun.experiments.config", "vcirun.run.api", "vcirun.core.record"])
 def test_numeric_layers_load_no_sympy_and_compile_nothing(module):
     code = (f"import sys, importlib; importlib.import_module({module!r}); "

@@ -11,7 +11,7 @@ import xarray as xr
 import pytest
 
 import vcirun
-from vcirun.io import storage
+from vcirun.io.reader import read_results
 from vcirun.experiments.config import parse_config
 from vcirun.experiments.sweep import run_sweep
 
@@ -41,7 +41,7 @@ def test_open_results_dims_and_values(sweep_file):
     np.testing.assert_array_equal(ds.sel(method="CVA", h=0.01).l2_error.values, curve.values)
     np.testing.assert_array_equal(ds.l2_error.sel(method="CVA").sel(h=0.01).values, curve.values)
     np.testing.assert_array_equal(ds.l2_error.loc["CVA", 0.01].values, curve.values)
-    res = storage.read_results(sweep_file)
+    res = read_results(sweep_file)
     want = sorted((r.attrs["beta"], r.attrs["l2_error"]) for r in res.runs
                   if r.attrs["label"] == "CVA" and r.attrs["h"] == 0.01)
     np.testing.assert_array_equal(curve.values, [e for _, e in want])

@@ -1,9 +1,16 @@
-"""HDF5 results storage: round trips, plain-h5py layout, incomplete groups, atomic commits, locking,
-and the metrics/figures/tables built on stored runs (synthetic trajectories; no integrator runs)."""
+"""HDF5 results files (vcirun.io): round trips, plain-h5py layout, incomplete groups, atomic commits,
+locking, the journal format, the forked writer, output-path checks, and the metrics/figures/tables
+built on stored runs (synthetic trajectories; no integrator runs)."""
 from __future__ import annotations
 
+import errno
+import hashlib
 import json
 import math
+import os
+import re
+import signal
+from pathlib import Path
 
 import h5py
 import numpy as np
@@ -11,8 +18,15 @@ import pytest
 from scipy import stats
 
 from vcirun.experiments import metrics
-from vcirun.io import storage
-from vcirun.io.storage import ResultsWriter, StorageError
+from vcirun.io import rewrite
+from vcirun.io.checks import resolve_output, run_problem
+from vcirun.io.durable import ChildFailed, run_isolated
+from vcirun.io.errors import StorageError, one_line, os_text, write_error
+from vcirun.io.journal import read_journal, record_pieces, write_all
+from vcirun.io.provenance import environment_attrs, now_iso
+from vcirun.io.reader import load_trajectory, read_results
+from vcirun.io.writer import ResultsWriter
+from vcirun.run.trajectory_files import IMPACT_ARRAYS, trajectory_payload
 from vcirun.core import record
 from vcirun.run.trajectory import Trajectory
 
@@ -44,7 +58,7 @@ def make_traj(*, N=40, n=2, h=0.01, with_hmod=True, n_imp=2, status="ok", beta=3
 
 
 def run_attrs(traj, label, h, beta, index=0, ic_key=None):
-    attrs, arrays = storage.trajectory_payload(traj)
+    attrs, arrays = trajectory_payload(traj)
     attrs.update(run_id=None, label=label, method=label, method_index=index, ic_key=ic_key or f"beta={beta:g}",
                  ic_index=0, beta=beta, l2_error=1e-3 * h, method_spec={"name": label})
     return attrs, arrays
@@ -79,7 +93,7 @@ def write(path, runs, *, key=KEY, refs=(), root=None):
 def test_round_trip_preserves_every_field(tmp_path, with_hmod):
     tr = make_traj(with_hmod=with_hmod)
     path = write(tmp_path / "r.h5", {"abc": run_attrs(tr, "MCVAC", tr.h, 3.2)})
-    back = storage.load_trajectory(path, "abc")
+    back = load_trajectory(path, "abc")
     assert_same_traj(tr, back)
     assert back.impact_step.dtype == bool
 
@@ -87,9 +101,9 @@ def test_round_trip_preserves_every_field(tmp_path, with_hmod):
 def test_failed_run_and_missing_beta_round_trip(tmp_path):
     tr = make_traj(status="newton_failed", beta=None, N=3)
     path = write(tmp_path / "r.h5", {"f": run_attrs(tr, "CVA", tr.h, None, ic_key="state=0")})
-    back = storage.load_trajectory(path, "f")
+    back = load_trajectory(path, "f")
     assert_same_traj(tr, back)
-    res = storage.read_results(path)
+    res = read_results(path)
     a = res.runs[0].attrs
     assert a["status"] == "newton_failed" and "step 3" in a["message"]
     assert math.isnan(a["beta"]) and res.runs[0].beta_or_none is None
@@ -97,13 +111,13 @@ def test_failed_run_and_missing_beta_round_trip(tmp_path):
 
 def test_without_trajectories_keeps_impacts_and_scalars(tmp_path):
     tr = make_traj()
-    attrs, arrays = storage.trajectory_payload(tr, store_arrays=False)
-    assert set(arrays) == set(storage.IMPACT_ARRAYS)
+    attrs, arrays = trajectory_payload(tr, store_arrays=False)
+    assert set(arrays) == set(IMPACT_ARRAYS)
     path = write(tmp_path / "r.h5", {"x": ({**attrs, "label": "CVA", "method_index": 0}, arrays)})
-    back = storage.load_trajectory(path, "x")
+    back = load_trajectory(path, "x")
     np.testing.assert_array_equal(back.impacts, tr.impacts)
     assert back.q.shape == (0, 2) and back.t.size == 0 and back.Hmod is None
-    a = storage.read_results(path).runs[0].attrs
+    a = read_results(path).runs[0].attrs
     assert a["has_trajectory"] is False and a["n_steps"] == 40 and a["n_impacts"] == 2
 
 
@@ -138,7 +152,7 @@ def test_incomplete_groups_are_ignored_by_readers_and_dropped_on_resume(tmp_path
         g["q"] = np.zeros((3, 2))
         g.attrs["status"] = "ok"
         f.create_group("references/beta=9")
-    res = storage.read_results(path)
+    res = read_results(path)
     assert [r.run_id for r in res.runs] == ["good"]
     assert sorted(res.incomplete) == ["references/beta=9", "runs/half"]
 
@@ -151,7 +165,7 @@ def test_incomplete_groups_are_ignored_by_readers_and_dropped_on_resume(tmp_path
         w.close()
     with h5py.File(path, "r") as f:
         assert set(f["runs"]) == {"good"} and "beta=9" not in f["references"]
-    hist = storage.read_results(path).attrs["history"]
+    hist = read_results(path).attrs["history"]
     assert len(hist) == 2  # both sessions recorded
 
 
@@ -162,7 +176,7 @@ def test_resume_refuses_a_file_from_another_config(tmp_path):
     # --force replaces it (and only once the new file is committed)
     with ResultsWriter(path, root_attrs={"name": "n"}, config_key="other", force=True) as w:
         w.finish("complete")
-    res = storage.read_results(path)
+    res = read_results(path)
     assert res.runs == [] and res.attrs["config_key"] == "other"
 
 
@@ -175,11 +189,11 @@ def test_unusable_files_are_reported(tmp_path, content, match):
     else:
         path.write_bytes(content)
     with pytest.raises(StorageError, match=match):
-        storage.read_results(path)
+        read_results(path)
     with pytest.raises(StorageError, match=match):
         ResultsWriter(path, root_attrs={}, config_key=KEY).acquire()
     with pytest.raises(StorageError, match="file not found"):
-        storage.read_results(tmp_path / "missing.h5")
+        read_results(tmp_path / "missing.h5")
 
 
 def test_failed_commit_leaves_previous_file_intact(tmp_path, monkeypatch):
@@ -193,7 +207,7 @@ def test_failed_commit_leaves_previous_file_intact(tmp_path, monkeypatch):
         calls.append(grp)
         raise OSError("disk full (simulated)")
 
-    monkeypatch.setattr(storage, "_write_group", boom)
+    monkeypatch.setattr(rewrite, "_write_group", boom)
     w.add_run("b", *run_attrs(make_traj(seed=1), "CVA", 0.01, 3.7))
     with pytest.raises(StorageError, match="cannot write results .*disk full .*committed before"):
         w.commit()
@@ -203,7 +217,7 @@ def test_failed_commit_leaves_previous_file_intact(tmp_path, monkeypatch):
     monkeypatch.undo()
     w.commit()  # the queue survived the failure
     w.close()
-    assert {r.run_id for r in storage.read_results(path).runs} == {"a", "b"}
+    assert {r.run_id for r in read_results(path).runs} == {"a", "b"}
 
 
 def test_second_writer_is_locked_out_and_stale_partial_copy_is_removed(tmp_path):
@@ -212,7 +226,7 @@ def test_second_writer_is_locked_out_and_stale_partial_copy_is_removed(tmp_path)
     try:
         with pytest.raises(StorageError, match="another vcirun sweep"):
             ResultsWriter(path, root_attrs={}, config_key=KEY).acquire()
-        assert storage.read_results(path).runs  # readers are never locked out
+        assert read_results(path).runs  # readers are never locked out
     finally:
         w1.close()
     assert not w1.lock_path.exists()
@@ -226,7 +240,7 @@ def test_a_fresh_writer_creates_nothing_until_started(tmp_path):
     path = tmp_path / "sub" / "r.h5"
     w = ResultsWriter(path, root_attrs={}, config_key=KEY).acquire()
     w.close()
-    assert not path.exists()  # an aborted sweep (e.g. a rejected method) leaves no output
+    assert not path.exists() and not path.parent.exists()  # an aborted sweep leaves no output, no directory
 
 
 def test_forget_runs_for_retry(tmp_path):
@@ -236,7 +250,131 @@ def test_forget_runs_for_retry(tmp_path):
         assert set(w.complete_runs) == {"a", "b"}
         w.forget_runs([r for r, a in w.complete_runs.items() if a["status"] != "ok"])
         w.finish("complete")
-    assert [r.run_id for r in storage.read_results(path).runs] == ["a"]
+    assert [r.run_id for r in read_results(path).runs] == ["a"]
+
+
+# --- the pieces: journal format, checks, forked writes, messages ------------------------------------------
+def _journal(path, *records):
+    """A journal file of an open record (token "tok") followed by `records` ((kind, key, attrs, arrays))."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+    try:
+        write_all(fd, record_pieces("open", "", extra={"token": "tok", "config_key": KEY})[0])
+        for kind, key, attrs, arrays in records:
+            write_all(fd, record_pieces(kind, key, attrs, arrays)[0])
+    finally:
+        os.close(fd)
+    return path
+
+
+def test_journal_record_bytes_are_fixed():
+    """The record format is part of the file format: these bytes are what every version wrote."""
+    pieces, n = record_pieces("run", "abc", {"h": 0.01, "q0": np.array([1.0, 2.0]), "status": "ok"},
+                              [("q", np.arange(6.0).reshape(3, 2)), ("impact_step", np.array([True, False])),
+                               ("newton_iters", np.array([1, 2, 3], np.int32))])
+    data = b"".join(bytes(p) for p in pieces)
+    assert n == len(data) == 328
+    assert hashlib.sha256(data).hexdigest() == "2317531c5c5450137510c85849e07bb62a792e14a1feee6e4de0f71e85bef7dd"
+
+
+def test_journal_round_trip_stops_at_a_torn_or_damaged_record(tmp_path):
+    q = np.arange(6.0).reshape(3, 2)
+    jp = _journal(tmp_path / "j", ("run", "a", {"h": 0.01, "q0": np.array([1.0, 2.0])}, [("q", q)]),
+                  ("delete", "runs/old", None, ()), ("run", "b", {"h": 0.02}, [("q", 2 * q)]))
+    j = read_journal(jp)
+    assert (j.token, j.config_key, j.torn) == ("tok", KEY, False)
+    assert [(r.kind, r.key) for r in j.records] == [("run", "a"), ("delete", "runs/old"), ("run", "b")]
+    with open(jp, "rb") as fh:
+        (name, back), = j.records[0].arrays(fh)
+    assert name == "q" and back.dtype == q.dtype and np.array_equal(back, q)
+    np.testing.assert_array_equal(j.records[0].attrs()["q0"], [1.0, 2.0])
+    assert j.after(j.records[0].end).records == j.records[1:]
+
+    size = jp.stat().st_size
+    with open(jp, "ab") as fh:  # a kill in the middle of an append
+        fh.write(bytes(record_pieces("run", "c", {}, [("q", q)])[0][0]) + b"\0" * 7)
+    torn = read_journal(jp)
+    assert torn.torn and torn.good_end == size and [r.key for r in torn.records] == ["a", "runs/old", "b"]
+
+    data = bytearray(jp.read_bytes()[:size])
+    data[j.records[1].end + 40] ^= 0xFF  # a byte of the last record's payload: its CRC fails
+    jp.write_bytes(bytes(data))
+    assert [r.key for r in read_journal(jp).records] == ["a", "runs/old"]
+
+    assert read_journal(tmp_path / "none") is None
+    fd = os.open(tmp_path / "foreign", os.O_WRONLY | os.O_CREAT, 0o644)
+    write_all(fd, record_pieces("run", "x", {}, [])[0])  # no open record first: not a journal of ours
+    os.close(fd)
+    assert read_journal(tmp_path / "foreign") is None
+
+
+def test_a_damaged_run_group_is_named_by_its_check(tmp_path):
+    tr = make_traj()
+    path = write(tmp_path / "r.h5", {"a": run_attrs(tr, "CVA", tr.h, 3.2), "b": run_attrs(tr, "CVA", tr.h, 3.7)})
+    with h5py.File(path, "a") as f:
+        assert run_problem(f["runs/a"]) is None
+        del f["runs/b/q"]
+        f["runs/b/q"] = np.zeros((3, 2))
+        assert run_problem(f["runs/b"]) == "dataset q has shape (3, 2), expected (41, 2)"
+    res = read_results(path)
+    assert [r.run_id for r in res.runs] == ["a"]
+    assert res.damaged == {"runs/b": "dataset q has shape (3, 2), expected (41, 2)"}
+    with pytest.raises(StorageError, match="run b is damaged .dataset q has shape"):
+        load_trajectory(path, "b")
+
+
+def test_output_path_checks(tmp_path):
+    (tmp_path / "file").write_text("x")
+    (tmp_path / "d").mkdir()
+    for given, match in ((tmp_path / "a\0b.h5", "NUL"), (tmp_path / "d", "is a directory"),
+                         (tmp_path / "file" / "r.h5", "is a file, not a directory")):
+        with pytest.raises(StorageError, match=match):
+            resolve_output(given)
+    target = tmp_path / "d" / "r.h5"
+    (tmp_path / "link.h5").symlink_to(target)
+    assert resolve_output(tmp_path / "link.h5") == target  # writes go to the link's target
+    (tmp_path / "dangling.h5").symlink_to(tmp_path / "nowhere" / "r.h5")
+    with pytest.raises(StorageError, match="whose directory does not exist"):
+        resolve_output(tmp_path / "dangling.h5")
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="no fork here")
+def test_run_isolated_reports_what_failed_in_the_child(tmp_path):
+    def storage_error():
+        raise StorageError("x.h5: refused")
+
+    def os_error():
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    with pytest.raises(StorageError, match="^x.h5: refused$"):
+        run_isolated(storage_error, tmp_path / "x.h5")
+    with pytest.raises(ChildFailed) as e:
+        run_isolated(os_error, tmp_path / "x.h5")
+    assert e.value.io_failure and e.value.errno == errno.ENOSPC and "No space left" in str(e.value)
+    with pytest.raises(ChildFailed, match=r"crashed \(signal 9\) while writing x.h5"):
+        run_isolated(lambda: os.kill(os.getpid(), signal.SIGKILL), tmp_path / "x.h5")
+    seen = []
+    run_isolated(lambda: seen.append(1), tmp_path / "x.h5")
+    assert seen == []  # the child's side effects stay in the child
+    run_isolated(lambda: seen.append(1), tmp_path / "x.h5", isolate=False)
+    assert seen == [1]
+
+
+def test_messages_are_one_line():
+    hdf5 = "Unable to synchronously create file (file write failed: time = now,\n errno = 28, error message = " \
+           "'No space left on device', buf = 0x1)"
+    assert one_line(OSError(hdf5)) == "HDF5: No space left on device, errno 28"
+    assert one_line(ValueError("a" * 500), 20) == "a" * 17 + "..."
+    assert os_text(OSError(errno.EACCES, "Permission denied")) == "Permission denied"
+    err = write_error(Path("r.h5"), OSError(errno.ENOSPC, "No space left on device"), "append")
+    assert str(err) == "r.h5: cannot append (No space left on device); free some space (or choose another --output)"
+
+
+def test_environment_attrs_name_versions_and_commit():
+    a = environment_attrs()
+    assert a["versions"]["numpy"] == np.__version__ and a["numpy_version"] == np.__version__
+    assert a["hdf5_version"] == h5py.version.hdf5_version and isinstance(a["git_commit"], str)
+    assert a["git_dirty"] in ("", "yes", "no")
+    assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\+00:00", now_iso())
 
 
 # --- metrics on synthetic data -----------------------------------------------------------------------
@@ -292,7 +430,7 @@ def test_figures_and_tables_from_stored_runs(tmp_path):
     from vcirun.experiments import figures, tables
 
     path = synthetic_results(tmp_path)
-    res = storage.read_results(path)
+    res = read_results(path)
     written, skipped = figures.make_figures(res, tmp_path / "fig")
     names = {p.name for p in written}
     for stem in ("fig4_l2_error_vs_beta", "fig3_energy_evolution", "fig1_energy_with_without_impacts",
@@ -316,10 +454,10 @@ def test_figures_explain_what_they_cannot_draw(tmp_path):
     from vcirun.experiments import figures
 
     tr = make_traj(with_hmod=False)
-    attrs, arrays = storage.trajectory_payload(tr, store_arrays=False)
+    attrs, arrays = trajectory_payload(tr, store_arrays=False)
     attrs.update(label="CVA", method_index=0, ic_key="default", beta=None, l2_error=None)
     path = write(tmp_path / "one.h5", {"x": (attrs, arrays)})
-    written, skipped = figures.make_figures(storage.read_results(path), tmp_path / "fig")
+    written, skipped = figures.make_figures(read_results(path), tmp_path / "fig")
     assert written == []
     assert set(skipped) == {"fig4", "fig3", "fig1", "work_precision", "contacts"}
     assert "beta" in skipped["fig4"] and "store_trajectories" in skipped["fig3"]

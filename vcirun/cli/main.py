@@ -68,7 +68,7 @@ def _console(stderr: bool = False):
 def _expected_errors():
     """The exception types that are user errors, not bugs."""
     from vcirun.experiments.config import ConfigError
-    from vcirun.io.storage import StorageError
+    from vcirun.io.errors import StorageError
     from vcirun.experiments.sweep import SweepError
 
     return (ConfigError, StorageError, SweepError, CliError)
@@ -352,7 +352,7 @@ def plot(
 ):
     """Write the figures (PNG and PDF) and tables (CSV and Markdown) a results file supports."""
     from vcirun.experiments.figures import plot_results
-    from vcirun.io.storage import StorageError
+    from vcirun.io.errors import StorageError
     from vcirun.experiments.tables import print_table
     from vcirun.experiments.wp_figures import is_study_file, plot_study, print_study_tables
 
@@ -521,7 +521,7 @@ def info(
 ):
     """Summarize a results file: provenance, then a table of runs (method, h, beta, status, impacts,
     L2 error, wall time) and the messages of failed runs."""
-    from vcirun.io.storage import read_results
+    from vcirun.io.reader import read_results
     from vcirun.experiments.tables import print_table, runs_table
 
     try:

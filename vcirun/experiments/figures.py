@@ -31,7 +31,8 @@ import numpy as np
 from ..run.plotting import COLORS, MARKERS, LINE_STYLES, STYLE, new_figure, fmt_h, styled, style, trajectory_figure  # noqa: F401
 from ..io.results import reference_note
 from . import metrics
-from ..io import storage
+from ..io.errors import StorageError
+from ..io.reader import Results, find_newest_results, load_trajectory, read_results
 
 __all__ = ["FigureSkipped", "figure4", "figure3", "figure1", "work_precision", "contacts_energy", "trajectory_figure", "make_figures",
            "plot_results", "PlotReport", "save_figure", "STYLE"]
@@ -55,12 +56,12 @@ def save_figure(fig, outdir: Path, stem: str) -> list[Path]:
     return paths
 
 
-def _as_results(results) -> storage.Results:
-    if isinstance(results, storage.Results):
+def _as_results(results) -> Results:
+    if isinstance(results, Results):
         return results
     if isinstance(results, (str, Path)):
-        return storage.read_results(results)
-    raise TypeError(f"results: expected vcirun results (a path or storage.Results), got {type(results).__name__}")
+        return read_results(results)
+    raise TypeError(f"results: expected vcirun results (a path or Results), got {type(results).__name__}")
 
 
 def _method_order(runs) -> list[str]:
@@ -200,7 +201,7 @@ def figure3(results) -> "Figure":
     runs = [r for r in results.runs if want(r) and float(r.attrs["h"]) == h and r.attrs["ic_key"] == ic]
     fig, axes = new_figure(1, len(runs), figsize=(3.4 * len(runs), 3.2), squeeze=False, sharey=True)
     for ax, r in zip(axes[0], runs):
-        tr = storage.load_trajectory(results.path, r.run_id)
+        tr = load_trajectory(results.path, r.run_id)
         s = _mh_order(r)
         ax.plot(tr.t, tr.H, color=COLORS[0], label=r"$H$")
         ax.plot(tr.t, metrics.masked_discrete_energy(tr), color=COLORS[1], linestyle="--",
@@ -244,8 +245,8 @@ def figure1(results) -> "Figure":
     pairs = pairs[:4]
     fig, axes = new_figure(len(pairs), 1, figsize=(6.0, 2.9 * len(pairs)), squeeze=False)
     for ax, (rc, rf) in zip(axes[:, 0], pairs):
-        tc = storage.load_trajectory(results.path, rc.run_id)
-        tf = storage.load_trajectory(results.path, rf.run_id)
+        tc = load_trajectory(results.path, rc.run_id)
+        tf = load_trajectory(results.path, rf.run_id)
         ax.plot(tf.t, tf.H, color=COLORS[0], label="without impacts")
         ax.plot(tc.t, tc.H, color=COLORS[1], label="with impacts")
         for ti in tc.impacts:
@@ -333,7 +334,7 @@ def contacts_energy(results) -> "Figure":
     fig, axes = new_figure(1, len(runs), figsize=(3.4 * len(runs), 3.2), squeeze=False, sharey=True)
     seen = set()
     for ax, r in zip(axes[0], runs):
-        tr = storage.load_trajectory(results.path, r.run_id)
+        tr = load_trajectory(results.path, r.run_id)
         ax.plot(tr.t, tr.H, color="k", linewidth=1.0, label=r"$H$")
         for ti, c in zip(tr.impacts, tr.impact_contact):
             lab = None if c in seen else f"impact: {names[c] if c < len(names) else c}"
@@ -410,10 +411,10 @@ def plot_results(results=None, outdir=None, results_dir="results") -> PlotReport
     `results_dir` (the CLI itself plots every results file when given none)."""
     from . import tables
 
-    path = Path(results) if results is not None else storage.find_newest_results(results_dir)
-    res = storage.read_results(path)
+    path = Path(results) if results is not None else find_newest_results(results_dir)
+    res = read_results(path)
     if not res.runs:
-        raise storage.StorageError(f"{path}: no complete runs to plot yet")
+        raise StorageError(f"{path}: no complete runs to plot yet")
     outdir = Path(outdir) if outdir is not None else path.parent / "figures" / res.name
     paths, skipped = make_figures(res, outdir)
     made = []

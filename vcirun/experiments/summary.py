@@ -20,7 +20,10 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from ..io import storage
+from ..io.checks import LIBVER
+from ..io.durable import fsync_path
+from ..io.errors import StorageError
+from ..io.reader import read_results
 
 __all__ = ["write_summary", "GROUP"]
 
@@ -68,20 +71,20 @@ def write_summary(path, if_missing: bool = False) -> Path:
                 if GROUP in f:
                     return path
         except OSError as e:
-            raise storage.StorageError(f"{path}: not a readable HDF5 file ({' '.join(str(e).split())})") from None
-    res = storage.read_results(path)
+            raise StorageError(f"{path}: not a readable HDF5 file ({' '.join(str(e).split())})") from None
+    res = read_results(path)
     tab = collect(res)
     tmp = path.with_name(f".{path.name}.summary-partial")
     try:
         shutil.copyfile(path, tmp)
-        with h5py.File(tmp, "a", libver=storage.LIBVER) as f:
+        with h5py.File(tmp, "a", libver=LIBVER) as f:
             _write_group(f, tab)
-        storage._fsync_path(tmp)
+        fsync_path(tmp)
         os.replace(tmp, path)
-        storage._fsync_path(path.parent, directory=True)
+        fsync_path(path.parent, directory=True)
     except OSError as e:
-        raise storage.StorageError(f"{path}: cannot write the summary group ({' '.join(str(e).split())}); "
-                                   "the runs are unaffected") from e
+        raise StorageError(f"{path}: cannot write the summary group ({' '.join(str(e).split())}); "
+                           "the runs are unaffected") from e
     finally:
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()

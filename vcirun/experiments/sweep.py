@@ -13,9 +13,9 @@ an initial condition is computed once, next to the runs that need it, and stored
 first timed run of each method a worker makes one untimed one-step run of it, so `wall_time`
 measures integration, not kernel loading (the worker side lives in `worker`). The parent is the
 only writer of the results file
-(see `storage.ResultsWriter`). A run that fails numerically, or raises, is recorded with its status
+(see `vcirun.io.writer.ResultsWriter`). A run that fails numerically, or raises, is recorded with its status
 and message, and the sweep carries on. Ctrl-C and SIGTERM stop the workers, keep every finished
-run and report the interruption. Storage (see `storage`): the client commits finished runs to a
+run and report the interruption. Storage (see `vcirun.io`): the client commits finished runs to a
 journal beside the results file every `commit_interval` seconds (default 1 s, at a cost independent
 of the file's size), folds the journal into the HDF5 file in the background and when the sweep
 finishes; pool workers
@@ -40,7 +40,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..core import validation
-from ..io import storage
+from ..io.durable import run_isolated
+from ..io.errors import StorageError
+from ..io.provenance import environment_attrs
+from ..io.writer import ResultsWriter
 from .config import InitialCondition, MethodReference, MethodSpec, NoReference, SweepConfig, build_system
 # the worker side (re-exported: these names were sweep's)
 from .worker import (RunSpec, SweepError, Task, _default_start_method, _execute, _execute_streamed,  # noqa: F401
@@ -109,7 +112,7 @@ def reference_horizon(cfg: SweepConfig) -> float:
     return max([cfg.T] + [round(cfg.T / h) * h for h in cfg.h])
 
 
-def missing_references(cfg: SweepConfig, writer: storage.ResultsWriter) -> list[InitialCondition]:
+def missing_references(cfg: SweepConfig, writer: ResultsWriter) -> list[InitialCondition]:
     """Initial conditions whose reference the file lacks (e.g. a file that lost its references group)."""
     if isinstance(cfg.reference, NoReference):
         return []
@@ -207,7 +210,7 @@ def _preflight(cfg: SweepConfig, pending: list[RunSpec]) -> int:
 
 
 def _check_resources(cfg: SweepConfig, pending: list[RunSpec], n: int, workers: int, path: Path,
-                     writer: storage.ResultsWriter) -> None:
+                     writer: ResultsWriter) -> None:
     """Refuse, before the file is created, a sweep whose runs in flight exceed the memory limit or whose
     results cannot fit on the disk (their journal, then the file's final copy: about twice the data)."""
     if not pending:
@@ -265,7 +268,7 @@ def _root_attrs(cfg: SweepConfig, config_text: str, config_path, specs: list[Run
         "constraints": [{"name": c.name, "phi": str(c.phi), "restitution": str(c.restitution)}
                         for c in build_system(cfg)[2].constraints],
     }
-    attrs.update(storage.environment_attrs())
+    attrs.update(environment_attrs())
     return attrs
 
 
@@ -284,7 +287,7 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
     worker_cache_dir: VCIRUN_CACHE_DIR of the Dask workers. commit_interval: seconds between journal
     commits (default 1, or VCIRUN_COMMIT_INTERVAL): the most a hard kill can lose. Raises SweepError
     (unusable file, a method the core rejects, not enough memory or disk, a worker that died, a lost
-    scheduler) and storage.StorageError (a file that cannot be read or written).
+    scheduler) and StorageError (a file that cannot be read or written).
     """
     from . import executors
 
@@ -304,9 +307,9 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
         config_text = yaml.safe_dump(cfg.model_dump(mode="json", by_alias=True, exclude_none=True), sort_keys=False)
     summary = SweepSummary(path=path, total=len(specs), workers=workers, executor=ex_spec.kind)
     session = {"argv": list(argv if argv is not None else sys.argv), "workers": workers, "pid": os.getpid()}
-    writer = storage.ResultsWriter(path, root_attrs=_root_attrs(cfg, config_text, config_path, specs),
-                                   config_key=cfg.canonical_sha256(), force=force, session=session,
-                                   commit_interval=commit_interval)
+    writer = ResultsWriter(path, root_attrs=_root_attrs(cfg, config_text, config_path, specs),
+                           config_key=cfg.canonical_sha256(), force=force, session=session,
+                           commit_interval=commit_interval)
     writer.final_hooks = _final_hooks(cfg)
     writer.acquire()
     executor = None
@@ -422,19 +425,19 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
         writer.close()
 
 
-def _finalize(writer: storage.ResultsWriter, summary: SweepSummary, if_missing: bool = False) -> None:
+def _finalize(writer: ResultsWriter, summary: SweepSummary, if_missing: bool = False) -> None:
     """Write the file's summary group (vcirun.experiments.summary); a failure there is reported in
     the summary, never allowed to cost the runs. Not after a failed write (a full disk), at the
     resolved path (an output that is a symlink stays one), and in a forked child like every HDF5 write
-    of the sweep (storage.run_isolated: an HDF5 crash there is an error here)."""
+    of the sweep (run_isolated: an HDF5 crash there is an error here)."""
     if writer.failed:
         return
     from .summary import write_summary
 
     try:
-        storage.run_isolated(lambda: write_summary(writer.path, if_missing=if_missing), writer.path,
-                             isolate=writer.isolate)
-    except (storage.StorageError, RuntimeError, OSError) as e:
+        run_isolated(lambda: write_summary(writer.path, if_missing=if_missing), writer.path,
+                     isolate=writer.isolate)
+    except (StorageError, RuntimeError, OSError) as e:
         summary.summary_error = _one_line(e)
 
 
@@ -454,7 +457,7 @@ def _signals_deferred(on_main: bool):
             signal.signal(s, h)
 
 
-def _status_counts(writer: storage.ResultsWriter) -> dict:
+def _status_counts(writer: ResultsWriter) -> dict:
     counts: dict[str, int] = defaultdict(int)
     for a in writer.complete_runs.values():
         counts[a.get("status", "?")] += 1

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from . import metrics
-from ..io import storage
+from ..io.reader import Results
 
 __all__ = ["Table", "table1", "table2", "runs_table", "write_table", "print_table", "to_markdown"]
 
@@ -73,7 +73,7 @@ def _pm(mean: float, half: float, scale: float) -> str:
     return f"{mean * scale:.{digits}f} ± {half * scale:.{digits}f}"
 
 
-def table2(results: storage.Results, level: float = 0.95) -> Table:
+def table2(results: Results, level: float = 0.95) -> Table:
     """Table II: mean computation time per method (rows) and h (columns), with t-intervals."""
     stats = metrics.timing_stats(results.runs, level)
     if not stats:
@@ -147,7 +147,7 @@ def print_table(table: Table, console) -> None:
     console.print(t)
 
 
-def runs_table(results: storage.Results, only_failed: bool = False) -> Table:
+def runs_table(results: Results, only_failed: bool = False) -> Table:
     """One row per stored run: id, method, h, initial condition, status, impacts, L2 error, wall time."""
     rows, csv_rows = [], []
     for r in results.runs:

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core import validation
-from ..io import storage
+from ..run.trajectory_files import trajectory_payload
 from .config import InitialCondition, MethodReference, MethodSpec, NoReference, SweepConfig, build_system
 
 __all__ = ["SweepError", "RunSpec", "Task", "make_tasks"]
@@ -230,7 +230,7 @@ def _execute_run(st: _WorkerState, spec: RunSpec, ref) -> dict:
             break  # a failure is not worth timing again
     traj.wall_time = min(walls)  # identical runs: the spread is timing noise, the minimum the cost
     call = min(calls)
-    attrs, arrays = storage.trajectory_payload(traj, store_arrays=st.cfg.store_trajectories)
+    attrs, arrays = trajectory_payload(traj, store_arrays=st.cfg.store_trajectories)
     attrs["wall_time_repeats"] = walls
     l2, note = None, ""
     if isinstance(st.cfg.reference, NoReference):

@@ -96,11 +96,11 @@ def reference_note(results) -> str:
 
 
 def collect(results) -> Table:
-    """The (method, h, initial condition) table of a `storage.Results` (or a path)."""
+    """The (method, h, initial condition) table of a `vcirun.io.reader.Results` (or a path)."""
     from vcirun.scenes.catalog import coordinate_names
-    from vcirun.io import storage
+    from vcirun.io.reader import Results, read_results
 
-    res = results if isinstance(results, storage.Results) else storage.read_results(results)
+    res = results if isinstance(results, Results) else read_results(results)
     a = res.attrs
     labels = [m.get("label") for m in (a.get("methods") or []) if isinstance(m, dict)]
     for r in res.runs:  # runs of labels the root does not list (other tooling): appended
@@ -200,12 +200,13 @@ def open_results(path):
     as a selection on the method dimension when the value is not one of xarray's fill methods
     (vcirun.io.xr); a fill method keeps xarray's meaning: `.sel(h=0.011, method="nearest")`.
     """
-    from vcirun.io import storage
+    from vcirun.io.errors import StorageError
+    from vcirun.io.reader import read_results
 
     path = Path(path)
     try:
-        res = storage.read_results(path)
-    except storage.StorageError as e:
+        res = read_results(path)
+    except StorageError as e:
         raise ValueError(str(e)) from None
     tab = collect(res)
     coords = {k: (k, v if v.dtype != object else v.astype(str), tab.coord_attrs.get(k, {}))

@@ -1,6 +1,6 @@
 """A Trajectory as one HDF5 group (and the pieces to read it back): the attribute encoding (JSON attributes, NaN for absent
 floats, clean UTF-8 text), the run record's rows as datasets, and the energy summary stored with each
-run. `Trajectory.save(".h5")`, `read_trajectory` and the sweep's results files (vcirun.io.storage)
+run. `Trajectory.save(".h5")`, `read_trajectory` and the sweep's results files (vcirun.io.writer, vcirun.io.reader)
 all write and read run groups through this module, so there is one codec and the Python API layer does
 not import the experiment layer (tests/unit/test_layers.py).
 """

@@ -1,0 +1,271 @@
+"""The journal beside a results file (`.NAME.journal`): the binary record format, reading it back, and
+applying it to the HDF5 file or to a reader's view of it.
+
+A record is b"VJR1", a u64 payload length, a u32 CRC-32 of the payload, then the payload: a u32 header
+length, the header (JSON: kind, key, encoded attributes, array table) and the arrays' bytes. Arrays are
+numeric only (dtype kinds b/i/u/f), so reading a journal never unpickles anything. The first record is
+"open" (the session's random token and the config key); then "run", "reference", "delete" (a group
+path) and "session" (the history so far) records. A kill in the middle of an append leaves a torn tail
+(short, or failing its CRC): `read_journal` stops there, and everything before it is committed.
+
+The file names the journal that extends it (root attribute `journal` = the token of its open record)
+and how much of it the file holds already (`journal_applied`, a byte offset); `file_journal` returns
+the records past that offset of the journal the file names, and None for a stale journal.
+"""
+from __future__ import annotations
+
+import json
+import os
+import struct
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..run.trajectory_files import _decode_attr, _write_encoded, decode_attrs
+from .checks import NUMERIC_KINDS
+from .errors import StorageError, os_text, write_error
+
+__all__ = ["journal_path", "record_pieces", "write_all", "JournalRecord", "Journal", "read_journal",
+           "overlay", "MemGroup", "applied", "file_journal", "apply_journal"]
+
+_MAGIC = b"VJR1"
+_REC = struct.Struct("<4sQI")
+_HDR = struct.Struct("<I")
+_MAX_HEADER = 64 * 2**20
+
+
+def journal_path(path) -> Path:
+    p = Path(path)
+    return p.with_name(f".{p.name}.journal")
+
+
+def _jsonable_attr(v):
+    if isinstance(v, np.ndarray):
+        return {"__ndarray__": v.dtype.str, "shape": list(v.shape), "data": v.ravel().tolist()}
+    if isinstance(v, np.generic):
+        return v.item()
+    return v
+
+
+def _attr_from_json(v):
+    if isinstance(v, dict) and "__ndarray__" in v:
+        dt = np.dtype(v["__ndarray__"])
+        if dt.kind not in NUMERIC_KINDS:
+            raise ValueError("non-numeric array attribute")
+        return np.asarray(v["data"], dtype=dt).reshape(v["shape"])
+    return v
+
+
+def record_pieces(kind: str, key: str, enc_attrs: dict | None = None, arrays=(), extra: dict | None = None):
+    """(list of byte pieces, total length) of one record; array bytes are not copied."""
+    table, blobs, off = [], [], 0
+    for name, value in arrays:
+        a = np.ascontiguousarray(value)
+        if a.dtype.kind not in NUMERIC_KINDS:
+            a = a.astype(float)
+        mv = memoryview(a).cast("B") if a.size else memoryview(b"")
+        table.append([name, a.dtype.str, list(a.shape), off, mv.nbytes])
+        blobs.append(mv)
+        off += mv.nbytes
+    header = {"kind": kind, "key": key, "arrays": table, **(extra or {})}
+    if enc_attrs is not None:
+        header["attrs"] = {k: _jsonable_attr(v) for k, v in enc_attrs.items()}
+    hb = json.dumps(header, allow_nan=True).encode()
+    payload = [_HDR.pack(len(hb)), hb, *blobs]
+    crc = 0
+    for piece in payload:
+        crc = zlib.crc32(piece, crc)
+    length = _HDR.size + len(hb) + off
+    return [_REC.pack(_MAGIC, length, crc), *payload], _REC.size + length
+
+
+def write_all(fd: int, pieces) -> None:
+    """Write every byte of `pieces` to the descriptor `fd` (os.write may write less than asked)."""
+    for piece in pieces:
+        mv = memoryview(piece)
+        while mv.nbytes:
+            n = os.write(fd, mv)
+            mv = mv[n:]
+
+
+@dataclass
+class JournalRecord:
+    kind: str              # "run" | "reference" | "delete" | "session"
+    key: str
+    header: dict
+    blob_offset: int       # where the arrays start in the journal file
+    end: int               # offset just past this record
+
+    def attrs(self) -> dict:
+        return {k: _attr_from_json(v) for k, v in (self.header.get("attrs") or {}).items()}
+
+    def arrays(self, fh) -> list:
+        """(name, array) pairs, read from the open journal file `fh`."""
+        out = []
+        for name, dtype, shape, off, nbytes in self.header.get("arrays", []):
+            dt = np.dtype(dtype)
+            if dt.kind not in NUMERIC_KINDS:
+                raise ValueError(f"journal array {name}: non-numeric dtype {dtype}")
+            fh.seek(self.blob_offset + off)
+            buf = fh.read(nbytes)
+            if len(buf) != nbytes:
+                raise ValueError(f"journal array {name}: truncated")
+            out.append((name, np.frombuffer(buf, dtype=dt).reshape(shape).copy()))
+        return out
+
+
+@dataclass
+class Journal:
+    path: Path
+    token: str = ""
+    config_key: str = ""
+    records: list = field(default_factory=list)  # after the "open" record, in order
+    good_end: int = 0     # offset past the last complete record
+    torn: bool = False    # bytes after good_end (a kill or a disk-full in the middle of an append)
+    applied: int = 0      # records ending at or before this offset are in the file already (see `after`)
+
+    def after(self, offset: int) -> "Journal":
+        """The records the file does not hold yet: those ending past `offset` (its `journal_applied`)."""
+        if not offset:
+            return self
+        return Journal(self.path, self.token, self.config_key, [r for r in self.records if r.end > offset],
+                       self.good_end, self.torn, max(self.applied, int(offset)))
+
+    @property
+    def new_bytes(self) -> int:
+        return max(0, self.good_end - self.applied)
+
+
+def read_journal(path) -> Journal | None:
+    """The complete records of a journal file (None if there is none or it does not start with an
+    "open" record). Stops at the first record that is truncated or fails its CRC: what follows was
+    never committed."""
+    jp = Path(path)
+    try:
+        fh = open(jp, "rb")
+    except FileNotFoundError:
+        return None
+    except OSError as e:
+        raise StorageError(f"{jp}: cannot read the journal ({os_text(e)})") from None
+    with fh:
+        size = os.fstat(fh.fileno()).st_size
+        j = Journal(jp)
+        pos = 0
+        while pos + _REC.size <= size:
+            fh.seek(pos)
+            magic, length, crc = _REC.unpack(fh.read(_REC.size))
+            if magic != _MAGIC or pos + _REC.size + length > size or length < _HDR.size:
+                break
+            (hlen,) = _HDR.unpack(fh.read(_HDR.size))
+            if hlen > min(length - _HDR.size, _MAX_HEADER):
+                break
+            hb = fh.read(hlen)
+            c = zlib.crc32(_HDR.pack(hlen))
+            c = zlib.crc32(hb, c)
+            remaining = length - _HDR.size - hlen
+            blob_offset = fh.tell()
+            while remaining > 0:
+                chunk = fh.read(min(remaining, 1 << 20))
+                if not chunk:
+                    break
+                c = zlib.crc32(chunk, c)
+                remaining -= len(chunk)
+            if remaining or c != crc:
+                break
+            try:
+                header = json.loads(hb)
+                kind, key = str(header["kind"]), str(header.get("key", ""))
+            except (ValueError, KeyError, TypeError):
+                break
+            end = pos + _REC.size + length
+            if not j.records and kind != "open" and not j.token:
+                return None  # not a journal of ours
+            if kind == "open":
+                if j.token:
+                    break  # a second open record: not a journal this module wrote
+                j.token, j.config_key = str(header.get("token", "")), str(header.get("config_key", ""))
+            else:
+                j.records.append(JournalRecord(kind, key, header, blob_offset, end))
+            j.good_end = end
+            pos = end
+        if not j.token:
+            return None
+        j.torn = j.good_end < size
+        return j
+
+
+def applied(f) -> int:
+    """How much of its journal the open results file `f` holds already (a background compaction's
+    progress): its `journal_applied` offset."""
+    v = _decode_attr("journal_applied", f.attrs.get("journal_applied", 0))
+    return int(v) if isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0 else 0
+
+
+def file_journal(path, f) -> Journal | None:
+    """The records of the journal that extends the open results file `f` at `path` and that the file
+    does not hold yet (a killed session's committed runs), or None (no journal, or a stale one: another
+    token or config key). StorageError if the journal exists but cannot be read."""
+    expected = _decode_attr("journal", f.attrs.get("journal", ""))
+    if not expected:
+        return None
+    j = read_journal(journal_path(path))
+    if j is None or j.token != expected or j.config_key != _decode_attr("config_key", f.attrs.get("config_key", "")):
+        return None
+    return j.after(applied(f))
+
+
+def overlay(journal: Journal | None, runs: dict, refs: dict, attrs: dict | None = None) -> int:
+    """Apply a journal's records to {run_id: (source, attrs)} / {key: (source, attrs)} maps (source is
+    a JournalRecord) and, given the root `attrs`, its history; returns how many runs the journal adds."""
+    if journal is None:
+        return 0
+    added = 0
+    for r in journal.records:
+        if r.kind in ("run", "reference"):
+            (runs if r.kind == "run" else refs)[r.key] = (r, decode_attrs(r.attrs()))
+            added += r.kind == "run"
+        elif r.kind == "delete":
+            group, _, name = r.key.partition("/")
+            (runs if group == "runs" else refs).pop(name, None)
+        elif r.kind == "session" and attrs is not None:
+            attrs["history"] = r.header.get("history") or attrs.get("history")
+            attrs["updated"] = r.header.get("updated", attrs.get("updated"))
+    return added
+
+
+def apply_journal(f, j: Journal, path: Path) -> None:
+    """Write a journal's run and reference groups into the open HDF5 file `f` (of the results file
+    `path`) and delete the groups its delete records name."""
+    try:
+        fh = open(j.path, "rb")
+    except OSError as e:
+        raise write_error(path, e, f"read the journal {j.path.name}") from None
+    with fh:
+        for r in j.records:
+            if r.kind in ("run", "reference"):
+                group = "runs" if r.kind == "run" else "references"
+                _write_encoded(f, f"{group}/{r.key}", r.attrs(), r.arrays(fh))
+            elif r.kind == "delete" and r.key in f:
+                del f[r.key]
+
+
+class MemGroup:
+    """A journal record seen like an h5py group (what trajectory_from_group and the checks read)."""
+
+    def __init__(self, enc_attrs: dict, arrays: list):
+        self.attrs = enc_attrs
+        self._d = dict(arrays)
+
+    def __contains__(self, name):
+        return name in self._d
+
+    def __getitem__(self, name):
+        return self._d[name]
+
+    def get(self, name, default=None):
+        return self._d.get(name, default)
+
+    def __iter__(self):
+        return iter(self._d)

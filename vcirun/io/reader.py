@@ -1,0 +1,204 @@
+"""Reading a sweep's results file: `read_results` (attributes of every trusted run and reference),
+`load_trajectory` (one run's arrays), `load_reference`, `find_newest_results`.
+
+The readers see the journal too (see vcirun.io.journal), so a killed sweep's committed runs are
+visible at once; plain h5py sees them after the next `vcirun sweep` of the same config (which
+compacts first). Groups that fail verification (vcirun.io.checks) are listed, never returned.
+Every failure is a one-line StorageError naming the path.
+"""
+from __future__ import annotations
+
+import contextlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from ..run.trajectory import trajectory_from_group
+from ..run.trajectory_files import _decode_attr, decode_attrs
+from .checks import FORMAT, reference_problem, run_problem, scan_groups
+from .errors import StorageError, one_line, short
+from .journal import Journal, MemGroup, file_journal, overlay
+
+__all__ = ["RunInfo", "Results", "read_results", "load_trajectory", "load_reference", "find_newest_results"]
+
+
+@dataclass
+class RunInfo:
+    """Attributes of one complete run group (arrays stay on disk; see `load_trajectory`)."""
+    run_id: str
+    attrs: dict
+
+    def __getattr__(self, name):
+        try:
+            return self.__dict__["attrs"][name]
+        except KeyError:
+            raise AttributeError(name) from None
+
+    @property
+    def beta_or_none(self):
+        b = self.attrs.get("beta")
+        return None if not isinstance(b, (int, float)) or not np.isfinite(b) else float(b)
+
+
+@dataclass
+class Results:
+    path: Path
+    attrs: dict
+    runs: list[RunInfo]
+    references: dict[str, dict]
+    incomplete: list[str] = field(default_factory=list)
+    in_journal: int = 0   # runs committed to the journal of a session that did not finish (not yet in the HDF5 file)
+    damaged: dict = field(default_factory=dict)  # group path -> why it is not trusted
+
+    @property
+    def name(self) -> str:
+        return str(self.attrs.get("name") or self.path.stem)
+
+
+def _open_read(path) -> h5py.File:
+    path = Path(path)
+    if not path.exists():
+        raise StorageError(f"{path}: file not found")
+    if path.is_dir():
+        raise StorageError(f"{path}: is a directory, not a results file")
+    if not path.is_file():  # opening a FIFO would block until someone writes to it
+        raise StorageError(f"{path}: not a regular file (a FIFO, device or socket), not a results file")
+    try:
+        f = h5py.File(path, "r")
+    except Exception as e:  # noqa: BLE001 - OSError, or anything a damaged superblock raises
+        raise StorageError(f"{path}: not a readable HDF5 file ({one_line(e)})") from None
+    try:
+        fmt = _decode_attr("format", f.attrs.get("format", ""))
+    except Exception:  # noqa: BLE001
+        fmt = "?"
+    if fmt != FORMAT:
+        f.close()
+        raise StorageError(f"{path}: not a vcirun sweep results file (format {short(fmt)})")
+    return f
+
+
+def _damaged(path, e: BaseException) -> StorageError:
+    return StorageError(f"{path}: damaged results file ({type(e).__name__}: {one_line(e, 200)}); rerun the sweep "
+                        "(it recomputes what is missing) or move the file away")
+
+
+def _journal_of(path, f) -> Journal | None:
+    """The journal records that extend this file, or None (a journal that cannot be read is ignored)."""
+    try:
+        return file_journal(path, f)
+    except StorageError:
+        return None
+
+
+def read_results(path) -> Results:
+    """Root attributes, complete runs (attributes only) and references of a results file, with the runs
+    a killed session committed to its journal; groups that fail verification are listed in `incomplete`."""
+    with _open_read(path) as f:
+        try:
+            attrs = decode_attrs(f.attrs)
+            run_attrs, ref_attrs, incomplete, damaged = scan_groups(
+                f, path, "rerun the sweep with --force or move the file away")
+            runs = {k: (None, a) for k, a in run_attrs.items()}
+            refs = {k: (None, a) for k, a in ref_attrs.items()}
+            in_journal = overlay(_journal_of(path, f), runs, refs, attrs)
+        except StorageError:
+            raise
+        except Exception as e:  # noqa: BLE001 - damaged metadata, attributes of the wrong type, ...
+            raise _damaged(path, e) from None
+    incomplete = [p for p in incomplete if p.partition("/")[2] not in (runs if p.startswith("runs/") else refs)]
+    run_list = [RunInfo(k, a) for k, (_, a) in runs.items()]
+    # config order: method, then h, then initial condition
+    ic_keys = attrs.get("ic_keys") if isinstance(attrs.get("ic_keys"), list) else []
+    h_values = attrs.get("h_values") if isinstance(attrs.get("h_values"), list) else []
+    ic_order = {k: i for i, k in enumerate(ic_keys) if isinstance(k, str)}
+    h_order = {}
+    for i, h in enumerate(h_values):
+        with contextlib.suppress(TypeError, ValueError):
+            h_order[float(h)] = i
+
+    def order(r):
+        a = r.attrs
+        mi = a.get("method_index", 0)
+        return (mi if isinstance(mi, (int, float)) else 0, h_order.get(_as_float(a.get("h")), 0),
+                ic_order.get(a.get("ic_key"), 0), r.run_id)
+
+    run_list.sort(key=order)
+    return Results(Path(path), attrs, run_list, {k: a for k, (_, a) in refs.items()}, incomplete,
+                   in_journal=in_journal, damaged=damaged)
+
+
+def _as_float(v) -> float:
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return float("nan")
+
+
+def _find_group(path, f, group: str, key: str):
+    """The group-like object of runs/<key> or references/<key> (None if absent or incomplete): the
+    journal's last record wins."""
+    j = _journal_of(path, f)
+    rec = None
+    if j is not None:
+        for r in j.records:
+            if (r.kind == "run" and group == "runs" or r.kind == "reference" and group == "references") \
+                    and r.key == key:
+                rec = r
+            elif r.kind == "delete" and r.key == f"{group}/{key}":
+                rec = "deleted"
+    if rec == "deleted":
+        return None
+    if rec is not None:
+        with open(j.path, "rb") as fh:
+            return MemGroup(rec.attrs(), rec.arrays(fh))
+    if group in f and key in f[group] and isinstance(f[group][key], h5py.Group):
+        g = f[group][key]
+        return g if bool(g.attrs.get("complete", False)) else None
+    return None
+
+
+def load_trajectory(path, run_id: str):
+    """The `Trajectory` of one stored run (StorageError if it is missing or fails verification)."""
+    with _open_read(path) as f:
+        try:
+            g = _find_group(path, f, "runs", run_id)
+            if g is None:
+                raise StorageError(f"{path}: no run {run_id!r}")
+            problem = run_problem(g)
+            if problem:
+                raise StorageError(f"{path}: run {run_id} is damaged ({problem}); rerun the sweep to recompute it")
+            return trajectory_from_group(g)
+        except StorageError:
+            raise
+        except Exception as e:  # noqa: BLE001
+            raise _damaged(path, e) from None
+
+
+def load_reference(path, key: str) -> dict:
+    """A stored reference: {'attrs': ..., 't', 'q', 'p', 'impacts'} (arrays that exist)."""
+    with _open_read(path) as f:
+        try:
+            g = _find_group(path, f, "references", key)
+            if g is None:
+                raise StorageError(f"{path}: no reference {key!r}")
+            problem = reference_problem(g)
+            if problem:
+                raise StorageError(f"{path}: reference {key} is damaged ({problem}); rerun the sweep to recompute it")
+            out = {name: g[name][()] for name in g}
+            out["attrs"] = decode_attrs(g.attrs)
+            return out
+        except StorageError:
+            raise
+        except Exception as e:  # noqa: BLE001
+            raise _damaged(path, e) from None
+
+
+def find_newest_results(directory="results") -> Path:
+    """The most recently modified results file (*.h5, not hidden) under `directory`."""
+    d = Path(directory)
+    files = [p for p in d.rglob("*.h5") if not p.name.startswith(".")] if d.is_dir() else []
+    if not files:
+        raise StorageError(f"no results (*.h5) under {d}/; run `vcirun sweep CONFIG` first or name a file")
+    return max(files, key=lambda p: p.stat().st_mtime)

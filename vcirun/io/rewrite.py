@@ -1,0 +1,106 @@
+"""One rewrite of the results file: what goes into the copy that replaces it (durable.replace_with_copy).
+
+A writer rewrites the file when a session starts (the session recorded, a killed session's journal
+folded in, damaged groups dropped), when it commits before its journal exists, and when it finishes
+(the journal folded in). `Rewrite.write` is the HDF5 part, run in a forked child; `free_space_error`
+and `failure` turn what can go wrong into one-line StorageErrors.
+"""
+from __future__ import annotations
+
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import h5py
+
+from ..core.validation import format_bytes
+from ..run.trajectory_files import _encode_attr, _write_group
+from .checks import FORMAT, LIBVER, SCHEMA_VERSION
+from .errors import StorageError, one_line
+from .journal import apply_journal
+from .provenance import now_iso
+
+__all__ = ["Pending", "Rewrite", "free_space_error", "failure"]
+
+
+@dataclass
+class Pending:
+    """A queued group: a run or a reference, with its attributes and arrays."""
+    kind: str  # "run" | "reference"
+    key: str
+    attrs: dict
+    arrays: dict
+
+    @property
+    def group(self) -> str:
+        return "runs" if self.kind == "run" else "references"
+
+
+@dataclass
+class Rewrite:
+    path: Path           # the results file
+    fresh: bool          # a new file, written from scratch (else the copy of the file is updated)
+    config_key: str
+    root_attrs: dict
+    deletions: list      # group paths ("runs/NAME") to delete
+    journals: list       # journals whose records to apply, in order
+    pending: list        # queued groups (Pending), written after the journals
+    history: list        # the root history after this rewrite
+    token: str           # the journal that will extend the file ("" for none)
+    final_hooks: tuple = ()  # callables f(h5py.File) run last, on the open copy
+
+    def write(self, tmp: Path) -> None:
+        """Write everything that changes into the copy `tmp`."""
+        with h5py.File(tmp, "w" if self.fresh else "a", libver=LIBVER) as f:
+            if self.fresh:
+                f.attrs["format"] = FORMAT
+                f.attrs["schema_version"] = SCHEMA_VERSION
+                f.attrs["config_key"] = self.config_key
+            for group in ("runs", "references"):
+                if group not in f:
+                    f.create_group(group)  # a file that lost one gets it back
+            for key, value in self.root_attrs.items():
+                f.attrs[key] = _encode_attr(key, value)
+            for path in self.deletions:
+                if path in f:
+                    del f[path]
+            for j in self.journals:
+                apply_journal(f, j, self.path)
+            stamp = now_iso()
+            for p in self.pending:
+                _write_group(f, f"{p.group}/{p.key}", {**p.attrs, "committed_at": stamp}, p.arrays)
+            f.attrs["history"] = _encode_attr("history", self.history)
+            f.attrs["updated"] = now_iso()
+            f.attrs["n_runs_complete"] = len(f["runs"])  # all groups here are complete
+            f.attrs["journal"] = self.token
+            f.attrs["journal_applied"] = 0  # a new journal (or none): nothing of it is in the file yet
+            for hook in self.final_hooks:
+                hook(f)
+
+
+def free_space_error(path: Path, need: int) -> StorageError | None:
+    """The error to raise when the filesystem of `path` has less than `need` bytes free (None if it
+    has them, or cannot tell)."""
+    try:
+        free = shutil.disk_usage(path.parent).free
+    except OSError:
+        return None
+    if need <= free:
+        return None
+    return StorageError(f"{path}: not enough free space to write results (about {format_bytes(need)} needed, "
+                        f"{format_bytes(free)} free in {path.parent}); every committed run is kept: free space "
+                        "and rerun the same command to resume")
+
+
+def failure(path: Path, e: BaseException) -> StorageError | None:
+    """The StorageError of a rewrite that raised `e` (None: not a write failure, re-raise `e`): disk
+    full, permissions and HDF5 I/O errors leave the live file holding every committed run; an HDF5
+    error that is not I/O means the file's own structures are damaged."""
+    if not isinstance(e, (OSError, RuntimeError, ValueError, KeyError)):
+        return None
+    if isinstance(e, OSError) or getattr(e, "io_failure", False) or "errno" in str(e):
+        return StorageError(f"{path}: cannot write results ({one_line(e)}); the file and its journal still hold "
+                            "every run committed before this error: fix the cause and rerun the same command to "
+                            "resume")
+    return StorageError(f"{path}: cannot update the results file ({one_line(e)}); it looks damaged: move it "
+                        "away or rerun with --force to start over")
