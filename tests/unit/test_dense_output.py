@@ -92,7 +92,7 @@ def test_pickle_and_reattach(run):
 
 def test_stored_trajectory_dense_output(tmp_path, run):
     from vcirun.run.trajectory import trajectory_from_group
-    from vcirun.run.trajectory_files import _encode_attr, trajectory_payload
+    from vcirun.run.trajectory_files import encode_attr, trajectory_payload
 
     attrs, arrays = trajectory_payload(run)
     import h5py
@@ -102,7 +102,7 @@ def test_stored_trajectory_dense_output(tmp_path, run):
         for k, v in arrays.items():
             g.create_dataset(k, data=v)
         for k, v in attrs.items():
-            g.attrs[k] = _encode_attr(k, v)
+            g.attrs[k] = encode_attr(k, v)
         back = trajectory_from_group(g)
     np.testing.assert_allclose(back(0.77), run(0.77), atol=1e-15)
 

@@ -199,7 +199,7 @@ def test_unusable_files_are_reported(tmp_path, content, match):
 def test_failed_commit_leaves_previous_file_intact(tmp_path, monkeypatch):
     path = write(tmp_path / "r.h5", {"a": run_attrs(make_traj(), "CVA", 0.01, 3.2)})
     before = path.read_bytes()
-    # in this process (isolate=False), so that the writer sees the monkeypatched _write_group
+    # in this process (isolate=False), so that the writer sees the monkeypatched write_group
     w = ResultsWriter(path, root_attrs={"name": "t"}, config_key=KEY, isolate=False).acquire()
     calls = []
 
@@ -207,7 +207,7 @@ def test_failed_commit_leaves_previous_file_intact(tmp_path, monkeypatch):
         calls.append(grp)
         raise OSError("disk full (simulated)")
 
-    monkeypatch.setattr(rewrite, "_write_group", boom)
+    monkeypatch.setattr(rewrite, "write_group", boom)
     w.add_run("b", *run_attrs(make_traj(seed=1), "CVA", 0.01, 3.7))
     with pytest.raises(StorageError, match="cannot write results .*disk full .*committed before"):
         w.commit()

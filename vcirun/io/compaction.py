@@ -16,7 +16,7 @@ from pathlib import Path
 
 import h5py
 
-from ..run.trajectory_files import _encode_attr
+from ..run.trajectory_files import encode_attr
 from .checks import LIBVER
 from .durable import child_setup, replace_with_copy
 from .journal import apply_journal, journal_path, read_journal
@@ -74,7 +74,7 @@ class BackgroundCompactor:
                     apply_journal(f, new, self.path)
                     sessions = [r for r in new.records if r.kind == "session"]
                     if sessions and isinstance(sessions[-1].header.get("history"), list):
-                        f.attrs["history"] = _encode_attr("history", sessions[-1].header["history"])
+                        f.attrs["history"] = encode_attr("history", sessions[-1].header["history"])
                         f.attrs["updated"] = str(sessions[-1].header.get("updated", now_iso()))
                     f.attrs["n_runs_complete"] = len(f["runs"])
                     f.attrs["journal_applied"] = int(new.good_end)

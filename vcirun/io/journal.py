@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..run.trajectory_files import _decode_attr, _write_encoded, decode_attrs
+from ..run.trajectory_files import decode_attr, write_encoded, decode_attrs
 from .checks import NUMERIC_KINDS
 from .errors import StorageError, os_text, write_error
 
@@ -199,7 +199,7 @@ def read_journal(path) -> Journal | None:
 def applied(f) -> int:
     """How much of its journal the open results file `f` holds already (a background compaction's
     progress): its `journal_applied` offset."""
-    v = _decode_attr("journal_applied", f.attrs.get("journal_applied", 0))
+    v = decode_attr("journal_applied", f.attrs.get("journal_applied", 0))
     return int(v) if isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0 else 0
 
 
@@ -207,11 +207,11 @@ def file_journal(path, f) -> Journal | None:
     """The records of the journal that extends the open results file `f` at `path` and that the file
     does not hold yet (a killed session's committed runs), or None (no journal, or a stale one: another
     token or config key). StorageError if the journal exists but cannot be read."""
-    expected = _decode_attr("journal", f.attrs.get("journal", ""))
+    expected = decode_attr("journal", f.attrs.get("journal", ""))
     if not expected:
         return None
     j = read_journal(journal_path(path))
-    if j is None or j.token != expected or j.config_key != _decode_attr("config_key", f.attrs.get("config_key", "")):
+    if j is None or j.token != expected or j.config_key != decode_attr("config_key", f.attrs.get("config_key", "")):
         return None
     return j.after(applied(f))
 
@@ -246,7 +246,7 @@ def apply_journal(f, j: Journal, path: Path) -> None:
         for r in j.records:
             if r.kind in ("run", "reference"):
                 group = "runs" if r.kind == "run" else "references"
-                _write_encoded(f, f"{group}/{r.key}", r.attrs(), r.arrays(fh))
+                write_encoded(f, f"{group}/{r.key}", r.attrs(), r.arrays(fh))
             elif r.kind == "delete" and r.key in f:
                 del f[r.key]
 

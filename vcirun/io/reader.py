@@ -16,7 +16,7 @@ import h5py
 import numpy as np
 
 from ..run.trajectory import trajectory_from_group
-from ..run.trajectory_files import _decode_attr, decode_attrs
+from ..run.trajectory_files import decode_attr, decode_attrs
 from .checks import FORMAT, reference_problem, run_problem, scan_groups
 from .errors import StorageError, one_line, short
 from .journal import Journal, MemGroup, file_journal, overlay
@@ -70,7 +70,7 @@ def _open_read(path) -> h5py.File:
     except Exception as e:  # noqa: BLE001 - OSError, or anything a damaged superblock raises
         raise StorageError(f"{path}: not a readable HDF5 file ({one_line(e)})") from None
     try:
-        fmt = _decode_attr("format", f.attrs.get("format", ""))
+        fmt = decode_attr("format", f.attrs.get("format", ""))
     except Exception:  # noqa: BLE001
         fmt = "?"
     if fmt != FORMAT:

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import h5py
 
-from ..run.trajectory_files import _decode_attr
+from ..run.trajectory_files import decode_attr
 from .checks import FORMAT, scan_groups
 from .errors import StorageError, one_line, short
 from .journal import Journal, file_journal, overlay
@@ -48,16 +48,16 @@ def read_existing(path: Path, config_key: str) -> Existing:
 
 
 def _read(f, path: Path, config_key: str) -> Existing:
-    fmt = _decode_attr("format", f.attrs.get("format", ""))
+    fmt = decode_attr("format", f.attrs.get("format", ""))
     if fmt != FORMAT:
         raise StorageError(f"{path}: not a vcirun sweep file (format {short(fmt)}); choose another "
                            "--output or rerun with --force to overwrite it")
-    key = _decode_attr("config_key", f.attrs.get("config_key", ""))
+    key = decode_attr("config_key", f.attrs.get("config_key", ""))
     if key != config_key:
         raise StorageError(f"{path}: written by a different configuration (config key {str(key)[:12]} "
                            f"!= {config_key[:12]}); rerun with --force to recompute everything, or "
                            "choose another --output")
-    hist = _decode_attr("history", f.attrs.get("history", "[]"))
+    hist = decode_attr("history", f.attrs.get("history", "[]"))
     out = Existing(hist if isinstance(hist, list) else [])
     out.runs, out.references, out.incomplete, out.damaged = scan_groups(
         f, path, "move it away or rerun with --force to start over")

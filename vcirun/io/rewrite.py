@@ -14,7 +14,7 @@ from pathlib import Path
 import h5py
 
 from ..core.validation import format_bytes
-from ..run.trajectory_files import _encode_attr, _write_group
+from ..run.trajectory_files import encode_attr, write_group
 from .checks import FORMAT, LIBVER, SCHEMA_VERSION
 from .errors import StorageError, one_line
 from .journal import apply_journal
@@ -60,7 +60,7 @@ class Rewrite:
                 if group not in f:
                     f.create_group(group)  # a file that lost one gets it back
             for key, value in self.root_attrs.items():
-                f.attrs[key] = _encode_attr(key, value)
+                f.attrs[key] = encode_attr(key, value)
             for path in self.deletions:
                 if path in f:
                     del f[path]
@@ -68,8 +68,8 @@ class Rewrite:
                 apply_journal(f, j, self.path)
             stamp = now_iso()
             for p in self.pending:
-                _write_group(f, f"{p.group}/{p.key}", {**p.attrs, "committed_at": stamp}, p.arrays)
-            f.attrs["history"] = _encode_attr("history", self.history)
+                write_group(f, f"{p.group}/{p.key}", {**p.attrs, "committed_at": stamp}, p.arrays)
+            f.attrs["history"] = encode_attr("history", self.history)
             f.attrs["updated"] = now_iso()
             f.attrs["n_runs_complete"] = len(f["runs"])  # all groups here are complete
             f.attrs["journal"] = self.token

@@ -30,7 +30,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from ..run.trajectory_files import _group_attrs
+from ..run.trajectory_files import group_attrs
 from .checks import resolve_output
 from .compaction import BackgroundCompactor, compact_path
 from .durable import fsync_path, replace_with_copy
@@ -227,7 +227,7 @@ class ResultsWriter:
                 pieces += pc
                 total += n
             for p in self._pending:
-                enc = _group_attrs({**p.attrs, "committed_at": stamp})
+                enc = group_attrs({**p.attrs, "committed_at": stamp})
                 pc, n = record_pieces(p.kind, p.key, enc, p.arrays.items())
                 pieces += pc
                 total += n

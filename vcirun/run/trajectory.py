@@ -203,7 +203,7 @@ class Trajectory:
             attrs["coordinates"] = self.coordinate_names
             with h5py.File(path, "w") as f:
                 f.attrs["format"] = "vcirun-trajectory"
-                trajectory_files._write_group(f, "trajectory", {k: v for k, v in attrs.items() if k != "coordinates"}, arrays)
+                trajectory_files.write_group(f, "trajectory", {k: v for k, v in attrs.items() if k != "coordinates"}, arrays)
                 f["trajectory"].attrs["coordinates"] = np.array(self.coordinate_names, dtype=h5py.string_dtype())
         elif suffix == ".nc":
             self.to_xarray().to_netcdf(path)

@@ -29,7 +29,7 @@ IMPACT_ARRAYS = record.stored_names("impacts")
 
 
 # --- attribute encoding -----------------------------------------------------------------------------
-def _encode_attr(key, value):
+def encode_attr(key, value):
     if key in JSON_ATTRS:
         return json.dumps(value, sort_keys=True, default=_json_default)
     if value is None:
@@ -62,7 +62,7 @@ def _json_default(o):
     return str(o)
 
 
-def _decode_attr(key, value):
+def decode_attr(key, value):
     if isinstance(value, bytes):
         value = value.decode("utf-8", "replace")
     if key in JSON_ATTRS and isinstance(value, str):
@@ -78,7 +78,7 @@ def _decode_attr(key, value):
 
 
 def decode_attrs(attrs) -> dict:
-    return {k: _decode_attr(k, v) for k, v in attrs.items()}
+    return {k: decode_attr(k, v) for k, v in attrs.items()}
 
 
 
@@ -121,14 +121,14 @@ def trajectory_payload(traj, *, store_arrays: bool = True) -> tuple[dict, dict]:
     return attrs, {k: np.asarray(v) for k, v in arrays.items()}
 
 
-def _group_attrs(attrs: dict) -> dict:
+def group_attrs(attrs: dict) -> dict:
     """The attributes of a run/reference group as stored (encoded; `complete` excluded)."""
-    return {key: _encode_attr(key, value) for key, value in attrs.items()
+    return {key: encode_attr(key, value) for key, value in attrs.items()
             if key != "complete" and not (value is None and key not in _FLOAT_ATTRS)}
     # (None is absent rather than a placeholder; float attributes use NaN)
 
 
-def _write_encoded(f: "h5py.File", path: str, enc_attrs: dict, arrays) -> None:
+def write_encoded(f: "h5py.File", path: str, enc_attrs: dict, arrays) -> None:
     """Write one group from encoded attributes and (name, array) pairs; `complete` goes last. (No flush
     per group: groups are only ever written into a copy that replaces the file once it is complete,
     and a flush per group made a 2000-run compaction 20x slower.)"""
@@ -142,9 +142,9 @@ def _write_encoded(f: "h5py.File", path: str, enc_attrs: dict, arrays) -> None:
     g.attrs["complete"] = True
 
 
-def _write_group(f: "h5py.File", path: str, attrs: dict, arrays: dict) -> None:
+def write_group(f: "h5py.File", path: str, attrs: dict, arrays: dict) -> None:
     """Write one run/reference group from a payload (attributes as `trajectory_payload` gives them)."""
-    _write_encoded(f, path, _group_attrs(attrs), arrays.items())
+    write_encoded(f, path, group_attrs(attrs), arrays.items())
 
 
 # --- energy summary of a run ---------------------------------------------------------------------------
