@@ -461,3 +461,15 @@ def test_figures_explain_what_they_cannot_draw(tmp_path):
     assert written == []
     assert set(skipped) == {"fig4", "fig3", "fig1", "work_precision", "contacts"}
     assert "beta" in skipped["fig4"] and "store_trajectories" in skipped["fig3"]
+
+
+def test_the_journal_of_a_symlinked_results_file_is_beside_its_target(tmp_path):
+    """The writer writes through a link to its target; readers given the link find the same journal."""
+    from vcirun.io.journal import journal_path
+
+    target = tmp_path / "data" / "r.h5"
+    target.parent.mkdir()
+    target.write_bytes(b"")
+    link = tmp_path / "link.h5"
+    link.symlink_to(target)
+    assert journal_path(link) == journal_path(target) == target.parent / ".r.h5.journal"

@@ -37,7 +37,8 @@ _MAX_HEADER = 64 * 2**20
 
 
 def journal_path(path) -> Path:
-    p = Path(path)
+    """The journal beside the results file; for a symlink, beside its target (where the writer writes)."""
+    p = Path(os.path.realpath(path))
     return p.with_name(f".{p.name}.journal")
 
 
