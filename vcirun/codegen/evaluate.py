@@ -40,15 +40,16 @@ def python_module_for(system, ks):
 
 def python_module(system, ld: str = "SVC", mh_order: int = 3, flow_order: int = 4):
     """The scene's MCVA module for (ld, mh_order, flow_order), executed as plain Python (the kernel set
-    of vcirun.methods.table.generalized_mcva, built here: codegen does not import methods)."""
+    of vcirun.methods.table.generalized_mcva, from the same descriptors: codegen does not import
+    methods)."""
     from ..discrete.lagrangians import get_ld
     from ..modified import check_mcva_options
-    from .build import KernelSet
+    from .roles import MCVA_FAMILY, kernel_set
 
     if isinstance(system, str):
         from ..scenes.declarations import get_scene
 
         system = get_scene(system)
     ld, s, flow = check_mcva_options(ld, int(mh_order), int(flow_order))
-    ks = KernelSet(full_stages=tuple(get_ld(ld).stages), partial="gauss", reset="mcva", modified=(ld, s, flow))
+    ks = kernel_set(ld, tuple(get_ld(ld).stages), MCVA_FAMILY["partial"], MCVA_FAMILY["reset"], s, flow)
     return python_module_for(system, ks)

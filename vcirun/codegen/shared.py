@@ -1,4 +1,4 @@
-"""The shared core: the numeric units compiled once per kernel-set family, not once per scene (issue 21).
+"""The shared core: the numeric units compiled once per kernel-set family, not once per scene.
 
 A *specialized* module (vcirun.codegen.units.assemble) is one scene's generated kernels + every unit
 of vcirun/maps and vcirun/collision, compiled together: numba types, lowers and optimises the
@@ -6,8 +6,8 @@ scene-independent loop again for every scene, 90 % of a cold build (docs/perform
 builds*). The shared build splits it in two:
 
 - the **scene module**: the generated part alone (the kernels and their constants), each kernel
-  compiled for the one signature of the ABI tables below (`SYSTEM_ABI`, `STAGE_ABI`, `VCI_ABI`,
-  `MODIFIED_ABI`; a few seconds);
+  compiled for the one signature its declaration gives (vcirun.codegen.roles.KERNELS: argument
+  kinds and shapes, return type; a few seconds);
 - the **core**: the units of the kernel set with a stub for every kernel the units call, which calls
   the scene's compiled kernel by address (vcirun.codegen.kcall), and every other name the units read
   from the generated part (`SCALARS`: the scene's sizes and flags; `ARRAYS`: the kernel set's stage
@@ -16,7 +16,7 @@ builds*). The shared build splits it in two:
   scene or the Ld: numba caches it once on disk and every scene of the family loads it.
 
 `link` joins the two into one module object with the names of a specialized module (the contract of
-vcirun.codegen.units: ENTRY points, constants, kernels), whose core functions install the scene's
+vcirun.codegen.roles: ENTRY points, constants, kernels), whose core functions install the scene's
 slot table before they run. The table is process-global: calls into the core from several threads
 at once are serialised by a lock.
 
@@ -33,79 +33,53 @@ import types as pytypes
 import numpy as np
 
 from ..core import record
-from . import units
+from . import roles, units
 from .kernel_set import KernelSet
+from .roles import ContractError
 
-# What the units read from the generated part besides kernels, as run-time slot values: the scene's
-# sizes, and the kernel set's stage data (so that every kernel set with the same units and bindings
-# shares one core: CVA on SVC, on SE1 + SE2, or a composition of 17 stages). Booleans are 0/1.
-SCALARS = ("NDOF", "NCON", "NODE_LEN", "MH_M", "FORCED", "PARTIAL_IS_FULL", "VCI_STAGE", "MH_ORDER", "MH_NSTAGE")
-BOOLEANS = ("FORCED", "PARTIAL_IS_FULL")
-ARRAYS = (("FULL_STAGES", "i8"), ("FULL_FRACS", "f8"), ("FORCE_A", "f8"), ("FORCE_B", "f8"))  # (address, length)
+# What the units read from the generated part besides kernels, as run-time slot values (the
+# constants of vcirun.codegen.roles with a slot): the scene's sizes, and the kernel set's stage data
+# (so that every kernel set with the same units and bindings shares one core: CVA on SVC, on SE1 +
+# SE2, or a composition of 17 stages). Booleans are 0/1.
+SCALARS = tuple(n for n, c in roles.CONSTANTS.items() if c.slot in ("int", "bool"))
+BOOLEANS = tuple(n for n, c in roles.CONSTANTS.items() if c.slot == "bool")
+ARRAYS = tuple((n, c.slot) for n, c in roles.CONSTANTS.items() if c.slot in ("i8", "f8"))  # (address, length)
 MAX_STAGE_KERNELS = 4   # distinct explicit Lds of one full map (SE1 + SE2 is 2; compositions repeat one)
 
-# kernel name -> (return value giving the type, argument spec of vcirun.codegen.kcall)
-SYSTEM_ABI = {
-    "sys_M": ("0", "aab"), "sys_V": ("0.0", "aa"), "sys_phi": ("0.0", "aa"), "sys_dphi": ("0", "aaa"),
-    "sys_phis": ("0", "aaa"), "sys_dphis": ("0", "aab"), "sys_ddphis": ("0", "aaaa"), "sys_Mdotv": ("0", "aaaa"),
-    "sys_restitution": ("0", "aa"), "sys_dHq": ("0", "aaaa"), "sys_node": ("0", "aaa"), "sys_node_M": ("0", "ab"),
-    "sys_force": ("0", "aafaa"), "sys_force_jac": ("0", "aafabb"),
-}
-# per explicit stage (the units call ld_X(sid, ...), the scene defines <LD>_X(...))
-STAGE_ABI = {"PmJc": ("0", "aaffaaab"), "Ppc": ("0", "aaffaaaa"), "Ed": ("0.0", "aafa")}
-STAGE_ARGS = {"PmJc": "q0, v, h, t, prm, c, r, J", "Ppc": "q0, v, h, t, prm, c, out, cn", "Ed": "q0, v, h, prm"}
-VCI_ABI = ("0", "aafaa")   # <LD>_Edv(q0, v, h, prm, out), called as ld_Edv(sid, q0, v, h, prm, out)
-MODIFIED_ABI = {"mh_FA": ("0", "aaafaab"), "mh_value": ("0.0", "aaabfaa"), "mh_grad": ("0.0", "aaabfaa"),
-                "mh_hess": ("0", "aaabfab")}
-_ARGS = {"sys_M": "q, prm, out", "sys_V": "q, prm", "sys_phi": "q, prm", "sys_dphi": "q, prm, out",
-         "sys_phis": "q, prm, out", "sys_dphis": "q, prm, out", "sys_ddphis": "q, v, prm, out",
-         "sys_Mdotv": "q, v, prm, out", "sys_restitution": "prm, out", "sys_dHq": "q, x, prm, out",
-         "sys_node": "q, prm, c", "sys_node_M": "c, A", "sys_force": "q, qd, t, prm, out",
-         "sys_force_jac": "q, qd, t, prm, fq, fv", "mh_FA": "q, p, u, h, prm, F, A",
-         "mh_value": "q, p, u, W, h, prm, terms", "mh_grad": "q, p, u, W, h, prm, grad",
-         "mh_hess": "q, p, u, W, h, prm, hess"}
-
-# The shape of each array argument, in the scene module's constants (NPRM: the parameter count).
-# A kernel is called by address with the arrays' data pointers only (numba's array ABI passes seven
-# words per array: 8.2 ns against 3.4 ns per 8-array call, measured); the scene's wrapper `_p_<name>`
-# rebuilds the arrays with these shapes (carray) and calls the kernel, inlined into it.
-_SHAPES = {"q": "(NDOF,)", "v": "(NDOF,)", "q0": "(NDOF,)", "x": "(NDOF,)", "qd": "(NDOF,)", "p": "(NDOF,)",
-           "r": "(NDOF,)", "prm": "(NPRM,)", "c": "(NODE_LEN,)", "cn": "(NODE_LEN,)", "J": "(NDOF, NDOF)",
-           "fq": "(NDOF, NDOF)", "fv": "(NDOF, NDOF)", "u": "(MH_M,)", "W": "(MH_M, MH_M)", "F": "(MH_M,)",
-           "terms": "(MH_ORDER,)", "grad": "(2 * NDOF,)", "hess": "(2 * NDOF, 2 * NDOF)"}
-_OUT_SHAPES = {"sys_M": "(NDOF, NDOF)", "sys_dphi": "(NDOF,)", "sys_phis": "(NCON,)", "sys_dphis": "(NCON, NDOF)",
-               "sys_ddphis": "(NCON,)", "sys_Mdotv": "(NDOF,)", "sys_restitution": "(NCON,)", "sys_dHq": "(NDOF,)",
-               "sys_force": "(NDOF,)", "Ppc": "(NDOF,)", "Edv": "(NDOF,)"}
-_A_SHAPES = {"sys_node_M": "(NDOF, NDOF)", "mh_FA": "(MH_M, MH_M)"}
+# The kernels the core calls by address: the declarations of vcirun.codegen.roles with core=True.
+# A kernel is called with the arrays' data pointers only (numba's array ABI passes seven words per
+# array: 8.2 ns against 3.4 ns per 8-array call, measured); the scene's wrapper `_p_<name>` rebuilds
+# the arrays with their declared shapes (carray) and calls the kernel, inlined into it.
+CORE_KERNELS = tuple(k for k in roles.KERNELS.values() if k.core)
 
 
-def _shape(kernel: str, arg: str) -> str:
-    if arg == "out":
-        return _OUT_SHAPES[kernel]
-    if arg == "A":
-        return _A_SHAPES[kernel]
-    return _SHAPES[arg]
+def _stage_slots(k: roles.KernelDecl) -> int:
+    """Slots of a per-stage kernel: one per distinct explicit Ld of the full map (part "steps"), or
+    one for the single stage the energy gradient is generated for."""
+    return MAX_STAGE_KERNELS if k.part == "steps" else 1
 
 
-def _wrapper(kernel: str, attr: str, args: str, spec: str) -> list[str]:
-    names = [a.strip() for a in args.split(",")]
-    call = ", ".join(f"carray({a}, {_shape(kernel, a)})" if c in "ab" else a for a, c in zip(names, spec))
-    return ['@njit(cache=True, nogil=True, error_model="numpy")', f"def _p_{attr}({args}):",
+def _slot_name(k: roles.KernelDecl, sid: int) -> str:
+    if not k.per_stage:
+        return k.name
+    return f"{k.suffix}_{sid}" if _stage_slots(k) > 1 else k.suffix
+
+
+def _wrapper(k: roles.KernelDecl, attr: str) -> list[str]:
+    call = ", ".join(f"carray({a}, {s.shape})" if s.kind in "ab" else a for a, s in k.args)
+    return ['@njit(cache=True, nogil=True, error_model="numpy")', f"def _p_{attr}({k.arg_names}):",
             f"    return {attr}({call})", ""]
 
 
 def pointer_wrappers(ks: KernelSet) -> str:
     """The scene module's `_p_<kernel>` wrappers of a kernel set (vcirun.codegen.derive.scene_source)."""
     lines = ["from numba import carray", ""]
-    for name, kind, ret, spec in LAYOUT:
+    for _, kind, k, sid in LAYOUT:
         if kind != "kernel":
             continue
-        attr = kernel_attr(name, ks)
-        if attr is None:
-            continue
-        base = name.rsplit("_", 1)[0] if name not in SYSTEM_ABI and name not in MODIFIED_ABI else name
-        args = _ARGS.get(base) or (STAGE_ARGS.get(base) if base in STAGE_ABI else "q0, v, h, prm, out")
-        lines += _wrapper(base, attr, args, spec)
+        attr = kernel_attr(k, sid, ks)
+        if attr is not None:
+            lines += _wrapper(k, attr)
     return "\n".join(lines)
 
 
@@ -115,16 +89,13 @@ _DECO = '@njit(cache=True, nogil=True, error_model="numpy", inline="always")'
 
 
 def _layout() -> list[tuple]:
-    """The slot table, the same for every kernel set: [(slot name, kind, ret, spec)]; kind "scalar",
-    "array" (two slots: address, length) or "kernel"."""
+    """The slot table, the same for every kernel set: [(slot name, kind, kernel declaration, stage id)];
+    kind "scalar", "array" (two slots: address, length) or "kernel"."""
     out = [(s, "scalar", None, None) for s in SCALARS]
     for name, _ in ARRAYS:
         out += [(name, "array", None, None), (name + ".len", "array_len", None, None)]
-    out += [(k, "kernel", r, sp) for k, (r, sp) in SYSTEM_ABI.items()]
-    for kind, (r, sp) in STAGE_ABI.items():
-        out += [(f"{kind}_{sid}", "kernel", r, sp) for sid in range(MAX_STAGE_KERNELS)]
-    out.append(("Edv", "kernel", *VCI_ABI))
-    out += [(k, "kernel", r, sp) for k, (r, sp) in MODIFIED_ABI.items()]
+    for k in CORE_KERNELS:
+        out += [(_slot_name(k, sid), "kernel", k, sid) for sid in range(_stage_slots(k) if k.per_stage else 1)]
     return out
 
 
@@ -132,33 +103,32 @@ LAYOUT = _layout()
 SLOT = {name: i for i, (name, *_) in enumerate(LAYOUT)}
 
 
-def kernel_attr(slot_name: str, ks: KernelSet) -> str | None:
+def kernel_attr(k: roles.KernelDecl, sid: int, ks: KernelSet) -> str | None:
     """The scene module's name for a kernel slot (None: the kernel set has no such kernel)."""
-    kind, _, sid = slot_name.rpartition("_")
-    if slot_name in SYSTEM_ABI or slot_name in MODIFIED_ABI:
-        return slot_name if (slot_name in SYSTEM_ABI or ks.modified is not None) else None
-    if slot_name == "Edv":
-        return f"{ks.vci_stage}_Edv" if ks.vci_stage else None
-    names = ks.explicit_names if ks.full_stages else ()
-    return f"{names[int(sid)]}_{kind}" if int(sid) < len(names) else None
+    if k.part not in units.generated_parts(ks):
+        return None
+    if not k.per_stage:
+        return k.name
+    if k.part == "steps":
+        names = ks.explicit_names
+        return f"{names[sid]}_{k.suffix}" if sid < len(names) else None
+    return f"{ks.vci_stage}_{k.suffix}"
 
 
 def _stubs(ks: KernelSet) -> str:
     lines = []
-    for k, (r, sp) in SYSTEM_ABI.items():
-        lines += [_DECO, f"def {k}({_ARGS[k]}):", f"    return kcall(slot({SLOT[k]}), {r}, {sp!r}, ({_ARGS[k]},))", ""]
-    if ks.full_stages:
-        for kind, (r, sp) in STAGE_ABI.items():
-            a = STAGE_ARGS[kind]
-            lines += [_DECO, f"def ld_{kind}(sid, {a}):",
-                      f"    return kcall(slot({SLOT[kind + '_0']} + sid), {r}, {sp!r}, ({a},))", ""]
-    if ks.vci_stage:
-        a = "q0, v, h, prm, out"
-        lines += [_DECO, f"def ld_Edv(sid, {a}):",
-                  f"    return kcall(slot({SLOT['Edv']}), {VCI_ABI[0]}, {VCI_ABI[1]!r}, ({a},))", ""]
-    if ks.modified is not None:
-        for k, (r, sp) in MODIFIED_ABI.items():
-            lines += [_DECO, f"def {k}({_ARGS[k]}):", f"    return kcall(slot({SLOT[k]}), {r}, {sp!r}, ({_ARGS[k]},))", ""]
+    parts = units.generated_parts(ks)
+    for k in CORE_KERNELS:
+        if k.part not in parts:
+            continue
+        a, call = k.arg_names, f"{k.ret_literal}, {k.spec!r}, ({k.arg_names},))"
+        if not k.per_stage:
+            lines += [_DECO, f"def {k.name}({a}):", f"    return kcall(slot({SLOT[k.name]}), {call}", ""]
+        elif _stage_slots(k) > 1:
+            lines += [_DECO, f"def {k.name}(sid, {a}):", f"    return kcall(slot({SLOT[_slot_name(k, 0)]} + sid), {call}",
+                      ""]
+        else:
+            lines += [_DECO, f"def {k.name}(sid, {a}):", f"    return kcall(slot({SLOT[_slot_name(k, 0)]}), {call}", ""]
     for name, kind in (("_slot_i8s", "i8"), ("_slot_f8s", "f8")):   # a run-time array: carray over (address, length)
         lines += [_DECO, f"def {name}(k):", f"    return carray({kind}ptr(slot(k)), (slot(k + 1),))", ""]
     return "\n".join(lines)
@@ -201,12 +171,14 @@ def core_source(ks: KernelSet, ndof: int | None = None) -> str:
     if ks.modified is not None:
         consts += f"MH_FLOW_S = {ks.modified[2] // 2}\n"
     stub_text = "\n\n".join([consts, record.module_constants(), _stubs(ks)])
-    declared = "\n".join(f"{s} = 0" for s in list(SCALARS) + [a for a, _ in ARRAYS])  # the contract check only
-    units.check_generated(declared + "\n" + stub_text + "\nld_PmJ = ld_Pp = 0\n", ks)
+    # the contract check only: the slot-read names and the scene-only kernels
+    declared = [f"{s} = 0" for s in list(SCALARS) + [a for a, _ in ARRAYS]]
+    declared += [f"{k.name} = 0" for k in roles.KERNELS.values() if not k.core]
+    units.check_generated("\n".join(declared) + "\n" + stub_text + "\n", ks)
     parts = [HEADER, stub_text]
     for u in units.select_units(ks):
         units.check_unit(u)
-        parts.append(_read_at_run_time(u.text, fixed))
+        parts.append(_read_at_run_time(u.body, fixed))
     parts += [f"{role} = {target}" for role, target in units.bindings(ks).items()]
     return "\n\n".join(parts) + "\n"
 
@@ -254,11 +226,11 @@ class SceneSlots:
         from numba import types as nbtypes
 
         if len(ks.explicit_names) > MAX_STAGE_KERNELS:
-            raise units.ContractError(f"{ks.key_text()}: {len(ks.explicit_names)} distinct explicit Lds, the shared "
+            raise ContractError(f"{ks.key_text()}: {len(ks.explicit_names)} distinct explicit Lds, the shared "
                                       f"core has slots for {MAX_STAGE_KERNELS} (vcirun.codegen.shared)")
         self.arrays = {}
         self.values = []
-        for name, kind, ret, spec in LAYOUT:
+        for name, kind, k, sid in LAYOUT:
             if kind == "scalar":
                 self.values.append(int(getattr(scene_mod, name, 0)))
             elif kind == "array":
@@ -267,9 +239,8 @@ class SceneSlots:
                 self.arrays[name] = a   # kept alive with the table
                 self.values += [a.ctypes.data, a.shape[0]]
             elif kind == "kernel":
-                attr = kernel_attr(name, ks)
-                self.values.append(0 if attr is None else _address(getattr(scene_mod, "_p_" + attr), attr, ret,
-                                                                  spec, nbtypes))
+                attr = kernel_attr(k, sid, ks)
+                self.values.append(0 if attr is None else _address(getattr(scene_mod, "_p_" + attr), attr, k, nbtypes))
 
     def install(self):
         from .kcall import install
@@ -278,17 +249,17 @@ class SceneSlots:
         _CURRENT[0] = self
 
 
-def _address(disp, attr, ret, spec, nbtypes) -> int:
+def _address(disp, attr, k: roles.KernelDecl, nbtypes) -> int:
     """The machine address of the wrapper `disp` of kernel `attr`, compiled for the ABI's signature
     (data pointers for arrays; numba's calling convention)."""
     from .kcall import POINTER_TYPES
 
-    sig = tuple(POINTER_TYPES[c] for c in spec)
+    sig = tuple(POINTER_TYPES[c] for c in k.spec)
     disp.compile(sig)
     cres = disp.overloads[sig]
-    want = nbtypes.float64 if ret == "0.0" else nbtypes.int64
+    want = nbtypes.float64 if k.returns == "float" else nbtypes.int64
     if nbtypes.unliteral(cres.signature.return_type) != want:
-        raise units.ContractError(f"{attr}: returns {cres.signature.return_type}, the kernel ABI "
+        raise ContractError(f"{attr}: returns {cres.signature.return_type}, the kernel ABI "
                                   f"(vcirun.codegen.shared) says {want}")
     return cres.library.get_pointer_to_function(cres.fndesc.llvm_func_name)
 

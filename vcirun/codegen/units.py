@@ -1,24 +1,29 @@
-"""The contract between the generated kernels of a module and the numba source units (issue 16).
+"""The contract between the generated kernels of a module and the numba source units.
 
 A compiled module is one file: generated kernels (vcirun.codegen.derive) + the numba source units
 of vcirun/maps and vcirun/collision + the role bindings `full`, `partial`, `reset`,
-`modified_energy`. The units call names only the generated part or other units define; this file
-is where those names are written down:
+`modified_energy`. What the generated part defines, the roles and their signatures, and the
+descriptors that choose a role's unit function are declared once, in vcirun.codegen.roles; this
+module holds the units against them and assembles a module:
 
-- UNITS: each unit's file, the names it provides and the names it requires. `check_unit` holds
-  each declaration against the unit's source (symtable: the functions and constants it defines, the
-  global names its code reads), so a declaration cannot drift from the code.
-- GENERATED: what the generator emits for each part of a kernel set (the system kernels always; the
-  step kernels of the full map's discrete Lagrangians; R^VCI's energy gradient; the modified
-  Hamiltonian's kernels; the record's index and status constants). `check_generated` holds it
+- A unit declares what it requires by its imports: the generated names and roles it calls from
+  vcirun.codegen.roles, the functions of other units from those units' modules (so editors and
+  linters resolve every name). `unit_body` drops those import lines when the unit is assembled;
+  what a unit provides is what it defines at module level without a leading underscore.
+- UNITS: the units every module may hold, in module order; a reset's unit (roles.RESETS) joins the
+  module that binds it. `check_unit` holds a unit against the declarations: every name it reads
+  is defined or imported, every import is used and declared (a generated name of
+  roles.KERNELS / roles.CONSTANTS, a role, or a name its sibling unit defines), every call passes
+  as many arguments as the callee takes, and every role implementation it defines has the role's
+  parameters in the role's order.
+- GENERATED: the names of each generated part (roles.generated_names); `check_generated` holds it
   against the generated text.
-- PARTIALS, RESETS, MODIFIED_ENERGY: the role bindings, chosen by the method's data
-  (vcirun.methods.table.Method.partial / .reset / .mh_order), never by an `if` in a unit.
-- ENTRY: the names Python calls on a module (vcirun.run.api, vcirun.reference, baselines, verify).
+- `bindings(ks)`: the role bindings of a kernel set, from its descriptors (never an `if` in a unit).
+- `entry_points(ks)`: roles.ENTRY, the names Python calls on a module of that kernel set.
 
 `select_units(ks)` includes every unit whose requirements the generated part, the bindings and the
-other included units meet (so a CVA module has reset_cva but not reset_vci, which needs ld_Edv),
-and raises ContractError naming the missing symbol when an entry point or a binding cannot be met.
+other included units meet (so a module without the modified Hamiltonian has no maps/gauss.py), and
+raises ContractError naming the missing symbol when an entry point or a binding cannot be met.
 No sympy here: the selection runs on the warm path too (the cache key hashes the selected units).
 """
 from __future__ import annotations
@@ -26,104 +31,86 @@ from __future__ import annotations
 import ast
 import builtins
 import functools
+import re
 import symtable
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..core import record
+from . import roles
+from .roles import ContractError
 
 PKG = Path(__file__).resolve().parent.parent
+_SOURCE = PKG   # where sibling units are read from (PKG may point elsewhere for a unit under test)
 
-
-class ContractError(ValueError):
-    """A module cannot be assembled: a unit requires a name nothing provides (or a declaration does
-    not match its unit's code)."""
+ROLES_MODULE = "vcirun.codegen.roles"
+# an import of a unit's requirements: from the declarations, or from another unit
+_CONTRACT_IMPORT = re.compile(r"^from (vcirun\.(?:codegen\.roles|maps\.\w+|collision\.\w+)) import "
+                              r"(\([^)]*\)|[^\n]*)\n", re.M)
 
 
 @dataclass(frozen=True)
 class Unit:
-    path: str          # relative to the vcirun package
-    provides: tuple    # names other units and Python may call
-    requires: tuple    # names it reads from the generated part or other units
+    path: str          # relative to the vcirun package, or absolute (a unit outside the package)
+
+    @property
+    def file(self) -> Path:
+        return PKG / self.path   # (an absolute path stays itself)
 
     @property
     def text(self) -> str:
-        return (PKG / self.path).read_text()
+        return self.file.read_text()
+
+    @property
+    def module(self) -> str:
+        """The unit's module name within the package (the form sibling units import it by)."""
+        p = Path(self.path)
+        return "vcirun." + ".".join(p.with_suffix("").parts) if not p.is_absolute() else p.stem
+
+    @property
+    def body(self) -> str:
+        """The text a module holds: the unit without its contract imports."""
+        return unit_body(self.text)
+
+    @property
+    def imports(self) -> dict:
+        """{module: names} the unit imports from the declarations and other units."""
+        return _imports(self.text)
+
+    @property
+    def requires(self) -> tuple:
+        return tuple(n for names in self.imports.values() for n in names)
+
+    @property
+    def provides(self) -> tuple:
+        return _provides(self.text, self.path)
 
 
-# the impact law of Moreau (collision/impact_law.py: pure, no generated names)
-IMPACT_LAW_PROVIDES = ("impact_law", "LCP_MAX_CONTACTS", "LCP_UNIQUE", "LCP_SINGULAR_UNIQUE", "LCP_MIN_NORM",
-                       "LCP_INFEASIBLE", "LCP_BAD_INPUT", "LCP_RANK_TOL", "LCP_FEAS_TOL", "LCP_SYM_TOL")
+def unit_body(text: str) -> str:
+    return _CONTRACT_IMPORT.sub("", text)
 
-UNITS = (
-    Unit("maps/linalg.py", provides=("solve_small", "norm_inf", "copy_into", "set_row"), requires=()),
-    Unit("maps/dynamics.py",
-         provides=("velocity_from", "velocity_guess", "hamiltonian", "hamilton_rhs", "dynamics_rhs", "force_power",
-                   "gdot", "cva_lambda", "mass_matrix_ok"),
-         requires=("NDOF", "FORCED", "sys_M", "sys_V", "sys_dHq", "sys_dphi", "sys_force", "solve_small",
-                   "copy_into")),
-    Unit("maps/steps.py", provides=("guess_from_node", "explicit_step", "ld_step", "ld_partial"),
-         requires=("NDOF", "NODE_LEN", "FULL_STAGES", "FULL_FRACS", "ld_PmJc", "ld_Ppc", "ld_Ed", "sys_node",
-                   "sys_node_M", "velocity_from", "solve_small", "copy_into")),
-    Unit("maps/gauss.py",
-         provides=("GAUSS_A", "GAUSS_B", "GAUSS_C", "GAUSS_D", "MH_U_TOL", "MH_U_MAXIT", "mh_guess", "mh_solve",
-                   "mh_terms", "mh_energy", "mh_gradient", "mh_field", "gauss_partial"),
-         requires=("NDOF", "FORCED", "MH_ORDER", "MH_M", "MH_NSTAGE", "MH_FLOW_S", "mh_FA", "mh_value", "mh_grad",
-                   "mh_hess", "sys_force", "sys_force_jac", "velocity_guess", "solve_small")),
-    Unit("maps/held.py",
-         provides=("contact_forces", "project_momentum", "held_stage", "held_step", "normal_acceleration"),
-         requires=("NDOF", "NCON", "NODE_LEN", "FULL_STAGES", "FULL_FRACS", "dynamics_rhs", "sys_Mdotv", "sys_ddphis",
-                   "sys_dphis", "sys_phis", "sys_M", "sys_node", "ld_PmJc", "ld_Ppc", "ld_Ed", "velocity_guess",
-                   "solve_small", "copy_into")),
-    Unit("collision/events.py",
-         provides=("N_SCAN", "N_MODEL", "step_admissible", "partial_map", "collision_time", "search_collision"),
-         requires=("NCON", "partial", "held_step", "sys_phi", "sys_phis", "gap", "gap_slope", "touching_mask",
-                   "unmask_penetrating")),
-    Unit("collision/impact_law.py", provides=IMPACT_LAW_PROVIDES, requires=()),
-    Unit("collision/impact.py",
-         provides=("impact_direction", "touch_tolerance", "gap", "gap_slope", "normal_velocities", "touching_mask",
-                   "unmask_penetrating"),
-         requires=("NDOF", "NCON", "sys_restitution", "sys_phi", "sys_phis", "sys_dphis", "sys_M", "cva_lambda",
-                   "impact_law", "solve_small", "gdot")),
-    Unit("collision/reset_cva.py", provides=("reset_cva",), requires=("NDOF",)),
-    Unit("collision/reset_vci.py", provides=("reset_vci",),
-         requires=("NDOF", "NODE_LEN", "FORCED", "VCI_STAGE", "FORCE_A", "FORCE_B", "velocity_guess",
-                   "sys_node", "ld_PmJc", "ld_Ed", "ld_Edv", "sys_force", "sys_force_jac", "force_power",
-                   "solve_small")),
-    Unit("collision/reset_mcva.py", provides=("MH_RESET_ETOL", "reset_mcva"),
-         requires=("NDOF", "MH_M", "mh_guess", "mh_gradient")),
-    Unit("collision/algorithm1.py", provides=("integrate", "no_modified_energy", "initially_held"),
-         requires=("NDOF", "NCON", "PARTIAL_IS_FULL", "full", "reset", "modified_energy", "search_collision",
-                   "step_admissible", "impact_direction", "hamiltonian", "copy_into", "set_row", "held_step",
-                   "contact_forces", "project_momentum", "normal_acceleration", "normal_velocities",
-                   "touch_tolerance", "sys_phi", "sys_phis", "sys_restitution", "FORCED", "force_power", "velocity_guess")
-         + tuple(f.index_name for f in record.FIELDS) + tuple(f"I_{c.upper()}" for c in record.COUNTERS)
-         + tuple(f"S_{s.upper()}" for s in record.SETTINGS) + tuple(f"ST_{n.upper()}" for n, _ in record.STATUSES)),
-)
+
+@functools.lru_cache(maxsize=128)
+def _imports(text: str) -> dict:
+    out = {}
+    for m in _CONTRACT_IMPORT.finditer(text):
+        names = [n.strip() for n in m.group(2).strip("()").replace("\n", " ").split(",")]
+        out.setdefault(m.group(1), []).extend(n for n in names if n)
+    return {k: tuple(v) for k, v in out.items()}
+
+
+@functools.lru_cache(maxsize=128)
+def _provides(text: str, filename: str) -> tuple:
+    defined, _, _ = _names(text, filename)
+    return tuple(sorted(n for n in defined if not n.startswith("_")))
+
+
+UNITS = tuple(Unit(p) for p in (
+    "maps/linalg.py", "maps/dynamics.py", "maps/steps.py", "maps/gauss.py", "maps/held.py",
+    "collision/events.py", "collision/impact_law.py", "collision/impact.py", "collision/algorithm1.py"))
 UNIT = {u.path: u for u in UNITS}
+_RESET_SLOT = UNITS.index(UNIT["collision/algorithm1.py"])   # a bound reset's unit: before the loop
 
-# what vcirun.codegen.derive emits, per part of a kernel set
-GENERATED = {
-    "system": ("NDOF", "NCON", "FORCED", "NODE_LEN", "sys_M", "sys_V", "sys_phi", "sys_dphi", "sys_phis",
-               "sys_dphis", "sys_ddphis", "sys_Mdotv", "sys_restitution", "sys_dHq", "sys_node", "sys_node_M",
-               "sys_force", "sys_force_jac"),
-    "record": tuple(ln.split(" = ")[0] for ln in record.module_constants().splitlines()),
-    "steps": ("FULL_STAGES", "FULL_FRACS", "FORCE_A", "FORCE_B", "VCI_STAGE", "PARTIAL_IS_FULL", "ld_PmJ", "ld_Pp",
-              "ld_PmJc", "ld_Ppc", "ld_Ed"),
-    "vci": ("ld_Edv",),
-    "modified": ("MH_ORDER", "MH_M", "MH_NSTAGE", "MH_FLOW_S", "mh_FA", "mh_value", "mh_grad", "mh_hess"),
-}
-
-# role bindings: the method's data -> the unit function bound to the role
-PARTIALS = {"ld": "ld_partial", "gauss": "gauss_partial"}
-RESETS = {"cva": "reset_cva", "vci": "reset_vci", "mcva": "reset_mcva"}
-MODIFIED_ENERGY = {False: "no_modified_energy", True: "mh_energy"}
-
-# names Python calls on a module
-SYSTEM_ENTRY = ("hamiltonian", "hamilton_rhs", "dynamics_rhs", "force_power", "gdot", "cva_lambda",
-                "mass_matrix_ok", "sys_M", "sys_phi", "sys_dphi", "sys_phis", "sys_dphis", "sys_restitution",
-                "impact_direction", "gap", "touching_mask", "sys_ddphis", "sys_Mdotv")
-METHOD_ENTRY = SYSTEM_ENTRY + ("integrate", "collision_time", "ld_step")
+GENERATED = {part: roles.generated_names(part) for part in roles.PARTS}
 
 
 def generated_parts(ks) -> tuple:
@@ -132,31 +119,56 @@ def generated_parts(ks) -> tuple:
     if ks.full_stages:
         parts.append("steps")
     if ks.vci_stage:
-        parts.append("vci")
+        parts.append("energy_gradient")
     if ks.modified is not None:
         parts.append("modified")
     return tuple(parts)
 
 
 def bindings(ks) -> dict:
-    """{role: bound name} of a kernel set (empty for the system-only kernel set)."""
+    """{role: bound name} of a kernel set, from its descriptors (empty for the system-only set)."""
     if not ks.full_stages:
         return {}
-    return {"full": "ld_step", "partial": PARTIALS[ks.partial], "reset": RESETS[ks.reset],
-            "modified_energy": MODIFIED_ENERGY[ks.modified is not None]}
+    return {"full": roles.FULL_MAP[1], "partial": roles.partial_map(ks.partial).function,
+            "reset": roles.reset_map(ks.reset).function,
+            "modified_energy": roles.MODIFIED_ENERGY[ks.modified is not None][1]}
+
+
+def implementations() -> dict:
+    """{function name: role} of every declared role implementation (a name may play one role only)."""
+    out = {roles.FULL_MAP[1]: "full"}
+    out |= {p.function: "partial" for p in roles.PARTIALS.values()}
+    out |= {r.function: "reset" for r in roles.RESETS.values()}
+    out |= {fn: "modified_energy" for _, fn in roles.MODIFIED_ENERGY.values()}
+    return out
 
 
 def entry_points(ks) -> tuple:
-    return METHOD_ENTRY if ks.full_stages else SYSTEM_ENTRY
+    parts = ("system",) + (("steps",) if ks.full_stages else ()) + (("modified",) if ks.modified is not None else ())
+    return tuple(n for p in parts for n in roles.ENTRY[p])
+
+
+def candidate_units(ks) -> tuple:
+    """UNITS, with the unit of the kernel set's reset when it binds one."""
+    if not ks.full_stages:
+        return UNITS
+    r = roles.reset_map(ks.reset)
+    return UNITS[:_RESET_SLOT] + (Unit(r.unit),) + UNITS[_RESET_SLOT:]
 
 
 def select_units(ks) -> list[Unit]:
-    """The units of a kernel set's module, in table order (see the module docstring)."""
-    return list(_select(ks))
+    """The units of a kernel set's module, in module order (see the module docstring)."""
+    return list(_select(ks, _descriptor_state()))
+
+
+def _descriptor_state() -> tuple:
+    # registered resets change what a kernel set's reset name means: part of the memo key
+    return tuple(roles.RESETS.items())
 
 
 @functools.lru_cache(maxsize=256)
-def _select(ks) -> tuple:
+def _select(ks, _state) -> tuple:
+    candidates = candidate_units(ks)
     avail = {n for part in generated_parts(ks) for n in GENERATED[part]}
     binds = bindings(ks)
     included: list[Unit] = []
@@ -167,7 +179,7 @@ def _select(ks) -> tuple:
             if role not in avail and target in avail:
                 avail.add(role)
                 changed = True
-        for u in UNITS:
+        for u in candidates:
             if u in included:
                 continue
             own = avail | set(u.provides)
@@ -178,15 +190,15 @@ def _select(ks) -> tuple:
                 changed = True
     for name in list(binds) + list(entry_points(ks)):
         if name not in avail:
-            raise ContractError(_explain(name, binds, avail, ks))
-    return tuple(u for u in UNITS if u in included)
+            raise ContractError(_explain(name, binds, avail, ks, candidates))
+    return tuple(u for u in candidates if u in included)
 
 
-def _explain(name, binds, avail, ks) -> str:
+def _explain(name, binds, avail, ks, candidates) -> str:
     """Why `name` is not available: the unit that would provide it and its first unmet requirement."""
     target = binds.get(name, name)
     what = f"role {name!r} -> {target}" if name in binds else f"{name}"
-    for u in UNITS:
+    for u in candidates:
         if target in u.provides:
             missing = [r for r in u.requires if r not in avail and r not in u.provides]
             return (f"module for kernel set {ks.key_text()}: {what} is provided by {u.path}, which requires "
@@ -200,47 +212,140 @@ def _explain(name, binds, avail, ks) -> str:
 _BUILTINS = set(dir(builtins))
 
 
-def source_names(text: str, filename: str = "<unit>") -> tuple[set, set]:
-    """(defined, read): the module-level names a source defines (functions, assignments, imports) and
-    the global names its code reads (module level and inside every function), by symtable."""
+@functools.lru_cache(maxsize=128)
+def _names(text: str, filename: str) -> tuple[set, set, set]:
+    """(defined, imported, read): the module-level names a source defines and imports, and the global
+    names its code reads (module level and inside every function) that it neither defines nor
+    imports, by symtable."""
     top = symtable.symtable(text, filename, "exec")
-    defined, imported, read = set(), set(), set()
+    defined, imported, used = set(), set(), set()
     for s in top.get_symbols():
         if s.is_imported():
             imported.add(s.get_name())
         elif s.is_assigned():
             defined.add(s.get_name())
-        if s.is_referenced() and not s.is_assigned() and not s.is_imported():
-            read.add(s.get_name())
+        if s.is_referenced():
+            used.add(s.get_name())
 
     def walk(tab):
         for child in tab.get_children():
             for s in child.get_symbols():
                 if s.is_referenced() and (s.is_global() or s.is_free()) and not s.is_local():
-                    read.add(s.get_name())
+                    used.add(s.get_name())
             walk(child)
 
     walk(top)
-    read -= defined | imported | _BUILTINS
-    return defined, read
+    return defined, imported, used
+
+
+def source_names(text: str, filename: str = "<unit>") -> tuple[set, set]:
+    """(defined, read): the module-level names a source defines (functions, assignments, imports) and
+    the global names its code reads that it neither defines nor imports (builtins aside)."""
+    defined, imported, used = _names(text, filename)
+    return defined | imported, used - defined - imported - _BUILTINS
+
+
+def _declared(name: str) -> bool:
+    return name in roles.KERNELS or name in roles.CONSTANTS or name in roles.ROLES
+
+
+def _signatures(tree: ast.Module) -> dict:
+    """{function: (parameter names, number with a default)} of a module's top-level functions."""
+    return {f.name: (tuple(a.arg for a in f.args.args), len(f.args.defaults))
+            for f in tree.body if isinstance(f, ast.FunctionDef)}
+
+
+def _unit_of_module(module: str) -> Unit | None:
+    if not module.startswith("vcirun."):
+        return None
+    rel = module[len("vcirun."):].replace(".", "/") + ".py"
+    if (PKG / rel).is_file():
+        return Unit(rel)
+    return Unit(str(_SOURCE / rel)) if (_SOURCE / rel).is_file() else None
 
 
 def check_unit(u: Unit) -> None:
-    """The declaration of `u` against its source: it defines every name it provides, defines no
-    public name it does not declare, and reads no global name it does not require."""
-    defined, read = source_names(u.text, u.path)
-    public = {n for n in defined if not n.startswith("_")}
-    if set(u.provides) - defined:
-        raise ContractError(f"{u.path}: declared to provide {sorted(set(u.provides) - defined)}, which it does not define")
-    if public - set(u.provides):
-        raise ContractError(f"{u.path}: defines {sorted(public - set(u.provides))}, not in its declaration "
-                            "(vcirun.codegen.units.UNITS)")
-    if read - set(u.requires):
-        raise ContractError(f"{u.path}: uses {sorted(read - set(u.requires))} without declaring it "
-                            "(vcirun.codegen.units.UNITS: requires)")
-    if set(u.requires) - read:
-        raise ContractError(f"{u.path}: declares {sorted(set(u.requires) - read)} as required but never uses it")
-    check_frame(u.text, u.path)
+    """The unit against the declarations (see the module docstring); raises ContractError naming the
+    unit, the name and the fix."""
+    _check(u.path, u.text)
+
+
+@functools.lru_cache(maxsize=128)
+def _check(path: str, text: str) -> None:
+    defined, imported, used = _names(text, path)
+    read = used - defined - imported - _BUILTINS
+    if read:
+        raise ContractError(f"{path}: uses {sorted(read)} without defining or importing it (import a generated "
+                            f"name or a role from {ROLES_MODULE}, another unit's name from its module)")
+    sigs = {}
+    for module, names in _imports(text).items():
+        unused = [n for n in names if n not in used]
+        if unused:
+            raise ContractError(f"{path}: imports {unused} from {module} but never uses it")
+        if module == ROLES_MODULE:
+            bad = [n for n in names if not _declared(n)]
+            if bad:
+                raise ContractError(f"{path}: imports {bad} from {ROLES_MODULE}, which declares no such generated "
+                                    "name or role (vcirun.codegen.roles: KERNELS, CONSTANTS, ROLES)")
+            for n in names:
+                if n in roles.KERNELS:
+                    sigs[n] = (("sid",) if roles.KERNELS[n].per_stage else ()) + tuple(a for a, _ in roles.KERNELS[n].args), 0
+                elif n in roles.ROLES:
+                    sigs[n] = roles.ROLES[n].params, roles.ROLES[n].optional
+        else:
+            sib = _unit_of_module(module)
+            if sib is None:
+                raise ContractError(f"{path}: imports from {module}, which is not a unit")
+            missing = [n for n in names if n not in sib.provides]
+            if missing:
+                raise ContractError(f"{path}: imports {missing} from {module}, which does not define it")
+            sib_sigs = _signatures(ast.parse(sib.text, sib.path))
+            sigs |= {n: sib_sigs[n] for n in names if n in sib_sigs}
+    tree = ast.parse(text, path)
+    own = _signatures(tree)
+    sigs |= own
+    _check_calls(path, tree, sigs)
+    impl = implementations()
+    for fn, (params, optional) in own.items():
+        if fn in impl:
+            r = roles.ROLES[impl[fn]]
+            if params != r.params or optional != r.optional:
+                raise ContractError(f"{path}: {fn} implements the role {r.name!r}, whose signature is "
+                                    f"({_sig_text(r.params, r.optional)}); {fn} takes ({_sig_text(params, optional)})"
+                                    " (vcirun.codegen.roles)")
+    check_frame(text, path)
+
+
+def _sig_text(params, optional) -> str:
+    return ", ".join(p + ("=..." if i >= len(params) - optional else "") for i, p in enumerate(params))
+
+
+def _check_calls(path: str, tree: ast.Module, sigs: dict) -> None:
+    """Every call of a declared or unit function passes between its required and its total number
+    of arguments (by position or by a parameter's name)."""
+    for node in ast.walk(tree):
+        if not (isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in sigs):
+            continue
+        params, optional = sigs[node.func.id]
+        if any(isinstance(a, ast.Starred) for a in node.args) or any(k.arg is None for k in node.keywords):
+            raise ContractError(f"{path}:{node.lineno}: {node.func.id} called with * or **: pass its arguments "
+                                "by name or position (the arity check needs them)")
+        n = len(node.args) + len(node.keywords)
+        unknown = [k.arg for k in node.keywords if k.arg not in params]
+        if unknown or not len(params) - optional <= n <= len(params):
+            raise ContractError(f"{path}:{node.lineno}: {node.func.id} called with {n} arguments"
+                                + (f" (unknown {unknown})" if unknown else "")
+                                + f"; it takes ({_sig_text(params, optional)})")
+
+
+def check_units(units=UNITS) -> None:
+    """Every unit, and no name provided by two units (a requirement names one provider)."""
+    seen = {}
+    for u in tuple(units) + tuple(Unit(r.unit) for r in roles.RESETS.values()):
+        check_unit(u)
+        for n in u.provides:
+            if seen.setdefault(n, u.path) != u.path:
+                raise ContractError(f"{n}: defined by both {seen[n]} and {u.path}; rename one")
 
 
 def check_frame(text: str, filename: str = "<unit>") -> None:
@@ -290,15 +395,36 @@ def check_generated(text: str, ks) -> None:
     want = {n for part in generated_parts(ks) for n in GENERATED[part]}
     if want - defined:
         raise ContractError(f"generated kernels for {ks.key_text()} lack {sorted(want - defined)} "
-                            "(vcirun.codegen.units.GENERATED)")
+                            "(vcirun.codegen.roles)")
+
+
+def standalone_source(paths) -> str:
+    """The bodies of units that need no generated name (e.g. collision/impact_law.py with the
+    linear algebra it calls), with the units they import, in dependency order: a module of its own."""
+    order: list[Unit] = []
+
+    def add(u: Unit):
+        if u in order:
+            return
+        for module, names in u.imports.items():
+            if module == ROLES_MODULE:
+                raise ContractError(f"{u.path}: imports {list(names)} from {ROLES_MODULE}: not standalone")
+            add(_unit_of_module(module))
+        order.append(u)
+
+    for p in paths:
+        add(Unit(p))
+    for u in order:
+        check_unit(u)
+    return "\n\n".join(u.body for u in order) + "\n"
 
 
 def assemble(generated: str, ks) -> str:
     """generated part + the selected units + the bindings, checked: the module text."""
     check_generated(generated, ks)
-    units = select_units(ks)
-    for u in units:
+    selected = select_units(ks)
+    for u in selected:
         check_unit(u)
-    parts = [generated] + [u.text for u in units]
+    parts = [generated] + [u.body for u in selected]
     parts += [f"{role} = {target}" for role, target in bindings(ks).items()]
     return "\n\n".join(parts) + "\n"

@@ -9,6 +9,19 @@ import numpy as np
 from numba import njit
 
 from vcirun.codegen.frame import borrow, scratch, scratch2, scratch_i
+from vcirun.codegen.roles import (
+    NDOF, NCON, FORCED, PARTIAL_IS_FULL, O_Q, O_P, O_H, O_ED, O_HMOD, O_IMPACTS, O_IMPACT_Q, O_IMPACT_P_MINUS,
+    O_IMPACT_P_PLUS, O_IMPACT_IMPULSE, O_IMPACT_CONTACT, O_IMPACT_STEP, O_PARTIAL_STEPS, O_NEWTON_ITERS,
+    O_CONTACT_ACTIVE, O_CONTACT_FORCE, O_RELEASES, O_RELEASE_CONTACT, I_STATUS, I_FAIL_STEP, I_N_IMPACTS,
+    I_N_PARTIAL, I_STEPS, I_N_RELEASES, S_CONSTRAINED, S_NEWTON_TOL, S_MAX_ITER, S_EVENT_TOL, S_MAX_IMPACTS_STEP,
+    S_ENERGIES, S_RESTING_CONTACT, ST_OK, ST_NEWTON_FAILED, ST_EVENT_FAILED, ST_RESET_FAILED, ST_ACCUMULATION,
+    ST_NONFINITE, sys_phi, sys_phis, sys_restitution, full, reset, modified_energy
+)
+from vcirun.collision.events import search_collision, step_admissible
+from vcirun.collision.impact import impact_direction, normal_velocities, touch_tolerance
+from vcirun.maps.dynamics import hamiltonian, force_power, velocity_guess
+from vcirun.maps.held import held_step, contact_forces, project_momentum, normal_acceleration
+from vcirun.maps.linalg import copy_into, set_row
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

@@ -13,6 +13,9 @@ import numpy as np
 from numba import njit
 
 from vcirun.codegen.frame import scratch, scratch_i
+from vcirun.codegen.roles import NCON, sys_phi, sys_phis, partial
+from vcirun.collision.impact import gap, gap_slope, touching_mask, unmask_penetrating
+from vcirun.maps.held import held_step
 
 N_SCAN = 4  # interior samples of the initial bracket (first-root search), when the cubic model is unsure
 N_MODEL = 32  # samples of the cubic Hermite model of g on the bracket (no partial steps: free)

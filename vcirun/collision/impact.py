@@ -25,6 +25,10 @@ import numpy as np
 from numba import njit
 
 from vcirun.codegen.frame import scratch, scratch2, scratch_i
+from vcirun.codegen.roles import NDOF, NCON, sys_M, sys_phi, sys_phis, sys_dphis, sys_restitution
+from vcirun.collision.impact_law import impact_law
+from vcirun.maps.dynamics import cva_lambda, gdot
+from vcirun.maps.linalg import solve_small
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

@@ -1,12 +1,13 @@
 # numba source unit: the reset R^MCVA (eq. 34) of the MCVA family, conserving the truncated modified
 # Hamiltonian H~^{O(h^s)} (with restitution: losing what Newton's law removes from H, docs/contacts.md).
-# Signature: see collision/reset_cva.py; contract: vcirun.codegen.units.
+# Signature: the role `reset` of vcirun.codegen.roles; row: roles.RESETS["mcva"].
 import math
 
-import numpy as np
 from numba import njit
 
 from vcirun.codegen.frame import scratch, scratch2
+from vcirun.codegen.roles import NDOF, MH_M
+from vcirun.maps.gauss import mh_guess, mh_gradient
 
 MH_RESET_ETOL = 8.0 * 2.220446049250313e-16  # R^MCVA accepts lam once H~ is conserved to this (relative)
 

@@ -1,11 +1,16 @@
 # numba source unit: the reset R^VCI (eq. 33), with forcing (docs/forcing.md) and restitution
-# (docs/contacts.md). Signature: see collision/reset_cva.py.
+# (docs/contacts.md). Signature: the role `reset` of vcirun.codegen.roles; row: roles.RESETS["vci"].
 import math
 
 import numpy as np
 from numba import njit
 
 from vcirun.codegen.frame import scratch, scratch2
+from vcirun.codegen.roles import (
+    NDOF, NODE_LEN, FORCED, VCI_STAGE, FORCE_A, FORCE_B, sys_node, sys_force, sys_force_jac, ld_PmJc, ld_Ed, ld_Edv
+)
+from vcirun.maps.dynamics import velocity_guess, force_power
+from vcirun.maps.linalg import solve_small
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

@@ -9,6 +9,8 @@ import numpy as np
 from numba import njit
 
 from vcirun.codegen.frame import scratch, scratch2
+from vcirun.codegen.roles import NDOF, FORCED, sys_M, sys_V, sys_dphi, sys_dHq, sys_force
+from vcirun.maps.linalg import solve_small, copy_into
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")

@@ -9,6 +9,11 @@ import numpy as np
 from numba import njit
 
 from vcirun.codegen.frame import scratch, scratch2
+from vcirun.codegen.roles import (
+    NDOF, MH_M, FORCED, MH_ORDER, MH_NSTAGE, MH_FLOW_S, sys_force, sys_force_jac, mh_FA, mh_value, mh_grad, mh_hess
+)
+from vcirun.maps.dynamics import velocity_guess
+from vcirun.maps.linalg import solve_small
 
 # Gauss-Legendre collocation tableaux (Hairer-Wanner II, Table IV.5.1/5.2). D = b^T A^{-1}: the
 # update y1 = y0 + sum_i D_i Z_i needs no extra evaluation of the vector field.

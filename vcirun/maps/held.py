@@ -18,6 +18,12 @@ import numpy as np
 from numba import njit
 
 from vcirun.codegen.frame import scratch, scratch2, scratch_i
+from vcirun.codegen.roles import (
+    NDOF, NCON, NODE_LEN, FULL_STAGES, FULL_FRACS, sys_M, sys_phis, sys_dphis, sys_ddphis, sys_Mdotv, sys_node,
+    ld_PmJc, ld_Ppc, ld_Ed
+)
+from vcirun.maps.dynamics import dynamics_rhs, velocity_guess
+from vcirun.maps.linalg import solve_small, copy_into
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

@@ -13,6 +13,9 @@ import numpy as np
 from numba import njit
 
 from vcirun.codegen.frame import scratch, scratch2
+from vcirun.codegen.roles import NDOF, NODE_LEN, FULL_STAGES, FULL_FRACS, sys_node, sys_node_M, ld_PmJc, ld_Ppc, ld_Ed
+from vcirun.maps.dynamics import velocity_from
+from vcirun.maps.linalg import solve_small, copy_into
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -78,7 +81,7 @@ def explicit_step(sid, q0, p0, h, t, prm, newton_tol, max_iter, v, q1, p1, c, cn
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def ld_step(q0, p0, h, t, prm, newton_tol, max_iter, q1, p1, vlast, want_E=True):
+def ld_step(q0, p0, h, t, prm, ntol, maxit, q1, p1, vlast, want_E=True):
     """Phi_h of the scene's discrete Lagrangian (a composition of explicit stages, e.g. SVA =
     SE1 then SE2 half steps). Returns (iterations >= 0, or < 0 on failure, discrete energy -D3 Ld;
     NaN with want_E=False, which saves one kernel call per stage: 17 per SVC8 step).
@@ -91,7 +94,7 @@ def ld_step(q0, p0, h, t, prm, newton_tol, max_iter, q1, p1, vlast, want_E=True)
     sys_node(q0, prm, c)
     guess_from_node(c, p0, v, J)  # (J as scratch: PmJc overwrites it)
     if FULL_STAGES.shape[0] == 1:  # explicit Ld: no intermediate nodes to copy
-        it = explicit_step(FULL_STAGES[0], q0, p0, h, t, prm, newton_tol, max_iter, v, q1, p1, c, cn, r, J)
+        it = explicit_step(FULL_STAGES[0], q0, p0, h, t, prm, ntol, maxit, v, q1, p1, c, cn, r, J)
         copy_into(vlast, v)
         if it < 0 or not want_E:
             return it, np.nan
@@ -117,7 +120,7 @@ def ld_step(q0, p0, h, t, prm, newton_tol, max_iter, q1, p1, vlast, want_E=True)
                 rr = hs / hprev
                 for i in range(NDOF):
                     v[i] += rr * (v[i] - vprev[i])
-        it = explicit_step(FULL_STAGES[s], qa, pa, hs, ts, prm, newton_tol, max_iter, v, q1, p1, c, cn, r, J)
+        it = explicit_step(FULL_STAGES[s], qa, pa, hs, ts, prm, ntol, maxit, v, q1, p1, c, cn, r, J)
         copy_into(vprev, v)
         hprev = hs
         if it < 0:
@@ -137,6 +140,6 @@ def ld_step(q0, p0, h, t, prm, newton_tol, max_iter, q1, p1, vlast, want_E=True)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def ld_partial(q0, p0, tau, h, t, prm, newton_tol, max_iter, q1, p1, vlast):
+def ld_partial(q0, p0, tau, h, t, prm, ntol, maxit, q1, p1, vlast):
     """Phi^partial = Phi^full_tau (CVA, VCI): the same discrete Lagrangian at step tau."""
-    return ld_step(q0, p0, tau, t, prm, newton_tol, max_iter, q1, p1, vlast, np.bool_(True))
+    return ld_step(q0, p0, tau, t, prm, ntol, maxit, q1, p1, vlast, np.bool_(True))

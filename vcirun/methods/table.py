@@ -4,6 +4,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from functools import lru_cache
 
+from ..codegen import roles
 from ..codegen.kernel_set import KernelSet
 from ..discrete.lagrangians import LIBRARY, get_ld
 from ..modified import check_mcva_options
@@ -11,9 +12,11 @@ from ..modified import check_mcva_options
 
 @dataclass(frozen=True)
 class Method:
-    """name; ld: discrete Lagrangian of the full step; partial: 'ld' (Phi^Ld_tau) or 'gauss'
-    (Gauss collocation of the truncated modified Hamiltonian's flow); reset: 'cva', 'vci', 'mcva', or
-    None (smooth integration, constraint ignored); mh_order, flow_order: MCVA family only."""
+    """name; ld: discrete Lagrangian of the full step; partial: a partial map of
+    vcirun.codegen.roles.PARTIALS ('ld': Phi^Ld_tau, 'gauss': Gauss collocation of the truncated
+    modified Hamiltonian's flow); reset: a reset of vcirun.codegen.roles.RESETS ('cva', 'vci',
+    'mcva', or one registered there), or None (smooth integration, constraint ignored);
+    mh_order, flow_order: methods whose descriptors need the modified Hamiltonian only."""
 
     name: str
     ld: str
@@ -30,25 +33,35 @@ class Method:
     def constrained(self) -> bool:
         return self.reset is not None
 
+    @property
+    def reset_map(self) -> roles.ResetMap:
+        """The descriptor of the reset (that of the default reset for smooth methods)."""
+        return roles.reset_map(self.reset)
+
+    @property
+    def has_modified_energy(self) -> bool:
+        """The method carries a truncated modified Hamiltonian (the record's Hmod row is filled)."""
+        return self.kernel_set().modified is not None
+
+    @property
+    def impact_order(self) -> int:
+        """The method's order through impacts: its reset's, else its full map's Ld's."""
+        order = self.reset_map.impact_order if self.constrained else None
+        return LIBRARY[self.ld].order if order is None else order
+
 
 @lru_cache(maxsize=256)
 def _kernel_set(method: Method) -> KernelSet:
-    """The kernel set of a method (memoised: simulate asks for it on every call)."""
-    ld = get_ld(method.ld)
-    return KernelSet(
-        full_stages=tuple(ld.stages),
-        partial=method.partial,
-        reset=method.reset or "cva",
-        vci_stage=method.ld if method.reset == "vci" else None,
-        modified=(method.ld, method.mh_order, method.flow_order) if method.reset == "mcva" else None,
-    )
+    """The kernel set of a method, from its descriptors (memoised: simulate asks for it on every call)."""
+    return roles.kernel_set(method.ld, tuple(get_ld(method.ld).stages), method.partial, method.reset,
+                            method.mh_order, method.flow_order)
 
 
 def properties(*, conserves_mh=False, symplectic=False, explicit_ld=False, forcing=None) -> dict:
     """Table I's columns of a method: conserves its associated modified Hamiltonian; symplectic
     (True, or "exact"); explicit discrete Lagrangian (the simplifying discrete Lagrange-d'Alembert
-    principle); forcing: the L2 order measured through impacts on forced scenes (issue 15,
-    docs/forcing.md), None where none was measured."""
+    principle); forcing: the L2 order measured through impacts on forced scenes (docs/forcing.md),
+    None where none was measured."""
     return {"conserves_mh": conserves_mh, "symplectic": symplectic, "explicit_ld": explicit_ld, "forcing": forcing}
 
 
@@ -63,7 +76,7 @@ METHODS = {
                     properties=properties(conserves_mh=True, symplectic=True, forcing="order 2")),
     "MCVAC": Method("MCVAC", ld="SVC", partial="gauss", reset="mcva", mh_order=3, flow_order=4,
                     properties=properties(conserves_mh=True, symplectic=True, explicit_ld=True, forcing="order 2")),
-    # Beyond the paper (issue 7): CVA on higher-order symmetric compositions of SVC (Suzuki s5 order 4,
+    # Beyond the paper: CVA on higher-order symmetric compositions of SVC (Suzuki s5 order 4,
     # Kahan & Li s9 order 6 and s17 order 8; vcirun.discrete.lagrangians). Same partial map (the
     # composition over tau) and R^CVA: the collision time and the state at impact inherit the order.
     "CVA4": Method("CVA4", ld="SVC4", reset="cva", properties=properties(forcing="order 4")),
@@ -108,6 +121,6 @@ def generalized_mcva(ld: str = "SVC", mh_order: int = 3, flow_order: int = 4, **
     `flow_order` Gauss collocation flow of the truncated modified Hamiltonian H~^{O(h^mh_order)},
     reset R^MCVA conserving that truncation. Raises ValueError naming the offending field."""
     ld, mh_order, flow_order = check_mcva_options(ld, mh_order, flow_order, **unknown)
-    return Method(f"MCVA[{ld},s={mh_order},g{flow_order}]", ld=ld, partial="gauss", reset="mcva",
+    return Method(f"MCVA[{ld},s={mh_order},g{flow_order}]", ld=ld, **roles.MCVA_FAMILY,
                   mh_order=mh_order, flow_order=flow_order,
                   properties=properties(conserves_mh=True, symplectic=True, explicit_ld=LIBRARY[ld].explicit))

@@ -166,7 +166,7 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     t_start = time.perf_counter()
     out, counters = _run_loop(mod, q0, p0, float(t0), h, N, prm, settings, sysd.n, int(tol["max_impacts_step"]))
     wall = time.perf_counter() - t_start
-    arrays = record.trim(out, counters, modified=meth.reset == "mcva")
+    arrays = record.trim(out, counters, modified=meth.has_modified_energy)
     status, fail = record.STATUS_CODES[counters["status"]], counters["fail_step"]
     message = ""
     if status != tr.OK:

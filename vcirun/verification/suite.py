@@ -15,7 +15,6 @@ DEFAULT_H_MAX = 0.04
 DEFAULT_LEVELS = 7         # h = 0.04, 0.02, ..., 0.000625
 N_PROBES = 3               # states along the motion (besides the start) for kernel and map checks
 NEWTON_TOL = 1e-14         # the maps' Newton tolerance inside the FD Jacobians (noise / FD step << 1e-8)
-IMPACT_ORDER_MCVA = 2      # the MCVA family is second order overall through impacts (the brief, Section 4.3)
 
 
 @dataclass
@@ -111,9 +110,7 @@ def _methods(methods):
 
 
 def _impact_order(meth):
-    from ..discrete.lagrangians import LIBRARY
-
-    return IMPACT_ORDER_MCVA if meth.reset == "mcva" else LIBRARY[meth.ld].order
+    return meth.impact_order   # the reset's declared order (vcirun.codegen.roles.RESETS), else its Ld's
 
 
 def _forcing(sysm):
@@ -336,7 +333,7 @@ class _Session:
         except ValueError as e:   # e.g. the MCVA family on a forced system (until issue 15)
             self.add(ck.skip("every check", name, f"{name} does not run on this system: {' '.join(str(e).split())}"))
             return
-        mcva = meth.reset == "mcva"
+        mcva = meth.has_modified_energy
         self.say(f"{name}: derivative checks of the generated kernels at {len(self.probes)} states")
         rows = check_kernels(mod, self.prm, self.probes, force=self.force, full_stages=ks.full_stages,
                              declared=self.declared())
@@ -378,7 +375,7 @@ class _Session:
         """Runs through impacts over the ladder: L2 order, impact times, energy across impact steps, and
         (MCVA family) the truncated modified Hamiltonian's conservation order."""
         name, hs, ref = meth.name, self.hs, self.ref
-        mcva = meth.reset == "mcva"
+        mcva = meth.has_modified_energy
         self.say(f"{name}: runs through impacts over h = {hs[0]:g} .. {hs[-1]:g}")
         l2_h, l2, excl, ev_rows, en_rows = [], [], [], [], []
         hm_h, hm_var, hm_scale, hm_excl = [], [], [], []
