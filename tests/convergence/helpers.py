@@ -1,7 +1,7 @@
-"""Numerical helpers for the convergence and structure tests (issue 3 acceptance).
+"""Numerical helpers for the convergence and structure tests.
 
 They live in the package (vcirun.verification) so that the test suite and `vcirun verify` share
-one implementation (issue 20); this module keeps the names the tests import:
+one implementation; this module keeps the names the tests import:
 
 fit_order     : the ONE observed-order estimator used by every order test (round-off plateau masked)
 exact_smooth  : DOP853 (rtol 1e-13) on Hamilton's equations from the compiled hamilton_rhs

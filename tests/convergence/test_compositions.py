@@ -1,6 +1,6 @@
 """Higher-order compositions of SVC (SVC4, SVC6, SVC8) and CVA on them (CVA4, CVA6, CVA8).
 
-Beyond the paper (issue 7: be the fastest at each accuracy). Checked here:
+Beyond the paper (the fastest method at each accuracy). Checked here:
 - the weights satisfy the necessary order conditions (sum = 1, odd power sums vanish);
 - observed orders 4, 6, 8 of the smooth maps (cart-pendulum, against DOP853 at rtol 1e-13);
 - the maps are symplectic and symmetric (the composition of symmetric SVC steps with palindromic

@@ -1,4 +1,4 @@
-"""The MCVA partial flow and reset (issue 5, acceptance 3 and 4):
+"""The MCVA partial flow and reset:
 
 - Gauss collocation (2 stages / 3 stages) on Hamilton's equations of H~^{O(h^s)} shows order 4 / 6
   and conserves its own H~ to round-off at small steps; tau = 0 is the identity; the simplified
@@ -90,7 +90,7 @@ def _reset(mod, q, pm, h):
     pp = np.empty(2)
     n, m = len(q), int(mod.NCON)
     d, lmb, act = np.empty(n), np.empty(m), np.empty(m, dtype=np.int64)
-    _, s0, dE = mod.impact_direction(q, pm, h, 1e-13, PRM, d, lmb, act)  # the impact law (issue 17)
+    _, s0, dE = mod.impact_direction(q, pm, h, 1e-13, PRM, d, lmb, act)  # the impact law
     it, lam = mod.reset_mcva(q, pm, d, s0, dE, np.nan, pm, 0.0, 0.5 * h, h, 0.0, PRM, 1e-12, 50, pp)
     return it, lam, pp
 

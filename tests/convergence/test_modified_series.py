@@ -1,4 +1,4 @@
-"""Backward error analysis from the discrete Lagrangian (issue 5, acceptance 1, and the checks behind
+"""Backward error analysis from the discrete Lagrangian (and the checks behind
 items 1 of "What to build"): the symplectic-Euler series, eta for SE1, the exact derivatives of eta
 and of the implicit qbar (Appendix A step 2 against finite differences), and the H4-for-SVA claim.
 

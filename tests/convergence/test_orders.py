@@ -1,5 +1,5 @@
-"""Observed orders of the smooth one-step maps (issue 3, acceptance 2) and of the forced
-(Lagrange-d'Alembert) SVC on a damped oscillator (acceptance 6).
+"""Observed orders of the smooth one-step maps and of the forced
+(Lagrange-d'Alembert) SVC on a damped oscillator.
 
 Error = max over the common grid t = k * h_coarse of |q - q_ref|, with q_ref the smooth solution of
 Hamilton's equations by DOP853 at rtol 1e-13 (constraint ignored), or the closed-form damped

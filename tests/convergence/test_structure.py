@@ -1,4 +1,4 @@
-"""Structure of the one-step maps (issue 3, acceptance 3, 4, 5).
+"""Structure of the one-step maps.
 
 - symplecticity defect max|J^T Omega J - Omega| < 1e-8 for every map (J by a 4th-order FD stencil);
 - SE1/SE2 adjoint (Phi^SE1_h o Phi^SE2_{-h} = I), symmetric methods self-adjoint;

@@ -1,4 +1,4 @@
-"""Several unilateral constraints, restitution and simultaneous impacts (issue 17).
+"""Several unilateral constraints, restitution and simultaneous impacts.
 
 Oracles: the ball in a box (decoupled: closed form, vcirun.scenes.oracles.ball_in_box_exact), Newton's
 cradle (Moreau's law in closed form, vcirun.scenes.oracles.newton_cradle_velocities), and for the double
@@ -136,7 +136,7 @@ def test_double_pendulum_walls_orders(method, e):
 
 
 def test_double_pendulum_walls_impact_times_high_order():
-    """Issue 17's "impact times to 1e-6 at h = 2.5e-3" on the double pendulum between walls (e = 0.9):
+    """Impact times to 1e-6 at h = 2.5e-3 on the double pendulum between walls (e = 0.9):
     a second-order method's impact time carries its O(h^2) trajectory error (CVA 1.2e-5 there), the
     fourth-order composition CVA4 reaches it with margin, and its impact-time error falls at its own
     order through the impacts (partial steps of the composition, Newton's law at each contact)."""
@@ -201,7 +201,7 @@ def test_yaml_constraints_with_a_restitution_parameter():
 
 
 def test_single_constraint_declarations_are_unchanged():
-    """`constraint:` (one elastic constraint) gives the same system fingerprint as before issue 17, so
+    """`constraint:` (one elastic constraint) gives the fingerprint of the single-constraint form, so
     the kernel caches of single-constraint scenes stay valid."""
     decl = {"name": "osc", "coordinates": ["x"], "parameters": {"k": 1.0}, "mass_matrix": [["1"]],
             "potential": "0.5*k*x**2", "constraint": "x + 0.5"}

@@ -1,4 +1,4 @@
-"""Forced systems through impacts (issue 15): the exact reference against a closed form and an
+"""Forced systems through impacts: the exact reference against a closed form and an
 independent solve, and the observed orders of every method family against it.
 
 Scenes: the built-in damped oscillator against a wall (m xdd = -k x - c xd, wall x = -d: piecewise a
@@ -73,7 +73,7 @@ def damped_wall_exact(t_eval, x0, v0, m, k, c, d):
 
 
 def test_forced_reference_equals_the_closed_form():
-    """The exact reference integrates the forced equations (before issue 15 it dropped the force: 3
+    """The exact reference integrates the forced equations (without the force: 3
     impacts where the damped motion has 2, and an L2 of 1.14 for a run accurate to 6e-7)."""
     ref = vcirun.reference("damped_oscillator", T=T_OSC, q0=[X0], p0=[V0], params=DAMPED)
     t = np.linspace(0.0, T_OSC, 4001)
@@ -199,7 +199,7 @@ def test_vci_impact_steps_balance_the_work_of_the_force():
     """R^VCI with forcing balances the discrete work over its two partial steps, so an impact step
     changes the energy error H_k - H_ref(t_k) by VCI's own O(h^2) (E_d of a partial step of length
     tau is H + O(tau^2); measured without forcing: 0.1-0.4 h^2 on this scene), not by the O(h) work
-    the unforced energy condition leaves out (before issue 15: 4e-3 .. 1.6e-2 J at h = 1e-2)."""
+    the unforced energy condition leaves out (4e-3 .. 1.6e-2 J at h = 1e-2)."""
     ref = vcirun.reference("damped_oscillator", T=T_OSC, q0=[X0], p0=[V0], params=DAMPED)
     for h in (2e-2, 1e-2, 5e-3):
         tr = vcirun.simulate("damped_oscillator", "VCI", h=h, T=T_OSC, q0=[X0], p0=[V0], params=DAMPED)
@@ -232,7 +232,7 @@ def test_constraint_without_coordinates_is_rejected():
 def test_reference_names_its_failures():
     """No bare scipy error: a solve that cannot proceed says which solve failed and why."""
     with pytest.raises((RuntimeError, ValueError)) as exc:
-        # at rest on the floor without held contacts: grazing (with them, issue 18, it rests there)
+        # at rest on the floor without held contacts: grazing (with them it rests there)
         vcirun.reference("bouncing_ball", T=1.0, q0=[0.0], p0=[0.0], resting_contact=False)
     assert str(exc.value).startswith(("reference", "initial state"))
     ref = vcirun.reference("bouncing_ball", T=1.0, q0=[0.0], p0=[0.0])
@@ -240,8 +240,8 @@ def test_reference_names_its_failures():
 
 
 def test_sweep_of_a_forced_system_stores_true_l2_errors(tmp_path):
-    """A sweep of damped_oscillator stores L2 errors equal to those against the closed form (before
-    issue 15 the stored reference was the unforced motion: 1.14 where the true error is 6e-7)."""
+    """A sweep of damped_oscillator stores L2 errors equal to those against the closed form (an unforced
+    reference would give 1.14 where the true error is 6e-7)."""
     from vcirun.io.reader import load_trajectory, read_results
     from vcirun.experiments.config import load_config
     from vcirun.experiments.sweep import run_sweep

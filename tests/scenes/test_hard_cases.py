@@ -20,7 +20,7 @@ import sympy as sp
 
 import vcirun
 
-NO_HELD = np.zeros(1, dtype=np.int64)  # collision_time's held contacts (issue 18): none
+NO_HELD = np.zeros(1, dtype=np.int64)  # collision_time's held contacts: none
 from vcirun.run.api import resolve_system
 from vcirun.codegen.build import load_module
 from vcirun.mechanics.system import MechanicalSystem
@@ -252,11 +252,11 @@ def test_several_impacts_in_one_step_cva():
 
 
 def test_many_impacts_per_run_are_not_accumulation():
-    """Regression: the impact record used to be sized max(64, N // 4 + 16) (vcirun/api.py) and a
-    full record was reported as ST_ACCUMULATION (vcirun/collision/algorithm1.py), e.g. this run
-    (1 impact per step, 106 exact impacts, N = 300) stopped with 'accumulation in step 258' after
-    91 impacts, and cart_pendulum CVA h = 0.2, beta = 4.2 (a 59-impact chatter burst in one step)
-    stopped at 64 impacts. simulate() now retries with a larger record."""
+    """A full impact record is not an accumulation: the loop stops with ST_ACCUMULATION when the
+    record is full and vcirun.run.api reruns with room. A fixed record of max(64, N // 4 + 16) would
+    stop this run (1 impact per step, 106 exact impacts, N = 300) with 'accumulation in step 258'
+    after 91 impacts, and cart_pendulum CVA h = 0.2, beta = 4.2 (a 59-impact chatter burst in one
+    step) at 64 impacts."""
     tr = _sim("CVA", 0.01, 3.0, A_B, 0.0, params=BOUNCE)
     assert tr.status == "ok", tr.message
     err, t_imp = _err(tr, A_B, 0.0, d=-0.5)

@@ -1,4 +1,4 @@
-"""Acceptance (issue 5): MCVAA and MCVAC on the paper's cart-pendulum (Section 5.2), compiled.
+"""MCVAA and MCVAC on the paper's cart-pendulum (Section 5.2), compiled.
 
 Figure 3 (beta = 3.2, h = 1e-2, T = 5): both methods see three impacts and their truncated modified
 Hamiltonian varies less than H and less than the discrete energy -D3 Ld (taken over the steps

@@ -1,4 +1,4 @@
-"""Acceptance (issue 5): the generalized MCVA (Section 4.4) runs on every discrete Lagrangian of the
+"""The generalized MCVA (Section 4.4) runs on every discrete Lagrangian of the
 library for s = 1, 2, 3 (and 4), and refuses an unsupported combination with a clear message.
 
 The default suite runs the generated module uncompiled (vcirun.run.resolve.load_module replaced by
@@ -80,7 +80,7 @@ def test_refuses_unsupported_combinations(kwargs, field):
 
 
 def test_accepts_a_forced_system():
-    """Since issue 15 the MCVA family takes forced systems (orders: tests/scenes/test_forced.py): the
+    """The MCVA family takes forced systems (orders: tests/scenes/test_forced.py): the
     full step is the forced DEL, the partial flow adds the force to the modified equations."""
     tr = vcirun.simulate("damped_oscillator", "MCVAC", h=0.01, T=1.0)
     assert tr.ok and np.all(np.diff(tr.H) < 0)  # linear drag: the energy decreases every step

@@ -1,4 +1,4 @@
-"""Resting contact and release (issue 18): held contacts in the integrators and in the exact reference.
+"""Resting contact and release: held contacts in the integrators and in the exact reference.
 
 Exact cases, none built from vcirun's integrators:
 - the Zeno ball (e = 0.8): impacts accumulate at t_inf = t1 + 2 e v1 / (g (1 - e)) (vcirun.scenes.oracles.zeno_ball),

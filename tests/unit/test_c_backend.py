@@ -1,9 +1,9 @@
-"""The C backend of the generated kernels (vcirun.codegen.c_emit, vcirun.codegen.cc), issue 21.
+"""The C backend of the generated kernels (vcirun.codegen.c_emit, vcirun.codegen.cc).
 
 1. Every translated kernel computes the same bits as its numba source executed as Python, at random
    arguments, for the system, step and modified-Hamiltonian kernels of several scenes (one forced).
 2. What the translator does not cover stays numba source, with the reason.
-3. No compiler (or a failing one): the module is numba source, as before.
+3. No compiler (or a failing one): the module is numba source.
 4. In a fresh process a module with C kernels is loaded from numba's on-disk cache without one
    numba compilation (the callers reference the C symbols by name), and the C and the numba
    backends give the same trajectories.
@@ -157,15 +157,15 @@ def test_small_kernels_stay_numba_and_large_ones_go_to_c(monkeypatch, tmp_path):
     assert "mh_grad" not in small   # already bound to C in `text`
     entry = c_emit.C_LOG[-1]
     assert "mh_grad" in entry["c"] and "SVC_PmJc" in entry["numba"] and "below" in entry["numba"]["SVC_PmJc"]
-    monkeypatch.setenv(c_emit.C_MIN_ENV, "many")
+    monkeypatch.setenv(cc.C_MIN_ENV, "many")
     with pytest.raises(ValueError, match="VCIRUN_C_MIN_STATEMENTS: expected a number of statements"):
-        c_emit.min_statements()
+        cc.min_statements()
 
 
 def test_failing_compiler_falls_back_to_numba(monkeypatch, tmp_path):
     s = get_scene("cart_pendulum")
     ks = resolve_method("CVA").kernel_set()
-    monkeypatch.setenv(c_emit.C_MIN_ENV, "0")
+    monkeypatch.setenv(cc.C_MIN_ENV, "0")
     monkeypatch.setenv("CC", "false")   # found on PATH, fails every call
     assert cc.backend() == "c"
     with pytest.warns(RuntimeWarning, match="the kernels stay in numba"):

@@ -1,4 +1,4 @@
-"""Arrays without reference counting (vcirun.codegen.frame, issue 16): borrowed views and stack
+"""Arrays without reference counting (vcirun.codegen.frame): borrowed views and stack
 scratch compute what owned arrays compute, the unit check enforces the stack rules, and the compiled
 loop allocates nothing per step (numba's own allocation counters, no timing)."""
 from __future__ import annotations
@@ -95,8 +95,8 @@ _COUNT = textwrap.dedent("""
 
 def test_the_loop_allocates_nothing_per_step():
     """numba's allocation counter (NUMBA_NRT_STATS) over a run of 10 and one of 60 smooth steps: the
-    same count, so no step allocates (before issue 16's frame arrays: 5 allocations per CVA step in
-    the step's Newton scratch, 2 more per step for H). Energies on (the default)."""
+    same count, so no step allocates (heap scratch would cost 5 allocations per CVA step in the
+    step's Newton scratch, 2 more per step for H). Energies on (the default)."""
     cases = [["CVA", "cart_pendulum", {"beta": 3.2}, [0.1, 0.6]],
              ["VCI", "cart_pendulum", {"beta": 3.2}, [0.1, 0.6]]]
     env = dict(os.environ, NUMBA_NRT_STATS="1")

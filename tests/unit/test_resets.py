@@ -24,11 +24,12 @@ import pytest
 
 import vcirun
 
-NO_HELD = np.zeros(1, dtype=np.int64)  # collision_time's held contacts (issue 18): none
-from vcirun.run.api import resolve_system
+from vcirun.codegen import roles, units
 from vcirun.codegen.build import load_module
-from vcirun.methods.table import METHODS
+from vcirun.methods.table import METHODS, Method
+from vcirun.run.api import resolve_system
 
+NO_HELD = np.zeros(1, dtype=np.int64)  # collision_time's held contacts: none
 SCENES = ["cart_pendulum", "double_pendulum", "oscillator_wall"]
 NTOL, MAXIT, ETOL = 1e-12, 50, 1e-13
 
@@ -36,7 +37,7 @@ NTOL, MAXIT, ETOL = 1e-12, 50, 1e-13
 
 def _law(mod, q, pm, prm):
     """(d, s0, dE) of the impact law at (q, p-) (collision/impact.py: impact_direction), the arguments
-    every reset takes since issue 17 (restitution, several contacts)."""
+    every reset takes (the role `reset` of vcirun.codegen.roles)."""
     n, m = len(q), int(mod.NCON)
     d, lam, active = np.empty(n), np.empty(m), np.empty(m, dtype=np.int64)
     _, s0, dE = mod.impact_direction(np.ascontiguousarray(q, float), np.ascontiguousarray(pm, float), 1.0, 1e-13,
@@ -271,3 +272,64 @@ def test_vci_reset_finds_reflecting_root_when_one_exists():
         pp = np.zeros(1)
         it, lam = mv.reset_vci(q, pm, *_law(mv, q, pm, prm), E, pm, 0.0, tau, 0.1, 0.0, prm, NTOL, MAXIT, pp)
         assert it > 0 and abs(lam - lam_ref) <= 1e-10 * abs(lam_ref), (dE, it, lam, lam_ref)
+
+
+# --- a reset added as one unit file and one descriptor row --------------------------------------
+
+PLASTIC_UNIT = """# numba source unit: a perfectly plastic reset, p+ = p- + s grad phi with zero normal velocity after.
+from numba import njit
+
+from vcirun.codegen.frame import scratch, scratch2
+from vcirun.codegen.roles import NDOF, sys_M
+from vcirun.maps.linalg import solve_small
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def reset_plastic(q, pm, d, s0, dE, E_pre, vpre, dtau, tau_rem, h, t, prm, ntol, maxit, pp):
+    \"\"\"s = -(d . M^-1 pm) / (d . M^-1 d): d . M^-1 pp = 0.\"\"\"
+    A = scratch2(NDOF, NDOF)
+    sys_M(q, prm, A)
+    x = scratch(NDOF)
+    for i in range(NDOF):
+        x[i] = d[i]
+    if not solve_small(A, x, NDOF):
+        return -1, s0
+    dWd = 0.0
+    dWp = 0.0
+    for i in range(NDOF):
+        dWd += d[i] * x[i]
+        dWp += x[i] * pm[i]
+    s = -dWp / dWd
+    for i in range(NDOF):
+        pp[i] = pm[i] + s * d[i]
+    return 1, s
+"""
+
+
+def test_a_reset_is_one_unit_file_and_one_descriptor_row(tmp_path, monkeypatch):
+    """A plastic reset from existing kernels (sys_M) and units (solve_small): its unit file and its
+    row, then a method with it runs through vcirun.simulate. The oscillator x'' = -x from x = 1 at
+    rest hits the wall x = -1/2 at t* = 2 pi / 3 with velocity -sqrt(3)/2 and stops there; the spring
+    then pulls it back: x = -cos(t - t*) / 2, energy 1/8 (from 1/2), no further impact before T = 5
+    (it grazes the wall again at t* + 2 pi)."""
+    path = tmp_path / "reset_plastic.py"
+    path.write_text(PLASTIC_UNIT)
+    monkeypatch.setattr(roles, "RESETS", dict(roles.RESETS))   # the registration ends with the test
+    row = roles.register_reset(roles.ResetMap("plastic", str(path), "reset_plastic", conserves=""))
+    units.check_unit(units.Unit(row.unit))
+    method = Method("PLASTIC", ld="SVC", reset="plastic")
+    assert [u.path for u in units.select_units(method.kernel_set())][-2] == str(path)
+    h, T = 1e-3, 5.0
+    tr = vcirun.simulate("oscillator_wall", method, h=h, T=T)
+    assert tr.ok and tr.impacts.shape == (1,)
+    t_star = 2 * np.pi / 3
+    assert abs(tr.impacts[0] - t_star) < 1e-5
+    assert tr.impact_q[0, 0] == pytest.approx(-0.5, abs=1e-12)
+    assert tr.impact_p_minus[0, 0] == pytest.approx(-np.sqrt(3) / 2, abs=1e-5)
+    assert abs(tr.impact_p_plus[0, 0]) < 1e-13          # plastic: nothing left of the normal velocity
+    after = tr.t > t_star + h
+    exact = np.where(tr.t < t_star, np.cos(tr.t), -0.5 * np.cos(tr.t - t_star))
+    assert np.max(np.abs(tr.q[:, 0] - exact)) < 1e-5    # second order: h^2 = 1e-6
+    assert np.allclose(tr.H[after], 0.125, atol=1e-6) and tr.H[0] == pytest.approx(0.5)
+    with pytest.raises(units.ContractError, match="already declared"):
+        roles.register_reset(roles.ResetMap("plastic", str(path), "reset_other"))

@@ -1,4 +1,4 @@
-"""The shared build (issue 21, vcirun.codegen.shared): a scene module holds only its kernels and calls
+"""The shared build (vcirun.codegen.shared): a scene module holds only its kernels and calls
 into its kernel set's core, compiled once and loaded by every scene.
 
 - the shared build gives the specialized build's trajectory bit for bit (several contacts with

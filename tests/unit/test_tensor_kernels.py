@@ -1,5 +1,5 @@
 """Step kernels from per-slot tensors (vcirun.codegen.tensor, the default kernel path) against the
-expanded slot expressions (vcirun.discrete.lagrangians.step_expressions), issue 7 (scaling).
+expanded slot expressions (vcirun.discrete.lagrangians.step_expressions).
 
 1. Kernel by kernel (Pm, J = dPm/dv, Pp, Ed, dEd/dv), executed as plain Python (no numba compile):
    the two paths agree to ~1e-12 relative at random (q0, v, t) and step lengths h including 0 and

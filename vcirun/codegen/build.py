@@ -48,6 +48,7 @@ _PKG = Path(__file__).resolve().parent.parent
 _GENERATOR_FILES = ["codegen/kernels.py", "codegen/printer.py", "codegen/build.py", "codegen/derive.py",
                     "codegen/kernel_set.py",
                     "codegen/tensor.py", "codegen/units.py", "core/record.py", "codegen/c_emit.py", "codegen/cc.py",
+                    "codegen/c_translate.py",
                     "codegen/shared.py", "codegen/kcall.py", "codegen/frame.py", "codegen/roles.py",
                     "discrete/lagrangians.py",
                     "mechanics/system.py"]

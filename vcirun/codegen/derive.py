@@ -9,7 +9,7 @@ which, and the system kernels sys_dHq, sys_node, sys_node_M:
 - "tensor" (default): vcirun.codegen.tensor derives only M, dM/dq, dV (d2M, d2V when an Ld has an
   interior quadrature node, i.e. midpoint) in one CSE pass and writes the slot derivatives as
   straight-line contractions over their structural nonzeros; the symbolic work grows like the
-  number of nonzero tensor entries (issue 7, scaling). Forced systems stay on this path (f and
+  number of nonzero tensor entries. Forced systems stay on this path (f and
   df/dqdot are derived once, the trapezoidal discrete forces of step_expressions are kept). Explicit
   Lds that are not quadrature rules h sum_i W_i L(q0 + C_i h v, v) fall back to the expanded path.
 - "expanded": the expanded sympy expressions of step_expressions (and system.dH_dq_at), one CSE
@@ -57,7 +57,7 @@ def system_kernels(system, with_dhq: bool = True) -> list[Kernel]:
     ]
     if system.m == 1:
         ks.append(Kernel("sys_dphi", [("q", q)], [("out", system.grad_phi)], prm))
-    # for held (resting) contacts, issue 18: the velocity terms of d^2/dt^2 phi_i = G_i qddot + v^T
+    # for held (resting) contacts: the velocity terms of d^2/dt^2 phi_i = G_i qddot + v^T
     # Hess(phi_i) v and of d/dt (M v) = M qddot + Mdot v along a velocity v
     v = list(sp.symbols(f"vv0:{n}"))
     ks.append(Kernel("sys_ddphis", [("q", q), ("v", v)],

@@ -1,4 +1,4 @@
-"""Calls from the shared core into a scene's kernels by address (issue 21; vcirun.codegen.shared).
+"""Calls from the shared core into a scene's kernels by address (vcirun.codegen.shared).
 
 The shared core is numba code compiled once per kernel set and reused by every scene, so it cannot
 name a scene's kernels: it reads them, and the scene's sizes, from a slot table, a process-global

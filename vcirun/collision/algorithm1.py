@@ -42,7 +42,7 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
     (vcirun.core.record.COUNTERS). energies = 0 skips H, the discrete energy Ed and the modified energy
     along the grid (set at t0 only): a run that only needs the trajectory saves their per-step cost.
 
-    Held contacts (issue 18, resting_contact = 1; docs/contacts.md): a contact is held when the run
+    Held contacts (resting_contact = 1; docs/contacts.md): a contact is held when the run
     starts resting on it, when its impacts accumulate, or when an impact with restitution e < 1
     leaves it a normal velocity below |d^2 phi/dt^2| h; while held every step is the constrained map
     (maps/held.py); it is released where its contact force would turn tensile (located within the
@@ -88,7 +88,7 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
     info[I_N_PARTIAL] = 0
     info[I_N_RELEASES] = 0
     nheld = initially_held(q, p, t0, h, event_tol, prm, held) if resting else 0
-    # (issue 8) accumulation across steps: dense = [time of the last impact, start of the current
+    # accumulation across steps: dense = [time of the last impact, start of the current
     # run of impacts that each follow the previous one by less than one grid step h, its length]
     # (see _accumulating)
     dense = scratch(3)
@@ -427,7 +427,7 @@ def _record_release(out, info, t, c):
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _accumulating(dense, t_imp, h, max_impacts_step):
-    """(issue 8) Impacts denser than the grid: dense[2] counts consecutive impacts that each follow
+    """Impacts denser than the grid: dense[2] counts consecutive impacts that each follow
     the previous one by less than one grid step h, since dense[1]. Such a run longer than
     max_impacts_step steps is an accumulation, like more than max_impacts_step impacts inside one
     step: a motion settling into contact stops in bounded work even when no single step reaches the

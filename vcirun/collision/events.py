@@ -2,7 +2,7 @@
 # at once: the first root of the gap g = min_i phi_i (its slope: that of the smallest phi_i).
 # Contract: vcirun.codegen.units.
 #
-# Several constraints (issue 17): a contact that is touching at the start of a search (phi_i within
+# Several constraints: a contact that is touching at the start of a search (phi_i within
 # round-off or the event tolerance of 0) and not approaching (normal velocity >= 0) is left out of
 # the gap for that search -- it would pin g at 0 (two balls at rest against each other) -- unless
 # the trial end point shows it penetrating. The impact law (collision/impact.py) still takes every
@@ -76,7 +76,7 @@ def step_admissible(q, p, qt, h, event_tol, prm, held, nheld, phis):
         return sys_phi(qt, prm) > 0.0
     # every phi_i(qt) > 0: admissible whatever is touching or held (the gap over any mask is > 0 and
     # nothing penetrates): the common smooth step pays one evaluation of the constraints, not the
-    # touching test's mass-matrix solve (issue 17: the cost of an inactive constraint)
+    # touching test's mass-matrix solve (what an inactive constraint costs)
     sys_phis(qt, prm, phis)
     ok = True
     for i in range(NCON):
@@ -93,7 +93,7 @@ def step_admissible(q, p, qt, h, event_tol, prm, held, nheld, phis):
 @njit(cache=True, nogil=True, error_model="numpy")
 def partial_map(q0, p0, tau, h, t, prm, ntol, maxit, q1, p1, v1, held, nheld):
     """Phi^partial_tau, or with contacts held the constrained map of the full step's discrete
-    Lagrangian (maps/held.py: every method, issue 18)."""
+    Lagrangian (maps/held.py: every method)."""
     if nheld > 0:
         imp = scratch(NCON)
         return held_step(q0, p0, tau, t, prm, ntol, maxit, held, q1, p1, v1, imp)
@@ -122,7 +122,7 @@ def collision_time(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt, v
 def search_collision(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt, vt, have_end, held, nheld):
     """collision_time; have_end: (qt, pt) already hold Phi^partial_{tau_max}(qh, ph) (Algorithm 1's
     full step, when the partial map is the full one), so it is not recomputed. held (NCON), nheld:
-    the held contacts (issue 18): partial steps are then the constrained map and the held contacts
+    the held contacts: partial steps are then the constrained map and the held contacts
     stay out of the gap.
 
     Method. g(0) > 0 > g(tau_max) brackets a root; CollisionTime is a set and the FIRST root is

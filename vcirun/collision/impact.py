@@ -27,7 +27,7 @@ from numba import njit
 from vcirun.codegen.frame import scratch, scratch2, scratch_i
 from vcirun.codegen.roles import NDOF, NCON, sys_M, sys_phi, sys_phis, sys_dphis, sys_restitution
 from vcirun.collision.impact_law import impact_law
-from vcirun.maps.dynamics import cva_lambda, gdot
+from vcirun.maps.dynamics import cva_lambda, delassus, gdot
 from vcirun.maps.linalg import solve_small
 
 
@@ -78,16 +78,14 @@ def _impact_several(q, pm, h, event_tol, prm, e, d, lam, active):
     sys_dphis(q, prm, G)
     A = scratch2(NDOF, NDOF)
     sys_M(q, prm, A)
-    X = scratch2(NCON, NDOF)  # rows M^-1 grad phi_i
-    u = scratch(NCON)
-    B = scratch2(NDOF, NDOF)
+    every = scratch_i(NCON)
     for i in range(NCON):
-        for j in range(NDOF):
-            X[i, j] = G[i, j]
-        for a in range(NDOF):
-            for b in range(NDOF):
-                B[a, b] = A[a, b]
-        solve_small(B, X[i], NDOF)
+        every[i] = i
+    X = scratch2(NCON, NDOF)  # rows M^-1 grad phi_i
+    D = scratch2(NCON, NCON)  # the Delassus matrix of every contact
+    delassus(A, G, every, NCON, X, D)
+    u = scratch(NCON)
+    for i in range(NCON):
         s = 0.0
         for j in range(NDOF):
             s += X[i, j] * pm[j]
@@ -119,10 +117,7 @@ def _impact_several(q, pm, h, event_tol, prm, e, d, lam, active):
         # contact could end up approaching and gain energy (docs/contacts.md, section 1.5)
         ea[a] = e[idx[a]] if um[a] <= 0.0 else 0.0
         for b in range(k):
-            s = 0.0
-            for j in range(NDOF):
-                s += G[idx[a], j] * X[idx[b], j]
-            W[a, b] = s
+            W[a, b] = D[idx[a], idx[b]]
     la = scratch(k)
     case = impact_law(W, um, ea, la)
     if case < 0:
@@ -225,7 +220,7 @@ def _normal_velocities_into(q, p, prm, u):
 @njit(cache=True, nogil=True, error_model="numpy")
 def touching_mask(q, p, h, event_tol, prm, mask, held):
     """mask[i] = 1 for the contacts touching at (q, p) and not approaching (see the unit's header)
-    and for the held ones (issue 18: they move on phi_i = 0); returns how many. For one constraint
+    and for the held ones (they move on phi_i = 0); returns how many. For one constraint
     nothing but a held contact is masked."""
     k = 0
     for i in range(NCON):

@@ -1,7 +1,7 @@
-# numba source unit: the impact law of k simultaneous contacts (issue 17; docs/contacts.md, section 1):
+# numba source unit: the impact law of k simultaneous contacts (docs/contacts.md, section 1):
 # Moreau's generalized Newton law as a linear complementarity problem, solved exactly for k <= 8.
-# PURE: it reads no name of the generated part or of another unit (every size from its arguments, its
-# own constants only), so any module (and the exact reference) can include it.
+# It reads no name of the generated part (every size from its arguments, its own constants only) and
+# calls only maps/linalg.py, so it compiles on its own (vcirun.codegen.units.standalone_source).
 #
 #   impact_law(W, um, e, lam) -> case code
 #     W   (k, k) the Delassus matrix G M^-1 G^T of the k contacts at the impact (symmetric PSD)
@@ -30,6 +30,8 @@ import math
 
 import numpy as np
 from numba import njit
+
+from vcirun.maps.linalg import solve_small
 
 LCP_MAX_CONTACTS = 8    # 2^k supports are enumerated: 256 small solves at most
 LCP_UNIQUE = 0
@@ -158,8 +160,8 @@ def _lcp_violation(A, q, x, mask, k, wmax):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _lcp_solve_support(A, q, mask, k, wmax, x):
-    """x_S = -A_SS^-1 q_S, x = 0 off S = mask, by Gaussian elimination with partial pivoting; False if
-    A_SS is singular (a pivot below LCP_RANK_TOL wmax)."""
+    """x_S = -A_SS^-1 q_S, x = 0 off S = mask, by Gaussian elimination with partial pivoting
+    (maps/linalg.py); False if A_SS is singular (a pivot not above LCP_RANK_TOL wmax)."""
     idx = np.empty(k, np.int64)
     m = 0
     for i in range(k):
@@ -175,34 +177,8 @@ def _lcp_solve_support(A, q, mask, k, wmax, x):
         b[r] = -q[idx[r]]
         for c in range(m):
             B[r, c] = A[idx[r], idx[c]]
-    for c in range(m):
-        piv = c
-        amax = abs(B[c, c])
-        for r in range(c + 1, m):
-            if abs(B[r, c]) > amax:
-                amax = abs(B[r, c])
-                piv = r
-        if not amax > LCP_RANK_TOL * wmax:
-            return False
-        if piv != c:
-            for j in range(m):
-                tmp = B[c, j]
-                B[c, j] = B[piv, j]
-                B[piv, j] = tmp
-            tmp = b[c]
-            b[c] = b[piv]
-            b[piv] = tmp
-        for r in range(c + 1, m):
-            f = B[r, c] / B[c, c]
-            if f != 0.0:
-                for j in range(c + 1, m):
-                    B[r, j] -= f * B[c, j]
-                b[r] -= f * b[c]
-    for r in range(m - 1, -1, -1):
-        s = b[r]
-        for j in range(r + 1, m):
-            s -= B[r, j] * b[j]
-        b[r] = s / B[r, r]
+    if not solve_small(B, b, m, LCP_RANK_TOL * wmax):
+        return False
     for r in range(m):
         x[idx[r]] = b[r]
     return True

@@ -107,7 +107,7 @@ def _vci_newton(q, pm, E_target, tau_rem, t, prm, ntol, maxit, g, lam_start, pp)
         if dn <= ntol * (1.0 + xn):
             ok = True
             break
-        # (issue 8) round-off floor, as in explicit_step (vcirun/maps/steps.py)
+        # round-off floor, as in explicit_step (vcirun/maps/steps.py)
         if it >= 3 and dn >= dprev and dn <= math.sqrt(ntol) * (1.0 + xn):
             ok = True
             break

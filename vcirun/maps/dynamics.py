@@ -1,7 +1,7 @@
 # numba source unit: the continuous dynamics of the system and its elastic impact law, from the
 # system kernels alone: H, Hamilton's equations with the generalized force, the normal velocity
 # d phi/dt, the elastic multiplier, the hyperregularity check. It needs no discrete Lagrangian, so
-# the system-only module (vcirun.codegen.units.SYSTEM_KERNELS: the exact reference, baselines,
+# the system-only module (vcirun.codegen.kernel_set.SYSTEM_KERNELS: the exact reference, baselines,
 # studies, verify) is this unit, linalg and the system kernels.
 import math
 
@@ -125,6 +125,31 @@ def cva_lambda(q, pm, prm, g):
     if not gWg > 0.0:
         return 0.0
     return -2.0 * gWp / gWg
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def delassus(A, G, idx, k, X, W):
+    """The Delassus matrix of the k contacts idx[:k], from A = M(q) (kept) and G = grad phi (NCON x
+    NDOF): X[a] = M^-1 grad phi_{idx[a]} and W[a, c] = grad phi_{idx[a]} . X[c], i.e.
+    (G M^-1 G^T)_{idx[a] idx[c]}. Returns False if M(q) is singular (X and W are then not the
+    matrix)."""
+    B = scratch2(NDOF, NDOF)
+    ok = True
+    for a in range(k):
+        for j in range(NDOF):
+            X[a, j] = G[idx[a], j]
+        for r in range(NDOF):
+            for c in range(NDOF):
+                B[r, c] = A[r, c]
+        if not solve_small(B, X[a], NDOF):
+            ok = False
+    for a in range(k):
+        for c in range(k):
+            w = 0.0
+            for j in range(NDOF):
+                w += G[idx[a], j] * X[c, j]
+            W[a, c] = w
+    return ok
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

@@ -1,8 +1,7 @@
 # numba source unit: the MCVA family's maps (Sections 4.3-4.4): the truncated modified Hamiltonian
 # H~^{O(h^s)} of the scene's discrete Lagrangian (Newton for eta's stationary stage velocities) and
 # the Gauss collocation partial flow of its Hamilton equations. R^MCVA: vcirun/collision/reset_mcva.py.
-# Requires from the generated module: NDOF, MH_ORDER, MH_M, MH_NSTAGE, MH_FLOW_S, mh_FA, mh_value,
-# mh_grad, mh_hess (vcirun/codegen/mh_kernels.py), velocity_guess, solve_small.
+# The modified Hamiltonian's kernels: vcirun/codegen/mh_kernels.py (declared in vcirun.codegen.roles).
 import math
 
 import numpy as np

@@ -1,4 +1,4 @@
-# numba source unit: held (resting) contacts, issue 18 (docs/contacts.md, "Held contacts").
+# numba source unit: held (resting) contacts (docs/contacts.md, "Held contacts").
 # Contract: vcirun.codegen.units.
 #
 # While the contacts of a set A are held, phi_A(q) = 0 is a bilateral constraint and every method
@@ -22,7 +22,7 @@ from vcirun.codegen.roles import (
     NDOF, NCON, NODE_LEN, FULL_STAGES, FULL_FRACS, sys_M, sys_phis, sys_dphis, sys_ddphis, sys_Mdotv, sys_node,
     ld_PmJc, ld_Ppc, ld_Ed
 )
-from vcirun.maps.dynamics import dynamics_rhs, velocity_guess
+from vcirun.maps.dynamics import delassus, dynamics_rhs, velocity_guess
 from vcirun.maps.linalg import solve_small, copy_into
 
 
@@ -79,28 +79,19 @@ def contact_forces(q, p, t, prm, held, mu):
     rhs = scratch(NDOF)
     _free_motion(q, p, t, prm, dd, G, A, rhs)
     X = scratch2(k, NDOF)     # rows M^-1 grad phi_i
+    W = scratch2(k, k)
+    if not delassus(A, G, idx, k, X, W):
+        return False
     B = scratch2(NDOF, NDOF)
-    for a in range(k):
-        for j in range(NDOF):
-            X[a, j] = G[idx[a], j]
-        _copy2(B, A)
-        if not solve_small(B, X[a], NDOF):
-            return False
     _copy2(B, A)
     if not solve_small(B, rhs, NDOF):
         return False
-    W = scratch2(k, k)
     b = scratch(k)
     for a in range(k):
         s = dd[idx[a]]
         for j in range(NDOF):
             s += G[idx[a], j] * rhs[j]
         b[a] = -s
-        for c in range(k):
-            w = 0.0
-            for j in range(NDOF):
-                w += G[idx[a], j] * X[c, j]
-            W[a, c] = w
     if not solve_small(W, b, k):
         return False
     for a in range(k):
@@ -126,25 +117,15 @@ def project_momentum(q, p, prm, held, imp):
     A = scratch2(NDOF, NDOF)
     sys_M(q, prm, A)
     X = scratch2(k, NDOF)
-    B = scratch2(NDOF, NDOF)
-    for a in range(k):
-        for j in range(NDOF):
-            X[a, j] = G[idx[a], j]
-        _copy2(B, A)
-        if not solve_small(B, X[a], NDOF):
-            return False
     W = scratch2(k, k)
+    if not delassus(A, G, idx, k, X, W):
+        return False
     b = scratch(k)
     for a in range(k):
         s = 0.0
         for j in range(NDOF):
             s += X[a, j] * p[j]
         b[a] = -s
-        for c in range(k):
-            w = 0.0
-            for j in range(NDOF):
-                w += G[idx[c], j] * X[a, j]
-            W[a, c] = w
     if not solve_small(W, b, k):
         return False
     for a in range(k):

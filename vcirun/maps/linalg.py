@@ -1,15 +1,15 @@
-# numba source unit: small dense linear algebra without allocation or LAPACK call overhead.
-# (Source units are assembled into one generated module per scene and method; see vcirun.codegen.)
+# numba source unit: small dense linear algebra without allocation or LAPACK call overhead; it needs
+# no generated name, so any module (and the impact law on its own) can hold it.
 import math
 
-import numpy as np
 from numba import njit
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def solve_small(A, b, n):
+def solve_small(A, b, n, tiny=0.0):
     """Solve A x = b in place (x returned in b) by Gaussian elimination with partial pivoting.
-    A (n, n) is destroyed. Returns False if A is singular to working precision."""
+    A (n, n) is destroyed. Returns False if a pivot is not above `tiny` (0: A is singular to
+    working precision; the impact law passes its rank tolerance) or not finite."""
     for k in range(n):
         piv = k
         amax = abs(A[k, k])
@@ -17,7 +17,7 @@ def solve_small(A, b, n):
             if abs(A[i, k]) > amax:
                 amax = abs(A[i, k])
                 piv = i
-        if amax == 0.0 or not math.isfinite(amax):
+        if not amax > tiny or not math.isfinite(amax):
             return False
         if piv != k:
             for j in range(n):
@@ -40,16 +40,6 @@ def solve_small(A, b, n):
             s -= A[k, j] * b[j]
         b[k] = s / A[k, k]
     return True
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def norm_inf(x):
-    m = 0.0
-    for i in range(x.shape[0]):
-        a = abs(x[i])
-        if a > m or a != a:  # NaN propagates as failure
-            m = a if a == a else np.inf
-    return m
 
 
 # Element loops instead of slice assignment: numba compiles `a[:] = b` through a generic path

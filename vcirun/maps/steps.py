@@ -1,6 +1,5 @@
-# numba source unit: the full step Phi_h of a discrete Lagrangian on (q, p).
-# Requires from the generated module: NDOF, NODE_LEN, FULL_STAGES, FULL_FRACS, ld_PmJc, ld_Ppc, ld_Ed,
-# sys_M, sys_node, sys_node_M.
+# numba source unit: the full step Phi_h of a discrete Lagrangian on (q, p) (the role `full` of
+# vcirun.codegen.roles) and the partial map Phi^Ld_tau of CVA and VCI.
 #
 # Node data (vcirun.codegen: sys_node): the tensors of a point that a step kernel needs at a node
 # there. A step keeps the node data of its start point q0, so the node at q0 (C = 0) costs nothing
@@ -64,12 +63,12 @@ def explicit_step(sid, q0, p0, h, t, prm, newton_tol, max_iter, v, q1, p1, c, cn
         if it >= 2 and theta < 0.1 and theta / (1.0 - theta) * dn <= newton_tol * (1.0 + vn):
             converged = True
             break
-        # (issue 8) round-off floor: past the quadratic phase (it >= 3) a correction that no longer
-        # decreases, yet is below sqrt(newton_tol) relative, is rounding noise. With an
-        # ill-conditioned Jacobian (nearly singular M, cond ~ 1e4 and up) that floor lies above
-        # newton_tol; Newton used to cycle between two neighbouring floats until max_iter and
-        # report newton_failed on a regular step (double pendulum with m1 = 1e-4, cart-pendulum
-        # with m2/m1 = 1e4).
+        # Round-off floor: past the quadratic phase (it >= 3) a correction that no longer decreases,
+        # yet is below sqrt(newton_tol) relative, is rounding noise. With an ill-conditioned
+        # Jacobian (nearly singular M, cond ~ 1e4 and up) that floor lies above newton_tol, and
+        # without this test Newton cycles between two neighbouring floats until max_iter and reports
+        # newton_failed on a regular step (double pendulum with m1 = 1e-4, cart-pendulum with
+        # m2/m1 = 1e4).
         if it >= 3 and dn >= dprev and dn <= math.sqrt(newton_tol) * (1.0 + vn):
             converged = True
             break

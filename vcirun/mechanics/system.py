@@ -268,11 +268,6 @@ class MechanicalSystem:
         prm = self.param_values() if params is None else np.asarray(params, float)
         return np.array(self.numpy_functions()["G"](list(q), list(prm)), dtype=float).reshape(self.m, self.n)
 
-    def grad_phi_value(self, q, params=None) -> np.ndarray:
-        """grad phi(q) of the constraint with the smallest phi_i(q) (the gap's gradient)."""
-        k = int(np.argmin(self.phi_values(q, params)))
-        return self.constraint_jacobian_value(q, params)[k]
-
     def restitution_values(self, params=None) -> np.ndarray:
         """(e_1, ..., e_m) at the parameter values."""
         vals = dict(zip(self.params, self.param_values() if params is None else np.asarray(params, float)))

@@ -137,10 +137,6 @@ def modified_series(n: int, order: int) -> tuple:
     return tuple(H[1:])
 
 
-def max_jet_order(poly: dict) -> int:
-    return max((len(jt) for mono in poly for jt in mono), default=0)
-
-
 def evaluate(poly: dict, K) -> float:
     """Numeric value of a jet polynomial, K(alpha) giving the derivative for a sorted jet alpha."""
     s = 0.0

@@ -290,19 +290,13 @@ def read_trajectory(path) -> Trajectory:
 def _dynamics(mod, prm):
     """The continuous right-hand side (t, y) -> ydot, y = (q, p), of a compiled module at parameters
     `prm`, for dense output: the one place that chooses it. The forced Hamilton equations
-    (`dynamics_rhs`: pdot = -dH/dq + f(q, qdot, t)); `hamilton_rhs` for modules built before forcing
-    reached the continuous right-hand side."""
+    (`dynamics_rhs`: pdot = -dH/dq + f(q, qdot, t); every module has it, vcirun.codegen.roles.ENTRY)."""
     prm = np.ascontiguousarray(prm, dtype=float)
-    forced = getattr(mod, "dynamics_rhs", None)
-    plain = mod.hamilton_rhs
+    rhs = mod.dynamics_rhs
 
     def f(t, y):
         out = np.empty(y.shape[0])
-        y = np.ascontiguousarray(y, dtype=float)
-        if forced is not None:
-            forced(float(t), y, prm, out)
-        else:
-            plain(y, prm, out)
+        rhs(float(t), np.ascontiguousarray(y, dtype=float), prm, out)
         return out
 
     return f
