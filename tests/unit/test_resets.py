@@ -306,30 +306,50 @@ def reset_plastic(q, pm, d, s0, dE, E_pre, vpre, dtau, tau_rem, h, t, prm, ntol,
 """
 
 
-def test_a_reset_is_one_unit_file_and_one_descriptor_row(tmp_path, monkeypatch):
-    """A plastic reset from existing kernels (sys_M) and units (solve_small): its unit file and its
-    row, then a method with it runs through vcirun.simulate. The oscillator x'' = -x from x = 1 at
-    rest hits the wall x = -1/2 at t* = 2 pi / 3 with velocity -sqrt(3)/2 and stops there; the spring
-    then pulls it back: x = -cos(t - t*) / 2, energy 1/8 (from 1/2), no further impact before T = 5
-    (it grazes the wall again at t* + 2 pi)."""
+@pytest.fixture
+def plastic(tmp_path, monkeypatch):
+    """The plastic reset as one unit file and one descriptor row (registered for this test only)."""
     path = tmp_path / "reset_plastic.py"
     path.write_text(PLASTIC_UNIT)
-    monkeypatch.setattr(roles, "RESETS", dict(roles.RESETS))   # the registration ends with the test
+    monkeypatch.setattr(roles, "RESETS", dict(roles.RESETS))
     row = roles.register_reset(roles.ResetMap("plastic", str(path), "reset_plastic", conserves=""))
-    units.check_unit(units.Unit(row.unit))
-    method = Method("PLASTIC", ld="SVC", reset="plastic")
-    assert [u.path for u in units.select_units(method.kernel_set())][-2] == str(path)
-    h, T = 1e-3, 5.0
-    tr = vcirun.simulate("oscillator_wall", method, h=h, T=T)
-    assert tr.ok and tr.impacts.shape == (1,)
+    return Method("PLASTIC", ld="SVC", reset="plastic"), row
+
+
+def _check_plastic_run(method, h, tol):
+    """The oscillator x'' = -x from x = 1 at rest hits the wall x = -1/2 at t* = 2 pi / 3 with
+    velocity -sqrt(3)/2 and stops there; the spring then pulls it back: x = -cos(t - t*) / 2, energy
+    1/8 (from 1/2), no further impact before T = 5 (it grazes the wall again at t* + 2 pi)."""
+    tr = vcirun.simulate("oscillator_wall", method, h=h, T=5.0)
+    assert tr.ok and tr.impacts.shape == (1,), tr.message
     t_star = 2 * np.pi / 3
-    assert abs(tr.impacts[0] - t_star) < 1e-5
+    assert abs(tr.impacts[0] - t_star) < tol
     assert tr.impact_q[0, 0] == pytest.approx(-0.5, abs=1e-12)
-    assert tr.impact_p_minus[0, 0] == pytest.approx(-np.sqrt(3) / 2, abs=1e-5)
+    assert tr.impact_p_minus[0, 0] == pytest.approx(-np.sqrt(3) / 2, abs=tol)
     assert abs(tr.impact_p_plus[0, 0]) < 1e-13          # plastic: nothing left of the normal velocity
-    after = tr.t > t_star + h
     exact = np.where(tr.t < t_star, np.cos(tr.t), -0.5 * np.cos(tr.t - t_star))
-    assert np.max(np.abs(tr.q[:, 0] - exact)) < 1e-5    # second order: h^2 = 1e-6
-    assert np.allclose(tr.H[after], 0.125, atol=1e-6) and tr.H[0] == pytest.approx(0.5)
+    assert np.max(np.abs(tr.q[:, 0] - exact)) < tol     # second order
+    after = tr.t > t_star + h
+    assert np.allclose(tr.H[after], 0.125, atol=tol) and tr.H[0] == pytest.approx(0.5)
+
+
+def test_a_reset_is_one_unit_file_and_one_descriptor_row(plastic, monkeypatch):
+    """A plastic reset p+ = p- + s grad phi with zero normal velocity, from an existing kernel (sys_M)
+    and unit (solve_small): its unit file and its row, then a method with it through vcirun.simulate
+    (the assembled module run uncompiled, vcirun.codegen.evaluate.python_module_for)."""
+    from vcirun.codegen.evaluate import python_module_for
+
+    method, row = plastic
+    units.check_unit(units.Unit(row.unit))
+    assert [u.path for u in units.select_units(method.kernel_set())][-2] == row.unit   # before the loop
+    assert not method.has_modified_energy and method.impact_order == 2
+    monkeypatch.setattr(vcirun.run.resolve, "load_module", python_module_for)
+    _check_plastic_run(method, 1e-2, 2e-4)
     with pytest.raises(units.ContractError, match="already declared"):
-        roles.register_reset(roles.ResetMap("plastic", str(path), "reset_other"))
+        roles.register_reset(roles.ResetMap("plastic", row.unit, "reset_other"))
+
+
+@pytest.mark.slow
+def test_a_registered_reset_compiles(plastic):
+    """The same method compiled (the shared core of its family, ~1 min once per machine)."""
+    _check_plastic_run(plastic[0], 1e-3, 2e-6)
