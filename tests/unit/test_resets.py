@@ -347,6 +347,10 @@ def test_a_reset_is_one_unit_file_and_one_descriptor_row(plastic, monkeypatch):
     _check_plastic_run(method, 1e-2, 2e-4)
     with pytest.raises(units.ContractError, match="already declared"):
         roles.register_reset(roles.ResetMap("plastic", row.unit, "reset_other"))
+    with pytest.raises(units.ContractError, match="is not a file"):
+        roles.register_reset(roles.ResetMap("sticky", row.unit + ".missing", "reset_sticky"))
+    with pytest.raises(units.ContractError, match="needs 'lcp', not a generated part"):
+        roles.register_reset(roles.ResetMap("sticky", row.unit, "reset_sticky", needs=("lcp",)))
 
 
 @pytest.mark.slow

@@ -8,13 +8,14 @@ from dataclasses import dataclass
 @dataclass(frozen=True)
 class KernelSet:
     """What one compiled module must contain: the explicit stages of the full map, which partial map
-    and reset to bind, and (MCVA family) the modified-Hamiltonian data."""
+    and reset to bind (names of the descriptors in vcirun.codegen.roles), and the generated parts
+    their descriptors need. vcirun.codegen.roles.kernel_set builds it from a method's data."""
 
     full_stages: tuple                 # ((explicit Ld name, fraction of h), ...)
-    partial: str = "ld"                # "ld" (same map as full) or "gauss"
-    reset: str = "cva"                 # "cva", "vci", "mcva"
-    vci_stage: str | None = None       # explicit Ld whose energy R^VCI conserves
-    modified: tuple | None = None      # (Ld name, mh_order, flow_order) for the MCVA family
+    partial: str = "ld"                # a key of roles.PARTIALS
+    reset: str = "cva"                 # a key of roles.RESETS
+    vci_stage: str | None = None       # explicit Ld of the part "energy_gradient" (its dEd/dv; R^VCI)
+    modified: tuple | None = None      # (Ld name, mh_order, flow_order): the part "modified" (H~)
 
     def key_text(self) -> str:
         return repr(self)

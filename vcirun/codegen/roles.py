@@ -26,6 +26,7 @@ annotations`: the declarations are read from their evaluated annotations.)
 import functools
 import inspect
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -439,9 +440,13 @@ MCVA_FAMILY = {"partial": "gauss", "reset": "mcva"}
 
 def register_reset(r: ResetMap) -> ResetMap:
     """Add a reset descriptor (the extension point: a unit file and this row). Raises on a name that
-    is taken by another descriptor, or needs that name no generated part."""
+    is taken by another descriptor, a unit file that does not exist, or needs that name no generated
+    part; the unit itself is checked when a module is assembled (vcirun.codegen.units.check_unit)."""
     if r.name in RESETS and RESETS[r.name] != r:
         raise ContractError(f"reset {r.name!r}: already declared as {RESETS[r.name]}")
+    if not (Path(__file__).resolve().parent.parent / r.unit).is_file():
+        raise ContractError(f"reset {r.name!r}: unit {r.unit} is not a file (give a path relative to the vcirun "
+                            "package, or an absolute one)")
     bad = [p for p in r.needs if p not in PARTS]
     if bad:
         raise ContractError(f"reset {r.name!r}: needs {bad[0]!r}, not a generated part (choose from {PARTS})")
