@@ -21,7 +21,7 @@ import types
 import numpy as np
 import pytest
 
-from vcirun.codegen import c_emit, cc, derive
+from vcirun.codegen import c_emit, c_translate, cc, derive
 from vcirun.codegen.build import _PKG
 from vcirun.scenes.declarations import get_scene
 from vcirun.methods.table import resolve_method
@@ -50,7 +50,7 @@ def _python(text: str):
 def test_c_kernels_equal_their_numba_source(system, method, segment, tmp_path, rng, monkeypatch):
     """(segment: split every kernel longer than 2 x 15 statements into chained functions)"""
     if segment:
-        monkeypatch.setattr(c_emit, "SEGMENT_LINES", segment)
+        monkeypatch.setattr(c_translate, "SEGMENT_LINES", segment)
     text, s = _generated(system, method)
     tr = c_emit.translate_module(text, salt="test")
     assert {"sys_M", "sys_node"} <= {k.name for k in tr.kernels}
