@@ -388,7 +388,7 @@ def main(argv=None):
     sys.path.insert(0, str(ROOT))
     import vcirun
     from vcirun.run import resolve
-    from vcirun.run.api import GridWarning, grid_count
+    from vcirun.core.grid import GridWarning, grid_count
 
     warnings.simplefilter("ignore", GridWarning)   # T = 5 is not a multiple of 3.2e-2: N = 156 for both trees
 

@@ -11,6 +11,7 @@ from typer.testing import CliRunner
 
 import vcirun
 from vcirun.cli.main import app
+from vcirun.core.grid import GridWarning, grid_steps
 
 TINY = """\
 name: {name}
@@ -129,10 +130,10 @@ def test_grid_note_once(runner):
     assert r.exit_code == 0
     assert r.stderr.count("note: T = 1 is not a multiple of h = 0.03: the grid ends at N h = 0.99") == 1
     assert "T = 0.99" in r.stdout
-    with pytest.warns(vcirun.run.api.GridWarning, match="N = floor"):
+    with pytest.warns(GridWarning, match="N = floor"):
         tr = vcirun.simulate("cart_pendulum", "CVA", h=0.03, T=1, beta=3.2)
     assert tr.T == pytest.approx(0.99) and tr.n_steps == 33
-    assert vcirun.run.api.grid_steps(1e-3, 5)[2] == 5000 and vcirun.run.api.grid_steps(3.2e-2, 5)[2] == 156
+    assert grid_steps(1e-3, 5)[2] == 5000 and grid_steps(3.2e-2, 5)[2] == 156
 
 
 def test_sweep_strict_and_plot_every_file(runner, tmp_path, monkeypatch):

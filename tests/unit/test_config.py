@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from vcirun.experiments.config import (COLLISION_METHODS, DISCRETE_LAGRANGIANS, ConfigError, load_config,
-                                       parse_config, yaml_load)
+from vcirun.core.yaml_loader import yaml_load
+from vcirun.experiments.config import COLLISION_METHODS, DISCRETE_LAGRANGIANS, ConfigError, load_config, parse_config
 from vcirun.experiments.sweep import expand, make_tasks, run_id_for, run_identity
 
 ROOT = Path(__file__).resolve().parents[2]

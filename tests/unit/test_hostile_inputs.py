@@ -13,7 +13,7 @@ import pytest
 import yaml
 
 import vcirun
-from vcirun.core import validation
+from vcirun.core import names, sizes, values, yaml_loader
 from vcirun.experiments.config import ConfigError, load_config, parse_config
 from vcirun.mechanics import load_system_yaml
 
@@ -75,22 +75,22 @@ def test_alias_bomb_in_a_system_file(tmp_path):
 
 def test_yaml_limits_and_rules():
     with pytest.raises(yaml.YAMLError, match="recursive alias"):
-        validation.yaml_load("a: &r [*r]\n")
+        yaml_loader.yaml_load("a: &r [*r]\n")
     with pytest.raises(yaml.YAMLError, match="duplicate key 'a'"):
-        validation.yaml_load("a: 1\na: 2\n")
+        yaml_loader.yaml_load("a: 1\na: 2\n")
     with pytest.raises(yaml.YAMLError, match="characters long"):
-        validation.yaml_load("x: '" + "y" * (validation.MAX_YAML_CHARS + 1) + "'\n")
+        yaml_loader.yaml_load("x: '" + "y" * (yaml_loader.MAX_YAML_CHARS + 1) + "'\n")
     # shared aliases within the caps are fine; YAML 1.2 numbers
-    assert validation.yaml_load("a: &a [1e-3, 2]\nb: [*a, *a]\n") == {"a": [1e-3, 2], "b": [[1e-3, 2], [1e-3, 2]]}
+    assert yaml_loader.yaml_load("a: &a [1e-3, 2]\nb: [*a, *a]\n") == {"a": [1e-3, 2], "b": [[1e-3, 2], [1e-3, 2]]}
 
 
 def test_deeply_nested_yaml_is_refused_before_pyyaml_recurses():
     t0 = time.perf_counter()
     with pytest.raises(yaml.YAMLError, match="more than 100 levels deep"):
-        validation.yaml_load("x: " + "[" * 5000 + "]" * 5000 + "\n")
+        yaml_loader.yaml_load("x: " + "[" * 5000 + "]" * 5000 + "\n")
     assert time.perf_counter() - t0 < 2.0
     # brackets inside quotes or comments are text
-    assert validation.yaml_load("a: '" + "[" * 300 + "'\n# " + "{" * 300 + "\n") == {"a": "[" * 300}
+    assert yaml_loader.yaml_load("a: '" + "[" * 300 + "'\n# " + "{" * 300 + "\n") == {"a": "[" * 300}
 
 
 def test_system_files_are_parsed_like_configs(tmp_path):
@@ -179,7 +179,7 @@ def test_run_bytes_estimates_what_simulate_allocates():
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     assert tr.n_steps == N
-    est = validation.run_bytes(N, 2)
+    est = sizes.run_bytes(N, 2)
     assert 0.8 * peak <= est <= 3 * peak, (est, peak)
 
 
@@ -288,9 +288,9 @@ def test_reserved_names_in_a_python_system_and_names_that_are_not_reserved():
     with pytest.raises(ValueError, match="system.parameters.vcTQ0: 'vcTQ0' is reserved"):
         vcirun.simulate(m, "CVA", h=0.01, T=0.1)
     for name in ("th", "qa", "hhh", "t1", "cse", "theta1", "m1", "x1", "vc", "mh"):
-        assert validation.reserved_name_problem(name) is None, name
+        assert names.reserved_name_problem(name) is None, name
     for name in ("hh", "tt", "qa12", "va0", "qb3", "cse0", "xm1", "vcTT", "vcTC7", "mh_u0"):
-        assert "is reserved" in validation.reserved_name_problem(name), name
+        assert "is reserved" in names.reserved_name_problem(name), name
 # --- the Python API ----------------------------------------------------------------------------------------------
 BASE = dict(h=0.01, T=1.0, beta=3.2)
 
@@ -379,9 +379,9 @@ def test_a_normal_run_is_untouched():
 
 
 def test_validation_helpers():
-    assert validation.parse_bytes("16GB") == 16_000_000_000 and validation.parse_bytes("512MiB") == 512 * 2**20
+    assert sizes.parse_bytes("16GB") == 16_000_000_000 and sizes.parse_bytes("512MiB") == 512 * 2**20
     with pytest.raises(ValueError):
-        validation.parse_bytes("-1")
-    assert validation.ascii_name_problem("k") is None
-    assert "reads as 'k'" in validation.ascii_name_problem("ｋ")
-    assert validation.describe(list(range(10**6))).startswith("[0, 1, 2, 3, ...")  # bounded repr
+        sizes.parse_bytes("-1")
+    assert names.ascii_name_problem("k") is None
+    assert "reads as 'k'" in names.ascii_name_problem("ｋ")
+    assert values.describe(list(range(10**6))).startswith("[0, 1, 2, 3, ...")  # bounded repr

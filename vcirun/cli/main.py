@@ -129,7 +129,7 @@ def simulate_once(system: str, method: str, *, h: float, T: float, beta: float |
     import warnings
 
     import vcirun
-    from vcirun.run.api import GridWarning
+    from vcirun.core.grid import GridWarning
     from vcirun.codegen import build
 
     kw = {k: v for k, v in dict(ld=ld, mh_order=mh_order, flow_order=flow_order, params=params or None,
@@ -468,7 +468,7 @@ def validate(config: Path = typer.Argument(..., help="YAML sweep or study config
     else:
         typer.echo(f"  initial   {len(ics)} state(s)")
     typer.echo(f"  T         {cfg.T:g}")
-    from vcirun.run.api import grid_note
+    from vcirun.core.grid import grid_note
 
     for h in cfg.h:
         if grid_note(h, cfg.T):

@@ -1,11 +1,14 @@
 """The record of a run, as one table: what the compiled loop fills, what `Trajectory` holds, what a
-results file stores, and what docs/results_schema.md lists (issue 16).
+results file stores, and what docs/results_schema.md lists.
 
 - FIELDS: every array the loop writes (name, axis, per-coordinate?, dtype, fill, storage, meaning).
   The generated module gets one index constant O_<NAME> per row (vcirun.codegen.units), the loop
   reads its output arrays as `out[O_<NAME>]` from one tuple built here (`allocate`), `Trajectory`
   has one attribute per row (trimmed by `trim`), and storage writes every row whose `stored` says so.
-  Adding an array is one row here plus the kernel code that fills it.
+  Adding an array is one row here plus the kernel code that fills it; the memory estimate of a run
+  and the stored size of its results (vcirun.core.sizes) are sums over these rows.
+- AXES and `axis_rows`: the length of every axis, from N and the impact record's capacity
+  (`impact_capacity`): the buffers `allocate` makes, and the rows those estimates count.
 - COUNTERS: the loop's scalar results (status, where it stopped, how much it filled), the `info`
   array, indexed by I_<NAME>.
 - SETTINGS: the loop's scalar inputs (the constraint switch and the tolerances), one float64 array,
@@ -54,6 +57,11 @@ class Field:
     def index_name(self) -> str:
         return "O_" + self.name.upper()
 
+    @property
+    def itemsize(self) -> int:
+        """Bytes per entry, in memory and in a results file (bool: one byte)."""
+        return 1 if self.dtype == "bool" else np.dtype(self.dtype).itemsize
+
 
 FIELDS = (
     Field("q", "grid", True, "float64", None, "trajectory", "grid positions q_k"),
@@ -75,7 +83,7 @@ FIELDS = (
     Field("impact_step", "step", False, "bool", 0, "trajectory", "True where step k -> k+1 contained an impact"),
     Field("partial_steps", "partial", False, "float64", None, "impacts", "every partial step length Delta tau taken"),
     Field("newton_iters", "step", False, "int64", 0, "trajectory", "Newton iterations spent in step k -> k+1"),
-    # held (resting) contacts, issue 18
+    # held (resting) contacts
     Field("contact_active", "grid", False, "bool", 0, "trajectory", "True where contact i is held at t_k",
           contacts=True),
     Field("contact_force", "grid", False, "float64", 0.0, "trajectory",
@@ -88,6 +96,8 @@ FIELD = {f.name: f for f in FIELDS}
 
 COUNTERS = ("status", "fail_step", "n_impacts", "n_partial", "steps", "n_releases")
 
+# the constraint switch, the tolerances of vcirun.core.tolerances.TOLERANCES (each once) and two flags,
+# in the order of the generated modules' S_<NAME> constants
 SETTINGS = ("constrained", "newton_tol", "max_iter", "event_tol", "max_impacts_step", "energies", "resting_contact")
 
 # (name, meaning) in code order: the module's ST_<NAME> = code, Trajectory.status = name
@@ -121,9 +131,22 @@ def settings_vector(**values) -> np.ndarray:
     return np.array([float(values[s]) for s in SETTINGS], dtype=np.float64)
 
 
-def allocate(N: int, n: int, cap_impacts: int, cap_partial: int, m: int = 1, cap_releases: int = 64) -> tuple:
-    """The loop's output tuple, one buffer per FIELDS row in table order (m: constraints)."""
-    rows = {"grid": N + 1, "step": N, "impact": cap_impacts, "partial": cap_partial, "release": cap_releases}
+def impact_capacity(N: int) -> int:
+    """Entries the impact record of an N-step run starts with (the loop grows it when it is full)."""
+    return max(64, int(N) // 4 + 16)
+
+
+def axis_rows(N: int, cap_impacts: int | None = None) -> dict:
+    """{axis: rows} of the loop's buffers for an N-step run: N + 1 grid states, N steps, the impact
+    record (`impact_capacity(N)` unless given), twice that plus 16 partial steps, releases as impacts."""
+    cap = impact_capacity(N) if cap_impacts is None else int(cap_impacts)
+    return {"grid": int(N) + 1, "step": int(N), "impact": cap, "partial": 2 * cap + 16, "release": cap}
+
+
+def allocate(N: int, n: int, m: int = 1, cap_impacts: int | None = None) -> tuple:
+    """The loop's output tuple, one buffer per FIELDS row in table order (m: constraints), sized by
+    `axis_rows`."""
+    rows = axis_rows(N, cap_impacts)
     out = []
     for f in FIELDS:
         shape = f.shape(rows[f.axis], n, m)

@@ -4,7 +4,7 @@
 equations qdot = M^-1 p, pdot = -dH/dq with a terminal event on phi(q) = 0 (direction: entering the
 constraint), applies the exact elastic reset p+ = p- + lam grad phi, lam = -2 g^T M^-1 p- / g^T M^-1 g
 (H conserved; the same formula as `vcirun.reference`), restarts, and reports the solution on the
-run's grid t_k = t0 + k h, k = 0..N, N = round(T / h) through `t_eval` (as a vcirun method would
+run's grid t_k = t0 + k h, k = 0..N, N = floor(T / h) (vcirun.core.grid) through `t_eval` (as a vcirun method would
 report it). The result is a `vcirun.run.trajectory.Trajectory`, so `vcirun.l2_error(traj, ref)` and the
 energy metrics apply unchanged; `wall_time` is the time of the solve loop (right-hand side calls,
 event location, resets, dense output on the grid), the analogue of a vcirun run's compiled-loop time.
@@ -134,7 +134,7 @@ def solve_ivp_run(system, method: str = "DOP853", *, h, T, rtol, atol=None, beta
                   first_step=None, time_limit: float | None = None, energies: bool = True, escape: bool = True,
                   escape_step: float = 1e-7) -> tr.Trajectory:
     """solve_ivp (`method` = DOP853 or Radau) with a terminal event on phi, the exact elastic reset and
-    output on the grid t0 + k h, k = 0..round(T / h). atol defaults to rtol * max(1, max|y0|) (as the
+    output on the grid t0 + k h, k = 0..floor(T / h). atol defaults to rtol * max(1, max|y0|) (as the
     exact reference). Returns a Trajectory (`method` = "DOP853@rtol=1e-08" etc.; `options` records
     rtol, atol and the number of right-hand-side evaluations). escape: after each reset, one RK4 micro
     step (<= escape_step, and before the next grid point) to a state with phi > 0 before restarting
@@ -144,7 +144,8 @@ def solve_ivp_run(system, method: str = "DOP853", *, h, T, rtol, atol=None, beta
     grid after the timed part)."""
     from scipy.integrate import solve_ivp
 
-    from ..run.api import grid_steps, resolve_system
+    from ..core.grid import grid_steps
+    from ..run.resolve import resolve_system
 
     if method not in BASELINES:
         raise ValueError(f"method: expected one of {', '.join(BASELINES)} (got {method!r})")
@@ -270,7 +271,7 @@ def solve_ivp_run(system, method: str = "DOP853", *, h, T, rtol, atol=None, beta
 
 def hamiltonian_on_grid(system, q, p, params=None, kernels: str = "compiled") -> np.ndarray:
     """H(q_k, p_k) for the rows of q, p (what `energies=True` computes, callable outside a timed run)."""
-    from ..run.api import resolve_system
+    from ..run.resolve import resolve_system
 
     sysm = resolve_system(system)
     prm = sysm.param_values(params)

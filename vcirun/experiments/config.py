@@ -37,18 +37,22 @@ from typing import Annotated, Any, Literal, Union
 
 import numpy as np
 import yaml
-from pydantic import (BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationError, field_validator,
+from pydantic import (BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationError, create_model, field_validator,
                       model_validator)
 
-from ..core import validation as _validation
+from ..core.bounds import check_scene_size
+from ..core.grid import grid_end, grid_steps
+from ..core.sizes import check_run_memory, parse_bytes
+from ..core.tolerances import TOLERANCES
+from ..core.yaml_loader import yaml_error_line, yaml_load
 from ..discrete.lagrangians import LIBRARY
 from ..methods.table import METHODS
 
 __all__ = ["ConfigError", "SweepConfig", "MethodSpec", "InitialCondition", "ExecutorSpec", "load_config", "parse_config",
-           "COLLISION_METHODS", "SMOOTH_METHODS", "DISCRETE_LAGRANGIANS", "yaml_load"]
+           "COLLISION_METHODS", "SMOOTH_METHODS", "DISCRETE_LAGRANGIANS"]
 
 # Names `vcirun.simulate` accepts, read from the core's registries (vcirun.methods.table.METHODS,
-# vcirun.discrete.lagrangians.LIBRARY): one list each (issue 16).
+# vcirun.discrete.lagrangians.LIBRARY): one list each.
 COLLISION_METHODS = tuple(METHODS) + ("MCVA",)
 DISCRETE_LAGRANGIANS = tuple(LIBRARY)
 SMOOTH_METHODS = DISCRETE_LAGRANGIANS  # a bare Ld name integrates the smooth dynamics, constraint ignored
@@ -304,12 +308,11 @@ class NoReference(_Model):
 ReferenceSpec = Annotated[Union[ExactReference, MethodReference, NoReference], Field(discriminator="kind")]
 
 
-class Tolerances(_Model):
-    """Solver tolerances; unset values take the core's defaults (recorded per run either way)."""
-    newton_tol: PositiveFloat | None = None
-    event_tol: PositiveFloat | None = None
-    max_iter: int | None = Field(default=None, ge=1, le=10_000)
-    max_impacts_step: int | None = Field(default=None, ge=1, le=100_000)
+Tolerances = create_model(
+    "Tolerances", __base__=_Model, __doc__="Solver tolerances (vcirun.core.tolerances.TOLERANCES: names, bounds); "
+    "unset values take its defaults (recorded per run either way).",
+    **{t.name: (Union[int, None] if t.integer else Union[float, None], Field(default=None, description=t.doc, **t.bounds))
+       for t in TOLERANCES.values()})
 
 
 # --- executor ------------------------------------------------------------------------------------------
@@ -394,7 +397,7 @@ class SweepConfig(_Model):
     @classmethod
     def _memory(cls, v):
         if v is not None:
-            _validation.parse_bytes(v, "max_memory")
+            parse_bytes(v, "max_memory")
         return v
 
     @field_validator("name")
@@ -434,7 +437,7 @@ class SweepConfig(_Model):
             if hi > self.T:
                 raise _FieldError(("h", i), f"must be <= T = {self.T:g} (got {hi:g})")
             try:
-                _validation.grid_size(hi, self.T)  # underflowing h, T / h too many steps
+                grid_steps(hi, self.T)  # underflowing h, T / h too many steps
             except ValueError as e:
                 raise _FieldError(("h", i), str(e).partition(": ")[2]) from None
             if hi in seen_h:
@@ -508,24 +511,6 @@ class _FieldError(ValueError):
         self.loc = loc
         self.msg = msg
         super().__init__(msg)
-
-
-# --- YAML ----------------------------------------------------------------------------------------------
-# The loader lives in vcirun.core.validation (system files are parsed by the same rules): YAML 1.2 numbers,
-# duplicate keys rejected, alias expansion and text size capped before anything walks the value.
-_Loader = _validation.SafeLoader
-
-
-def yaml_load(text: str):
-    """Parse YAML config text (see `vcirun.core.validation.SafeLoader`)."""
-    return _validation.yaml_load(text)
-
-
-def _yaml_error_line(e: yaml.YAMLError) -> str:
-    mark = getattr(e, "problem_mark", None)
-    problem = getattr(e, "problem", None) or str(e).splitlines()[0]
-    where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-    return f"invalid YAML{where}: {problem}"
 
 
 # --- errors ------------------------------------------------------------------------------------------
@@ -757,7 +742,7 @@ def read_config_data(path):
     try:
         data = yaml_load(text)
     except yaml.YAMLError as e:
-        raise ConfigError(_yaml_error_line(e), source=source) from None
+        raise ConfigError(yaml_error_line(e), source=source) from None
     return data
 
 
@@ -786,7 +771,7 @@ def build_system(cfg: SweepConfig):
                             f"unknown built-in system {s.name!r}" + (f"; did you mean {hint[0]!r}?" if hint else "")
                             + f" (choose one of {', '.join(BUILTIN_SCENE_DATA)}, or a YAML file path)")
         try:
-            _validation.check_scene_size(s.name)
+            check_scene_size(s.name)
         except ValueError as e:
             raise _Semantic("system", str(e).partition(": ")[2]) from None
         sysm = get_scene(s.name)
@@ -874,21 +859,21 @@ def check_memory_of(cfg: SweepConfig, n: int, *, source: str = "<config>", worke
     """Refuse a grid whose finest run (its buffers, `workers` of them at once) exceeds the memory limit
     (`max_memory`, else VCIRUN_MAX_MEMORY, else half the physical memory) before anything is allocated."""
     i = min(range(len(cfg.h)), key=lambda j: cfg.h[j])
-    N = _validation.grid_size(cfg.h[i], cfg.T)
+    N = grid_steps(cfg.h[i], cfg.T)[2]
     try:
-        _validation.check_run_memory(N, n, copies=workers, limit=cfg.max_memory, field="x",
-                                     hint=", or raise max_memory in the config (e.g. max_memory: 32GB)")
+        check_run_memory(N, n, copies=workers, limit=cfg.max_memory, field="x",
+                         hint=", or raise max_memory in the config (e.g. max_memory: 32GB)")
     except ValueError as e:
         raise ConfigError(str(e).partition(": ")[2], source=source, field=f"h[{i}]") from None
     ref = cfg.reference
     if isinstance(ref, MethodReference):
-        # the reference is a run too, on [0, T] (or the last grid point past it) at reference.h: `validate`
-        # said ok to reference.h = 1e-12 and the sweep stopped at its preflight with `reference: T: ...`
-        T_ref = max([cfg.T] + [round(cfg.T / h) * h for h in cfg.h])
+        # the reference is a run too, at reference.h on [0, T] (or the last grid point past it, as the
+        # sweep's reference horizon), so `validate` refuses what the sweep's preflight would
+        T_ref = max([cfg.T] + [grid_end(h, cfg.T) for h in cfg.h])
         try:
-            N_ref = _validation.grid_size(ref.h, T_ref)
-            _validation.check_run_memory(N_ref, n, copies=workers, limit=cfg.max_memory, field="x",
-                                         hint=", or raise max_memory in the config (e.g. max_memory: 32GB)")
+            N_ref = grid_steps(ref.h, T_ref)[2]
+            check_run_memory(N_ref, n, copies=workers, limit=cfg.max_memory, field="x",
+                             hint=", or raise max_memory in the config (e.g. max_memory: 32GB)")
         except ValueError as e:
             raise ConfigError(str(e).partition(": ")[2].replace("raise h ", "raise reference.h "), source=source,
                               field="reference.h") from None

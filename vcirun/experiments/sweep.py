@@ -39,7 +39,9 @@ from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..core import validation
+from ..core.grid import grid_end, grid_note, grid_steps
+from ..core.sizes import check_run_memory, format_bytes, stored_bytes
+from ..core.tolerances import DEFAULT_TOLERANCES
 from ..io.durable import run_isolated
 from ..io.errors import StorageError
 from ..io.provenance import environment_attrs
@@ -108,8 +110,9 @@ def expand(cfg: SweepConfig) -> list[RunSpec]:
 
 
 def reference_horizon(cfg: SweepConfig) -> float:
-    """A run ends at N h with N = round(T / h), which may exceed T; the reference must cover it."""
-    return max([cfg.T] + [round(cfg.T / h) * h for h in cfg.h])
+    """A run ends at N h with N = floor(T / h) to a relative 1e-9 (vcirun.core.grid), which may exceed T
+    by that much; the reference covers every run."""
+    return max([cfg.T] + [grid_end(h, cfg.T) for h in cfg.h])
 
 
 def missing_references(cfg: SweepConfig, writer: ResultsWriter) -> list[InitialCondition]:
@@ -215,17 +218,17 @@ def _check_resources(cfg: SweepConfig, pending: list[RunSpec], n: int, workers: 
     results cannot fit on the disk (their journal, then the file's final copy: about twice the data)."""
     if not pending:
         return
-    steps = {h: validation.grid_size(h, cfg.T) for h in {s.h for s in pending}}
+    steps = {h: grid_steps(h, cfg.T)[2] for h in {s.h for s in pending}}
     N = max(steps.values())
-    stored = validation.stored_bytes(N, n, store_trajectories=cfg.store_trajectories)
+    stored = stored_bytes(N, n, store_trajectories=cfg.store_trajectories)
     try:  # each worker holds a run's buffers and its result message; the client the message and its record
-        validation.check_run_memory(N, n, copies=min(workers, len(pending)), extra=2 * stored, limit=cfg.max_memory,
-                                    field="h", hint=", or raise max_memory in the config (e.g. max_memory: 32GB) or "
-                                                    "the VCIRUN_MAX_MEMORY environment variable")
+        check_run_memory(N, n, copies=min(workers, len(pending)), extra=2 * stored, limit=cfg.max_memory,
+                         field="h", hint=", or raise max_memory in the config (e.g. max_memory: 32GB) or "
+                                         "the VCIRUN_MAX_MEMORY environment variable")
     except ValueError as e:
         raise SweepError(f"{_one_line(e)} (with {min(workers, len(pending))} worker(s); fewer --workers need less)") \
             from None
-    need = sum(validation.stored_bytes(steps[s.h], n, store_trajectories=cfg.store_trajectories) for s in pending)
+    need = sum(stored_bytes(steps[s.h], n, store_trajectories=cfg.store_trajectories) for s in pending)
     size = path.stat().st_size if path.exists() and not writer.force else 0
     total = size + 2 * need
     where = next((d for d in [path.parent, *path.parent.parents] if d.exists()), Path("."))
@@ -234,8 +237,8 @@ def _check_resources(cfg: SweepConfig, pending: list[RunSpec], n: int, workers: 
     except OSError:
         return
     if total > free:
-        raise SweepError(f"{path}: the {len(pending)} pending runs need about {validation.format_bytes(total)} on disk "
-                         f"(their journal and the final copy of the file), {validation.format_bytes(free)} free in "
+        raise SweepError(f"{path}: the {len(pending)} pending runs need about {format_bytes(total)} on disk "
+                         f"(their journal and the final copy of the file), {format_bytes(free)} free in "
                          f"{where}; free space, choose another --output"
                          + (" or set store_trajectories: false" if cfg.store_trajectories else ""))
 
@@ -248,13 +251,7 @@ def _final_hooks(cfg: SweepConfig) -> list:
 
 
 def _root_attrs(cfg: SweepConfig, config_text: str, config_path, specs: list[RunSpec]) -> dict:
-    tol = cfg.tolerances.model_dump(exclude_none=True)
-    try:
-        from vcirun.run.api import DEFAULT_TOLERANCES
-
-        tol = {**DEFAULT_TOLERANCES, **tol}
-    except ImportError:  # pragma: no cover
-        pass
+    tol = {**DEFAULT_TOLERANCES, **cfg.tolerances.model_dump(exclude_none=True)}
     attrs = {
         "name": cfg.name, "description": cfg.description or "", "config_yaml": config_text,
         "config_sha256": hashlib.sha256(config_text.encode()).hexdigest(),
@@ -348,8 +345,6 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
         needs_ref = not isinstance(cfg.reference, NoReference)
         reporter = _Reporter(console, len(pending), f"{cfg.name}: {len(pending)} runs on {executor.describe()}",
                              progress)
-        from vcirun.run.api import grid_note
-
         for h in cfg.h:
             if grid_note(h, cfg.T):
                 reporter.log(f"note: {grid_note(h, cfg.T)}")

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core import validation
+from ..core.sizes import limit_memory
 from ..run.trajectory_files import trajectory_payload
 from .config import InitialCondition, MethodReference, MethodSpec, NoReference, SweepConfig, build_system
 
@@ -83,7 +83,7 @@ class _WorkerState:
         import warnings
 
         import vcirun  # noqa: F401 - once per process; kernels and scenes are cached inside
-        from vcirun.run.api import GridWarning
+        from vcirun.core.grid import GridWarning
 
         warnings.simplefilter("ignore", GridWarning)  # the client says it once for the sweep
 
@@ -259,7 +259,7 @@ def _execute(task: Task, st: _WorkerState | None = None, emit=None) -> dict:
     st = st or _STATE
     if st is None:  # pragma: no cover - initializer always runs first
         raise RuntimeError("worker not initialised")
-    with validation.limit_memory(st.cfg.max_memory):
+    with limit_memory(st.cfg.max_memory):
         return _execute_task(task, st, emit)
 
 

@@ -69,6 +69,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.grid import grid_count, grid_end
 from .baselines import hamiltonian_on_grid, solve_ivp_run
 from .studies.jsonio import load_json, save_json
 from .studies.schema import WorkPrecisionStudy
@@ -159,7 +160,7 @@ def run_study(cfg: WorkPrecisionStudy, *, quick: bool = False, log=print, extra_
     refs, ref_info = {}, []
     if not lh:
         for T in horizons:
-            T_ref = max([T] + [round(T / h) * h for h in cfg.h + cfg.baseline_grids()])
+            T_ref = max([T] + [grid_end(h, T) for h in cfg.h + cfg.baseline_grids()])
             for b in betas:
                 t0 = time.perf_counter()
                 ref = vcirun.reference(system, T=T_ref, beta=b, params=params, rtol=cfg.reference_rtol)
@@ -178,13 +179,13 @@ def run_study(cfg: WorkPrecisionStudy, *, quick: bool = False, log=print, extra_
         for spec in specs:
             kw = spec.simulate_kwargs()
             for h in cfg.h:
-                if round(T / h) > cfg.max_steps:
+                if grid_count(h, T) > cfg.max_steps:
                     continue
                 for b in betas:
                     runs.append(_Run("vcirun", spec.display, spec.name, kw, float(h), T, b, {"need_energy": lh}))
         for label, meth in (extra_methods or {}).items():
             for h in cfg.h:
-                if round(T / h) > cfg.max_steps:
+                if grid_count(h, T) > cfg.max_steps:
                     continue
                 for b in betas:
                     runs.append(_Run("vcirun", label, meth, {}, float(h), T, b, {"need_energy": lh}))
@@ -192,7 +193,7 @@ def run_study(cfg: WorkPrecisionStudy, *, quick: bool = False, log=print, extra_
             if T > cfg.baseline_max_T.get(solver, math.inf):
                 continue
             for hg in cfg.baseline_grids():
-                if round(T / hg) > cfg.max_steps:
+                if grid_count(hg, T) > cfg.max_steps:
                     continue
                 for rtol in rtols:
                     for b in betas:

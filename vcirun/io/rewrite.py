@@ -13,7 +13,7 @@ from pathlib import Path
 
 import h5py
 
-from ..core.validation import format_bytes
+from ..core.sizes import format_bytes
 from ..run.trajectory_files import encode_attr, write_group
 from .checks import FORMAT, LIBVER, SCHEMA_VERSION
 from .errors import StorageError, one_line

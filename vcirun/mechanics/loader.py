@@ -13,7 +13,7 @@
     qdot0: [0.0, 1.0]
 
 Every expression goes through the whitelist parser (never eval/sympify of user text). Files are
-parsed like sweep configs (`vcirun.core.validation.yaml_load`: YAML 1.2 numbers such as 1e-3, duplicate
+parsed like sweep configs (`vcirun.core.yaml_loader.yaml_load`: YAML 1.2 numbers such as 1e-3, duplicate
 keys rejected, aliases and sizes capped); names must be ASCII and distinct after NFKC normalisation.
 """
 from __future__ import annotations
@@ -24,7 +24,9 @@ import numpy as np
 import sympy as sp
 import yaml
 
-from ..core import validation
+from ..core.names import MAX_COORDINATES, MAX_PARAMETERS, ascii_name_problem, check_distinct_names, check_identifier
+from ..core.values import describe
+from ..core.yaml_loader import yaml_load
 from .expressions import ALLOWED_FUNCTIONS, ExpressionError, parse_expression, parse_matrix
 from .system import Constraint, MechanicalSystem
 
@@ -93,8 +95,8 @@ def _constraints(data: dict, sym: dict, params: dict, field_prefix: str) -> list
     if not isinstance(items, list) or not items:
         raise ValueError(f"{field_prefix}.constraints: must be a non-empty list of expressions or "
                          "{name, phi, restitution} mappings")
-    if len(items) > validation.MAX_COORDINATES:
-        raise ValueError(f"{field_prefix}.constraints: {len(items)} constraints; the limit is {validation.MAX_COORDINATES}")
+    if len(items) > MAX_COORDINATES:
+        raise ValueError(f"{field_prefix}.constraints: {len(items)} constraints; the limit is {MAX_COORDINATES}")
     out, names = [], {}
     for i, item in enumerate(items):
         fld = f"{field_prefix}.constraints[{i}]"
@@ -120,7 +122,7 @@ def _constraints(data: dict, sym: dict, params: dict, field_prefix: str) -> list
         else:
             name, phi, e = f"c{i}", parse_expression(_expression(item, fld), sym, fld), sp.Integer(1)
         out.append(Constraint(name, phi, e))
-    validation.check_distinct_names(names, field_prefix)  # (they name contacts in records)
+    check_distinct_names(names, field_prefix)  # (they name contacts in records)
     return out
 
 
@@ -141,7 +143,7 @@ def _read_yaml(path: Path, field_prefix: str):
     except (OSError, UnicodeDecodeError) as e:
         raise ValueError(f"{field_prefix}: cannot read {path}: {' '.join(str(e).split())}") from None
     try:
-        return validation.yaml_load(text)
+        return yaml_load(text)
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
@@ -155,33 +157,33 @@ def _declared_names(data: dict, field_prefix: str) -> tuple[list, dict]:
     coords = data["coordinates"]
     if not (isinstance(coords, list) and coords):
         raise ValueError(f"{field_prefix}.coordinates: must be a non-empty list of names")
-    if len(coords) > validation.MAX_COORDINATES:
+    if len(coords) > MAX_COORDINATES:
         raise ValueError(f"{field_prefix}.coordinates: {len(coords)} coordinates; the limit is "
-                         f"{validation.MAX_COORDINATES}")
+                         f"{MAX_COORDINATES}")
     params = data.get("parameters") or {}
     if not isinstance(params, dict):
         raise ValueError(f"{field_prefix}.parameters: must be a mapping name -> value")
-    if len(params) > validation.MAX_PARAMETERS:
+    if len(params) > MAX_PARAMETERS:
         raise ValueError(f"{field_prefix}.parameters: {len(params)} parameters; the limit is "
-                         f"{validation.MAX_PARAMETERS}")
+                         f"{MAX_PARAMETERS}")
     names = {f"coordinates[{i}]": c for i, c in enumerate(coords)}
     for i, c in enumerate(coords):
         if not isinstance(c, str):
-            raise ValueError(f"{field_prefix}.coordinates[{i}]: must be a name (got {validation.describe(c)})")
+            raise ValueError(f"{field_prefix}.coordinates[{i}]: must be a name (got {describe(c)})")
     for k in params:
         if not isinstance(k, str):
-            raise ValueError(f"{field_prefix}.parameters: names must be strings (got {validation.describe(k)})")
+            raise ValueError(f"{field_prefix}.parameters: names must be strings (got {describe(k)})")
         names[f"parameters.{k}"] = k
-    validation.check_distinct_names({**names, "t (time)": "t",
+    check_distinct_names({**names, "t (time)": "t",
                                      **{f"velocity of coordinates[{i}]": f"{c}_dot" for i, c in enumerate(coords)}},
                                     field_prefix)
     for fld, name in names.items():
-        validation.check_identifier(name, f"{field_prefix}.{fld}")
+        check_identifier(name, f"{field_prefix}.{fld}")
         if name in ALLOWED_FUNCTIONS:
             raise ValueError(f"{field_prefix}.{fld}: {name!r} is a function name; choose another name")
     for k, v in params.items():
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(float(v)):
-            raise ValueError(f"{field_prefix}.parameters.{k}: must be a finite number (got {validation.describe(v)})")
+            raise ValueError(f"{field_prefix}.parameters.{k}: must be a finite number (got {describe(v)})")
     return list(coords), params
 
 
@@ -193,13 +195,13 @@ def _expression(value, field: str):
     if isinstance(value, (str, int, float)):
         return value
     raise ExpressionError(field, type(value).__name__,
-                          f"must be an expression string or a number (got {validation.describe(value)})")
+                          f"must be an expression string or a number (got {describe(value)})")
 
 
 def _system_name(name, field_prefix: str) -> str:
     if not isinstance(name, str) or not name.strip():
-        raise ValueError(f"{field_prefix}.name: must be a non-empty name (got {validation.describe(name)})")
-    problem = validation.ascii_name_problem(name)
+        raise ValueError(f"{field_prefix}.name: must be a non-empty name (got {describe(name)})")
+    problem = ascii_name_problem(name)
     if problem:
         raise ValueError(f"{field_prefix}.name: {problem}")
     if not all(c.isalnum() or c in "_.-" for c in name):
@@ -211,7 +213,7 @@ def _description(text, field_prefix: str) -> str:
     if text is None:
         return ""
     if not isinstance(text, str):
-        raise ValueError(f"{field_prefix}.description: must be text (got {validation.describe(text)})")
+        raise ValueError(f"{field_prefix}.description: must be text (got {describe(text)})")
     if len(text) > 10_000:
         raise ValueError(f"{field_prefix}.description: {len(text):,} characters; the limit is 10,000")
     return text

@@ -404,7 +404,7 @@ def reference(system, *, T, beta=None, q0=None, p0=None, params=None, rtol=1e-13
     released where their force turns tensile (ref.releases, ref.release_contact, ref.held_intervals);
     False raises where a contact would have to be held."""
     from ..run.api import resolve_system, simulate
-    from ..core.validation import check_reference_args
+    from ..core.bounds import check_reference_args
 
     check_reference_args(T=T, rtol=rtol, method=method, h=h, beta=beta, q0=q0, p0=p0, params=params,
                          system=system, resting_contact=resting_contact, check_accuracy=check_accuracy)  # (issue 22)

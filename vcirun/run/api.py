@@ -8,14 +8,14 @@ import numpy as np
 
 from ..core import record
 from . import trajectory as tr
-from ..core import validation
+from ..core.bounds import check_simulate_args, nonfinite_start
+from ..core.grid import GridWarning, grid_note
+from ..core.sizes import check_run_memory
+from ..core.tolerances import DEFAULT_TOLERANCES, split_options
 from .diagnosis import accumulation_onset, failure_cause  # noqa: F401 (accumulation_onset: public here)
 from ..methods.table import resolve_method
 from .resolve import _warmable, resolve_numeric, resolve_system  # noqa: F401 (public here)
 from ..core.system_data import SystemData, check_mass_matrix, requested_start, start_tolerance
-
-DEFAULT_TOLERANCES = {"newton_tol": 1e-12, "event_tol": 1e-13, "max_iter": 50, "max_impacts_step": 64}
-_METHOD_OPTIONS = {"ld", "mh_order", "flow_order"}
 
 
 def _start_state(d: SystemData, beta, q0, p0, prm, sysm=None):
@@ -66,39 +66,6 @@ def _constraint_text(sysm, i: int) -> str:
     return f"phi = {c.phi}" if sysm.m == 1 else f"constraint {c.name} (phi = {c.phi})"
 
 
-class GridWarning(UserWarning):
-    """T is not a multiple of h: the grid ends at N h < T (said once per (T, h))."""
-
-
-def grid_steps(h, T) -> tuple[float, float, int]:
-    """Validated (h, T, N) of the grid t_k = k h, k = 0..N, N = floor(T / h) as in the paper (to a
-    relative 1e-9, so T = 5, h = 1e-3 gives N = 5000 despite 5 / 1e-3 = 4999.999...)."""
-    h, T = float(h), float(T)
-    if not (h > 0 and math.isfinite(h)):
-        raise ValueError(f"h: must be a positive finite step (got {h})")
-    if not (T > 0 and math.isfinite(T)):
-        raise ValueError(f"T: must be a positive finite time (got {T})")
-    N = grid_count(h, T)
-    if N < 1:
-        raise ValueError(f"T: must be at least one step h (got T={T}, h={h})")
-    return h, T, N
-
-
-def grid_count(h: float, T: float) -> int:
-    """N = floor(T / h) up to a relative 1e-9 (the one rule for the grid's length)."""
-    r = T / h
-    return int(math.floor(r + 1e-9 * max(1.0, r)))
-
-
-def grid_note(h: float, T: float) -> str:
-    """'' if T is a multiple of h, else the sentence that says where the grid ends."""
-    N = grid_count(h, T)
-    if abs(N * h - T) <= 1e-9 * max(1.0, abs(T)):
-        return ""
-    return (f"T = {T:g} is not a multiple of h = {h:g}: the grid ends at N h = {N * h:.12g} "
-            f"(N = floor(T / h) = {N}, as in the paper); the trajectory's T is that end time")
-
-
 _FIRST_CALLS: set = set()
 
 
@@ -116,8 +83,8 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     options: newton_tol, event_tol, max_iter, max_impacts_step.
     resting_contact: True (default) holds contacts that come to rest (accumulating impacts, a start
              resting on a surface, a small bounce with e < 1) and releases them where the contact
-             force turns tensile (issue 18); False stops such runs with status `accumulation` (and
-             a resting start with `reset_failed`), as before.
+             force turns tensile; False stops such runs with status `accumulation` (and a resting
+             start with `reset_failed`).
     energies: False skips H, Ed (and the MCVA family's Hmod) along the grid, leaving NaN after t0;
              for runs that only need the trajectory, e.g. timing against solve_ivp, which does
              not evaluate H either.
@@ -128,17 +95,15 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     symbolic work (see `resolve_numeric`); the initial state's Legendre transform uses the compiled
     mass matrix on every path, so warm and cold starts give the same bits.
     """
-    mopts, tol = _split_options(options)
-    validation.check_simulate_args(h=h, T=T, t0=t0, beta=beta, q0=q0, p0=p0, params=params, constrained=constrained,
-                                   energies=energies, tolerances=tol, system=system,
-                                   resting_contact=resting_contact)  # (issue 22)
-    h, T, N = grid_steps(h, T)
+    mopts, tol = split_options(options)
+    h, T, N = check_simulate_args(h=h, T=T, t0=t0, beta=beta, q0=q0, p0=p0, params=params, constrained=constrained,
+                                  energies=energies, tolerances=tol, system=system, resting_contact=resting_contact)
     if not _warmable(system):
         system = resolve_system(system)  # bad names and files raise here, before a bad method does
     meth = resolve_method(method, **mopts)
     sysd, load, sysm = resolve_numeric(system, meth.kernel_set())
     prm = sysd.param_values(params)
-    validation.check_run_memory(N, sysd.n)  # before any buffer is allocated (issue 22)
+    check_run_memory(N, sysd.n)  # before any buffer is allocated
     start = _start_state(sysd, beta, q0, p0, prm, sysm)
     if constrained is None:
         constrained = meth.constrained
@@ -178,8 +143,8 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
                               arrays["impacts"])
         if cause:
             message += f"; cause: {cause}"
-    # (issue 22) an energy that is not finite from the start (e.g. q0 = 1e300) is a failure, not ok
-    bad_start = validation.nonfinite_start(arrays["H"][0], arrays["Ed"][0] if energies else None,
+    # an energy that is not finite from the start (e.g. q0 = 1e300) is a failure, not ok
+    bad_start = nonfinite_start(arrays["H"][0], arrays["Ed"][0] if energies else None,
                                            arrays["Hmod"][0] if energies and arrays.get("Hmod") is not None
                                            else None, q0, p0)
     if bad_start and status == tr.OK:
@@ -192,25 +157,15 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
         coordinates=getattr(sysd, "coordinates", None), dynamics=tr._dynamics(mod, prm))
 
 
-def _split_options(options: dict) -> tuple[dict, dict]:
-    """(method options, tolerances with defaults) from simulate's **options (unknown names rejected)."""
-    mopts = {k: options.pop(k) for k in list(options) if k in _METHOD_OPTIONS}
-    unknown = set(options) - set(DEFAULT_TOLERANCES)
-    if unknown:
-        raise ValueError(f"options: unknown option {sorted(unknown)[0]!r} (known: "
-                         f"{', '.join(sorted(set(DEFAULT_TOLERANCES) | _METHOD_OPTIONS | {'params', 'constrained', 'energies', 'resting_contact'}))})")
-    return mopts, DEFAULT_TOLERANCES | options
-
-
 def _run_loop(mod, q0, p0, t0, h, N, prm, settings, n, max_impacts_step) -> tuple[tuple, dict]:
     """(output buffers, counters) of the compiled loop. The impact record starts at N / 4 + 16
     entries; the loop reports ST_ACCUMULATION also when it is full, which is a buffer size, not
-    impacts accumulating (issue 8): then it reruns with room for every impact the caps allow."""
-    cap_imp, most = max(64, N // 4 + 16), N * max_impacts_step + 16
+    impacts accumulating: then it reruns with room for every impact the caps allow."""
+    cap_imp, most = record.impact_capacity(N), N * max_impacts_step + 16
     while True:
-        out = record.allocate(N, n, cap_imp, 2 * cap_imp + 16, m=int(mod.NCON), cap_releases=cap_imp)
+        out = record.allocate(N, n, m=int(mod.NCON), cap_impacts=cap_imp)
         info = np.zeros(len(record.COUNTERS), dtype=np.int64)
-        # (issue 8) no np.errstate here: the compiled loop never touches numpy's error state, and
+        # no np.errstate here: the compiled loop never touches numpy's error state, and
         # with NUMBA_DISABLE_JIT=1 the caller's np.errstate(all="raise") must reach the numerics
         # (the floating-point hygiene check of tests/extremes runs the whole loop that way).
         mod.integrate(q0, p0, t0, h, N, prm, settings, out, info)

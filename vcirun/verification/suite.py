@@ -186,7 +186,7 @@ class _Session:
         self.force = None if f is None else (lambda q, v, t: np.asarray(f(q, v, t, prm), float).ravel())
         self.res = VerifyResult(system=sysm.name, n=self.n, methods=[m.name for m in self.meths], q0=self.q0,
                                 p0=self.p0, T=T, h=self.hs, params=dict(zip(sysm.params, prm.tolist())))
-        from ..run.api import grid_count
+        from ..core.grid import grid_count
 
         short = [x for x in self.hs if abs(grid_count(x, T) * x - T) > 1e-9 * T]
         if short:
@@ -230,7 +230,8 @@ class _Session:
     def simulate(self, meth, h, **kw):
         import warnings
 
-        from ..run.api import GridWarning, simulate
+        from ..core.grid import GridWarning
+        from ..run.api import simulate
 
         with warnings.catch_warnings():   # said once, in the report's notes (see __init__)
             warnings.simplefilter("ignore", GridWarning)
@@ -243,7 +244,7 @@ class _Session:
 
         T, hs = self.T, self.hs
         self.say("exact smooth solution (DOP853, constraint ignored)")
-        from ..run.api import grid_count
+        from ..core.grid import grid_count
 
         self.N0 = N0 = grid_count(hs[0], T)
         # nested ladder (every grid contains the coarsest one, same end): the test suite's error measure
@@ -509,7 +510,7 @@ def _smooth_error(tr, h, T, N0, nested, t_smooth, qs_ref):
     """max |q_k - q_exact(t_k)| over the coarsest grid (nested ladders: the test suite's measure) or
     over the run's own grid."""
     if nested:
-        from ..run.api import grid_count
+        from ..core.grid import grid_count
 
         stride = grid_count(h, T) // N0
         return float(np.max(np.abs(tr.q[::stride] - qs_ref)))
