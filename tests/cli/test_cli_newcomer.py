@@ -151,3 +151,33 @@ def test_sweep_strict_and_plot_every_file(runner, tmp_path, monkeypatch):
     assert "figures and tables for results/bad.h5" in r.stdout and "figures and tables for results/good.h5" in r.stdout
     assert Path("results/figures/good/table2_timing.md").exists() and Path("results/figures/bad/table2_timing.md").exists()
     one_line_error(invoke(runner, "plot", "--out", "x"), "would overwrite each other")
+
+
+def test_default_start_is_one_rule(runner, tmp_path):
+    """A scene's default start lives in its numeric data: the CLI (no --beta), the API (no beta),
+    the symbolic system and a sweep config without initial conditions all start from it."""
+    from vcirun.core.system_data import requested_start
+    from vcirun.experiments.config import parse_config
+    from vcirun.scenes.data import BUILTIN_SCENE_DATA, scene_data
+    from vcirun.scenes.declarations import get_scene
+
+    assert scene_data("cart_pendulum").default_beta == 3.2
+    for name in BUILTIN_SCENE_DATA:
+        name = name + "_3" if name in ("n_pendulum", "newton_cradle") else name
+        d = scene_data(name)
+        assert (d.default_q0 is not None) != (d.default_beta is not None), name  # exactly one default start
+        kind, q0, p0 = requested_start(d)
+        if kind == "legendre":  # the symbolic system applies the same rule
+            q_sym, p_sym = get_scene(name).initial_state()
+            assert np.array_equal(q_sym, q0) and np.allclose(p_sym, get_scene(name).legendre(q0, p0)[1])
+    r = invoke(runner, "simulate", "--h", "0.05", "--T", "0.5", "--output", tmp_path / "x.npz")
+    assert r.exit_code == 0 and "beta = 3.2" in r.stdout, r.output
+    cli = np.load(tmp_path / "x.npz")
+    api = vcirun.simulate("cart_pendulum", "CVA", h=0.05, T=0.5)
+    explicit = vcirun.simulate("cart_pendulum", "CVA", h=0.05, T=0.5, beta=3.2)
+    assert api.beta == 3.2 and np.array_equal(api.q, explicit.q) and np.array_equal(cli["q"], api.q)
+    cfg = parse_config({"name": "d", "system": "cart_pendulum", "methods": ["CVA"], "h": [0.05], "T": 0.5,
+                        "reference": {"kind": "none"}})
+    ic = cfg.initial_conditions()
+    assert [c.key for c in ic] == ["default"] and get_scene("cart_pendulum").initial_state(
+        **ic[0].simulate_kwargs())[0].tolist() == api.q[0].tolist()

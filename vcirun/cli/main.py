@@ -18,11 +18,6 @@ app = typer.Typer(
     no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False,
 )
 
-# A scene without a default state starts from its initial-condition map at this beta
-# (the paper's Figure 3 setting for the cart-pendulum).
-DEFAULT_BETA = {"cart_pendulum": 3.2}
-
-
 class CliError(Exception):
     """An expected failure: reported as one line on stderr, exit status 1."""
 
@@ -141,8 +136,6 @@ def simulate_once(system: str, method: str, *, h: float, T: float, beta: float |
         if beta is not None:
             raise CliError("initial state: give either --beta or --q0/--p0, not both")
         kw.update(q0=q0, p0=p0)
-    elif beta is None and system in DEFAULT_BETA:
-        beta = DEFAULT_BETA[system]
     n_log = len(build.BUILD_LOG)
     t0 = time.perf_counter()
     try:
@@ -570,8 +563,6 @@ def verify_system(system: str, *, methods: str = "CVA,MCVAC", q0=None, p0=None, 
 
     import vcirun
 
-    if beta is None and q0 is None and p0 is None and system in DEFAULT_BETA:
-        beta = DEFAULT_BETA[system]
     t0 = time.perf_counter()
 
     def progress(msg):

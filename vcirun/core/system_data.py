@@ -1,7 +1,7 @@
 """The numeric side of a system, without sympy: what a run needs besides the compiled kernel module.
 
 `SystemData` holds n, the parameter names and default values, an initial-condition map
-beta -> (q0, qdot0), a default state and a description. A `MechanicalSystem` (symbolic) and a
+beta -> (q0, qdot0), the default start (a state, or a beta of the map) and a description. A `MechanicalSystem` (symbolic) and a
 built-in scene's numeric data (`vcirun.scenes.data`) both reduce to it, so a warm start (kernel
 module cached, see `vcirun.codegen.build.warm_lookup`) resolves a system without importing sympy.
 The rules for a run's initial state (`requested_start`, `check_mass_matrix`, `start_tolerance`)
@@ -17,7 +17,8 @@ import numpy as np
 @dataclass(eq=False)
 class SystemData:
     """name, n, params (ordered name -> default value), ic_map (beta -> (q0, qdot0)) or None,
-    default_q0 / default_p0 or None, description."""
+    default_q0 / default_p0 or None, default_beta (the start of a scene without a default state:
+    ic_map at this beta) or None, description."""
 
     name: str
     n: int
@@ -27,6 +28,7 @@ class SystemData:
     default_p0: np.ndarray | None = None
     description: str = ""
     coordinates: list | None = None   # coordinate names (None: vcirun.scenes.catalog's for built-in scenes)
+    default_beta: float | None = None
 
     def param_values(self, overrides: dict | None = None) -> np.ndarray:
         """Parameter vector in declaration order, with overrides applied (unknown names rejected)."""
@@ -37,7 +39,7 @@ class SystemData:
         """The numeric view of a `MechanicalSystem` (or of anything with the same attributes)."""
         return cls(name=system.name, n=system.n, params=dict(system.params), ic_map=system.ic_map,
                    default_q0=system.default_q0, default_p0=system.default_p0, description=system.description,
-                   coordinates=[str(c) for c in system.q])
+                   coordinates=[str(c) for c in system.q], default_beta=getattr(system, "default_beta", None))
 
 
 def param_vector(name: str, params: dict, overrides: dict | None = None) -> np.ndarray:
@@ -65,11 +67,22 @@ def check_mass_matrix(name: str, q, Mq) -> None:
                          f"(eigenvalues {np.linalg.eigvalsh(S)}); the Lagrangian must be hyperregular") from None
 
 
+def start_beta(d, beta=None, q0=None, p0=None):
+    """The beta a run starts from: `beta` if given, the system's default beta if neither a state nor a
+    beta is given and it has no default state, else None (the run starts from a state)."""
+    if beta is not None or q0 is not None or p0 is not None or getattr(d, "default_q0", None) is not None:
+        return beta
+    return getattr(d, "default_beta", None) if d.ic_map is not None else None
+
+
 def requested_start(d, beta=None, q0=None, p0=None) -> tuple:
-    """The one rule for a run's initial state (vcirun.simulate and MechanicalSystem.initial_state):
-    ("state", q0, p0) from explicit values or the system's default, or ("legendre", q0, qdot0) from
-    its initial-condition map at beta (p0 = M(q0) qdot0 is the caller's: compiled or symbolic M).
-    d: anything with name, n, ic_map, default_q0, default_p0. ValueError names what is missing."""
+    """The one rule for a run's initial state (vcirun.simulate, MechanicalSystem.initial_state, and so
+    the CLI, the sweeps and vcirun.verify): ("state", q0, p0) from explicit values or the system's
+    default state, or ("legendre", q0, qdot0) from its initial-condition map at beta (given, or the
+    system's `default_beta`; p0 = M(q0) qdot0 is the caller's: compiled or symbolic M).
+    d: anything with name, n, ic_map, default_q0, default_p0 (and optionally default_beta).
+    ValueError names what is missing."""
+    beta = start_beta(d, beta, q0, p0)
     if q0 is not None or p0 is not None:
         if q0 is None or p0 is None:
             raise ValueError("initial state: give both q0 and p0 (or beta)")

@@ -43,6 +43,8 @@ class MechanicalSystem:
                 constraint, the gap function min_i phi_i for several (what the event search follows)
     forcing   : optional length-n sympy Matrix f(q, qdot, t) (generalized forces), symbols `qd` and `t`
     ic_map    : optional callable beta -> (q0, qdot0) (a scene's initial-condition family, e.g. Xi)
+    default_q0, default_p0: optional default start state; default_beta: optional default beta of
+                ic_map, the start of a system without a default state (vcirun.core.system_data)
     """
 
     name: str
@@ -59,6 +61,7 @@ class MechanicalSystem:
     default_p0: np.ndarray | None = None
     description: str = ""
     constraints: list | None = None
+    default_beta: float | None = None
 
     def __post_init__(self):
         self.q = list(self.q)

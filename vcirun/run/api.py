@@ -15,7 +15,7 @@ from ..core.tolerances import DEFAULT_TOLERANCES, split_options
 from .diagnosis import accumulation_onset, failure_cause  # noqa: F401 (accumulation_onset: public here)
 from ..methods.table import resolve_method
 from .resolve import _warmable, resolve_numeric, resolve_system  # noqa: F401 (public here)
-from ..core.system_data import SystemData, check_mass_matrix, requested_start, start_tolerance
+from ..core.system_data import SystemData, check_mass_matrix, requested_start, start_beta, start_tolerance
 
 
 def _start_state(d: SystemData, beta, q0, p0, prm, sysm=None):
@@ -104,6 +104,7 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     sysd, load, sysm = resolve_numeric(system, meth.kernel_set())
     prm = sysd.param_values(params)
     check_run_memory(N, sysd.n)  # before any buffer is allocated
+    beta = start_beta(sysd, beta, q0, p0)  # a scene's default beta, recorded in the trajectory
     start = _start_state(sysd, beta, q0, p0, prm, sysm)
     if constrained is None:
         constrained = meth.constrained

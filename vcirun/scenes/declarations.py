@@ -17,7 +17,8 @@ from ..mechanics.system import Constraint, MechanicalSystem
 
 def _system(d: sd.SystemData, q, M, V, phi, **kw) -> MechanicalSystem:
     return MechanicalSystem(name=d.name, q=q, params=d.params, M=M, V=V, phi=phi, ic_map=d.ic_map,
-                            default_q0=d.default_q0, default_p0=d.default_p0, description=d.description, **kw)
+                            default_q0=d.default_q0, default_p0=d.default_p0, default_beta=d.default_beta,
+                            description=d.description, **kw)
 
 
 def cart_pendulum(**overrides) -> MechanicalSystem:
