@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from vcirun.codegen import derive, frame
-from vcirun.codegen.tensor import quadrature_nodes
+from vcirun.discrete.quadrature import quadrature_nodes
 from vcirun.discrete.lagrangians import LIBRARY, ExplicitLd
 from vcirun.scenes.declarations import get_scene
 

@@ -67,7 +67,7 @@ from dataclasses import dataclass
 
 import sympy as sp
 
-from ..discrete.quadrature import quadrature_nodes  # noqa: F401  (also this module's name for it)
+from ..discrete.quadrature import quadrature_nodes
 from .kernels import _code
 
 _NJ = '@njit(cache=True, nogil=True, error_model="numpy")'
