@@ -29,8 +29,10 @@ from typing import Literal, Union
 from pydantic import Field, ValidationError, field_validator, model_validator
 
 from ..baselines import BASELINES
-from ..config import (STUDY_KEY, BetaSpec, ConfigError, MethodName, MethodSpec, PositiveFloat, _FieldError,
-                      _from_validation_error, _Model, parse_config, read_config_data)
+from ..config import STUDY_KEY, ConfigError, MethodSpec, parse_config, read_config_data
+from ..config.errors import FieldError
+from ..config.messages import from_validation_error
+from ..config.specs import BetaSpec, ConfigModel, MethodName, PositiveFloat
 
 __all__ = ["WorkPrecisionStudy", "ExtremesStudy", "STUDY_MODELS", "parse_study", "load_study", "load_any"]
 
@@ -42,7 +44,7 @@ def _method_shorthand(v):
 
 
 # --- work precision and long horizons -------------------------------------------------------------
-class WorkPrecisionStudy(_Model):
+class WorkPrecisionStudy(ConfigModel):
     """Accuracy against time of vcirun methods beside solve_ivp (see vcirun.experiments.workprecision)."""
     study: Literal["work_precision", "long_horizon"]
     name: str = Field(min_length=1)
@@ -81,11 +83,11 @@ class WorkPrecisionStudy(_Model):
         for b in self.baselines:
             solver, _, rhs = b.partition("/")
             if solver not in BASELINES or rhs not in ("", "numpy"):
-                raise _FieldError(("baselines", b), f"unknown solver (choose from {', '.join(BASELINES)}; append "
+                raise FieldError(("baselines", b), f"unknown solver (choose from {', '.join(BASELINES)}; append "
                                                     "'/numpy' for a lambdified numpy right-hand side, e.g. DOP853/numpy)")
         for b in self.baseline_max_T:
             if b not in self.baselines:
-                raise _FieldError(("baseline_max_T", b), f"not a solver of baselines ({', '.join(self.baselines)})")
+                raise FieldError(("baseline_max_T", b), f"not a solver of baselines ({', '.join(self.baselines)})")
         return self
 
     def betas(self) -> list[float]:
@@ -117,7 +119,7 @@ def _unique_labels(methods):
     seen: dict[str, int] = {}
     for i, m in enumerate(methods):
         if m.display in seen:
-            raise _FieldError(("methods", i), f"duplicate label {m.display!r} (also methods[{seen[m.display]}]); "
+            raise FieldError(("methods", i), f"duplicate label {m.display!r} (also methods[{seen[m.display]}]); "
                                               "give one of them a different label")
         seen[m.display] = i
 
@@ -128,7 +130,7 @@ def _unique_labels(methods):
 ContactScene = Literal["cart_pendulum", "double_pendulum"]   # the scenes with a known construction
 
 
-class _Scene(_Model):
+class _Scene(ConfigModel):
     system: str = Field(min_length=1)
     beta: float | None = None
 
@@ -137,7 +139,7 @@ class StepLimitScene(_Scene):
     T: PositiveFloat
 
 
-class StepLimit(_Model):
+class StepLimit(ConfigModel):
     """Largest h at which every scanned step from h_min up returns ok (log scan, then bisection)."""
     h_min: PositiveFloat = 1e-5
     h_max: PositiveFloat = 2.0
@@ -148,11 +150,11 @@ class StepLimit(_Model):
     @model_validator(mode="after")
     def _range(self):
         if self.h_min >= self.h_max:
-            raise _FieldError(("h_max",), f"must be > h_min = {self.h_min:g} (got {self.h_max:g})")
+            raise FieldError(("h_max",), f"must be > h_min = {self.h_min:g} (got {self.h_max:g})")
         return self
 
 
-class LongHorizon(_Model):
+class LongHorizon(ConfigModel):
     """`steps` steps with impacts: drift of H (and Hmod for the MCVA family)."""
     system: str = "cart_pendulum"
     beta: float | None = None
@@ -160,12 +162,12 @@ class LongHorizon(_Model):
     steps: int = Field(ge=2, le=100_000_000)
 
 
-class GrazingScene(_Model):
+class GrazingScene(ConfigModel):
     system: ContactScene
     beta: float | None = None
 
 
-class Grazing(_Model):
+class Grazing(ConfigModel):
     """Grazing contacts: penetration depth of the unconstrained motion (normal velocity sqrt(2 phi'' depth))."""
     h: PositiveFloat
     after: PositiveFloat = 0.5
@@ -178,7 +180,7 @@ class BoundaryScene(_Scene):
     T: PositiveFloat
 
 
-class Boundary(_Model):
+class Boundary(ConfigModel):
     """Impact exactly at t = k h (grid state phi < 0, == 0.0, > 0 by round-off)."""
     h: PositiveFloat
     scenes: list[BoundaryScene] = Field(min_length=1)
@@ -194,37 +196,37 @@ class DenseScene(_Scene):
     @model_validator(mode="after")
     def _state(self):
         if (self.q0 is None) != (self.p0 is None):
-            raise _FieldError(("p0" if self.p0 is None else "q0",), "give q0 and p0 together")
+            raise FieldError(("p0" if self.p0 is None else "q0",), "give q0 and p0 together")
         if self.q0 is not None and len(self.q0) != len(self.p0):
-            raise _FieldError(("p0",), f"must have the length of q0 ({len(self.q0)})")
+            raise FieldError(("p0",), f"must have the length of q0 ({len(self.q0)})")
         return self
 
 
-class Dense(_Model):
+class Dense(ConfigModel):
     """Several impacts in one step."""
     scenes: list[DenseScene] = Field(min_length=1)
 
 
-class SurfaceScene(_Model):
+class SurfaceScene(ConfigModel):
     system: ContactScene
     kinds: list[Literal["out", "in", "lift", "rest"]] = Field(min_length=1)
 
     @model_validator(mode="after")
     def _rest(self):
         if self.system == "double_pendulum" and "rest" in self.kinds:
-            raise _FieldError(("kinds", self.kinds.index("rest")),
+            raise FieldError(("kinds", self.kinds.index("rest")),
                               "rest has no construction on the double pendulum (gravity pulls its tip off the wall)")
         return self
 
 
-class Surface(_Model):
+class Surface(ConfigModel):
     """Initial state on the constraint surface."""
     h: PositiveFloat
     T: PositiveFloat
     scenes: list[SurfaceScene] = Field(min_length=1)
 
 
-class Accumulation(_Model):
+class Accumulation(ConfigModel):
     """Bouncing ball with linear drag through the forced DEL."""
     h: list[PositiveFloat] = Field(min_length=1)
     T: PositiveFloat
@@ -232,21 +234,21 @@ class Accumulation(_Model):
     c: PositiveFloat = 2.0
 
 
-class Energy(_Model):
+class Energy(ConfigModel):
     """Xi(beta) of the cart-pendulum up to large beta (the pendulum rotates fully)."""
     betas: list[float] = Field(min_length=1)
     h: list[PositiveFloat] = Field(min_length=1)
     T: PositiveFloat
 
 
-class MassRatio(_Model):
+class MassRatio(ConfigModel):
     """Cart-pendulum, m1 = 1, m2 = ratio."""
     ratios: list[PositiveFloat] = Field(min_length=1)
     h: list[PositiveFloat] = Field(min_length=1)
     T: PositiveFloat
 
 
-class SingularMass(_Model):
+class SingularMass(ConfigModel):
     """Double pendulum with m1 -> 0 (aligned release: cond(M) = 4 / m1), and m1 = 0 from a non-aligned start."""
     m1: list[PositiveFloat] = Field(min_length=1)
     h: list[PositiveFloat] = Field(min_length=1)
@@ -254,7 +256,7 @@ class SingularMass(_Model):
     nonaligned_q0: list[float] = Field(min_length=2, max_length=2)
 
 
-class HygieneKw(_Model):
+class HygieneKw(ConfigModel):
     """Initial state of a hygiene run (passed to simulate and reference)."""
     beta: float | None = None
     q0: list[float] | None = None
@@ -262,7 +264,7 @@ class HygieneKw(_Model):
     params: dict[str, float] | None = None
 
 
-class HygieneScene(_Model):
+class HygieneScene(ConfigModel):
     system: str = Field(min_length=1)
     h: PositiveFloat
     T: PositiveFloat
@@ -270,12 +272,12 @@ class HygieneScene(_Model):
     reference: bool = False       # also the exact reference under np.errstate
 
 
-class Hygiene(_Model):
+class Hygiene(ConfigModel):
     """The whole loop uncompiled under np.errstate(all="raise")."""
     scenes: list[HygieneScene] = Field(min_length=1)
 
 
-class Report(_Model):
+class Report(ConfigModel):
     """The Markdown rendered from the results through a template (see studies.report)."""
     template: str = Field(min_length=1)        # relative to the config file
     output: str = Field(min_length=1)          # relative to the working directory
@@ -285,7 +287,7 @@ SECTIONS = ("step_limit", "long_horizon", "grazing", "boundary", "dense", "surfa
             "mass_ratio", "singular_mass", "hygiene")
 
 
-class ExtremesStudy(_Model):
+class ExtremesStudy(ConfigModel):
     """Numerical stability at the extremes: each present section runs for every method."""
     study: Literal["extremes"]
     name: str = Field(min_length=1)
@@ -308,10 +310,10 @@ class ExtremesStudy(_Model):
     @model_validator(mode="after")
     def _something(self):
         if not self.sections():
-            raise _FieldError((), f"no section to run (give one or more of {', '.join(SECTIONS)})")
+            raise FieldError((), f"no section to run (give one or more of {', '.join(SECTIONS)})")
         dup = [m for i, m in enumerate(self.methods) if m in self.methods[:i]]
         if dup:
-            raise _FieldError(("methods", self.methods.index(dup[0], self.methods.index(dup[0]) + 1)),
+            raise FieldError(("methods", self.methods.index(dup[0], self.methods.index(dup[0]) + 1)),
                               f"duplicate method {dup[0]}")
         return self
 
@@ -345,7 +347,7 @@ def parse_study(data, *, source: str = "<study>", base_dir: Path | None = None,
     try:
         cfg = model.model_validate(data)
     except ValidationError as e:
-        raise _from_validation_error(e, source, root=model) from None
+        raise from_validation_error(e, source, root=model) from None
     if isinstance(cfg, ExtremesStudy) and cfg.report is not None and base_dir is not None \
             and not Path(cfg.report.template).is_absolute():
         rep = cfg.report.model_copy(update={"template": os.path.normpath(base_dir / cfg.report.template)})
