@@ -169,7 +169,7 @@ def _impact_driver(mod):
 
 
 def section_impact(res):
-    from vcirun.run.api import resolve_system
+    from vcirun.run.resolve import resolve_system
     from vcirun.codegen.build import load_module
     from vcirun.methods.table import METHODS as MT
 

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 import vcirun
-from vcirun.run.api import resolve_system
+from vcirun.run.resolve import resolve_system
 
 T = 10.0
 H_MAIN = [1e-2, 3.2e-3, 1e-3, 3.2e-4, 1e-4]

@@ -25,7 +25,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import vcirun  # noqa: E402
-from vcirun.run import api  # noqa: E402
+from vcirun.run import resolve  # noqa: E402
 from vcirun.methods.table import resolve_method  # noqa: E402
 
 CART_DRAG = {
@@ -72,7 +72,7 @@ def balance(system, method, h, T, q0, p0, **mopts):
     if not tr.ok:
         return np.nan, len(tr.impacts), tr.status
     meth = resolve_method(method, **mopts)
-    d, load, _ = api.resolve_numeric(system, meth.kernel_set())
+    d, load, _ = resolve.resolve_numeric(system, meth.kernel_set())
     mod = load()
     prm = d.param_values()
     P = np.empty(len(tr.t))
@@ -115,7 +115,7 @@ def main(argv=None):
     from vcirun.mechanics.loader import load_system_yaml
 
     scenes = [("damped_oscillator (c = 0.5, wall d = 0.5)",
-               vcirun.run.api.resolve_system("damped_oscillator"), dict(c=0.5, d=0.5), [1.5], [0.0]),
+               vcirun.run.resolve.resolve_system("damped_oscillator"), dict(c=0.5, d=0.5), [1.5], [0.0]),
               ("cart_drag (2-DOF, drag + drive)", load_system_yaml(CART_DRAG), {}, [1.5, 0.0], [0.0, 0.6])]
     hs = [2e-2, 1e-2, 5e-3, 2.5e-3]
     cases = [("MCVA", dict(ld="SVC", mh_order=s)) for s in (2, 3, 4)] + [("MCVA", dict(ld="SVA", mh_order=4))]

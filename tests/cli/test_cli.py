@@ -301,7 +301,7 @@ def test_progress_bar_on_a_terminal(tiny, tmp_path, workers):
 def test_a_dead_worker_stops_the_sweep_and_keeps_finished_runs(tiny, tmp_path, monkeypatch):
     import os
 
-    from vcirun.experiments.sweep import SweepError
+    from vcirun.experiments.worker import SweepError
 
     original = vcirun.simulate
 

@@ -23,7 +23,8 @@ from vcirun.experiments import executors
 from vcirun.io.reader import Results, load_reference, load_trajectory, read_results
 from vcirun.io.writer import ResultsWriter
 from vcirun.experiments.config import ConfigError, load_config, parse_config
-from vcirun.experiments.sweep import SweepError, expand, run_sweep
+from vcirun.experiments.sweep import expand, run_sweep
+from vcirun.experiments.worker import SweepError
 
 distributed = pytest.importorskip("distributed")  # the `dask` extra; `make test` installs it
 

@@ -26,7 +26,8 @@ from vcirun.io.errors import StorageError
 from vcirun.io.journal import read_journal
 from vcirun.io.reader import load_trajectory, read_results
 from vcirun.io.writer import ResultsWriter
-from vcirun.experiments.sweep import SweepError, expand, run_sweep
+from vcirun.experiments.sweep import expand, run_sweep
+from vcirun.experiments.worker import SweepError
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "unit"))
 from test_storage import KEY, make_traj, run_attrs  # noqa: E402

@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 import vcirun
-from vcirun.run.api import accumulation_onset
+from vcirun.run.diagnosis import accumulation_onset
+from vcirun.run.resolve import resolve_system
 
 
 def test_accumulation_onset_is_the_start_of_the_final_dense_run():
@@ -40,7 +41,7 @@ def test_plain_newton_failure_has_no_invented_cause():
 def test_resting_contact_cause():
     """With held contacts off, a start resting on the surface is the old failure with its cause; with
     them (the default) the cart is held from t0 (issue 18)."""
-    s = vcirun.run.api.resolve_system("cart_pendulum")
+    s = resolve_system("cart_pendulum")
     q0, p0 = s.legendre(np.array([0.0, 0.3]), np.zeros(2))
     tr = vcirun.simulate("cart_pendulum", "CVA", h=1e-2, T=1.0, q0=q0, p0=p0, resting_contact=False)
     assert tr.status == "reset_failed" and tr.fail_step == 0

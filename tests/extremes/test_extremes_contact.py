@@ -15,7 +15,7 @@ import pytest
 import vcirun
 from vcirun.experiments.studies import contact
 from vcirun.scenes.oracles import ball_exact
-from vcirun.run.api import accumulation_onset
+from vcirun.run.diagnosis import accumulation_onset
 from guards import guarded
 
 METHODS = ["CVA", "VCI", "MCVAA", "MCVAC"]

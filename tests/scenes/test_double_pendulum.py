@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import vcirun
-from vcirun.run.api import resolve_system
+from vcirun.run.resolve import resolve_system
 from vcirun.codegen.build import load_module
 from vcirun.methods.table import METHODS
 

@@ -21,7 +21,7 @@ import sympy as sp
 import vcirun
 
 NO_HELD = np.zeros(1, dtype=np.int64)  # collision_time's held contacts: none
-from vcirun.run.api import resolve_system
+from vcirun.run.resolve import resolve_system
 from vcirun.codegen.build import load_module
 from vcirun.mechanics.system import MechanicalSystem
 from vcirun.methods.table import METHODS

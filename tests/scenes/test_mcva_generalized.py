@@ -26,7 +26,7 @@ def uncompiled(monkeypatch):
 
 
 def _short_state():
-    s = vcirun.run.api.resolve_system("cart_pendulum")
+    s = vcirun.run.resolve.resolve_system("cart_pendulum")
     q0 = np.array([0.3, 0.2])
     return q0, s.mass_matrix(q0) @ np.array([-1.0, 1.0])
 

@@ -63,7 +63,7 @@ def test_dop853_agrees_with_the_exact_reference_to_its_tolerance(dop, ref):
 
 
 def test_reset_is_the_exact_elastic_reflection(dop):
-    from vcirun.run.api import resolve_system
+    from vcirun.run.resolve import resolve_system
     from vcirun.codegen.build import load_module
     from vcirun.methods.table import METHODS
 

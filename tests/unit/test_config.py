@@ -8,7 +8,8 @@ import pytest
 
 from vcirun.core.yaml_loader import yaml_load
 from vcirun.experiments.config import COLLISION_METHODS, DISCRETE_LAGRANGIANS, ConfigError, load_config, parse_config
-from vcirun.experiments.sweep import expand, make_tasks, run_id_for, run_identity
+from vcirun.experiments.sweep import expand, run_id_for, run_identity
+from vcirun.experiments.worker import make_tasks
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -14,7 +14,7 @@ import yaml
 
 import vcirun
 from vcirun.core import names, sizes, values, yaml_loader
-from vcirun.experiments.config import ConfigError, load_config, parse_config
+from vcirun.experiments.config import ConfigError, load_config
 from vcirun.mechanics import load_system_yaml
 
 SYSTEM = """\

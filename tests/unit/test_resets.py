@@ -27,7 +27,7 @@ import vcirun
 from vcirun.codegen import roles, units
 from vcirun.codegen.build import load_module
 from vcirun.methods.table import METHODS, Method
-from vcirun.run.api import resolve_system
+from vcirun.run.resolve import resolve_system
 
 NO_HELD = np.zeros(1, dtype=np.int64)  # collision_time's held contacts: none
 SCENES = ["cart_pendulum", "double_pendulum", "oscillator_wall"]

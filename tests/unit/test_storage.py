@@ -18,6 +18,7 @@ import pytest
 from scipy import stats
 
 from vcirun.experiments import metrics
+from vcirun.run.trajectory_files import energy_summary
 from vcirun.io import rewrite
 from vcirun.io.checks import resolve_output, run_problem
 from vcirun.io.durable import ChildFailed, run_isolated
@@ -386,11 +387,11 @@ def test_energy_summary_masks_impact_steps():
     tr.Ed[30] = 5.5
     tr.H[:] = 2.0
     tr.H[7] = 2.25
-    s = metrics.energy_summary(tr)
+    s = energy_summary(tr)
     assert s["Ed_range"] == pytest.approx(0.5)
     assert s["max_abs_dH"] == pytest.approx(0.25) and s["H_range"] == pytest.approx(0.25) and s["H0"] == 2.0
     assert math.isfinite(s["Hmod_range"])
-    assert math.isnan(metrics.energy_summary(make_traj(with_hmod=False))["Hmod_range"])
+    assert math.isnan(energy_summary(make_traj(with_hmod=False))["Hmod_range"])
 
 
 def test_mean_ci_matches_scipy_t_interval():

@@ -64,7 +64,7 @@ def _expected_errors():
     """The exception types that are user errors, not bugs."""
     from vcirun.experiments.config import ConfigError
     from vcirun.io.errors import StorageError
-    from vcirun.experiments.sweep import SweepError
+    from vcirun.experiments.worker import SweepError
 
     return (ConfigError, StorageError, SweepError, CliError)
 

@@ -10,7 +10,7 @@
 - Contacts: energy H(t) against time, one panel per method (several constraints or restitution < 1,
   issue 17), the run at the smallest h, impacts as vertical lines coloured by contact (the results
   file's constraint names), held phases (resting contact) shaded.
-- `trajectory_figure(tr)` (`Trajectory.plot()`): coordinates and energy of one run.
+(`Trajectory.plot()` draws one run: `vcirun.run.plotting.trajectory_figure`.)
 
 Notebook safety: every builder returns a `matplotlib.figure.Figure` that is not registered with
 pyplot, built inside a local `matplotlib.rc_context`; nothing here selects a backend or changes
@@ -28,14 +28,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ..run.plotting import COLORS, MARKERS, LINE_STYLES, STYLE, new_figure, fmt_h, styled, style, trajectory_figure  # noqa: F401
+from ..run.plotting import COLORS, LINE_STYLES, MARKERS, fmt_h, new_figure, style, styled
 from ..io.results import reference_note
+from ..run.trajectory_files import masked_discrete_energy
 from . import metrics
 from ..io.errors import StorageError
 from ..io.reader import Results, find_newest_results, load_trajectory, read_results
 
-__all__ = ["FigureSkipped", "figure4", "figure3", "figure1", "work_precision", "contacts_energy", "trajectory_figure", "make_figures",
-           "plot_results", "PlotReport", "save_figure", "STYLE"]
+__all__ = ["FigureSkipped", "figure4", "figure3", "figure1", "work_precision", "contacts_energy", "make_figures",
+           "plot_results", "PlotReport", "save_figure"]
 
 
 class FigureSkipped(Exception):
@@ -204,7 +205,7 @@ def figure3(results) -> "Figure":
         tr = load_trajectory(results.path, r.run_id)
         s = _mh_order(r)
         ax.plot(tr.t, tr.H, color=COLORS[0], label=r"$H$")
-        ax.plot(tr.t, metrics.masked_discrete_energy(tr), color=COLORS[1], linestyle="--",
+        ax.plot(tr.t, masked_discrete_energy(tr), color=COLORS[1], linestyle="--",
                 label=r"$-D_3L_d$ (impact steps masked)")
         ax.plot(tr.t, tr.Hmod, color=COLORS[2], linestyle="-.",
                 label="truncated MH" + (f", mh_order = {s}" if s else ""))

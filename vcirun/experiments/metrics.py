@@ -10,9 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..run.trajectory_files import energy_summary, masked_discrete_energy  # noqa: F401  (the trajectory's own summary)
 
-__all__ = ["l2_error", "energy_summary", "masked_discrete_energy", "mean_ci", "TimingStat", "timing_stats",
+__all__ = ["l2_error", "mean_ci", "TimingStat", "timing_stats",
            "l2_series"]
 
 

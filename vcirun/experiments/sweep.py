@@ -47,11 +47,9 @@ from ..io.errors import StorageError
 from ..io.provenance import environment_attrs
 from ..io.writer import ResultsWriter
 from .config import InitialCondition, MethodReference, MethodSpec, NoReference, SweepConfig, build_system
-# the worker side (re-exported: these names were sweep's)
-from .worker import (RunSpec, SweepError, Task, _default_start_method, _execute, _execute_streamed,  # noqa: F401
-                     _init_worker, _one_line, _terminate_pool, _WorkerState, make_tasks)
+from .worker import RunSpec, SweepError, _one_line
 
-__all__ = ["RunSpec", "Task", "SweepError", "SweepSummary", "expand", "run_sweep", "sweep_file", "default_workers"]
+__all__ = ["SweepSummary", "expand", "run_sweep", "sweep_file", "default_workers"]
 
 
 @dataclass

@@ -262,7 +262,7 @@ def run_study(cfg: WorkPrecisionStudy, *, quick: bool = False, log=print, extra_
         recs.append(rec)
     out["runs"] = recs
     ics = []
-    from ..run.api import resolve_system
+    from ..run.resolve import resolve_system
 
     sysm = resolve_system(system)
     for b in betas:

@@ -28,7 +28,8 @@ from pathlib import Path
 import numpy as np
 
 from . import workprecision as wp
-from .figures import COLORS, MARKERS, new_figure, fmt_h, styled, save_figure
+from ..run.plotting import COLORS, MARKERS, fmt_h, new_figure, styled
+from .figures import save_figure
 
 __all__ = ["plot_study", "work_precision_figure", "long_horizon_figure", "print_study_tables", "is_study_file"]
 

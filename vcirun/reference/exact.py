@@ -403,7 +403,8 @@ def reference(system, *, T, beta=None, q0=None, p0=None, params=None, rtol=1e-13
     resting_contact (as simulate's): contacts that come to rest are held on their surface and
     released where their force turns tensile (ref.releases, ref.release_contact, ref.held_intervals);
     False raises where a contact would have to be held."""
-    from ..run.api import resolve_system, simulate
+    from ..run.api import simulate
+    from ..run.resolve import resolve_system
     from ..core.bounds import check_reference_args
 
     check_reference_args(T=T, rtol=rtol, method=method, h=h, beta=beta, q0=q0, p0=p0, params=params,

@@ -12,9 +12,9 @@ from ..core.bounds import check_simulate_args, nonfinite_start
 from ..core.grid import GridWarning, grid_note
 from ..core.sizes import check_run_memory
 from ..core.tolerances import DEFAULT_TOLERANCES, split_options
-from .diagnosis import accumulation_onset, failure_cause  # noqa: F401 (accumulation_onset: public here)
+from .diagnosis import failure_cause
 from ..methods.table import resolve_method
-from .resolve import _warmable, resolve_numeric, resolve_system  # noqa: F401 (public here)
+from .resolve import _warmable, resolve_numeric, resolve_system
 from ..core.system_data import SystemData, check_mass_matrix, requested_start, start_beta, start_tolerance
 
 

@@ -162,7 +162,7 @@ class _Session:
     """The state of one verification: the system, start state, ladder, references, and the results."""
 
     def __init__(self, system, methods, q0, p0, beta, T, h, params, progress):
-        from ..run.api import resolve_system
+        from ..run.resolve import resolve_system
         from ..codegen.build import load_module
         from ..methods.table import METHODS
 

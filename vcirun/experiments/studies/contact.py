@@ -14,7 +14,8 @@ import math
 
 import numpy as np
 
-from ...run.api import accumulation_onset, resolve_system
+from ...run.diagnosis import accumulation_onset
+from ...run.resolve import resolve_system
 from ...codegen.build import SYSTEM_KERNELS, load_module
 from ...scenes.oracles import ball_exact, ball_exact_onset, ball_position
 from ...reference.exact import l2_error, reference
@@ -323,7 +324,7 @@ def accumulation_case(method, *, h, T, y0=1.0, c=2.0, m=1.0, g=10.0, **opts) -> 
     """The bouncing ball with linear drag c (forced DEL) settling on the floor. The exact flights
     shrink like 3 m / (c n): impacts become denser than any grid at the exact onset (the impact
     after which every flight is shorter than h). Outcome: status accumulation with the onset it
-    reports (vcirun.run.api.accumulation_onset; with resting_contact=False), or an ok run whose late bounce
+    reports (vcirun.run.diagnosis.accumulation_onset; with resting_contact=False), or an ok run whose late bounce
     height is the error against the exact motion (which lies on the floor to within g h^2 / 8 after the
     onset); with held contacts (the default) the run records when the floor is first held."""
     params = {"c": c, "m": m, "g": g}

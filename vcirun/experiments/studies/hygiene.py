@@ -16,7 +16,7 @@ import json, sys, numpy as np, vcirun
 cases = json.loads(sys.argv[1])
 out = []
 # positive control: the check is live (an overflow inside the uncompiled loop code raises)
-from vcirun.run.api import resolve_system
+from vcirun.run.resolve import resolve_system
 from vcirun.codegen.build import SYSTEM_KERNELS, load_module
 s = resolve_system("cart_pendulum"); mod = load_module(s, SYSTEM_KERNELS)
 with np.errstate(all="raise"):

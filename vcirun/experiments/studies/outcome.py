@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...run.api import resolve_system, simulate
+from ...run.api import simulate
+from ...run.resolve import resolve_system
 from ...codegen.build import load_module
 from ...methods.table import resolve_method
 

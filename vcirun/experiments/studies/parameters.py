@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from ...run.api import resolve_system
+from ...run.resolve import resolve_system
 from ...reference.exact import l2_error, reference
 from .outcome import cause, energy_error, outcome, run
 
