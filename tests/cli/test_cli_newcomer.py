@@ -87,7 +87,7 @@ def test_one_default_cache_for_every_entry_point(monkeypatch, tmp_path):
 def test_compile_announcement(monkeypatch, tmp_path, capsys):
     """A module missing from the cache is announced before it is built (without building it here)."""
     from vcirun.codegen import cache
-    from vcirun.cli import main as cli
+    from vcirun.cli import app as cli
     from vcirun.scenes.declarations import get_scene
     from vcirun.methods.table import resolve_method
 

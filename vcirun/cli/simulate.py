@@ -1,0 +1,152 @@
+"""`vcirun simulate`: one run through `vcirun.simulate` and a summary of it."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+from ..run.energy import energy_drift
+from .app import CliError, _announce_compiles, _console, _fail, app
+
+
+def _parse_params(items: list[str]) -> dict:
+    out = {}
+    for item in items or []:
+        name, sep, value = item.partition("=")
+        if not sep or not name.strip():
+            raise CliError(f"--param: expected NAME=VALUE (got {item!r})")
+        try:
+            out[name.strip()] = float(value)
+        except ValueError:
+            raise CliError(f"--param {name.strip()}: value must be a number (got {value!r})") from None
+    return out
+
+
+def _parse_vector(text: str | None, name: str):
+    """'1.2,-1.0' -> [1.2, -1.0] (None stays None)."""
+    if text is None:
+        return None
+    try:
+        return [float(x) for x in str(text).replace(" ", "").split(",") if x != ""]
+    except ValueError:
+        raise CliError(f"{name}: expected comma-separated numbers such as 1.2,-1.0 (got {text!r})") from None
+
+
+def simulate_once(system: str, method: str, *, h: float, T: float, beta: float | None = None, ld=None,
+                  mh_order=None, flow_order=None, params: dict | None = None, constrained: bool | None = None,
+                  newton_tol=None, event_tol=None, q0=None, p0=None):
+    """One run through `vcirun.simulate`; bad input becomes CliError. Returns (trajectory, seconds);
+    `traj.compiled_now` says whether kernels were generated during the call."""
+    import time
+    import warnings
+
+    import vcirun
+    from vcirun.core.grid import GridWarning
+    from vcirun.codegen import build
+
+    kw = {k: v for k, v in dict(ld=ld, mh_order=mh_order, flow_order=flow_order, params=params or None,
+                                constrained=constrained, newton_tol=newton_tol, event_tol=event_tol).items()
+          if v is not None}
+    if (q0 is None) != (p0 is None):
+        raise CliError("initial state: give both --q0 and --p0 (or --beta)")
+    if q0 is not None:
+        if beta is not None:
+            raise CliError("initial state: give either --beta or --q0/--p0, not both")
+        kw.update(q0=q0, p0=p0)
+    n_log = len(build.BUILD_LOG)
+    t0 = time.perf_counter()
+    try:
+        with warnings.catch_warnings(record=True) as notes:
+            warnings.simplefilter("always", GridWarning)
+            traj = vcirun.simulate(system, method, h=h, T=T, beta=beta, **kw)
+    except ValueError as e:
+        raise CliError(str(e)) from None
+    for w in notes:
+        typer.echo(f"note: {w.message}", err=True)
+    traj.compiled_now = any(not e["cached"] for e in build.BUILD_LOG[n_log:])
+    return traj, time.perf_counter() - t0
+
+
+def summary_lines(traj, total_seconds: float) -> list[tuple[str, str]]:
+    """The facts `vcirun simulate` prints about a run."""
+    rows = [("run", f"{traj.system}  {traj.method}  h = {traj.h:g}  T = {traj.T:g}"
+             + (f"  beta = {traj.beta:g}" if traj.beta is not None else ""))]
+    rows.append(("steps", f"{traj.n_steps}"))
+    imp = ", ".join(f"{t:.4g}" for t in traj.impacts[:8]) + (" ..." if len(traj.impacts) > 8 else "")
+    rows.append(("impacts", f"{len(traj.impacts)}" + (f" at t = {imp}" if len(traj.impacts) else "")))
+    rows.append(("status", traj.status + (f" ({traj.message})" if traj.message else "")))
+    drift = energy_drift(traj)
+    if drift.dH is not None:
+        rel = (f" (relative {drift.dH / drift.scale:.2e} to the energy scale {drift.scale:.4g} = max(|H0|, max "
+               "kinetic energy))" if drift.relative else "")
+        rows.append(("max |H - H0|", f"{drift.dH:.3e}{rel}"))
+    if drift.dHmod is not None:
+        rows.append(("max |Hmod - Hmod0|", f"{drift.dHmod:.3e}"))
+    setup = max(0.0, total_seconds - traj.wall_time)
+    what = ("compiling kernels (first time; cached for the next runs)" if getattr(traj, "compiled_now", False)
+            else "loading kernels and setting up")
+    rows.append(("wall time", f"{traj.wall_time:.4g} s integrating; {total_seconds:.3g} s in total, of which "
+                              f"{setup:.3g} s {what}"))
+    return rows
+
+
+@app.command(epilog="Examples:\n\n"
+             "  vcirun simulate\n\n"
+             "  vcirun simulate --system cart_pendulum --method MCVAA --h 0.01 --T 5 --beta 3.2\n\n"
+             "  vcirun simulate --method MCVA --ld SVC --mh-order 3 --flow-order 4\n\n"
+             "  vcirun simulate --system double_pendulum --method CVA --unconstrained\n\n"
+             "  vcirun simulate --system double_pendulum --q0 1.2,-1.0 --p0 0,0 --output run.h5")
+def simulate(
+    system: str = typer.Option("cart_pendulum", "--system", "-s",
+                               help="Built-in scene (cart_pendulum, double_pendulum, oscillator_wall, ...) "
+                                    "or a YAML system file."),
+    method: str = typer.Option("CVA", "--method", "-m",
+                               help="CVA, VCI, MCVAA, MCVAC, MCVA (with --ld, --mh-order), or a discrete "
+                                    "Lagrangian (SE1 SE2 SVA SVB SVC midpoint) ignoring the constraint."),
+    h: float = typer.Option(1e-2, "--h", help="Step size."),
+    T: float = typer.Option(5.0, "--T", "-T", help="Final time."),
+    beta: Optional[float] = typer.Option(None, "--beta", "-b",
+                                         help="Initial-condition parameter of the scene's map "
+                                              "(default: the scene's default state; 3.2 for cart_pendulum)."),
+    ld: Optional[str] = typer.Option(None, "--ld", help="Discrete Lagrangian of the generalized MCVA."),
+    mh_order: Optional[int] = typer.Option(None, "--mh-order", help="Modified-Hamiltonian truncation order."),
+    flow_order: Optional[int] = typer.Option(None, "--flow-order", help="Gauss partial-flow order (4 or 6)."),
+    param: List[str] = typer.Option([], "--param", "-p", help="Parameter override NAME=VALUE (repeatable)."),
+    unconstrained: bool = typer.Option(False, "--unconstrained", help="Ignore the impact constraint."),
+    newton_tol: Optional[float] = typer.Option(None, "--newton-tol", help="Newton tolerance."),
+    event_tol: Optional[float] = typer.Option(None, "--event-tol", help="Collision-time tolerance."),
+    q0: Optional[str] = typer.Option(None, "--q0", metavar="Q1,Q2,...",
+                                     help="Initial coordinates, comma-separated (with --p0; `vcirun systems` "
+                                          "lists each scene's coordinates)."),
+    p0: Optional[str] = typer.Option(None, "--p0", metavar="P1,P2,...", help="Initial momenta p = M(q) qdot."),
+    output: Optional[Path] = typer.Option(None, "--output", "-o",
+                                          help="Save the trajectory: .h5 (read with "
+                                               "vcirun.run.trajectory.read_trajectory), .nc, .csv or .npz."),
+):
+    """Simulate one run and print a summary (steps, impacts, status, energy error, wall time)."""
+    _announce_compiles()
+    try:
+        traj, total = simulate_once(system, method, h=h, T=T, beta=beta, ld=ld, mh_order=mh_order,
+                                    flow_order=flow_order, params=_parse_params(param),
+                                    constrained=False if unconstrained else None, newton_tol=newton_tol,
+                                    event_tol=event_tol, q0=_parse_vector(q0, "--q0"), p0=_parse_vector(p0, "--p0"))
+        if output is not None:
+            try:
+                traj.save(output)
+            except (ValueError, OSError, ImportError) as e:
+                raise CliError(f"--output: {e}") from None
+    except CliError as e:
+        _fail(str(e))
+    from rich.table import Table
+
+    t = Table(show_header=False, box=None, pad_edge=False)
+    t.add_column(style="bold")
+    t.add_column()
+    for k, v in summary_lines(traj, total):
+        t.add_row(k, v)
+    _console().print(t)
+    if output is not None:
+        typer.echo(f"saved {output}")
+    if traj.status != "ok":
+        _fail(f"run ended with status {traj.status}: {traj.message}")
