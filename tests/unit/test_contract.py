@@ -15,7 +15,7 @@ import pytest
 import vcirun
 from vcirun.core import record
 from vcirun.codegen import roles, units
-from vcirun.codegen.build import SYSTEM_KERNELS, KernelSet
+from vcirun.codegen.kernel_set import SYSTEM_KERNELS, KernelSet
 from vcirun.run.trajectory_files import IMPACT_ARRAYS, TRAJECTORY_ARRAYS, trajectory_payload
 from vcirun.methods.table import METHODS, resolve_method
 from vcirun.run.trajectory import Trajectory

@@ -28,7 +28,8 @@ from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
 from vcirun.reference import held as rh
-from vcirun.codegen.build import SYSTEM_KERNELS, load_module
+from vcirun.codegen.build import load_module
+from vcirun.codegen.kernel_set import SYSTEM_KERNELS
 from vcirun.scenes.declarations import get_scene
 from vcirun.mechanics.loader import load_system_yaml
 from vcirun.scenes.oracles import ball_in_box_exact, bead_release, zeno_ball

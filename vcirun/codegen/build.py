@@ -41,7 +41,7 @@ from pathlib import Path
 import numba
 
 from .. import __version__
-from .kernel_set import SYSTEM_KERNELS, KernelSet  # noqa: F401 (callers import them from here)
+from .kernel_set import KernelSet
 
 _PKG = Path(__file__).resolve().parent.parent
 # files whose text changes the generated code: hashed into the key

@@ -49,7 +49,8 @@ class _CompiledModel:
     """Hamilton's equations, phi and the elastic reset from the scene's compiled kernels."""
 
     def __init__(self, sysm, prm):
-        from ..codegen.build import SYSTEM_KERNELS, load_module
+        from ..codegen.build import load_module
+        from ..codegen.kernel_set import SYSTEM_KERNELS
 
         self.mod = load_module(sysm, SYSTEM_KERNELS)
         self.n = sysm.n

@@ -22,7 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..codegen.build import SYSTEM_KERNELS, load_module
+from ..codegen.build import load_module
+from ..codegen.kernel_set import SYSTEM_KERNELS
 from ..core.system_data import start_tolerance
 
 

@@ -83,7 +83,7 @@ class Trajectory:
         """Attach the continuous dynamics dense output needs (a trajectory read from a results file or
         unpickled has none): `system` a built-in name, YAML path or MechanicalSystem (default: this
         run's system name, which works for built-in scenes); `params` default: the run's. Returns self."""
-        from ..codegen.build import SYSTEM_KERNELS
+        from ..codegen.kernel_set import SYSTEM_KERNELS
         from .resolve import resolve_numeric
 
         sysd, load, _ = resolve_numeric(self.system if system is None else system, SYSTEM_KERNELS)

@@ -16,7 +16,8 @@ import numpy as np
 
 from ...run.diagnosis import accumulation_onset
 from ...run.resolve import resolve_system
-from ...codegen.build import SYSTEM_KERNELS, load_module
+from ...codegen.build import load_module
+from ...codegen.kernel_set import SYSTEM_KERNELS
 from ...scenes.oracles import ball_exact, ball_exact_onset, ball_position
 from ...reference.exact import l2_error, reference
 from .outcome import cause, compiled, outcome, run

@@ -17,7 +17,8 @@ cases = json.loads(sys.argv[1])
 out = []
 # positive control: the check is live (an overflow inside the uncompiled loop code raises)
 from vcirun.run.resolve import resolve_system
-from vcirun.codegen.build import SYSTEM_KERNELS, load_module
+from vcirun.codegen.build import load_module
+from vcirun.codegen.kernel_set import SYSTEM_KERNELS
 s = resolve_system("cart_pendulum"); mod = load_module(s, SYSTEM_KERNELS)
 with np.errstate(all="raise"):
     try:
