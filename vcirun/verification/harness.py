@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..core.tolerances import DEFAULT_TOLERANCES
+
 
 def exact_smooth(mod, prm, q0, p0, t_eval, rtol=1e-13, force=None):
     """The smooth (constraint ignored) solution of Hamilton's equations at times t_eval:
@@ -39,7 +41,8 @@ class StepFailed(AssertionError):
     """ld_step's Newton solve did not converge (an AssertionError: the tests assert with it)."""
 
 
-def step(mod, q, p, h, t=0.0, prm=None, newton_tol=1e-12, max_iter=50):
+def step(mod, q, p, h, t=0.0, prm=None, newton_tol=DEFAULT_TOLERANCES["newton_tol"],
+         max_iter=DEFAULT_TOLERANCES["max_iter"]):
     """One application of the module's one-step map Phi_h: (q, p) -> (q1, p1). Raises StepFailed if
     Newton does not converge."""
     n = len(q)
