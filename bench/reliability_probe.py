@@ -984,7 +984,7 @@ fault), `bad_message` (non-zero exit without exactly one `error:` line, or files
   ASCII (the message names the character and its ASCII form). Names the generated kernels use for
   their own symbols are reserved (`hh`, `tt`, `qa<k>`, `va<k>`, `qb<k>`, `cse<k>`, `xm<k>`,
   `vcT...`, `mh_...`): a parameter named `vcTQ0` was read as coordinate 0 by the kernels.
-- **The Python API validates like the config layer** (`vcirun.core.validation`): `simulate` and `reference`
+- **The Python API validates like the config layer** (`vcirun.core.bounds`): `simulate` and `reference`
   raise one `ValueError` naming the argument (`max_iter: must be >= 1 (got 0)`); flags
   (`constrained`, `energies`, `resting_contact`, `check_accuracy`) must be booleans, and `beta`
   with `q0`/`p0` is refused (one of them would be ignored). A run whose initial
