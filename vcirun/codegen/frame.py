@@ -1,4 +1,4 @@
-"""Arrays without reference counting for the numba units: stack scratch and borrowed views (issue 16).
+"""Arrays without reference counting for the numba units: stack scratch and borrowed views.
 
 numba reference-counts every array it passes: a callee increfs each array argument on entry and
 decrefs it on exit, an `np.empty` is a heap allocation freed by the last decref, and both are atomic

@@ -1,4 +1,4 @@
-"""Emission of the modified-Hamiltonian kernels of the MCVA family (issue 16: all emission in codegen/).
+"""Emission of the modified-Hamiltonian kernels of the MCVA family (all emission lives in codegen/).
 
 From the symbolic side (vcirun.modified.eta: eta as a stationary value, the DAG of its exact
 derivatives, H~^{O(h^s)} as expressions in its nodes) this module writes the kernels the numba

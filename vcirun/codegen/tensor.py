@@ -1,4 +1,4 @@
-"""Step kernels from per-slot tensors (issue 7, scaling): the default kernel path of vcirun.codegen.
+"""Step kernels from per-slot tensors: the default kernel path of vcirun.codegen.
 
 The expanded path (vcirun.discrete.lagrangians.step_expressions) differentiates the whole Ld in
 (q0, v, h) symbolically: every entry of dPm/dv mixes M(q0), M(q0 + h v), their derivatives and V,
@@ -26,7 +26,7 @@ and dx/dq0 = (1 - C), dx/dq1 = C, dv/dq0 = -1/h, dv/dq1 = 1/h, dx/dv = C h (at f
     dPm/dv              = sum_i W_i [M(x_i) + C_i h T_i - h (1 - C_i) (T_i^T + C_i h S_i)]
                           - a h df/dqdot(q0, v, t)
     Ed   = -D3 Ld       = sum_i W_i [1/2 v^T M(x_i) v + V(x_i)]    (D3 at fixed q0, q1: the h in
-                          front gives L, dv/dh = -v/h gives -v^T M v; no forcing, as before)
+                          front gives L, dv/dh = -v/h gives -v^T M v; the force does not enter Ed)
     dEd/dv              = sum_i W_i [M(x_i) v + C_i h (1/2 v^T dM/dq(x_i) v + dV(x_i))]
 
 (a, b) = the Ld's forcing_weights (trapezoidal discrete Lagrange-d'Alembert forces f^- = a h f(q0,

@@ -156,8 +156,8 @@ def solve_ivp_run(system, method: str = "DOP853", *, h, T, rtol, atol=None, beta
         raise ValueError(f"rtol: must be positive (got {rtol})")
     sysm = resolve_system(system)
     if sysm.m != 1 or any(c.restitution != 1 for c in sysm.constraints):
-        # the baselines' event loop and reset are the paper's: one elastic constraint (issue 17's
-        # impact law lives in the compiled loop and the exact reference)
+        # the baselines' event loop and reset are the paper's: one elastic constraint (the
+        # general impact law lives in the compiled loop and the exact reference)
         raise ValueError(f"system: the solve_ivp baselines take one elastic constraint; {sysm.name} declares "
                          f"{sysm.m} (restitutions {[str(c.restitution) for c in sysm.constraints]}); "
                          "use vcirun.simulate or vcirun.reference")

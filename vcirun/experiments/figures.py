@@ -7,8 +7,8 @@
   one panel per method, one shared y axis.
 - Figure 1: energy H(t) of the same run with and without the impact constraint.
 - Work-precision: mean computation time against median L2 error per method, one point per h.
-- Contacts: energy H(t) against time, one panel per method (several constraints or restitution < 1,
-  issue 17), the run at the smallest h, impacts as vertical lines coloured by contact (the results
+- Contacts: energy H(t) against time, one panel per method (several constraints or restitution < 1),
+  the run at the smallest h, impacts as vertical lines coloured by contact (the results
   file's constraint names), held phases (resting contact) shaded.
 (`Trajectory.plot()` draws one run: `vcirun.run.plotting.trajectory_figure`.)
 
@@ -323,7 +323,7 @@ def contacts_energy(results) -> "Figure":
     results = _as_results(results)
     cons = results.attrs.get("constraints") or []
     if len(cons) < 2 and all(str(c.get("restitution", "1")) in ("1", "1.0") for c in cons):
-        raise FigureSkipped("for scenes with several constraints or restitution < 1 (issue 17); this results "
+        raise FigureSkipped("for scenes with several constraints or restitution < 1; this results "
                             "file declares one elastic constraint (or predates the constraints record)")
     runs = [r for r in results.runs if r.attrs.get("has_trajectory") and r.attrs.get("n_steps", 0) > 0]
     if not runs:

@@ -244,7 +244,7 @@ def _check_resources(cfg: SweepConfig, pending: list[RunSpec], n: int, workers: 
 def _final_hooks(cfg: SweepConfig) -> list:
     """The sweep finished and the file is final: callables f(h5py.File) that run inside the last rewrite
     of a complete sweep (on the copy that then atomically replaces the file), e.g. a summary group of
-    every run (issue 19). This is the one place where 'the file is final' happens."""
+    every run. This is the one place where 'the file is final' happens."""
     return []
 
 
@@ -259,7 +259,7 @@ def _root_attrs(cfg: SweepConfig, config_text: str, config_path, specs: list[Run
         "ic_keys": [ic.key for ic in cfg.initial_conditions()], "n_runs_expected": len(specs),
         "reference_kind": cfg.reference.kind, "tolerances": tol, "store_trajectories": cfg.store_trajectories,
         "timing_repeats": cfg.timing_repeats,
-        # the unilateral constraints in declaration order (impact_contact indexes them), issue 17
+        # the unilateral constraints in declaration order (impact_contact indexes them)
         "constraints": [{"name": c.name, "phi": str(c.phi), "restitution": str(c.restitution)}
                         for c in build_system(cfg)[2].constraints],
     }
@@ -396,7 +396,7 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
                 reporter.stop()
                 t0 = time.perf_counter()
                 writer.finish(status)  # every finished run is committed, whatever happened
-                _finalize(writer, summary)  # the file is final: its summary group (issue 19)
+                _finalize(writer, summary)  # the file is final: its summary group
                 summary.write_time += time.perf_counter() - t0
             if on_main:
                 signal.signal(signal.SIGTERM, old_term)

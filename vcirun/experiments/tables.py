@@ -16,7 +16,7 @@ PAPER_METHODS = ("CVA", "VCI", "MCVAA", "MCVAC")
 PROPERTY_COLUMNS = (("conserves_mh", "Conserves associated MH"),
                     ("symplectic", "Symplectic (to specified accuracy)"),
                     ("explicit_ld", "Explicit discrete Lagrangian"),
-                    # beyond the paper's table (issue 15): measured L2 order through impacts on forced
+                    # beyond the paper's table: measured L2 order through impacts on forced
                     # scenes against the forced exact reference (tests/scenes/test_forced.py)
                     ("forcing", "Forcing (measured order)"))
 

@@ -1,5 +1,5 @@
-"""The worker side of a sweep: run specs and tasks, and what a worker does with them (issue 22: split
-out of `sweep` so that `executors` imports this module and not `sweep`, which imports `executors`).
+"""The worker side of a sweep: run specs and tasks, and what a worker does with them (apart
+from `sweep` so that `executors` imports this module and not `sweep`, which imports `executors`).
 
 A task is the pending runs of one initial condition (`make_tasks`). A worker process (the local
 pool, fork context, or a Dask worker thread) builds the system once (`_WorkerState`), keeps compiled

@@ -1,4 +1,4 @@
-"""The work-precision study (issue 7): what accuracy a method buys for what time, beside solve_ivp.
+"""The work-precision study: what accuracy a method buys for what time, beside solve_ivp.
 
 A study config (`study: work_precision` or `study: long_horizon`; `configs/work_precision.yaml`,
 `configs/work_precision_double.yaml`, `configs/long_horizon.yaml`) is validated by
@@ -436,8 +436,8 @@ def vcirun_front(ratios: list[dict], timing: str = "call", lost: float | None = 
     """vcirun's work-precision front: over every method and h (median rows of `ratios`, motion not
     lost), sorted by `timing` ('call': the whole simulate() call, what a user waits for), each point
     more accurate than every cheaper one. This is the curve a user choosing the best vcirun method
-    for an accuracy gets; issue 7's "at every accuracy level ... at least 10 times faster" is read on
-    it. Each entry keeps the point's ratios against every solver (same output grid). Errors at or
+    for an accuracy gets; the performance target "at every accuracy level ... at least 10 times faster"
+    is read on it. Each entry keeps the point's ratios against every solver (same output grid). Errors at or
     below `floor` (the exact reference's own accuracy, times 3) are not resolved: only the cheapest
     such point is kept."""
     lost = lost if lost is not None and np.isfinite(lost) else math.inf

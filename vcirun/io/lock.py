@@ -43,7 +43,7 @@ class WriterLock:
         except OSError as e:
             raise StorageError(f"{self.path}: cannot create the directory {parent} ({os_text(e)}); choose "
                                "another --output") from None
-        self._made_dirs = list(missing)  # removed again if this session ends without writing anything
+        self._made_dirs = list(missing)  # removed again if the writing session ends without writing anything
         try:
             import fcntl
         except ImportError:  # pragma: no cover - non-POSIX: no guard against two concurrent writers

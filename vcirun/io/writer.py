@@ -52,7 +52,7 @@ class ResultsWriter:
     `acquire()` takes the lock and checks an existing file (format; written by the same configuration:
     `config_key`; groups verified, see `checks.run_problem`), collecting its runs and references, the
     runs a killed session left in the journal included; with `force` it starts a new file instead.
-    `start()` rewrites the file once (this session in its history, a killed session's journal folded
+    `start()` rewrites the file once (the current session in its history, a killed session's journal folded
     in, damaged groups dropped) and opens a new journal. `add_run`/`add_reference` queue results;
     `commit()` appends the queue to the journal (before `start`: rewrites the file); `maybe_commit()`
     does so when `commit_interval` seconds have passed since the last commit; `start_autocommit()` runs
@@ -86,10 +86,10 @@ class ResultsWriter:
         self._lock = WriterLock(self.path)
         self._fresh = force
         self._old_journal: Journal | None = None
-        self._jfd: int | None = None         # this session's journal (after start)
+        self._jfd: int | None = None         # the current session's journal (after start)
         self._jend = 0
         self._token = ""
-        self._failed: StorageError | None = None  # a write failed: no further HDF5 writes this session
+        self._failed: StorageError | None = None  # a write failed: no further HDF5 writes in the current session
         self._mutex = threading.RLock()
         self._auto: threading.Thread | None = None
         self._auto_stop = threading.Event()
@@ -116,7 +116,7 @@ class ResultsWriter:
 
     @property
     def failed(self) -> bool:
-        """A write failed this session (disk full, ...): nothing more is written."""
+        """A write failed in the current session (disk full, ...): nothing more is written."""
         return self._failed is not None
 
     def __enter__(self):
@@ -148,8 +148,8 @@ class ResultsWriter:
         return self
 
     def start(self) -> None:
-        """Rewrite the file once (this session recorded, a killed session's journal folded in, damaged
-        groups dropped), then open this session's journal."""
+        """Rewrite the file once (the current session recorded, a killed session's journal folded in, damaged
+        groups dropped), then open the current session's journal."""
         if self._fresh:
             self.root_attrs.setdefault("created", now_iso())
         else:
@@ -396,7 +396,7 @@ class ResultsWriter:
 
     # -- finishing ------------------------------------------------------------------------------------------
     def finish(self, status: str, final_hooks=None) -> None:
-        """Commit what is queued, record how this session ended ('complete', 'interrupted', ...) and
+        """Commit what is queued, record how the current session ended ('complete', 'interrupted', ...) and
         compact: the journal is folded into the file and removed. `final_hooks` (default
         `self.final_hooks`) run inside that last rewrite, on the open file, when status is 'complete'.
         After a failed write nothing more is written (the file and journal keep every committed run)."""
@@ -417,7 +417,7 @@ class ResultsWriter:
             self.commit(force_write=True)
             journal = read_journal(self.journal_path)
             if journal is None or journal.token != self._token:
-                raise StorageError(f"{self.journal_path}: the journal of this session is missing or was replaced; "
+                raise StorageError(f"{self.journal_path}: the journal of the current session is missing or was replaced; "
                                    "rerun the same command to resume")
             # what a background compaction folded in already is skipped
             self._rewrite(new_token="", journals=[journal.after(self._file_applied())], final_hooks=hooks)

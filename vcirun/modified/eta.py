@@ -39,8 +39,8 @@ Modified Hamiltonian
 H~^{O(h^s)} = sum_{i=1..s} h^{i-1} H_i[eta] with H_i the symplectic-Euler series of vcirun/modified/
 series.py (derived there from the Hamilton-Jacobi equation).
 
-What keeps the symbolic work small as n grows (issue 7; the first version formed every jet of eta
-up to order s entry by entry: n^2.9 symbolic, 1.1 MB of source for MCVAC at n = 8):
+What keeps the symbolic work small as n grows (forming every jet of eta up to order s entry by entry
+costs n^2.9 symbolic time and 1.1 MB of source for MCVAC at n = 8):
 - Primitives from per-node tensors: every Ld the MCVA family takes is a quadrature rule of L in
   each stage, so each derivative of ell is a short sum of d^A M_bc and d^A V at the nodes (one
   entry's derivative each) times stage velocities (`StationaryEta._tensor_prim`); ell itself, whose

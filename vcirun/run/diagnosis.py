@@ -1,4 +1,4 @@
-"""Why a run stopped (issue 8: every stop names its cause), from its grid states and the compiled
+"""Why a run stopped (every stop names its cause), from its grid states and the compiled
 module: `failure_cause` returns the "; cause: ..." text of `Trajectory.message`. numpy only; a
 diagnosis never raises."""
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """From what a user names (a built-in scene, a YAML file, a MechanicalSystem) to the numeric system
-and its compiled module: the symbolic path (sympy, on a cache miss) or the warm index (issue 7: a
+and its compiled module: the symbolic path (sympy, on a cache miss) or the warm index (a
 built-in name or a YAML file whose module is cached starts without any symbolic work). Used by
 vcirun.simulate and by a Trajectory that re-attaches its dynamics."""
 from __future__ import annotations
@@ -42,7 +42,7 @@ def resolve_system(system, params: dict | None = None):
     raise ValueError(f"system: expected a built-in name, a YAML path or a MechanicalSystem, got {type(system).__name__}")
 
 
-# --- warm start (issue 7): a system given by name or file without the symbolic system ----------------
+# --- warm start: a system given by name or file without the symbolic system ----------------
 
 def _warmable(system) -> bool:
     """A built-in scene name or an existing file: something the warm index may know."""

@@ -71,7 +71,7 @@ def ball_in_box(**overrides) -> SystemData:
     return SystemData(
         name="ball_in_box", n=2, params=prm, default_q0=q0, default_p0=prm["m"] * v0,
         description="point mass in the box 0 <= x <= width, 0 <= y <= height under gravity; four walls "
-                    "(floor, ceiling, left, right) with restitution e (issue 17)")
+                    "(floor, ceiling, left, right) with restitution e")
 
 
 def newton_cradle(n: int = 3, **overrides) -> SystemData:
@@ -83,7 +83,7 @@ def newton_cradle(n: int = 3, **overrides) -> SystemData:
     return SystemData(
         name=f"newton_cradle_{n}", n=n, params=prm, default_q0=q0, default_p0=p0,
         description=f"{n} equal balls of diameter d on a line, contacts between neighbours with restitution e; "
-                    "balls 2..N touching, ball 1 approaching at speed 1 (issue 17)")
+                    "balls 2..N touching, ball 1 approaching at speed 1")
 
 
 def double_pendulum_walls(**overrides) -> SystemData:

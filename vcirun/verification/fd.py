@@ -420,8 +420,8 @@ KERNEL_CHECKS = [
     (("sys_M", "sys_V", "sys_phi"), _check_declared),   # needs `declared` (check_kernels)
     (("sys_force", "sys_M"), _check_force),             # forced modules, against the declared force
     (("sys_phi", "sys_dphi"), _check_dphi),
-    (("sys_phis", "sys_dphis"), _check_dphis),          # several constraints (issue 17)
-    (("sys_M",), _check_held_contact),                  # sys_ddphis, sys_Mdotv where defined (issue 18)
+    (("sys_phis", "sys_dphis"), _check_dphis),          # several constraints
+    (("sys_M",), _check_held_contact),                  # sys_ddphis, sys_Mdotv where defined
     (("sys_dHq", "sys_M", "hamiltonian"), _check_dhq),
     (("hamiltonian", "sys_M", "sys_V"), _check_hamiltonian),
     (("hamilton_rhs", "hamiltonian"), _check_rhs),

@@ -142,7 +142,7 @@ def verify(system, methods=None, *, q0=None, p0=None, beta=None, T=5.0, h=None, 
 
     Forced systems: the exact smooth solution adds the declared force to Hamilton's equations;
     vcirun.reference is compared with it before the first impact (if they disagree, the impact checks
-    are skipped with that reason, as they were until issue 15); the energy check balances the forces'
+    are skipped with that reason); the energy check balances the forces'
     work; symplecticity and H~ conservation are reported, not judged.
 
     Returns a VerifyResult (`.ok`, `.checks`, `.save(path)` writes the Markdown report and figure).
@@ -284,17 +284,17 @@ class _Session:
                  "accuracy (vs a 10x tighter solve)": ck.fmt(acc)}]
         v = ck.PASS if acc <= 1e-8 * max(1.0, self.ref_scale) else ck.WARN
         note = f"{len(ref.impacts)} impacts on [0, {T:g}]; self-reported accuracy {acc:.2e}"
-        # (issue 15) until vcirun.reference integrates the generalized force, a forced system's exact
-        # reference is the unforced motion: detected against the forced smooth solve before the first impact
+        # a forced system's exact reference must follow the forced smooth solve before the first impact;
+        # where it does not (a force the reference does not integrate), the impact checks are skipped
         if self.force is not None and self.smooth_ok:
             m = self.t_smooth < 0.9 * (ref.impacts[0] if len(ref.impacts) else T)
             dev = float(np.max(np.abs(ref(self.t_smooth[m]) - self.qs_ref[m]))) if m.sum() >= 2 else 0.0
             if dev > 1e-7 * max(1.0, self.qscale):
                 self.ref_ok = False
-                self.ref_reason = "vcirun.reference ignores this system's forcing (issue 15)"
+                self.ref_reason = "vcirun.reference ignores this system's forcing"
                 v = ck.WARN
                 note = (f"vcirun.reference ignores the forcing of this system (differs from the forced smooth "
-                        f"solution by {dev:.2e} before the first impact; issue 15): impact checks skipped")
+                        f"solution by {dev:.2e} before the first impact): impact checks skipped")
         if self.ref_ok:
             self.sample_M("exact reference", tt, qt)
         self.add(ck.Check("reference", None, v, acc, "accuracy <= 1e-8 max |q|",
@@ -331,7 +331,7 @@ class _Session:
         self.say(f"{name}: loading its compiled module")
         try:
             mod = load_module(self.sysm, ks)
-        except ValueError as e:   # e.g. the MCVA family on a forced system (until issue 15)
+        except ValueError as e:   # a method the system's declaration does not support
             self.add(ck.skip("every check", name, f"{name} does not run on this system: {' '.join(str(e).split())}"))
             return
         mcva = meth.has_modified_energy

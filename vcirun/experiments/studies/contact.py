@@ -292,7 +292,7 @@ def surface_state(system, kind, params=None):
 def surface_case(system, method, kind, *, h, T, params=None, resting_contact=True) -> dict:
     """Start on phi = 0 (see surface_state); ok runs are compared with the exact reference, which for
     'in' starts from the reflected state (R^CVA's exact elastic reset at t = 0). 'rest' is held from
-    t = 0 by both (issue 18) unless resting_contact=False (then the run fails: no elastic motion)."""
+    t = 0 by both (resting contact) unless resting_contact=False (then the run fails: no elastic motion)."""
     s = resolve_system(system)
     prm, mod = s.param_values(params), load_module(s, SYSTEM_KERNELS)
     q0, p0 = surface_state(system, kind, params)
@@ -340,7 +340,7 @@ def accumulation_case(method, *, h, T, y0=1.0, c=2.0, m=1.0, g=10.0, **opts) -> 
     if tr.status == "accumulation":
         out["onset"] = accumulation_onset(tr.impacts, h)
     held = np.flatnonzero(np.asarray(tr.contact_active).any(axis=1)) if np.size(tr.contact_active) else []
-    if len(held):  # resting contact (issue 18): the floor is held from here on
+    if len(held):  # resting contact: the floor is held from here on
         out["held_from"] = float(tr.t[held[0]])
     yex = ball_position(tr.t, y0, g, c / m, times, speeds)
     err = np.abs(tr.q[:, 0] - yex)

@@ -1,4 +1,4 @@
-"""The extremes study (issue 8, `study: extremes`): every section of the config for every method.
+"""The extremes study (`study: extremes`): every section of the config for every method.
 
 Each section is one family of hard cases (`step_size`, `contact`, `parameters`, `hygiene`), run
 through the public API; the result is plain data (dicts of floats and strings, JSON-ready) that
