@@ -12,7 +12,7 @@ grid by composite Simpson between impact steps (fourth order) and by the trapezo
 pieces of an impact step, split at the recorded impact states (f . dH~/dp jumps there): the
 quadrature error is then O(h^4) + O(h^3) per impact, below the balance itself.
 
-Printed only, never asserted; docs/forcing.md quotes one run.
+Printed only, never asserted; docs/derivations/forcing.md quotes one run.
 """
 from __future__ import annotations
 

@@ -3,7 +3,7 @@
 Oracles: the ball in a box (decoupled: closed form, vcirun.scenes.oracles.ball_in_box_exact), Newton's
 cradle (Moreau's law in closed form, vcirun.scenes.oracles.newton_cradle_velocities), and for the double
 pendulum between two walls the exact reference, itself checked against the oracles here.
-Derivations: docs/contacts.md.
+Derivations: docs/derivations/contacts.md.
 """
 from __future__ import annotations
 
@@ -88,7 +88,7 @@ def test_ball_in_box_corner_hit_gives_two_entries():
                                     pytest.param("MCVAC", marks=pytest.mark.slow)])  # (a cold build each)
 def test_newton_cradle(method, e):
     """3 equal balls, the last two touching, the first approaching at speed 1: Moreau's law gives
-    (-1/3, 2/3, 2/3) for e = 1 (not the sequential textbook answer (0, 0, 1): docs/contacts.md) and
+    (-1/3, 2/3, 2/3) for e = 1 (not the sequential textbook answer (0, 0, 1): docs/derivations/contacts.md) and
     (0, 1/2, 1/2) for e = 1/2. Momentum conserved; energy conserved for e = 1 and losing
     (1 - e^2) ... as the LCP says otherwise; the recorded impulses complementary."""
     tr = vcirun.simulate("newton_cradle_3", method, h=1e-2, T=0.5, params={"e": e})

@@ -11,7 +11,7 @@ Exact cases, none built from vcirun's integrators:
 - the cart-pendulum held on the floor, lifting off where the floor force
   N = (m1 + m2) g + m2 L (cos(theta) theta'^2 + sin(theta) theta'') vanishes (a pendulum with a fixed
   pivot until then, solved here), then bouncing (e = 0.3) and settling again.
-Derivations: docs/contacts.md, sections 6 (reference) and 7 (integrators).
+Derivations: docs/derivations/contacts.md, sections 6 (reference) and 7 (integrators).
 """
 from __future__ import annotations
 
@@ -116,7 +116,7 @@ def test_reference_without_resting_contact_raises_where_a_contact_would_be_held(
 @pytest.mark.parametrize("h", [1e-2, 1e-3])
 def test_zeno_ball_settles_and_stays(systems, method, h):
     """Impacts accumulate; the floor is held once a bounce leaves less than |phi''| h of normal
-    velocity (docs/contacts.md 7.2), i.e. at most the 2 h / (1 - e) of flights left before t_inf
+    velocity (docs/derivations/contacts.md 7.2), i.e. at most the 2 h / (1 - e) of flights left before t_inf
     early, and the ball then lies on the floor exactly."""
     z = zeno_ball(1.0, 0.0, G, 0.8)
     tr = vcirun.simulate(systems["zeno"], method, h=h, T=6.0, q0=[1.0], p0=[0.0])

@@ -224,8 +224,8 @@ def test_trajectory_storage_and_schema_follow_the_record_table():
     assert {f.name for f in record.FIELDS} <= names
     assert set(IMPACT_ARRAYS) == set(record.stored_names("impacts"))
     assert set(TRAJECTORY_ARRAYS) == {"t"} | set(record.stored_names("trajectory"))
-    doc = (ROOT / "docs" / "results_schema.md").read_text()
-    assert record.schema_markdown() in doc, "docs/results_schema.md: regenerate the datasets table from " \
+    doc = (ROOT / "docs" / "reference" / "results_schema.md").read_text()
+    assert record.schema_markdown() in doc, "docs/reference/results_schema.md: regenerate the datasets table from " \
                                             "vcirun.core.record.schema_markdown()"
     consts = record.module_constants()
     for f in record.FIELDS:

@@ -1,4 +1,4 @@
-"""The impact law of several contacts (vcirun/collision/impact_law.py; docs/contacts.md, section 1).
+"""The impact law of several contacts (vcirun/collision/impact_law.py; docs/derivations/contacts.md, section 1).
 
 The unit is a numba source unit; every test runs it twice: its text (with the linear algebra it
 calls, vcirun.codegen.units.standalone_source) executed with `njit` replaced by the identity (plain
@@ -154,7 +154,7 @@ def test_newton_cradle_restitution(law, e):
     """Same cradle, e < 1 on both contacts. Both active: W lam = (1 + e)(1, 0) gives lam = (1 + e)(2/3,
     1/3) > 0, so u+ = -e u- = (e, 0): v2 - v1 = e, v3 = v2, and momentum v1 + 2 v2 = 1 give
     v+ = ((1 - 2e)/3, (1 + e)/3, (1 + e)/3). Energy loss = -1/2 sum lam_i (1 - e_i) u-_i
-    (docs/contacts.md, 1.4) = (1 - e^2)/3."""
+    (docs/derivations/contacts.md, 1.4) = (1 - e^2)/3."""
     G = _cradle(3)
     W = G @ G.T
     v = np.array([1.0, 0.0, 0.0])
@@ -329,7 +329,7 @@ def test_random_singular_more_contacts_than_dof(law, rng):
         code, lam = _solve(law, W, um, e)
         codes.append(code)
         if trial % 2 == 0:
-            assert feasible  # equal restitution: always solvable (docs/contacts.md, 1.3)
+            assert feasible  # equal restitution: always solvable (docs/derivations/contacts.md, 1.3)
         if not feasible:
             assert code == law.LCP_INFEASIBLE
             continue

@@ -1,4 +1,4 @@
-"""The closed-form oracles of several contacts (vcirun.scenes.oracles; docs/contacts.md, section 4), each
+"""The closed-form oracles of several contacts (vcirun.scenes.oracles; docs/derivations/contacts.md, section 4), each
 against an independent numerical solve written here from the equations of motion:
 
   * ball_in_box_exact, zeno_ball: scipy solve_ivp (DOP853) on the unconstrained equations with one

@@ -1,4 +1,4 @@
-"""The held-contact machinery of the exact reference (vcirun.reference.held; docs/contacts.md,
+"""The held-contact machinery of the exact reference (vcirun.reference.held; docs/derivations/contacts.md,
 "Held contacts in the reference"), against closed forms (vcirun.scenes.oracles) and independent solves
 written here from the equations of motion (never vcirun kernels):
 
@@ -291,7 +291,7 @@ def test_zeno_extrapolation_exact_for_geometric_and_second_order_in_the_flight()
     g, k, e = 9.81, 0.7, 0.8
     ts = _drag_bounces(2.0, g, k, e, 1e-13)
     t_inf = ts[-1] + (ts[-1] - ts[-2]) * e / (1 - e)
-    # second order, with the constant of docs/contacts.md: the flight ratio r_j = e (1 - k (1 + e) d_j / 6)
+    # second order, with the constant of docs/derivations/contacts.md: the flight ratio r_j = e (1 - k (1 + e) d_j / 6)
     # gives t_inf(extrapolated) - t_inf = -k d^2 / (6 (1 - e)^2) + O(d^3)
     c = k / (6.0 * (1.0 - e) ** 2)
     for d in (1e-2, 1e-3, 1e-4):

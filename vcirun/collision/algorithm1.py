@@ -42,7 +42,7 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
     (vcirun.core.record.COUNTERS). energies = 0 skips H, the discrete energy Ed and the modified energy
     along the grid (set at t0 only): a run that only needs the trajectory saves their per-step cost.
 
-    Held contacts (resting_contact = 1; docs/contacts.md): a contact is held when the run
+    Held contacts (resting_contact = 1; docs/derivations/contacts.md): a contact is held when the run
     starts resting on it, when its impacts accumulate, or when an impact with restitution e < 1
     leaves it a normal velocity below |d^2 phi/dt^2| h; while held every step is the constrained map
     (maps/held.py); it is released where its contact force would turn tensile (located within the
@@ -286,7 +286,7 @@ def _impact_step(q, p, h, tau_max, t, have_end, prm, ntol, maxit, event_tol, max
             k_imp += 1
             accumulating = _accumulating(dense, tc + dtau, h, max_impacts_step) or k_imp > max_impacts_step
             # dense impacts settle only where energy leaves (restitution < 1 or a force): elastic
-            # impacts of a conservative system stay the documented limit (docs/contacts.md 7.2)
+            # impacts of a conservative system stay the documented limit (docs/derivations/contacts.md 7.2)
             if accumulating and not (resting and _dissipative(qt, pt, tc + dtau, prm, active)):
                 return ST_ACCUMULATION, iters, nheld
             if info[I_N_IMPACTS] + k > out[O_IMPACTS].shape[0]:

@@ -3,7 +3,7 @@
 # rest against each other would pin the gap at 0), and the impact law at a collision found by the
 # event search: which contacts take part, their impulses, the direction of the momentum jump and
 # the energy Newton's law removes.
-# Contract: vcirun.codegen.units. Derivations: docs/contacts.md.
+# Contract: vcirun.codegen.units. Derivations: docs/derivations/contacts.md.
 #
 #   impact_direction(q, pm, h, event_tol, prm, d, lam, active) -> (k, s0, dE)
 #     q, pm: the impact configuration and momentum before the impact. On return d (n) holds the
@@ -114,7 +114,7 @@ def _impact_several(q, pm, h, event_tol, prm, e, d, lam, active):
     for a in range(k):
         um[a] = u[idx[a]]
         # a touching contact that separates takes no restitution: with e > 0 a coupled separating
-        # contact could end up approaching and gain energy (docs/contacts.md, section 1.5)
+        # contact could end up approaching and gain energy (docs/derivations/contacts.md, section 1.5)
         ea[a] = e[idx[a]] if um[a] <= 0.0 else 0.0
         for b in range(k):
             W[a, b] = D[idx[a], idx[b]]
@@ -132,7 +132,7 @@ def _impact_several(q, pm, h, event_tol, prm, e, d, lam, active):
             d[j] += la[a] * G[i, j]
     if k == 1:  # one contact at the impact: the closed form (exactly 0 for e = 1)
         return 1, 1.0, _newton_loss_one(q, pm, prm, G[idx[0]], ea[0])
-    # the energy Newton's law removes, -1/2 sum_i lam_i (1 - e_i) u-_i (docs/contacts.md, (2.2)):
+    # the energy Newton's law removes, -1/2 sum_i lam_i (1 - e_i) u-_i (docs/derivations/contacts.md, (2.2)):
     # exactly 0 when every e_i = 1, and no cancellation of two energies
     dE = 0.0
     for a in range(k):

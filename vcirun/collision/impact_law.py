@@ -1,4 +1,4 @@
-# numba source unit: the impact law of k simultaneous contacts (docs/contacts.md, section 1):
+# numba source unit: the impact law of k simultaneous contacts (docs/derivations/contacts.md, section 1):
 # Moreau's generalized Newton law as a linear complementarity problem, solved exactly for k <= 8.
 # It reads no name of the generated part (every size from its arguments, its own constants only) and
 # calls only maps/linalg.py, so it compiles on its own (vcirun.codegen.units.standalone_source).
@@ -84,7 +84,7 @@ def impact_law(W, um, e, lam):
     tol_w = LCP_FEAS_TOL * qs
     # 1. a basic solution: the support S with the smallest violation among the 2^k candidates
     #    lam_S = -A_SS^-1 q_S (A_SS nonsingular). For PSD A a solvable LCP has a vertex solution, whose
-    #    support has A_SS nonsingular (docs/contacts.md, 1.3), so this finds a solution if one exists.
+    #    support has A_SS nonsingular (docs/derivations/contacts.md, 1.3), so this finds a solution if one exists.
     x = np.empty(k)
     best = np.zeros(k)
     best_v = np.inf

@@ -1,5 +1,5 @@
 # numba source unit: the reset R^MCVA (eq. 34) of the MCVA family, conserving the truncated modified
-# Hamiltonian H~^{O(h^s)} (with restitution: losing what Newton's law removes from H, docs/contacts.md).
+# Hamiltonian H~^{O(h^s)} (with restitution: losing what Newton's law removes from H, docs/derivations/contacts.md).
 # Signature: the role `reset` of vcirun.codegen.roles; row: roles.RESETS["mcva"].
 import math
 

@@ -1,5 +1,5 @@
-# numba source unit: the reset R^VCI (eq. 33), with forcing (docs/forcing.md) and restitution
-# (docs/contacts.md). Signature: the role `reset` of vcirun.codegen.roles; row: roles.RESETS["vci"].
+# numba source unit: the reset R^VCI (eq. 33), with forcing (docs/derivations/forcing.md) and restitution
+# (docs/derivations/contacts.md). Signature: the role `reset` of vcirun.codegen.roles; row: roles.RESETS["vci"].
 import math
 
 import numpy as np
@@ -22,11 +22,11 @@ def reset_vci(q, pm, d, s0, dE, E_pre, vpre, dtau, tau_rem, h, t, prm, ntol, max
     tau_rem = tau_max - Delta tau (after the decrement of Algorithm 1, line 15), so the pre- and
     post-impact steps tile the grid step exactly.
 
-    Forcing (docs/forcing.md): the discrete Lagrange-d'Alembert principle with the impact time as a
+    Forcing (docs/derivations/forcing.md): the discrete Lagrange-d'Alembert principle with the impact time as a
     variable gives the energy condition E^+ = E^- + f^+_pre . v_pre + f^-_post . v_post, the discrete
     work of the force over the half of each partial step next to the impact, W^+ = b dtau f(q, vpre,
     t) . vpre and W^-(w) = a tau_rem f(q, w, t) . w with the Ld's discrete-force weights (a, b).
-    Restitution (docs/contacts.md): the discrete energy loses what Newton's law removes from H, dE
+    Restitution (docs/derivations/contacts.md): the discrete energy loses what Newton's law removes from H, dE
     (0 for elastic impacts). Unforced and elastic: the paper's eq. (33)."""
     if s0 == 0.0 or not math.isfinite(s0):
         return -1, s0

@@ -1,5 +1,5 @@
 """The record of a run, as one table: what the compiled loop fills, what `Trajectory` holds, what a
-results file stores, and what docs/results_schema.md lists.
+results file stores, and what docs/reference/results_schema.md lists.
 
 - FIELDS: every array the loop writes (name, axis, per-coordinate?, dtype, fill, storage, meaning).
   The generated module gets one index constant O_<NAME> per row (vcirun.codegen.units), the loop
@@ -177,7 +177,7 @@ def stored_names(kind: str) -> tuple:
 
 
 def schema_markdown() -> str:
-    """The per-run datasets table of docs/results_schema.md (tests check the document holds it)."""
+    """The per-run datasets table of docs/reference/results_schema.md (tests check the document holds it)."""
     hdf = {"float64": "f8", "int64": "i8", "bool": "u1"}
     lines = ["| dataset | shape, dtype | stored | meaning |", "|---|---|---|---|",
              "| `t` | (N+1,) f8 | with trajectories | grid times t0 + k h |"]

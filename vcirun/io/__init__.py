@@ -1,4 +1,4 @@
-"""Files: a sweep's results file (one HDF5 file per sweep, layout in docs/results_schema.md), its
+"""Files: a sweep's results file (one HDF5 file per sweep, layout in docs/reference/results_schema.md), its
 journal, and the views the experiments and the user read it through.
 
 Module        What it owns

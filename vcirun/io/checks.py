@@ -1,7 +1,7 @@
 """What a results file is and what its groups must hold before anyone trusts them.
 
 - The file's identity: root attribute `format` = FORMAT, `schema_version` = SCHEMA_VERSION, written
-  with HDF5 library version bounds LIBVER (layout: docs/results_schema.md).
+  with HDF5 library version bounds LIBVER (layout: docs/reference/results_schema.md).
 - `run_problem` / `reference_problem`: why a group marked complete cannot be trusted (datasets
   missing, shapes other than its attributes declare), or None. Resume and the readers trust only
   what these verify; `scan_groups` sorts a file's groups into trusted, incomplete and damaged.

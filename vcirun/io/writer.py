@@ -1,4 +1,4 @@
-"""`ResultsWriter`: the single writer of a sweep's results file (layout: docs/results_schema.md).
+"""`ResultsWriter`: the single writer of a sweep's results file (layout: docs/reference/results_schema.md).
 
 Safety model: bounded loss at a constant commit cost.
 

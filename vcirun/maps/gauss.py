@@ -134,7 +134,7 @@ def mh_gradient(q, p, h, prm, u, W, grad, hess):
 @njit(cache=True, nogil=True, error_model="numpy")
 def mh_field(y, t, h, prm, u, W, grad, hess, f):
     """f = (dH~/dp, -dH~/dq + F(q, dH~/dp, t)) at y = (q, p), F the generalized force (forced
-    modified equations, docs/forcing.md; FORCED False: the Hamiltonian field of H~). Returns the
+    modified equations, docs/derivations/forcing.md; FORCED False: the Hamiltonian field of H~). Returns the
     Newton iterations spent on u (< 0: failure)."""
     q = y[:NDOF]
     p = y[NDOF:]

@@ -1,4 +1,4 @@
-# numba source unit: held (resting) contacts (docs/contacts.md, "Held contacts").
+# numba source unit: held (resting) contacts (docs/derivations/contacts.md, "Held contacts").
 # Contract: vcirun.codegen.units.
 #
 # While the contacts of a set A are held, phi_A(q) = 0 is a bilateral constraint and every method

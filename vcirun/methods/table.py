@@ -60,7 +60,7 @@ def _kernel_set(method: Method) -> KernelSet:
 def properties(*, conserves_mh=False, symplectic=False, explicit_ld=False, forcing=None) -> dict:
     """Table I's columns of a method: conserves its associated modified Hamiltonian; symplectic
     (True, or "exact"); explicit discrete Lagrangian (the simplifying discrete Lagrange-d'Alembert
-    principle); forcing: the L2 order measured through impacts on forced scenes (docs/forcing.md),
+    principle); forcing: the L2 order measured through impacts on forced scenes (docs/derivations/forcing.md),
     None where none was measured."""
     return {"conserves_mh": conserves_mh, "symplectic": symplectic, "explicit_ld": explicit_ld, "forcing": forcing}
 

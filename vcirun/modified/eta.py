@@ -80,7 +80,7 @@ class StationaryEta:
 
     def __init__(self, system, ld_name: str, per_node: bool = True):
         # A forced system: eta is that of the conservative discrete Lagrangian (ell below is built
-        # from L alone); the force enters the partial flow's equations, not H~ (docs/forcing.md).
+        # from L alone); the force enters the partial flow's equations, not H~ (docs/derivations/forcing.md).
         ld = get_ld(ld_name)
         n = system.n
         self.n = n

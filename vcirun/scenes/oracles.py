@@ -7,7 +7,7 @@ sympy, no compiled method module, so the reference, the studies and the tests ca
 - `ball_exact`, `ball_position`, `ball_exact_onset`: the bouncing ball y'' = -g - (c/m) y' with
   elastic impacts on y = 0 (scene `bouncing_ball`; with drag its impacts accumulate).
 
-Several contacts and restitution (issues 17 and 18; derivations in docs/contacts.md):
+Several contacts and restitution (issues 17 and 18; derivations in docs/derivations/contacts.md):
 - `ball_in_box_exact`: a point mass in a box under gravity, restitution e on four walls; the impact
   list (time, contact index, impulse), corner hits as two entries at the same time.
 - `zeno_ball`: a ball bouncing on a floor with e < 1: the geometric impact times, the Zeno time
@@ -306,7 +306,7 @@ def ball_in_box_exact(t, x0, y0, vx0, vy0, *, width, height, g, e, m=1.0, min_fl
     right width - x >= 0), from (x0, y0, vx0, vy0) at time 0, on the times t >= 0.
 
     M = m I and the wall normals are the coordinate axes, so W = G M^-1 G^T is diagonal for any set of
-    touching walls: the LCP of a corner hit decouples into Newton's law per wall (docs/contacts.md),
+    touching walls: the LCP of a corner hit decouples into Newton's law per wall (docs/derivations/contacts.md),
     and the motion is decoupled: x bounces between the side walls at constant speed, multiplied by
     e at each hit; y is a bouncing ball with a ceiling. Once the ball leaves the floor with a speed
     w with w^2 <= 2 g height it never reaches the ceiling again and the floor impacts are geometric
@@ -503,7 +503,7 @@ def _cradle_check(N, e, v0):
 def newton_cradle_velocities(N, e, v0) -> np.ndarray:
     """Velocities after the impact of N equal balls in a row, all touching, the first approaching the
     others (at rest) at v0 > 0, restitution e on every contact: Moreau's simultaneous-impact law (the
-    LCP of docs/contacts.md), not the sequential-impact textbook answer (for N = 3, e = 1:
+    LCP of docs/derivations/contacts.md), not the sequential-impact textbook answer (for N = 3, e = 1:
     (-1/3, 2/3, 2/3) v0, where sequential pairwise impacts give (0, 0, v0)).
 
     Contacts phi_i = x_{i+1} - x_i - d, G rows (-1, +1) at (i, i+1), W = G G^T / m = T / m with
