@@ -1,4 +1,4 @@
-"""Fault-injection and hostile-input probe of vcirun (issue 22): the counts of docs/reliability.md.
+"""Fault-injection and hostile-input probe of vcirun: the counts of docs/reliability.md.
 
     .venv/bin/python bench/reliability_probe.py [--only SECTION ...] [--quick]
 
@@ -928,7 +928,7 @@ def render(cases: list[Case], meta: dict) -> str:
     return text
 
 
-TEMPLATE = """# Reliability under hostile and broken input (issue 22)
+TEMPLATE = """# Reliability under hostile and broken input
 
 Counts from `bench/reliability_probe.py` (`.venv/bin/python bench/reliability_probe.py [--only SECTION]`;
 the table below is regenerated from `results/reliability.json` each time), on {machine}. Each case is a real `vcirun` command or API call on hostile input or under an
@@ -951,7 +951,7 @@ fault), `bad_message` (non-zero exit without exactly one `error:` line, or files
   the runs that reached the client in the last commit_interval (plus the runs still being computed).
   When the sweep ends (or is interrupted) the queued runs are appended to the journal before
   anything waits for a background compaction round (a round copies the whole file and takes
-  seconds; runs used to wait out that round uncommitted).
+  seconds; no run waits out that round uncommitted).
   A commit costs what the new runs weigh, independent of the file's size; the HDF5 file is never
   written in place: rewrites (copy, apply, fsync, atomic rename) happen when a session starts, in
   the background while it runs (a forked child folds the journal in, in rounds at least 10 s and 4
@@ -1005,8 +1005,7 @@ fault), `bad_message` (non-zero exit without exactly one `error:` line, or files
   folders it created when the plot fails.
 - **Cost.** Reading a 2000-run file verifies every run's datasets (low-level HDF5 API): about 25 %
   more than reading its attributes alone. The HDF5 writes themselves (about 33 attributes and 13
-  datasets per run) are the same work as before, done by the background compactor instead of the
-  client.
+  datasets per run) are done by the background compactor, not the client.
 """
 
 
