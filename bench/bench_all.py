@@ -1,4 +1,4 @@
-"""The full benchmark of issue 7 (`make bench`): printed as tables, saved as JSON; never asserted.
+"""The full benchmark (`make bench`): printed as tables, saved as JSON; never asserted.
 
 Sections (`--only a,b,...` to pick; `--quick` for a short smoke run):
   steps     microseconds per smooth step: SVC and SVA with the constraint ignored, and every method
@@ -20,14 +20,14 @@ Sections (`--only a,b,...` to pick; `--quick` for a short smoke run):
   dof       only the degrees-of-freedom part of `scaling`
   tensor    the per-slot tensor prototype of the step (bench/tensor_prototype.py): symbolic and numba
             time and us per step against vcirun's generated step, n-link pendulum n = 1, 2, 4, 8
-  coldbuild cold builds (issue 21): the first simulation of a scene with a FRESH kernel cache, one
+  coldbuild cold builds: the first simulation of a scene with a FRESH kernel cache, one
             fresh process at a time, per stage (sympy, emission, C compiler, numba frontend / typing /
             lowering, LLVM, cache write) and per compiled function (bench/coldbuild.py), cart-pendulum
             and n-link pendulum n = 2, 4, 8 x CVA, MCVAC, MCVAA on the default kernel backend, the
             cart-pendulum also on the numba backend (VCIRUN_KERNEL_BACKEND=numba; set
             VCIRUN_BENCH_NUMBA_ALL=1 for every case: the 8-link MCVAA takes ~10 minutes); the
             issue's target table with wall and CPU seconds and the load average beside each
-  contacts  cost of an added inactive constraint (issue 17): microseconds per step of the
+  contacts  cost of an added inactive constraint: microseconds per step of the
             cart-pendulum declared in YAML with its floor only, and with a second constraint that is
             never touched (a ceiling 100 m up), every method in its constrained loop before the first
             impact (h = 1e-5, t < 0.729); the difference against the smooth SVC step (target < 10 %)
@@ -503,7 +503,7 @@ def section_wp(res):
 
 
 def print_targets(res):
-    log("== targets of issue 7 (measured in this run)")
+    log("== performance targets (measured in this run)")
     rows = []
     st = res.get("smooth_step_us", {})
     if "SVC" in st:
@@ -565,7 +565,7 @@ def section_coldbuild(res):
         coldbuild.print_row(r, log=log)
     for key, r in rows.items():
         coldbuild.print_kernels(r, 5, log=log)
-    log("  issue 21 targets (cold build of the scene, fresh scene cache): case, issue's 'today', core cached, "
+    log("  cold-build targets (the scene, fresh scene cache): case, the specialized build's figure, core cached, "
         "nothing cached (wall / CPU s, load average before)")
     table = []
     for case, (today, target) in coldbuild.TARGETS.items():
@@ -604,7 +604,7 @@ _CART_YAML = {"coordinates": ["y", "theta"], "parameters": {"m1": 1.0, "m2": 0.2
 
 
 def section_contacts(res):
-    """us per step with one constraint and with an added inactive one (issue 17's acceptance).
+    """us per step with one constraint and with an added inactive one (the acceptance check).
 
     The one- and two-constraint runs alternate (pairs), and the added cost is the median of the
     paired differences: a slow spell of the shared machine hits both members of a pair, where

@@ -1,4 +1,4 @@
-"""Cold builds (issue 21): where the first `vcirun.simulate` of a new scene spends its time.
+"""Cold builds: where the first `vcirun.simulate` of a new scene spends its time.
 
     python bench/coldbuild.py [--cases cart_pendulum:CVA,n_pendulum_8:MCVAA,...] [--out results/coldbuild.json]
     python bench/coldbuild.py profile SYSTEM METHOD          (one measurement, in this process)
@@ -47,7 +47,7 @@ STAGES = ["sympy", "emit", "cc", "frontend", "typing", "typed", "lowering", "llv
           "link", "cache", "other"]
 DEFAULT_CASES = ([f"cart_pendulum:{m}{c}" for m in ("CVA", "MCVAC", "MCVAA") for c in ("", "+core")]
                  + [f"n_pendulum_{n}:{m}+core" for n in (2, 4, 8) for m in ("CVA", "MCVAC", "MCVAA")])
-# issue 21's targets (s, fresh cache, this machine) and the figures it measured before
+# (the figure of the specialized build, the target) in s per case: fresh cache, this machine
 TARGETS = {"cart_pendulum:CVA": (9.0, 5.0), "cart_pendulum:MCVAC": (17.0, 8.0), "n_pendulum_8:CVA": (20.7, 15.0),
            "n_pendulum_8:MCVAC": (71.0, 30.0), "n_pendulum_8:MCVAA": (499.0, 60.0)}
 

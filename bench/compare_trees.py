@@ -28,7 +28,7 @@ copy of a generated module, to test where a difference comes from).
 Module ABIs understood:
 - the record ABI of this tree: integrate(q0, p0, t0, h, N, prm, settings, out, info), `out` the
   tuple of vcirun.core.record.FIELDS, NCON constraints (sys_phis/sys_dphis);
-- the positional ABI before issue 16 (up to 624193a: integrate with 25 arguments, one constraint
+- the positional ABI (trees up to 624193a: integrate with 25 arguments, one constraint
   sys_phi/sys_dphi, info of 5 counters, no held contacts, no impact_contact/impact_impulse), adapted
   by `_PositionalLoop`: the rows the old loop has no buffer for keep their fill (contact_active
   False, contact_force 0, no releases), impact_contact is set to 0 (the one constraint) and
@@ -71,7 +71,7 @@ def load(path: str, method: str | None = None):
     with open(path) as f:
         shared_scene = f.readline().startswith("# vcirun scene module")
     if shared_scene:
-        # a scene module of the shared build (issue 21): linked to THIS tree's core of the method's
+        # a scene module of the shared build: linked to THIS tree's core of the method's
         # kernel set (for an OLD_TREE of the shared build, run it with VCIRUN_BUILD=specialized)
         from vcirun.codegen import build
         from vcirun.methods.table import resolve_method
@@ -84,7 +84,7 @@ def load(path: str, method: str | None = None):
     spec.loader.exec_module(mod)
     if not hasattr(mod, "mass_matrix_ok"):  # modules before 2026-12-01 lack the compiled check simulate calls
         mod.mass_matrix_ok = lambda q, prm, A, m=mod: (m.sys_M(q, prm, A), True)[1]
-    if not hasattr(mod, "O_Q"):  # before issue 16: positional outputs; adapt to the record ABI
+    if not hasattr(mod, "O_Q"):  # a tree up to 624193a: positional outputs; adapt to the record ABI
         return _Timed(_PositionalLoop(mod), "positional")
     return _Timed(mod, "record")
 
@@ -112,7 +112,7 @@ class _Timed:
 
 
 class _PositionalLoop:
-    """A module of the positional ABI (integrate with 25 arguments, before issue 16) behind the
+    """A module of the positional ABI (integrate with 25 arguments; trees up to 624193a) behind the
     record ABI integrate(q0, p0, t0, h, N, prm, settings, out, info) of this tree, one constraint
     (NCON = 1, sys_phis/sys_dphis over sys_phi/sys_dphi). `integrate_timed` builds the positional
     arguments, then times the old module's compiled call alone."""

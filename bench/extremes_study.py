@@ -1,4 +1,4 @@
-"""The stress study of issue 8 ("Numerical stability at the extremes"): `make extremes`.
+"""The stress study ("Numerical stability at the extremes"): `make extremes`.
 
     .venv/bin/python bench/extremes_study.py [configs/extremes.yaml] [--only SECTION ...]
 

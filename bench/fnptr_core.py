@@ -1,4 +1,4 @@
-"""Can the compiled core be shared by every scene? (issue 21, the measurement behind a proposal)
+"""Can the compiled core be shared by every scene?
 
     python bench/fnptr_core.py
 

@@ -1,4 +1,4 @@
-"""Forced systems (issue 15): observed orders and the modified energy balance of the MCVA family.
+"""Forced systems: observed orders and the modified energy balance of the MCVA family.
 
     python bench/forced_balance.py [--T 5]
 

@@ -1,4 +1,4 @@
-"""What one call of a kernel costs from the shared core (issue 21), by how it is called.
+"""What one call of a kernel costs from the shared core, by how it is called.
 
     python bench/kernel_call_abi.py
 

@@ -1,4 +1,4 @@
-"""The shared build against the specialized build (issue 21): same runs, both builds, one process.
+"""The shared build against the specialized build: same runs, both builds, one process.
 
     PYTHONPATH=. python bench/shared_vs_specialized.py [--repeats 101] [--systems ...] [--methods ...]
 

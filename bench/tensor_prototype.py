@@ -1,4 +1,4 @@
-"""Prototype for issue 7, part 3: derive per-slot tensors instead of expanded slot expressions.
+"""Prototype: derive per-slot tensors instead of expanded slot expressions.
 
 Today (vcirun.codegen.derive) every step kernel is the *expanded* symbolic expression of the slot
 derivatives of Ld^SVC in (q0, v, h): Pm = -D1 Ld, its Jacobian dPm/dv, Pp = D2 Ld, Ed = -D3 Ld.

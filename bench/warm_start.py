@@ -1,4 +1,4 @@
-"""Warm start (issue 7): a process whose kernel module is cached, timed from outside and inside.
+"""Warm start: a process whose kernel module is cached, timed from outside and inside.
 
     .venv/bin/python bench/warm_start.py [--repeats 7] [--cache-dir DIR] [--out results/warm_start.json]
 

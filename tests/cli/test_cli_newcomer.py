@@ -1,5 +1,5 @@
 """What a newcomer types first: --version, systems, cache info|clear, simulate --q0/--p0/--output,
-sweep --strict, plot without an argument, grid and compile notes (issue 19)."""
+sweep --strict, plot without an argument, grid and compile notes."""
 from __future__ import annotations
 
 import re

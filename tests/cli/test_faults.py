@@ -1,4 +1,4 @@
-"""Faults (issue 22): the journal (constant-cost commits, torn tails, stale journals, kills), resume
+"""Faults: the journal (constant-cost commits, torn tails, stale journals, kills), resume
 that verifies what it trusts, output paths that cannot be used, a full disk (a real tmpfs where
 `unshare --mount` works here, else a simulated ENOSPC), an HDF5 crash kept out of the process, damaged
 results files given to `info`/`plot`/`sweep`, and the sweep's memory and disk checks. Each failure is

@@ -78,7 +78,7 @@ def test_extremes_study_writes_results_and_report_and_only_keeps_the_rest(runner
     assert r.exit_code == 0, r.output
     res = json.loads(Path("results/tiny_extremes.json").read_text())
     assert res["methods"] == ["CVA"] and [x["status"] for x in res["dense"]] == ["ok"]
-    # the damped ball settles: held contacts (issue 18) take over where impacts accumulate
+    # the damped ball settles: held contacts take over where impacts accumulate
     assert [x["status"] for x in res["accumulation"]] == ["ok"]
     assert res["accumulation"][0]["held_from"] >= 0.5 * res["accumulation"][0]["exact_onset"]
     report = Path("docs/tiny_extremes.md").read_text()

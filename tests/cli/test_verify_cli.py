@@ -1,4 +1,4 @@
-"""`vcirun verify` on the command line (issue 20): a passing verification exits 0 and writes the
+"""`vcirun verify` on the command line: a passing verification exits 0 and writes the
 report and figure; bad input is a one-line error with exit 1; a failing check exits 1 after the table."""
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
-"""Truncated modified Hamiltonians along smooth trajectories of the full-step maps (issue 5,
-acceptance 2): the variation max - min of H~^{O(h^s)} over a fixed time interval shrinks like h^s.
+"""Truncated modified Hamiltonians along smooth trajectories of the full-step maps: the
+variation max - min of H~^{O(h^s)} over a fixed time interval shrinks like h^s.
 
 Trajectories: the cart-pendulum from Xi(3.2) with the constraint ignored, over [0, 0.7] (up to just
 before the first impact of the constrained motion), full steps of the Ld's own map. The generated code

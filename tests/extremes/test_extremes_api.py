@@ -1,4 +1,4 @@
-"""The failure record additions of issue 8 (vcirun/api.py): accumulation onset, named causes."""
+"""The failure record (vcirun.run.api): accumulation onset, named causes."""
 from __future__ import annotations
 
 import numpy as np
@@ -22,7 +22,7 @@ def test_accumulation_onset_is_the_start_of_the_final_dense_run():
 
 
 def test_failure_message_keeps_its_prefix_and_appends_the_cause():
-    """'<status> in step k (t = ..) from q = [..], p = [..]' as before, then '; cause: ..' when a
+    """'<status> in step k (t = ..) from q = [..], p = [..]', then '; cause: ..' when a
     specific cause is found (here: the cart-pendulum with m2/m1 = 1e4 at h = 1e-2 blows up)."""
     tr = vcirun.simulate("cart_pendulum", "CVA", h=1e-2, T=5.0, beta=3.2, params={"m2": 1e4})
     assert tr.status == "newton_failed"
@@ -40,7 +40,7 @@ def test_plain_newton_failure_has_no_invented_cause():
 
 def test_resting_contact_cause():
     """With held contacts off, a start resting on the surface is the old failure with its cause; with
-    them (the default) the cart is held from t0 (issue 18)."""
+    them (the default) the cart is held from t0."""
     s = resolve_system("cart_pendulum")
     q0, p0 = s.legendre(np.array([0.0, 0.3]), np.zeros(2))
     tr = vcirun.simulate("cart_pendulum", "CVA", h=1e-2, T=1.0, q0=q0, p0=p0, resting_contact=False)

@@ -1,4 +1,4 @@
-"""Contact geometry at the extremes (issue 8): grazing, impacts exactly at a step boundary, several
+"""Contact geometry at the extremes: grazing, impacts exactly at a step boundary, several
 impacts in one step, initial states on the constraint surface, impact accumulation.
 
 Every case asserts the outcome stated in docs/extremes.md: an error bound against an exact oracle
@@ -103,8 +103,8 @@ def test_several_impacts_per_step_cart_pendulum():
 def test_several_impacts_per_step_ball():
     """Ball without drag bouncing 1e-4 high (period 0.0089 s), h = 0.02: CVA is exact here (constant
     gravity: the SVC parabola is the motion): 112/112 impacts to 5e-15, up to 3 per step. VCI keeps
-    one per step (50/112, its known limitation), max error 9.2e-4. The MCVA family (forced since
-    issue 15; c = 0 here) follows all 112 impacts, up to 3 per step (measured err 8.5e-5)."""
+    one per step (50/112, its known limitation), max error 9.2e-4. The MCVA family (forced DEL;
+    c = 0 here) follows all 112 impacts, up to 3 per step (measured err 8.5e-5)."""
     kw = dict(h=0.02, T=1.0, q0=np.array([1e-4]), p0=np.array([0.0]))
     r = contact.dense_case("bouncing_ball", "CVA", **kw)
     assert r["status"] == "ok" and r["impacts"] == r["ref_impacts"] == 112 and r["max_per_step"] == 3
@@ -157,7 +157,7 @@ def test_start_on_the_surface(method, scene, kind):
 def test_start_in_resting_contact(method):
     """Cart on the floor at rest, pendulum hanging: gravity presses it into the floor with zero
     normal velocity; no elastic motion exists. Without held contacts: reset_failed at step 0, cause
-    named. With them (the default, issue 18): held from t = 0, the pendulum swings on the fixed
+    named. With them (the default): held from t = 0, the pendulum swings on the fixed
     cart, and the run agrees with the exact reference (also held from t = 0)."""
     r = contact.surface_case("cart_pendulum", method, "rest", h=1e-2, T=2.0, resting_contact=False)
     assert r["status"] == "reset_failed"
@@ -194,7 +194,7 @@ def test_accumulation_vci_settles_within_h2():
 
 
 def test_accumulation_mcva_reports_onset():
-    """The MCVA family on the forced ball (since issue 15): like CVA, status accumulation at h = 1e-2
+    """The MCVA family on the forced ball: like CVA, status accumulation at h = 1e-2
     with the onset it reports (measured 7.08 against the exact 6.80) and an error after the onset
     within 2 h^2 g (measured 1.6e-4)."""
     for m in ("MCVAA", "MCVAC"):

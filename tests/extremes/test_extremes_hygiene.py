@@ -1,4 +1,4 @@
-"""Floating-point hygiene (issue 8): the normal scenes raise no hidden floating-point error.
+"""Floating-point hygiene: the normal scenes raise no hidden floating-point error.
 
 Two levels:
   * the Python side (simulate's bookkeeping, the exact reference with DOP853, the L2 error) inside

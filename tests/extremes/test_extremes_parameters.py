@@ -1,4 +1,4 @@
-"""Energies and parameters at the extremes (issue 8): high energy (Xi(beta), beta up to 100), mass
+"""Energies and parameters at the extremes: high energy (Xi(beta), beta up to 100), mass
 ratios m2/m1 = 1e-4 .. 1e4, a nearly singular mass matrix. Each either runs correctly (L2 error
 against the exact reference within the stated bound) or stops with a status whose message names
 the cause (vcirun.run.api appends '; cause: ...'). Measured values in comments (docs/extremes.md).

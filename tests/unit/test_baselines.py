@@ -147,7 +147,7 @@ def test_shipped_study_configs_load():
         cfg = load_study(root / "configs" / f"{name}.yaml")
         assert cfg.study == study and cfg.name == name
         assert {b.split("/")[0] for b in cfg.baselines} <= set(BASELINES)
-        if study == "work_precision":   # issue 7: at least 6 steps from 1e-1 down to 1e-4, rtol 1e-3 .. 1e-12
+        if study == "work_precision":   # the study's rule: at least 6 steps from 1e-1 down to 1e-4, rtol 1e-3 .. 1e-12
             assert len(cfg.h) >= 6 and max(cfg.h) >= 1e-1 and min(cfg.h) <= 1e-4
             assert min(cfg.baselines["DOP853"]) <= 1e-12 and max(cfg.baselines["DOP853"]) >= 1e-3
         else:

@@ -1,4 +1,4 @@
-"""Generated slot derivatives against central finite differences (issue 3, acceptance 1).
+"""Generated slot derivatives against central finite differences.
 
 Independent path: the sympy Ld of an explicit discrete Lagrangian (ld_expression) is lambdified
 as is (no symbolic differentiation) and differenced numerically; the compiled kernels come from

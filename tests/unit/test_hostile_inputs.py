@@ -1,4 +1,4 @@
-"""Hostile input (issue 22): every case is refused before work starts with one line naming the field,
+"""Hostile input: every case is refused before work starts with one line naming the field,
 or (non-finite energies) ends with a failure status, never `ok`. YAML alias bombs, sizes, grid and
 memory bounds, booleans where numbers belong, identifiers that collide after NFKC, and the Python API's
 argument checks (same messages as the config layer)."""
@@ -348,7 +348,7 @@ def test_reference_validates_before_solving(kw, message):
     t0 = time.perf_counter()
     with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)").replace("+", r"\+")):
         vcirun.reference("cart_pendulum", **{"T": 1.0, "beta": 3.2, **kw})
-    assert time.perf_counter() - t0 < 5.0  # rtol=0 used to hang inside solve_ivp
+    assert time.perf_counter() - t0 < 5.0  # rtol=0 is refused, not left to hang inside solve_ivp
 
 
 @pytest.mark.parametrize("kw", [{"T": 1.0, "beta": 1e20}, {"T": 1e6, "beta": 3.2}])

@@ -1,5 +1,5 @@
 """The layer map (README, "Layers"): no import cycle among vcirun modules and no import against the
-data flow, function-level imports included; the numeric layers load no sympy (issue 16).
+data flow, function-level imports included; the numeric layers load no sympy.
 
 Layers, top to bottom; a module may import from its own layer and the layers above it only. The
 package facade vcirun/__init__ (lazy names) and the CLI sit outside: they may import anything.

@@ -1,6 +1,6 @@
 """The exact reference finds near-grazing impacts (a dip below phi = 0 shorter than one DOP853 step)
-and short hops after a reset, against the oscillator's closed form (issue 7 review: solve_ivp's
-event location sees only sign changes between its steps; before the fix the reference missed 2 of
+and short hops after a reset, against the oscillator's closed form (solve_ivp's
+event location sees only sign changes between its steps; a reference relying on it alone misses 2 of
 3 impacts at eps = 1e-4 and all 3 at eps = 1e-6)."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""simulate(energies=False): the same trajectory, H, Ed and Hmod skipped along the grid (issue 7: the
+"""simulate(energies=False): the same trajectory, H, Ed and Hmod skipped along the grid (the
 timed comparison with solve_ivp, whose timed call does not evaluate H either)."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Built-in scenes and YAML-declared systems (issue 3, acceptance 7 and item 2).
+"""Built-in scenes and YAML-declared systems.
 
 A YAML system equivalent to the built-in cart-pendulum generates the same compiled dynamics
 (trajectories agree to round-off); a mass matrix that is not positive definite at q0, or not
@@ -129,7 +129,7 @@ def test_warm_path_checks_the_mass_matrix_at_q0_compiled(monkeypatch):
             vcirun.simulate("cart_pendulum", "CVA", h=0.1, T=0.2, beta=3.2, params={"m1": m1})
     with pytest.raises(ValueError, match="mass_matrix is not finite at q0"):  # m2 L^2 overflows
         vcirun.simulate("cart_pendulum", "CVA", h=0.1, T=0.2, q0=[1.0, 0.5], p0=[0.0, 0.0], params={"L": 1e200})
-    with pytest.raises(ValueError, match=r"q0: must be a list of finite numbers"):  # refused before (issue 22)
+    with pytest.raises(ValueError, match=r"q0: must be a list of finite numbers"):  # refused before any work
         vcirun.simulate("cart_pendulum", "CVA", h=0.1, T=0.2, q0=[1.0, np.nan], p0=[0.0, 0.0])
     # just positive definite: m1 + m2 = 1e-9 > 0 with the pendulum hanging (sin theta = 0) is accepted
     tr = vcirun.simulate("cart_pendulum", "CVA", h=1e-3, T=2e-3, q0=[1.0, 0.0], p0=[0.0, 0.0],

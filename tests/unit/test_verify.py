@@ -1,4 +1,4 @@
-"""`vcirun.verify` (issue 20): the test suite's numerical checks run on a user's system.
+"""`vcirun.verify`: the test suite's numerical checks run on a user's system.
 
 Default suite: one end-to-end verification of a 1-DOF system (the oscillator against a wall, CVA),
 checked against the closed form; the verdict logic on synthetic data (each verdict can be reached);
@@ -254,7 +254,7 @@ def test_step_ladder_too_coarse_warns():
 
 @pytest.mark.slow
 def test_forced_system_every_judged_check_passes():
-    """Linear drag against a wall (issue 15's setting): with the forced reference, CVA, VCI and MCVAC pass
+    """Linear drag against a wall (a forced setting): with the forced reference, CVA, VCI and MCVAC pass
     every judged check; the forced maps' symplecticity and H~ conservation are skips, not verdicts; the
     energy check balances the drag's work (measured slopes 3.04, 2.08, 3.23)."""
     res = vcirun.verify("damped_oscillator", methods="CVA,VCI,MCVAC", q0=[1.5], p0=[0.0], params={"d": 0.5}, T=10.0)

@@ -1,4 +1,4 @@
-"""Warm start (issue 7): a built-in scene or a YAML system whose kernel module is cached starts from
+"""Warm start: a built-in scene or a YAML system whose kernel module is cached starts from
 the warm index -- no sympy, no scipy.integrate, no generated module -- and gives the same bits as
 the symbolic (cold) path. The index goes stale with the files it hashes and falls back cleanly.
 
