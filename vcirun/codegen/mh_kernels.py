@@ -197,8 +197,8 @@ def emit_grad_kernel(name: str, st: StationaryEta, dag: DerivativeDag, value) ->
         du*/dz_j = -W dF/dz_j,  dF/dq_j = -ell_{u q_j},  dF/dp_j = C[:, j],
     i.e. with ub' = ub + G : ell_uuu and lam = W ub':
         grad_q = qb + G : ell_uuq + lam . ell_uq,    grad_p = pb - C^T lam.
-    This replaces the forward-mode order-s jets of eta (one order more than the value needs, the
-    n^s part of the old kernels)."""
+    No forward-mode order-s jets of eta are formed (one order more than the value needs; their
+    cost grows as n^s)."""
     n, m = st.n, st.m
     x_dim = n + m
     # primitives the closure needs: ell_{u_c u_d x_j} (c <= d) and ell_{u_l q_j}
