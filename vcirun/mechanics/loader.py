@@ -40,6 +40,9 @@ def load_system_yaml(source, field_prefix: str = "system") -> MechanicalSystem:
     data = _read_yaml(Path(source), field_prefix) if isinstance(source, (str, Path)) else source
     if not isinstance(data, dict):
         raise ValueError(f"{field_prefix}: expected a mapping with keys {', '.join(sorted(_KEYS))}")
+    if "bodies" in data:  # a mechanism by bodies, joints and contact geometry
+        from .bodies_yaml import load_bodies
+        return load_bodies(data, field_prefix)
     extra = set(data) - _KEYS
     if extra:
         raise ValueError(f"{field_prefix}.{sorted(map(str, extra))[0]}: unknown key (allowed: {', '.join(sorted(_KEYS))})")

@@ -98,6 +98,40 @@ def double_pendulum_walls(**overrides) -> SystemData:
         description="double pendulum whose second tip stays between the walls x = -w and x = w (restitution e)")
 
 
+def rocking_block(**overrides) -> SystemData:
+    prm = merge_params({"m": 1.0, "a": 1.0, "b": 0.4, "g": 9.81, "e": 0.5}, overrides)
+    return SystemData(
+        name="rocking_block", n=3, params=prm, default_q0=np.array([0.0, 0.7, 0.2]), default_p0=np.zeros(3),
+        ic_map=lambda beta: (np.array([0.0, beta, 0.2]), np.zeros(3)),
+        description="rectangular block (width b, height a) dropped tilted on the floor y = 0; its two lower "
+                    "corners are the contacts, restitution e (declared by bodies)")
+
+
+def link_chain(n: int = 5, **overrides) -> SystemData:
+    n = int(n)
+    prm = merge_params({"m": 0.2, "l": 0.3, "g": 9.81, "e": 0.3}, overrides)
+    angles = [0.3 * (-1) ** k + 0.05 for k in range(1, n + 1)]  # a tilted zigzag: the ends at different heights
+    q0 = np.array([0.0, 0.5] + angles)
+    return SystemData(
+        name=f"link_chain_{n}", n=n + 2, params=prm, default_q0=q0, default_p0=np.zeros(n + 2),
+        ic_map=lambda beta: (np.array([0.0, beta] + angles), np.zeros(n + 2)),
+        description=f"chain of {n} links (revolute joints, the first on a free joint) falling on the floor "
+                    "y = 0; the link ends are the contacts, restitution e (declared by bodies)")
+
+
+def cradle(n: int = 5, **overrides) -> SystemData:
+    n = int(n)
+    prm = merge_params({"m": 0.1, "r": 0.05, "L": 1.0, "g": 9.81, "e": 1.0}, overrides)
+    q0 = np.zeros(n)
+    q0[0] = -0.3
+    return SystemData(
+        name=f"cradle_{n}", n=n, params=prm, default_q0=q0, default_p0=np.zeros(n),
+        ic_map=lambda beta: (np.array([-beta] + [0.0] * (n - 1)), np.zeros(n)),
+        description=f"Newton's cradle of {n} balls of radius r hanging on strings of length L from pivots 2r "
+                    "apart, circle contacts between neighbours, restitution e; ball 1 released from "
+                    "theta1 = -0.3, the others touching at rest (declared by bodies)")
+
+
 BUILTIN_SCENE_DATA = {
     "cart_pendulum": cart_pendulum,
     "double_pendulum": double_pendulum,
@@ -108,8 +142,11 @@ BUILTIN_SCENE_DATA = {
     "ball_in_box": ball_in_box,
     "newton_cradle": newton_cradle,
     "double_pendulum_walls": double_pendulum_walls,
+    "rocking_block": rocking_block,
+    "link_chain": link_chain,
+    "cradle": cradle,
 }
-_SIZED = ("n_pendulum", "newton_cradle")  # scenes named <name>_K with K the size
+_SIZED = ("n_pendulum", "newton_cradle", "link_chain", "cradle")  # scenes named <name>_K with K the size
 
 
 def scene_args(name: str):

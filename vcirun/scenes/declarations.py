@@ -1,6 +1,8 @@
 """Built-in scenes: the paper's vertical cart-pendulum, a double pendulum against a wall (Figure 1),
 a harmonic oscillator against a wall (closed-form oracle), an n-link pendulum (scaling), a
-linearly damped oscillator (forced DEL check) and a bouncing ball with drag (impact accumulation).
+linearly damped oscillator (forced DEL check), a bouncing ball with drag (impact accumulation), a
+ball in a box, a line of balls and the double pendulum between walls; the mechanisms declared by
+bodies and joints (rocking block, link chain, hanging cradle) are vcirun.scenes.mechanisms'.
 
 The numeric parts of each scene (parameter defaults, initial-condition map, default state,
 description) live in the sympy-free `vcirun.scenes.data`; this module adds the symbolic M, V, phi
@@ -12,6 +14,7 @@ import functools
 import sympy as sp
 
 from . import data as sd
+from . import mechanisms
 from ..mechanics.system import Constraint, MechanicalSystem
 
 
@@ -131,7 +134,8 @@ def double_pendulum_walls(**overrides) -> MechanicalSystem:
 
 # One registry of built-in scenes: the names (and numeric parts) are vcirun.scenes.data's; each has its
 # symbolic part here under the same name.
-BUILTIN_SCENES = {name: globals()[name] for name in sd.BUILTIN_SCENE_DATA}
+BUILTIN_SCENES = {name: getattr(mechanisms, name) if hasattr(mechanisms, name) else globals()[name]
+                  for name in sd.BUILTIN_SCENE_DATA}
 
 
 def get_scene(name: str, **params) -> MechanicalSystem:

@@ -1,0 +1,145 @@
+"""The `bodies:` form of a system file: a planar mechanism by bodies, joints and contact geometry
+(vcirun.mechanics.bodies builds it; docs/bodies.md describes every key).
+
+    name: cart_pendulum_bodies
+    parameters: {m1: 1.0, m2: 0.2, L: 2.0, g: 10.0}
+    gravity: g                                   # along -y; or [gx, gy]
+    bodies:
+      - {name: cart, mass: m1}                   # inertia (default 0), com (default [0, 0]), radius
+      - {name: bob, mass: m2, com: [0, -L]}
+    joints:                                      # one per body; coordinates named here, in this order
+      - {type: prismatic, body: cart, coordinate: y, axis: [0, 1]}
+      - {type: revolute, body: bob, parent: cart, coordinate: theta}   # at: [x, y] in the parent frame
+    contacts:
+      - {name: floor, body: cart, line: {point: [0, 0], normal: [0, 1]}}   # point, radius, restitution
+      - {name: "c{i}", repeat: [1, 9], circles: ["ball{i}", "ball{i+1}"], restitution: e}
+    springs: [{a: ground, b: bob, k: k, length: l0, point_b: [0, 0]}]       # dampers: c instead of k
+    q0: {y: 1.0}                                 # a list in coordinate order, or a mapping (others 0)
+    qdot0: {theta: 0.5}                          # or p0
+
+`repeat: [first, last]` on any item of bodies, joints, contacts, springs and dampers declares it once
+per integer i in first..last, with {i}, {i+K} and {i-K} in its texts replaced by the integers.
+"""
+from __future__ import annotations
+
+import re
+
+from ..core import validation
+from .bodies import GROUND, Body, CircleContact, Damper, Joint, PointContact, Spring, planar_system
+from .loader import _description, _system_name
+
+KEYS = {"name", "description", "parameters", "gravity", "bodies", "joints", "contacts", "springs", "dampers",
+        "q0", "qdot0", "p0"}
+_ITEM_KEYS = {
+    "bodies": {"name", "mass", "inertia", "com", "radius", "repeat"},
+    "joints": {"type", "body", "parent", "at", "coordinate", "coordinates", "axis", "absolute", "repeat"},
+    "contacts": {"name", "body", "point", "radius", "line", "circles", "centers", "radii", "restitution", "repeat"},
+    "springs": {"a", "b", "k", "length", "point_a", "point_b", "repeat"},
+    "dampers": {"a", "b", "c", "point_a", "point_b", "repeat"},
+}
+MAX_REPEAT = 1000  # items one `repeat` may declare
+_INDEX = re.compile(r"\{i(?:\s*([+-])\s*(\d+))?\}")
+
+
+def load_bodies(data: dict, field_prefix: str = "system"):
+    """The MechanicalSystem of a `bodies:` mapping; errors name the field."""
+    P = field_prefix
+    extra = set(data) - KEYS
+    if extra:
+        raise ValueError(f"{P}.{sorted(map(str, extra))[0]}: unknown key in a bodies declaration "
+                         f"(allowed: {', '.join(sorted(KEYS))})")
+    for k in ("bodies", "joints", "contacts"):
+        if k not in data:
+            raise ValueError(f"{P}.{k}: required (a list) in a bodies declaration")
+    params = data.get("parameters") or {}
+    if not isinstance(params, dict):
+        raise ValueError(f"{P}.parameters: must be a mapping name -> value")
+    for k, v in params.items():
+        validation.check_identifier(str(k), f"{P}.parameters.{k}")
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise ValueError(f"{P}.parameters.{k}: must be a finite number (got {validation.describe(v)})")
+    items = {sec: _expand(data.get(sec) or [], sec, P) for sec in _ITEM_KEYS}
+    bodies = [Body(it["name"], it.get("mass"), it.get("inertia", 0), it.get("com", (0, 0)), it.get("radius"), field=f)
+              for f, it in _required(items["bodies"], ("name", "mass"))]
+    joints = [Joint(it["type"], it["body"], it.get("parent", GROUND), it.get("at", (0, 0)), it.get("coordinate"),
+                    it.get("coordinates"), it.get("axis", (1, 0)), _flag(it.get("absolute", False), f"{f}.absolute"),
+                    field=f) for f, it in _required(items["joints"], ("type", "body"))]
+    contacts = [_contact(f, it, k) for k, (f, it) in enumerate(items["contacts"])]
+    springs = [Spring(it["a"], it["b"], it["k"], it.get("length", 0), it.get("point_a", (0, 0)),
+                      it.get("point_b", (0, 0)), field=f) for f, it in _required(items["springs"], ("a", "b", "k"))]
+    dampers = [Damper(it["a"], it["b"], it["c"], it.get("point_a", (0, 0)), it.get("point_b", (0, 0)), field=f)
+               for f, it in _required(items["dampers"], ("a", "b", "c"))]
+    return planar_system(_system_name(data.get("name", "user_system"), P), bodies, joints, contacts,
+                         params=params, gravity=data.get("gravity", 0), springs=springs, dampers=dampers,
+                         q0=data.get("q0"), qdot0=data.get("qdot0"), p0=data.get("p0"),
+                         description=_description(data.get("description", ""), P), field_prefix=P)
+
+
+def _contact(f: str, it: dict, k: int):
+    name = str(it.get("name", f"c{k}"))
+    e = it.get("restitution", 1)
+    if "circles" in it:
+        if "body" in it or "line" in it:
+            raise ValueError(f"{f}: give either circles: [A, B] or body and line, not both")
+        return CircleContact(name, tuple(it["circles"]) if isinstance(it["circles"], list) else it["circles"],
+                             it.get("centers"), it.get("radii"), e, field=f)
+    if "body" not in it:
+        raise ValueError(f"{f}: a contact names a body (point against a line) or circles: [A, B]")
+    line = it.get("line", {})
+    if not isinstance(line, dict) or set(line) - {"point", "normal"}:
+        raise ValueError(f"{f}.line: must be a mapping {{point: [x, y], normal: [nx, ny]}} (the admissible side "
+                         "is where the normal points)")
+    return PointContact(name, it["body"], it.get("point", (0, 0)), it.get("radius", 0), line.get("point", (0, 0)),
+                        line.get("normal", (0, 1)), e, field=f)
+
+
+def _flag(v, fld):
+    if not isinstance(v, bool):
+        raise ValueError(f"{fld}: must be true or false (got {validation.describe(v)})")
+    return v
+
+
+def _required(items, keys):
+    for f, it in items:
+        for k in keys:
+            if k not in it:
+                raise ValueError(f"{f}.{k}: required")
+        yield f, it
+
+
+def _expand(items, sec: str, P: str) -> list:
+    """[(field, item)] with every `repeat: [first, last]` item declared once per i."""
+    if not isinstance(items, list):
+        raise ValueError(f"{P}.{sec}: must be a list of mappings")
+    out = []
+    for j, it in enumerate(items):
+        f = f"{P}.{sec}[{j}]"
+        if not isinstance(it, dict):
+            raise ValueError(f"{f}: must be a mapping (keys: {', '.join(sorted(_ITEM_KEYS[sec]))})")
+        bad = set(it) - _ITEM_KEYS[sec]
+        if bad:
+            raise ValueError(f"{f}.{sorted(map(str, bad))[0]}: unknown key (allowed: {', '.join(sorted(_ITEM_KEYS[sec]))})")
+        if "repeat" not in it:
+            out.append((f, it))
+            continue
+        rep = it["repeat"]
+        if (not isinstance(rep, list) or len(rep) != 2 or not all(isinstance(x, int) and not isinstance(x, bool)
+                                                                   for x in rep) or rep[1] < rep[0]):
+            raise ValueError(f"{f}.repeat: must be [first, last], two integers with first <= last (got {rep!r})")
+        if rep[1] - rep[0] + 1 > MAX_REPEAT:
+            raise ValueError(f"{f}.repeat: {rep[1] - rep[0] + 1} items; the limit is {MAX_REPEAT}")
+        body = {k: v for k, v in it.items() if k != "repeat"}
+        for i in range(rep[0], rep[1] + 1):
+            out.append((f"{f} (i={i})", _substitute(body, i)))
+    return out
+
+
+def _substitute(v, i: int):
+    if isinstance(v, str):
+        return _INDEX.sub(lambda mt: str(i + (int(mt.group(2)) if mt.group(1) == "+" else -int(mt.group(2)))
+                                          if mt.group(1) else i), v)
+    if isinstance(v, list):
+        return [_substitute(x, i) for x in v]
+    if isinstance(v, dict):
+        return {k: _substitute(x, i) for k, x in v.items()}
+    return v
