@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["SceneInfo", "scene_info", "coordinate_names", "units_for", "momentum_unit", "BUILTIN_INFO"]
+__all__ = ["SceneInfo", "scene_info", "describe", "listed_scenes", "coordinate_names", "units_for", "momentum_unit", "BUILTIN_INFO"]
 
 
 @dataclass(frozen=True)
@@ -79,18 +79,114 @@ BUILTIN_INFO = {
 }
 
 
-def scene_info(name: str) -> SceneInfo | None:
-    """The description of a built-in scene (`n_pendulum_K` for any K), or None."""
-    if name in BUILTIN_INFO:
-        return BUILTIN_INFO[name]
-    if isinstance(name, str) and name.startswith("n_pendulum_") and name[len("n_pendulum_"):].isdigit():
-        n = int(name[len("n_pendulum_"):])
+_E = ("", "restitution coefficient of every contact")
+BUILTIN_INFO |= {
+    "ball_in_box": SceneInfo(
+        "ball_in_box", (("x", "m", "horizontal position of the ball"), ("y", "m", "height of the ball")),
+        {"m": ("kg", "mass"), "g": ("m/s^2", "gravitational acceleration"), "width": ("m", "box width"),
+         "height": ("m", "box height"), "e": _E},
+        "4 contacts: floor y >= 0, ceiling height - y >= 0, left x >= 0, right width - x >= 0", "",
+        "x = 0.3, y = 0.6, moving right at 0.7 m/s"),
+    "double_pendulum_walls": SceneInfo(
+        "double_pendulum_walls", BUILTIN_INFO["double_pendulum"].coordinates,
+        BUILTIN_INFO["double_pendulum"].params | {"w": ("m", "walls at x = -w and x = w"), "e": _E},
+        "2 contacts: right w - x_tip >= 0, left x_tip + w >= 0 (x_tip = l1 sin theta1 + l2 sin theta2)",
+        "hanging down, kicked: theta = (0, 0), thetadot = beta (2, 1)", "hanging down, p = (6, 3)"),
+    "rocking_block": SceneInfo(
+        "rocking_block", (("x", "m", "horizontal position of the block's centre"),
+                          ("y", "m", "height of the block's centre"), ("theta", "rad", "tilt of the block")),
+        {"m": ("kg", "mass"), "a": ("m", "block height"), "b": ("m", "block width"),
+         "g": ("m/s^2", "gravitational acceleration"), "e": _E},
+        "2 contacts: the lower corners (-b/2, -a/2) and (b/2, -a/2) above the floor y = 0 (declared by bodies)",
+        "drop height of the centre y = beta, theta = 0.2, at rest", "y = 0.7, theta = 0.2, at rest"),
+}
+_SIZED_INFO = ("n_pendulum", "newton_cradle", "link_chain", "cradle")  # listed as <name>_3 (any K)
+
+
+def _sized_info(base: str, n: int) -> SceneInfo:
+    name = f"{base}_{n}"
+    if base == "n_pendulum":
         return SceneInfo(name, tuple((f"theta{i}", "rad", f"angle of link {i} from the downward vertical")
                                      for i in range(1, n + 1)),
                          _pendulum_params(n), "phi = w - sum_i l_i sin theta_i >= 0 (the tip cannot pass the wall)",
                          "beta scales the initial angles: theta_i = -beta, at rest",
                          "every link horizontal, away from the wall, at rest")
-    return None
+    if base == "newton_cradle":
+        return SceneInfo(name, tuple((f"x{i}", "m", f"position of ball {i}") for i in range(1, n + 1)),
+                         {"m": ("kg", "mass of each ball"), "d": ("m", "ball diameter"), "e": _E},
+                         f"{n - 1} contacts c{{i}}{{i+1}}: x_(i+1) - x_i - d >= 0", "",
+                         "balls 2..N touching at rest, ball 1 0.2 m away approaching at 1 m/s")
+    if base == "link_chain":
+        return SceneInfo(name, (("x", "m", "first end of link 1, horizontal"), ("y", "m", "first end of link 1, height"))
+                         + tuple((f"theta{i}", "rad", f"absolute angle of link {i} from the horizontal")
+                                 for i in range(1, n + 1)),
+                         {"m": ("kg", "mass of each link"), "l": ("m", "length of each link"),
+                          "g": ("m/s^2", "gravitational acceleration"), "e": _E},
+                         f"{n + 1} contacts end0..end{n}: the link ends above the floor y = 0 (declared by bodies)",
+                         "height of the first end y = beta, tilted zigzag, at rest",
+                         "y = 0.5, theta_k = 0.3 (-1)^k + 0.05, at rest")
+    return SceneInfo(name, tuple((f"theta{i}", "rad", f"angle of string {i} from the downward vertical")
+                                 for i in range(1, n + 1)),
+                     {"m": ("kg", "mass of each ball"), "r": ("m", "ball radius (pivots 2r apart)"),
+                      "L": ("m", "string length"), "g": ("m/s^2", "gravitational acceleration"), "e": _E},
+                     f"{n - 1} circle contacts c1..c{n - 1}: |C_i - C_(i+1)| - 2 r >= 0 (declared by bodies)",
+                     "ball 1 released from theta1 = -beta, the others hanging, touching, at rest",
+                     "theta1 = -0.3, the others 0, at rest")
+
+
+def listed_scenes() -> list[str]:
+    """Every built-in scene, the sized ones as <name>_3 (`vcirun systems`)."""
+    from .data import BUILTIN_SCENE_DATA
+
+    return [f"{nm}_3" if nm in _SIZED_INFO else nm for nm in BUILTIN_SCENE_DATA]
+
+
+def scene_info(name: str) -> SceneInfo | None:
+    """The description of a built-in scene (`n_pendulum_K`, `newton_cradle_K`, `link_chain_K`,
+    `cradle_K` for any K; the bare sized name is its default size), or None."""
+    if name in BUILTIN_INFO:
+        return BUILTIN_INFO[name]
+    from .data import scene_args
+
+    args = scene_args(name)
+    if args is None or args[0] not in _SIZED_INFO:
+        return None
+    if not args[1]:
+        from .data import scene_data
+
+        return _sized_info(args[0], scene_data(name).n - (2 if args[0] == "link_chain" else 0))
+    return _sized_info(args[0], args[1][0])
+
+
+def describe(name: str) -> list[str]:
+    """The lines `vcirun systems NAME` prints for a built-in scene (ValueError naming the choices)."""
+    from .data import scene_data
+
+    info = scene_info(name)
+    if info is None:
+        raise ValueError(f"system: unknown built-in system {name!r} (choose one of {', '.join(listed_scenes())}; "
+                         "the sized ones with any K, e.g. cradle_20)")
+    d = scene_data(name)
+    sized = next((b for b in _SIZED_INFO if name.startswith(b)), None)
+    coords = ", ".join(f"{c} [{u}] {m}" for c, u, m in info.coordinates)
+    lines = [f"{name}  {d.description}" + (f"  ({sized}_K: any K)" if sized else ""),
+             f"  coordinates  {coords}; momenta p = M(q) qdot in "
+             + ", ".join(momentum_unit(u) for _, u, _ in info.coordinates),
+             "  parameters   " + "; ".join(f"{k} = {v:g} {info.params.get(k, ('', ''))[0]} "
+                                          f"({info.params.get(k, ('', ''))[1]})" for k, v in d.params.items()),
+             f"  constraint   {info.constraint}"]
+    if info.ic_map:
+        lines.append(f"  --beta       {info.ic_map}")
+    if info.default_state:
+        lines.append(f"  default      {info.default_state}")
+    example = ",".join("0" for _ in info.coordinates)
+    if name == "cart_pendulum":
+        lines.append("  example      vcirun simulate --system cart_pendulum --beta 3.2")
+    elif name == "rocking_block" or sized in ("link_chain", "cradle"):  # (q = 0 is not admissible)
+        lines.append(f"  example      vcirun simulate --system {name} --h 0.001 --T 1   (the default state)")
+    else:
+        lines.append(f"  example      vcirun simulate --system {name} --q0 {example} --p0 {example}")
+    return lines
 
 
 def coordinate_names(system: str, n: int, declared=None) -> list[str]:
