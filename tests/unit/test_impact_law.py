@@ -33,8 +33,9 @@ from vcirun.codegen import units
 from vcirun.codegen.build import cache_dir
 
 UNIT = "collision/impact_law.py"
-CODES = ("LCP_UNIQUE", "LCP_SINGULAR_UNIQUE", "LCP_MIN_NORM", "LCP_INFEASIBLE", "LCP_BAD_INPUT")
-PROVIDES = ("impact_law", "LCP_MAX_CONTACTS", "LCP_RANK_TOL", "LCP_FEAS_TOL", "LCP_SYM_TOL") + CODES
+CODES = ("LCP_UNIQUE", "LCP_SINGULAR_UNIQUE", "LCP_MIN_NORM", "LCP_INFEASIBLE", "LCP_BAD_INPUT", "LCP_DEGENERATE")
+PROVIDES = ("impact_law", "lemke", "LCP_MAX_CONTACTS", "LCP_RANK_TOL", "LCP_FEAS_TOL", "LCP_SYM_TOL", "LEMKE_PIVOT_TOL",
+            "LEMKE_MAX_PIVOTS") + CODES
 
 
 def _njit(*args, **kwargs):
@@ -370,7 +371,6 @@ def test_bad_input_is_a_code(law):
         (np.eye(2), [-1.0, -1.0], [-0.1, 1.0]),
         (np.array([[1.0, 0.5], [0.0, 1.0]]), [-1.0, -1.0], [1.0, 1.0]),
         (np.array([[0.0, 0.0], [0.0, 1.0]]), [-1.0, -1.0], [1.0, 1.0]),
-        (np.eye(9), -np.ones(9), np.ones(9)),
         (np.array([[-1.0]]), [-1.0], [1.0]),
     ]
     for W, um, e in cases:
@@ -378,3 +378,5 @@ def test_bad_input_is_a_code(law):
         assert code == law.LCP_BAD_INPUT and np.all(lam == 0.0), (W, um, e)
     lam = np.empty(3)
     assert law.impact_law(ok_W, np.array([-1.0, -1.0]), np.ones(2), lam) == law.LCP_BAD_INPUT
+    code, lam = _solve(law, np.eye(9), -np.ones(9), np.ones(9))  # more than LCP_MAX_CONTACTS: Lemke
+    assert code == law.LCP_UNIQUE and np.all(lam == 2.0)

@@ -1,5 +1,7 @@
 # numba source unit: the impact law of k simultaneous contacts (docs/derivations/contacts.md, section 1):
-# Moreau's generalized Newton law as a linear complementarity problem, solved exactly for k <= 8.
+# Moreau's generalized Newton law as a linear complementarity problem, solved exactly for any k: by
+# enumeration of supports for k <= LCP_MAX_CONTACTS (every case below), by Lemke's complementary
+# pivoting with the lexicographic ratio test above that (docs/derivations/contacts.md, section 1.6).
 # It reads no name of the generated part (every size from its arguments, its own constants only) and
 # calls only maps/linalg.py, so it compiles on its own (vcirun.codegen.units.standalone_source).
 #
@@ -22,8 +24,14 @@
 #   LCP_INFEASIBLE (-1)     no lam >= 0 makes w >= 0: no solution. Impossible for positive definite W;
 #                           possible for singular W with different restitutions (e.g. a ball pressed in
 #                           a gap of zero width between walls of different e). lam is set to 0.
-#   LCP_BAD_INPUT (-2)      k outside 1..LCP_MAX_CONTACTS, shapes disagree, a non-finite entry, e outside
-#                           [0, 1], W not symmetric (to LCP_SYM_TOL), or W_ii <= 0. lam is set to 0.
+#   LCP_BAD_INPUT (-2)      k < 1, shapes disagree, a non-finite entry, e outside [0, 1], W not symmetric
+#                           (to LCP_SYM_TOL), or W_ii <= 0. lam is set to 0.
+#   LCP_DEGENERATE (-3)     k > LCP_MAX_CONTACTS and lam is not unique (W_PP singular on the contacts P
+#                           that end with w_i = 0: dependent contact gradients, e.g. a closed loop of
+#                           contacts), or Lemke's method met a pivot it cannot decide within round-off.
+#                           lam is set to 0; the caller names the contacts.
+# Above LCP_MAX_CONTACTS contacts a solution found by Lemke is returned as LCP_UNIQUE (W positive
+# definite) or LCP_SINGULAR_UNIQUE (W singular, W_PP nonsingular); LCP_INFEASIBLE on a secondary ray.
 # One contact (k = 1, W > 0): lam = -(1 + e) u- / W if u- < 0 else 0, written as
 # -(1.0 + e[0]) * um[0] / W[0, 0] so that e = 1 gives -2 u-/W bit for bit (cva_lambda's value).
 import math
@@ -33,12 +41,13 @@ from numba import njit
 
 from vcirun.maps.linalg import solve_small
 
-LCP_MAX_CONTACTS = 8    # 2^k supports are enumerated: 256 small solves at most
+LCP_MAX_CONTACTS = 8    # up to here 2^k supports are enumerated (256 small solves at most); Lemke above
 LCP_UNIQUE = 0
 LCP_SINGULAR_UNIQUE = 1
 LCP_MIN_NORM = 2
 LCP_INFEASIBLE = -1
 LCP_BAD_INPUT = -2
+LCP_DEGENERATE = -3
 LCP_RANK_TOL = 1e-11    # a pivot/eigenvalue below this times max W_ii counts as zero (rank decisions)
 LCP_FEAS_TOL = 1e-10    # accepted violation of the LCP conditions, relative to max |(1 + e_i) u-_i|
 LCP_SYM_TOL = 1e-8      # accepted |W_ij - W_ji| relative to max W_ii (G M^-1 G^T's round-off grows with cond M)
@@ -51,8 +60,7 @@ def impact_law(W, um, e, lam):
     k = um.shape[0]
     for i in range(lam.shape[0]):
         lam[i] = 0.0
-    if k < 1 or k > LCP_MAX_CONTACTS or W.shape[0] != k or W.shape[1] != k or e.shape[0] != k \
-            or lam.shape[0] != k:
+    if k < 1 or W.shape[0] != k or W.shape[1] != k or e.shape[0] != k or lam.shape[0] != k:
         return LCP_BAD_INPUT
     for i in range(k):
         if not (math.isfinite(um[i]) and math.isfinite(e[i]) and e[i] >= 0.0 and e[i] <= 1.0):
@@ -77,6 +85,8 @@ def impact_law(W, um, e, lam):
     for i in range(k):
         q[i] = (1.0 + e[i]) * um[i]
         qs = max(qs, abs(q[i]))
+    if k > LCP_MAX_CONTACTS:
+        return _lcp_large(A, q, qs, k, wmax, lam)
     full = (1 << k) - 1
     pd = _lcp_rank_full(A, full, k, wmax)
     if qs == 0.0:
@@ -270,3 +280,156 @@ def _lcp_pinv_support(A, q, mask, k, wmax, x):
             s /= d
             for r in range(m):
                 x[idx[r]] += V[r, j] * s
+
+
+# --- more than LCP_MAX_CONTACTS contacts: Lemke's method ---------------------------------------------
+
+LEMKE_PIVOT_TOL = 1e-12  # a tableau entry below this times its column's largest counts as zero
+LEMKE_MAX_PIVOTS = 50    # times k (Lemke needs about k pivots; cycling is excluded by the lexicographic rule)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _lcp_large(A, q, qs, k, wmax, lam):
+    """The LCP of k > LCP_MAX_CONTACTS contacts: Lemke, then the uniqueness checks of the case codes."""
+    x = np.zeros(k)
+    code = lemke(A, q, x)
+    if code != 0:
+        return LCP_INFEASIBLE if code == 1 else LCP_DEGENERATE
+    if not _lcp_violation_dense(A, q, x, k, wmax) <= LCP_FEAS_TOL * qs:
+        return LCP_DEGENERATE
+    sel = np.ones(k, np.int64)
+    if _cholesky_pd(A, sel, k, wmax):
+        _lcp_clip_into(x, lam, k)
+        return LCP_UNIQUE
+    for i in range(k):  # P = {i : w_i = 0}
+        wi = q[i]
+        for j in range(k):
+            wi += A[i, j] * x[j]
+        sel[i] = 1 if wi <= LCP_FEAS_TOL * qs else 0
+    if _cholesky_pd(A, sel, k, wmax):
+        _lcp_clip_into(x, lam, k)
+        return LCP_SINGULAR_UNIQUE
+    return LCP_DEGENERATE
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def lemke(A, q, x):
+    """Lemke's complementary pivoting for w = q + A x >= 0, x >= 0, x . w = 0 (covering vector 1),
+    with the lexicographic minimum ratio test (the tableau's w columns hold B^-1), so a degenerate q
+    (many u-_i = 0, as in a cradle at rest) cannot cycle. Returns 0 with x the solution, 1 on a
+    secondary ray (for positive semidefinite A: no solution), 2 if the pivots did not end (round-off
+    on a degenerate problem). Dense tableau k x (2k + 2): O(k^2) per pivot."""
+    k = q.shape[0]
+    for i in range(k):
+        x[i] = 0.0
+    r = 0
+    for i in range(1, k):
+        if q[i] < q[r]:
+            r = i
+    if q[r] >= 0.0:
+        return 0
+    nc = 2 * k + 2                     # columns: w (0..k-1), x (k..2k-1), z0 (2k), rhs (2k+1)
+    T = np.zeros((k, nc))
+    for i in range(k):
+        T[i, i] = 1.0
+        for j in range(k):
+            T[i, k + j] = -A[i, j]
+        T[i, 2 * k] = -1.0
+        T[i, 2 * k + 1] = q[i]
+    basis = np.empty(k, np.int64)
+    for i in range(k):
+        basis[i] = i
+    # z0 enters at the most negative q: every rhs becomes >= 0
+    _pivot(T, basis, r, 2 * k, k)
+    entering = r + k                   # the complement of w_r, which left
+    for _ in range(LEMKE_MAX_PIVOTS * k):
+        cmax = 0.0
+        for i in range(k):
+            cmax = max(cmax, abs(T[i, entering]))
+        tol = LEMKE_PIVOT_TOL * cmax
+        row = -1
+        for i in range(k):
+            if T[i, entering] > tol:
+                if row < 0 or _lex_less(T, i, row, entering, k):
+                    row = i
+        if row < 0:
+            return 1
+        leaving = basis[row]
+        _pivot(T, basis, row, entering, k)
+        if leaving == 2 * k:           # z0 left: a complementary solution
+            for i in range(k):
+                if basis[i] >= k and basis[i] < 2 * k:
+                    x[basis[i] - k] = T[i, 2 * k + 1]
+            return 0
+        entering = leaving + k if leaving < k else leaving - k
+    return 2
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _lex_less(T, a, b, c, k):
+    """Row a before row b in the lexicographic ratio test on column c: (rhs, B^-1 row) / T[., c]."""
+    ra = T[a, 2 * k + 1] / T[a, c]
+    rb = T[b, 2 * k + 1] / T[b, c]
+    if ra != rb:
+        return ra < rb
+    for j in range(k):
+        ra = T[a, j] / T[a, c]
+        rb = T[b, j] / T[b, c]
+        if ra != rb:
+            return ra < rb
+    return a < b
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _pivot(T, basis, r, c, k):
+    """Gauss-Jordan pivot on T[r, c]: column c's variable replaces basis[r]."""
+    nc = T.shape[1]
+    piv = T[r, c]
+    for j in range(nc):
+        T[r, j] /= piv
+    for i in range(k):
+        if i != r:
+            f = T[i, c]
+            if f != 0.0:
+                for j in range(nc):
+                    T[i, j] -= f * T[r, j]
+                T[i, c] = 0.0
+    T[r, c] = 1.0
+    basis[r] = c
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _lcp_violation_dense(A, q, x, k, wmax):
+    """Largest violation of x >= 0, w = q + A x >= 0 and of complementarity, in velocity units."""
+    v = 0.0
+    for i in range(k):
+        wi = q[i]
+        for j in range(k):
+            wi += A[i, j] * x[j]
+        v = max(v, -x[i] * wmax, -wi, min(abs(wi), abs(x[i]) * wmax))
+    return v if v == v else np.inf
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _cholesky_pd(A, sel, k, wmax):
+    """True if A restricted to {i : sel[i] = 1} is positive definite (pivots above LCP_RANK_TOL wmax)."""
+    idx = np.empty(k, np.int64)
+    m = 0
+    for i in range(k):
+        if sel[i] != 0:
+            idx[m] = i
+            m += 1
+    L = np.zeros((m, m))
+    for j in range(m):
+        d = A[idx[j], idx[j]]
+        for c in range(j):
+            d -= L[j, c] * L[j, c]
+        if not d > LCP_RANK_TOL * wmax:
+            return False
+        L[j, j] = math.sqrt(d)
+        for r in range(j + 1, m):
+            s = A[idx[r], idx[j]]
+            for c in range(j):
+                s -= L[r, c] * L[j, c]
+            L[r, j] = s / L[j, j]
+    return True
