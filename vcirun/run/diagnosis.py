@@ -36,7 +36,7 @@ def failure_cause(mod, status, Q, p, t0, fail, h, prm, tol, H0, impacts) -> str:
         t = t0 + fail * h
         causes = _conditioning(mod, status, Q, prm, t0, h, t) + _divergence(mod, status, Q[-1], p, prm, h, H0)
         if status == RESET_FAILED and not causes:
-            causes += _reset(mod, Q[-1], p, prm, h, t, tol)
+            causes += _impact_law(mod, Q[-1], p, prm, h, t, tol) or _reset(mod, Q[-1], p, prm, h, t, tol)
         if status == NONFINITE and not causes:
             causes.append("the state overflowed")
         return "; ".join(causes)
@@ -86,6 +86,38 @@ def _divergence(mod, status, q, p, prm, h, H0) -> list:
             return [f"step h too large for the fastest local mode of the motion (h * omega = {h * w:.3g} "
                     f"> 2, the stability limit of the Verlet-type maps)"]
     return []
+
+
+_LCP_CASES = {-1: "has no solution (no impulses lam >= 0 leave every contact separating: contacts with "
+                  "dependent gradients and different restitutions)",
+              -2: "got invalid input (a non-finite or asymmetric Delassus matrix, or a contact without effective "
+                  "mass)",
+              -3: "is degenerate (the impulses are not unique: dependent contact gradients, e.g. a closed loop of "
+                  "contacts; or a pivot undecidable within round-off)"}
+
+
+def _impact_law(mod, q, p, prm, h, t, tol) -> list:
+    """A reset that failed in Moreau's law of several contacts: which contacts, and why."""
+    n, m = q.shape[0], int(mod.NCON)
+    if m == 1:
+        return []
+    qt, pt, vt = np.empty(n), np.empty(n), np.empty(n)
+    code, _, _, _ = mod.collision_time(q, p, h, h, t, prm, float(tol["newton_tol"]), int(tol["max_iter"]),
+                                       float(tol["event_tol"]), qt, pt, vt, np.zeros(m, np.int64))
+    if code != 1:
+        return []
+    d, lam, active = np.empty(n), np.empty(m), np.zeros(m, np.int64)
+    k, _, _ = mod.impact_direction(qt, pt, h, float(tol["event_tol"]), prm, d, lam, active)
+    if k >= 0:
+        return []
+    ids = [int(i) for i in np.flatnonzero(active)]
+    if not ids:  # (the law clears `active` on failure: the contacts touching at the impact state)
+        phis = np.empty(m)
+        mod.sys_phis(qt, prm, phis)
+        ids = [int(i) for i in np.flatnonzero(phis <= 1e-9 * (1.0 + float(np.max(np.abs(qt)))))]
+    shown = ", ".join(map(str, ids[:20])) + (" ..." if len(ids) > 20 else "")
+    return [f"Moreau's impact law of the {len(ids)} contacts at the impact (contact indices {shown}, as in "
+            f"impact_contact) {_LCP_CASES.get(int(k), f'failed (case {int(k)})')}"]
 
 
 def _reset(mod, q, p, prm, h, t, tol) -> list:
