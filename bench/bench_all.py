@@ -31,6 +31,9 @@ Sections (`--only a,b,...` to pick; `--quick` for a short smoke run):
             cart-pendulum declared in YAML with its floor only, and with a second constraint that is
             never touched (a ceiling 100 m up), every method in its constrained loop before the first
             impact (h = 1e-5, t < 0.729); the difference against the smooth SVC step (target < 10 %)
+  bodies    contacts by the hundred (bench/bodies_scaling.py): cold build, us per smooth step and the
+            first-hit outcome against NNLS of cradles of N = 3, 10, 30, 100 balls, and link chains of
+            3, 5, 10 links declared by bodies (one fresh process per case)
   wp        the work-precision studies (configs/work_precision.yaml, work_precision_double.yaml,
             long_horizon.yaml) through `vcirun study` (vcirun.experiments.studies), with their figures; the
             10x target is read on vcirun's front (best method at each accuracy) of the two T = 5 studies
@@ -659,9 +662,20 @@ def section_contacts(res):
 
 
 
+def section_bodies(res):
+    """Cradles of N = 3, 10, 30, 100 balls and link chains by bodies: bench/bodies_scaling.py."""
+    import bodies_scaling
+
+    out = ROOT / "results" / "bodies_scaling.json"
+    bodies_scaling.main(["--cases", "newton_cradle_3,newton_cradle_10" if QUICK else bodies_scaling.DEFAULT,
+                         "--out", str(out)])
+    res["bodies"] = json.loads(out.read_text())
+
+
 SECTIONS = {"steps": section_steps, "sim5": section_sim5, "impact": section_impact, "build": section_build,
             "sweep": section_sweep, "yardstick": section_yardstick, "scaling": section_scaling, "dof": section_dof,
-            "tensor": section_tensor, "wp": section_wp, "coldbuild": section_coldbuild, "contacts": section_contacts}
+            "tensor": section_tensor, "wp": section_wp, "coldbuild": section_coldbuild, "contacts": section_contacts,
+            "bodies": section_bodies}
 
 
 def main(argv=None):

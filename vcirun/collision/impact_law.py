@@ -1,7 +1,7 @@
 # numba source unit: the impact law of k simultaneous contacts (docs/derivations/contacts.md, section 1):
 # Moreau's generalized Newton law as a linear complementarity problem, solved exactly for any k: by
 # enumeration of supports for k <= LCP_MAX_CONTACTS (every case below), by Lemke's complementary
-# pivoting with the lexicographic ratio test above that (docs/derivations/contacts.md, section 1.6).
+# pivoting with the lexicographic ratio test above that (docs/derivations/contacts.md, section 1.7).
 # It reads no name of the generated part (every size from its arguments, its own constants only) and
 # calls only maps/linalg.py, so it compiles on its own (vcirun.codegen.units.standalone_source).
 #
