@@ -24,7 +24,7 @@ def physics_mechanics(n, trig):
     t = time.perf_counter()
     x, y = me.dynamicsymbols("x y")
     th = me.dynamicsymbols(f"theta1:{n + 1}")
-    m, l, g = sp.symbols("m l g")
+    m, l = sp.symbols("m l")
     N = me.ReferenceFrame("N")
     O = me.Point("O")
     O.set_vel(N, 0)

@@ -14,7 +14,13 @@ import itertools
 import numpy as np
 import pytest
 
-from tests.unit.test_impact_law import _check_lcp, _cradle, _nnls_lcp, _solve, law  # noqa: F401 (fixture)
+from tests.unit import test_impact_law as til
+from tests.unit.test_impact_law import _check_lcp, _cradle, _nnls_lcp, _solve
+
+
+@pytest.fixture(scope="module", params=["python", "numba"])
+def law(request):
+    return til._python_unit() if request.param == "python" else til._compiled_unit()
 
 
 def _enumerate_lcp(W, q):
@@ -88,11 +94,12 @@ def test_degenerate_names_itself(law):
 
 
 def test_lemke_secondary_ray_is_infeasible(law):
-    """Two copies of a contact with different restitution in a stack of ten: no solution (the rows
-    demand lam-weighted sums that cannot both vanish): LCP_INFEASIBLE."""
+    """A point pressed into a zero-width gap (x >= 0 and -x >= 0, restitutions 1 and 0) among eight
+    other contacts: lam1 - lam2 >= 2 and lam1 - lam2 <= 1 cannot both hold, Lemke ends on a secondary
+    ray: LCP_INFEASIBLE."""
     G = np.array([[1.0, 0.0], [-1.0, 0.0]] + [[0.0, 1.0 + 0.1 * i] for i in range(8)])
     W = G @ G.T
-    um = G @ np.array([-1.0, 0.0])  # pressed into the zero-width gap x >= 0, -x >= 0
+    um = G @ np.array([-1.0, 0.0])
     e = np.array([1.0, 0.0] + [1.0] * 8)
     code, lam = _solve(law, W, um, e)
-    assert code == law.LCP_INFEASIBLE
+    assert code == law.LCP_INFEASIBLE and np.all(lam == 0.0)

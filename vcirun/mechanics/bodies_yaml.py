@@ -25,7 +25,16 @@ from __future__ import annotations
 import re
 
 from ..core import validation
-from .bodies import GROUND, Body, CircleContact, Damper, Joint, PointContact, Spring, planar_system
+from .bodies import (
+    GROUND,
+    Body,
+    CircleContact,
+    Damper,
+    Joint,
+    PointContact,
+    Spring,
+    planar_system,
+)
 from .loader import _description, _system_name
 
 KEYS = {"name", "description", "parameters", "gravity", "bodies", "joints", "contacts", "springs", "dampers",

@@ -3,9 +3,9 @@ rocking block, a chain of N links falling on a floor and a cradle of N hanging b
 parts (defaults, initial states, descriptions) are vcirun.scenes.data's, under the same names."""
 from __future__ import annotations
 
-from . import data as sd
 from ..mechanics.bodies import Body, CircleContact, Joint, PointContact, planar_system
 from ..mechanics.system import MechanicalSystem
+from . import data as sd
 
 
 def _build(d, bodies, joints, contacts, gravity="g") -> MechanicalSystem:
