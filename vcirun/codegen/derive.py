@@ -49,8 +49,10 @@ def system_kernels(system, with_dhq: bool = True) -> list[Kernel]:
     ks = [
         Kernel("sys_M", [("q", q)], [("out", system.M)], prm),
         Kernel("sys_V", [("q", q)], [("V", system.V)], prm),
-        # the gap min_i phi_i (phi itself for one constraint): what the event search follows
-        Kernel("sys_phi", [("q", q)], [("phi", system.phi)], prm),
+        # the gap min_i phi_i (phi itself for one constraint): what the event search follows (from
+        # GAP_LOOP_MIN constraints on a loop over sys_phis: sympy's Min of many arguments takes
+        # seconds to print and its nested min() calls grow the kernel)
+        *([Kernel("sys_phi", [("q", q)], [("phi", system.phi)], prm)] if system.m < GAP_LOOP_MIN else []),
         Kernel("sys_phis", [("q", q)], [("out", sp.Matrix([c.phi for c in system.constraints]))], prm),
         Kernel("sys_dphis", [("q", q)], [("out", system.constraint_jacobian)], prm),
         Kernel("sys_restitution", [], [("out", sp.Matrix([c.restitution for c in system.constraints]))], prm),
@@ -59,18 +61,28 @@ def system_kernels(system, with_dhq: bool = True) -> list[Kernel]:
         ks.append(Kernel("sys_dphi", [("q", q)], [("out", system.grad_phi)], prm))
     # for held (resting) contacts: the velocity terms of d^2/dt^2 phi_i = G_i qddot + v^T
     # Hess(phi_i) v and of d/dt (M v) = M qddot + Mdot v along a velocity v
+    # (derivatives only along the coordinates an entry depends on: the other terms are zero, so the
+    # sums are the same expressions, and a contact of 2 of 100 coordinates costs 4 derivatives, not 10^4)
     v = list(sp.symbols(f"vv0:{n}"))
     ks.append(Kernel("sys_ddphis", [("q", q), ("v", v)],
-                     [("out", sp.Matrix([sum(sp.diff(c.phi, a, b) * v[i] * v[j] for i, a in enumerate(q)
-                                             for j, b in enumerate(q)) for c in system.constraints]))], prm))
+                     [("out", sp.Matrix([sum((sp.diff(c.phi, a, b) * v[i] * v[j] for i, a in _depends(c.phi, q)
+                                              for j, b in _depends(c.phi, q)), sp.Integer(0))
+                                         for c in system.constraints]))], prm))
     ks.append(Kernel("sys_Mdotv", [("q", q), ("v", v)],
-                     [("out", sp.Matrix([sum(sp.diff(system.M[i, j], q[k]) * v[k] * v[j] for j in range(n)
-                                             for k in range(n)) for i in range(n)]))], prm))
+                     [("out", sp.Matrix([sum((sp.diff(system.M[i, j], qk) * v[k] * v[j] for j in range(n)
+                                              for k, qk in _depends(system.M[i, j], q)), sp.Integer(0))
+                                         for i in range(n)]))], prm))
     if with_dhq:
         x = list(sp.symbols(f"xm0:{n}"))
         ks.append(Kernel("sys_dHq", [("q", q), ("x", x)], [("out", system.dH_dq_at(x))], prm))
     ks += force_kernels(system)
     return ks
+
+
+def _depends(expr, q) -> list:
+    """(index, coordinate) of the coordinates expr depends on, in coordinate order."""
+    free = sp.sympify(expr).free_symbols
+    return [(i, s) for i, s in enumerate(q) if s in free]
 
 
 def force_kernels(system) -> list[Kernel]:
@@ -80,8 +92,11 @@ def force_kernels(system) -> list[Kernel]:
     unforced system (the callers branch on the module constant FORCED, so they cost nothing there)."""
     n = system.n
     args = [("q", system.q), ("qd", system.qd), ("t", system.t)]
-    f = system.forcing if system.is_forced else sp.zeros(n, 1)
     prm = system.param_symbols
+    if not system.is_forced:  # (the Jacobians of a zero force, without n^2 derivatives of zero)
+        return [Kernel("sys_force", args, [("out", sp.zeros(n, 1))], prm),
+                Kernel("sys_force_jac", args, [("fq", sp.zeros(n, n)), ("fv", sp.zeros(n, n))], prm)]
+    f = system.forcing
     return [Kernel("sys_force", args, [("out", f)], prm),
             Kernel("sys_force_jac", args, [("fq", f.jacobian(list(system.q))), ("fv", f.jacobian(list(system.qd)))],
                    prm)]
@@ -93,6 +108,8 @@ def system_kernels_source(system, path: str | None = None) -> str:
     parts = [f"NCON = {system.m}"] + [k.emit() for k in system_kernels(system, with_dhq=not tensor)]
     if system.m > 1:
         parts.append(_GAP_GRADIENT)
+    if system.m >= GAP_LOOP_MIN:
+        parts.append(_GAP_LOOP)
     if tensor:
         from .tensor import dhq_source, node_source
 
@@ -101,6 +118,19 @@ def system_kernels_source(system, path: str | None = None) -> str:
         parts.append(_EXPANDED_NODE.format(n=system.n))
     return "\n\n".join(parts)
 
+
+GAP_LOOP_MIN = 9
+
+_GAP_LOOP = """@njit(cache=True, nogil=True, error_model="numpy")
+def sys_phi(q, prm):
+    phis = scratch(NCON)
+    sys_phis(q, prm, phis)
+    g = phis[0]
+    for i in range(1, NCON):
+        if phis[i] < g or phis[i] != phis[i]:
+            g = phis[i]
+    return g
+"""
 
 # Several constraints: the gap min_i phi_i has the gradient of its smallest phi_i (where that is one
 # constraint); sys_dphi is that gradient, so d phi/dt along the flow (gdot) and the event search

@@ -14,6 +14,13 @@ import sympy as sp
 from .printer import pycode
 
 
+# A matrix output with at least this many zero entries (a Jacobian of contacts that each involve a few
+# of many coordinates, a constant diagonal M) is zero-filled by a loop and only its nonzero entries
+# are written: generated code and compile time grow with the nonzeros, not with the matrix size.
+# (Below it every entry is written, as statements.)
+ZERO_FILL_MIN = 64
+
+
 @dataclass
 class Kernel:
     """name: python identifier; inputs: [(argname, [symbols] | symbol)]; outputs: [(argname, expr or
@@ -40,12 +47,17 @@ class Kernel:
         body = []
         used = set()
         flat = []  # (target, expr)
+        fills = []  # outputs with many zero entries: one loop writes the zeros, `flat` the others
         for oname, val in self.outputs:
             if isinstance(val, sp.MatrixBase):
                 if val.shape[1] == 1:
-                    flat += [(f"{oname}[{i}]", val[i, 0]) for i in range(val.shape[0])]
+                    ents = [(f"{oname}[{i}]", val[i, 0]) for i in range(val.shape[0])]
                 else:
-                    flat += [(f"{oname}[{i}, {j}]", val[i, j]) for i in range(val.shape[0]) for j in range(val.shape[1])]
+                    ents = [(f"{oname}[{i}, {j}]", val[i, j]) for i in range(val.shape[0]) for j in range(val.shape[1])]
+                if sum(1 for _, e in ents if e == 0) >= ZERO_FILL_MIN:
+                    fills.append((oname, val.shape))
+                    ents = [(t, e) for t, e in ents if e != 0]
+                flat += ents
             else:
                 flat.append(("__ret__", sp.sympify(val)))
         exprs = [e for _, e in flat]
@@ -62,6 +74,11 @@ class Kernel:
         for i, s in enumerate(self.params):
             if s.name in used:
                 body.append(f"{_id(s)} = prm[{i}]")
+        for oname, (r, c) in fills:
+            if c == 1:
+                body += [f"for i_ in range({r}):", f"    {oname}[i_] = 0.0"]
+            else:
+                body += [f"for i_ in range({r}):", f"    for j_ in range({c}):", f"        {oname}[i_, j_] = 0.0"]
         repl, reduced = sp.cse(exprs, symbols=sp.numbered_symbols("cse"), order="none")
         tmp = {s for s, _ in repl}
         for s, e in repl:

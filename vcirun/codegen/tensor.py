@@ -68,7 +68,7 @@ from dataclasses import dataclass
 import sympy as sp
 
 from ..discrete.quadrature import quadrature_nodes
-from .kernels import _code
+from .kernels import ZERO_FILL_MIN, _code
 
 _NJ = '@njit(cache=True, nogil=True, error_model="numpy")'
 
@@ -158,7 +158,10 @@ def tensor_data_uncached(system, second: bool) -> dict:
             MI.append(i)
             MJ.append(j)
             g_m.append(M[i, j])
+            free = M[i, j].free_symbols
             for k in range(n):
+                if q[k] not in free:  # (structurally zero: no derivative to take)
+                    continue
                 d = sp.diff(M[i, j], q[k])
                 if d != 0:
                     dM[i, j, k] = d
@@ -182,7 +185,10 @@ def tensor_data_uncached(system, second: bool) -> dict:
                     g_2m.append(d2)
         VA, VB, g_2v = [], [], []
         for a in range(n):
+            free = dV[a].free_symbols
             for b in range(a, n):
+                if q[b] not in free:
+                    continue
                 d2 = sp.diff(dV[a], q[b])
                 if d2 != 0:
                     VA.append(a)
@@ -412,9 +418,15 @@ def _pmj_source(system, td, name, nodes, fa) -> str:
                     J_terms[a, b].append((-1, f"fh * {fo[n + a * n + b]}"))
     for a in range(n):
         e(f"r[{a}] = {_sum(r_terms[a])}")
+    fill = sum(1 for t in J_terms.values() if not t) >= ZERO_FILL_MIN  # (a sparse J: zeros by a loop)
+    if fill:
+        e(f"for i_ in range({n}):")
+        e(f"    for j_ in range({n}):")
+        e("        J[i_, j_] = 0.0")
     for a in range(n):
         for b in range(n):
-            e(f"J[{a}, {b}] = {_sum(J_terms[a, b])}")
+            if J_terms[a, b] or not fill:
+                e(f"J[{a}, {b}] = {_sum(J_terms[a, b])}")
     e("return 0")
     doc = (f"Pm = -D1 Ld - f^- and J = dPm/dv; Ld = h sum_i W_i L(q0 + C_i h v, v), (C, W) = {list(nodes)}:\n"
            f"    Pm = sum_i W_i [M_i v - h (1 - C_i) gL_i] - {fa!r} h f(q0, v, t),\n"
@@ -480,10 +492,15 @@ def node_source(system) -> str:
     src += _header("sys_node", "q, prm, c", "Node data of q: the T1 tensors (vcirun.codegen.tensor.node_source).")
     src += e.body() + "\n\n"
     body = []
-    for a in range(n):
-        for b in range(n):
-            k = e.midx[min(a, b), max(a, b)]
-            body.append(f"    A[{a}, {b}] = " + ("0.0" if k in td["T1"].zero else f"c[{k}]"))
+    entries = [(a, b, e.midx[min(a, b), max(a, b)]) for a in range(n) for b in range(n)]
+    fill = sum(1 for *_, k in entries if k in td["T1"].zero) >= ZERO_FILL_MIN  # (a sparse M: zeros by a loop)
+    if fill:
+        body += [f"    for i_ in range({n}):", f"        for j_ in range({n}):", "            A[i_, j_] = 0.0"]
+    for a, b, k in entries:
+        if k not in td["T1"].zero:
+            body.append(f"    A[{a}, {b}] = c[{k}]")
+        elif not fill:
+            body.append(f"    A[{a}, {b}] = 0.0")
     src += _header("sys_node_M", "c, A", "M(q) from the node data c of q.") + "\n".join(body) + "\n    return 0\n"
     return src
 
