@@ -99,7 +99,7 @@ def _impact_several(q, pm, h, event_tol, prm, e, d, lam, active):
     idx = scratch_i(NCON)
     k = 0
     for i in range(NCON):
-        if i == i0 or phis[i] <= touch_tolerance(q, prm, i, u[i], h, event_tol):
+        if i == i0 or phis[i] <= _touch_tolerance_row(q, G, i, u[i], h, event_tol):
             idx[k] = i
             k += 1
     approaching = False
@@ -146,6 +146,13 @@ def touch_tolerance(q, prm, i, u, h, event_tol):
     of phi_i near q (64 eps (1 + |q| |grad phi_i|), as a start on the surface)."""
     G = scratch2(NCON, NDOF)
     sys_dphis(q, prm, G)
+    return _touch_tolerance_row(q, G, i, u, h, event_tol)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _touch_tolerance_row(q, G, i, u, h, event_tol):
+    """touch_tolerance with the constraint Jacobian G at q given (loops over the contacts build it
+    once: O(m n), not O(m^2 n))."""
     gq = 0.0
     qn = 0.0
     for j in range(NDOF):
@@ -232,8 +239,10 @@ def touching_mask(q, p, h, event_tol, prm, mask, held):
     sys_phis(q, prm, phis)
     u = scratch(NCON)
     _normal_velocities_into(q, p, prm, u)
+    G = scratch2(NCON, NDOF)
+    sys_dphis(q, prm, G)
     for i in range(NCON):
-        if mask[i] == 0 and phis[i] <= touch_tolerance(q, prm, i, u[i], h, event_tol) and u[i] >= 0.0:
+        if mask[i] == 0 and phis[i] <= _touch_tolerance_row(q, G, i, u[i], h, event_tol) and u[i] >= 0.0:
             mask[i] = 1
             k += 1
     return k
@@ -247,9 +256,11 @@ def unmask_penetrating(q, prm, mask, held):
         return 0
     phis = scratch(NCON)
     sys_phis(q, prm, phis)
+    G = scratch2(NCON, NDOF)
+    sys_dphis(q, prm, G)
     k = 0
     for i in range(NCON):
-        if mask[i] == 1 and held[i] == 0 and phis[i] < -touch_tolerance(q, prm, i, 0.0, 1.0, 0.0):
+        if mask[i] == 1 and held[i] == 0 and phis[i] < -_touch_tolerance_row(q, G, i, 0.0, 1.0, 0.0):
             mask[i] = 0
             k += 1
     return k
