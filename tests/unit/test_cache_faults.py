@@ -488,6 +488,21 @@ def test_a_damaged_core_numba_file_is_compiled_again(case, fault):
 
 
 @pytest.mark.slow
+def test_a_file_in_place_of_numbas_directory_is_set_aside(case):
+    """Everything numba cached is gone (the core compiles again), and saved again in a new directory."""
+    c, ref = case
+    nb = c / "kernels" / "__pycache__"
+    shutil.rmtree(nb)
+    nb.write_text("x")
+    r = vcirun(c, *RUN, "--output", c.parent / "out.npz")
+    healed(r, c.parent / "out.npz", ref, said="__pycache__ is not a directory")
+    assert nb.is_dir() and list(nb.glob("*.nbi"))
+    r = vcirun(c, *RUN, "--output", c.parent / "again.npz")
+    healed(r, c.parent / "again.npz", ref)
+    assert r.stderr.strip() == "", r.stderr
+
+
+@pytest.mark.slow
 def test_a_kill_during_the_c_compile_leaves_nothing_behind(case):
     c, ref = case
     for f in kern(c, "vk_*.py") + kern(c, "vkc_*") + kern(c, "wi_*.json"):

@@ -64,8 +64,12 @@ _CLAIMED: dict[str, Owner] = {}
 
 
 def claim(path: Path, owner: Owner) -> None:
-    """numba's files of the module at `path` go through this module (before the module is executed)."""
+    """numba's files of the module at `path` go through this module (before the module is executed). A
+    file where their directory should be is set aside, so that they can be saved again."""
     _CLAIMED[os.path.abspath(path)] = owner
+    d = Path(os.path.abspath(path)).parent / "__pycache__"
+    if os.path.lexists(d) and not d.is_dir():
+        cache_store.quarantine(d, "is not a directory", rebuild="numba's files are saved in a new one")
 
 
 def owner_of(path) -> Owner | None:
@@ -122,7 +126,8 @@ class _File(caching.IndexDataCacheFile):
         try:
             data = cache_store.read(Path(path))
         except cache_store.CacheDamage as e:
-            cache_store.say(f"kernel cache: {path} {e.reason}; not used", once=f"unreadable|{path}")
+            # one line per directory: what makes one file unreadable usually holds for its neighbours
+            cache_store.say(f"kernel cache: {path} {e.reason}; not used", once=f"unreadable|{os.path.dirname(path)}")
             return None
         if data is None:
             return None
