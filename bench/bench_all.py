@@ -31,6 +31,9 @@ Sections (`--only a,b,...` to pick; `--quick` for a short smoke run):
             cart-pendulum declared in YAML with its floor only, and with a second constraint that is
             never touched (a ceiling 100 m up), every method in its constrained loop before the first
             impact (h = 1e-5, t < 0.729); the difference against the smooth SVC step (target < 10 %)
+  cacheverify the kernel cache's checks on a warm start (bench/cache_verify.py): fresh processes of an
+            MCVAC simulation with the digest checks and with them replaced by unchecked loads, medians of
+            the process wall and of the time spent hashing
   wp        the work-precision studies (configs/work_precision.yaml, work_precision_double.yaml,
             long_horizon.yaml) through `vcirun study` (vcirun.experiments.studies), with their figures; the
             10x target is read on vcirun's front (best method at each accuracy) of the two T = 5 studies
@@ -658,10 +661,19 @@ def section_contacts(res):
     res["inactive_constraint"] = out
 
 
+def section_cacheverify(res):
+    log("== kernel cache checks on a warm start: checked against unchecked loads (bench/cache_verify.py)")
+    import cache_verify
+
+    r = cache_verify.measure(repeats=3 if QUICK else 9)
+    cache_verify.report(r, log)
+    res["cache_verify"] = r
+
 
 SECTIONS = {"steps": section_steps, "sim5": section_sim5, "impact": section_impact, "build": section_build,
             "sweep": section_sweep, "yardstick": section_yardstick, "scaling": section_scaling, "dof": section_dof,
-            "tensor": section_tensor, "wp": section_wp, "coldbuild": section_coldbuild, "contacts": section_contacts}
+            "tensor": section_tensor, "wp": section_wp, "coldbuild": section_coldbuild, "contacts": section_contacts,
+            "cacheverify": section_cacheverify}
 
 
 def main(argv=None):

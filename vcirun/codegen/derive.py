@@ -229,7 +229,7 @@ def _kernels_backend(generated: str, c_dir) -> str:
 
     if cc.backend() != "c":
         return generated
-    from .c_emit import c_kernels
+    from .c_link import c_kernels
 
     return c_kernels(generated, c_dir)
 
