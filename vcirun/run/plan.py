@@ -261,29 +261,27 @@ class Buffers:
 
     def __init__(self, keep_grid: bool):
         self.keep_grid = keep_grid
-        self.dims, self.cap, self.big = None, -1, None
+        self.dims, self.cap, self.big, self.views, self.views_cap = None, -1, None, None, -1
+        fresh_grid = [] if keep_grid else [i for i, f in enumerate(record.FIELDS) if f.axis == "grid"]
+        self._fresh = tuple((i, record.FIELDS[i].fill) for i in fresh_grid)   # new arrays per run
+        self._refill = tuple((i, f.fill) for i, f in enumerate(record.FIELDS)
+                             if f.fill is not None and i not in fresh_grid)   # reused, refilled per run
 
     def get(self, N: int, n: int, m: int, cap_imp: int) -> tuple:
-        fresh = self.big is None or self.dims != (N, n, m) or self.cap < cap_imp
-        if fresh:
-            self.big = list(record.allocate(N, n, m=m, cap_impacts=cap_imp))
-            self.dims, self.cap = (N, n, m), cap_imp
-        rows = record.axis_rows(N, cap_imp)
-        out = []
-        for i, f in enumerate(record.FIELDS):
-            b = self.big[i]
-            if f.axis == "grid" and not self.keep_grid:
-                if b is None:
-                    shape, dt = f.shape(N + 1, n, m), (np.bool_ if f.dtype == "bool" else np.dtype(f.dtype))
-                    b = np.empty(shape, dt) if f.fill is None else np.full(shape, f.fill, dt)
-                self.big[i] = None   # it leaves with the run
-                out.append(b)
-                continue
-            k = rows[f.axis]
-            v = b if b.shape[0] == k else b[:k]
-            if not fresh and f.fill is not None:
-                v.fill(f.fill)
-            out.append(v)
+        if self.big is None or self.dims != (N, n, m) or self.cap < cap_imp:
+            self.big = record.allocate(N, n, m=m, cap_impacts=cap_imp)   # as a fresh run's: no refill
+            self.dims, self.cap, self.views, self.views_cap = (N, n, m), cap_imp, list(self.big), cap_imp
+            return self.big
+        if self.views_cap != cap_imp:   # a run that starts again with the smaller first capacity
+            rows = record.axis_rows(N, cap_imp)
+            self.views = [b if b.shape[0] == rows[f.axis] else b[: rows[f.axis]]
+                          for f, b in zip(record.FIELDS, self.big)]
+            self.views_cap = cap_imp
+        out = list(self.views)
+        for i, fill in self._fresh:   # the grid rows of the previous run left with its Trajectory
+            out[i] = np.empty_like(out[i]) if fill is None else np.full_like(out[i], fill)
+        for i, fill in self._refill:
+            out[i].fill(fill)
         return tuple(out)
 
 
