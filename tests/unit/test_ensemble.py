@@ -101,6 +101,10 @@ def test_bad_arguments_of_the_whole_batch_raise_naming_the_field():
         vcirun.ensemble("cart_pendulum", "CVA", h=0.1, T=1, beta=[3.0], outputs="all")
     with pytest.raises(ValueError, match="q0: must have shape"):
         vcirun.ensemble("cart_pendulum", "CVA", h=0.1, T=1, q0=np.zeros((3, 5)), p0=np.zeros((3, 5)))
+    with pytest.raises(ValueError, match="beta: must be numbers"):
+        vcirun.ensemble("cart_pendulum", "CVA", h=0.1, T=1, beta=["a", "b"])
+    with pytest.raises(ValueError, match="q0: must be numbers"):
+        vcirun.ensemble("cart_pendulum", "CVA", h=0.1, T=1, q0=[[1.0, 0.5], [1.0]], p0=np.zeros((2, 2)))
     with pytest.raises(ValueError, match="h: must"):
         vcirun.ensemble("cart_pendulum", "CVA", h=-0.1, T=1, beta=[3.0])
 

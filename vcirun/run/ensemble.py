@@ -53,7 +53,10 @@ MAX_MESSAGES = 100
 def _runs_of(name: str, value, inner: int) -> int | None:
     """How many runs `value` gives (its leading length when it has one more axis than one run's
     value, `inner` being one run's number of axes), None for one value shared by every run."""
-    a = np.asarray(value)
+    try:
+        a = np.asarray(value)
+    except (TypeError, ValueError):   # ragged lists
+        raise ValueError(f"{name}: must be numbers, one value or one row per run (got {describe(value)})") from None
     if a.dtype == object:
         raise ValueError(f"{name}: must be numbers (got {describe(value)})")
     if a.ndim == inner:
@@ -94,15 +97,25 @@ def _inputs(beta, q0, p0, params) -> tuple[int, dict]:
             raise ValueError(f"{name}: has {s} runs, {first} has {k}; give every per-run input the same length")
     if k < 1:
         raise ValueError(f"{next(iter(lengths))}: no runs (an empty array)")
-    per = {"beta": None if beta is None else np.broadcast_to(np.asarray(beta, dtype=float), (k,)),
-           "q0": None if q0 is None else _rows(q0, k), "p0": None if p0 is None else _rows(p0, k),
-           "params": None if params is None else {n: np.broadcast_to(np.asarray(v, dtype=float), (k,))
+    per = {"beta": None if beta is None else np.broadcast_to(_floats("beta", beta), (k,)),
+           "q0": None if q0 is None else _rows("q0", q0, k), "p0": None if p0 is None else _rows("p0", p0, k),
+           "params": None if params is None else {n: np.broadcast_to(_floats(f"params.{n}", v), (k,))
                                                   for n, v in params.items()}}
     return k, per
 
 
-def _rows(v, k):
-    a = np.asarray(v, dtype=float)
+def _floats(name: str, v) -> np.ndarray:
+    try:
+        a = np.asarray(v, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: must be numbers (got {describe(v)})") from None
+    if np.asarray(v).dtype.kind == "b":
+        raise ValueError(f"{name}: must be numbers, not booleans (got {describe(v)})")
+    return a
+
+
+def _rows(name: str, v, k):
+    a = _floats(name, v)
     return np.broadcast_to(a, (k,) + a.shape[-1:]) if a.ndim == 1 else a
 
 
