@@ -38,6 +38,11 @@ Sections (`--only a,b,...` to pick; `--quick` for a short smoke run):
             long_horizon.yaml) through `vcirun study` (vcirun.experiments.studies), with their figures; the
             10x target is read on vcirun's front (best method at each accuracy) of the two T = 5 studies
 
+  throughput the target table of sweeps at the speed of the compiled loop (bench/throughput.py):
+            simulate() against its loop, an ensemble of 10^5 runs against the loop time per core, the
+            fig4 sweep against today's tree (/work/base) and a first simulate against the tree before
+            the shared build (/work/preshared), in this one run
+
 The machine is shared with other sessions: every timing is a median over repeats, the load average
 is recorded at start and end, and ratios are formed from timings taken in this one run.
 """
@@ -60,6 +65,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import vcirun  # noqa: E402
+from throughput import section_throughput  # noqa: E402 (bench/throughput.py: the section's rows)
 
 METHODS = ["CVA", "VCI", "MCVAA", "MCVAC"]
 PAPER_TABLE2 = {"MCVAA": {3.2e-2: (2.71, 0.61), 1e-2: (2.40, 0.39)},
@@ -673,7 +679,7 @@ def section_cacheverify(res):
 SECTIONS = {"steps": section_steps, "sim5": section_sim5, "impact": section_impact, "build": section_build,
             "sweep": section_sweep, "yardstick": section_yardstick, "scaling": section_scaling, "dof": section_dof,
             "tensor": section_tensor, "wp": section_wp, "coldbuild": section_coldbuild, "contacts": section_contacts,
-            "cacheverify": section_cacheverify}
+            "cacheverify": section_cacheverify, "throughput": lambda res: section_throughput(res, quick=QUICK)}
 
 
 def main(argv=None):
