@@ -183,6 +183,12 @@ def sys_dHq(q: vec("NDOF"), x: vec("NDOF"), prm: vec("NPRM"), out: vec("NDOF")) 
 
 
 @kernel("system")
+def sys_reset_map(q: vec("NDOF"), qd: vec("NDOF"), prm: vec("NPRM"), qo: vec("NDOF"), qdo: vec("NDOF")) -> int:
+    """(qo, qdo) = the declared reset map of (q, qd), the state just before an impact (the identity
+    when the system declares none: RESET_MAP false)."""
+
+
+@kernel("system")
 def sys_node(q: vec("NDOF"), prm: vec("NPRM"), c: vec("NODE_LEN")) -> int:
     """c = the node data of q: the tensors a step kernel needs at q (vcirun.codegen.tensor)."""
 
@@ -294,6 +300,10 @@ NCON = _constant("NCON", "system", "int", 1, "number of constraints m")
 NODE_LEN = _constant("NODE_LEN", "system", "int", 1, "length of a point's node data (sys_node)")
 MH_M = _constant("MH_M", "modified", "int", 1, "number of eta's stage velocities (all stages)")
 FORCED = _constant("FORCED", "system", "bool", False, "the system has a generalized force")
+RESET_MAP = _constant("RESET_MAP", "system", "bool", False,
+                      "the system declares a reset map (sys_reset_map; vcirun.mechanics.hybrid)")
+RESET_LAW_FIRST = _constant("RESET_LAW_FIRST", "system", "bool", False,
+                            "the impact law acts before the declared map (plastic: true or a restitution)")
 PARTIAL_IS_FULL = _constant("PARTIAL_IS_FULL", "steps", "bool", True,
                             "the partial map is the full map at step tau (PartialMap.is_full)")
 VCI_STAGE = _constant("VCI_STAGE", "steps", "int", -1, "stage id of the energy gradient's Ld (-1: none)")
