@@ -274,6 +274,9 @@ def _impact_step(q, p, h, tau_max, t, have_end, prm, ntol, maxit, event_tol, max
                 # map's p+ and along it, with the energy the map removes (R^CVA: the map itself;
                 # docs/derivations/declared_resets.md)
                 dEm = declared_reset(qt, pt, d, s0, prm, qn, pmap)
+                Hm = modified_energy(qt, pt, h, prm)
+                if Hm == Hm:  # (a modified energy: R^MCVA's target is the pre-impact H~ less dEm)
+                    dEm += modified_energy(qn, pmap, h, prm) - Hm
                 itr, s = reset(qn, pmap, pmap, 0.0, dEm, Epre, vt, dtau, tau_rem, h, tc + dtau, prm, ntol, maxit, pp)
                 iters += abs(itr)
                 if itr < 0:

@@ -122,8 +122,8 @@ def _compass_M(q, prm):
 
 
 # the period-one gait at the default slope (3 degrees), on the section just after heel strike
-_COMPASS_Q0 = (-0.2, 0.2)
-_COMPASS_QDOT0 = (-1.1, -0.4)
+_COMPASS_Q0 = (-0.271016, 0.271016)
+_COMPASS_QDOT0 = (1.092571, 0.377537)
 
 
 def compass_gait(**overrides) -> SystemData:
