@@ -35,7 +35,6 @@ def test_rimless_wheel_converges_at_the_method_order(method, order):
     errs = np.array([_errors(method, h) for h in hs])
     rates = np.log2(errs[:-1] / errs[1:])
     print(method, "errors (omega, lambda, T):", errs.tolist(), "rates:", rates.tolist())
-    # the speed and the period converge at the order (the multiplier is exact to its noise here:
-    # the stride map's derivative does not depend on the step for the linear velocity map)
-    for col in (0, 2):
-        assert np.all(rates[:, col] > order - 0.3), (method, col, rates[:, col])
+    # speed, multiplier and period at (at least) the method's order; the multiplier's error is not
+    # monotone in h (DP changes where the impact crosses a grid point) and mostly converges faster
+    assert np.all(rates > order - 0.3), (method, rates)

@@ -560,5 +560,5 @@ def rimless_wheel_fixed_point(*, alpha, gamma, g, l, **_) -> RimlessGait:
         raise ValueError(f"rimless wheel: no gait for alpha={alpha}, gamma={gamma}: the wheel does not pass "
                          "the vertical at the fixed point's speed (increase gamma or alpha)")
     rate = lambda th: math.sqrt(w2 + 2 * g / l * (math.cos(gamma - alpha) - math.cos(th + gamma)))
-    T, _ = quad(lambda th: 1.0 / rate(th), -alpha, alpha, epsabs=1e-15, epsrel=1e-14, limit=200)
+    T, _ = quad(lambda th: 1.0 / rate(th), -alpha, alpha, epsabs=1e-14, epsrel=1e-13, limit=200)
     return RimlessGait(math.sqrt(w2), c2, T)
