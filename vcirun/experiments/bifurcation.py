@@ -159,15 +159,14 @@ def bifurcation_figure(branch: Branch, path, coordinate: int = 0, label: str | N
     fig, (ax, ax2) = plt.subplots(2, 1, figsize=(6.4, 6.0), sharex=True)
     for v, o, pts in zip(branch.values, branch.orbits, branch.points):
         ax.plot([v] * len(pts), pts[:, coordinate], "o", ms=3, color="C0" if o.k == 1 else "C3")
-        ax2.plot([v] * len(o.eigenvalues), np.abs(o.eigenvalues) if o.k == 2 else o.eigenvalues.real, ".",
-                 ms=3, color="C0" if o.k == 1 else "C3")
+        ax2.plot([v] * len(o.eigenvalues), o.eigenvalues.real, ".", ms=3, color="C0" if o.k == 1 else "C3")
     if branch.doubling is not None:
         for a in (ax, ax2):
             a.axvline(branch.doubling, color="0.5", lw=0.8, ls="--")
         ax.set_title(f"period doubling at {branch.param} = {branch.doubling:.6g}")
     ax.set_ylabel(label or f"q[{coordinate}] just after the impact")
     ax2.axhline(-1.0, color="0.7", lw=0.6)
-    ax2.set_ylabel("multipliers (real part; |.| for period two)")
+    ax2.set_ylabel("multipliers (real part)")
     ax2.set_xlabel(branch.param)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
