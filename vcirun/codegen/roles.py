@@ -300,10 +300,6 @@ NCON = _constant("NCON", "system", "int", 1, "number of constraints m")
 NODE_LEN = _constant("NODE_LEN", "system", "int", 1, "length of a point's node data (sys_node)")
 MH_M = _constant("MH_M", "modified", "int", 1, "number of eta's stage velocities (all stages)")
 FORCED = _constant("FORCED", "system", "bool", False, "the system has a generalized force")
-RESET_MAP = _constant("RESET_MAP", "system", "bool", False,
-                      "the system declares a reset map (sys_reset_map; vcirun.mechanics.hybrid)")
-RESET_LAW_FIRST = _constant("RESET_LAW_FIRST", "system", "bool", False,
-                            "the impact law acts before the declared map (plastic: true or a restitution)")
 PARTIAL_IS_FULL = _constant("PARTIAL_IS_FULL", "steps", "bool", True,
                             "the partial map is the full map at step tau (PartialMap.is_full)")
 VCI_STAGE = _constant("VCI_STAGE", "steps", "int", -1, "stage id of the energy gradient's Ld (-1: none)")
@@ -314,6 +310,10 @@ FULL_STAGES = _constant("FULL_STAGES", "steps", "i8", np.zeros(1, np.int64),
 FULL_FRACS = _constant("FULL_FRACS", "steps", "f8", np.ones(1), "fraction of h of each stage")
 FORCE_A = _constant("FORCE_A", "steps", "f8", np.zeros(1), "discrete-force weight of f^- per stage id")
 FORCE_B = _constant("FORCE_B", "steps", "f8", np.zeros(1), "discrete-force weight of f^+ per stage id")
+RESET_MAP = _constant("RESET_MAP", "system", "bool", False,
+                      "the system declares a reset map (sys_reset_map; vcirun.mechanics.hybrid)")
+RESET_LAW_FIRST = _constant("RESET_LAW_FIRST", "system", "bool", False,
+                            "the impact law acts before the declared map (plastic: true or a restitution)")
 MH_FLOW_S = _constant("MH_FLOW_S", "modified", None, 2,
                       "stages of the Gauss flow (a module-level choice of maps/gauss.py)")
 
