@@ -10,11 +10,12 @@ import types as _types
 
 __version__ = "0.1.0"
 
-__all__ = ["simulate", "ensemble", "reference", "l2_error", "Trajectory", "open_results", "__version__"]
+__all__ = ["simulate", "ensemble", "reference", "l2_error", "Trajectory", "open_results", "periodic_orbit", "__version__"]
 
 _LAZY = {"simulate": ("run.api", "simulate"), "ensemble": ("run.ensemble", "ensemble"), "reference": ("reference", "reference"),
          "l2_error": ("reference", "l2_error"), "Trajectory": ("run.trajectory", "Trajectory"),
-         "open_results": ("io.results", "open_results"), "verify": ("verification", "verify")}
+         "open_results": ("io.results", "open_results"), "verify": ("verification", "verify"),
+         "periodic_orbit": ("experiments.periodic", "periodic_orbit")}
 
 
 def __getattr__(name):
