@@ -97,20 +97,10 @@ class Dop853Backend:
         if not free:
             return np.inf
         g = rh._Geometry(self.mod, t, y[:self.n], y[self.n:2 * self.n], self.prm)
-        acc = g.held_acc(tuple(A))
-        u = g.G @ g.v
-        tau = np.inf
-        for i in free:
-            a, ph, ui = abs(float(acc[i])), max(float(g.phis[i]), 0.0), float(u[i])
-            if a > 0.0:
-                ti = (ui + np.sqrt(ui * ui + 2.0 * a * ph)) / a
-            else:
-                ti = ph / -ui if ui < 0.0 else np.inf
-            tau = min(tau, ti)
-        return max(self.reach * tau, 1e3 * _EPS * max(1.0, abs(t)))
+        return max(self.reach * rh.approach_time(g, A, free), 1e3 * _EPS * max(1.0, abs(t)))
 
     # --- one segment -------------------------------------------------------------------------
-    def segment(self, t0, y0, T, A, R):
+    def segment(self, t0, y0, T, A, R, geo=None):
         from scipy.integrate import DOP853, OdeSolution
 
         A, R = tuple(A), list(R)
@@ -175,9 +165,13 @@ class Dop853Backend:
         for i in free:
             g, u = PH[:, i], U[:, i]
             for k in range(K):
-                if g[k + 1] < 0.0:
-                    if g[k] > 0.0 or (g[k] == 0.0 and u[k] <= 0.0):
+                # "inside" at a sample: below the surface, or exactly on it moving in
+                if g[k + 1] < 0.0 or (g[k + 1] == 0.0 and u[k + 1] < 0.0):
+                    if g[k] > 0.0:
                         cands.append(((ss[k], ss[k + 1]), phi_of(i), "impact", i))
+                        break
+                    if g[k] == 0.0 and u[k] < 0.0:   # on the surface moving in at the sample: the impact
+                        cands.append(((ss[k], ss[k]), phi_of(i), "impact", i))
                         break
                     if u[k] > 0.0 > u[k + 1]:  # rose from the surface (or just below it) and fell back
                         tm = brentq(u_of(i), ss[k], ss[k + 1], xtol=1e-300, rtol=4 * _EPS)
@@ -216,7 +210,7 @@ class Dop853Backend:
         for (a, b), g, kind, i in sorted(cands, key=lambda c: c[0][0]):
             if best is not None and a > best[0]:
                 break
-            ga = g(a)
+            ga = g(a) if b > a else 0.0
             te = a if ga == 0.0 else (float(brentq(g, a, b, xtol=1e-300, rtol=4 * _EPS)) if ga > 0.0 > g(b) else b)
             if best is None or te < best[0]:
                 best = (te, kind, i)

@@ -301,3 +301,24 @@ def at_rest(mod, t, q, p, prm, tol=HELD_TOL, geo=None) -> tuple:
     tolerances of held_set), whatever their force. geo: the _Geometry at (t, q, p) if the caller has it."""
     g = _Geometry(mod, t, q, p, prm) if geo is None else geo
     return tuple(g.near(None, tol))
+
+
+def approach_time(g, A, contacts) -> float:
+    """The shortest time any of `contacts` could need to reach its surface from the state of the
+    _Geometry g, moving on the held flow of A: (u + sqrt(u^2 + 2 |a| max(phi, 0))) / |a| with phi_i, u_i,
+    a_i its gap, normal velocity and normal acceleration, a_i taken towards the surface (phi / -u for
+    a = 0 and u < 0; inf if none can). A contact leaving its surface (u > 0) gets the time of its hop.
+    The integrators' steps are bounded by a multiple of it, so that a short flight is never a small
+    part of one step."""
+    if not contacts:
+        return np.inf
+    acc = g.held_acc(tuple(A))
+    tau = np.inf
+    for i in contacts:
+        a, ph, ui = abs(float(acc[i])), max(float(g.phis[i]), 0.0), float(g.u[i])
+        if a > 0.0:
+            ti = (ui + math.sqrt(ui * ui + 2.0 * a * ph)) / a
+        else:
+            ti = ph / -ui if ui < 0.0 else np.inf
+        tau = min(tau, ti)
+    return tau

@@ -165,9 +165,9 @@ def solve(backend, mod, q0, p0, prm, T, *, names, resting_contact=True, max_impa
         geo = geo or _geometry(mod, t, y, prm)
         R = tuple(i for i in rh.at_rest(mod, t, None, None, prm, geo=geo) if i not in A)
         fl = _immediate(geo, t, y, A, R) if t < stop else None
-        geo = None
         if fl is None:
-            fl = backend.segment(t, y, stop, A, R) if t < stop else Flight(t, t, y, "end", -1, Constant(y))
+            fl = backend.segment(t, y, stop, A, R, geo=geo) if t < stop else Flight(t, t, y, "end", -1, Constant(y))
+        geo = None
         sol.add(fl, A, merge=restart)
         restart = fl.reason in ("lift", "drift")
         t, y = fl.t1, np.array(fl.y1, float)

@@ -39,6 +39,7 @@ import re
 
 import numpy as np
 
+from . import held as rh
 from .flight import Constant, Flight, last_crossing
 
 __all__ = ["TaylorModel", "TaylorPiece", "TaylorBackend", "NotExpressible", "TaylorFailure", "taylor_model", "TOL", "TINY",
@@ -49,6 +50,7 @@ TOL = float(np.finfo(float).eps)   # the reference's tolerance: machine precisio
 # the surface, phi(q0) = 0.0, leaving it: the return would be missed): every impact and pressed event
 # function carries at least this offset, which moves no root by a representable amount
 TINY = 1e-300
+REACH = 4.0   # the first step of a segment: at most this many times the free contacts' approach time
 MAX_DENSE_N = 3                    # explicit adjugate inverse of a q-dependent M up to this size
 MAX_HELD = 3                       # explicit W_A^-1 up to this many held contacts
 _EPS = float(np.finfo(float).eps)
@@ -90,9 +92,19 @@ class TaylorPiece:
 
 # --- the symbolic build ----------------------------------------------------------------------------
 
+_QUIET = []
+
+
 def _hy():
     import heyoka as hy  # here: heyoka imports sympy, and `import vcirun.reference` stays light
 
+    if not _QUIET:
+        # heyoka logs a warning when its root isolation in a step gives up or meets a domain error
+        # (seen on the tiny hops before an accumulation, whose roots it still reports); a root it does
+        # not report is caught by the segment's penetration check and by the accuracy check's second
+        # solve, so the warnings would only be noise on stderr
+        hy.set_logger_level_error()
+        _QUIET.append(True)
     return hy
 
 
@@ -197,9 +209,14 @@ class TaylorModel:
         smap = {s.q[i]: qv[i] for i in range(n)}
         smap |= {sp.Symbol(k): hy.par[j] for j, k in enumerate(s.params)}
 
-        def conv(e):
-            e = sp.sympify(e)
-            return hy.from_sympy(e, {k: v for k, v in smap.items() if k in e.free_symbols}) if e.free_symbols \
+        def floats(e):
+            # heyoka takes exact rationals only with a power-of-2 denominator (1/2, 3/4): others as floats
+            bad = {r: sp.Float(r, 17) for r in e.atoms(sp.Rational) if r.q & (r.q - 1)}
+            return e.xreplace(bad) if bad else e
+
+        def conv(e, table=smap):
+            e = floats(sp.sympify(e))
+            return hy.from_sympy(e, {k: v for k, v in table.items() if k in e.free_symbols}) if e.free_symbols \
                 else hy.expression(float(e))
 
         M = s.M
@@ -229,8 +246,7 @@ class TaylorModel:
             F.append((0.5 * hy.sum(quad) if quad else hy.expression(0.0)) - dV[k])
         if self.forced:
             fmap = dict(smap) | {s.qd[i]: v[i] for i in range(n)} | {s.t: hy.time}
-            f = [hy.from_sympy(sp.sympify(e), {k: w for k, w in fmap.items() if k in sp.sympify(e).free_symbols})
-                 if sp.sympify(e).free_symbols else hy.expression(float(e)) for e in s.forcing]
+            f = [conv(e, fmap) for e in s.forcing]
             F = [F[i] + f[i] for i in range(n)]
             self.power = hy.sum([f[i] * v[i] for i in range(n)])
         self.F = F
@@ -341,22 +357,31 @@ class TaylorBackend:
         self.budget = budget
         self.steps = 0
 
-    def rest_offset(self, q, i) -> float:
-        """The impact event's offset of a resting contact: well above the round-off of phi_i at q."""
-        G = np.empty((self.model.m, self.model.n))
-        self.mod.sys_dphis(np.ascontiguousarray(q, float), self.prm, G)
-        return 1e3 * _EPS * (1.0 + float(np.max(np.abs(q))) * float(np.max(np.abs(G[i]))))
+    def segment(self, t0, y0, T, A, R, geo=None):
+        """One segment (vcirun.reference.flight); geo: the _Geometry at (t0, y0) if the caller has it.
 
-    def segment(self, t0, y0, T, A, R):
+        The first step is at most REACH times the approach time of the free contacts (a hop after an
+        impact, a contact about to be reached), each next bound twice the last: heyoka's root isolation
+        works on polynomials whose roots are not crowded into a tiny fraction of the step (measured: a
+        Zeno hop of 6e-6 s inside a step of 3 s made it give up, with a warning only). As a safety net,
+        a step that ends with a free contact below its surface (a root the step did not report) is
+        taken again at a quarter of its length."""
         hy = _hy()
         model = self.model
         n, m = model.n, model.m
-        ta, kinds = model.integrator(tuple(A), tuple(R), self.tol)
+        A, R = tuple(A), tuple(R)
+        ta, kinds = model.integrator(A, R, self.tol)
+        scale = self._scales(y0[:n])
         off = np.full(m, TINY)
         lift = np.full(m, 1e300)
         for i in R:
-            off[i] = self.rest_offset(y0[:n], i)
+            off[i] = scale[i]
             lift[i] = 2.0 * off[i]
+        free = [i for i in range(m) if i not in A and i not in R]
+        g = geo if geo is not None else rh._Geometry(self.mod, t0, y0[:n], y0[n:2 * n], self.prm)
+        hmax = max(REACH * rh.approach_time(g, A, free), 1e3 * _EPS * max(1.0, abs(t0)))
+        floor = -np.where(np.isin(np.arange(m), R), 2.0 * scale, scale)   # penetration beyond round-off
+        watch = np.array([i not in A for i in range(m)])
         P = len(ta.pars)
         ta.pars[:] = model.pars(self.prm, off, lift)[:P]
         ta.time = float(t0)
@@ -369,30 +394,55 @@ class TaylorBackend:
         time_limit = hy.taylor_outcome.time_limit
         success = hy.taylor_outcome.success
         step = ta.step
+        phis = np.empty(m)
+        retries = 0
         while True:
             ts = ta.time
             if not ts < T:
                 break
-            oc, _ = step(max_delta_t=T - ts, write_tc=True)
-            starts.append(ts)
-            tcs.append(ta.tc.copy())
+            ys = np.array(ta.state)
+            oc, h = step(max_delta_t=min(T - ts, hmax), write_tc=True)
             self.steps += 1
             if self.budget is not None:
                 self.budget.charge(self.steps, ta.time)
-            if oc == time_limit:
-                break
-            if oc == success:
-                continue
             code = int(oc)
+            if not (oc == time_limit or oc == success or -nev <= code <= -1):
+                raise TaylorFailure(f"the Taylor integrator stopped after t={ts:.17g} ({str(oc).split('.')[-1]}: "
+                                    "its coefficients or step overflowed)")
+            self.mod.sys_phis(np.ascontiguousarray(ta.state[:n]), self.prm, phis)
+            if np.any(watch & (phis < floor)):
+                # a root the step did not report. A contact on its surface moving in at the step's
+                # start (the last step ended on its root): the impact is there
+                bad = [i for i in range(m) if watch[i] and phis[i] < floor[i]]
+                phi0 = np.empty(m)
+                self.mod.sys_phis(np.ascontiguousarray(ys[:n]), self.prm, phi0)
+                u0 = self.mod.normal_velocities(np.ascontiguousarray(ys[:n]), np.ascontiguousarray(ys[n:2 * n]),
+                                                self.prm)
+                at = [i for i in bad if i not in R and phi0[i] <= scale[i] and u0[i] < 0.0]
+                if at:
+                    ta.time, ta.state[:] = ts, ys
+                    ev, code = ("impact", at[0]), 0
+                    break
+                retries += 1
+                if retries > 60:
+                    raise RuntimeError(f"reference: the Taylor steps from t={ts:.17g} keep ending inside the "
+                                       f"constraint of contact {bad[0]} without an event")
+                ta.time, ta.state[:] = ts, ys
+                if kinds:
+                    ta.reset_cooldowns()
+                hmax = 0.3 * h
+                continue
+            retries = 0
+            hmax *= 2.0
+            starts.append(ts)
+            tcs.append(ta.tc.copy())
             if -nev <= code <= -1:
                 ev = kinds[-code - 1]
                 break
-            raise TaylorFailure(f"the Taylor integrator stopped after t={ts:.17g} ({str(oc).split('.')[-1]}: its "
-                                "coefficients or step overflowed)")
         t1 = float(ta.time) if ev is not None else float(T)
         y1 = np.array(ta.state, float)
         if not starts:
-            return Flight(t0, t0, np.array(y0, float), "end", -1, Constant(y0))
+            return Flight(t0, t0, np.array(y0, float), ev[0] if ev else "end", ev[1] if ev else -1, Constant(y0))
         piece = TaylorPiece(starts, tcs, t1)
         if ev is None:
             return Flight(t0, t1, y1, "end", -1, piece)
@@ -403,6 +453,12 @@ class TaylorBackend:
             y1 = piece(t1)
             piece.t_end = t1
         return Flight(t0, t1, y1, kind, i, piece)
+
+    def _scales(self, q):
+        """Per contact: 1e3 eps (1 + |q| |grad phi_i|), well above the round-off of phi_i at q."""
+        G = np.empty((self.model.m, self.model.n))
+        self.mod.sys_dphis(np.ascontiguousarray(q, float), self.prm, G)
+        return 1e3 * _EPS * (1.0 + float(np.max(np.abs(q))) * np.max(np.abs(G), axis=1))
 
     def _phi(self, q, i):
         phis = np.empty(self.model.m)
