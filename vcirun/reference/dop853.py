@@ -58,6 +58,7 @@ class Dop853Backend:
     """Segments of the exact solve on DOP853 at (rtol, atol) with per-contact checks (see the module)."""
 
     kind = "dop853"
+    rest_tol = rh.HELD_TOL
 
     def __init__(self, mod, prm, rtol, atol, budget=None, samples=8, reach=2.0):
         self.mod, self.prm = mod, np.asarray(prm, float)
@@ -105,7 +106,9 @@ class Dop853Backend:
 
         A, R = tuple(A), list(R)
         n, m = self.n, self.m
-        off = {i: self.rest_offset(y0[:n], i) for i in R}
+        phi0, _ = self._phis_u(np.asarray(y0, float))
+        # above the resting contact's own |phi| (within the rest tolerance) and its round-off
+        off = {i: 4.0 * (abs(phi0[i]) + self.rest_offset(y0[:n], i)) for i in R}
         drift_tol = 1e3 * self.atol
         solver = DOP853(self._rhs(A), float(t0), np.array(y0, float), float(T), rtol=self.rtol, atol=self.atol)
         ts, interps = [float(t0)], []

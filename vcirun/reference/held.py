@@ -27,7 +27,8 @@ import numpy as np
 __all__ = ["HELD_TOL", "ZENO_FLIGHT", "held_multipliers", "free_normal_accelerations", "held_rhs", "project",
            "held_set", "initially_held", "plastic_entry", "at_rest", "zeno_extrapolation", "accumulating"]
 
-HELD_TOL = 1e-10    # relative: |phi_i|, |u_i| below this count as on the surface at rest (entry checks)
+HELD_TOL = 1e-10    # relative: |phi_i|, |u_i| below this count as on the surface at rest (DOP853's precision;
+#                     the Taylor path uses its own, vcirun.reference.taylor.REST_TOL)
 # s: a contact's flight shorter than this ends bounce resolution (accumulation). The held state at
 # t_inf is then exact to O(d^3) ~ 1e-18 and t_inf to O(d^2) (0 for a constant normal force), and
 # the bounces left are well above the touch tolerances
@@ -77,12 +78,14 @@ class _Geometry:
 
     def near(self, candidates=None, tol=None):
         """The contacts among `candidates` (default all) on their surface, |phi_i| <= tol (1 + |q| |grad
-        phi_i|), with a numerically zero normal velocity, |u_i| <= tol |grad phi_i| (1 + |v|)."""
+        phi_i| + |t| |grad phi_i| |v|) (the last term: an event time's round-off times the speed), with a
+        numerically zero normal velocity, |u_i| <= tol |grad phi_i| (1 + |v|)."""
         tol = HELD_TOL if tol is None else tol
         qn = float(np.max(np.abs(self.q))) if self.n else 0.0
         vn = float(np.max(np.abs(self.v))) if self.n else 0.0
         gn = np.max(np.abs(self.G), axis=1) if self.n else np.zeros(self.m)
-        ok = (np.abs(self.phis) <= tol * (1.0 + qn * gn)) & (np.abs(self.u) <= tol * gn * (1.0 + vn))
+        ok = (np.abs(self.phis) <= tol * (1.0 + qn * gn + abs(self.t) * gn * vn)) & \
+            (np.abs(self.u) <= tol * gn * (1.0 + vn))
         cand = range(self.m) if candidates is None else candidates
         return [int(i) for i in cand if ok[int(i)]]
 

@@ -97,22 +97,22 @@ def _geometry(mod, t, y, prm):
     return rh._Geometry(mod, t, y[:n], y[n:2 * n], prm)
 
 
-def _immediate(g, t, y, A, R):
+def _immediate(g, t, y, A, R, tol=rh.HELD_TOL):
     """An event at the segment's start: a touching contact moving in (an impact now) or a resting
-    contact pushed in; None if neither. g: the _Geometry at y."""
+    contact pushed in; None if neither. g: the _Geometry at y; tol: the backend's rest tolerance."""
     u = g.u
     qn, vn = float(np.max(np.abs(g.q))), float(np.max(np.abs(g.v)))
     for i in range(g.m):
         if i in A or i in R:
             continue
         gn = float(np.max(np.abs(g.G[i])))
-        if g.phis[i] <= 64 * _EPS * (1.0 + qn * gn) and u[i] < -rh.HELD_TOL * gn * (1.0 + vn):
+        if g.phis[i] <= 64 * _EPS * (1.0 + qn * gn) and u[i] < -tol * gn * (1.0 + vn):
             return Flight(t, t, np.array(y, float), "impact", i, Constant(y))
     if R:
         acc = g.held_acc(tuple(A))
         scale = g.acc_scale()
         for i in R:
-            if acc[i] < -rh.HELD_TOL * scale:
+            if acc[i] < -tol * scale:
                 return Flight(t, t, np.array(y, float), "pressed", i, Constant(y))
     return None
 
@@ -156,15 +156,16 @@ def solve(backend, mod, q0, p0, prm, T, *, names, resting_contact=True, max_impa
     times_of = [[] for _ in range(m)]
     progress = _Progress(names, max_events)
     t, stop = 0.0, float(T)   # stop < T: a Zeno settle phase, held on its set until the Zeno time
-    A = rh.initially_held(mod, y[:n], y[n:2 * n], prm) if resting_contact else ()
+    tol = float(getattr(backend, "rest_tol", rh.HELD_TOL))   # on the surface at rest: the path's precision
+    A = rh.held_set(mod, t, y[:n], y[n:2 * n], prm, None, tol) if resting_contact else ()
     if A:
         y = rh._project_y(mod, y, prm, A)
     geo = None   # the _Geometry at (t, y), when an event's handling computed it
     restart = False
     while True:
         geo = geo or _geometry(mod, t, y, prm)
-        R = tuple(i for i in rh.at_rest(mod, t, None, None, prm, geo=geo) if i not in A)
-        fl = _immediate(geo, t, y, A, R) if t < stop else None
+        R = tuple(i for i in rh.at_rest(mod, t, None, None, prm, tol, geo=geo) if i not in A)
+        fl = _immediate(geo, t, y, A, R, tol) if t < stop else None
         if fl is None:
             fl = backend.segment(t, y, stop, A, R, geo=geo) if t < stop else Flight(t, t, y, "end", -1, Constant(y))
         geo = None
@@ -176,17 +177,19 @@ def solve(backend, mod, q0, p0, prm, T, *, names, resting_contact=True, max_impa
             if stop >= T:
                 break
             stop = float(T)       # the Zeno time: hold what is at rest and pressed
-            A = rh.held_set(mod, t, y[:n], y[n:2 * n], prm, None)
+            A = rh.held_set(mod, t, y[:n], y[n:2 * n], prm, None, tol)
         elif fl.reason in ("lift", "drift"):
             pass
         elif fl.reason == "release":
             sol.releases.append((t, i))
-            A = rh.held_set(mod, t, y[:n], y[n:2 * n], prm, [j for j in A if j != i])
+            y = rh._project_y(mod, y, prm, A)   # (the released contact too: it leaves from rest)
+            A = rh.held_set(mod, t, y[:n], y[n:2 * n], prm, [j for j in A if j != i], tol)
         elif fl.reason == "pressed":
             if not resting_contact:
                 raise RuntimeError(f"reference: a touching contact ({names[i]}) is pushed into its constraint at "
                                    f"t={t:.6g} (resting contact; resting_contact=True holds it)")
-            A = rh.held_set(mod, t, y[:n], y[n:2 * n], prm, sorted(set(A) | {i}))
+            y = rh._project_y(mod, y, prm, sorted(set(A) | {i}))   # it rests on its surface
+            A = rh.held_set(mod, t, y[:n], y[n:2 * n], prm, sorted(set(A) | {i}), tol)
         elif fl.reason == "impact":
             k, s0, _ = mod.impact_direction(y[:n].copy(), y[n:2 * n].copy(), 1.0, SIMULTANEOUS / 4, prm, d, lam,
                                             active)
@@ -207,7 +210,7 @@ def solve(backend, mod, q0, p0, prm, T, *, names, resting_contact=True, max_impa
                                        + ("" if resting_contact else "; resting_contact=True holds such contacts"))
             if resting_contact:
                 geo = _geometry(mod, t, y, prm)
-                A = rh.held_set(mod, t, None, None, prm, None, geo=geo)
+                A = rh.held_set(mod, t, None, None, prm, None, tol, geo=geo)
                 acc = _group(times_of, e_of, hit, t) if hit else set()
                 if acc:
                     t_inf = max(rh.zeno_extrapolation(times_of[j]) for j in acc)

@@ -51,6 +51,7 @@ TOL = float(np.finfo(float).eps)   # the reference's tolerance: machine precisio
 # function carries at least this offset, which moves no root by a representable amount
 TINY = 1e-300
 REACH = 4.0   # the first step of a segment: at most this many times the free contacts' approach time
+REST_TOL = 1e-12   # relative: on the surface at rest (vcirun.reference.held's criterion) at this precision
 MAX_DENSE_N = 3                    # explicit adjugate inverse of a q-dependent M up to this size
 MAX_HELD = 3                       # explicit W_A^-1 up to this many held contacts
 _EPS = float(np.finfo(float).eps)
@@ -351,6 +352,7 @@ class TaylorBackend:
     on the dynamics of the held set A with the resting set R until the first event or T."""
 
     kind = "taylor"
+    rest_tol = REST_TOL
 
     def __init__(self, model: TaylorModel, mod, prm, tol=TOL, budget=None):
         self.model, self.mod, self.prm, self.tol = model, mod, np.asarray(prm, float), float(tol)
@@ -372,15 +374,17 @@ class TaylorBackend:
         A, R = tuple(A), tuple(R)
         ta, kinds = model.integrator(A, R, self.tol)
         scale = self._scales(y0[:n])
+        phi0 = np.empty(m)
+        self.mod.sys_phis(np.ascontiguousarray(y0[:n], float), self.prm, phi0)
         off = np.full(m, TINY)
         lift = np.full(m, 1e300)
-        for i in R:
-            off[i] = scale[i]
+        for i in R:   # above the resting contact's own |phi| (within the rest tolerance) and its round-off
+            off[i] = 4.0 * (abs(phi0[i]) + scale[i])
             lift[i] = 2.0 * off[i]
         free = [i for i in range(m) if i not in A and i not in R]
         g = geo if geo is not None else rh._Geometry(self.mod, t0, y0[:n], y0[n:2 * n], self.prm)
         hmax = max(REACH * rh.approach_time(g, A, free), 1e3 * _EPS * max(1.0, abs(t0)))
-        floor = -np.where(np.isin(np.arange(m), R), 2.0 * scale, scale)   # penetration beyond round-off
+        floor = -np.where(np.isin(np.arange(m), R), 2.0 * off, scale)   # penetration beyond round-off
         watch = np.array([i not in A for i in range(m)])
         P = len(ta.pars)
         ta.pars[:] = model.pars(self.prm, off, lift)[:P]
@@ -441,6 +445,13 @@ class TaylorBackend:
                 break
         t1 = float(ta.time) if ev is not None else float(T)
         y1 = np.array(ta.state, float)
+        if ev is None and starts:   # a root exactly at T ends the last step without being reported
+            self.mod.sys_phis(np.ascontiguousarray(y1[:n]), self.prm, phis)
+            u1 = self.mod.normal_velocities(np.ascontiguousarray(y1[:n]), np.ascontiguousarray(y1[n:2 * n]),
+                                            self.prm)
+            at = [i for i in free if abs(phis[i]) <= scale[i] and u1[i] < 0.0]
+            if at:
+                ev = ("impact", at[0])
         if not starts:
             return Flight(t0, t0, np.array(y0, float), ev[0] if ev else "end", ev[1] if ev else -1, Constant(y0))
         piece = TaylorPiece(starts, tcs, t1)
