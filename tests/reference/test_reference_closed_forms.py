@@ -277,7 +277,8 @@ ZENO = {"name": "zeno_ball", "coordinates": ["y"], "parameters": {"g": 9.81, "m"
 
 
 def _zeno(system, y0, v0, g, e):
-    assume(y0 == 0.0 or y0 > 1e-9)   # within the rest tolerance of the floor (1e-12) is on it
+    assume(y0 == 0.0 or y0 > 1e-9)   # within the rest tolerance of the floor (1e-12) is on it ...
+    assume(y0 > 0.0 or v0 == 0.0 or abs(v0) > 1e-9)   # ... and so is a speed within it
     z = zeno_ball(y0, v0, g, e)
     T = z.t_inf + 0.5 if np.isfinite(z.t_inf) else z.t1 + 2.0
     ref = vcirun.reference(system, T=T, q0=[y0], p0=[v0], params={"g": g, "e": e})

@@ -145,6 +145,8 @@ def _sequence(sol):
 
 def _first_difference(a, b, names) -> str:
     """Where the event sequences of two solves part (for the error message)."""
+    names = {i: str(nm) for i, nm in enumerate(names)}
+    names = _Names(names)
     ev_a = sorted([(t, "impact", i) for t, i, _ in a.impacts] + [(t, "release", i) for t, i in a.releases])
     ev_b = sorted([(t, "impact", i) for t, i, _ in b.impacts] + [(t, "release", i) for t, i in b.releases])
     for x, y in zip(ev_a, ev_b):
@@ -153,6 +155,11 @@ def _first_difference(a, b, names) -> str:
     k = min(len(ev_a), len(ev_b))
     rest = ev_a[k:] or ev_b[k:]
     return f"at t={rest[0][0]:.12g}: {len(ev_a)} events against {len(ev_b)}" if rest else "in the held phases"
+
+
+class _Names(dict):
+    def __missing__(self, i):
+        return f"contact {i}"
 
 
 def _difference(sysm, a, b, H0, T) -> tuple:

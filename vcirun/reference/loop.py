@@ -9,10 +9,10 @@ here each event is resolved the way the integrators resolve it:
   then the held set at the new state (vcirun.reference.held.held_set: the contacts left on their
   surface at rest whose contact force is compressive, a plastic impact among them);
 - accumulation: a contact whose impacts accumulate (its flights shrink below ZENO_FLIGHT, at the ratio
-  e for a single contact, at a steady ratio when several contacts exchange impulses) is held from the
-  extrapolated Zeno time on, together with every contact accumulating with it; from its last impact to
-  that time the motion follows the held dynamics of all of them (the plastic limit of the remaining
-  bounces);
+  e for a single contact, at a steady ratio when several contacts exchange impulses, or its next
+  flight is already shorter) is held from the extrapolated Zeno time on, together with every contact
+  accumulating with it; from its last impact to that time the motion follows the held dynamics of all
+  of them (the plastic limit of the remaining bounces, whose heights are below |a| ZENO_FLIGHT^2 / 8);
 - a release (a held contact's force turns tensile), a resting contact pushed in (it is held), a
   resting contact that lifts off (watched as a free contact from then on).
 
@@ -117,18 +117,33 @@ def _immediate(g, t, y, A, R, tol=rh.HELD_TOL):
     return None
 
 
-def _group(times_of, e_of, hit, t):
-    """The contacts whose impacts accumulate at this impact: those just hit whose own flights shrink
-    below ZENO_FLIGHT at the ratio e (rh.accumulating) or, with several contacts, at a steady ratio
-    below 1, and every other contact accumulating with them (last impact within a few flights)."""
-    acc = {i for i in hit if rh.accumulating(times_of[i], e=e_of[i]) or (e_of[i] < 1.0 and _steady(times_of[i]))}
+def _group(times_of, e_of, hit, t, geo, A):
+    """(contacts whose impacts accumulate at this impact, their Zeno time): those just hit whose own
+    flights shrink below ZENO_FLIGHT at the ratio e (rh.accumulating) or, with several contacts, at a
+    steady ratio below 1, or whose next flight, 2 u+ / |a| (u+ its normal velocity after the impact, a
+    its normal acceleration on the held flow of A, pulling it back), is already shorter than
+    ZENO_FLIGHT -- a rebound too small to resolve, whose bounces end by t + 2 u+ / (|a| (1 - e)) for a
+    constant a; and every other contact accumulating with them (last impact within a few flights).
+    The Zeno time labels the held interval; the motion from this impact on is the held one either way."""
+    acc, t_inf = set(), t
+    a = geo.held_acc(tuple(A)) if hit else None
+    for i in hit:
+        if e_of[i] >= 1.0:
+            continue
+        if rh.accumulating(times_of[i], e=e_of[i]) or _steady(times_of[i]):
+            acc.add(i)
+            t_inf = max(t_inf, rh.zeno_extrapolation(times_of[i]))
+        elif a[i] < 0.0 and 2.0 * max(float(geo.u[i]), 0.0) < rh.ZENO_FLIGHT * -a[i]:
+            acc.add(i)
+            t_inf = max(t_inf, t + 2.0 * max(float(geo.u[i]), 0.0) / (-a[i] * (1.0 - e_of[i])))
     if not acc:
-        return set()
+        return set(), t
     for j in range(len(times_of)):
         if j not in acc and times_of[j] and t - times_of[j][-1] <= 8 * rh.ZENO_FLIGHT and e_of[j] < 1.0 \
                 and (rh.accumulating(times_of[j]) or _steady(times_of[j])):
             acc.add(j)
-    return acc
+            t_inf = max(t_inf, rh.zeno_extrapolation(times_of[j]))
+    return acc, t_inf
 
 
 def _steady(times) -> bool:
@@ -211,11 +226,9 @@ def solve(backend, mod, q0, p0, prm, T, *, names, resting_contact=True, max_impa
             if resting_contact:
                 geo = _geometry(mod, t, y, prm)
                 A = rh.held_set(mod, t, None, None, prm, None, tol, geo=geo)
-                acc = _group(times_of, e_of, hit, t) if hit else set()
-                if acc:
-                    t_inf = max(rh.zeno_extrapolation(times_of[j]) for j in acc)
-                    if t < t_inf < T:
-                        A, stop = tuple(sorted(set(A) | acc)), t_inf
+                acc, t_inf = _group(times_of, e_of, hit, t, geo, A) if hit else (set(), t)
+                if acc:   # held from here (a Zeno time past T: to T, within the bounce heights left)
+                    A, stop = tuple(sorted(set(A) | acc)), min(max(t_inf, t), float(T))
             elif k == 0:
                 acc0 = rh.free_normal_accelerations(mod, t, y[:n], y[n:2 * n], prm)
                 if acc0[i] < 0.0:
