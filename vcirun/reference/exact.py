@@ -36,9 +36,9 @@ from ..codegen.build import load_module
 from ..codegen.kernel_set import SYSTEM_KERNELS
 from ..core.system_data import start_tolerance
 from .dop853 import Dop853Backend
-from .flight import Budget, ReferenceCostError
+from .flight import Budget, Constant, ReferenceCostError
 from .loop import solve
-from .taylor import TOL, NotExpressible, TaylorBackend, TaylorFailure, order_of, taylor_model
+from .taylor import TOL, NotExpressible, TaylorBackend, TaylorFailure, TaylorPiece, order_of, taylor_model
 
 CHECK_TOLS = (1e-14, 1e-15)   # the Taylor path's check solves (the second when the first sees other events)
 RTOL_FLOOR = 2.3e-14          # scipy's DOP853 refuses a tighter rtol
@@ -162,12 +162,21 @@ class _Names(dict):
         return f"contact {i}"
 
 
+def _samples(sol, T):
+    """Where two solves are compared: every step start of `sol`'s Taylor pieces and 401 uniform points
+    (a Taylor step's polynomial is smooth between them), or 2001 uniform points for DOP853's pieces."""
+    starts = [p.starts for _, _, p in sol.pieces if isinstance(p, TaylorPiece)]
+    if len(starts) < len(sol.pieces) - sum(1 for _, _, p in sol.pieces if isinstance(p, Constant)):
+        return np.linspace(0.0, T, 2001)
+    return np.unique(np.concatenate(starts + [np.linspace(0.0, T, 401)]))
+
+
 def _difference(sysm, a, b, H0, T) -> tuple:
     """(difference, round-off) of two solves with the same event sequence: the largest difference of q
-    on a 2001-point grid and of the impact and release times, and the round-off the events leave,
+    at `_samples` and of the impact and release times, and the round-off the events leave,
     eps (1 + K) (max |q| + T max |qdot|) for K events (two solves that integrate polynomial flights
     exactly repeat each other's round-off, so their difference alone can be 0)."""
-    tt = np.linspace(0.0, T, 2001)
+    tt = _samples(a, T)
     w = 2 * sysm.n + (1 if sysm.is_forced else 0)
     ra, rb = Reference(a.pieces, sysm.n, [], H0, T, width=w), Reference(b.pieces, sysm.n, [], H0, T, width=w)
     qa = ra.state(tt)[:, :sysm.n]
@@ -175,7 +184,9 @@ def _difference(sysm, a, b, H0, T) -> tuple:
     dt = [x[0] - y[0] for x, y in zip(a.impacts + a.releases, b.impacts + b.releases)]
     if dt:
         acc = max(acc, float(np.max(np.abs(dt))))
-    speed = float(np.max(np.abs(np.diff(qa, axis=0)))) / (tt[1] - tt[0])
+    gaps = np.diff(tt)
+    ok = gaps > 0.0
+    speed = float(np.max(np.abs(np.diff(qa, axis=0))[ok] / gaps[ok, None])) if ok.any() else 0.0
     events = len(a.impacts) + len(a.releases) + len(a.intervals)
     return acc, _EPS * (1 + events) * (float(np.max(np.abs(qa))) + T * speed)
 

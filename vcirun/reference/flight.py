@@ -92,10 +92,17 @@ class Budget:
         self.scale = float(max(np.max(np.abs(q0)), np.max(np.abs(p0))))
         self._next = self.minimum
 
-    def charge(self, work, t) -> None:
+    def exceeded(self, work, t) -> bool:
+        """Whether `charge(work, t)` would raise (checked every 0.5 % of the minimum)."""
         if work < self._next:
-            return
+            return False
         self._next = work + max(1.0, 0.005 * self.minimum)
+        projected = work * self.T / t if t > 0 else np.inf
+        return work >= self.limit or projected > self.limit
+
+    def charge(self, work, t) -> None:
+        if work < self.minimum:
+            return
         projected = work * self.T / t if t > 0 else np.inf
         if work >= self.limit or projected > self.limit:
             raise ReferenceCostError(

@@ -42,7 +42,8 @@ class _Geometry:
     """M, v = M^-1 p, F, all phi_i, G (m x n) and u = G v at one state; c_i = v^T Hess phi_i v and
     Mdot v on first use."""
 
-    __slots__ = ("n", "m", "t", "q", "p", "M", "v", "F", "phis", "G", "u", "_c", "_Mdv", "_mod", "_prm")
+    __slots__ = ("n", "m", "t", "q", "p", "M", "v", "F", "phis", "G", "u", "_c", "_Mdv", "_mod", "_prm", "_minv_f",
+                 "_held_acc")
 
     def __init__(self, mod, t, q, p, prm):
         n, m = int(mod.NDOF), int(mod.NCON)
@@ -60,7 +61,8 @@ class _Geometry:
         self.G = np.empty((m, n))
         mod.sys_dphis(self.q, prm, self.G)
         self.u = self.G @ self.v
-        self._c = self._Mdv = None
+        self._c = self._Mdv = self._minv_f = None
+        self._held_acc = {}
 
     @property
     def c(self):
@@ -81,13 +83,16 @@ class _Geometry:
         phi_i| + |t| |grad phi_i| |v|) (the last term: an event time's round-off times the speed), with a
         numerically zero normal velocity, |u_i| <= tol |grad phi_i| (1 + |v|)."""
         tol = HELD_TOL if tol is None else tol
-        qn = float(np.max(np.abs(self.q))) if self.n else 0.0
-        vn = float(np.max(np.abs(self.v))) if self.n else 0.0
-        gn = np.max(np.abs(self.G), axis=1) if self.n else np.zeros(self.m)
-        ok = (np.abs(self.phis) <= tol * (1.0 + qn * gn + abs(self.t) * gn * vn)) & \
-            (np.abs(self.u) <= tol * gn * (1.0 + vn))
-        cand = range(self.m) if candidates is None else candidates
-        return [int(i) for i in cand if ok[int(i)]]
+        qn = max(map(abs, self.q.tolist()), default=0.0)   # (plain floats: the arrays are tiny)
+        vn = max(map(abs, self.v.tolist()), default=0.0)
+        phis, u, G, at = self.phis.tolist(), self.u.tolist(), self.G.tolist(), abs(self.t)
+        out = []
+        for i in (range(self.m) if candidates is None else candidates):
+            i = int(i)
+            gn = max(map(abs, G[i]), default=0.0)
+            if abs(phis[i]) <= tol * (1.0 + qn * gn + at * gn * vn) and abs(u[i]) <= tol * gn * (1.0 + vn):
+                out.append(i)
+        return out
 
     def W(self, A):
         """G_A M^-1 G_A^T and X = M^-1 G_A^T."""
@@ -107,11 +112,14 @@ class _Geometry:
 
     def held_acc(self, A):
         """d^2/dt^2 phi_i of every contact along the held flow of A (0 for i in A, up to round-off):
-        G M^-1 (F + G_A^T mu - Mdot v) + c."""
-        f = self.F - self.Mdv
-        if A:
-            f = f + self.G[list(A)].T @ self.mu(A)
-        return self.G @ np.linalg.solve(self.M, f) + self.c
+        G M^-1 (F + G_A^T mu - Mdot v) + c (kept per A)."""
+        A = tuple(A)
+        if A not in self._held_acc:
+            f = self.F - self.Mdv
+            if A:
+                f = f + self.G[list(A)].T @ self.mu(A)
+            self._held_acc[A] = self.G @ np.linalg.solve(self.M, f) + self.c
+        return self._held_acc[A]
 
     def acc_scale(self):
         return max(float(np.max(np.abs(self.G @ np.linalg.solve(self.M, self.F)))), float(np.max(np.abs(self.c))),

@@ -83,10 +83,7 @@ class TaylorPiece:
         ts = np.atleast_1d(np.asarray(t, float)).ravel()
         k = np.clip(np.searchsorted(self.starts, ts, side="right") - 1, 0, len(self.starts) - 1)
         tau = ts - self.starts[k]
-        V = np.empty((ts.size, self.tcs.shape[2]))   # the powers of tau
-        V[:, 0] = 1.0
-        for j in range(1, V.shape[1]):
-            np.multiply(V[:, j - 1], tau, out=V[:, j])
+        V = tau[:, None] ** np.arange(self.tcs.shape[2])   # the powers of tau
         out = np.einsum("qwj,qj->wq", self.tcs[k], V)
         return out[:, 0] if scalar else out
 
@@ -393,56 +390,62 @@ class TaylorBackend:
         if kinds:
             ta.reset_cooldowns()
         starts, tcs = [], []
-        ev = None
+        ev, retries = None, 0
         nev = len(kinds)
-        time_limit = hy.taylor_outcome.time_limit
-        success = hy.taylor_outcome.success
-        step = ta.step
+        outcomes = (hy.taylor_outcome.time_limit, hy.taylor_outcome.success, hy.taylor_outcome.cb_stop)
         phis = np.empty(m)
-        retries = 0
-        while True:
+        wl = [(i, float(floor[i])) for i in range(m) if watch[i]]
+        sys_phis, prm = self.mod.sys_phis, self.prm
+        rec = _Recorder(self)
+        bounded = True
+        while ta.time < T and ev is None:
             ts = ta.time
-            if not ts < T:
-                break
-            ys = np.array(ta.state)
-            oc, h = step(max_delta_t=min(T - ts, hmax), write_tc=True)
-            self.steps += 1
+            rec.reset(ts)
+            if bounded and hmax < T - ts:   # a short first step (after an impact, near a surface)
+                oc, h = ta.step(max_delta_t=hmax, write_tc=True)
+                rec(ta)
+                bounded = h >= hmax * (1.0 - 1e-9)   # still held back by the bound: the next is bounded too
+                hmax *= 2.0
+            else:                            # the rest in heyoka's own loop, recording every step
+                oc = ta.propagate_until(T, callback=rec, write_tc=True)[0]
+            self.steps += len(rec.ends)
+            code = int(oc)
+            if not (oc in outcomes or -nev <= code <= -1):
+                raise TaylorFailure(f"the Taylor integrator stopped after t={rec.ends[-1] if rec.ends else ts:.17g} "
+                                    f"({str(oc).split('.')[-1]}: its coefficients or step overflowed)")
             if self.budget is not None:
                 self.budget.charge(self.steps, ta.time)
-            code = int(oc)
-            if not (oc == time_limit or oc == success or -nev <= code <= -1):
-                raise TaylorFailure(f"the Taylor integrator stopped after t={ts:.17g} ({str(oc).split('.')[-1]}: "
-                                    "its coefficients or step overflowed)")
-            self.mod.sys_phis(np.ascontiguousarray(ta.state[:n]), self.prm, phis)
-            if np.any(watch & (phis < floor)):
-                # a root the step did not report. A contact on its surface moving in at the step's
-                # start (the last step ended on its root): the impact is there
-                bad = [i for i in range(m) if watch[i] and phis[i] < floor[i]]
-                phi0 = np.empty(m)
-                self.mod.sys_phis(np.ascontiguousarray(ys[:n]), self.prm, phi0)
-                u0 = self.mod.normal_velocities(np.ascontiguousarray(ys[:n]), np.ascontiguousarray(ys[n:2 * n]),
-                                                self.prm)
-                at = [i for i in bad if i not in R and phi0[i] <= scale[i] and u0[i] < 0.0]
-                if at:
-                    ta.time, ta.state[:] = ts, ys
-                    ev, code = ("impact", at[0]), 0
-                    break
-                retries += 1
-                if retries > 60:
-                    raise RuntimeError(f"reference: the Taylor steps from t={ts:.17g} keep ending inside the "
-                                       f"constraint of contact {bad[0]} without an event")
-                ta.time, ta.state[:] = ts, ys
-                if kinds:
-                    ta.reset_cooldowns()
-                hmax = 0.3 * h
+            # a step that ended with a free contact inside its constraint hides a root it did not report
+            k_bad = next((k for k, tc in enumerate(rec.tcs[1:] + [None])
+                          if _inside(sys_phis, prm, n, ta.state if tc is None else tc[:, 0], phis, wl)), None)
+            if k_bad is None:
+                starts += rec.starts
+                tcs += rec.tcs
+                retries = 0
+                if -nev <= code <= -1:
+                    ev = kinds[-code - 1]
                 continue
-            retries = 0
-            hmax *= 2.0
-            starts.append(ts)
-            tcs.append(ta.tc.copy())
-            if -nev <= code <= -1:
-                ev = kinds[-code - 1]
+            starts += rec.starts[:k_bad]
+            tcs += rec.tcs[:k_bad]
+            ys, tb = rec.tcs[k_bad][:, 0].copy(), rec.starts[k_bad]
+            h = rec.ends[k_bad] - tb
+            # a contact on its surface moving in at that step's start (the step before ended on its root):
+            # the impact is there; otherwise the step again, shorter
+            phi0 = np.empty(m)
+            sys_phis(np.ascontiguousarray(ys[:n]), prm, phi0)
+            u0 = self.mod.normal_velocities(np.ascontiguousarray(ys[:n]), np.ascontiguousarray(ys[n:2 * n]), prm)
+            ta.time, ta.state[:] = tb, ys
+            if kinds:
+                ta.reset_cooldowns()
+            at = [i for i, _ in wl if i not in R and phi0[i] <= scale[i] and u0[i] < 0.0]
+            if at:
+                ev = ("impact", at[0])
                 break
+            retries += 1
+            if retries > 60:
+                raise RuntimeError(f"reference: the Taylor steps from t={tb:.17g} keep ending inside a constraint "
+                                   "without an event")
+            hmax, bounded = 0.3 * h, True
         t1 = float(ta.time) if ev is not None else float(T)
         y1 = np.array(ta.state, float)
         if ev is None and starts:   # a root exactly at T ends the last step without being reported
@@ -475,6 +478,36 @@ class TaylorBackend:
         phis = np.empty(self.model.m)
         self.mod.sys_phis(np.ascontiguousarray(q, float), self.prm, phis)
         return phis[i]
+
+
+class _Recorder:
+    """heyoka's step callback: keeps each step's start time and Taylor coefficients; stops the
+    propagation when the work budget would be exceeded (the caller then charges and raises)."""
+
+    __slots__ = ("backend", "starts", "tcs", "ends", "_t")
+
+    def __init__(self, backend):
+        self.backend = backend
+        self.reset(0.0)
+
+    def reset(self, t0):
+        self.starts, self.tcs, self.ends = [], [], []
+        self._t = t0
+
+    def __call__(self, ta):
+        t = ta.time
+        self.starts.append(self._t)
+        self.tcs.append(ta.tc.copy())
+        self.ends.append(t)
+        self._t = t
+        b = self.backend.budget
+        return b is None or not b.exceeded(self.backend.steps + len(self.ends), t)
+
+
+def _inside(sys_phis, prm, n, y, phis, wl) -> bool:
+    """Some watched contact (index, floor) of wl is below its floor at the state y."""
+    sys_phis(np.ascontiguousarray(y[:n]), prm, phis)
+    return any(phis[i] < f for i, f in wl)
 
 
 def order_of(tol) -> int:
