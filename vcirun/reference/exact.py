@@ -162,31 +162,37 @@ class _Names(dict):
         return f"contact {i}"
 
 
-def _samples(sol, T):
-    """Where two solves are compared: every step start of `sol`'s Taylor pieces and 401 uniform points
-    (a Taylor step's polynomial is smooth between them), or 2001 uniform points for DOP853's pieces."""
-    starts = [p.starts for _, _, p in sol.pieces if isinstance(p, TaylorPiece)]
-    if len(starts) < len(sol.pieces) - sum(1 for _, _, p in sol.pieces if isinstance(p, Constant)):
-        return np.linspace(0.0, T, 2001)
-    return np.unique(np.concatenate(starts + [np.linspace(0.0, T, 401)]))
+def _taylor_steps(sol):
+    """(step start times, Taylor coefficients) of a solve made of Taylor pieces, else None."""
+    pieces = [p for _, _, p in sol.pieces if not isinstance(p, Constant)]
+    if not pieces or not all(isinstance(p, TaylorPiece) for p in pieces):
+        return None
+    return np.concatenate([p.starts for p in pieces]), np.concatenate([p.tcs for p in pieces])
 
 
 def _difference(sysm, a, b, H0, T) -> tuple:
     """(difference, round-off) of two solves with the same event sequence: the largest difference of q
-    at `_samples` and of the impact and release times, and the round-off the events leave,
-    eps (1 + K) (max |q| + T max |qdot|) for K events (two solves that integrate polynomial flights
-    exactly repeat each other's round-off, so their difference alone can be 0)."""
-    tt = _samples(a, T)
-    w = 2 * sysm.n + (1 if sysm.is_forced else 0)
-    ra, rb = Reference(a.pieces, sysm.n, [], H0, T, width=w), Reference(b.pieces, sysm.n, [], H0, T, width=w)
-    qa = ra.state(tt)[:, :sysm.n]
-    acc = float(np.max(np.abs(qa - rb.state(tt)[:, :sysm.n])))
+    and of the impact and release times, and the round-off the events leave, eps (1 + K) (max |q| +
+    T max |qdot|) for K events (two solves that integrate polynomial flights exactly repeat each other's
+    round-off, so their difference alone can be 0). q is compared at the step starts of both Taylor
+    solves (each one's dense output at the other's steps; smooth in between), or on a 2001-point grid."""
+    n = sysm.n
+    w = 2 * n + (1 if sysm.is_forced else 0)
+    ra, rb = Reference(a.pieces, n, [], H0, T, width=w), Reference(b.pieces, n, [], H0, T, width=w)
+    sa, sb = _taylor_steps(a), _taylor_steps(b)
+    if sa is not None and sb is not None:
+        tt = np.concatenate([sa[0], sb[0]])
+        qa = np.concatenate([sa[1][:, :n, 0], ra.state(sb[0])[:, :n]])
+        qb = np.concatenate([rb.state(sa[0])[:, :n], sb[1][:, :n, 0]])
+        speed = float(np.max(np.abs(sa[1][:, :n, 1])))
+    else:
+        tt = np.linspace(0.0, T, 2001)
+        qa, qb = ra.state(tt)[:, :n], rb.state(tt)[:, :n]
+        speed = float(np.max(np.abs(np.diff(qa, axis=0)))) / (tt[1] - tt[0])
+    acc = float(np.max(np.abs(qa - qb)))
     dt = [x[0] - y[0] for x, y in zip(a.impacts + a.releases, b.impacts + b.releases)]
     if dt:
         acc = max(acc, float(np.max(np.abs(dt))))
-    gaps = np.diff(tt)
-    ok = gaps > 0.0
-    speed = float(np.max(np.abs(np.diff(qa, axis=0))[ok] / gaps[ok, None])) if ok.any() else 0.0
     events = len(a.impacts) + len(a.releases) + len(a.intervals)
     return acc, _EPS * (1 + events) * (float(np.max(np.abs(qa))) + T * speed)
 
