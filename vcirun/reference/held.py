@@ -165,8 +165,9 @@ def held_rhs(mod, prm, A):
 
 # --- the projection ---------------------------------------------------------------------------
 
-def project(mod, q, p, prm, A, iters=8):
-    """(q, p) projected onto phi_A(q) = 0 and the hidden constraint G_A M^-1 p = 0.
+def project(mod, q, p, prm, A, iters=8, momenta=True):
+    """(q, p) projected onto phi_A(q) = 0 and the hidden constraint G_A M^-1 p = 0 (momenta=False:
+    positions only).
 
     Positions: Newton along M^-1 G^T, q <- q - M^-1 G^T (G M^-1 G^T)^-1 phi_A(q) (the M-orthogonal
     direction, so the correction changes the kinetic metric least), G and M re-evaluated each
@@ -194,6 +195,8 @@ def project(mod, q, p, prm, A, iters=8):
         mod.sys_dphis(q, prm, G)
         X = np.linalg.solve(M, G[A].T)
         q = q - X @ np.linalg.solve(G[A] @ X, r)
+    if not momenta:
+        return q, p
     mod.sys_M(q, prm, M)
     mod.sys_dphis(q, prm, G)
     X = np.linalg.solve(M, G[A].T)

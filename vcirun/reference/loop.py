@@ -92,6 +92,26 @@ class _Progress:
         self.last = (t, np.array(y, float), tuple(A))
 
 
+def _on_surface(mod, t, y, prm, contacts):
+    """y with its positions moved onto phi_i = 0 for the impacting contacts whose phi_i is round-off
+    (the event's root leaves |phi_i| ~ eps (|q| + |t| |v|) of either sign): the rebound then starts on
+    the surface, and a small rebound u+ does not turn that round-off into a flight-time error
+    |phi_i| / u+ (ill-conditioned as e u- -> 0)."""
+    n = int(mod.NDOF)
+    g = rh._Geometry(mod, t, y[:n], y[n:2 * n], prm)
+    qn, vn = float(np.max(np.abs(g.q))), float(np.max(np.abs(g.v)))
+    on = []
+    for j in contacts:
+        gn = float(np.max(np.abs(g.G[j])))
+        if 0.0 < abs(g.phis[j]) <= 1e3 * _EPS * (1.0 + qn * gn + abs(t) * gn * vn):
+            on.append(int(j))
+    if not on:
+        return y
+    out = np.array(y, float)
+    out[:n], _ = rh.project(mod, y[:n], y[n:2 * n], prm, on, momenta=False)
+    return out
+
+
 def _geometry(mod, t, y, prm):
     n = int(mod.NDOF)
     return rh._Geometry(mod, t, y[:n], y[n:2 * n], prm)
@@ -213,6 +233,7 @@ def solve(backend, mod, q0, p0, prm, T, *, names, resting_contact=True, max_impa
                                    f"{names[i]})")
             hit = []
             if k > 0:
+                y = _on_surface(mod, t, y, prm, [j for j in np.flatnonzero(active) if j not in A])
                 y[n:2 * n] += s0 * d
                 for j in np.flatnonzero(active):
                     j = int(j)
