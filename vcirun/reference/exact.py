@@ -172,7 +172,7 @@ def _taylor_steps(sol):
 
 def _difference(sysm, a, b, H0, T) -> tuple:
     """(difference, round-off) of two solves with the same event sequence: the largest difference of q
-    and of the impact and release times, and the round-off the events leave, eps (1 + K) (max |q| +
+    and of the impact and release times, and the round-off the events leave, 4 eps (1 + K) (max |q| +
     T max |qdot|) for K events (two solves that integrate polynomial flights exactly repeat each other's
     round-off, so their difference alone can be 0). q is compared at the step starts of both Taylor
     solves (each one's dense output at the other's steps; smooth in between), or on a 2001-point grid."""
@@ -194,7 +194,7 @@ def _difference(sysm, a, b, H0, T) -> tuple:
     if dt:
         acc = max(acc, float(np.max(np.abs(dt))))
     events = len(a.impacts) + len(a.releases) + len(a.intervals)
-    return acc, _EPS * (1 + events) * (float(np.max(np.abs(qa))) + T * speed)
+    return acc, 4.0 * _EPS * (1 + events) * (float(np.max(np.abs(qa))) + T * speed)
 
 
 def _exact(sysm, q0, p0, prm, T, rtol, check_accuracy, resting_contact, path="auto"):

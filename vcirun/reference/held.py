@@ -165,9 +165,8 @@ def held_rhs(mod, prm, A):
 
 # --- the projection ---------------------------------------------------------------------------
 
-def project(mod, q, p, prm, A, iters=8, momenta=True):
-    """(q, p) projected onto phi_A(q) = 0 and the hidden constraint G_A M^-1 p = 0 (momenta=False:
-    positions only).
+def project(mod, q, p, prm, A, iters=8):
+    """(q, p) projected onto phi_A(q) = 0 and the hidden constraint G_A M^-1 p = 0.
 
     Positions: Newton along M^-1 G^T, q <- q - M^-1 G^T (G M^-1 G^T)^-1 phi_A(q) (the M-orthogonal
     direction, so the correction changes the kinetic metric least), G and M re-evaluated each
@@ -195,8 +194,6 @@ def project(mod, q, p, prm, A, iters=8, momenta=True):
         mod.sys_dphis(q, prm, G)
         X = np.linalg.solve(M, G[A].T)
         q = q - X @ np.linalg.solve(G[A] @ X, r)
-    if not momenta:
-        return q, p
     mod.sys_M(q, prm, M)
     mod.sys_dphis(q, prm, G)
     X = np.linalg.solve(M, G[A].T)
@@ -326,10 +323,10 @@ def approach_time(g, A, contacts) -> float:
     part of one step."""
     if not contacts:
         return np.inf
-    acc = g.held_acc(tuple(A))
+    acc, phis, u = g.held_acc(tuple(A)).tolist(), g.phis.tolist(), g.u.tolist()
     tau = np.inf
     for i in contacts:
-        a, ph, ui = abs(float(acc[i])), max(float(g.phis[i]), 0.0), float(g.u[i])
+        a, ph, ui = abs(acc[i]), max(phis[i], 0.0), u[i]
         if a > 0.0:
             ti = (ui + math.sqrt(ui * ui + 2.0 * a * ph)) / a
         else:

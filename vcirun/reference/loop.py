@@ -99,16 +99,18 @@ def _on_surface(mod, t, y, prm, contacts):
     |phi_i| / u+ (ill-conditioned as e u- -> 0)."""
     n = int(mod.NDOF)
     g = rh._Geometry(mod, t, y[:n], y[n:2 * n], prm)
-    qn, vn = float(np.max(np.abs(g.q))), float(np.max(np.abs(g.v)))
+    qn, vn = max(map(abs, g.q.tolist()), default=0.0), max(map(abs, g.v.tolist()), default=0.0)
+    phis, G = g.phis.tolist(), g.G.tolist()
     on = []
     for j in contacts:
-        gn = float(np.max(np.abs(g.G[j])))
-        if 0.0 < abs(g.phis[j]) <= 1e3 * _EPS * (1.0 + qn * gn + abs(t) * gn * vn):
+        gn = max(map(abs, G[j]), default=0.0)
+        if 0.0 < abs(phis[j]) <= 1e3 * _EPS * (1.0 + qn * gn + abs(t) * gn * vn):
             on.append(int(j))
     if not on:
         return y
     out = np.array(y, float)
-    out[:n], _ = rh.project(mod, y[:n], y[n:2 * n], prm, on, momenta=False)
+    X = np.linalg.solve(g.M, g.G[on].T)   # one Newton step along M^-1 G^T: phi is round-off already
+    out[:n] = g.q - X @ np.linalg.solve(g.G[on] @ X, g.phis[on])
     return out
 
 
@@ -120,13 +122,13 @@ def _geometry(mod, t, y, prm):
 def _immediate(g, t, y, A, R, tol=rh.HELD_TOL):
     """An event at the segment's start: a touching contact moving in (an impact now) or a resting
     contact pushed in; None if neither. g: the _Geometry at y; tol: the backend's rest tolerance."""
-    u = g.u
-    qn, vn = float(np.max(np.abs(g.q))), float(np.max(np.abs(g.v)))
+    u, phis, G = g.u.tolist(), g.phis.tolist(), g.G.tolist()   # (plain floats: the arrays are tiny)
+    qn, vn = max(map(abs, g.q.tolist()), default=0.0), max(map(abs, g.v.tolist()), default=0.0)
     for i in range(g.m):
         if i in A or i in R:
             continue
-        gn = float(np.max(np.abs(g.G[i])))
-        if g.phis[i] <= 64 * _EPS * (1.0 + qn * gn) and u[i] < -tol * gn * (1.0 + vn):
+        gn = max(map(abs, G[i]), default=0.0)
+        if phis[i] <= 64 * _EPS * (1.0 + qn * gn) and u[i] < -tol * gn * (1.0 + vn):
             return Flight(t, t, np.array(y, float), "impact", i, Constant(y))
     if R:
         acc = g.held_acc(tuple(A))

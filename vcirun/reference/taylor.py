@@ -355,6 +355,8 @@ class TaylorBackend:
         self.model, self.mod, self.prm, self.tol = model, mod, np.asarray(prm, float), float(tol)
         self.budget = budget
         self.steps = 0
+        self._base = model.pars(self.prm)   # the parameter vector without resting contacts
+        self._pars_of = {}                  # id(integrator) -> what its parameters were last set to
 
     def segment(self, t0, y0, T, A, R, geo=None):
         """One segment (vcirun.reference.flight); geo: the _Geometry at (t0, y0) if the caller has it.
@@ -370,21 +372,24 @@ class TaylorBackend:
         n, m = model.n, model.m
         A, R = tuple(A), tuple(R)
         ta, kinds = model.integrator(A, R, self.tol)
-        scale = self._scales(y0[:n])
-        phi0 = np.empty(m)
-        self.mod.sys_phis(np.ascontiguousarray(y0[:n], float), self.prm, phi0)
-        off = np.full(m, TINY)
-        lift = np.full(m, 1e300)
-        for i in R:   # above the resting contact's own |phi| (within the rest tolerance) and its round-off
-            off[i] = 4.0 * (abs(phi0[i]) + scale[i])
-            lift[i] = 2.0 * off[i]
-        free = [i for i in range(m) if i not in A and i not in R]
         g = geo if geo is not None else rh._Geometry(self.mod, t0, y0[:n], y0[n:2 * n], self.prm)
+        scale = self._scales(g)
+        phi0 = g.phis.tolist()
+        free = [i for i in range(m) if i not in A and i not in R]
         hmax = max(REACH * rh.approach_time(g, A, free), 1e3 * _EPS * max(1.0, abs(t0)))
-        floor = -np.where(np.isin(np.arange(m), R), 2.0 * off, scale)   # penetration beyond round-off
-        watch = np.array([i not in A for i in range(m)])
-        P = len(ta.pars)
-        ta.pars[:] = model.pars(self.prm, off, lift)[:P]
+        floor = [-scale[i] for i in range(m)]   # penetration beyond round-off
+        key = ("base",)
+        if R:   # offsets above the resting contacts' own |phi| (within the rest tolerance) and round-off
+            off, lift = np.full(m, TINY), np.full(m, 1e300)
+            for i in R:
+                off[i] = 4.0 * (abs(phi0[i]) + scale[i])
+                lift[i] = floor[i] = 2.0 * off[i]
+                floor[i] = -floor[i]
+            key = (tuple(off), tuple(lift))
+        if self._pars_of.get(id(ta)) != key:   # (parameters set by the last segment on ta are kept)
+            pars = model.pars(self.prm, off, lift) if R else self._base
+            ta.pars[:] = pars[:len(ta.pars)]
+            self._pars_of[id(ta)] = key
         ta.time = float(t0)
         ta.state[:] = y0
         if kinds:
@@ -394,7 +399,7 @@ class TaylorBackend:
         nev = len(kinds)
         outcomes = (hy.taylor_outcome.time_limit, hy.taylor_outcome.success, hy.taylor_outcome.cb_stop)
         phis = np.empty(m)
-        wl = [(i, float(floor[i])) for i in range(m) if watch[i]]
+        wl = [(i, floor[i]) for i in range(m) if i not in A]
         sys_phis, prm = self.mod.sys_phis, self.prm
         rec = _Recorder(self)
         bounded = True
@@ -468,11 +473,11 @@ class TaylorBackend:
             piece.t_end = t1
         return Flight(t0, t1, y1, kind, i, piece)
 
-    def _scales(self, q):
-        """Per contact: 1e3 eps (1 + |q| |grad phi_i|), well above the round-off of phi_i at q."""
-        G = np.empty((self.model.m, self.model.n))
-        self.mod.sys_dphis(np.ascontiguousarray(q, float), self.prm, G)
-        return 1e3 * _EPS * (1.0 + float(np.max(np.abs(q))) * np.max(np.abs(G), axis=1))
+    def _scales(self, g):
+        """Per contact: 1e3 eps (1 + |q| |grad phi_i|), well above the round-off of phi_i at the state
+        of the _Geometry g."""
+        qn = max(map(abs, g.q.tolist()), default=0.0)
+        return [1e3 * _EPS * (1.0 + qn * max(map(abs, row), default=0.0)) for row in g.G.tolist()]
 
     def _phi(self, q, i):
         phis = np.empty(self.model.m)
