@@ -32,9 +32,10 @@ from vcirun.reference.exact import solve_exact  # noqa: E402
 from vcirun.run.api import resolve_system  # noqa: E402
 
 METHODS = ["CVA", "VCI", "MCVAA", "MCVAC"]
-SCENES = [("cart_pendulum", {"beta": 4.2}, {}, 5.0), ("double_pendulum", {}, {}, 5.0), ("oscillator_wall", {}, {}, 10.0),
-          ("bouncing_ball", {}, {"c": 0.5}, 3.0), ("ball_in_box", {}, {"e": 0.8}, 8.0), ("newton_cradle_3", {}, {}, 1.0),
-          ("double_pendulum_walls", {}, {"e": 0.9}, 3.0), ("n_pendulum_3", {}, {}, 3.0), ("n_pendulum_4", {}, {}, 3.0)]
+SCENES = [("cart_pendulum", {"beta": 4.2}, {}, 5.0), ("double_pendulum", {}, {}, 5.0),
+          ("oscillator_wall", {}, {}, 10.0), ("bouncing_ball", {}, {"c": 0.5}, 3.0), ("ball_in_box", {}, {"e": 0.8}, 8.0),
+          ("newton_cradle_3", {}, {}, 1.0), ("double_pendulum_walls", {}, {"e": 0.9}, 3.0), ("n_pendulum_3", {}, {}, 3.0),
+          ("n_pendulum_4", {}, {}, 3.0)]
 
 
 def log(msg=""):

@@ -54,7 +54,7 @@ def test_taylor_and_dop853_agree_on_every_builtin_scene(name, start, params, T):
     assert np.max(np.abs(a.impacts - b.impacts)) <= 1e-11
     tt = np.linspace(0.0, T, 2001)
     assert np.max(np.abs(a(tt) - b(tt))) <= 1e-11
-    assert 0.0 <= a.accuracy <= 1e-12
+    assert 0.0 < a.accuracy <= 1e-11   # (at least the round-off of its events: 4 eps per event)
 
 
 def test_a_system_beyond_the_taylor_path_says_why_and_is_exact_on_dop853():

@@ -88,7 +88,8 @@ def reference_note(results) -> str:
     kind = spec.get("kind")
     if kind == "exact":
         refs = list(results.references.values())
-        acc = [float(r.get("accuracy")) for r in refs if r.get("accuracy") is not None and np.isfinite(r.get("accuracy"))]
+        acc = [float(r.get("accuracy")) for r in refs
+               if r.get("accuracy") is not None and np.isfinite(r.get("accuracy"))]
         paths = sorted({str(r.get("path")) for r in refs if r.get("path")})
         how = {"taylor": "Taylor (heyoka) with root isolation", "dop853": f"DOP853 at rtol {spec.get('rtol', 1e-13):g}"}
         txt = ("reference: exact nonsmooth solution (" + (", ".join(how.get(p, p) for p in paths) if paths else

@@ -28,8 +28,9 @@ not held), all terminal:
 Parameters: the system's, then off_i (m), lift_i (m), the pressed offsets (m), then M^-1 entries for
 a constant dense M.
 
-Integrators are kept per process (`_INTEGRATORS`, by the system's fingerprint, A, R and tolerance);
-heyoka's own disk cache of compiled code (~/.cache/heyoka) lets a new process skip the LLVM build.
+Integrators are kept per process (`taylor_model` keeps one TaylorModel per system fingerprint, which
+keeps its integrators by A, R and tolerance; a forked sweep worker inherits them); heyoka's own disk
+cache of compiled code (~/.cache/heyoka) lets a new process skip the LLVM build.
 No sympy at import: the builder imports it (and heyoka, which imports sympy) inside functions.
 """
 from __future__ import annotations
@@ -42,8 +43,8 @@ import numpy as np
 from . import held as rh
 from .flight import Constant, Flight, last_crossing
 
-__all__ = ["TaylorModel", "TaylorPiece", "TaylorBackend", "NotExpressible", "TaylorFailure", "taylor_model", "TOL", "TINY",
-           "MAX_DENSE_N", "MAX_HELD"]
+__all__ = ["TaylorModel", "TaylorPiece", "TaylorBackend", "NotExpressible", "TaylorFailure", "taylor_model", "TOL",
+           "TINY", "REACH", "REST_TOL", "MAX_DENSE_N", "MAX_HELD"]
 
 TOL = float(np.finfo(float).eps)   # the reference's tolerance: machine precision
 # heyoka skips the roots of a step whose event function is exactly 0 at the step's start (a start on
@@ -131,10 +132,6 @@ def _inverse(Mx):
     det, adj = _det_adj(Mx)
     k = len(Mx)
     return [[adj[i][j] / det for j in range(k)] for i in range(k)]
-
-
-def _zero(e) -> bool:
-    return str(e) in ("0", "0.0", "0.0000000000000000")
 
 
 class TaylorModel:
