@@ -53,7 +53,7 @@ class Reference:
 
     def __init__(self, segments, n, impacts, H0, T, accuracy=np.nan, kind="taylor", width=None, impact_contact=None,
                  impact_impulse=None):
-        self.segments = segments  # list of (t_start, t_end, dense OdeSolution)
+        self.segments = segments  # list of (t_start, t_end, dense output called like an OdeSolution)
         self.n = n
         # one entry per contact impact, as Trajectory's (simultaneous impacts: one entry each)
         self.impacts = np.asarray(impacts, float)
@@ -145,8 +145,7 @@ def _sequence(sol):
 
 def _first_difference(a, b, names) -> str:
     """Where the event sequences of two solves part (for the error message)."""
-    names = {i: str(nm) for i, nm in enumerate(names)}
-    names = _Names(names)
+    names = _Names(enumerate(map(str, names)))
     ev_a = sorted([(t, "impact", i) for t, i, _ in a.impacts] + [(t, "release", i) for t, i in a.releases])
     ev_b = sorted([(t, "impact", i) for t, i, _ in b.impacts] + [(t, "release", i) for t, i in b.releases])
     for x, y in zip(ev_a, ev_b):
@@ -158,6 +157,8 @@ def _first_difference(a, b, names) -> str:
 
 
 class _Names(dict):
+    """Contact names by index ("contact i" for an index the system does not have)."""
+
     def __missing__(self, i):
         return f"contact {i}"
 
@@ -248,6 +249,7 @@ class _Slice:
 
     def __call__(self, t):
         return self.f(t)[: self.k]
+
 
 def _check_start(system, q0, prm) -> None:
     """A start inside the constraint is bad input, named as such (not a grazing or accumulation
