@@ -240,3 +240,30 @@ def test_a_dop853_check_that_sees_other_events_is_refined_then_an_error(monkeypa
         with pytest.raises(RuntimeError, match=r"different event sequences at t=.*1 events against 0, down to "
                                                r"rtol 2.3e-14"):
             vcirun.reference("n_pendulum_4", T=1.5)
+
+
+# --- a resting contact that leaves and comes back -------------------------------------------------------
+
+CART_E = {"name": "cart_pendulum_e", "coordinates": ["y", "theta"],
+          "parameters": {"m1": 1.0, "m2": 0.2, "L": 2.0, "g": 10.0, "e": 0.3},
+          "mass_matrix": [["m1 + m2", "m2*L*sin(theta)"], ["m2*L*sin(theta)", "m2*L**2"]],
+          "potential": "(m1 + m2)*g*y - m2*g*L*cos(theta)",
+          "constraints": [{"name": "floor", "phi": "y", "restitution": "e"}]}
+
+
+def test_a_cart_resting_on_the_floor_lifted_by_its_pendulum_flies_bounces_settles_and_lifts_again():
+    """On the floor at rest with the pendulum swinging over the top: the floor needs no force at first
+    (the cart rests, not held), the pendulum lifts it, it comes back, bounces (e = 0.3), settles by
+    accumulation, is released and lands again. Both paths: the same events, the same trajectory."""
+    s = load_system_yaml(CART_E)
+    prm = s.param_values()
+    q0 = np.array([0.0, -1.9860761320374827])
+    p0 = s.mass_matrix(q0, prm) @ np.array([0.0, 8.358438976097034])
+    a = solve_exact(s, q0, p0, prm, 3.0)
+    b = solve_exact(s, q0, p0, prm, 3.0, path="dop853", rtol=RTOL_FLOOR)
+    assert a.held_intervals[0][0] > 0.01 and a.impacts[0] > 0.01     # not held from the start: it flew
+    assert len(a.releases) == 1 and a.held_intervals[-1][1] == 3.0
+    assert list(a.impact_contact) == list(b.impact_contact) and len(a.impacts) == len(b.impacts) >= 10
+    np.testing.assert_allclose(a.releases, b.releases, rtol=0, atol=1e-10)
+    tt = np.linspace(0.0, 3.0, 1201)
+    assert np.max(np.abs(a(tt) - b(tt))) <= 1e-9

@@ -195,10 +195,11 @@ class Dop853Backend:
                 cands.append(((ss[k], ss[k + 1]), phi_of(i, off[i]), "impact", i))
         if R or A:
             geo = [rh._Geometry(self.mod, s, Y[:n, k], Y[n:2 * n, k], self.prm) for k, s in enumerate(ss)]
-            if R:
+            if R:   # (pushed in while still on its surface: a contact that rose past its offset has left)
                 acc = np.array([g.held_acc(A) for g in geo])
                 for i in R:
-                    k = next((k for k in range(K) if acc[k, i] >= 0.0 > acc[k + 1, i]), None)
+                    k = next((k for k in range(K) if acc[k, i] >= 0.0 > acc[k + 1, i] and PH[k, i] <= 2.0 * off[i]),
+                             None)
                     if k is not None:
                         cands.append(((ss[k], ss[k + 1]), self._acc_of(dense, A, i), "pressed", i))
             if A:

@@ -222,11 +222,16 @@ def solve(backend, mod, q0, p0, prm, T, *, names, resting_contact=True, max_impa
             y = rh._project_y(mod, y, prm, A)   # (the released contact too: it leaves from rest)
             A = rh.held_set(mod, t, y[:n], y[n:2 * n], prm, [j for j in A if j != i], tol)
         elif fl.reason == "pressed":
-            if not resting_contact:
+            geo = _geometry(mod, t, y, prm)
+            if not geo.near([i], tol):
+                pass   # it had left its surface before its acceleration turned: a free contact now
+            elif not resting_contact:
                 raise RuntimeError(f"reference: a touching contact ({names[i]}) is pushed into its constraint at "
                                    f"t={t:.6g} (resting contact; resting_contact=True holds it)")
-            y = rh._project_y(mod, y, prm, sorted(set(A) | {i}))   # it rests on its surface
-            A = rh.held_set(mod, t, y[:n], y[n:2 * n], prm, sorted(set(A) | {i}), tol)
+            else:
+                y = rh._project_y(mod, y, prm, sorted(set(A) | {i}))   # it rests on its surface
+                A = rh.held_set(mod, t, y[:n], y[n:2 * n], prm, sorted(set(A) | {i}), tol)
+                geo = None
         elif fl.reason == "impact":
             k, s0, _ = mod.impact_direction(y[:n].copy(), y[n:2 * n].copy(), 1.0, SIMULTANEOUS / 4, prm, d, lam,
                                             active)
