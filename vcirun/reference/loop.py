@@ -233,6 +233,8 @@ def solve(backend, mod, q0, p0, prm, T, *, names, resting_contact=True, max_impa
                 A = rh.held_set(mod, t, y[:n], y[n:2 * n], prm, sorted(set(A) | {i}), tol)
                 geo = None
         elif fl.reason == "impact":
+            if A:   # the held contacts take part in the impact law (touching, u- = 0): on their surface,
+                y = rh._project_y(mod, y, prm, A)   # not off it by the held phase's drift
             k, s0, _ = mod.impact_direction(y[:n].copy(), y[n:2 * n].copy(), 1.0, SIMULTANEOUS / 4, prm, d, lam,
                                             active)
             if k < 0:
