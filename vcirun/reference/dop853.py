@@ -84,9 +84,11 @@ class Dop853Backend:
     def _phis_u(self, y):
         n = self.n
         q, p = np.ascontiguousarray(y[:n]), np.ascontiguousarray(y[n:2 * n])
-        phis = np.empty(self.m)
+        phis, G, out = np.empty(self.m), np.empty((self.m, n)), np.empty(2 * n)
         self.mod.sys_phis(q, self.prm, phis)
-        return phis, self.mod.normal_velocities(q, p, self.prm)
+        self.mod.sys_dphis(q, self.prm, G)
+        self.mod.dynamics_rhs(0.0, np.concatenate([q, p]), self.prm, out)   # (qdot = M^-1 p, whatever t)
+        return phis, G @ out[:n]
 
     def rest_offset(self, q, i) -> float:
         G = np.empty((self.m, self.n))

@@ -435,7 +435,7 @@ class TaylorBackend:
             # the impact is there; otherwise the step again, shorter
             phi0 = np.empty(m)
             sys_phis(np.ascontiguousarray(ys[:n]), prm, phi0)
-            u0 = self.mod.normal_velocities(np.ascontiguousarray(ys[:n]), np.ascontiguousarray(ys[n:2 * n]), prm)
+            u0 = rh._Geometry(self.mod, tb, ys[:n], ys[n:2 * n], prm).u
             ta.time, ta.state[:] = tb, ys
             if kinds:
                 ta.reset_cooldowns()
@@ -452,8 +452,7 @@ class TaylorBackend:
         y1 = np.array(ta.state, float)
         if ev is None and starts:   # a root exactly at T ends the last step without being reported
             self.mod.sys_phis(np.ascontiguousarray(y1[:n]), self.prm, phis)
-            u1 = self.mod.normal_velocities(np.ascontiguousarray(y1[:n]), np.ascontiguousarray(y1[n:2 * n]),
-                                            self.prm)
+            u1 = rh._Geometry(self.mod, t1, y1[:n], y1[n:2 * n], self.prm).u
             at = [i for i in free if abs(phis[i]) <= scale[i] and u1[i] < 0.0]
             if at:
                 ev = ("impact", at[0])
