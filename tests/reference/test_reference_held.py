@@ -633,8 +633,7 @@ def test_sliding_past_a_post_is_found_however_shallow_the_contact(obstacles, dep
 def test_an_impact_that_presses_into_the_held_floor(obstacles, path):
     """Sliding into the bump (a cylinder about z whose lowest point is 1e-3 below the floor line):
     its normal at the contact points down and back, so Moreau's law gives the held floor an impulse
-    too; the floor stays held and no impact entry is recorded for it (issue 18: no impacts while
-    held)."""
+    too; the floor stays held and no impact entry is recorded for it (a held contact has no impacts)."""
     system, mod = obstacles
     depth = 1e-3
     b = 1.0 - depth

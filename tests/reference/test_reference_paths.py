@@ -208,8 +208,9 @@ def test_more_events_than_the_bound_is_an_error():
                    names=["phi"], max_events=20)
 
 
-def test_the_issue_hang_state_ends():
-    """The state of the report: the block dropped flat used to repeat one held-phase solve 24,000 times."""
+def test_the_block_dropped_flat_ends_held_on_both_corners():
+    """Both corners accumulating at once are held together: the solve ends (holding only the first one
+    would repeat one held-phase solve at its own start time)."""
     s = load_system_yaml(BLOCK)
     ref = vcirun.reference(s, T=2.0, q0=[0.0, 0.55, 0.0], p0=[0.0, 0.0, 0.0])
     assert ref.held_intervals[-1][2] == (0, 1)
