@@ -29,7 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import vcirun  # noqa: E402
 from vcirun.reference.exact import solve_exact  # noqa: E402
-from vcirun.run.api import resolve_system  # noqa: E402
+from vcirun.run.resolve import resolve_system  # noqa: E402
 
 METHODS = ["CVA", "VCI", "MCVAA", "MCVAC"]
 SCENES = [("cart_pendulum", {"beta": 4.2}, {}, 5.0), ("double_pendulum", {}, {}, 5.0),

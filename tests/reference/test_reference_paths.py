@@ -21,7 +21,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import vcirun
-from vcirun.codegen.build import SYSTEM_KERNELS, load_module
+from vcirun.codegen.build import load_module
+from vcirun.codegen.kernel_set import SYSTEM_KERNELS
 from vcirun.mechanics.loader import load_system_yaml
 from vcirun.reference import exact as rx
 from vcirun.reference import held as rh
@@ -29,7 +30,7 @@ from vcirun.reference import loop
 from vcirun.reference.exact import RTOL_FLOOR, solve_exact
 from vcirun.reference.flight import Constant, Flight
 from vcirun.reference.taylor import NotExpressible, TaylorBackend
-from vcirun.run.api import resolve_system
+from vcirun.run.resolve import resolve_system
 from vcirun.scenes.oracles import ball_in_box_exact
 
 # (scene, start, params, T): T as long as DOP853 at its floor rtol stays below ~1e-12 itself

@@ -24,7 +24,7 @@ grid: a check of the solve that does not rest on a second solve of the same equa
 Held contacts (resting_contact=True): a contact that starts at rest on its surface, is left at rest by
 a plastic impact, or whose impacts accumulate (the Zeno time extrapolated from its flights; several
 contacts accumulating together are held together) is held on the index-reduced constrained dynamics
-(vcirun/reference/held.py) and released where its contact force turns tensile; docs/contacts.md 6.
+(vcirun/reference/held.py) and released where its contact force turns tensile; docs/derivations/contacts.md 6.
 
 Also: a fine-step method reference (the paper's choice: CVA at a small h). Closed forms (the
 oscillator against a wall, the bouncing ball, the ball in a box ...) are in vcirun.scenes.oracles.

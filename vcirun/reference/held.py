@@ -3,7 +3,7 @@ projection onto the held manifold, which contacts are held (the contact-force LC
 rest, and accumulation (the Zeno time extrapolated from a contact's flights). The held phases
 themselves are segments of the backends (vcirun.reference.taylor, vcirun.reference.dop853) driven by
 the event loop (vcirun.reference.loop).
-Derivations: docs/contacts.md, "Held contacts in the reference".
+Derivations: docs/derivations/contacts.md, "Held contacts in the reference".
 
 `mod` is the system-only compiled module (vcirun.codegen.build.load_module(system, SYSTEM_KERNELS)),
 `prm` the parameter vector, y = (q, p) or (q, p, W) (a forced solve carries the work
@@ -275,7 +275,7 @@ def zeno_extrapolation(times) -> float:
     t_{k-2} < t_{k-1} < t_k: flights d1 = t_{k-1} - t_{k-2}, d2 = t_k - t_{k-1}, ratio r = d2 / d1,
     t_inf = t_k + d2 r / (1 - r) (the geometric sum of the remaining flights). Exact for a geometric
     sequence (constant normal acceleration, restitution e: r = e); in general the ratio drifts by
-    O(flight) and t_inf is off by O(d2^2) (docs/contacts.md 6.4: -k d2^2 / (6 (1 - e)^2) for linear drag k).
+    O(flight) and t_inf is off by O(d2^2) (docs/derivations/contacts.md 6.4: -k d2^2 / (6 (1 - e)^2) for linear drag k).
     ValueError unless 0 < r < 1."""
     ts = np.asarray(times, dtype=float).ravel()
     if ts.size < 3 or not np.all(np.isfinite(ts[-3:])):
