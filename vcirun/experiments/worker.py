@@ -161,6 +161,10 @@ def _reference(st: _WorkerState, ic: InitialCondition):
     except Exception as e:  # noqa: BLE001 - recorded; runs keep their trajectories, l2 becomes NaN
         st.ref_errors[ic.key] = _one_line(f"{type(e).__name__}: {e}")
         return None
+    if ref.kind in ("taylor", "dop853") and not math.isfinite(ref.accuracy):
+        # an exact reference whose accuracy is unknown is not a reference (runs get NaN, not a number)
+        st.ref_errors[ic.key] = f"the exact reference's self-reported accuracy is {ref.accuracy}"
+        return None
     st.refs[ic.key] = ref
     while len(st.refs) > 8:
         st.refs.popitem(last=False)
@@ -173,7 +177,8 @@ def _reference_payload(st: _WorkerState, ic: InitialCondition, ref) -> tuple[dic
              "rtol": getattr(spec, "rtol", None), "method": getattr(spec, "method", ""),
              "ref_h": getattr(spec, "h", None)}
     if ref is None:
-        attrs.update(status="failed", message=st.ref_errors.get(ic.key, ""), accuracy=None)
+        attrs.update(status="failed", message=st.ref_errors.get(ic.key, ""), accuracy=None, path="",
+                     path_reason="")
         return attrs, {}
     n = max(1, math.ceil(st.ref_T / st.ref_h - 1e-9))
     t = np.linspace(0.0, st.ref_T, n + 1)
@@ -182,7 +187,10 @@ def _reference_payload(st: _WorkerState, ic: InitialCondition, ref) -> tuple[dic
         arrays["p"] = np.asarray(ref.p(t))
     attrs.update(status="ok", message="", accuracy=float(getattr(ref, "accuracy", float("nan"))),
                  H0=float(getattr(ref, "H0", float("nan"))), n_impacts=int(len(ref.impacts)),
-                 ref_description=str(getattr(ref, "kind", spec.kind)))
+                 ref_description=str(getattr(ref, "kind", spec.kind)),
+                 # the exact reference's integration path (taylor or dop853) and why DOP853, if it is
+                 path=str(ref.kind) if ref.kind in ("taylor", "dop853") else "",
+                 path_reason=str(getattr(ref, "kind_reason", "")))
     return attrs, arrays
 
 
