@@ -1,5 +1,5 @@
 """Symbolic mechanical systems L = 1/2 qdot^T M(q) qdot - V(q) with unilateral constraints phi_i(q) >= 0,
-each with a restitution coefficient (issue 17; one elastic constraint is the paper's case).
+each with a restitution coefficient (one elastic constraint is the paper's case).
 
 A `MechanicalSystem` is pure data plus derived sympy objects; it never computes numbers itself:
 the only bridge to numbers is `vcirun.codegen`. Parameters stay symbols so that a parameter change
@@ -236,7 +236,7 @@ class MechanicalSystem:
         if getattr(self, "_fp", None):
             return self._fp
         cons = [(c.name, sp.srepr(c.phi), sp.srepr(c.restitution)) for c in self.constraints]
-        # (one elastic constraint named "phi": the same text as before issue 17, so caches stay valid)
+        # one elastic constraint named "phi" fingerprints as the single-phi case (its cache keys unchanged)
         phi = sp.srepr(self.phi) if cons == [("phi", sp.srepr(self.phi), sp.srepr(sp.Integer(1)))] else cons
         text = repr((self.name, [str(s) for s in self.q], list(self.params), sp.srepr(self.M),
                      sp.srepr(self.V), phi,

@@ -82,7 +82,7 @@ def trajectory_of(p, mod, out, counters, q0, p0, prm, beta, wall) -> tr.Trajecto
                               arrays["impacts"])
         if cause:
             message += f"; cause: {cause}"
-    # (issue 22) an energy that is not finite from the start (e.g. q0 = 1e300) is a failure, not ok
+    # an energy that is not finite from the start (e.g. q0 = 1e300) is a failure, not ok
     bad_start = nonfinite_start(arrays["H"][0], arrays["Ed"][0] if energies else None,
                                            arrays["Hmod"][0] if energies and arrays.get("Hmod") is not None
                                            else None, q0, p0)
