@@ -6,7 +6,7 @@ import math
 from numba import njit
 
 from vcirun.codegen.frame import scratch, scratch2
-from vcirun.codegen.roles import NDOF, MH_M
+from vcirun.codegen.roles import NDOF, MH_M, RESET_MAP
 from vcirun.maps.gauss import mh_guess, mh_gradient
 
 MH_RESET_ETOL = 8.0 * 2.220446049250313e-16  # R^MCVA accepts lam once H~ is conserved to this (relative)
@@ -25,7 +25,9 @@ def reset_mcva(q, pm, d, s0, dE, E_pre, vpre, dtau, tau_rem, h, t, prm, ntol, ma
     Forcing does not enter: the reset is an impulse, and bounded forces do no work in zero time."""
     g = d
     lam0 = s0
-    if lam0 == 0.0:
+    if RESET_MAP and lam0 == 0.0:
+        # only a system with a declared map asks for its root near 0; elsewhere s0 = 0 is a grazing
+        # contact, a failure rather than the trivial root
         return _mcva_declared(q, pm, d, dE, h, prm, ntol, maxit, pp)
     if not math.isfinite(lam0):
         return -1, lam0

@@ -7,7 +7,7 @@ from numba import njit
 
 from vcirun.codegen.frame import scratch, scratch2
 from vcirun.codegen.roles import (
-    NDOF, NODE_LEN, FORCED, VCI_STAGE, FORCE_A, FORCE_B, sys_node, sys_force, sys_force_jac, ld_PmJc, ld_Ed, ld_Edv
+    NDOF, NODE_LEN, FORCED, VCI_STAGE, FORCE_A, FORCE_B, sys_node, sys_force, sys_force_jac, ld_PmJc, ld_Ed, ld_Edv, RESET_MAP
 )
 from vcirun.maps.dynamics import velocity_guess, force_power
 from vcirun.maps.linalg import solve_small
@@ -34,7 +34,7 @@ def reset_vci(q, pm, d, s0, dE, E_pre, vpre, dtau, tau_rem, h, t, prm, ntol, max
     E_target = E_pre - dE
     if FORCED:
         E_target += FORCE_B[VCI_STAGE] * dtau * force_power(q, vpre, t, prm)
-    if s0 == 0.0:
+    if RESET_MAP and s0 == 0.0:
         # a declared reset map (collision/declared.py): pm is the map's p+ at the post-impact q and d
         # = pm; the root near lam = 0 (pp = (1 + lam) p+, lam = O(h^2)) balances the discrete energy
         # with the energy the map removes (docs/derivations/declared_resets.md)
