@@ -29,13 +29,12 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from ..core import record
-from ..core.bounds import check_one_start, nonfinite_start
+from ..core.bounds import check_one_start, check_start_args, nonfinite_start
 from ..core.sizes import check_run_memory, format_bytes, memory_limit
 from ..core.system_data import start_beta
 from ..core.values import check_number, describe
 from .plan import (
     Buffers,
-    check_start_args,
     first_call,
     plan,
     ready_start,

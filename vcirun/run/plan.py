@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core import record
-from ..core.bounds import check_one_start, check_params, check_simulate_args
+from ..core.bounds import check_simulate_args, check_start_args
 from ..core.grid import grid_note
 from ..core.sizes import check_run_memory, memory_limit, run_bytes
 from ..core.system_data import (
@@ -38,7 +38,6 @@ from ..core.system_data import (
     start_tolerance,
 )
 from ..core.tolerances import split_options
-from ..core.values import check_number, check_state_vector
 from ..methods.table import resolve_method
 from ..scenes.data import scene_args
 from .resolve import _warmable, resolve_numeric, resolve_system
@@ -178,16 +177,6 @@ def _still_warm(p: Plan, key) -> bool:
     return resolve._WARM_HITS.get(memo) is p.hit
 
 
-def check_start_args(beta=None, q0=None, p0=None, params=None) -> None:
-    """The checks of check_simulate_args on the per-run arguments, in its order."""
-    check_one_start(beta, q0, p0)
-    if beta is not None:
-        check_number("beta", beta)
-    if q0 is not None:
-        check_state_vector("q0", q0)
-    if p0 is not None:
-        check_state_vector("p0", p0)
-    check_params(params)
 
 
 # --- the initial state ------------------------------------------------------------------------------
