@@ -29,7 +29,7 @@ test: install
 test-all: install
 	$(BIN)/python -m pytest -n 2 -q -m ''
 
-# The full benchmark of issue 7 (about an hour; BENCH_ARGS=--quick for a short smoke run, or
+# The full benchmark (about an hour; BENCH_ARGS=--quick for a short smoke run, or
 # BENCH_ARGS="--only steps,sim5" for some sections): tables on stdout, JSON and figures in results/.
 bench: install
 	$(BIN)/python bench/bench_all.py $(BENCH_ARGS)

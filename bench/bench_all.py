@@ -34,9 +34,21 @@ Sections (`--only a,b,...` to pick; `--quick` for a short smoke run):
   bodies    contacts by the hundred (bench/bodies_scaling.py): cold build, us per smooth step and the
             first-hit outcome against NNLS of cradles of N = 3, 10, 30, 100 balls, and link chains of
             3, 5, 10 links declared by bodies (one fresh process per case)
+  cacheverify the kernel cache's checks on a warm start (bench/cache_verify.py): fresh processes of an
+            MCVAC simulation with the digest checks and with them replaced by unchecked loads, medians of
+            the process wall and of the time spent hashing
+  reference the exact reference (bench/reference_bench.py): its cost per built-in scene on the Taylor
+            and the DOP853 path beside one run of each method; its issue's targets in this one process
+            (random box states with a wrong event sequence, the cart-pendulum reference against one MCVAA
+            simulate(), its error against an independent long-double solve, fig4's references and runs)
   wp        the work-precision studies (configs/work_precision.yaml, work_precision_double.yaml,
             long_horizon.yaml) through `vcirun study` (vcirun.experiments.studies), with their figures; the
             10x target is read on vcirun's front (best method at each accuracy) of the two T = 5 studies
+
+  throughput the target table of sweeps at the speed of the compiled loop (bench/throughput.py):
+            simulate() against its loop, an ensemble of 10^5 runs against the loop time per core, the
+            fig4 sweep against today's tree (/work/base) and a first simulate against the tree before
+            the shared build (/work/preshared), in this one run
 
 The machine is shared with other sessions: every timing is a median over repeats, the load average
 is recorded at start and end, and ratios are formed from timings taken in this one run.
@@ -60,6 +72,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import vcirun  # noqa: E402
+from throughput import section_throughput  # noqa: E402 (bench/throughput.py: the section's rows)
 
 METHODS = ["CVA", "VCI", "MCVAA", "MCVAC"]
 PAPER_TABLE2 = {"MCVAA": {3.2e-2: (2.71, 0.61), 1e-2: (2.40, 0.39)},
@@ -548,6 +561,18 @@ def print_targets(res):
                 lo = min(v for v, _ in vals)
                 rows.append((f"{name}: {solver} / vcirun front, whole call, min over accuracy levels",
                              f"x{lo:.1f} .. x{max(v for v, _ in vals):.1f} ({len(vals)} levels)", ">= x10", lo >= 10))
+    ref = res.get("reference", {})
+    if "box" in ref:
+        rows.append(("random box states with a wrong event sequence (reference)",
+                     f"{ref['box']['wrong'] + ref['box']['failed']} of {ref['box']['states']}", "0",
+                     ref["box"]["wrong"] + ref["box"]["failed"] == 0))
+    if "cart_ratio" in ref:
+        c = ref["cart_ratio"]
+        rows.append(("cart-pendulum reference, warm, vs one MCVAA simulate()",
+                     f"{c['reference_ms']:.2f} / {c['mcvaa_ms']:.2f} ms = {c['ratio']:.1f}x", "<= 4x", c["ratio"] <= 4.0))
+    if "independent" in ref:
+        e = ref["independent"]["cart_taylor_max"]
+        rows.append(("reference error against an independent solve (cart-pendulum)", f"{e:.1e}", "<= 1e-12", e <= 1e-12))
     for name, val, tgt, ok in rows:
         log(f"  {name:58s} {val:48s} target {tgt:24s} {'MET' if ok else 'not met'}")
     res["targets"] = [{"what": a, "measured": b_, "target": c, "met": bool(d)} for a, b_, c, d in rows]
@@ -661,6 +686,21 @@ def section_contacts(res):
     res["inactive_constraint"] = out
 
 
+def section_cacheverify(res):
+    log("== kernel cache checks on a warm start: checked against unchecked loads (bench/cache_verify.py)")
+    import cache_verify
+
+    r = cache_verify.measure(repeats=3 if QUICK else 9)
+    cache_verify.report(r, log)
+    res["cache_verify"] = r
+
+
+def section_reference(res):
+    """The exact reference: cost per scene (Taylor, DOP853) beside the methods, and its targets."""
+    import reference_bench
+
+    res["reference"] = reference_bench.main(["--quick"] if QUICK else [])
+
 
 def section_bodies(res):
     """Cradles of N = 3, 10, 30, 100 balls and link chains by bodies: bench/bodies_scaling.py."""
@@ -675,7 +715,8 @@ def section_bodies(res):
 SECTIONS = {"steps": section_steps, "sim5": section_sim5, "impact": section_impact, "build": section_build,
             "sweep": section_sweep, "yardstick": section_yardstick, "scaling": section_scaling, "dof": section_dof,
             "tensor": section_tensor, "wp": section_wp, "coldbuild": section_coldbuild, "contacts": section_contacts,
-            "bodies": section_bodies}
+             "bodies": section_bodies, "cacheverify": section_cacheverify,
+             "throughput": lambda res: section_throughput(res, quick=QUICK), "reference": section_reference}
 
 
 def main(argv=None):

@@ -1,6 +1,6 @@
 """vcirun: event-driven variational collision integrators (Pekarek & Murphey) as an experiment runner.
 
-Python API: `simulate`, `reference`, `l2_error`, `open_results`; command line: `vcirun --help`.
+Python API: `simulate`, `ensemble`, `reference`, `l2_error`, `open_results`; command line: `vcirun --help`.
 
 The API names are loaded on first use (PEP 562), so `import vcirun` costs next to nothing and a warm
 `vcirun.simulate` imports neither sympy nor scipy.integrate.
@@ -10,11 +10,12 @@ import types as _types
 
 __version__ = "0.1.0"
 
-__all__ = ["simulate", "reference", "l2_error", "Trajectory", "open_results", "__version__"]
+__all__ = ["simulate", "ensemble", "reference", "l2_error", "Trajectory", "open_results", "periodic_orbit", "__version__"]
 
-_LAZY = {"simulate": ("run.api", "simulate"), "reference": ("reference", "reference"),
+_LAZY = {"simulate": ("run.api", "simulate"), "ensemble": ("run.ensemble", "ensemble"), "reference": ("reference", "reference"),
          "l2_error": ("reference", "l2_error"), "Trajectory": ("run.trajectory", "Trajectory"),
-         "open_results": ("io.results", "open_results"), "verify": ("verification", "verify")}
+         "open_results": ("io.results", "open_results"), "verify": ("verification", "verify"),
+         "periodic_orbit": ("experiments.periodic", "periodic_orbit")}
 
 
 def __getattr__(name):

@@ -10,6 +10,7 @@ import pickle
 import signal
 import sys
 import threading
+import time
 from pathlib import Path
 
 import h5py
@@ -315,7 +316,15 @@ def test_a_killed_worker_has_its_runs_retried_elsewhere(tmp_path, monkeypatch, c
     killed = []
 
     def kill():
-        busy = client.processing(workers=[victim[0]]).get(victim[0], ())
+        # the victim is killed while it holds tasks: after the first result the scheduler may not
+        # have handed it the next ones yet, so wait (briefly) until it has some
+        deadline = time.monotonic() + 10.0
+        busy = ()
+        while time.monotonic() < deadline:
+            busy = client.processing(workers=[victim[0]]).get(victim[0], ())
+            if busy:
+                break
+            time.sleep(0.01)
         os.kill(victim[1], signal.SIGKILL)
         killed.append(len(busy))
 

@@ -21,7 +21,7 @@ import types
 import numpy as np
 import pytest
 
-from vcirun.codegen import c_emit, c_translate, cc, derive
+from vcirun.codegen import c_emit, c_link, c_translate, cc, derive
 from vcirun.codegen.build import _PKG
 from vcirun.scenes.declarations import get_scene
 from vcirun.methods.table import resolve_method
@@ -128,10 +128,10 @@ def test_unsupported_constructs_stay_numba():
     tr = c_emit.translate_module(text)
     assert [k.name for k in tr.kernels] == ["leaf"]
     assert set(tr.skipped) == {"caller", "pair"}
-    new = c_emit.replace_kernels(text, tr, "x.so")
+    new = c_link.replace_kernels(text, tr, "x.so", "0" * 64)
     assert "def caller(q, prm, out):\n    leaf(q, prm, out)" in new
     assert f"ExternalFunction({tr.prefix + 'leaf'!r}" in new
-    assert new.count("load_library_permanently") == 1
+    assert new.count("_bind(__file__, 'x.so'") == 1
 
 
 def test_no_compiler_means_numba_source(monkeypatch, tmp_path):
@@ -155,7 +155,7 @@ def test_small_kernels_stay_numba_and_large_ones_go_to_c(monkeypatch, tmp_path):
     assert "ExternalFunction('vkc_" in text and len(list(tmp_path.glob("*.so"))) == 1
     small = [k.name for k in c_emit.translate_module(text[:text.index("\nfull = ")]).kernels]
     assert "mh_grad" not in small   # already bound to C in `text`
-    entry = c_emit.C_LOG[-1]
+    entry = c_link.C_LOG[-1]
     assert "mh_grad" in entry["c"] and "SVC_PmJc" in entry["numba"] and "below" in entry["numba"]["SVC_PmJc"]
     monkeypatch.setenv(cc.C_MIN_ENV, "many")
     with pytest.raises(ValueError, match="VCIRUN_C_MIN_STATEMENTS: expected a number of statements"):

@@ -189,7 +189,7 @@ def test_entry_declares_every_name_python_calls_on_a_module():
             found.setdefault(name, set()).add(rel)
     missing = {n: sorted(w) for n, w in found.items() if n not in declared and n not in ld_patterns}
     assert not missing, f"called on a module but not declared in vcirun.codegen.roles.ENTRY: {missing}"
-    assert {"integrate", "hamiltonian", "mh_energy", "gap_slope", "sys_force"} <= set(found)   # the scan sees them
+    assert {"integrate", "hamiltonian", "mh_energy", "impact_direction", "sys_force"} <= set(found)   # the scan sees them
     # and every declared entry point is met by the units of its part
     for ks in (SYSTEM_KERNELS, METHODS["CVA"].kernel_set(), METHODS["MCVAC"].kernel_set()):
         provided = {n for u in units.select_units(ks) for n in u.provides} | set(units.bindings(ks)) | {

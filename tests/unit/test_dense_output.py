@@ -129,7 +129,7 @@ def test_reference_class_no_extrapolation_shapes_repr(ref2):
         ref2(np.array([0.5, -1e-3]))
     ref2(2.0 * (1 + 1e-15))   # a grid's N h may exceed T by round-off
     r = repr(ref2)
-    assert r.startswith("Reference(kind='exact', n=2, t=[0, 2], impacts=1") and "accuracy=" in r
+    assert r.startswith("Reference(kind='taylor', n=2, t=[0, 2], impacts=1") and "accuracy=" in r
 
 
 def test_forced_system_slopes_include_the_force():

@@ -353,14 +353,17 @@ def test_reference_validates_before_solving(kw, message):
 
 @pytest.mark.parametrize("kw", [{"T": 1.0, "beta": 1e20}, {"T": 1e6, "beta": 3.2}])
 def test_an_exact_reference_beyond_its_budget_is_refused(monkeypatch, kw):
-    """beta = 1e20 (velocities ~1e19) collapsed DOP853's steps: the solve ran for hours. The solve's
-    right-hand-side evaluations are projected to T and refused above MAX_RHS_EVALS (checked here from
-    2,000 evaluations instead of 200,000, to keep the test short)."""
+    """beta = 1e20 (velocities ~1e19) collapses the steps (the Taylor coefficients overflow; DOP853's
+    steps shrink), so the solve would run for hours. The work (Taylor steps, DOP853's right-hand-side
+    evaluations) is projected to T and refused above its bound (checked here from 2,000 units instead
+    of 20,000 and 200,000, to keep the test short)."""
     import importlib
 
     ref_mod = importlib.import_module("vcirun.reference.exact")
     monkeypatch.setattr(ref_mod, "MIN_RHS_EVALS_FOR_PROJECTION", 2_000)
-    with pytest.raises(ValueError, match=r"^T: the exact reference would need about .* right-hand-side evaluations"):
+    monkeypatch.setattr(ref_mod, "MIN_TAYLOR_STEPS_FOR_PROJECTION", 2_000)
+    with pytest.raises(ValueError, match=r"^T: the exact reference would need about .* (right-hand-side evaluations|Taylor "
+                                         r"steps)"):
         vcirun.reference("cart_pendulum", rtol=1e-10, check_accuracy=False, **kw)
     vcirun.reference("cart_pendulum", T=0.5, beta=3.2, rtol=1e-10)  # a normal solve stays under it
 

@@ -113,14 +113,14 @@ def test_warm_path_checks_the_mass_matrix_at_q0_compiled(monkeypatch):
     """A built-in scene served from the warm index never builds the symbolic system, so the
     hyperregularity check at q0 is the module's compiled mass_matrix_ok (a Cholesky attempt); numpy's
     check_mass_matrix then words the error. Cart-pendulum M = [[m1 + m2, m2 L sin], [., m2 L^2]]."""
-    from vcirun.run import api, resolve
+    from vcirun.run import plan, resolve
 
     vcirun.simulate("cart_pendulum", "CVA", h=0.1, T=0.2, beta=3.2)  # compiles and indexes the module
 
     def no_symbolic(*a, **k):
         raise AssertionError("the warm path must not build the symbolic system")
 
-    monkeypatch.setattr(api, "resolve_system", no_symbolic)
+    monkeypatch.setattr(plan, "resolve_system", no_symbolic)
     monkeypatch.setattr(resolve, "resolve_system", no_symbolic)
     ok = vcirun.simulate("cart_pendulum", "CVA", h=0.1, T=0.2, beta=3.2)
     assert ok.status == "ok"

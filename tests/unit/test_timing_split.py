@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 import vcirun
-from vcirun.run import api, resolve
+from vcirun.run import plan, resolve
 from vcirun.codegen import build
 
 
@@ -34,7 +34,7 @@ def test_first_call_of_a_module_is_made_untimed(monkeypatch):
         return proxies[-1]
 
     monkeypatch.setattr(resolve, "load_module", loader)
-    monkeypatch.setattr(api, "_FIRST_CALLS", set())
+    monkeypatch.setattr(plan, "_FIRST_CALLS", set())
     a = vcirun.simulate("cart_pendulum", "CVA", h=1e-2, T=1, beta=3.2)
     b = vcirun.simulate("cart_pendulum", "CVA", h=1e-2, T=1, beta=3.2)
     calls = [c for p in proxies for c in p.calls]

@@ -237,7 +237,7 @@ def test_import_vcirun_is_light_and_names_resolve():
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     assert r.stdout.split(maxsplit=2)[:2] == ["True", "True"], r.stdout
-    assert "['Trajectory', '__version__', 'l2_error', 'open_results', 'reference', 'simulate'] False False" in r.stdout
+    assert "['Trajectory', '__version__', 'ensemble', 'l2_error', 'open_results', 'periodic_orbit', 'reference', 'simulate'] False False" in r.stdout
     with pytest.raises(AttributeError):
         vcirun.no_such_name  # noqa: B018
     assert isinstance(vcirun.__version__, str) and "simulate" in dir(vcirun)

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import typer
 
-from .app import app
+from .app import _fail, app
 
 
 cache_app = typer.Typer(help="The kernel cache every vcirun command and `make` share ($VCIRUN_CACHE_DIR, "
@@ -19,18 +19,34 @@ def _mb(n: int) -> str:
 def cache_info():
     """Where the compiled kernels are and how much space they take."""
     from vcirun.codegen import cache
+    from vcirun.codegen.cache_store import CacheError
 
-    i = cache.info()
-    typer.echo(f"{i.path}: {i.modules} compiled modules, {i.cores} shared cores, {i.index_entries} warm-start entries, {i.files} files, "
-               f"{_mb(i.bytes)}")
+    try:
+        i = cache.info()
+    except CacheError as e:
+        _fail(str(e))
+    typer.echo(f"{i.path}: {i.modules} compiled modules, {i.cores} shared cores, {i.index_entries} warm-start entries, "
+               f"{i.files} files, {_mb(i.bytes)} (of these {i.shared_objects} C kernel libraries, {i.numba_files} numba "
+               f"files" + (f", {i.quarantined} files set aside by a failed check" if i.quarantined else "") + ")")
     typer.echo("It grows with every vcirun version and system; `vcirun cache clear` empties it (the next run of "
                "each system compiles again).")
 
 
 @cache_app.command("clear", epilog="Example:\n\n  vcirun cache clear")
 def cache_clear():
-    """Delete every cached kernel."""
+    """Delete every cached kernel (exit status 1 if some file could not be removed)."""
     from vcirun.codegen import cache
+    from vcirun.codegen.cache_store import CacheError
 
-    i = cache.clear()
-    typer.echo(f"removed {i.modules} compiled modules ({_mb(i.bytes)}) from {i.path}")
+    try:
+        r = cache.clear()
+    except CacheError as e:
+        _fail(str(e))
+    i = r.before
+    if r.failed:
+        p, why = r.failed[0]
+        _fail(f"kernel cache {i.path}: could not remove {len(r.failed)} of {len(r.failed) + r.removed_files} files "
+              f"({p}: {why}); removed {r.removed_files} files ({_mb(r.removed_bytes)}); make {p.parent} writable "
+              f"and run `vcirun cache clear` again")
+    typer.echo(f"removed {i.modules} compiled modules, {i.cores} shared cores and {r.removed_files} files in all "
+               f"({_mb(r.removed_bytes)}) from {i.path}")

@@ -6,6 +6,7 @@ Python API and vcirun.experiments, one module per command group.
 - vcirun.cli.results: `sweep`, `plot`, `validate`, `study`, `info`;
 - vcirun.cli.verify: `verify`;
 - vcirun.cli.systems: `systems`;
+- vcirun.cli.periodic: `periodic`;
 - vcirun.cli.cache: `cache info`, `cache clear`.
 
 Expected failures (bad config, unusable results file, bad option values) print one line
@@ -21,9 +22,10 @@ from . import simulate
 from . import results
 from . import verify
 from . import systems
+from . import periodic
 from . import cache
 
-COMMAND_MODULES = (simulate, results, verify, systems, cache)
+COMMAND_MODULES = (simulate, results, verify, systems, periodic, cache)
 
 
 def main() -> None:  # pragma: no cover - console entry point alternative

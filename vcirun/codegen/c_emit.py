@@ -6,14 +6,15 @@ which links its callees in). The system C compiler turns the same straight-line 
 code in a fraction of that time (docs/performance.md, *Cold builds*), once per scene.
 
 How: the kernels are emitted as numba source (vcirun.codegen.kernels, .tensor,
-vcirun.codegen.mh_kernels); `c_kernels(text, out_dir)` parses that text and translates every *leaf*
+vcirun.codegen.mh_kernels); `translate_module(text)` parses that text and translates every *leaf*
 kernel (a function whose calls are only math functions and np.empty/np.zeros of constant shape) to
 C, statement for statement and operator for operator (vcirun.codegen.c_translate), so the numbers are the ones numba computes
 (IEEE double, no contraction into FMA, no reassociation: -ffp-contract=off, no fast-math). In the
 module each translated kernel is replaced by an inline numba binding of the same name and signature
 that calls the C symbol by NAME (`numba.types.ExternalFunction`): the compiled callers reference the
 symbol, not an address, so numba's on-disk cache stays valid in a new process once the shared
-object is loaded (`llvmlite.binding.load_library_permanently`, done by the module's header).
+object is loaded (vcirun.codegen.c_link builds it, records its digest, checks it before the load and
+writes the bindings).
 Array arguments pass as data pointers (C-contiguous float64, checked when numba types the call), a
 2-D array with its row length.
 
@@ -25,15 +26,10 @@ from __future__ import annotations
 
 import ast
 import hashlib
-import subprocess
-import time
-import warnings
 from dataclasses import dataclass
-from pathlib import Path
 
-from . import cc
-from .c_translate import CKernel, Unsupported, Translator, int_const
-from .cc import min_statements
+from .c_translate import CKernel, Translator, Unsupported, int_const
+
 
 def _is_leaf_kernel(fn: ast.FunctionDef) -> bool:
     """An @njit function without inline= (the dispatchers and the units' helpers keep numba)."""
@@ -127,105 +123,3 @@ def translate_module(text: str, salt: str = "", min_stmts: int = 0) -> Translati
     for k in kernels:
         h.update(k.name.encode() + b"\0" + k.c_body.encode())
     return Translation("vkc_" + h.hexdigest()[:16] + "_", kernels, spans, skipped)
-
-
-def binding_header(so_name: str) -> str:
-    """Module-level code of a module with C kernels: load the shared object (next to the module file)
-    and the pointer intrinsic the bindings use."""
-    return f'''
-# --- C kernels (vcirun.codegen.c_emit): loaded by name, so numba's cache of the callers stays valid ---
-import os as _os
-from llvmlite import binding as _llvm
-from numba import types as _t
-from numba.core import errors as _errors
-from numba.extending import intrinsic as _intrinsic
-
-_llvm.load_library_permanently(_os.path.join(_os.path.dirname(_os.path.abspath(__file__)), {so_name!r}))
-_F8P = _t.CPointer(_t.float64)
-
-
-@_intrinsic
-def _cptr(typingctx, arr):
-    """The data pointer of a C-contiguous float64 array (what a C kernel takes)."""
-    if not (isinstance(arr, _t.Array) and arr.dtype == _t.float64 and arr.layout == "C"):
-        raise _errors.TypingError(f"C kernel argument: expected a C-contiguous float64 array, got {{arr}}")
-
-    def codegen(context, builder, signature, args):
-        return context.make_array(arr)(context, builder, args[0]).data
-
-    return _F8P(arr), codegen
-'''
-
-
-def binding_source(k: CKernel, prefix: str) -> str:
-    """The numba function that replaces kernel k: same name and signature, calls the C symbol."""
-    ptypes, cargs = [], []
-    for a, kind in k.args:
-        if kind == "-":
-            continue
-        if kind == "s":
-            ptypes.append("_t.float64")
-            cargs.append(a)
-        else:
-            ptypes.append("_F8P")
-            cargs.append(f"_cptr({a})")
-            if kind == "2":
-                ptypes.append("_t.int64")
-                cargs.append(f"{a}.shape[1]")
-    rt = "_t.float64" if k.returns == "double" else "_t.int64"
-    ext = f"_c_{k.name}"
-    doc = f"    {'C kernel ' + prefix + k.name + (': ' + k.docstring.splitlines()[0] if k.docstring else '')!r}\n"
-    return (f"{ext} = _t.ExternalFunction({prefix + k.name!r}, {rt}({', '.join(ptypes)}))\n\n\n"
-            '@njit(cache=True, nogil=True, error_model="numpy", inline="always")\n'
-            f"def {k.name}({', '.join(a for a, _ in k.args)}):\n" + doc
-            + f"    return {ext}({', '.join(cargs)})\n")
-
-
-def replace_kernels(text: str, tr: Translation, so_name: str) -> str:
-    """`text` with every translated kernel replaced by its binding (the loader of the shared object
-    `so_name` and the pointer intrinsic before the first one)."""
-    lines = text.split("\n")
-    by_start = {s: (e, name) for name, (s, e) in tr.spans.items()}
-    ks = {k.name: k for k in tr.kernels}
-    out, i = [], 0
-    while i < len(lines):
-        if i in by_start:
-            e, name = by_start[i]
-            if so_name is not None:
-                out.append(binding_header(so_name))
-                so_name = None
-            out.append(binding_source(ks[name], tr.prefix))
-            i = e
-            continue
-        out.append(lines[i])
-        i += 1
-    return "\n".join(out)
-
-
-C_LOG: list[dict] = []  # per module: kernels in C, kernels left in numba (and why), compile seconds
-
-
-def c_kernels(text: str, out_dir) -> str:
-    """Generated numba `text` with its leaf kernels compiled by the system C compiler into
-    out_dir/<prefix>.so (reused when present) and bound by name; `text` unchanged when nothing
-    translates, and (with a warning) when the compiler fails: numba is the fallback."""
-    t0 = time.perf_counter()
-    tr = translate_module(text, salt=cc.identity(), min_stmts=min_statements())
-    entry = {"c": [k.name for k in tr.kernels], "numba": dict(tr.skipped), "translate_s": time.perf_counter() - t0,
-             "compile_s": 0.0, "reused": False}
-    C_LOG.append(entry)
-    if not tr.kernels:
-        return text
-    so = Path(out_dir) / (tr.prefix.rstrip("_") + ".so")
-    if so.is_file():
-        entry["reused"] = True
-    else:
-        t1 = time.perf_counter()
-        try:
-            cc.compile_shared(tr.units(cc.opt_level), so)
-        except (cc.CompileError, OSError, subprocess.SubprocessError) as e:
-            warnings.warn(f"C kernels: the C compiler failed, the kernels stay in numba ({e})", RuntimeWarning)
-            entry["error"] = str(e)
-            return text
-        entry["compile_s"] = time.perf_counter() - t1
-    return replace_kernels(text, tr, so.name)

@@ -1,12 +1,15 @@
 """The kernel cache on disk (`vcirun cache info|clear`) and what a cold build says about itself.
 
 One directory for every entry point (API, CLI, Makefile, tests): $VCIRUN_CACHE_DIR, else
-~/.cache/vcirun (`vcirun.codegen.build.cache_dir`'s parent).
+~/.cache/vcirun (vcirun.codegen.cache_store.root; an empty VCIRUN_CACHE_DIR is refused).
 
-It holds one generated module per (system, kernel set) (`kernels/vk_<key>.py`), numba's compiled
-code for it (`kernels/__pycache__/`), the warm-start index (`kernels/wi_<key>.json`) and the build
-times that estimate the next cold build (`build_times.json`). Keys hash the package sources, so every
-vcirun version adds modules and nothing removes old ones: the cache grows until cleared.
+It holds one generated module per (system, kernel set) (`kernels/vk_<key>.py`), the shared cores
+(`kernels/core_<key>.py`), the C kernels' shared objects (`kernels/vkc_<hash>.so` and their digests),
+numba's compiled code for all of them (`kernels/__pycache__/`, also when NUMBA_CACHE_DIR is set:
+vcirun.codegen.numba_cache), the warm-start index (`kernels/wi_<key>.json`), the compile locks
+(`kernels/*.lock`), the files set aside by a failed check (`quarantine/`) and the build times that
+estimate the next cold build (`build_times.json`). Keys hash the package sources, so every vcirun
+version adds modules and nothing removes old ones: the cache grows until cleared.
 """
 from __future__ import annotations
 
@@ -14,53 +17,48 @@ import contextlib
 import json
 import logging
 import os
-import shutil
-import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ["CacheInfo", "info", "clear", "cache_root", "announce_if_cold", "note_first_call", "estimate_compile_s",
-           "family", "COMPILE_CALLBACKS", "first_call_lock"]
+from . import cache_lock, cache_store
 
-COMPILE_CALLBACKS: list = []   # f(message) on a cold build; the CLI prints the message on stderr
+__all__ = ["CacheInfo", "ClearResult", "info", "clear", "cache_root", "announce_if_cold", "note_first_call",
+           "estimate_compile_s", "core_estimate_s", "COMPILE_CALLBACKS", "first_call_lock"]
+
+COMPILE_CALLBACKS: list = []   # f(message) on a cold build or a cache notice; the CLI prints it on stderr
 _log = logging.getLogger("vcirun.build")
-_TIMES_FILE = "build_times.json"
+_TIMES_FILE = cache_store.TIMES_FILE
 # first estimates before this cache has timed a build (measured on this 2-core machine: CVA on the
 # cart-pendulum 9 s, MCVAC 14-20 s)
 _DEFAULT_S = {"CVA": 10.0, "VCI": 10.0, "MCVA": 20.0}
 # shared build: a scene's kernels (cart-pendulum CVA 3.4 s, MCVAC 4.8 s) and a core (50-60 s, once per machine)
 _DEFAULT_SCENE_S = {"CVA": 3.5, "VCI": 3.5, "MCVA": 5.5}
 _DEFAULT_CORE_S = 55.0
-LOCK_TIMEOUT_S = 1800.0  # first_call_lock: the longest cold build measured is MCVAA at n = 8 (~500 s)
+LOCK_TIMEOUT_S = cache_lock.LOCK_TIMEOUT_S
+
+
+def _forward(message: str) -> bool:
+    """A cache notice (vcirun.codegen.cache_store.say) to the callbacks; False if there are none."""
+    for cb in list(COMPILE_CALLBACKS):
+        cb(message)
+    return bool(COMPILE_CALLBACKS)
+
+
+cache_store.LISTENERS.append(_forward)
 
 
 def cache_root() -> Path:
-    from .build import cache_dir
-
-    return cache_dir().parent
-
-
-def family(ks) -> str:
-    """Short name of a kernel set: CVA[SVC], VCI[SVC], MCVA[SVA,s=4], CVA[SVC x5] ..."""
-    if ks.modified is not None:
-        return f"MCVA[{ks.modified[0]},s={ks.modified[1]}]"
-    if ks.reset is None:
-        return "system"  # the system-only kernels (reference, dense output, verify)
-    names = [s for s, _ in ks.full_stages]
-    if len(names) == 1:
-        stages = names[0]
-    elif len(set(names)) == 1:
-        stages = f"{names[0]} x{len(names)}"
-    else:
-        stages = ",".join(dict.fromkeys(names))
-    return f"{ks.reset.upper()}[{stages}]"
+    """The cache directory (CacheError for an empty VCIRUN_CACHE_DIR)."""
+    return cache_store.root()
 
 
 def _times() -> dict:
-    try:
-        return json.loads((cache_root() / _TIMES_FILE).read_text())
-    except (OSError, ValueError):
-        return {}
+    return cache_store.build_times()
+
+
+def core_estimate_s(core_key: str) -> float:
+    """Seconds numba takes to compile a shared core: this cache's record of it, else a first estimate."""
+    return float(_times().get(f"core|{core_key}", _DEFAULT_CORE_S))
 
 
 def estimate_compile_s(ks, n: int) -> float:
@@ -71,10 +69,10 @@ def estimate_compile_s(ks, n: int) -> float:
 
     times, kind = _times(), (ks.reset or "system").upper()
     if build.build_mode() != "shared":
-        return _by_family(times, family(ks), n, _DEFAULT_S.get(kind, 15.0))
+        return _by_family(times, build.family(ks), n, _DEFAULT_S.get(kind, 15.0))
     key = build.core_key_of(ks, n)
-    core = 0.0 if build.core_compiled(key) else float(times.get(f"core|{key}", _DEFAULT_CORE_S))
-    return _by_family(times, "scene|" + family(ks), n, _DEFAULT_SCENE_S.get(kind, 3.5)) + core
+    core = 0.0 if build.core_compiled(key) else core_estimate_s(key)
+    return _by_family(times, "scene|" + build.family(ks), n, _DEFAULT_SCENE_S.get(kind, 3.5)) + core
 
 
 def _by_family(times: dict, fam: str, n: int, first: float) -> float:
@@ -82,7 +80,8 @@ def _by_family(times: dict, fam: str, n: int, first: float) -> float:
     (a 2-DOF figure) scaled."""
     if f"{fam}|{n}" in times:
         return float(times[f"{fam}|{n}"])
-    same = [(int(k.rsplit("|", 1)[1]), float(v)) for k, v in times.items() if k.rsplit("|", 1)[0] == fam]
+    same = [(int(k.rsplit("|", 1)[1]), float(v)) for k, v in times.items()
+            if k.rsplit("|", 1)[0] == fam and k.rsplit("|", 1)[1].isdigit()]
     m, v = max(same) if same else (2, first)
     return v * max(1.0, n / m)
 
@@ -93,13 +92,16 @@ def announce_if_cold(system, ks) -> bool:
     from . import build
 
     key = build.module_key(system, ks)
-    if key in build._loaded:   # (no file access on the path of every later call)
-        return False
+    if key in build._loaded or key in build.SET_ASIDE:   # (no file access on the path of every later call;
+        return False                                     # a module set aside was said when it was)
     if (build.cache_dir() / f"vk_{key}.py").exists():
         if build.build_mode() != "shared" or build.core_compiled(build.core_key_of(ks, system.n)):
             return False
-    msg = (f"compiling kernels for {system.name}/{family(ks)} (first time, about "
+    msg = (f"compiling kernels for {system.name}/{build.family(ks)} (first time, about "
            f"{estimate_compile_s(ks, system.n):.0f} s; cached in {cache_root()})")
+    build.ANNOUNCED.add(key)
+    if build.build_mode() == "shared":
+        build.ANNOUNCED.add(build.core_key_of(ks, system.n))
     _log.info(msg)
     for cb in list(COMPILE_CALLBACKS):
         cb(msg)
@@ -119,16 +121,13 @@ def note_first_call(mod, ks, seconds: float) -> None:
         times = _times()
         if "link_s" in entry:   # shared build: the scene's kernels, and the core's first compile apart
             if not entry["cached"]:
-                times[f"scene|{family(ks)}|{int(mod.NDOF)}"] = round(float(entry["generate_s"]) + float(entry["link_s"]), 2)
+                times[f"scene|{build.family(ks)}|{int(mod.NDOF)}"] = round(float(entry["generate_s"]) + float(entry["link_s"]), 2)
             if entry.get("core_cold"):
                 times[f"core|{entry['core_key']}"] = round(float(seconds), 2)
         else:
-            times[f"{family(ks)}|{int(mod.NDOF)}"] = round(float(entry["generate_s"]) + float(seconds), 2)
-        path = cache_root() / _TIMES_FILE
-        tmp = path.with_suffix(f".tmp{os.getpid()}")
-        tmp.write_text(json.dumps(times, sort_keys=True))
-        os.replace(tmp, path)
-    except (OSError, TypeError, ValueError, AttributeError):
+            times[f"{build.family(ks)}|{int(mod.NDOF)}"] = round(float(entry["generate_s"]) + float(seconds), 2)
+        cache_store.write_atomic(cache_root() / _TIMES_FILE, json.dumps(times, sort_keys=True), what=_TIMES_FILE)
+    except (OSError, TypeError, ValueError, AttributeError):   # (CacheError is a ValueError): advisory
         pass
 
 
@@ -137,37 +136,23 @@ def first_call_lock(mod, timeout_s: float = LOCK_TIMEOUT_S):
     """Held around numba's first call of a module's loop, across processes: the sweep workers (or
     test workers) that start on the same cold module wait for the one compiling it and then load its
     machine code from numba's cache, instead of each compiling the same code at once (2 workers, 2
-    compiles of 30-100 s each). An advisory lock on `kernels/vk_<key>.lock` (released by the kernel
-    when its holder dies); past `timeout_s` of waiting, or where locks are unavailable, the call goes
-    ahead unlocked (only time is lost then, never a result)."""
+    compiles of 30-100 s each). The lock `kernels/vk_<key>.lock` names its holder, is taken over when
+    the holder no longer runs and is reported when the holder is stopped or hung
+    (vcirun.codegen.cache_lock); past `timeout_s` of waiting, or where locks are unavailable, the call
+    goes ahead unlocked (only time is lost then, never a result)."""
     from . import build
 
     # a shared-build module's loop is its kernel set's core (vcirun.codegen.shared): lock on that
     key = getattr(mod, "LOCK_KEY", None) or mod.__name__.rsplit("_", 1)[-1]
-    fd = None
     try:
-        import fcntl
-
-        fd = os.open(build.cache_dir() / f"vk_{key}.lock", os.O_RDWR | os.O_CREAT, 0o644)
-        deadline = time.monotonic() + timeout_s
-        while True:
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                break
-            except BlockingIOError:
-                if time.monotonic() > deadline:
-                    break
-                time.sleep(0.05)
-    except (ImportError, OSError):
-        pass
-    try:
+        path = build.cache_dir() / f"vk_{key}.lock"
+    except cache_store.CacheError:
+        path = None
+    if path is None:
         yield
-    finally:
-        if fd is not None:
-            try:
-                os.close(fd)  # closing releases the lock
-            except OSError:
-                pass
+        return
+    with cache_lock.held(path, getattr(mod, "CACHE_LABEL", None) or f"module {key}", timeout_s=timeout_s):
+        yield
 
 
 @dataclass
@@ -178,35 +163,101 @@ class CacheInfo:
     files: int
     bytes: int
     cores: int = 0        # shared cores (core_*.py, vcirun.codegen.shared)
+    shared_objects: int = 0   # C kernels (vkc_*.so)
+    numba_files: int = 0      # numba's compiled code (kernels/__pycache__/)
+    quarantined: int = 0      # files set aside by a failed check (quarantine/)
 
 
-def _walk(root: Path):
-    return [p for p in root.rglob("*") if p.is_file()] if root.is_dir() else []
+def _walk(root: Path) -> list:
+    """Every file below root (symbolic links as files, never followed)."""
+    out = []
+    for dirpath, dirnames, filenames in os.walk(root, onerror=None, followlinks=False):
+        out += [Path(dirpath) / f for f in filenames]
+        out += [Path(dirpath) / d for d in dirnames if (Path(dirpath) / d).is_symlink()]
+    return out
 
 
 def _size(p: Path) -> int:
     try:
-        return p.stat().st_size
+        return p.lstat().st_size
     except OSError:  # a temporary file another process just renamed
         return 0
 
 
+def _check_root(root: Path) -> None:
+    if root.exists() and not root.is_dir():
+        raise cache_store.CacheError(f"kernel cache {root} is a file, not a directory: remove or rename it, or set "
+                                     f"{cache_store.ENV} to a directory")
+
+
 def info() -> CacheInfo:
+    """What the cache holds (nothing is created)."""
     root = cache_root()
-    files = _walk(root)
+    _check_root(root)
+    files = _walk(root) if root.is_dir() else []
     k = root / "kernels"
-    return CacheInfo(root, len(list(k.glob("vk_*.py"))) if k.is_dir() else 0,
-                     len(list(k.glob("wi_*.json"))) if k.is_dir() else 0, len(files),
-                     sum(_size(p) for p in files), len(list(k.glob("core_*.py"))) if k.is_dir() else 0)
+    top = [p for p in files if p.parent == k]
+    return CacheInfo(root, sum(p.name.startswith("vk_") and p.suffix == ".py" for p in top),
+                     sum(p.name.startswith("wi_") and p.suffix == ".json" for p in top), len(files),
+                     sum(_size(p) for p in files), sum(p.name.startswith("core_") and p.suffix == ".py" for p in top),
+                     sum(p.name.startswith("vkc_") and p.suffix == ".so" for p in top),
+                     sum(p.parent == k / "__pycache__" for p in files),
+                     sum(p.parent == root / cache_store.QUARANTINE for p in files))
 
 
-def clear() -> CacheInfo:
-    """Remove every cached kernel (the next run of each system compiles again); returns what was removed.
-    Modules already loaded by running processes are unaffected."""
+@dataclass
+class ClearResult:
+    before: CacheInfo
+    removed_files: int = 0
+    removed_bytes: int = 0
+    failed: list = field(default_factory=list)   # [(path, reason)]
+
+    @property
+    def path(self) -> Path:
+        return self.before.path
+
+
+def clear() -> ClearResult:
+    """Remove every cached kernel, numba file, index entry, lock, quarantined file and build time (the
+    next run of each system compiles again). Reports what was removed and what could not be: a file
+    that is still there afterwards is a failure, whatever the file system said. Modules already loaded
+    by running processes are unaffected."""
     before = info()
-    for p in (before.path / "kernels", before.path / _TIMES_FILE):
-        if p.is_dir():
-            shutil.rmtree(p, ignore_errors=True)
-        elif p.exists():
-            p.unlink()
-    return before
+    res = ClearResult(before)
+    root = before.path
+    targets = [root / "kernels", root / cache_store.QUARANTINE, root / _TIMES_FILE]
+    for t in targets:
+        if t.is_symlink() or t.is_file():
+            _remove(t, res)
+        elif t.is_dir():
+            for p in _walk(t):
+                _remove(p, res)
+            for dirpath, dirnames, _ in sorted(os.walk(t, followlinks=False), key=lambda e: -len(e[0])):
+                for d in dirnames:
+                    dp = Path(dirpath) / d
+                    if not dp.is_symlink():
+                        try:
+                            dp.rmdir()
+                        except OSError:
+                            pass
+            try:
+                t.rmdir()
+            except OSError:
+                pass
+    return res
+
+
+def _remove(p: Path, res: ClearResult) -> None:
+    size = _size(p)
+    try:
+        p.unlink()
+    except FileNotFoundError:
+        return
+    except OSError as e:
+        res.failed.append((p, e.strerror or str(e)))
+        return
+    if os.path.lexists(p):
+        res.failed.append((p, "still there after removal"))
+        return
+    res.removed_files += 1
+    res.removed_bytes += size

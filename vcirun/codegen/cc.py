@@ -14,7 +14,8 @@ function, which is what a modified-Hamiltonian kernel at n = 8 is (docs/performa
 
 Kernels of one optimisation level are packed into translation units (a long kernel is one of its
 own), compiled in parallel (one job per core), then linked into one shared object, written
-atomically (parallel sweep workers never load a half-written file).
+atomically (parallel sweep workers never load a half-written file); vcirun.codegen.c_link records its
+digest and checks it before every load.
 """
 from __future__ import annotations
 
@@ -109,31 +110,51 @@ def _run(cmd: list, cwd: str):
         raise CompileError(f"{' '.join(cmd[:3])} ...: {r.stderr.strip()[-2000:]}")
 
 
-def compile_shared(units: list, out: Path, jobs: int | None = None) -> Path:
-    """Compile C translation units [(name, source, opt flag)] into the shared object `out`
-    (atomically replaced). Returns out. Raises CompileError."""
-    import tempfile
+def compile_shared(units: list, out: Path, jobs: int | None = None, check=None) -> Path:
+    """Compile C translation units [(name, source, opt flag)] into the shared object `out`. Returns out.
+    Raises CompileError (or OSError).
+
+    The work happens in a directory `.vkc_build.<pid>.<host>.<random>` beside `out` (removed after; one
+    that a killed process left is removed by vcirun.codegen.cache_store.sweep_stale). File names are
+    relative to it, so the object code does not depend on the directory's name. `check(path)` runs on
+    the linked file before it is fsynced and renamed over `out` (atomically: parallel workers never
+    load a half-written file)."""
+    import shutil
     from concurrent.futures import ThreadPoolExecutor
+
+    from .cache_store import BUILD_DIR_MARK, fsync_dir, owner_tag
 
     cc = compiler()
     if cc is None:
         raise CompileError("no C compiler")
     out = Path(out)
-    with tempfile.TemporaryDirectory(prefix="vkc_", dir=out.parent) as d:
+    d = out.parent / f"{BUILD_DIR_MARK}{owner_tag()}"
+    d.mkdir()
+    try:
         objs = []
         cmds = []
         for i, (name, src, opt) in enumerate(units):
-            c = Path(d) / f"u{i}_{name}.c"
-            c.write_text(src)
-            o = c.with_suffix(".o")
-            objs.append(str(o))
-            cmds.append([cc, opt, *BASE_FLAGS, "-c", "-o", str(o), str(c)])
+            c = f"u{i}_{name}.c"
+            (d / c).write_text(src)
+            o = c[:-2] + ".o"
+            objs.append(o)
+            cmds.append([cc, opt, *BASE_FLAGS, "-c", "-o", o, c])
         jobs = jobs or max(1, min(len(cmds), os.cpu_count() or 1))
         # largest first, so that the long one starts at once
         order = sorted(range(len(cmds)), key=lambda i: -len(units[i][1]))
         with ThreadPoolExecutor(max_workers=jobs) as ex:
-            list(ex.map(lambda i: _run(cmds[i], d), order))
-        tmp = Path(d) / out.name
-        _run([cc, "-shared", "-o", str(tmp), *objs, "-lm"], d)
+            list(ex.map(lambda i: _run(cmds[i], str(d)), order))
+        _run([cc, "-shared", "-o", out.name, *objs, "-lm"], str(d))
+        tmp = d / out.name
+        if check is not None:
+            check(tmp)
+        fd = os.open(tmp, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
         os.replace(tmp, out)
+        fsync_dir(out.parent)
+    finally:
+        shutil.rmtree(d, ignore_errors=True)
     return out

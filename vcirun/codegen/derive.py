@@ -72,6 +72,13 @@ def system_kernels(system, with_dhq: bool = True) -> list[Kernel]:
                      [("out", sp.Matrix([sum((sp.diff(system.M[i, j], qk) * v[k] * v[j] for j in range(n)
                                               for k, qk in _depends(system.M[i, j], q)), sp.Integer(0))
                                          for i in range(n)]))], prm))
+    # the declared reset map (q, qdot) -> (q+, qdot+) (the identity without one)
+    qdv = list(sp.symbols(f"qdr0:{n}"))
+    rmap = system.reset_map or (list(q), list(system.qd))
+    sub = dict(zip(system.qd, qdv))
+    ks.append(Kernel("sys_reset_map", [("q", q), ("qd", qdv)],
+                     [("qo", sp.Matrix(rmap[0])), ("qdo", sp.Matrix([sp.sympify(e).subs(sub) for e in rmap[1]]))],
+                     prm))
     if with_dhq:
         x = list(sp.symbols(f"xm0:{n}"))
         ks.append(Kernel("sys_dHq", [("q", q), ("x", x)], [("out", system.dH_dq_at(x))], prm))
@@ -259,7 +266,7 @@ def _kernels_backend(generated: str, c_dir) -> str:
 
     if cc.backend() != "c":
         return generated
-    from .c_emit import c_kernels
+    from .c_link import c_kernels
 
     return c_kernels(generated, c_dir)
 
@@ -293,6 +300,7 @@ def generated_source(system, ks, kernel_path: str | None = None) -> str:
     from ..core.record import module_constants
 
     parts = [HEADER, f"NDOF = {system.n}", f"FORCED = {bool(system.is_forced)}",
+             f"RESET_MAP = {system.reset_map is not None}", f"RESET_LAW_FIRST = {bool(system.reset_law_first)}",
              system_kernels_source(system, kernel_path), module_constants()]
     names = list(ks.explicit_names)
     if names:

@@ -183,6 +183,12 @@ def sys_dHq(q: vec("NDOF"), x: vec("NDOF"), prm: vec("NPRM"), out: vec("NDOF")) 
 
 
 @kernel("system")
+def sys_reset_map(q: vec("NDOF"), qd: vec("NDOF"), prm: vec("NPRM"), qo: vec("NDOF"), qdo: vec("NDOF")) -> int:
+    """(qo, qdo) = the declared reset map of (q, qd), the state just before an impact (the identity
+    when the system declares none: RESET_MAP false)."""
+
+
+@kernel("system")
 def sys_node(q: vec("NDOF"), prm: vec("NPRM"), c: vec("NODE_LEN")) -> int:
     """c = the node data of q: the tensors a step kernel needs at q (vcirun.codegen.tensor)."""
 
@@ -304,6 +310,10 @@ FULL_STAGES = _constant("FULL_STAGES", "steps", "i8", np.zeros(1, np.int64),
 FULL_FRACS = _constant("FULL_FRACS", "steps", "f8", np.ones(1), "fraction of h of each stage")
 FORCE_A = _constant("FORCE_A", "steps", "f8", np.zeros(1), "discrete-force weight of f^- per stage id")
 FORCE_B = _constant("FORCE_B", "steps", "f8", np.zeros(1), "discrete-force weight of f^+ per stage id")
+RESET_MAP = _constant("RESET_MAP", "system", "bool", False,
+                      "the system declares a reset map (sys_reset_map; vcirun.mechanics.hybrid)")
+RESET_LAW_FIRST = _constant("RESET_LAW_FIRST", "system", "bool", False,
+                            "the impact law acts before the declared map (plastic: true or a restitution)")
 MH_FLOW_S = _constant("MH_FLOW_S", "modified", None, 2,
                       "stages of the Gauss flow (a module-level choice of maps/gauss.py)")
 
@@ -486,7 +496,7 @@ ENTRY = {
     "system": ("hamiltonian", "hamilton_rhs", "dynamics_rhs", "force_power", "gdot", "cva_lambda",
                "mass_matrix_ok", "impact_direction", "gap", "gap_slope", "touching_mask",
                "sys_M", "sys_V", "sys_phi", "sys_dphi", "sys_phis", "sys_dphis", "sys_ddphis", "sys_Mdotv",
-               "sys_restitution", "sys_dHq", "sys_node", "sys_force", "sys_force_jac"),
+               "sys_restitution", "sys_dHq", "sys_node", "sys_force", "sys_force_jac", "sys_reset_map"),
     # a method's module: the loop, the collision-time search, its full map
     "steps": ("integrate", "collision_time", "ld_step", "full"),
     # the MCVA family's module: the modified Hamiltonian and its Gauss flow

@@ -18,7 +18,8 @@ builds*). The shared build splits it in two:
 `link` joins the two into one module object with the names of a specialized module (the contract of
 vcirun.codegen.roles: ENTRY points, constants, kernels), whose core functions install the scene's
 slot table before they run. The table is process-global: calls into the core from several threads
-at once are serialised by a lock.
+at once are serialised by a lock, except inside `exclusive`, which installs one scene's table and
+holds the lock for a block of calls that then run in parallel (vcirun.ensemble's threads).
 
 What the core loses against the specialized build: the kernels are not inlined into the loop (an
 indirect call each), and NDOF is not a compile-time constant (`core_source(ks, ndof=n)` makes it
@@ -26,6 +27,7 @@ one, VCIRUN_CORE_NDOF=fixed); measured in docs/performance.md, *The shared build
 """
 from __future__ import annotations
 
+import contextlib
 import re
 import threading
 import types as pytypes
@@ -281,3 +283,33 @@ def link(name: str, scene_mod, core_mod, ks: KernelSet):
     mod.__dict__["LOCK_KEY"] = "core_" + getattr(core_mod, "CORE_KEY", core_mod.__name__)
     mod.__dict__["SCENE_SLOTS"] = scene
     return mod
+
+
+class _Unlocked:
+    """A linked module's names with its core functions called directly (no lock, no table install):
+    valid only inside `exclusive`, which holds the lock with this scene's table installed."""
+
+    def __init__(self, mod):
+        self._mod = mod
+
+    def __getattr__(self, name):
+        v = getattr(self._mod, name)
+        v = v._fn if isinstance(v, _Entry) else v
+        self.__dict__[name] = v
+        return v
+
+
+@contextlib.contextmanager
+def exclusive(mod):
+    """The module's functions for calls from several threads at once: a linked module's scene table
+    is installed once and the lock held for the block, so the calls inside run in parallel (each
+    core function releases the GIL) instead of taking the lock one call at a time. Calls into
+    another scene's module from other threads wait for the block to end. A specialized module
+    (no slot table) is yielded as it is."""
+    scene = getattr(mod, "SCENE_SLOTS", None)
+    if scene is None:
+        yield mod
+        return
+    with _LOCK:
+        scene.install()
+        yield _Unlocked(mod)

@@ -15,8 +15,9 @@ from vcirun.codegen.roles import (
     O_CONTACT_ACTIVE, O_CONTACT_FORCE, O_RELEASES, O_RELEASE_CONTACT, I_STATUS, I_FAIL_STEP, I_N_IMPACTS,
     I_N_PARTIAL, I_STEPS, I_N_RELEASES, S_CONSTRAINED, S_NEWTON_TOL, S_MAX_ITER, S_EVENT_TOL, S_MAX_IMPACTS_STEP,
     S_ENERGIES, S_RESTING_CONTACT, ST_OK, ST_NEWTON_FAILED, ST_EVENT_FAILED, ST_RESET_FAILED, ST_ACCUMULATION,
-    ST_NONFINITE, sys_phi, sys_phis, sys_restitution, full, reset, modified_energy
+    ST_NONFINITE, RESET_MAP, RESET_LAW_FIRST, sys_phi, sys_phis, sys_restitution, full, reset, modified_energy
 )
+from vcirun.collision.declared import declared_reset
 from vcirun.collision.events import search_collision, step_admissible
 from vcirun.collision.impact import impact_direction, normal_velocities, touch_tolerance
 from vcirun.maps.dynamics import hamiltonian, force_power, velocity_guess
@@ -247,6 +248,8 @@ def _impact_step(q, p, h, tau_max, t, have_end, prm, ntol, maxit, event_tol, max
     d = work[3]
     lam = scratch(NCON)
     active = scratch_i(NCON)
+    qn = scratch(NDOF)      # q+ and p+ of a declared reset map
+    pmap = scratch(NDOF)
     copy_into(qh, q)
     copy_into(ph, p)
     tc = t
@@ -265,7 +268,21 @@ def _impact_step(q, p, h, tau_max, t, have_end, prm, ntol, maxit, event_tol, max
             # the impact law (which contacts, Newton's multiplier, the energy it removes), then the
             # method's reset along its direction
             k, s0, dE = impact_direction(qt, pt, h, event_tol, prm, d, lam, active)
-            if k <= 0:
+            mapped = RESET_MAP and nheld == 0 and k > 0
+            if mapped:
+                # a declared reset map (vcirun.mechanics.hybrid): the method's reset at q+, from the
+                # map's p+ and along it, with the energy the map removes (R^CVA: the map itself;
+                # docs/derivations/declared_resets.md)
+                dEm = declared_reset(qt, pt, d, s0, prm, qn, pmap)
+                Hm = modified_energy(qt, pt, h, prm)
+                if Hm == Hm:  # (a modified energy: R^MCVA's target is the pre-impact H~ less dEm)
+                    dEm += modified_energy(qn, pmap, h, prm) - Hm
+                itr, s = reset(qn, pmap, pmap, 0.0, dEm, Epre, vt, dtau, tau_rem, h, tc + dtau, prm, ntol, maxit, pp)
+                iters += abs(itr)
+                if itr < 0:
+                    return ST_RESET_FAILED, iters, nheld
+                s = s0 if RESET_LAW_FIRST else 0.0   # the record's impulse: the impact law's
+            elif k <= 0:
                 if not resting:
                     return ST_RESET_FAILED, iters, nheld  # no approaching contact (grazing), or no LCP solution
                 k, s0 = _grazing_hold(qt, pt, tc + dtau, h, event_tol, prm, held, active, lam)
@@ -291,11 +308,11 @@ def _impact_step(q, p, h, tau_max, t, have_end, prm, ntol, maxit, event_tol, max
                 return ST_ACCUMULATION, iters, nheld
             if info[I_N_IMPACTS] + k > out[O_IMPACTS].shape[0]:
                 return ST_ACCUMULATION, iters, nheld  # (the record is full: the caller reruns with room)
-            if resting and (accumulating or nheld > 0 or _inelastic(prm, active)):
+            if resting and not mapped and (accumulating or nheld > 0 or _inelastic(prm, active)):
                 # (_settle holds or releases nothing otherwise: skipped, the same result)
                 nheld = _settle(qt, pp, tc + dtau, h, prm, held, active, lam, s, s0, accumulating, out, info)
             _record_impacts(out, info, tc + dtau, qt, pt, pp, s, s0, lam, active)
-            copy_into(qh, qt)
+            copy_into(qh, qn if mapped else qt)
             copy_into(ph, pp)
             tau_max = tau_rem
             tc += dtau

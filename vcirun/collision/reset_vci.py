@@ -7,7 +7,7 @@ from numba import njit
 
 from vcirun.codegen.frame import scratch, scratch2
 from vcirun.codegen.roles import (
-    NDOF, NODE_LEN, FORCED, VCI_STAGE, FORCE_A, FORCE_B, sys_node, sys_force, sys_force_jac, ld_PmJc, ld_Ed, ld_Edv
+    NDOF, NODE_LEN, FORCED, VCI_STAGE, FORCE_A, FORCE_B, sys_node, sys_force, sys_force_jac, ld_PmJc, ld_Ed, ld_Edv, RESET_MAP
 )
 from vcirun.maps.dynamics import velocity_guess, force_power
 from vcirun.maps.linalg import solve_small
@@ -27,12 +27,23 @@ def reset_vci(q, pm, d, s0, dE, E_pre, vpre, dtau, tau_rem, h, t, prm, ntol, max
     work of the force over the half of each partial step next to the impact, W^+ = b dtau f(q, vpre,
     t) . vpre and W^-(w) = a tau_rem f(q, w, t) . w with the Ld's discrete-force weights (a, b).
     Restitution (docs/derivations/contacts.md): the discrete energy loses what Newton's law removes from H, dE
-    (0 for elastic impacts). Unforced and elastic: the paper's eq. (33)."""
-    if s0 == 0.0 or not math.isfinite(s0):
+    (0 for elastic impacts). Unforced and elastic: the paper's eq. (33). s0 = 0: a declared reset
+    map, whose p+ is pm (and d) at the post-impact q; the root near 0 is wanted."""
+    if not math.isfinite(s0):
         return -1, s0
     E_target = E_pre - dE
     if FORCED:
         E_target += FORCE_B[VCI_STAGE] * dtau * force_power(q, vpre, t, prm)
+    if RESET_MAP and s0 == 0.0:
+        # a declared reset map (collision/declared.py): pm is the map's p+ at the post-impact q and d
+        # = pm; the root near lam = 0 (pp = (1 + lam) p+, lam = O(h^2)) balances the discrete energy
+        # with the energy the map removes (docs/derivations/declared_resets.md)
+        it, lam = _vci_newton(q, pm, E_target, tau_rem, t, prm, ntol, maxit, d, 0.0, pp)
+        if it < 0:
+            return it, lam
+        for i in range(NDOF):
+            pp[i] = pm[i] + lam * d[i]
+        return it, lam
     # Newton from the impact law's multiplier; near the fold (tiny normal velocity) it can fall onto
     # the non-reflecting root, so retry from larger multipliers before giving up
     total = 0

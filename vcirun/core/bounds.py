@@ -79,15 +79,8 @@ def check_simulate_args(*, h, T, t0=0.0, beta=None, q0=None, p0=None, params=Non
     t0 = check_number("t0", t0)
     if not math.isfinite(t0 + float(T)) or t0 + h == t0:
         raise ValueError(f"t0: h = {h:g} is below the resolution of times near t0 = {t0:g}; use a smaller |t0|")
-    check_one_start(beta, q0, p0)
     check_bool("resting_contact", resting_contact)
-    if beta is not None:
-        check_number("beta", beta)
-    if q0 is not None:
-        check_state_vector("q0", q0)
-    if p0 is not None:
-        check_state_vector("p0", p0)
-    check_params(params)
+    check_start_args(beta, q0, p0, params)
     check_bool("constrained", constrained, allow_none=True)
     check_bool("energies", energies)
     check_tolerances(tolerances)
@@ -101,7 +94,7 @@ def check_reference_args(*, T, rtol=1e-13, method="exact", h=None, beta=None, q0
                          params=None, system=None, resting_contact=True, check_accuracy=True) -> None:
     """Validate `vcirun.reference`'s arguments (the config layer's bounds on reference.rtol, T, h)."""
     check_number("T", T, gt=0)
-    check_one_start(beta, q0, p0)
+    check_start_args(beta, q0, p0, params)
     check_bool("resting_contact", resting_contact)
     check_bool("check_accuracy", check_accuracy)
     check_scene_size(system)
@@ -111,13 +104,6 @@ def check_reference_args(*, T, rtol=1e-13, method="exact", h=None, beta=None, q0
         check_number("rtol", rtol, ge=2.3e-14, lt=1e-3)
     elif h is not None:
         grid_steps(h, T)
-    if beta is not None:
-        check_number("beta", beta)
-    if q0 is not None:
-        check_state_vector("q0", q0)
-    if p0 is not None:
-        check_state_vector("p0", p0)
-    check_params(params)
 
 
 def nonfinite_start(H0, Ed0=0.0, Hmod0=0.0, q0=None, p0=None) -> str:
@@ -132,3 +118,15 @@ def nonfinite_start(H0, Ed0=0.0, Hmod0=0.0, q0=None, p0=None) -> str:
     what = ", ".join(f"{k}(0) = {v}" for k, v in bad)
     return (f"non-finite initial energy: {what}; the initial state{scale} overflows the energy in floating "
             "point, so no energy or trajectory error can be measured")
+
+
+def check_start_args(beta=None, q0=None, p0=None, params=None) -> None:
+    """The per-run arguments: one start (beta, or q0 and p0), each finite, and the parameters."""
+    check_one_start(beta, q0, p0)
+    if beta is not None:
+        check_number("beta", beta)
+    if q0 is not None:
+        check_state_vector("q0", q0)
+    if p0 is not None:
+        check_state_vector("p0", p0)
+    check_params(params)

@@ -7,7 +7,8 @@ over (method, h, <ic>) (`.sel(method="MCVAA", h=0.01)` selects on the method dim
 vcirun/io/xr.py): l2_error, wall_time, wall_time_call, n_steps, n_impacts, n_partial_steps,
 newton_iters_total, H0, max_abs_dH, H_range, Ed_range, Hmod_range, fail_step, fail_time, t_end (the
 grid's end N h), and the strings status, message, l2_note, run_id. Per initial condition: q0, p0
-(over `coordinate`, named from the system), reference_accuracy, reference_n_impacts.
+(over `coordinate`, named from the system), reference_accuracy, reference_n_impacts, reference_status,
+reference_path.
 
 A run that is not in the file (an interrupted sweep) has status "missing" and NaN numbers; integer
 counts are int64 when every run is present, else float64 with NaN (a -1 placeholder would average
@@ -86,10 +87,16 @@ def reference_note(results) -> str:
     spec = (a.get("config_canonical") or {}).get("reference") or {"kind": a.get("reference_kind", "?")}
     kind = spec.get("kind")
     if kind == "exact":
-        acc = [float(r.get("accuracy")) for r in results.references.values()
+        refs = list(results.references.values())
+        acc = [float(r.get("accuracy")) for r in refs
                if r.get("accuracy") is not None and np.isfinite(r.get("accuracy"))]
-        txt = f"reference: exact nonsmooth solution (DOP853, event location, rtol {spec.get('rtol', 1e-13):g})"
-        return txt + (f", self-reported accuracy <= {max(acc):.1e}" if acc else "")
+        paths = sorted({str(r.get("path")) for r in refs if r.get("path")})
+        how = {"taylor": "Taylor (heyoka) with root isolation", "dop853": f"DOP853 at rtol {spec.get('rtol', 1e-13):g}"}
+        txt = ("reference: exact nonsmooth solution (" + (", ".join(how.get(p, p) for p in paths) if paths else
+               f"rtol {spec.get('rtol', 1e-13):g}") + ")")
+        failed = sum(1 for r in refs if r.get("status") == "failed")
+        return (txt + (f", self-reported accuracy <= {max(acc):.1e}" if acc else "")
+                + (f", {failed} failed (their runs' L2 errors are NaN)" if failed else ""))
     if kind == "method":
         return f"reference: {spec.get('method', 'CVA')} at h = {fmt_h(float(spec.get('h')))}"
     return "no reference"
@@ -168,6 +175,14 @@ def collect(results) -> Table:
                 nimp[ii[k]] = np.nan if m is None else float(m)
         variables["reference_accuracy"] = ((ic_dim,), acc, {"long_name": "self-reported accuracy of the reference"})
         variables["reference_n_impacts"] = ((ic_dim,), nimp, {})
+        status, path = np.full(len(ic_keys), "", dtype=object), np.full(len(ic_keys), "", dtype=object)
+        for k, ra in res.references.items():
+            if k in ii:
+                status[ii[k]] = str(ra.get("status", ""))
+                path[ii[k]] = str(ra.get("path", ""))
+        variables["reference_status"] = ((ic_dim,), status, {"long_name": "ok, or failed (the runs' L2 errors NaN)"})
+        variables["reference_path"] = ((ic_dim,), path, {"long_name": "the exact reference's integrator: taylor "
+                                                                      "or dop853 (empty for a method reference)"})
 
     dims = {"method": np.array(labels, dtype=object), "h": np.array(hs, float), ic_dim: ic_vals}
     if n:

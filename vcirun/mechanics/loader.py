@@ -28,11 +28,12 @@ from ..core.names import MAX_COORDINATES, MAX_PARAMETERS, ascii_name_problem, ch
 from ..core.values import describe
 from ..core.yaml_loader import yaml_load
 from .expressions import ALLOWED_FUNCTIONS, ExpressionError, parse_expression, parse_matrix
+from .hybrid import HYBRID_KEYS, check_constraint_hybrid, parse_hybrid
 from .system import Constraint, MechanicalSystem
 
 _KEYS = {"name", "coordinates", "parameters", "mass_matrix", "potential", "constraint", "constraints", "forcing",
          "q0", "p0", "qdot0", "description"}
-_CONSTRAINT_KEYS = {"name", "phi", "restitution"}
+_CONSTRAINT_KEYS = {"name", "phi", "restitution", *HYBRID_KEYS}
 
 
 def load_system_yaml(source, field_prefix: str = "system") -> MechanicalSystem:
@@ -58,7 +59,7 @@ def load_system_yaml(source, field_prefix: str = "system") -> MechanicalSystem:
     sym = {s.name: s for s in q + [sp.Symbol(p) for p in params]}
     M = parse_matrix(data["mass_matrix"], sym, f"{field_prefix}.mass_matrix")
     V = parse_expression(_expression(data["potential"], f"{field_prefix}.potential"), sym, f"{field_prefix}.potential")
-    constraints = _constraints(data, sym, params, field_prefix)
+    constraints = _constraints(data, sym, params, field_prefix, qd)
     forcing = None
     if data.get("forcing") is not None:
         fs = data["forcing"]
@@ -85,12 +86,14 @@ def load_system_yaml(source, field_prefix: str = "system") -> MechanicalSystem:
             p0 = system.mass_matrix(q0) @ qdot0
         system.default_q0, system.default_p0 = q0, p0
         system.check_hyperregular(q0)
+        check_constraint_hybrid(system)  # (again: its samples around the declared state)
     return system
 
 
-def _constraints(data: dict, sym: dict, params: dict, field_prefix: str) -> list:
+def _constraints(data: dict, sym: dict, params: dict, field_prefix: str, qd: list) -> list:
     """The Constraint list of `constraint:` (one elastic) or `constraints:` (items: an expression, or
-    {name, phi, restitution}; restitution a number in [0, 1] or a parameter name)."""
+    {name, phi, restitution, reset, plastic, when}; restitution a number in [0, 1] or a parameter name;
+    reset, plastic, when: vcirun.mechanics.hybrid)."""
     if "constraint" in data:
         fld = f"{field_prefix}.constraint"
         return [Constraint("phi", parse_expression(_expression(data["constraint"], fld), sym, fld))]
@@ -106,7 +109,8 @@ def _constraints(data: dict, sym: dict, params: dict, field_prefix: str) -> list
         if isinstance(item, dict):
             extra = set(item) - _CONSTRAINT_KEYS
             if extra:
-                raise ValueError(f"{fld}.{sorted(map(str, extra))[0]}: unknown key (allowed: name, phi, restitution)")
+                raise ValueError(f"{fld}.{sorted(map(str, extra))[0]}: unknown key (allowed: "
+                                 f"{', '.join(sorted(_CONSTRAINT_KEYS))})")
             if "phi" not in item:
                 raise ValueError(f"{fld}.phi: required")
             name = item.get("name", f"c{i}")
@@ -122,9 +126,11 @@ def _constraints(data: dict, sym: dict, params: dict, field_prefix: str) -> list
                 raise ValueError(f"{fld}.restitution: must be a number in [0, 1] or a parameter name (got {e!r})")
             else:
                 e = sp.Float(float(e)) if float(e) != 1.0 else sp.Integer(1)
+            hyb = parse_hybrid(item, len(qd), sym, {s.name: s for s in qd}, fld)
         else:
             name, phi, e = f"c{i}", parse_expression(_expression(item, fld), sym, fld), sp.Integer(1)
-        out.append(Constraint(name, phi, e))
+            hyb = {}
+        out.append(Constraint(name, phi, e, **hyb))
     check_distinct_names(names, field_prefix)  # (they name contacts in records)
     return out
 

@@ -1,5 +1,5 @@
 """Symbolic mechanical systems L = 1/2 qdot^T M(q) qdot - V(q) with unilateral constraints phi_i(q) >= 0,
-each with a restitution coefficient (issue 17; one elastic constraint is the paper's case).
+each with a restitution coefficient (one elastic constraint is the paper's case).
 
 A `MechanicalSystem` is pure data plus derived sympy objects; it never computes numbers itself:
 the only bridge to numbers is `vcirun.codegen`. Parameters stay symbols so that a parameter change
@@ -14,6 +14,7 @@ import numpy as np
 import sympy as sp
 
 from ..core.system_data import check_mass_matrix, param_vector, requested_start
+from .hybrid import check_constraint_hybrid, guarded, law_first, reset_map_exprs
 
 
 @dataclass(eq=False)
@@ -25,6 +26,13 @@ class Constraint:
     name: str
     phi: sp.Expr
     restitution: sp.Expr = sp.Integer(1)
+    # declared resets and guards (vcirun.mechanics.hybrid): the arming function w(q) of `when` (armed
+    # where w > 0), the map (q+, qdot+) of `reset` in the pre-impact (q, qdot), plastic: restitution 0
+    when: sp.Expr | None = None
+    reset_q: tuple | None = None
+    reset_qd: tuple | None = None
+    plastic: bool = False
+    surface: sp.Expr | None = None   # phi without its guard (set by the system)
 
 
 @dataclass(eq=False)
@@ -89,8 +97,14 @@ class MechanicalSystem:
         for i, c in enumerate(self.constraints):
             if not isinstance(c, Constraint):
                 raise ValueError(f"system {self.name}: constraints[{i}] must be a Constraint")
-            c = Constraint(str(c.name), sp.sympify(c.phi), sp.sympify(c.restitution))
-            if not (c.phi.free_symbols & set(self.q)):
+            raw = sp.sympify(c.surface if c.surface is not None else c.phi)
+            when = None if c.when is None else sp.sympify(c.when)
+            e0 = sp.Integer(0) if c.plastic else sp.sympify(c.restitution)
+            c = Constraint(str(c.name), guarded(raw, when), e0, when,
+                           None if c.reset_q is None else tuple(sp.sympify(x) for x in c.reset_q),
+                           None if c.reset_qd is None else tuple(sp.sympify(x) for x in c.reset_qd),
+                           bool(c.plastic), raw)
+            if not (c.surface.free_symbols & set(self.q)):
                 # phi constant in q: either no configuration is admissible or the constraint never acts
                 raise ValueError(f"system {self.name}: constraint {c.name}: phi = {c.phi} does not depend on the "
                                  f"coordinates ({', '.join(s.name for s in self.q)}); give phi(q) as a function of them")
@@ -108,6 +122,17 @@ class MechanicalSystem:
             raise ValueError(f"system {self.name}: constraint names must be distinct (got {names})")
         self.constraints = cons
         self.phi = cons[0].phi if len(cons) == 1 else sp.Min(*[c.phi for c in cons])
+        check_constraint_hybrid(self)
+
+    @property
+    def reset_map(self) -> tuple | None:
+        """(q+, qdot+) of the declared reset map in the pre-impact (q, qdot), None without one."""
+        return reset_map_exprs(self)
+
+    @property
+    def reset_law_first(self) -> bool:
+        """The impact law (plastic: restitution 0, or a restitution) acts before the declared map."""
+        return law_first(self)
 
     def _check_declaration(self) -> None:
         """Name the cause when a declaration holds what the code generator cannot take: sympy
@@ -211,11 +236,12 @@ class MechanicalSystem:
         if getattr(self, "_fp", None):
             return self._fp
         cons = [(c.name, sp.srepr(c.phi), sp.srepr(c.restitution)) for c in self.constraints]
-        # (one elastic constraint named "phi": the same text as before issue 17, so caches stay valid)
+        # one elastic constraint named "phi" fingerprints as the single-phi case (its cache keys unchanged)
         phi = sp.srepr(self.phi) if cons == [("phi", sp.srepr(self.phi), sp.srepr(sp.Integer(1)))] else cons
         text = repr((self.name, [str(s) for s in self.q], list(self.params), sp.srepr(self.M),
                      sp.srepr(self.V), phi,
-                     sp.srepr(self.forcing) if self.forcing is not None else None))
+                     sp.srepr(self.forcing) if self.forcing is not None else None)
+                    + ((sp.srepr(self.reset_map), self.reset_law_first) if self.reset_map is not None else ()))
         self._fp = hashlib.sha256(text.encode()).hexdigest()[:16]
         return self._fp
 

@@ -1,6 +1,8 @@
 """The exact nonsmooth solution a run is measured against: `reference(system, T=..., ...)` and
-`l2_error(trajectory, reference)`. `exact` integrates the flights and applies the impact law at each
-event; `held` integrates the phases in which contacts rest (index-reduced dynamics) and their releases.
+`l2_error(trajectory, reference)`. `exact` is the entry point and the accuracy check; `loop` resolves
+the events (impact law, holds, accumulation, releases) between the segments of an integration path:
+`taylor` (heyoka, every root of every phi_i isolated in each step) or `dop853` (for systems the Taylor
+path cannot express); `held` is the geometry of held contacts, `flight` what a segment returns.
 """
 from .exact import Reference, l2_error, reference
 

@@ -1,22 +1,33 @@
 """The continuous nonsmooth solution to high accuracy, for error measurement.
 
 Exact reference: Hamilton's equations with the generalized force, qdot = M^-1 p,
-pdot = -dH/dq + f(q, qdot, t), integrated by DOP853 (scipy) with event location on phi(q) = 0
-(direction: entering the constraint) and the exact elastic reset p+ = p- + lam grad phi,
-lam = -2 g^T M^-1 p- / g^T M^-1 g (H conserved: an impulse, bounded forces do no work in zero
-time), restarted after each impact; dense output on any grid. Its accuracy is self-reported as the
-largest difference (trajectory and impact times) from a second solve at a 10x tighter tolerance (at
-least scipy's floor of ~2.2e-14). A forced system also carries the work W(t) = int_0^t f . qdot as
-an extra state, and `energy_balance` = max |H(t) - H(0) - W(t)| on a dense grid: a check of the
-solve that does not rest on a second solve of the same equations.
+pdot = -dH/dq + f(q, qdot, t), one event per contact (phi_i(q) = 0, entering), the impact law of the
+integrators at each event (Newton's law per contact, Moreau's LCP for simultaneous contacts:
+collision/impact.py), restarted after each impact; dense output on any grid. The event loop
+(vcirun.reference.loop) is shared by two integration paths:
 
-Held contacts (issue 18, resting_contact=True): a contact that starts at rest on its surface, is
-left at rest by a plastic impact, or whose impacts accumulate (Zeno time extrapolated from its
-flights) is held on the index-reduced constrained dynamics (vcirun/reference/held.py) and released
-where its contact force turns tensile; docs/contacts.md section 6.
+- Taylor (ref.kind "taylor", vcirun.reference.taylor): heyoka at machine precision; every root of
+  every phi_i inside a step is isolated from its Taylor polynomial, so no event is stepped over;
+- DOP853 (ref.kind "dop853", vcirun.reference.dop853) for a system the Taylor path cannot express
+  (ref.kind_reason says why): per-contact sign and minimum checks on the dense output of every step,
+  steps bounded by the flight's own scales, at rtol.
+
+ref.accuracy is the largest difference (q on a 2001-point grid, impact and release times) from a check
+solve: Taylor at a looser tolerance (another order and step sequence: an upper estimate), DOP853 at a
+10x tighter rtol (at least scipy's floor of ~2.2e-14). A check that sees another event sequence whose
+trajectory q differs by more than SUB_RESOLUTION (relative) is refined (DOP853: tighter, denser,
+shorter steps; Taylor: a second check tolerance) and, if it still differs, is an error: a returned
+reference has a finite accuracy. A forced system also carries the work
+W(t) = int_0^t f . qdot as an extra state, and `energy_balance` = max |H(t) - H(0) - W(t)| on a dense
+grid: a check of the solve that does not rest on a second solve of the same equations.
+
+Held contacts (resting_contact=True): a contact that starts at rest on its surface, is left at rest by
+a plastic impact, or whose impacts accumulate (the Zeno time extrapolated from its flights; several
+contacts accumulating together are held together) is held on the index-reduced constrained dynamics
+(vcirun/reference/held.py) and released where its contact force turns tensile; docs/derivations/contacts.md 6.
 
 Also: a fine-step method reference (the paper's choice: CVA at a small h). Closed forms (the
-oscillator against a wall, the bouncing ball) are in vcirun.scenes.oracles.
+oscillator against a wall, the bouncing ball, the ball in a box ...) are in vcirun.scenes.oracles.
 """
 from __future__ import annotations
 
@@ -25,6 +36,20 @@ import numpy as np
 from ..codegen.build import load_module
 from ..codegen.kernel_set import SYSTEM_KERNELS
 from ..core.system_data import start_tolerance
+from .dop853 import Dop853Backend
+from .flight import Budget, Constant, ReferenceCostError
+from .loop import solve
+from .taylor import TOL, NotExpressible, TaylorBackend, TaylorFailure, TaylorPiece, order_of, taylor_model
+
+CHECK_TOLS = (1e-14, 1e-15)   # the Taylor path's check solves (the second when the first sees other events)
+# Two solves whose event sequences part where it hardly shows in q -- a bounce more or less before a
+# Zeno hold, the order of the chatter of several contacts settling together (a rocking block landing:
+# impulses of 1e-5 .. 1e-3 microseconds apart, measured q differences 1e-13 .. 2e-7) -- agree to this,
+# relative: the check accepts them and reports their difference as the accuracy. A missed impact shows
+# as an O(1) difference in q and is refused.
+SUB_RESOLUTION = 1e-6
+RTOL_FLOOR = 2.3e-14          # scipy's DOP853 refuses a tighter rtol
+_EPS = float(np.finfo(float).eps)
 
 
 class Reference:
@@ -33,9 +58,9 @@ class Reference:
     Right-continuous at impacts (the post-impact momentum at t = tau). A time outside [t_start, T]
     raises ValueError (no extrapolation)."""
 
-    def __init__(self, segments, n, impacts, H0, T, accuracy=np.nan, kind="exact", width=None, impact_contact=None,
+    def __init__(self, segments, n, impacts, H0, T, accuracy=np.nan, kind="taylor", width=None, impact_contact=None,
                  impact_impulse=None):
-        self.segments = segments  # list of (t_start, t_end, dense OdeSolution)
+        self.segments = segments  # list of (t_start, t_end, dense output called like an OdeSolution)
         self.n = n
         # one entry per contact impact, as Trajectory's (simultaneous impacts: one entry each)
         self.impacts = np.asarray(impacts, float)
@@ -46,9 +71,10 @@ class Reference:
         self.H0 = H0
         self.T = T
         self.accuracy = accuracy
-        self.kind = kind
+        self.kind = kind          # "taylor", "dop853" or "<method>@h=<h>"
+        self.kind_reason = ""     # dop853: why the Taylor path could not express the system
         self.energy_balance = np.nan  # forced exact solves: max |H(t) - H(0) - int f . qdot|
-        # held contacts (issue 18): release times and contacts, held phases (t0, t1, held set)
+        # held contacts: release times and contacts, held phases (t0, t1, held set)
         self.releases = np.zeros(0)
         self.release_contact = np.zeros(0, np.int64)
         self.held_intervals = []
@@ -83,277 +109,146 @@ class Reference:
         return self.state(t)[..., self.n:]
 
 
-def _first_root(g, a, b, samples=64):
-    """First sign change of g on [a, b] (g(a) >= 0 > g(b)): dense samples bracket it, brentq refines."""
-    from scipy.optimize import brentq
-
-    ts = np.linspace(a, b, samples + 1)
-    prev = ts[0]
-    for s in ts[1:]:
-        if g(s) < 0.0:
-            return float(brentq(g, prev, s, xtol=1e-15, rtol=4 * np.finfo(float).eps))
-        prev = s
-    return float(b)
-
-
-def rk4_step(f, t, y, dt):
-    """One classical RK4 step (the escape micro step off the surface after a reset; also used by the
-    solve_ivp baseline)."""
-    k1 = f(t, y)
-    k2 = f(t + dt / 2, y + dt / 2 * k1)
-    k3 = f(t + dt / 2, y + dt / 2 * k2)
-    k4 = f(t + dt, y + dt * k3)
-    return y + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-
-
-def step_off_surface(rhs, phi, t, y, delta, tries=40):
-    """(t + d, y(t + d)) by one RK4 micro step of length d <= delta to a state with phi > 0, halving d
-    up to `tries` times; None if none is found (delta <= 0 or the motion stays on the surface).
-
-    After an elastic reset phi is ~0 (often -1e-17), and solve_ivp detects a crossing only from a
-    start value >= 0, so a hop shorter than its first step would go unnoticed (measured: DOP853 at
-    rtol 1e-3 over T = 300 lost the cart through the floor after 26 impacts). The micro step's local
-    error is ~d^5, negligible. Used by the exact reference and the solve_ivp baseline."""
-    for _ in range(tries):
-        if not delta > 0.0:
-            return None
-        y1 = rk4_step(rhs, t, y, delta)
-        if phi(y1) > 0.0:
-            return t + delta, y1
-        delta *= 0.5
-    return None
-
-
-class _HermiteSegment:
-    """Dense output of the escape micro step: cubic Hermite on [t0, t1], called like an OdeSolution."""
-
-    def __init__(self, t0, y0, f0, t1, y1, f1):
-        self.t0, self.d = t0, t1 - t0
-        self.c = (np.array(y0, float), np.array(f0, float) * self.d, np.array(y1, float),
-                  np.array(f1, float) * self.d)
-
-    def __call__(self, t):
-        s = (np.atleast_1d(np.asarray(t, float)) - self.t0) / self.d
-        y0, m0, y1, m1 = self.c
-        h00, h10 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s
-        h01, h11 = -2 * s**3 + 3 * s**2, s**3 - s**2
-        return np.outer(y0, h00) + np.outer(m0, h10) + np.outer(y1, h01) + np.outer(m1, h11)
-
-
-SIMULTANEOUS = 1e-10  # contacts whose roots lie within this many seconds impact together (LCP)
-
-
-# The exact solve's budget of right-hand-side evaluations (issue 22): a normal solve needs 500 to 1,300
-# per unit of time at rtol 1e-13 (~15 us each), so 5e7 is ten minutes or more. An initial state so large
-# that the solver's steps collapse (beta = 1e20: velocities ~1e19) or a T far beyond it would otherwise
-# run for hours; the projection is checked once MIN evaluations are spent (a few seconds).
+# The exact solve's work budgets. DOP853: 500 to 1,300 right-hand-side evaluations per unit of time at
+# rtol 1e-13 (~15 us each), so 5e7 is ten minutes or more. Taylor: one step is ~10 us and keeps its
+# polynomial (width x (order + 1) numbers) for the dense output, so the bound is the memory of the
+# polynomials, ~1 GB. An initial state so large that the steps collapse (beta = 1e20: velocities ~1e19)
+# or a T far beyond it would otherwise run for hours; the projection to T is checked once MIN units are
+# spent (a few seconds).
 MAX_RHS_EVALS = 5e7
 MIN_RHS_EVALS_FOR_PROJECTION = 200_000
+TAYLOR_MEMORY_BYTES = 1e9
+MIN_TAYLOR_STEPS_FOR_PROJECTION = 20_000
 
 
-class ReferenceCostError(ValueError):
-    """The exact solve would exceed MAX_RHS_EVALS (a ValueError: the arguments ask for it)."""
+def _taylor_budget(model, T, q0, p0):
+    width = 2 * model.n + (1 if model.forced else 0)
+    limit = TAYLOR_MEMORY_BYTES / (8.0 * width * (order_of(TOL) + 1))
+    return Budget(T, q0, p0, limit, min(MIN_TAYLOR_STEPS_FOR_PROJECTION, limit), "Taylor steps")
 
 
-def _exact(system, q0, p0, prm, T, rtol, max_impacts=10_000, resting_contact=True):
-    """(segments, impacts, H(q0, p0), work, held) of the exact solve; impacts: [(time, contact,
-    impulse)]; work is None for an unforced system, else a callable t -> W(t) = int_0^t f . qdot (the
-    extra state of every segment); held: {"releases": [(time, contact)], "intervals": [(t0, t1, A)]}.
-    The event is the gap min_i phi_i over the contacts not masked: its first root is the first
-    contact of any constraint.
+def _dop_budget(T, q0, p0):
+    return Budget(T, q0, p0, MAX_RHS_EVALS, MIN_RHS_EVALS_FOR_PROJECTION, "right-hand-side evaluations")
 
-    Held contacts (resting_contact, issue 18; vcirun/reference/held.py, docs/contacts.md 6): a start
-    at rest on a surface with a compressive force, a plastic impact that leaves a contact at rest
-    pressed in, or a contact whose impacts accumulate (its Zeno time extrapolated from its flights)
-    continues on the constrained (index-reduced) dynamics until the contact force turns tensile
-    (release) or another contact is hit. resting_contact=False keeps the old behaviour: such runs
-    raise (a contact pressed in; more than max_impacts impacts)."""
-    from scipy.integrate import solve_ivp  # here, not at module level: `import vcirun` stays light
 
-    from . import held as rh
+def _names(system):
+    return [c.name for c in system.constraints]
 
-    mod = load_module(system, SYSTEM_KERNELS)  # system kernels + the continuous dynamics
-    n = system.n
-    forced = bool(mod.FORCED)
-    buf = np.empty(2 * n)
 
-    evals = [0]
+def _solve_taylor(sysm, mod, model, q0, p0, prm, T, tol, resting_contact):
+    backend = TaylorBackend(model, mod, prm, tol=tol, budget=_taylor_budget(model, T, q0, p0))
+    return solve(backend, mod, q0, p0, prm, T, names=_names(sysm), resting_contact=resting_contact)
 
-    def rhs(t, y):
-        evals[0] += 1
-        if evals[0] >= MIN_RHS_EVALS_FOR_PROJECTION and evals[0] % 1000 == 0:
-            _check_cost(evals[0], t, T, q0, p0)
-        mod.dynamics_rhs(t, y[:2 * n], prm, buf)
-        if not forced:
-            return buf.copy()
-        # the work of the force, W' = f(q, qdot, t) . qdot (qdot = buf[:n])
-        return np.append(buf, mod.force_power(y[:n], buf[:n].copy(), t, prm))
 
-    m = int(mod.NCON)
-    mask = np.zeros(m, dtype=np.int64)  # contacts touching and not approaching at the segment's start
-    rest = np.zeros(m, dtype=np.int64)  # contacts left at rest on their surface by a release (masked)
-    e_of = np.empty(m)
-    mod.sys_restitution(prm, e_of)
+def _solve_dop853(sysm, mod, q0, p0, prm, T, rtol, resting_contact, samples=8, reach=2.0):
+    atol = rtol * max(1.0, float(np.max(np.abs(np.concatenate([q0, p0])))))
+    backend = Dop853Backend(mod, prm, rtol, atol, budget=_dop_budget(T, q0, p0), samples=samples, reach=reach)
+    return solve(backend, mod, q0, p0, prm, T, names=_names(sysm), resting_contact=resting_contact)
 
-    def event(t, y):  # the gap over the contacts not touching (collision/impact.py: gap)
-        return mod.gap(y[:n], prm, mask)
 
-    event.terminal = True
-    event.direction = -1.0
+def _sequence(sol):
+    return [i for _, i, _ in sol.impacts], [i for _, i in sol.releases]
 
-    def dip(t, y):  # d gap / dt: crosses 0 upwards at every local minimum of the gap along the flow
-        return mod.gap_slope(y[:n], y[n:2 * n], prm, mask)
 
-    dip.terminal = False  # recorded, checked after the solve (a terminal event at a minimum would
-    dip.direction = 1.0   # restart where d phi/dt = 0 and fire again at once)
+def _first_difference(a, b, names) -> str:
+    """Where the event sequences of two solves part (for the error message)."""
+    names = _Names(enumerate(map(str, names)))
+    ev_a = sorted([(t, "impact", i) for t, i, _ in a.impacts] + [(t, "release", i) for t, i in a.releases])
+    ev_b = sorted([(t, "impact", i) for t, i, _ in b.impacts] + [(t, "release", i) for t, i in b.releases])
+    for x, y in zip(ev_a, ev_b):
+        if x[1:] != y[1:]:
+            return (f"at t={min(x[0], y[0]):.12g}: {x[1]} of {names[x[2]]} against {y[1]} of {names[y[2]]}")
+    k = min(len(ev_a), len(ev_b))
+    rest = ev_a[k:] or ev_b[k:]
+    return f"at t={rest[0][0]:.12g}: {len(ev_a)} events against {len(ev_b)}" if rest else "in the held phases"
 
-    def pressed(t, y):  # a masked contact below minus its round-off: pushed in, or back (issue 18)
-        phis = np.empty(m)
-        mod.sys_phis(y[:n], prm, phis)
-        return float(np.min(np.where(mask == 1, phis, np.inf))) + 1e-12 * (1.0 + float(np.max(np.abs(y[:n]))))
 
-    pressed.terminal = True
-    pressed.direction = -1.0
-    y = np.concatenate([q0, p0] + ([[0.0]] if forced else []))
-    t = 0.0
-    segments, impacts = [], []  # impacts: (time, contact index, impulse), one entry per contact impact
-    releases, intervals = [], []
-    times_of = [[] for _ in range(m)]  # each contact's impact times (accumulation)
-    d, lam, active = np.empty(n), np.empty(m), np.empty(m, dtype=np.int64)
-    held = np.zeros(m, dtype=np.int64)  # contacts held (resting): in the held segments, never here
-    atol = rtol * max(1.0, float(np.max(np.abs(y))))
-    A = rh.initially_held(mod, q0, p0, prm) if resting_contact else ()
-    while t < T:
-        if A:  # a held phase: the constrained dynamics until a release, an impact or T
-            mod.touching_mask(y[:n].copy(), y[n:2 * n].copy(), 1.0, SIMULTANEOUS / 4, prm, mask, held)
-            mask[rest == 1] = 1
-            seg = rh.held_segment(mod, t, y, T, A, mask.copy(), prm, rtol, atol)
-            segments.extend(seg.pieces)
-            intervals.append((seg.t0, seg.t1, tuple(seg.held)))
-            tr = rh.after_held_event(mod, seg, prm, SIMULTANEOUS / 4)
-            for imp in tr.impacts:
-                impacts.append(imp)
-                times_of[imp[1]].append(imp[0])
-            if tr.released >= 0:
-                releases.append((tr.t, tr.released))
-            rest[:] = 0
-            rest[list(tr.rest)] = 1
-            t, y, A = tr.t, tr.y, tr.held
-            if seg.reason == "end":
-                break
-            continue
-        mod.touching_mask(y[:n].copy(), y[n:2 * n].copy(), 1.0, SIMULTANEOUS / 4, prm, mask, held)
-        mask[rest == 1] = 1  # at rest after a release: u is round-off of either sign; `pressed` watches it
-        events = [event, dip] + ([pressed] if mask.any() else [])
-        sol = solve_ivp(rhs, (t, T), y, method="DOP853", rtol=rtol, atol=atol, events=events,
-                        dense_output=True)
-        if sol.status < 0:
-            raise RuntimeError(f"reference: DOP853 failed at t={sol.t[-1]:.6g}: {sol.message}")
-        te = None
-        tp = float(sol.t_events[2][0]) if len(events) == 3 and sol.status == 1 and sol.t_events[2].size else None
-        if sol.status == 1 and sol.t_events[0].size:
-            te = float(sol.t_events[0][0])
-            ye = sol.y_events[0][0].copy()
-        # Minima of phi: solve_ivp sees a crossing only where phi changes sign between two of its
-        # steps, so a dip below the surface shorter than one step (a near-grazing impact) goes
-        # unnoticed; its minimum is then negative. The first such minimum before the detected
-        # impact means an earlier, missed impact: its first root on the dense output replaces it.
-        for tm, ym in zip(sol.t_events[1], sol.y_events[1]):
-            if te is not None and tm >= te:
-                break
-            if mod.gap(ym[:n], prm, mask) < 0.0:
-                te = _first_root(lambda s: mod.gap(sol.sol(s)[:n], prm, mask), t, float(tm))
-                ye = sol.sol(te).copy()
-                break
-        if tp is not None and (te is None or tp < te):
-            # a masked contact (touching and not approaching, or left at rest by a release) went
-            # below its surface: it came back (an impact: its root on the dense output) or, at rest,
-            # is pushed in (resting contact: hold it)
-            yp = sol.y_events[2][0].copy()
-            ids = [int(i) for i in np.flatnonzero(mask)]
-            phis = np.empty(m)
-            mod.sys_phis(yp[:n], prm, phis)
-            j = min(ids, key=lambda i: phis[i])
-            geo = rh._Geometry(mod, tp, yp[:n], yp[n:2 * n], prm)
-            u, gn = float(geo.G[j] @ geo.v), float(np.max(np.abs(geo.G[j])))
-            if resting_contact and u < -1e-6 * gn * (1.0 + float(np.max(np.abs(geo.v)))):
-                def phi_j(s_, j=j):
-                    mod.sys_phis(sol.sol(s_)[:n], prm, phis)
-                    return phis[j]
-                te = _first_root(phi_j, t, tp)
-                ye = sol.sol(te).copy()
-            else:
-                A = rh.held_set(mod, tp, yp[:n], yp[n:2 * n], prm, [j], 1e-6) if resting_contact else ()
-                if not A:
-                    raise RuntimeError(f"reference: a touching contact is pushed into its constraint at t="
-                                       f"{tp:.6g} (resting contact"
-                                       + (")" if resting_contact else "; resting_contact=True holds it)"))
-                segments.append((t, tp, sol.sol))
-                t, y, rest[:] = tp, rh._project_y(mod, yp, prm, A), 0
-                continue
-        segments.append((t, sol.t[-1] if te is None else te, sol.sol))
-        if te is not None:
-            rest[:] = 0
-            # the impact law of the integrators (collision/impact.py): one contact, Newton's law;
-            # several within SIMULTANEOUS seconds of each other, Moreau's LCP
-            k, s0, _ = mod.impact_direction(ye[:n].copy(), ye[n:2 * n].copy(), 1.0, SIMULTANEOUS / 4, prm, d, lam,
-                                            active)
-            if k == 0:
-                A = rh.held_set(mod, te, ye[:n], ye[n:2 * n], prm, None, 1e-6) if resting_contact else ()
-                if not A:
-                    raise RuntimeError(f"reference: grazing contact at t={te:.6g} (zero normal velocity"
-                                       + (")" if resting_contact else "; resting_contact=True holds a contact "
-                                          "pressed in)"))
-                t, y = te, rh._project_y(mod, ye, prm, A)
-                continue
-            if k < 0:
-                raise RuntimeError(f"reference: the impact law has no solution at t={te:.6g} (case {k})")
-            ye[n:2 * n] = ye[n:2 * n] + s0 * d
-            hit = []
-            for i in np.flatnonzero(active):
-                if m == 1 or lam[i] > 0.0:
-                    impacts.append((te, int(i), float(s0 if m == 1 else lam[i])))
-                    times_of[int(i)].append(te)
-                    hit.append(int(i))
-            if len(impacts) > max_impacts:
-                raise RuntimeError(f"reference: more than {max_impacts} impacts (accumulation?) by t={te:.6g}"
-                                   + ("" if resting_contact else "; resting_contact=True holds such contacts"))
-            t, y = te, ye
-            if resting_contact:
-                # (b) a plastic impact leaving a contact at rest pressed in; (a) accumulating impacts
-                A = rh.plastic_entry(mod, te, y[:n], y[n:2 * n], prm, hit)
-                if A:
-                    y = rh._project_y(mod, y, prm, A)
-                    continue
-                acc = [i for i in hit if rh.accumulating(times_of[i], e=e_of[i])]
-                if acc:
-                    mod.touching_mask(y[:n].copy(), y[n:2 * n].copy(), 1.0, SIMULTANEOUS / 4, prm, mask, held)
-                    t_inf, seg = rh.zeno_entry(mod, te, y, prm, acc[0], times_of[acc[0]], mask=mask.copy(),
-                                               rtol=rtol, atol=atol)
-                    if t_inf < T:
-                        segments.extend(seg.pieces)
-                        intervals.append((te, t_inf, tuple(seg.held)))
-                        t, y, A = t_inf, seg.y1, tuple(seg.held)
-                        continue
-            # Step off the surface before restarting: right after the reset phi is ~0 (often -1e-17)
-            # and solve_ivp only sees a crossing from a start value >= 0, so a hop shorter than its
-            # first step would go unnoticed. One RK4 micro step (<= 1e-9, local error ~1e-45) to
-            # phi > 0, covered by a cubic Hermite segment (error ~delta^4 times the 4th derivative).
-            mod.touching_mask(y[:n].copy(), y[n:2 * n].copy(), 1.0, SIMULTANEOUS / 4, prm, mask, held)
-            off = step_off_surface(rhs, lambda yy: mod.gap(yy[:n], prm, mask), t, y, min(1e-9, 0.5 * (T - t)))
-            if off is not None:
-                t1, y1 = off
-                segments.append((t, t1, _HermiteSegment(t, y, rhs(t, y), t1, y1, rhs(t1, y1))))
-                t, y = t1, y1
-        else:
-            t = T
-    work = None
-    if forced:
-        whole = Reference(segments, n, [], np.nan, T, width=2 * n + 1)
-        work = lambda tt: whole.state(tt)[:, 2 * n]  # noqa: E731
-        segments = [(a, b, _Slice(f, 2 * n)) for a, b, f in segments]
-    return (segments, impacts, float(mod.hamiltonian(q0, p0, prm)), work,
-            {"releases": releases, "intervals": intervals})
+class _Names(dict):
+    """Contact names by index ("contact i" for an index the system does not have)."""
+
+    def __missing__(self, i):
+        return f"contact {i}"
+
+
+def _taylor_steps(sol):
+    """(step start times, Taylor coefficients) of a solve made of Taylor pieces, else None."""
+    pieces = [p for _, _, p in sol.pieces if not isinstance(p, Constant)]
+    if not pieces or not all(isinstance(p, TaylorPiece) for p in pieces):
+        return None
+    return np.concatenate([p.starts for p in pieces]), np.concatenate([p.tcs for p in pieces])
+
+
+def _difference(sysm, a, b, H0, T) -> tuple:
+    """(difference, round-off, scale) of two solves: the largest difference of q and, if they have the
+    same event sequence, of the impact and release times; the round-off the events leave,
+    4 eps (1 + K) (max |q| + T max |qdot|) for K events (two solves that integrate polynomial flights
+    exactly repeat each other's round-off, so their difference alone can be 0); and max |q|. q is
+    compared at the step starts of both Taylor solves (each one's dense output at the other's steps;
+    smooth in between), or on a 2001-point grid."""
+    n = sysm.n
+    w = 2 * n + (1 if sysm.is_forced else 0)
+    ra, rb = Reference(a.pieces, n, [], H0, T, width=w), Reference(b.pieces, n, [], H0, T, width=w)
+    sa, sb = _taylor_steps(a), _taylor_steps(b)
+    if sa is not None and sb is not None:
+        tt = np.concatenate([sa[0], sb[0]])
+        qa = np.concatenate([sa[1][:, :n, 0], ra.state(sb[0])[:, :n]])
+        qb = np.concatenate([rb.state(sa[0])[:, :n], sb[1][:, :n, 0]])
+        speed = float(np.max(np.abs(sa[1][:, :n, 1])))
+    else:
+        tt = np.linspace(0.0, T, 2001)
+        qa, qb = ra.state(tt)[:, :n], rb.state(tt)[:, :n]
+        speed = float(np.max(np.abs(np.diff(qa, axis=0)))) / (tt[1] - tt[0])
+    acc = float(np.max(np.abs(qa - qb)))
+    dt = [x[0] - y[0] for x, y in zip(a.impacts + a.releases, b.impacts + b.releases)]
+    if dt and _sequence(a) == _sequence(b):
+        acc = max(acc, float(np.max(np.abs(dt))))
+    events = len(a.impacts) + len(a.releases) + len(a.intervals)
+    scale = float(np.max(np.abs(qa)))
+    return acc, 4.0 * _EPS * (1 + events) * (scale + T * speed), scale
+
+
+def _exact(sysm, q0, p0, prm, T, rtol, check_accuracy, resting_contact, path="auto"):
+    """(Solution, accuracy, kind, why) of the exact solve: the Taylor path where the system is
+    expressible, else DOP853 (why: the reason); path "taylor" or "dop853" asks for one."""
+    mod = load_module(sysm, SYSTEM_KERNELS)
+    model = taylor_model(sysm)
+    H0 = float(mod.hamiltonian(q0, p0, prm))
+    why = model.expressible() if path != "dop853" else "the DOP853 path was asked for"
+    if why is not None and path == "taylor":
+        raise NotExpressible(why)
+    if why is None:
+        try:
+            sol = _solve_taylor(sysm, mod, model, q0, p0, prm, T, TOL, resting_contact)
+            if not check_accuracy:
+                return sol, np.nan, "taylor", ""
+            for tol in CHECK_TOLS:
+                chk = _solve_taylor(sysm, mod, model, q0, p0, prm, T, tol, resting_contact)
+                diff, roundoff, scale = _difference(sysm, sol, chk, H0, T)
+                if _sequence(chk) == _sequence(sol) or diff <= SUB_RESOLUTION * (1.0 + scale):
+                    return sol, max(diff, roundoff), "taylor", ""
+            raise RuntimeError(f"reference: the event sequence of {sysm.name} is ill-conditioned: the Taylor solve at "
+                               f"machine precision and its checks at tolerances {', '.join(map(str, CHECK_TOLS))} part "
+                               + _first_difference(sol, chk, _names(sysm)))
+        except (NotExpressible, TaylorFailure) as e:
+            if path == "taylor":
+                raise
+            why = str(e)
+    # DOP853: when the tighter check sees another event sequence, both are refined (tighter, denser
+    # checks, shorter steps); a sequence that still differs is an error, never an infinite accuracy
+    attempts = [(rtol, 8, 2.0), (max(rtol / 10, RTOL_FLOOR), 16, 1.0), (RTOL_FLOOR, 32, 0.5)]
+    for r, samples, reach in attempts:
+        sol = _solve_dop853(sysm, mod, q0, p0, prm, T, r, resting_contact, samples, reach)
+        if not check_accuracy:
+            return sol, np.nan, "dop853", why
+        chk = _solve_dop853(sysm, mod, q0, p0, prm, T, max(r / 10, RTOL_FLOOR), resting_contact, 2 * samples,
+                            reach / 2)
+        diff, roundoff, scale = _difference(sysm, sol, chk, H0, T)
+        if _sequence(chk) == _sequence(sol) or diff <= SUB_RESOLUTION * (1.0 + scale):
+            # DOP853's error does not shrink tenfold with rtol where its error estimate vanishes
+            # (polynomial flights: the events' round-off dominates): ten times the difference
+            return sol, max(10.0 * diff, roundoff), "dop853", why
+    raise RuntimeError(f"reference: the DOP853 solve of {sysm.name} and its tighter check see different event "
+                       f"sequences {_first_difference(sol, chk, _names(sysm))}, down to rtol {RTOL_FLOOR:g}")
 
 
 class _Slice:
@@ -364,19 +259,6 @@ class _Slice:
 
     def __call__(self, t):
         return self.f(t)[: self.k]
-
-
-def _check_cost(evals: int, t: float, T: float, q0, p0) -> None:
-    """Raise ReferenceCostError when `evals` right-hand-side evaluations reached only time t and the
-    projection to T exceeds MAX_RHS_EVALS."""
-    projected = evals * T / t if t > 0 else np.inf
-    if evals >= MAX_RHS_EVALS or projected > MAX_RHS_EVALS:
-        scale = float(max(np.max(np.abs(q0)), np.max(np.abs(p0))))
-        raise ReferenceCostError(
-            f"T: the exact reference would need about {projected:.1e} right-hand-side evaluations to reach "
-            f"T = {T:g} ({evals:,} reached t = {t:.3g}; the limit is {MAX_RHS_EVALS:.0e}): the initial state "
-            f"(max |q0|, |p0| = {scale:.3g}) is too large or T too long for an exact solve; lower T, give a smaller "
-            "initial state, or use a method reference (method='CVA', h=...)")
 
 
 def _check_start(system, q0, prm) -> None:
@@ -397,19 +279,22 @@ def reference(system, *, T, beta=None, q0=None, p0=None, params=None, rtol=1e-13
               check_accuracy=True, resting_contact=True) -> Reference:
     """The nonsmooth solution on [0, T] from (q0, p0) or the scene's initial-condition map at beta.
 
-    method='exact' (default): DOP853 + event location + exact elastic reset, at rtol; accuracy is
-    estimated against a second solve at rtol / 10 (check_accuracy=False skips it).
+    method='exact' (default): the event-driven solve of the module docstring. ref.kind says which path
+    produced it: "taylor" (heyoka at machine precision; rtol does not apply) or "dop853" (at rtol, for a
+    system the Taylor path cannot express; ref.kind_reason says why). ref.accuracy is the largest
+    difference from the check solve (check_accuracy=False skips it: NaN); a check that sees another
+    event sequence after refinement raises instead of returning a reference.
     method='CVA' (or any method name) with h: a fine-step simulation, interpolated by cubic Hermite
     on (q, qdot = M^-1 p) between its grid points (exact at the grid points).
     resting_contact (as simulate's): contacts that come to rest are held on their surface and
     released where their force turns tensile (ref.releases, ref.release_contact, ref.held_intervals);
     False raises where a contact would have to be held."""
+    from ..core.bounds import check_reference_args
     from ..run.api import simulate
     from ..run.resolve import resolve_system
-    from ..core.bounds import check_reference_args
 
     check_reference_args(T=T, rtol=rtol, method=method, h=h, beta=beta, q0=q0, p0=p0, params=params,
-                         system=system, resting_contact=resting_contact, check_accuracy=check_accuracy)  # (issue 22)
+                         system=system, resting_contact=resting_contact, check_accuracy=check_accuracy)
     sysm = resolve_system(system)
     prm = sysm.param_values(params)
     q0, p0 = sysm.initial_state(beta=beta, q0=q0, p0=p0, params=prm)
@@ -421,31 +306,37 @@ def reference(system, *, T, beta=None, q0=None, p0=None, params=None, rtol=1e-13
         if tr.status != "ok":
             raise RuntimeError(f"reference: {method} at h={h} failed: {tr.message}")
         return _grid_reference(sysm, tr, prm)
+    return solve_exact(sysm, q0, p0, prm, T, rtol=rtol, check_accuracy=check_accuracy,
+                       resting_contact=resting_contact)
+
+
+def solve_exact(sysm, q0, p0, prm, T, *, rtol=1e-13, check_accuracy=True, resting_contact=True,
+                path="auto") -> Reference:
+    """The exact Reference of the MechanicalSystem sysm from (q0, p0) at the parameter vector prm
+    (`reference` after its validation); path "auto" (Taylor where expressible, else DOP853),
+    "taylor" (NotExpressible if it cannot) or "dop853"."""
+    q0, p0 = np.asarray(q0, float), np.asarray(p0, float)
     _check_start(sysm, q0, prm)
     try:
-        segs, imps, H0, work, held = _exact(sysm, q0, p0, prm, T, rtol, resting_contact=resting_contact)
-        acc = np.nan
-        ref = Reference(segs, sysm.n, [i[0] for i in imps], H0, T, kind="exact",
-                        impact_contact=[i[1] for i in imps], impact_impulse=[i[2] for i in imps])
-        ref.releases = np.array([r[0] for r in held["releases"]], float)
-        ref.release_contact = np.array([r[1] for r in held["releases"]], np.int64)
-        ref.held_intervals = list(held["intervals"])
-        if check_accuracy:
-            # estimate the returned solve's error against a tighter one (scipy's floor is ~2.2e-14)
-            segs2, imps2, _, _, held2 = _exact(sysm, q0, p0, prm, T, max(rtol / 10, 2.3e-14),
-                                               resting_contact=resting_contact)
-            tt = np.linspace(0.0, T, 2001)
-            acc = float(np.max(np.abs(ref(tt) - Reference(segs2, sysm.n, [], H0, T)(tt))))
-            rel, rel2 = held["releases"], held2["releases"]
-            if [i[1] for i in imps] != [i[1] for i in imps2] or [r[1] for r in rel] != [r[1] for r in rel2]:
-                acc = np.inf  # the tighter solve sees another event sequence: nothing is accurate
-            else:
-                dt = [a[0] - b[0] for a, b in zip(imps + rel, imps2 + rel2)]
-                if dt:
-                    acc = max(acc, float(np.max(np.abs(dt))))
-            ref.accuracy = acc
-        if work is not None:
-            ref.energy_balance = _energy_balance(sysm, ref, work, prm, T)
+        sol, acc, kind, why = _exact(sysm, q0, p0, prm, T, rtol, check_accuracy, resting_contact, path)
+        mod = load_module(sysm, SYSTEM_KERNELS)
+        H0 = float(mod.hamiltonian(q0, p0, prm))
+        n = sysm.n
+        pieces = sol.pieces
+        if mod.FORCED:
+            pieces = [(a, b, _Slice(f, 2 * n)) for a, b, f in sol.pieces]
+        ref = Reference(pieces, n, [i[0] for i in sol.impacts], H0, T, accuracy=acc, kind=kind,
+                        impact_contact=[i[1] for i in sol.impacts], impact_impulse=[i[2] for i in sol.impacts])
+        ref.kind_reason = why
+        ref.releases = np.array([r[0] for r in sol.releases], float)
+        ref.release_contact = np.array([r[1] for r in sol.releases], np.int64)
+        ref.held_intervals = list(sol.intervals)
+        if check_accuracy and not np.isfinite(acc):
+            raise RuntimeError(f"reference: the accuracy check of {sysm.name} is not finite ({acc}): the solve "
+                               "cannot be trusted")
+        if mod.FORCED:
+            whole = Reference(sol.pieces, n, [], H0, T, width=2 * n + 1)
+            ref.energy_balance = _energy_balance(sysm, ref, lambda tt: whole.state(tt)[:, 2 * n], prm, T)
     except ReferenceCostError:
         raise
     except (ArithmeticError, ValueError, IndexError, np.linalg.LinAlgError) as e:

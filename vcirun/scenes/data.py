@@ -132,6 +132,50 @@ def cradle(n: int = 5, **overrides) -> SystemData:
                     "theta1 = -0.3, the others touching at rest (declared by bodies)")
 
 
+def rimless_wheel(**overrides) -> SystemData:
+    """A point mass m on massless spokes of length l, 2 alpha apart, rolling down a slope gamma. q =
+    theta, the stance spoke's angle from the slope normal (forward positive); Xi(beta): just after an
+    impact (theta = -alpha) with angular velocity beta; the default state is the closed-form gait's
+    (vcirun.scenes.oracles.rimless_wheel_fixed_point)."""
+    prm = merge_params({"m": 1.0, "l": 1.0, "alpha": float(np.pi / 8), "gamma": 0.1, "g": 9.81}, overrides)
+    m, l, a, gam, g = (prm[k] for k in ("m", "l", "alpha", "gamma", "g"))
+    c2 = np.cos(2 * a) ** 2
+    w = np.sqrt(c2 * 4 * g / l * np.sin(a) * np.sin(gam) / (1 - c2))
+    return SystemData(
+        name="rimless_wheel", n=1, params=prm,
+        ic_map=lambda beta: (np.array([-a]), np.array([float(beta)])),
+        default_q0=np.array([-a]), default_p0=np.array([m * l * l * w]),
+        description="rimless wheel on a slope: plastic spoke impacts as a declared reset (closed-form stride map)")
+
+
+def _compass_M(q, prm):
+    m, mh, a, b = prm["m"], prm["mH"], prm["a"], prm["b"]
+    l = a + b
+    c = -m * l * b * np.cos(q[0] - q[1])
+    return np.array([[(mh + m) * l * l + m * a * a, c], [c, m * b * b]])
+
+
+# the period-one gait at the default slope (3 degrees), on the section just after heel strike
+_COMPASS_Q0 = (-0.271016, 0.271016)
+_COMPASS_QDOT0 = (1.092571, 0.377537)
+
+
+def compass_gait(**overrides) -> SystemData:
+    """The compass gait of Goswami, Thuilot and Espiau (1998): legs with point masses m at a from the
+    foot (b from the hip), a hip mass mH, on a slope gamma. q = (theta_s, theta_ns), the stance and
+    swing legs' angles from the slope normal (forward positive); heel strike (the swing foot reaches
+    the slope ahead of the stance foot) is a plastic impact and the exchange of the legs, a declared
+    reset. Xi(beta): the default state with its velocities scaled by beta."""
+    prm = merge_params({"m": 5.0, "mH": 10.0, "a": 0.5, "b": 0.5, "gamma": float(np.deg2rad(3.0)), "g": 9.81},
+                       overrides)
+    q0, v0 = np.array(_COMPASS_Q0), np.array(_COMPASS_QDOT0)
+    return SystemData(
+        name="compass_gait", n=2, params=prm,
+        ic_map=lambda beta: (q0.copy(), float(beta) * v0),
+        default_q0=q0, default_p0=_compass_M(q0, prm) @ v0,
+        description="compass-gait walker (Goswami et al.) on a slope gamma: heel strike as a declared reset")
+
+
 BUILTIN_SCENE_DATA = {
     "cart_pendulum": cart_pendulum,
     "double_pendulum": double_pendulum,
@@ -145,6 +189,8 @@ BUILTIN_SCENE_DATA = {
     "rocking_block": rocking_block,
     "link_chain": link_chain,
     "cradle": cradle,
+    "rimless_wheel": rimless_wheel,
+    "compass_gait": compass_gait,
 }
 _SIZED = ("n_pendulum", "newton_cradle", "link_chain", "cradle")  # scenes named <name>_K with K the size
 

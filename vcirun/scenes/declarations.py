@@ -132,6 +132,55 @@ def double_pendulum_walls(**overrides) -> MechanicalSystem:
     return _system(d, [t1, t2], M, V, None, constraints=[Constraint("right", w - xt, e), Constraint("left", xt + w, e)])
 
 
+def rimless_wheel(**overrides) -> MechanicalSystem:
+    """The rimless wheel: q = theta, the stance spoke from the slope normal; L = m l^2 thetadot^2 / 2 -
+    m g l cos(theta + gamma). The next spoke lands at theta = alpha (phi = alpha - theta: the angle
+    left to its touchdown); the impact is plastic at the new foot, which keeps the angular momentum
+    about it: theta+ = theta - 2 alpha, thetadot+ = cos(2 alpha) thetadot- (the declared reset)."""
+    d = sd.rimless_wheel(**overrides)
+    th, thd = sp.symbols("theta theta_dot")
+    m, l, a, gam, g = sp.symbols("m l alpha gamma g")
+    c = Constraint("spoke", a - th, reset_q=(th - 2 * a,), reset_qd=(sp.cos(2 * a) * thd,))
+    return _system(d, [th], sp.Matrix([[m * l**2]]), m * g * l * sp.cos(th + gam), None, qd=[thd], constraints=[c])
+
+
+def compass_gait_heel_strike(q, qd, m, mH, a, b):
+    """(q+, qdot+) of the compass gait's heel strike at (q, qdot) = ((theta_s, theta_ns), their rates):
+    the swing foot's plastic impact keeps the whole walker's angular momentum about it and the old
+    stance leg's about the hip, A qdot+ = B qdot- (Goswami et al. 1998: Q+ and Q-), and the legs
+    exchange roles. Only the inter-leg angle enters (c = cos(theta_ns - theta_s))."""
+    ts, tn = q
+    c = sp.cos(tn - ts)
+    A = sp.Matrix([[-(2 * a**2 * m + a**2 * mH + 2 * a * b * m + 2 * a * b * mH + b**2 * m + b**2 * mH)
+                    + (a * b * m + b**2 * m) * c, b * m * ((a + b) * c - b)],
+                   [b * m * (a + b) * c, -b**2 * m]])
+    B = sp.Matrix([[a * b * m - (2 * a**2 * m + a**2 * mH + 2 * a * b * m + 2 * a * b * mH + b**2 * mH) * c, a * b * m],
+                   [a * b * m, 0]])
+    det = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
+    Ainv = sp.Matrix([[A[1, 1], -A[0, 1]], [-A[1, 0], A[0, 0]]]) / det
+    v = Ainv * B * sp.Matrix(qd)
+    return (tn, ts), (v[0], v[1])
+
+
+def compass_gait(**overrides) -> MechanicalSystem:
+    """The compass gait (Goswami et al.): q = (theta_s, theta_ns) from the slope normal; stance mass m at
+    a from its foot, hip mass mH, swing mass m at b below the hip. The swing foot's height above the
+    slope, l (cos theta_s - cos theta_ns), is the guard, armed once the stance leg has passed the
+    normal (theta_s > 0: the swing foot crosses the slope at mid-stride without an impact); heel
+    strike is the declared reset compass_gait_heel_strike."""
+    d = sd.compass_gait(**overrides)
+    ts, tn = sp.symbols("theta_s theta_ns")
+    tsd, tnd = sp.symbols("theta_s_dot theta_ns_dot")
+    m, mH, a, b, gam, g = sp.symbols("m mH a b gamma g")
+    l = a + b
+    c = -m * l * b * sp.cos(ts - tn)
+    M = sp.Matrix([[(mH + m) * l**2 + m * a**2, c], [c, m * b**2]])
+    V = g * ((m * a + mH * l + m * l) * sp.cos(ts + gam) - m * b * sp.cos(tn + gam))
+    q_plus, qd_plus = compass_gait_heel_strike((ts, tn), (tsd, tnd), m, mH, a, b)
+    heel = Constraint("heel_strike", l * (sp.cos(ts) - sp.cos(tn)), when=ts, reset_q=q_plus, reset_qd=qd_plus)
+    return _system(d, [ts, tn], M, V, None, qd=[tsd, tnd], constraints=[heel])
+
+
 # One registry of built-in scenes: the names (and numeric parts) are vcirun.scenes.data's; each has its
 # symbolic part here under the same name.
 BUILTIN_SCENES = {name: getattr(mechanisms, name) if hasattr(mechanisms, name) else globals()[name]

@@ -27,7 +27,7 @@ import numpy as np
 
 __all__ = ["oscillator_wall_exact", "ball_exact", "ball_position", "ball_exact_onset", "ball_in_box_exact",
            "BoxSolution", "zeno_ball", "ZenoBall", "bead_release", "BeadRelease", "newton_cradle_velocities",
-           "newton_cradle_impulses"]
+           "newton_cradle_impulses", "rimless_wheel_stride", "rimless_wheel_fixed_point", "RimlessGait"]
 
 
 # --- the harmonic oscillator against a wall --------------------------------------------------------
@@ -530,3 +530,35 @@ def newton_cradle_impulses(N, e, v0, m=1.0) -> np.ndarray:
         return np.zeros(N - 1)
     i = np.arange(1, N, dtype=float)
     return (1.0 + e) * float(m) * v0 * (N - i) / N
+
+
+# --- the rimless wheel (scene `rimless_wheel`) ------------------------------------------------------
+
+class RimlessGait(NamedTuple):
+    omega: float        # the angular velocity just after each impact
+    eigenvalue: float   # d omega_{k+1} / d omega_k at the fixed point
+    period: float       # the stride time
+
+
+def rimless_wheel_stride(omega, *, alpha, gamma, g, l, **_):
+    """The closed-form stride map of the rimless wheel: from theta = -alpha with angular velocity omega,
+    energy to theta = alpha gives omega_-^2 = omega^2 + (4 g / l) sin(alpha) sin(gamma), and the
+    plastic impact keeps the angular momentum about the new foot: omega_+ = cos(2 alpha) omega_-."""
+    return math.cos(2 * alpha) * math.sqrt(omega**2 + 4 * g / l * math.sin(alpha) * math.sin(gamma))
+
+
+def rimless_wheel_fixed_point(*, alpha, gamma, g, l, **_) -> RimlessGait:
+    """The rimless wheel's period-one gait: omega*^2 = c^2 (4 g / l) sin(alpha) sin(gamma) / (1 - c^2),
+    c = cos(2 alpha); its multiplier c^2 (omega* / omega_-(omega*) times c); its stride time by
+    quadrature of dt = dtheta / omega(theta) on [-alpha, alpha] (omega(theta)^2 = omega*^2 +
+    (2 g / l) (cos(gamma - alpha) - cos(theta + gamma)))."""
+    from scipy.integrate import quad
+
+    c2 = math.cos(2 * alpha) ** 2
+    w2 = c2 * 4 * g / l * math.sin(alpha) * math.sin(gamma) / (1 - c2)
+    if w2 + 2 * g / l * (math.cos(gamma - alpha) - 1.0) <= 0.0:
+        raise ValueError(f"rimless wheel: no gait for alpha={alpha}, gamma={gamma}: the wheel does not pass "
+                         "the vertical at the fixed point's speed (increase gamma or alpha)")
+    rate = lambda th: math.sqrt(w2 + 2 * g / l * (math.cos(gamma - alpha) - math.cos(th + gamma)))
+    T, _ = quad(lambda th: 1.0 / rate(th), -alpha, alpha, epsabs=1e-14, epsrel=1e-13, limit=200)
+    return RimlessGait(math.sqrt(w2), c2, T)

@@ -1,7 +1,7 @@
 """The exact reference finds near-grazing impacts (a dip below phi = 0 shorter than one DOP853 step)
-and short hops after a reset, against the oscillator's closed form (solve_ivp's
-event location sees only sign changes between its steps; a reference relying on it alone misses 2 of
-3 impacts at eps = 1e-4 and all 3 at eps = 1e-6)."""
+and short hops after a reset, against the oscillator's closed form. A sign test between steps alone
+misses such a dip (2 of the 3 impacts at eps = 1e-4, all 3 at eps = 1e-6); the Taylor path isolates
+every root of phi in each step."""
 from __future__ import annotations
 
 import numpy as np

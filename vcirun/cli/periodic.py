@@ -1,0 +1,126 @@
+"""`vcirun periodic`: a periodic orbit of a hybrid system (a walker's gait) and its multipliers, or
+with --sweep the continuation along a parameter with period doubling and the bifurcation diagram."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import List, Optional
+
+import numpy as np
+import typer
+
+from .app import app
+
+EPILOG = ("Examples:\n\n"
+          "  vcirun periodic --system rimless_wheel --method CVA4 --h 0.002\n\n"
+          "  vcirun periodic --system compass_gait --method CVA4 --h 0.005 --param gamma=0.0524\n\n"
+          "  vcirun periodic --system compass_gait --h 0.005 --sweep gamma=0.0524:0.09:40 --output bif.png")
+
+
+@app.command("periodic", epilog=EPILOG)
+def periodic(
+    system: str = typer.Option("rimless_wheel", "--system", "-s", help="Built-in walker or a YAML system file."),
+    method: str = typer.Option("CVA4", "--method", "-m", help="A collision integrator (CVA, CVA4, VCI, MCVAC, ...)."),
+    h: float = typer.Option(5e-3, "--h", help="Step size."),
+    param: List[str] = typer.Option([], "--param", "-p", help="Parameter override NAME=VALUE (repeatable)."),
+    q0: Optional[str] = typer.Option(None, "--q0", metavar="Q1,...", help="Guess: coordinates (default: the "
+                                     "scene's default state)."),
+    p0: Optional[str] = typer.Option(None, "--p0", metavar="P1,...", help="Guess: momenta."),
+    k: int = typer.Option(1, "--k", help="Impacts per period (2: a period-two orbit)."),
+    sweep: Optional[str] = typer.Option(None, "--sweep", metavar="NAME=START:STOP:COUNT",
+                                        help="Continuation along a parameter, period doubling followed."),
+    output: Optional[Path] = typer.Option(None, "--output", "-o",
+                                          help="With --sweep: the bifurcation diagram (.png) and its data (.json)."),
+):
+    """Find a periodic orbit (Newton on the method's return map) and print its fixed point, period and
+    multipliers; with --sweep, continue it along a parameter."""
+    from vcirun.codegen import cache
+
+    if _say_compile not in cache.COMPILE_CALLBACKS:
+        cache.COMPILE_CALLBACKS.append(_say_compile)
+    try:
+        params = _parse_params(param)
+        guess = _guess(system, params, _vector(q0, "--q0"), _vector(p0, "--p0"))
+        if sweep is None:
+            from vcirun.experiments.periodic import periodic_orbit
+
+            o = periodic_orbit(system, method, h=h, guess=guess, params=params or None, k=k)
+            q, p = o.fixed_point
+            typer.echo(f"fixed point q = {np.array2string(q, precision=12)}, p = {np.array2string(p, precision=12)}")
+            typer.echo(f"period {o.period:.12g} s ({o.k} impact{'s' if o.k > 1 else ''}), residual {o.residual:.2e}, "
+                       f"{o.iterations} Newton steps")
+            typer.echo("multipliers " + ", ".join(f"{z.real:.10g}{z.imag:+.3g}j" if abs(z.imag) > 0 else f"{z.real:.10g}"
+                                                  for z in o.eigenvalues) + ("  (stable)" if o.stable else "  (unstable)"))
+            return
+        from vcirun.experiments.bifurcation import bifurcation_figure, continuation
+
+        name, values = _sweep(sweep)
+        br = continuation(system, method, h=h, param=name, values=values, guess=guess, params=params or None)
+        for v, o in zip(br.values, br.orbits):
+            typer.echo(f"{name} = {v:.6g}: period-{o.k}, q = {np.array2string(o.fixed_point[0], precision=6)}, "
+                       f"max |multiplier| {np.max(np.abs(o.eigenvalues)):.4f}")
+        typer.echo(f"period doubling at {name} = {br.doubling:.9g}" if br.doubling is not None
+                   else "no period doubling in the range")
+        if output is not None:
+            bifurcation_figure(br, output.with_suffix(".png"))
+            br.save(output.with_suffix(".json"))
+            typer.echo(f"saved {output.with_suffix('.png')} and {output.with_suffix('.json')}")
+    except (ValueError, RuntimeError) as e:
+        typer.echo(f"error: {' '.join(str(e).split())}", err=True)
+        raise typer.Exit(1)
+
+
+def _say_compile(message: str) -> None:
+    typer.echo(message, err=True)
+
+
+def _parse_params(items) -> dict:
+    out = {}
+    for item in items or []:
+        name, sep, value = item.partition("=")
+        try:
+            if not sep or not name.strip():
+                raise ValueError
+            out[name.strip()] = float(value)
+        except ValueError:
+            raise ValueError(f"--param: expected NAME=VALUE with a number (got {item!r})") from None
+    return out
+
+
+def _vector(text, name):
+    if text is None:
+        return None
+    try:
+        return [float(x) for x in str(text).replace(" ", "").split(",") if x != ""]
+    except ValueError:
+        raise ValueError(f"{name}: expected comma-separated numbers such as 1.2,-1.0 (got {text!r})") from None
+
+
+def _guess(system, params, q0, p0):
+    if (q0 is None) != (p0 is None):
+        raise ValueError("--q0/--p0: give both or neither")
+    if q0 is not None:
+        return (np.array(q0), np.array(p0))
+    from vcirun.run.resolve import resolve_system
+
+    s = resolve_system(system)
+    if s.default_q0 is None:
+        raise ValueError(f"--q0/--p0: system {s.name} has no default state; give a guess")
+    q = np.asarray(s.default_q0, float)
+    if params:
+        v = np.linalg.solve(s.mass_matrix(q), s.default_p0)
+        return (q, s.mass_matrix(q, s.param_values(params)) @ v)
+    return (q, np.asarray(s.default_p0, float))
+
+
+def _sweep(text: str):
+    name, sep, rng = text.partition("=")
+    parts = rng.split(":")
+    try:
+        if not sep or len(parts) != 3:
+            raise ValueError
+        a, b, n = float(parts[0]), float(parts[1]), int(parts[2])
+    except ValueError:
+        raise ValueError(f"--sweep: expected NAME=START:STOP:COUNT (got {text!r})") from None
+    if n < 2:
+        raise ValueError(f"--sweep: COUNT must be at least 2 (got {n})")
+    return name.strip(), np.linspace(a, b, n)

@@ -1,0 +1,171 @@
+"""Periodic orbits of a hybrid system and their stability: a fixed point of the return map on a section
+(the state just after an impact of one constraint: the stride map of a walker), by Newton on the
+discrete map of a method at step h.
+
+The return map P(x), x = (q, p) just after the reset, runs Algorithm 1 from x (vcirun.simulate) up to
+the k-th impact on the section and returns the state just after it: q+ = the declared map of the
+recorded impact configuration (the identity without one), p+ = the recorded momentum after the
+reset. Its Jacobian is the fourth-order central finite difference of that discrete map (stencil
++-delta, +-2 delta, delta = fd_step max(1, |x_j|)): the map is smooth in x to round-off (Newton
+and the event search converge far below their tolerances), so the Jacobian is accurate to about
+eps / fd_step + fd_step^4. The eigenvalues of DP are the orbit's Floquet multipliers; the image
+of P lies on the section (codimension one for an impact surface), so one multiplier is ~0.
+
+`continuation` follows a fixed point along a parameter (the previous point as the next guess),
+detects period doubling where a multiplier crosses -1, and follows the period-two orbit from there.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..run.api import simulate
+from ..run.resolve import resolve_numeric, resolve_system
+from ..methods.table import resolve_method
+
+
+@dataclass
+class PeriodicOrbit:
+    """fixed_point: (q, p) on the section just after the reset; period: the return time; eigenvalues:
+    the multipliers of the return map (|.| descending); jacobian: DP at the fixed point; residual:
+    max |P(x) - x|; iterations: Newton steps; k: impacts per return (2: a period-two orbit)."""
+
+    fixed_point: tuple
+    period: float
+    eigenvalues: np.ndarray
+    jacobian: np.ndarray
+    residual: float
+    iterations: int
+    method: str
+    h: float
+    k: int = 1
+    params: dict = field(default_factory=dict)
+
+    @property
+    def stable(self) -> bool:
+        return bool(np.max(np.abs(self.eigenvalues)) < 1.0)
+
+    def to_dict(self) -> dict:
+        q, p = self.fixed_point
+        return {"q": q.tolist(), "p": p.tolist(), "period": self.period,
+                "eigenvalues_real": self.eigenvalues.real.tolist(), "eigenvalues_imag": self.eigenvalues.imag.tolist(),
+                "residual": self.residual, "iterations": self.iterations, "method": self.method, "h": self.h,
+                "k": self.k, "params": dict(self.params), "stable": self.stable}
+
+
+class ReturnMap:
+    """P(x) of (system, method, h) on the section of constraint `section` (an index or name; default:
+    the constraint with a declared reset, else the first), after k impacts there."""
+
+    def __init__(self, system, method, *, h, section=None, k=1, params=None, T_max=None, **options):
+        self.system = resolve_system(system) if isinstance(system, str) else system
+        self.method, self.h, self.k = method, float(h), int(k)
+        self.params = dict(params or {})
+        self.options = options
+        meth = resolve_method(method)
+        sysd, load, sysm = resolve_numeric(self.system, meth.kernel_set())
+        self.n = sysd.n
+        self.mod = load()
+        self.prm = sysd.param_values(self.params)
+        names = [c.name for c in sysm.constraints] if sysm is not None else None
+        self.section = _section_index(section, sysm, names)
+        self.T_max = T_max
+        self._T = None
+        self.evaluations = 0
+
+    def _plus(self, q_minus, p_plus):
+        qo, qdo = np.empty(self.n), np.empty(self.n)
+        self.mod.sys_reset_map(np.ascontiguousarray(q_minus, float), np.zeros(self.n), self.prm, qo, qdo)
+        return qo, np.array(p_plus, float)
+
+    def __call__(self, x):
+        """(P(x), return time); raises RuntimeError when the run fails or reaches no return."""
+        x = np.asarray(x, float)
+        q0, p0 = x[: self.n], x[self.n:]
+        T = self._T or 4.0
+        for _ in range(8):
+            T = self.h * np.ceil(T / self.h - 1e-9)   # a whole number of steps
+            tr = simulate(self.system, self.method, h=self.h, T=T, q0=q0, p0=p0, params=self.params or None,
+                          energies=False, **self.options)
+            self.evaluations += 1
+            hits = np.flatnonzero(tr.impact_contact == self.section) if len(tr.impacts) else np.array([], int)
+            if len(hits) >= self.k:
+                j = hits[self.k - 1]
+                t = float(tr.impacts[j])
+                self._T = max(self._T or 0.0, 1.25 * t + 4 * self.h)
+                qp, pp = self._plus(tr.impact_q[j], tr.impact_p_plus[j])
+                return np.concatenate([qp, pp]), t
+            if not tr.ok:
+                raise RuntimeError(f"return map: the run from {x.tolist()} stopped ({tr.status}: {tr.message}) "
+                                   f"after {len(hits)} of {self.k} impacts on the section")
+            if self.T_max is not None and T >= self.T_max:
+                break
+            T *= 2.0
+        raise RuntimeError(f"return map: no return to the section within T = {T:g} from {x.tolist()}")
+
+    def jacobian(self, x, fd_step=1e-3):
+        """DP(x) by the fourth-order central difference (see the module docstring)."""
+        x = np.asarray(x, float)
+        m = x.shape[0]
+        J = np.empty((m, m))
+        for j in range(m):
+            d = fd_step * max(1.0, abs(x[j]))
+            e = np.zeros(m)
+            e[j] = d
+            f = [self(x + s * e)[0] for s in (2.0, 1.0, -1.0, -2.0)]
+            J[:, j] = (-f[0] + 8.0 * f[1] - 8.0 * f[2] + f[3]) / (12.0 * d)
+        return J
+
+
+def _section_index(section, sysm, names) -> int:
+    if section is None:
+        if sysm is None:
+            return 0
+        for i, c in enumerate(sysm.constraints):
+            if c.reset_q is not None or c.reset_qd is not None:
+                return i
+        return 0
+    if isinstance(section, (int, np.integer)) and not isinstance(section, bool):
+        if names is not None and not 0 <= int(section) < len(names):
+            raise ValueError(f"section: constraint index {section} out of range (0..{len(names) - 1})")
+        return int(section)
+    if names is None or section not in names:
+        raise ValueError(f"section: {section!r} is not a constraint name (declared: {', '.join(names or [])})")
+    return names.index(section)
+
+
+def periodic_orbit(system, method, *, h, guess, section=None, k=1, params=None, tol=1e-12, maxit=30,
+                   fd_step=1e-3, **options) -> PeriodicOrbit:
+    """A fixed point of the return map of `method` at step h on `section` (a constraint's impact, just
+    after its reset), by Newton on P(x) - x = 0 with the finite-difference Jacobian (module
+    docstring), from guess = (q, p) or the flat state. k: impacts per return (2: a period-two orbit).
+    Converged when the Newton step is below tol (1 + |x|); raises RuntimeError otherwise."""
+    if isinstance(guess, (tuple, list)) and len(guess) == 2 and np.ndim(guess[0]) == 1:
+        x = np.concatenate([np.asarray(guess[0], float), np.asarray(guess[1], float)])
+    else:
+        x = np.asarray(guess, float).ravel().copy()
+    P = ReturnMap(system, method, h=h, section=section, k=k, params=params, **options)
+    if x.shape != (2 * P.n,):
+        raise ValueError(f"guess: must be (q, p) with {P.n} entries each, or {2 * P.n} numbers (got {x.shape})")
+    x, _ = P(x)   # onto the section
+    it = 0
+    step = np.inf
+    while it < maxit:
+        it += 1
+        Px, _ = P(x)
+        J = P.jacobian(x, fd_step)
+        dx = np.linalg.lstsq(J - np.eye(len(x)), -(Px - x), rcond=None)[0]
+        x = x + dx
+        step = float(np.max(np.abs(dx)))
+        if step <= tol * (1.0 + float(np.max(np.abs(x)))):
+            break
+    if not step <= max(tol, 1e-9) * (1.0 + float(np.max(np.abs(x)))):
+        raise RuntimeError(f"periodic_orbit: Newton did not converge in {maxit} iterations (last step {step:.3g})")
+    Px, period = P(x)
+    J = P.jacobian(x, fd_step)
+    ev = np.linalg.eigvals(J)
+    ev = ev[np.argsort(-np.abs(ev), kind="stable")]
+    n = P.n
+    return PeriodicOrbit((x[:n].copy(), x[n:].copy()), period, ev, J, float(np.max(np.abs(Px - x))), it,
+                         str(method), float(h), int(k), dict(params or {}))

@@ -1,0 +1,291 @@
+"""The event loop of the exact reference, shared by its Taylor and DOP853 paths.
+
+Between events a backend integrates one segment (vcirun.reference.flight: `segment(t0, y0, T, A, R)`);
+here each event is resolved the way the integrators resolve it:
+
+- an impact: the impact law of the integrators (collision/impact.py `impact_direction`: Newton's law
+  for one contact, Moreau's LCP over every contact touching within SIMULTANEOUS seconds, held ones
+  included with u- = 0), one impact entry per contact with a positive impulse that is not held;
+  then the held set at the new state (vcirun.reference.held.held_set: the contacts left on their
+  surface at rest whose contact force is compressive, a plastic impact among them);
+- accumulation: a contact whose impacts accumulate (its flights shrink below ZENO_FLIGHT, at the ratio
+  e for a single contact, at a steady ratio when several contacts exchange impulses, or its next
+  flight is already shorter) is held from the extrapolated Zeno time on, together with every contact
+  accumulating with it; from its last impact to that time the motion follows the held dynamics of all
+  of them (the plastic limit of the remaining bounces, whose heights are below |a| ZENO_FLIGHT^2 / 8);
+- a release (a held contact's force turns tensile), a resting contact pushed in (it is held), a
+  resting contact that lifts off (watched as a free contact from then on).
+
+Progress is guarded: an event that leaves the state, the time and the held set as the previous one
+left them, twice in a row, or more than `max_events` events, end in a RuntimeError that names the
+time and the contacts (never a hang). The backend's Budget bounds the integration work.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import held as rh
+from .flight import Constant, Flight
+
+__all__ = ["SIMULTANEOUS", "MAX_IMPACTS", "MAX_EVENTS", "Solution", "solve", "NoProgressError"]
+
+SIMULTANEOUS = 1e-10   # contacts whose roots lie within this many seconds impact together (LCP)
+MAX_IMPACTS = 10_000   # without resting contact: accumulation shows as this many impacts
+MAX_EVENTS = 200_000   # every event (impacts, releases, holds, lift-offs) of one solve
+ROUNDOFF_IMPULSE = 64 * float(np.finfo(float).eps)   # relative to the largest impulse of an impact
+_EPS = float(np.finfo(float).eps)
+
+
+class NoProgressError(RuntimeError):
+    """The event loop stopped making progress (the same state and time after two events in a row)."""
+
+
+@dataclass
+class Solution:
+    """The exact solve: dense pieces [(t0, t1, dense)], impacts [(t, contact, impulse)] (one entry per
+    contact), releases [(t, contact)], held intervals [(t0, t1, held set)]."""
+
+    pieces: list = field(default_factory=list)
+    impacts: list = field(default_factory=list)
+    releases: list = field(default_factory=list)
+    intervals: list = field(default_factory=list)
+
+    def add(self, fl: Flight, A, merge=False) -> None:
+        """Record a segment; merge: it continues the previous held interval (a restart without event)."""
+        if fl.t1 > fl.t0 or not self.pieces:
+            self.pieces.append((fl.t0, fl.t1, fl.piece))
+        if A and fl.t1 > fl.t0:
+            if merge and self.intervals and self.intervals[-1][2] == tuple(A) and self.intervals[-1][1] == fl.t0:
+                self.intervals[-1] = (self.intervals[-1][0], fl.t1, tuple(A))
+            else:
+                self.intervals.append((fl.t0, fl.t1, tuple(A)))
+
+
+class _Progress:
+    """Counts events and refuses a loop that repeats itself."""
+
+    def __init__(self, names, max_events):
+        self.names, self.max_events = names, max_events
+        self.events, self.repeats, self.last = 0, 0, None
+
+    def what(self, contacts) -> str:
+        return ", ".join(self.names[i] for i in contacts) if contacts else "none"
+
+    def after(self, t, y, A, reason, contact) -> None:
+        """Called with the state the next segment starts from, after each event."""
+        self.events += 1
+        if self.events > self.max_events:
+            raise NoProgressError(f"reference: more than {self.max_events:,} events by t={t:.17g} (the last: "
+                                  f"{reason} of contact {self.what([contact])}, held: {self.what(A)})")
+        if self.last is not None:
+            t0, y0, A0 = self.last
+            if (A0 == tuple(A) and abs(t - t0) <= 4 * _EPS * max(1.0, abs(t))
+                    and float(np.max(np.abs(y - y0))) <= 64 * _EPS * (1.0 + float(np.max(np.abs(y))))):
+                self.repeats += 1
+                if self.repeats >= 2:
+                    raise NoProgressError(
+                        f"reference: no progress at t={t:.17g}: the {reason} of contact {self.what([contact])} "
+                        f"repeats without a change of state (held: {self.what(A)})")
+            else:
+                self.repeats = 0
+        self.last = (t, np.array(y, float), tuple(A))
+
+
+def _on_surface(mod, t, y, prm, contacts):
+    """y with its positions moved onto phi_i = 0 for the impacting contacts whose phi_i is round-off
+    (the event's root leaves |phi_i| ~ eps (|q| + |t| |v|) of either sign): the rebound then starts on
+    the surface, and a small rebound u+ does not turn that round-off into a flight-time error
+    |phi_i| / u+ (ill-conditioned as e u- -> 0)."""
+    n = int(mod.NDOF)
+    g = rh._Geometry(mod, t, y[:n], y[n:2 * n], prm)
+    qn, vn = max(map(abs, g.q.tolist()), default=0.0), max(map(abs, g.v.tolist()), default=0.0)
+    phis, G = g.phis.tolist(), g.G.tolist()
+    on = []
+    for j in contacts:
+        gn = max(map(abs, G[j]), default=0.0)
+        if 0.0 < abs(phis[j]) <= 1e3 * _EPS * (1.0 + qn * gn + abs(t) * gn * vn):
+            on.append(int(j))
+    if not on:
+        return y
+    out = np.array(y, float)
+    X = np.linalg.solve(g.M, g.G[on].T)   # one Newton step along M^-1 G^T: phi is round-off already
+    out[:n] = g.q - X @ np.linalg.solve(g.G[on] @ X, g.phis[on])
+    return out
+
+
+def _geometry(mod, t, y, prm):
+    n = int(mod.NDOF)
+    return rh._Geometry(mod, t, y[:n], y[n:2 * n], prm)
+
+
+def _immediate(g, t, y, A, R, tol=rh.HELD_TOL):
+    """An event at the segment's start: a touching contact moving in (an impact now) or a resting
+    contact pushed in; None if neither. g: the _Geometry at y; tol: the backend's rest tolerance."""
+    u, phis, G = g.u.tolist(), g.phis.tolist(), g.G.tolist()   # (plain floats: the arrays are tiny)
+    qn, vn = max(map(abs, g.q.tolist()), default=0.0), max(map(abs, g.v.tolist()), default=0.0)
+    for i in range(g.m):
+        if i in A or i in R:
+            continue
+        gn = max(map(abs, G[i]), default=0.0)
+        if phis[i] <= 64 * _EPS * (1.0 + qn * gn) and u[i] < -tol * gn * (1.0 + vn):
+            return Flight(t, t, np.array(y, float), "impact", i, Constant(y))
+    if R:
+        acc = g.held_acc(tuple(A))
+        scale = g.acc_scale()
+        for i in R:
+            if acc[i] < -tol * scale:
+                return Flight(t, t, np.array(y, float), "pressed", i, Constant(y))
+    return None
+
+
+def _group(times_of, e_of, hit, t, geo, A):
+    """(contacts whose impacts accumulate at this impact, their Zeno time): those just hit whose own
+    flights shrink below ZENO_FLIGHT at the ratio e (rh.accumulating) or, with several contacts, at a
+    steady ratio below 1, or whose next flight, 2 u+ / |a| (u+ its normal velocity after the impact, a
+    its normal acceleration on the held flow of A, pulling it back), is already shorter than
+    ZENO_FLIGHT -- a rebound too small to resolve, whose bounces end by t + 2 u+ / (|a| (1 - e)) for a
+    constant a; and every other contact accumulating with them (last impact within a few flights).
+    The Zeno time labels the held interval; the motion from this impact on is the held one either way."""
+    acc, t_inf = set(), t
+    a = geo.held_acc(tuple(A)) if hit else None
+    for i in hit:
+        if e_of[i] >= 1.0:
+            continue
+        if rh.accumulating(times_of[i], e=e_of[i]) or _steady(times_of[i]):
+            acc.add(i)
+            t_inf = max(t_inf, rh.zeno_extrapolation(times_of[i]))
+        elif a[i] < 0.0 and 2.0 * max(float(geo.u[i]), 0.0) < rh.ZENO_FLIGHT * -a[i]:
+            acc.add(i)
+            t_inf = max(t_inf, t + 2.0 * max(float(geo.u[i]), 0.0) / (-a[i] * (1.0 - e_of[i])))
+    if not acc:
+        return set(), t
+    for j in range(len(times_of)):
+        if j not in acc and times_of[j] and t - times_of[j][-1] <= 8 * rh.ZENO_FLIGHT and e_of[j] < 1.0 \
+                and (rh.accumulating(times_of[j]) or _steady(times_of[j])):
+            acc.add(j)
+            t_inf = max(t_inf, rh.zeno_extrapolation(times_of[j]))
+    return acc, t_inf
+
+
+def _too_many(sol, times_of, e_of, names, max_impacts, t, resting_contact) -> str:
+    """The error of a solve past max_impacts: the busiest contact, its restitution and its last flight."""
+    j = max(range(len(times_of)), key=lambda c: len(times_of[c]))
+    ts = times_of[j]
+    flight = f", the last {ts[-1] - ts[-2]:.2g} s apart" if len(ts) > 1 else ""
+    if e_of[j] >= 1.0:
+        why = "elastic impacts do not accumulate: lower T"
+    elif resting_contact:
+        why = "impacts accumulating without a steady ratio: lower T"
+    else:
+        why = "accumulating impacts? resting_contact=True holds such contacts"
+    return (f"reference: more than {max_impacts:,} impacts by t={t:.6g} ({len(ts):,} of contact {names[j]}, "
+            f"e = {e_of[j]:g}{flight}); {why}")
+
+
+def _steady(times) -> bool:
+    """Flights shrinking geometrically at a steady ratio r <= 0.999: the last below ZENO_FLIGHT, the
+    last two ratios within 1 % of each other."""
+    if len(times) < 5:
+        return False
+    d = np.diff(np.asarray(times[-4:], float))
+    if not (np.all(d > 0.0) and d[-1] < rh.ZENO_FLIGHT and d[2] < d[1] < d[0]):
+        return False
+    r1, r2 = d[1] / d[0], d[2] / d[1]
+    return r2 <= 0.999 and abs(r2 - r1) <= 1e-2 * r2
+
+
+def solve(backend, mod, q0, p0, prm, T, *, names, resting_contact=True, max_impacts=MAX_IMPACTS,
+          max_events=MAX_EVENTS) -> Solution:
+    """The exact nonsmooth solution on [0, T] from (q0, p0) on `backend`'s segments (see the module)."""
+    n, m = int(mod.NDOF), int(mod.NCON)
+    forced = bool(mod.FORCED)
+    y = np.concatenate([np.asarray(q0, float), np.asarray(p0, float)] + ([[0.0]] if forced else []))
+    e_of = np.empty(m)
+    mod.sys_restitution(prm, e_of)
+    d, lam, active = np.empty(n), np.empty(m), np.empty(m, dtype=np.int64)
+    sol = Solution()
+    times_of = [[] for _ in range(m)]
+    progress = _Progress(names, max_events)
+    t, stop = 0.0, float(T)   # stop < T: a Zeno settle phase, held on its set until the Zeno time
+    tol = float(getattr(backend, "rest_tol", rh.HELD_TOL))   # on the surface at rest: the path's precision
+    A = rh.held_set(mod, t, y[:n], y[n:2 * n], prm, None, tol) if resting_contact else ()
+    if A:
+        y = rh._project_y(mod, y, prm, A)
+    geo = None   # the _Geometry at (t, y), when an event's handling computed it
+    restart = False
+    while True:
+        geo = geo or _geometry(mod, t, y, prm)
+        R = tuple(i for i in rh.at_rest(mod, t, None, None, prm, tol, geo=geo) if i not in A)
+        fl = _immediate(geo, t, y, A, R, tol) if t < stop else None
+        if fl is None:
+            fl = backend.segment(t, y, stop, A, R, geo=geo) if t < stop else Flight(t, t, y, "end", -1, Constant(y))
+        geo = None
+        sol.add(fl, A, merge=restart)
+        restart = fl.reason in ("lift", "drift")
+        t, y = fl.t1, np.array(fl.y1, float)
+        i = fl.contact
+        if fl.reason == "end":
+            if stop >= T:
+                break
+            stop = float(T)       # the Zeno time: hold what is at rest and pressed
+            A = rh.held_set(mod, t, y[:n], y[n:2 * n], prm, None, tol)
+        elif fl.reason in ("lift", "drift"):
+            pass
+        elif fl.reason == "release":
+            sol.releases.append((t, i))
+            y = rh._project_y(mod, y, prm, A)   # (the released contact too: it leaves from rest)
+            A = rh.held_set(mod, t, y[:n], y[n:2 * n], prm, [j for j in A if j != i], tol)
+        elif fl.reason == "pressed":
+            geo = _geometry(mod, t, y, prm)
+            if not geo.near([i], tol):
+                pass   # it had left its surface before its acceleration turned: a free contact now
+            elif not resting_contact:
+                raise RuntimeError(f"reference: a touching contact ({names[i]}) is pushed into its constraint at "
+                                   f"t={t:.6g} (resting contact; resting_contact=True holds it)")
+            else:
+                y = rh._project_y(mod, y, prm, sorted(set(A) | {i}))   # it rests on its surface
+                A = rh.held_set(mod, t, y[:n], y[n:2 * n], prm, sorted(set(A) | {i}), tol)
+                geo = None
+        elif fl.reason == "impact":
+            if A:   # the held contacts take part in the impact law (touching, u- = 0): on their surface,
+                y = rh._project_y(mod, y, prm, A)   # not off it by the held phase's drift
+            k, s0, _ = mod.impact_direction(y[:n].copy(), y[n:2 * n].copy(), 1.0, SIMULTANEOUS / 4, prm, d, lam,
+                                            active)
+            if k < 0:
+                raise RuntimeError(f"reference: the impact law has no solution at t={t:.6g} (case {k}; contact "
+                                   f"{names[i]})")
+            hit = []
+            if k > 0:
+                y = _on_surface(mod, t, y, prm, [j for j in np.flatnonzero(active) if j not in A])
+                y[n:2 * n] += s0 * d
+                # an impulse at the round-off of the others (a touching contact with u- ~ eps beside
+                # one that hits: the side wall a plastic impact left the ball on) is no impact
+                floor = ROUNDOFF_IMPULSE * max(float(np.max(lam)), 0.0) if m > 1 else 0.0
+                for j in np.flatnonzero(active):
+                    j = int(j)
+                    if (m == 1 or lam[j] > floor) and j not in A:
+                        sol.impacts.append((t, j, float(s0 if m == 1 else lam[j])))
+                        times_of[j].append(t)
+                        hit.append(j)
+                if len(sol.impacts) > max_impacts:
+                    raise RuntimeError(_too_many(sol, times_of, e_of, names, max_impacts, t, resting_contact))
+            if resting_contact:
+                geo = _geometry(mod, t, y, prm)
+                A = rh.held_set(mod, t, None, None, prm, None, tol, geo=geo)
+                acc, t_inf = _group(times_of, e_of, hit, t, geo, A) if hit else (set(), t)
+                if acc:   # held from here (a Zeno time past T: to T, within the bounce heights left)
+                    A, stop = tuple(sorted(set(A) | acc)), min(max(t_inf, t), float(T))
+            elif k == 0:
+                acc0 = rh.free_normal_accelerations(mod, t, y[:n], y[n:2 * n], prm)
+                if acc0[i] < 0.0:
+                    raise RuntimeError(f"reference: grazing contact {names[i]} at t={t:.6g} (zero normal velocity; "
+                                       "resting_contact=True holds a contact pressed in)")
+        else:
+            raise ValueError(f"reason: {fl.reason!r} is not an event of the exact solve")
+        if A:
+            y = rh._project_y(mod, y, prm, A)
+            geo = None
+        progress.after(t, y, A, fl.reason, i)
+    return sol

@@ -1,0 +1,296 @@
+"""What a run needs besides its initial state and parameters, resolved once: the `Plan` of a
+(system, method, grid, options), and the loop's buffers.
+
+`vcirun.simulate` and `vcirun.ensemble` validate their arguments, resolve the system and the method,
+size the memory check, build the settings vector and load the compiled module through `plan`; for
+a built-in scene named by a string the result is kept per (system, method, h, T, t0, options), so a
+repeated call validates only its initial state and parameters. Each value of the key is kept with
+its type, so that a value the checks reject (``constrained=1``, ``h=True``) never matches an
+accepted one that compares equal. A YAML file, a MechanicalSystem instance or a substitute for
+`load_module` (tests that run modules uncompiled) is resolved on every call (a file may change, an
+instance may be mutated).
+
+`Buffers` holds one run's output tuple for reuse by the next run of the same plan in the same
+thread: every buffer with a fill value is refilled before a run, so a reused buffer starts exactly
+as a newly allocated one (the loop then computes the same bits). The impact record's capacity
+grows as `run_loop` grows it; a run always sees the capacity sequence of a fresh allocation (views
+of the first rows of a larger buffer).
+"""
+from __future__ import annotations
+
+import math
+import os
+import threading
+import time
+from collections import OrderedDict
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..core import record
+from ..core.bounds import check_simulate_args, check_start_args
+from ..core.grid import grid_note
+from ..core.sizes import check_run_memory, memory_limit, run_bytes
+from ..core.system_data import (
+    SystemData,
+    check_mass_matrix,
+    requested_start,
+    start_tolerance,
+)
+from ..core.tolerances import split_options
+from ..methods.table import resolve_method
+from ..scenes.data import scene_args
+from .resolve import _warmable, resolve_numeric, resolve_system
+
+
+@dataclass(eq=False)
+class Plan:
+    """A resolved (system, method, grid, options): everything a run takes except its start and
+    parameters. `module()` loads the compiled module (`first_call` makes numba's first call of its loop)."""
+
+    system: object
+    sysd: SystemData
+    sysm: object            # the symbolic system when it was built (cold path), else None
+    meth: object
+    load: object
+    h: float
+    T: float
+    N: int
+    t0: float
+    tol: dict
+    mopts: dict
+    constrained: bool
+    energies: bool
+    resting_contact: bool
+    settings: np.ndarray
+    note: str
+    need: int               # bytes of one run's buffers (validation.run_bytes)
+    ks: object = None       # the method's KernelSet
+    hit: tuple = None       # what resolve_numeric returned (a kept plan is valid while its warm memo holds it)
+    _mod: object = None
+
+    @property
+    def max_impacts_step(self) -> int:
+        return int(self.tol["max_impacts_step"])
+
+    def module(self):
+        if self._mod is None:
+            self._mod = self.load()
+        return self._mod
+
+    def check_memory(self) -> None:
+        """The memory check of one run against the limit in force now (a sweep scopes its own)."""
+        if self.need > memory_limit():
+            check_run_memory(self.N, self.sysd.n)
+
+    def params(self, params) -> np.ndarray:
+        return self.sysd.param_values(params)
+
+
+_FIRST_CALLS: set = set()
+
+
+def first_call(mod, plan: Plan, q0, p0, prm) -> None:
+    """numba's first call of a module's loop (load from its cache, or compile) is not integration:
+    one untimed step from the run's start, so a run's wall_time measures the integration only."""
+    if mod.__name__ in _FIRST_CALLS:
+        return
+    from ..codegen.cache import first_call_lock, note_first_call
+
+    _FIRST_CALLS.add(mod.__name__)
+    t_first = time.perf_counter()
+    with first_call_lock(mod):  # one compile per module across processes (sweep and test workers)
+        run_loop(mod, q0, p0, plan.t0, plan.h, 1, prm, plan.settings, plan.sysd.n, plan.max_impacts_step)
+    note_first_call(mod, plan.meth.kernel_set(), time.perf_counter() - t_first)
+
+
+_PLANS: OrderedDict = OrderedDict()
+_PLANS_MAX = 64
+_PLANS_LOCK = threading.Lock()
+
+
+def _key(system, method, h, T, t0, constrained, energies, resting_contact, options):
+    """The key of a plan kept for reuse (None: resolve per call): a built-in scene's name (checked
+    when the plan is stored), the method's name, every value with its type, the build mode."""
+    from ..codegen import build
+    from . import resolve
+
+    if type(system) is not str or type(method) is not str or resolve.load_module is not build.load_module:
+        return None
+    key = (system, method, build.build_id(), os.environ.get("VCIRUN_KERNEL_PATH", ""), type(h), h, type(T), T,
+           type(t0), t0, type(constrained), constrained, type(energies), energies, type(resting_contact),
+           resting_contact)
+    if options:
+        key += tuple(sorted((k, type(v), v) for k, v in options.items()))
+    try:
+        hash(key)
+    except TypeError:   # an option value that is not hashable (a list): resolved per call
+        return None
+    return key
+
+
+def plan(system, method, *, h, T, t0=0.0, constrained=None, energies=True, resting_contact=True,
+         options: dict | None = None, start: dict | None = None) -> Plan:
+    """The Plan of a run; `start` holds the per-run arguments (beta, q0, p0, params) of a call,
+    validated here with the rest (same checks, order and messages as one call of simulate)."""
+    options = dict(options or {})
+    start = start or {}
+    key = _key(system, method, h, T, t0, constrained, energies, resting_contact, options)
+    if key is not None:
+        with _PLANS_LOCK:
+            p = _PLANS.get(key)
+            if p is not None:
+                _PLANS.move_to_end(key)
+        if p is not None and _still_warm(p, key):
+            check_start_args(**start)
+            return p
+    mopts, tol = split_options(options)
+    h, T, N = check_simulate_args(h=h, T=T, t0=t0, constrained=constrained, energies=energies, tolerances=tol,
+                                  system=system, resting_contact=resting_contact, **start)
+    if not _warmable(system):
+        system = resolve_system(system)  # bad names and files raise here, before a bad method does
+    meth = resolve_method(method, **mopts)
+    ks = meth.kernel_set()
+    hit = resolve_numeric(system, ks)
+    sysd, load, sysm = hit
+    if constrained is None:
+        constrained = meth.constrained
+    settings = record.settings_vector(constrained=bool(constrained), energies=bool(energies),
+                                      resting_contact=bool(resting_contact), **tol)
+    p = Plan(system=system, sysd=sysd, sysm=sysm, meth=meth, load=load, h=h, T=T, N=N, t0=float(t0), tol=tol,
+             mopts=mopts, constrained=bool(constrained), energies=bool(energies),
+             resting_contact=bool(resting_contact), settings=settings, note=grid_note(h, T),
+             need=run_bytes(N, sysd.n), ks=ks, hit=hit)
+    if key is not None and sysm is None and scene_args(system) is not None:   # warm: nothing symbolic held
+        with _PLANS_LOCK:
+            _PLANS[key] = p
+            while len(_PLANS) > _PLANS_MAX:
+                _PLANS.popitem(last=False)
+    return p
+
+
+def _still_warm(p: Plan, key) -> bool:
+    """The warm-start memo that served plan `p` still holds its entry (tests clear it to start anew)."""
+    from . import resolve
+
+    memo = (("scene", key[0]), p.ks, key[3], key[2])
+    return resolve._WARM_HITS.get(memo) is p.hit
+
+
+
+
+# --- the initial state ------------------------------------------------------------------------------
+
+def start_state(d: SystemData, beta, q0, p0, prm, sysm=None):
+    """Validate the requested initial state before any kernel is loaded: ("state", q0, p0) or
+    ("legendre", q0, qdot0) (p0 = M(q0) qdot0 is computed by `initial_state` with the compiled M).
+    Same rules and messages as MechanicalSystem.initial_state; with the symbolic system at hand
+    (cold path) the hyperregularity check runs here, before anything is generated or compiled."""
+    kind, q0, p0 = requested_start(d, beta, q0, p0)
+    if sysm is not None:
+        sysm.check_hyperregular(q0, prm)
+    return kind, q0, p0, sysm is not None
+
+
+def initial_state(d: SystemData, mod, start, prm):
+    """(q0, p0) from `start_state`. The Legendre transform uses the module's compiled M(q) on every
+    path, so warm and cold starts compute the same bits; on the warm path the hyperregularity check
+    uses it too (compiled: mass_matrix_ok; numpy's check then only words the error)."""
+    kind, q0, p0, checked = start
+    q0 = np.ascontiguousarray(q0, dtype=float)
+    Mq = np.empty((q0.shape[0], q0.shape[0]))
+    ok = mod.mass_matrix_ok(q0, prm, Mq)   # M(q0) once, for the check and the Legendre transform
+    if not checked and not ok:
+        check_mass_matrix(d.name, q0, Mq)
+    if kind == "legendre":
+        p0 = Mq @ p0
+    return q0, p0
+
+
+def check_admissible(d: SystemData, mod, q0, prm, phi_text) -> None:
+    """A start inside the constraint is bad input (ValueError naming phi(q0), its value and the
+    constraint phi_text() -- called only then: on the warm path it builds the symbolic system), not a
+    run that ends later as `reset_failed` or `accumulation`; a start on the surface (to round-off)
+    is allowed."""
+    m = int(mod.NCON)
+    phis, G = np.empty(m), None
+    mod.sys_phis(q0, prm, phis)
+    for i in range(m):
+        if 0.0 <= phis[i] < math.inf:   # outside or on the surface: no tolerance to compute
+            continue
+        if G is None:
+            G = np.empty((m, d.n))
+            mod.sys_dphis(q0, prm, G)
+        if not math.isfinite(phis[i]) or phis[i] < -start_tolerance(q0, G[i]):
+            raise ValueError(f"initial state: q0={q0.tolist()} lies inside the constraint of system {d.name}: "
+                             f"phi(q0) = {phis[i]:.6g} < 0 for {phi_text(i)}; start where phi(q0) >= 0 "
+                             "(or pass constrained=False)")
+
+
+def constraint_text(sysm, i: int) -> str:
+    c = sysm.constraints[i]
+    return f"phi = {c.phi}" if sysm.m == 1 else f"constraint {c.name} (phi = {c.phi})"
+
+
+def ready_start(p: Plan, mod, start, prm):
+    """(q0, p0) of one run of plan `p` from its `start_state` (ValueError for a start the run refuses)."""
+    q0, p0 = initial_state(p.sysd, mod, start, prm)
+    if p.constrained:
+        check_admissible(p.sysd, mod, q0, prm, lambda i: constraint_text(p.sysm or resolve_system(p.system), i))
+    return q0, p0
+
+
+# --- the loop ---------------------------------------------------------------------------------------
+
+class Buffers:
+    """One run's output tuple, kept for the next run of the same size in this thread. The grid rows
+    are kept too when `keep_grid` (an ensemble reads its results out of them); simulate hands its
+    grid rows to the Trajectory, so it takes fresh ones per run and reuses the rest (which `record.trim`
+    copies)."""
+
+    def __init__(self, keep_grid: bool):
+        self.keep_grid = keep_grid
+        self.dims, self.cap, self.big, self.views, self.views_cap = None, -1, None, None, -1
+        fresh_grid = [] if keep_grid else [i for i, f in enumerate(record.FIELDS) if f.axis == "grid"]
+        self._fresh = tuple((i, record.FIELDS[i].fill) for i in fresh_grid)   # new arrays per run
+        self._refill = tuple((i, f.fill) for i, f in enumerate(record.FIELDS)
+                             if f.fill is not None and i not in fresh_grid)   # reused, refilled per run
+
+    def get(self, N: int, n: int, m: int, cap_imp: int) -> tuple:
+        if self.big is None or self.dims != (N, n, m) or self.cap < cap_imp:
+            self.big = record.allocate(N, n, m=m, cap_impacts=cap_imp)   # as a fresh run's: no refill
+            self.dims, self.cap, self.views, self.views_cap = (N, n, m), cap_imp, list(self.big), cap_imp
+            return self.big
+        if self.views_cap != cap_imp:   # a run that starts again with the smaller first capacity
+            rows = record.axis_rows(N, cap_imp)
+            self.views = [b if b.shape[0] == rows[f.axis] else b[: rows[f.axis]]
+                          for f, b in zip(record.FIELDS, self.big)]
+            self.views_cap = cap_imp
+        out = list(self.views)
+        for i, fill in self._fresh:   # the grid rows of the previous run left with its Trajectory
+            out[i] = np.empty_like(out[i]) if fill is None else np.full_like(out[i], fill)
+        for i, fill in self._refill:
+            out[i].fill(fill)
+        return tuple(out)
+
+
+def run_loop(mod, q0, p0, t0, h, N, prm, settings, n, max_impacts_step, buffers: Buffers | None = None):
+    """(output buffers, counters) of the compiled loop. The impact record starts at N / 4 + 16
+    entries; the loop reports ST_ACCUMULATION also when it is full, which is a buffer size, not
+    impacts accumulating: then it reruns with room for every impact the caps allow."""
+    cap_imp, most = record.impact_capacity(N), N * max_impacts_step + 16
+    m = int(mod.NCON)
+    while True:
+        if buffers is None:
+            out = record.allocate(N, n, m=m, cap_impacts=cap_imp)
+        else:
+            out = buffers.get(N, n, m, cap_imp)
+        info = np.zeros(len(record.COUNTERS), dtype=np.int64)
+        # no np.errstate here: the compiled loop never touches numpy's error state, and with
+        # NUMBA_DISABLE_JIT=1 the caller's np.errstate(all="raise") must reach the numerics
+        mod.integrate(q0, p0, t0, h, N, prm, settings, out, info)
+        counters = dict(zip(record.COUNTERS, info.tolist()))
+        full_record = counters["n_impacts"] + m > cap_imp  # (an impact adds up to NCON entries)
+        if not (counters["status"] == record.STATUS_OF["accumulation"] and full_record) or cap_imp >= most:
+            return out, counters
+        cap_imp = min(4 * cap_imp, most)
