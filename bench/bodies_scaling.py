@@ -10,7 +10,7 @@ Per case: cold build = wall of the first vcirun.simulate of the scene (its kerne
 method's shared core may be cached, as after any earlier scene); us per smooth step = CPU time of a
 run before the first impact divided by its steps (h = 1e-4); first hit (cradles): the velocities
 after the first impact against NNLS on the LCP written from the equations (W = G M^-1 G^T of the
-N - 1 touching contacts, u- = (-1, 0, ..., 0)), and against the closed form (1.4) of docs/contacts.md.
+N - 1 touching contacts, u- = (-1, 0, ..., 0)), and against the closed form (1.4) of docs/derivations/contacts.md.
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Issue 7 (scaling): step kernels from per-slot tensors (vcirun.codegen.tensor) vs the expanded
+"""Scaling: step kernels from per-slot tensors (vcirun.codegen.tensor) vs the expanded
 slot expressions (vcirun.discrete.lagrangians.step_expressions), for CVA (SVC) on the n-link
 pendulum (n = K = 1, 2, 4, 8) and the cart-pendulum.
 

@@ -1,5 +1,5 @@
 """Moreau's impact law above LCP_MAX_CONTACTS contacts: Lemke's method (vcirun/collision/impact_law.py,
-docs/contacts.md 1.7), run as plain Python and compiled (the fixture of test_impact_law), against
+docs/derivations/contacts.md 1.7), run as plain Python and compiled (the fixture of test_impact_law), against
   * an independent brute-force enumeration of complementary index sets written from the equations
     (every support S: lam_S = -W_SS^-1 q_S, lam = 0 off S, accepted if lam >= 0 and w = q + W lam >= 0)
     on random Delassus matrices G M^-1 G^T of 9 to 12 contacts;

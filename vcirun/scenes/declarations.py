@@ -97,7 +97,7 @@ def n_pendulum(n: int = 2, **overrides) -> MechanicalSystem:
 
 
 def ball_in_box(**overrides) -> MechanicalSystem:
-    """Issue 17: a point mass m in the box 0 <= x <= width, 0 <= y <= height under gravity g, four
+    """A point mass m in the box 0 <= x <= width, 0 <= y <= height under gravity g, four
     walls in this order: floor y >= 0, ceiling height - y >= 0, left x >= 0, right width - x >= 0,
     each with restitution e (a parameter). Decoupled motion: closed form in vcirun.scenes.oracles."""
     d = sd.ball_in_box(**overrides)
@@ -109,7 +109,7 @@ def ball_in_box(**overrides) -> MechanicalSystem:
 
 
 def newton_cradle(n: int = 3, **overrides) -> MechanicalSystem:
-    """Issue 17: n equal balls (mass m, diameter d) on a line, no gravity along it; contact i between
+    """n equal balls (mass m, diameter d) on a line, no gravity along it; contact i between
     balls i and i + 1: x_{i+1} - x_i - d >= 0, restitution e."""
     n = int(n)
     d = sd.newton_cradle(n, **overrides)
@@ -120,7 +120,7 @@ def newton_cradle(n: int = 3, **overrides) -> MechanicalSystem:
 
 
 def double_pendulum_walls(**overrides) -> MechanicalSystem:
-    """Issue 17: the double pendulum of Figure 1 whose second tip x = l1 sin th1 + l2 sin th2 stays
+    """The double pendulum of Figure 1 whose second tip x = l1 sin th1 + l2 sin th2 stays
     between two walls: right w - x >= 0, left x + w >= 0, restitution e."""
     d = sd.double_pendulum_walls(**overrides)
     t1, t2 = sp.symbols("theta1 theta2")

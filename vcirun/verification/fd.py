@@ -182,7 +182,7 @@ def _check_dphis(c, s):
 
 
 def _check_held_contact(c, s):
-    """Issue 18's velocity terms along v = M^-1 p: sys_ddphis = v^T Hess(phi_i) v (4th-order second
+    """The velocity terms along v = M^-1 p: sys_ddphis = v^T Hess(phi_i) v (4th-order second
     difference of sys_phis along v) and sys_Mdotv = (dM/dq . v) v (FD of sys_M along v, times v)."""
     mod, prm, n, m = c.mod, c.prm, c.n, _ncon(c.mod)
     v = np.linalg.solve(c.M(s.q), s.p)
