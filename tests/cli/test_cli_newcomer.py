@@ -59,6 +59,24 @@ def test_systems(runner):
     one_line_error(invoke(runner, "systems", "cart_pendlum"), "unknown built-in system")
 
 
+def test_systems_lists_every_builtin(runner):
+    """Every scene `simulate` accepts is listed and described: its coordinates and every parameter
+    with a unit and a meaning, so a new scene cannot be added without its description."""
+    from vcirun.scenes.catalog import listed_scenes, scene_info
+    from vcirun.scenes.data import BUILTIN_SCENE_DATA, scene_data
+
+    listed = invoke(runner, "systems").stdout
+    for name in listed_scenes():
+        assert name.rsplit("_", 1)[0] in BUILTIN_SCENE_DATA or name in BUILTIN_SCENE_DATA
+        assert f"\n{name}  " in "\n" + listed, name
+        info, d = scene_info(name), scene_data(name)
+        assert len(info.coordinates) == d.n, name
+        assert set(d.params) <= set(info.params), (name, set(d.params) - set(info.params))
+        r = invoke(runner, "systems", name)
+        assert r.exit_code == 0 and "coordinates" in r.stdout and "example" in r.stdout, name
+    assert set(BUILTIN_SCENE_DATA) <= {n if n in BUILTIN_SCENE_DATA else n.rsplit("_", 1)[0] for n in listed_scenes()}
+
+
 def test_cache_info_and_clear(runner, tmp_path, monkeypatch):
     monkeypatch.setenv("VCIRUN_CACHE_DIR", str(tmp_path / "c"))
     k = tmp_path / "c" / "kernels"

@@ -99,6 +99,25 @@ BUILTIN_INFO |= {
          "g": ("m/s^2", "gravitational acceleration"), "e": _E},
         "2 contacts: the lower corners (-b/2, -a/2) and (b/2, -a/2) above the floor y = 0 (declared by bodies)",
         "drop height of the centre y = beta, theta = 0.2, at rest", "y = 0.7, theta = 0.2, at rest"),
+    "rimless_wheel": SceneInfo(
+        "rimless_wheel", (("theta", "rad", "stance spoke's angle from the slope normal, forward positive"),),
+        {"m": ("kg", "point mass at the hub"), "l": ("m", "spoke length"),
+         "alpha": ("rad", "half the angle between two spokes"), "gamma": ("rad", "slope angle"),
+         "g": ("m/s^2", "gravitational acceleration")},
+        "phi = alpha - theta >= 0 (the next spoke touches down at theta = alpha); declared plastic reset "
+        "theta+ = theta - 2 alpha, thetadot+ = cos(2 alpha) thetadot",
+        "just after a touchdown: theta = -alpha, thetadot = beta",
+        "the closed-form period-one gait just after a touchdown"),
+    "compass_gait": SceneInfo(
+        "compass_gait", (("theta_s", "rad", "stance leg's angle from the slope normal, forward positive"),
+                         ("theta_ns", "rad", "swing leg's angle from the slope normal, forward positive")),
+        {"m": ("kg", "point mass on each leg"), "mH": ("kg", "hip mass"),
+         "a": ("m", "leg mass to foot"), "b": ("m", "leg mass to hip"), "gamma": ("rad", "slope angle"),
+         "g": ("m/s^2", "gravitational acceleration")},
+        "phi = (a + b)(cos theta_s - cos theta_ns) >= 0 once theta_s > 0 (heel strike); declared reset: "
+        "plastic impact of the swing foot and exchange of the legs (Goswami et al. 1998)",
+        "the default state with its velocities scaled by beta",
+        "the period-one gait at gamma = 3 deg just after heel strike"),
 }
 _SIZED_INFO = ("n_pendulum", "newton_cradle", "link_chain", "cradle")  # listed as <name>_3 (any K)
 
@@ -182,7 +201,8 @@ def describe(name: str) -> list[str]:
     example = ",".join("0" for _ in info.coordinates)
     if name == "cart_pendulum":
         lines.append("  example      vcirun simulate --system cart_pendulum --beta 3.2")
-    elif name == "rocking_block" or sized in ("link_chain", "cradle"):  # (q = 0 is not admissible)
+    elif name in ("rocking_block", "rimless_wheel", "compass_gait") or sized in ("link_chain", "cradle"):
+        # q = 0 is not admissible or not a useful start: the default state is
         lines.append(f"  example      vcirun simulate --system {name} --h 0.001 --T 1   (the default state)")
     else:
         lines.append(f"  example      vcirun simulate --system {name} --q0 {example} --p0 {example}")
