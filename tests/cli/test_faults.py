@@ -564,3 +564,21 @@ def test_plot_out_that_cannot_be_a_folder_names_it_and_leaves_nothing(tiny, tmp_
     before = set(tmp_path.rglob("*"))
     one_line(cli("plot", bad, "--out", tmp_path / "new" / "a" / "b"), "bad.h5")
     assert set(tmp_path.rglob("*")) == before
+
+
+def test_resource_check_counts_every_contact(tmp_path, monkeypatch):
+    """The preflight's memory and disk estimate sizes the per-contact fields (contact_active,
+    contact_force) with the scene's m contacts: ball_in_box's four, not one."""
+    p = tmp_path / "box.yaml"
+    p.write_text(TINY.replace("system: cart_pendulum", "system: ball_in_box").replace(
+        "beta: {start: 3.2, stop: 4.2, num: 2}\n", "").replace("methods: [CVA, VCI]", "methods: [CVA]").replace(
+        "reference: {kind: exact, rtol: 1.0e-10}", "reference: {kind: none}"))
+    cfg = load_config(p)
+    pending = expand(cfg)
+    assert sweep._preflight(cfg, pending) == (2, 4)
+    seen = []
+    real = sweep.stored_bytes
+    monkeypatch.setattr(sweep, "stored_bytes", lambda N, n, m=1, **k: seen.append(m) or real(N, n, m, **k))
+    writer = type("W", (), {"force": False})()
+    sweep._check_resources(cfg, pending, 2, 4, 1, tmp_path / "r.h5", writer)
+    assert seen and set(seen) == {4}

@@ -174,10 +174,10 @@ class _Reporter:
             self._progress = None
 
 
-def _preflight(cfg: SweepConfig, pending: list[RunSpec]) -> int:
+def _preflight(cfg: SweepConfig, pending: list[RunSpec]) -> tuple[int, int]:
     """One step of every method in this process: compiles (and caches on disk) the kernels the
     workers use, and turns bad input the core rejects into an error before any file exists.
-    Returns the number of coordinates n."""
+    Returns the numbers of coordinates and of contacts, (n, m)."""
     import vcirun
 
     system, params, sysm = build_system(cfg)
@@ -207,10 +207,10 @@ def _preflight(cfg: SweepConfig, pending: list[RunSpec]) -> int:
             raise SweepError(f"reference: {_one_line(e)}") from None
         except Exception:  # noqa: BLE001 - numerical trouble is reported per initial condition later
             pass
-    return sysm.n
+    return sysm.n, sysm.m
 
 
-def _check_resources(cfg: SweepConfig, pending: list[RunSpec], n: int, workers: int, path: Path,
+def _check_resources(cfg: SweepConfig, pending: list[RunSpec], n: int, m: int, workers: int, path: Path,
                      writer: ResultsWriter) -> None:
     """Refuse, before the file is created, a sweep whose runs in flight exceed the memory limit or whose
     results cannot fit on the disk (their journal, then the file's final copy: about twice the data)."""
@@ -218,15 +218,15 @@ def _check_resources(cfg: SweepConfig, pending: list[RunSpec], n: int, workers: 
         return
     steps = {h: grid_steps(h, cfg.T)[2] for h in {s.h for s in pending}}
     N = max(steps.values())
-    stored = stored_bytes(N, n, store_trajectories=cfg.store_trajectories)
+    stored = stored_bytes(N, n, m, store_trajectories=cfg.store_trajectories)
     try:  # each worker holds a run's buffers and its result message; the client the message and its record
-        check_run_memory(N, n, copies=min(workers, len(pending)), extra=2 * stored, limit=cfg.max_memory,
+        check_run_memory(N, n, m=m, copies=min(workers, len(pending)), extra=2 * stored, limit=cfg.max_memory,
                          field="h", hint=", or raise max_memory in the config (e.g. max_memory: 32GB) or "
                                          "the VCIRUN_MAX_MEMORY environment variable")
     except ValueError as e:
         raise SweepError(f"{_one_line(e)} (with {min(workers, len(pending))} worker(s); fewer --workers need less)") \
             from None
-    need = sum(stored_bytes(steps[s.h], n, store_trajectories=cfg.store_trajectories) for s in pending)
+    need = sum(stored_bytes(steps[s.h], n, m, store_trajectories=cfg.store_trajectories) for s in pending)
     size = path.stat().st_size if path.exists() and not writer.force else 0
     total = size + 2 * need
     where = next((d for d in [path.parent, *path.parent.parents] if d.exists()), Path("."))
@@ -331,10 +331,10 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
         from vcirun.codegen.build import BUILD_LOG
 
         t_pre, n_log = time.monotonic(), len(BUILD_LOG)
-        n = _preflight(cfg, pending or [specs[0]])
+        n, m = _preflight(cfg, pending or [specs[0]])
         summary.prepare_time = time.monotonic() - t_pre  # kernels loaded or compiled: not run time
         summary.compiled = sum(not e["cached"] for e in BUILD_LOG[n_log:])
-        _check_resources(cfg, pending, n, workers, writer.path, writer)
+        _check_resources(cfg, pending, n, m, workers, writer.path, writer)
         executor = executors.make_executor(ex_spec, workers=workers, start_method=start_method)
         executor.connect()  # a Dask cluster: reached (or a one-line error) before the file is created
         summary.workers = executor.workers
