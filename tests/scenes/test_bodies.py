@@ -130,7 +130,8 @@ def _cradle_first_hit(n, m=0.1, L=1.0, g=9.81, th=0.3):
 
 
 def test_cradle20_first_hit_against_an_independent_lcp_solve():
-    from vcirun.codegen.build import SYSTEM_KERNELS, load_module
+    from vcirun.codegen.build import load_module
+    from vcirun.codegen.kernel_set import SYSTEM_KERNELS
 
     s = load_system_yaml(EX / "cradle20.yaml")
     q, p, ref = _cradle_first_hit(20)

@@ -518,7 +518,6 @@ def _wrapper_source(name) -> str:
 
 
 def _ed_source(system, td, name, nodes) -> str:
-    n = system.n
     e = _Gen(system, td)
     e.prologue()
     nm = len(td["MI"])

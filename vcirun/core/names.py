@@ -16,7 +16,7 @@ import unicodedata
 from .values import describe
 
 __all__ = ["MAX_COORDINATES", "MAX_PARAMETERS", "MAX_NAME_CHARS", "ascii_name_problem", "reserved_name_problem",
-           "check_identifier", "check_distinct_names"]
+           "check_identifier", "check_distinct_names", "check_system_name", "check_description"]
 
 # Declarations of user systems (the generated kernels grow like n**2 to n**4).
 MAX_COORDINATES = 32
@@ -93,3 +93,26 @@ def check_distinct_names(names: dict, prefix: str) -> None:
         problem = ascii_name_problem(name)
         if problem:
             raise ValueError(f"{prefix}.{fld}: {problem}")
+
+
+def check_system_name(name, field_prefix: str) -> str:
+    """A system file's `name` (ASCII letters, digits, '_', '-', '.'); ValueError naming the field."""
+    if not isinstance(name, str) or not name.strip():
+        raise ValueError(f"{field_prefix}.name: must be a non-empty name (got {describe(name)})")
+    problem = ascii_name_problem(name)
+    if problem:
+        raise ValueError(f"{field_prefix}.name: {problem}")
+    if not all(c.isalnum() or c in "_.-" for c in name):
+        raise ValueError(f"{field_prefix}.name: use letters, digits, '_', '-' and '.' only (got {name!r})")
+    return name
+
+
+def check_description(text, field_prefix: str) -> str:
+    """A system file's `description`: text of at most 10,000 characters."""
+    if text is None:
+        return ""
+    if not isinstance(text, str):
+        raise ValueError(f"{field_prefix}.description: must be text (got {describe(text)})")
+    if len(text) > 10_000:
+        raise ValueError(f"{field_prefix}.description: {len(text):,} characters; the limit is 10,000")
+    return text

@@ -24,7 +24,8 @@ from __future__ import annotations
 
 import re
 
-from ..core import validation
+from ..core.names import check_description, check_identifier, check_system_name
+from ..core.values import describe
 from .bodies import (
     GROUND,
     Body,
@@ -35,7 +36,6 @@ from .bodies import (
     Spring,
     planar_system,
 )
-from .loader import _description, _system_name
 
 KEYS = {"name", "description", "parameters", "gravity", "bodies", "joints", "contacts", "springs", "dampers",
         "q0", "qdot0", "p0"}
@@ -64,9 +64,9 @@ def load_bodies(data: dict, field_prefix: str = "system"):
     if not isinstance(params, dict):
         raise ValueError(f"{P}.parameters: must be a mapping name -> value")
     for k, v in params.items():
-        validation.check_identifier(str(k), f"{P}.parameters.{k}")
+        check_identifier(str(k), f"{P}.parameters.{k}")
         if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise ValueError(f"{P}.parameters.{k}: must be a finite number (got {validation.describe(v)})")
+            raise ValueError(f"{P}.parameters.{k}: must be a finite number (got {describe(v)})")
     items = {sec: _expand(data.get(sec) or [], sec, P) for sec in _ITEM_KEYS}
     bodies = [Body(it["name"], it.get("mass"), it.get("inertia", 0), it.get("com", (0, 0)), it.get("radius"), field=f)
               for f, it in _required(items["bodies"], ("name", "mass"))]
@@ -78,10 +78,10 @@ def load_bodies(data: dict, field_prefix: str = "system"):
                       it.get("point_b", (0, 0)), field=f) for f, it in _required(items["springs"], ("a", "b", "k"))]
     dampers = [Damper(it["a"], it["b"], it["c"], it.get("point_a", (0, 0)), it.get("point_b", (0, 0)), field=f)
                for f, it in _required(items["dampers"], ("a", "b", "c"))]
-    return planar_system(_system_name(data.get("name", "user_system"), P), bodies, joints, contacts,
+    return planar_system(check_system_name(data.get("name", "user_system"), P), bodies, joints, contacts,
                          params=params, gravity=data.get("gravity", 0), springs=springs, dampers=dampers,
                          q0=data.get("q0"), qdot0=data.get("qdot0"), p0=data.get("p0"),
-                         description=_description(data.get("description", ""), P), field_prefix=P)
+                         description=check_description(data.get("description", ""), P), field_prefix=P)
 
 
 def _contact(f: str, it: dict, k: int):
@@ -104,7 +104,7 @@ def _contact(f: str, it: dict, k: int):
 
 def _flag(v, fld):
     if not isinstance(v, bool):
-        raise ValueError(f"{fld}: must be true or false (got {validation.describe(v)})")
+        raise ValueError(f"{fld}: must be true or false (got {describe(v)})")
     return v
 
 

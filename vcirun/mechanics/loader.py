@@ -24,7 +24,14 @@ import numpy as np
 import sympy as sp
 import yaml
 
-from ..core.names import MAX_COORDINATES, MAX_PARAMETERS, ascii_name_problem, check_distinct_names, check_identifier
+from ..core.names import (
+    MAX_COORDINATES,
+    MAX_PARAMETERS,
+    check_description,
+    check_distinct_names,
+    check_identifier,
+    check_system_name,
+)
 from ..core.values import describe
 from ..core.yaml_loader import yaml_load
 from .expressions import ALLOWED_FUNCTIONS, ExpressionError, parse_expression, parse_matrix
@@ -76,9 +83,9 @@ def load_system_yaml(source, field_prefix: str = "system") -> MechanicalSystem:
         q0 = _vector(data["q0"], n, f"{field_prefix}.q0")
         if data.get("p0") is not None:
             p0 = _vector(data["p0"], n, f"{field_prefix}.p0")
-    system = MechanicalSystem(name=_system_name(data.get("name", "user_system"), field_prefix), q=q, qd=qd,
+    system = MechanicalSystem(name=check_system_name(data.get("name", "user_system"), field_prefix), q=q, qd=qd,
                               params=params, M=M, V=V, constraints=constraints, forcing=forcing,
-                              description=_description(data.get("description", ""), field_prefix))
+                              description=check_description(data.get("description", ""), field_prefix))
     if q0 is not None:
         if p0 is None:
             qdot0 = _vector(data.get("qdot0", [0.0] * n), n, f"{field_prefix}.qdot0")
@@ -205,27 +212,6 @@ def _expression(value, field: str):
         return value
     raise ExpressionError(field, type(value).__name__,
                           f"must be an expression string or a number (got {describe(value)})")
-
-
-def _system_name(name, field_prefix: str) -> str:
-    if not isinstance(name, str) or not name.strip():
-        raise ValueError(f"{field_prefix}.name: must be a non-empty name (got {describe(name)})")
-    problem = ascii_name_problem(name)
-    if problem:
-        raise ValueError(f"{field_prefix}.name: {problem}")
-    if not all(c.isalnum() or c in "_.-" for c in name):
-        raise ValueError(f"{field_prefix}.name: use letters, digits, '_', '-' and '.' only (got {name!r})")
-    return name
-
-
-def _description(text, field_prefix: str) -> str:
-    if text is None:
-        return ""
-    if not isinstance(text, str):
-        raise ValueError(f"{field_prefix}.description: must be text (got {describe(text)})")
-    if len(text) > 10_000:
-        raise ValueError(f"{field_prefix}.description: {len(text):,} characters; the limit is 10,000")
-    return text
 
 
 def _vector(v, n, field):

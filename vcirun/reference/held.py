@@ -212,12 +212,24 @@ def _project_y(mod, y, prm, A):
 
 # --- which contacts are held -------------------------------------------------------------------
 
+# Normal accelerations within FORCE_LCP_TOL max(1, |b|) of zero are zero to the contact-force LCP.
+FORCE_LCP_TOL = 1e-12
+
+
+def press_level(g, tol) -> float:
+    """How far below zero a resting contact's normal acceleration must be to count as pushed in: twice
+    the larger of the rest tolerance times the acceleration scale of the _Geometry g and the force
+    LCP's zero, so that every contact found pushed in gets a compressive force from held_set."""
+    b = float(np.max(np.abs(g.free_acc(list(range(g.m)))))) if g.m else 0.0
+    return 2.0 * max(tol * g.acc_scale(), FORCE_LCP_TOL * max(1.0, b))
+
+
 def _force_lcp(W, b):
     """The contact-force LCP at acceleration level: a = b + W mu >= 0, mu >= 0, mu_i a_i = 0, by
     enumeration of the active sets (smallest first; the small m of the scenes). W positive definite:
     exactly one set qualifies. Returns mu (singular subsets are skipped; None if no set qualifies)."""
     k = len(b)
-    tol = 1e-12 * max(1.0, float(np.max(np.abs(b))) if k else 1.0)
+    tol = FORCE_LCP_TOL * max(1.0, float(np.max(np.abs(b))) if k else 1.0)
     for size in range(k + 1):
         for S in combinations(range(k), size):
             mu = np.zeros(k)

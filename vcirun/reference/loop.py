@@ -133,9 +133,9 @@ def _immediate(g, t, y, A, R, tol=rh.HELD_TOL):
             return Flight(t, t, np.array(y, float), "impact", i, Constant(y))
     if R:
         acc = g.held_acc(tuple(A))
-        scale = g.acc_scale()
+        level = rh.press_level(g, tol)
         for i in R:
-            if acc[i] < -tol * scale:
+            if acc[i] < -level:
                 return Flight(t, t, np.array(y, float), "pressed", i, Constant(y))
     return None
 

@@ -22,7 +22,10 @@ not held), all terminal:
               for a contact of R (its phi is round-off of either sign; the root phi_i = 0 is then
               refined on the dense output);
     release_i (i in A): mu_i crosses 0 downwards;
-    pressed_i (i in R): its normal acceleration along the flow (+ TINY) crosses 0 downwards;
+    pressed_i (i in R): its normal acceleration along the flow, plus held.press_level at the
+              segment's start, crosses 0 downwards: pushed in beyond round-off, as the loop's own
+              test at a segment's start and the force LCP of held_set see it (an acceleration of
+              round-off, as between identical pendulums swinging in unison, is no event);
     lift_i    (i in R): phi_i - par[lift_i] crosses 0 upwards (it has left: the next segment watches
               it with offset 0).
 Parameters: the system's, then off_i (m), lift_i (m), the pressed offsets (m), then M^-1 entries for
@@ -174,14 +177,15 @@ class TaylorModel:
     def minv0(self) -> int:
         return self.np + 3 * self.m
 
-    def pars(self, prm, off=None, lift=None):
+    def pars(self, prm, off=None, lift=None, press=None):
         """The integrators' parameter vector: the system's parameters, the impact offsets (TINY, or a
-        resting contact's round-off offset), the lift-off levels and the pressed-event offsets (TINY)."""
+        resting contact's round-off offset), the lift-off levels and the pressed-event offsets (TINY,
+        or a resting contact's round-off level of its normal acceleration)."""
         out = np.zeros(self.minv0 + (self.n * self.n if self.minv_par else 0))
         out[: self.np] = prm
         out[self.off0: self.lift0] = TINY if off is None else off
         out[self.lift0: self.press0] = 1e300 if lift is None else lift
-        out[self.press0: self.minv0] = TINY
+        out[self.press0: self.minv0] = TINY if press is None else press
         if self.minv_par:
             out[self.minv0:] = np.linalg.inv(self.system.mass_matrix(np.zeros(self.n), prm)).ravel()
         return out
@@ -377,14 +381,16 @@ class TaylorBackend:
         floor = [-scale[i] for i in range(m)]   # penetration beyond round-off
         key = ("base",)
         if R:   # offsets above the resting contacts' own |phi| (within the rest tolerance) and round-off
-            off, lift = np.full(m, TINY), np.full(m, 1e300)
+            off, lift, press = np.full(m, TINY), np.full(m, 1e300), np.full(m, TINY)
+            press_level = rh.press_level(g, self.rest_tol)
             for i in R:
                 off[i] = 4.0 * (abs(phi0[i]) + scale[i])
                 lift[i] = floor[i] = 2.0 * off[i]
                 floor[i] = -floor[i]
-            key = (tuple(off), tuple(lift))
+                press[i] = press_level
+            key = (tuple(off), tuple(lift), tuple(press))
         if self._pars_of.get(id(ta)) != key:   # (parameters set by the last segment on ta are kept)
-            pars = model.pars(self.prm, off, lift) if R else self._base
+            pars = model.pars(self.prm, off, lift, press) if R else self._base
             ta.pars[:] = pars[:len(ta.pars)]
             self._pars_of[id(ta)] = key
         ta.time = float(t0)
