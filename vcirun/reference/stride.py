@@ -83,8 +83,8 @@ class ReferenceReturnMap:
                 break
             T = min(2.0 * T, self.T_max)
         name = self.system.constraints[self.section].name
-        raise RuntimeError(f"reference return map: no {self.k} impacts of {name} within T = {T:g} from "
-                           f"{x.tolist()} (T_max: a longer search)")
+        raise RuntimeError(f"reference return map: fewer than {self.k} impacts of {name} within T = {T:g} from "
+                           f"{x.tolist()} (it does not return to the section; T_max: a longer search)")
 
     def jacobian(self, x, fd_step=1e-3):
         """DP(x) by the fourth-order central difference (see the module docstring)."""
