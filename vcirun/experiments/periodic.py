@@ -11,6 +11,9 @@ and the event search converge far below their tolerances), so the Jacobian is ac
 eps / fd_step + fd_step^4. The eigenvalues of DP are the orbit's Floquet multipliers; the image
 of P lies on the section (codimension one for an impact surface), so one multiplier is ~0.
 
+method "reference": the exact return map (vcirun.reference.stride.ReferenceReturnMap) with the same
+Jacobian, the orbit the methods' converge to in h.
+
 `continuation` follows a fixed point along a parameter (the previous point as the next guess),
 detects period doubling where a multiplier crosses -1, and follows the period-two orbit from there.
 """

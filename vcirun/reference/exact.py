@@ -26,6 +26,10 @@ a plastic impact, or whose impacts accumulate (the Zeno time extrapolated from i
 contacts accumulating together are held together) is held on the index-reduced constrained dynamics
 (vcirun/reference/held.py) and released where its contact force turns tensile; docs/derivations/contacts.md 6.
 
+Declared resets and guards (vcirun.mechanics.hybrid): the declared map at each impact of its
+constraint, guards honoured on both paths, the state after the map checked admissible
+(vcirun.reference.resets); the exact return map on a section: vcirun.reference.stride.
+
 Also: a fine-step method reference (the paper's choice: CVA at a small h). Closed forms (the
 oscillator against a wall, the bouncing ball, the ball in a box ...) are in vcirun.scenes.oracles.
 """
