@@ -3,7 +3,7 @@
 Measured (Taylor path; `vcirun.periodic_orbit("compass_gait", "reference", guess=..., fd_step=5e-5)`):
 compass gait at 3 degrees, fixed point q = (-0.27102868, 0.27102868), p = (16.9430407, -1.86775612),
 stride period 0.7343463911587195 s, multipliers -0.199726127 +- 0.54447606 i, 0.131572624 (and
--5e-12: the section). The multipliers' finite-difference error: 4e-11 (fd_step 1e-4, 2.5e-5, 1e-5
+~1e-11: the section). The multipliers' finite-difference error: 4e-11 (fd_step 1e-4, 2.5e-5, 1e-5
 against 5e-5), 1.5e-7 at periodic_orbit's default fd_step 1e-3 (delta = 1e-3 |p| = 0.017 on p).
 CVA4 against it (same fd_step 1e-3), h = 0.01, 0.005, 0.0025, 0.00125: fixed point 3.8e-8, 2.4e-9,
 1.5e-10, 9.6e-12; period 4.8e-9, 3.0e-10, 1.9e-11, 1.2e-12; multipliers 3.5e-8, 2.4e-9, 1.1e-10,
