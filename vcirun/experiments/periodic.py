@@ -11,6 +11,9 @@ and the event search converge far below their tolerances), so the Jacobian is ac
 eps / fd_step + fd_step^4. The eigenvalues of DP are the orbit's Floquet multipliers; the image
 of P lies on the section (codimension one for an impact surface), so one multiplier is ~0.
 
+method "reference": the exact return map (vcirun.reference.stride.ReferenceReturnMap) with the same
+Jacobian, the orbit the methods' converge to in h.
+
 `continuation` follows a fixed point along a parameter (the previous point as the next guess),
 detects period doubling where a multiplier crosses -1, and follows the period-two orbit from there.
 """
@@ -23,6 +26,7 @@ import numpy as np
 from ..run.api import simulate
 from ..run.resolve import resolve_numeric, resolve_system
 from ..methods.table import resolve_method
+from ..reference.stride import ReferenceReturnMap
 
 
 @dataclass
@@ -135,17 +139,26 @@ def _section_index(section, sysm, names) -> int:
     return names.index(section)
 
 
-def periodic_orbit(system, method, *, h, guess, section=None, k=1, params=None, tol=1e-12, maxit=30,
+def periodic_orbit(system, method, *, h=None, guess, section=None, k=1, params=None, tol=1e-12, maxit=30,
                    fd_step=1e-3, **options) -> PeriodicOrbit:
     """A fixed point of the return map of `method` at step h on `section` (a constraint's impact, just
     after its reset), by Newton on P(x) - x = 0 with the finite-difference Jacobian (module
     docstring), from guess = (q, p) or the flat state. k: impacts per return (2: a period-two orbit).
+    method "reference": the exact return map (vcirun.reference.stride.ReferenceReturnMap; no h; its
+    options path, rtol, T_max), the orbit every method's converges to.
     Converged when the Newton step is below tol (1 + |x|); raises RuntimeError otherwise."""
     if isinstance(guess, (tuple, list)) and len(guess) == 2 and np.ndim(guess[0]) == 1:
         x = np.concatenate([np.asarray(guess[0], float), np.asarray(guess[1], float)])
     else:
         x = np.asarray(guess, float).ravel().copy()
-    P = ReturnMap(system, method, h=h, section=section, k=k, params=params, **options)
+    if method == "reference":
+        if h is not None:
+            raise ValueError("h: the exact return map (method 'reference') has no step; drop h")
+        P = ReferenceReturnMap(system, section=section, k=k, params=params, **options)
+    elif h is None:
+        raise ValueError(f"h: the return map of {method} needs a step h")
+    else:
+        P = ReturnMap(system, method, h=h, section=section, k=k, params=params, **options)
     if x.shape != (2 * P.n,):
         raise ValueError(f"guess: must be (q, p) with {P.n} entries each, or {2 * P.n} numbers (got {x.shape})")
     x, _ = P(x)   # onto the section
@@ -168,4 +181,4 @@ def periodic_orbit(system, method, *, h, guess, section=None, k=1, params=None, 
     ev = ev[np.argsort(-np.abs(ev), kind="stable")]
     n = P.n
     return PeriodicOrbit((x[:n].copy(), x[n:].copy()), period, ev, J, float(np.max(np.abs(Px - x))), it,
-                         str(method), float(h), int(k), dict(params or {}))
+                         str(method), float("nan") if h is None else float(h), int(k), dict(params or {}))

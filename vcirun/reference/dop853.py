@@ -68,6 +68,7 @@ class Dop853Backend:
         self.forced = bool(mod.FORCED)
         self.nfev = 0
         self._buf = np.empty(2 * self.n)
+        self.resets = None   # set by the caller for a system with declared resets or guards
 
     # --- the right-hand sides ----------------------------------------------------------------
     def _free_rhs(self, t, y):

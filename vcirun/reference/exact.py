@@ -26,6 +26,10 @@ a plastic impact, or whose impacts accumulate (the Zeno time extrapolated from i
 contacts accumulating together are held together) is held on the index-reduced constrained dynamics
 (vcirun/reference/held.py) and released where its contact force turns tensile; docs/derivations/contacts.md 6.
 
+Declared resets and guards (vcirun.mechanics.hybrid): the declared map at each impact of its
+constraint, guards honoured on both paths, the state after the map checked admissible
+(vcirun.reference.resets); the exact return map on a section: vcirun.reference.stride.
+
 Also: a fine-step method reference (the paper's choice: CVA at a small h). Closed forms (the
 oscillator against a wall, the bouncing ball, the ball in a box ...) are in vcirun.scenes.oracles.
 """
@@ -39,6 +43,7 @@ from ..core.system_data import start_tolerance
 from .dop853 import Dop853Backend
 from .flight import Budget, Constant, ReferenceCostError
 from .loop import solve
+from .resets import declared_resets
 from .taylor import TOL, NotExpressible, TaylorBackend, TaylorFailure, TaylorPiece, order_of, taylor_model
 
 CHECK_TOLS = (1e-14, 1e-15)   # the Taylor path's check solves (the second when the first sees other events)
@@ -135,15 +140,18 @@ def _names(system):
     return [c.name for c in system.constraints]
 
 
-def _solve_taylor(sysm, mod, model, q0, p0, prm, T, tol, resting_contact):
+def _solve_taylor(sysm, mod, model, q0, p0, prm, T, tol, resting_contact, stop_after=None):
     backend = TaylorBackend(model, mod, prm, tol=tol, budget=_taylor_budget(model, T, q0, p0))
-    return solve(backend, mod, q0, p0, prm, T, names=_names(sysm), resting_contact=resting_contact)
+    return solve(backend, mod, q0, p0, prm, T, names=_names(sysm), resting_contact=resting_contact,
+                 resets=backend.resets, stop_after=stop_after)
 
 
-def _solve_dop853(sysm, mod, q0, p0, prm, T, rtol, resting_contact, samples=8, reach=2.0):
+def _solve_dop853(sysm, mod, q0, p0, prm, T, rtol, resting_contact, samples=8, reach=2.0, stop_after=None):
     atol = rtol * max(1.0, float(np.max(np.abs(np.concatenate([q0, p0])))))
     backend = Dop853Backend(mod, prm, rtol, atol, budget=_dop_budget(T, q0, p0), samples=samples, reach=reach)
-    return solve(backend, mod, q0, p0, prm, T, names=_names(sysm), resting_contact=resting_contact)
+    backend.resets = declared_resets(sysm, mod, prm)
+    return solve(backend, mod, q0, p0, prm, T, names=_names(sysm), resting_contact=resting_contact,
+                 resets=backend.resets, stop_after=stop_after)
 
 
 def _sequence(sol):
@@ -198,6 +206,14 @@ def _difference(sysm, a, b, H0, T) -> tuple:
         tt = np.linspace(0.0, T, 2001)
         qa, qb = ra.state(tt)[:, :n], rb.state(tt)[:, :n]
         speed = float(np.max(np.abs(np.diff(qa, axis=0)))) / (tt[1] - tt[0])
+    if sysm.reset_map is not None and a.impacts and _sequence(a) == _sequence(b):
+        # a declared map moves q at each impact: between the two solves' impact times the one is past
+        # the jump and the other not; those points compare the times (dt below), not q
+        keep = np.ones(len(tt), bool)
+        for x, y in zip(a.impacts, b.impacts):
+            lo, hi = min(x[0], y[0]), max(x[0], y[0])
+            keep &= ~((tt >= lo - 4 * _EPS * max(1.0, abs(lo))) & (tt <= hi + 4 * _EPS * max(1.0, abs(hi))))
+        tt, qa, qb = tt[keep], qa[keep], qb[keep]
     acc = float(np.max(np.abs(qa - qb)))
     dt = [x[0] - y[0] for x, y in zip(a.impacts + a.releases, b.impacts + b.releases)]
     if dt and _sequence(a) == _sequence(b):

@@ -51,6 +51,7 @@ class Solution:
     impacts: list = field(default_factory=list)
     releases: list = field(default_factory=list)
     intervals: list = field(default_factory=list)
+    after: tuple | None = None   # (t, state after the impact) where a solve with stop_after ended
 
     def add(self, fl: Flight, A, merge=False) -> None:
         """Record a segment; merge: it continues the previous held interval (a restart without event)."""
@@ -197,8 +198,11 @@ def _steady(times) -> bool:
 
 
 def solve(backend, mod, q0, p0, prm, T, *, names, resting_contact=True, max_impacts=MAX_IMPACTS,
-          max_events=MAX_EVENTS) -> Solution:
-    """The exact nonsmooth solution on [0, T] from (q0, p0) on `backend`'s segments (see the module)."""
+          max_events=MAX_EVENTS, resets=None, stop_after=None) -> Solution:
+    """The exact nonsmooth solution on [0, T] from (q0, p0) on `backend`'s segments (see the module).
+    resets: the system's DeclaredResets (vcirun.reference.resets; None: Newton's law alone);
+    stop_after = (contact, k): end at the k-th impact of that contact, its state after the impact law
+    (and the declared map) in sol.after."""
     n, m = int(mod.NDOF), int(mod.NCON)
     forced = bool(mod.FORCED)
     y = np.concatenate([np.asarray(q0, float), np.asarray(p0, float)] + ([[0.0]] if forced else []))
@@ -257,9 +261,15 @@ def solve(backend, mod, q0, p0, prm, T, *, names, resting_contact=True, max_impa
                 raise RuntimeError(f"reference: the impact law has no solution at t={t:.6g} (case {k}; contact "
                                    f"{names[i]})")
             hit = []
+            if resets is not None:
+                resets.check_impact(t, y, i)
             if k > 0:
                 y = _on_surface(mod, t, y, prm, [j for j in np.flatnonzero(active) if j not in A])
-                y[n:2 * n] += s0 * d
+                if resets is not None and resets.mapped and not A:
+                    y = resets.apply(t, y, d, s0, i)   # the declared map (the impact law first if declared)
+                    s0 = s0 if mod.RESET_LAW_FIRST else 0.0   # the recorded impulse: the impact law's
+                else:
+                    y[n:2 * n] += s0 * d
                 # an impulse at the round-off of the others (a touching contact with u- ~ eps beside
                 # one that hits: the side wall a plastic impact left the ball on) is no impact
                 floor = ROUNDOFF_IMPULSE * max(float(np.max(lam)), 0.0) if m > 1 else 0.0
@@ -271,6 +281,10 @@ def solve(backend, mod, q0, p0, prm, T, *, names, resting_contact=True, max_impa
                         hit.append(j)
                 if len(sol.impacts) > max_impacts:
                     raise RuntimeError(_too_many(sol, times_of, e_of, names, max_impacts, t, resting_contact))
+                if stop_after is not None and len(times_of[stop_after[0]]) >= stop_after[1] \
+                        and stop_after[0] in hit:
+                    sol.after = (t, np.array(y, float))
+                    break
             if resting_contact:
                 geo = _geometry(mod, t, y, prm)
                 A = rh.held_set(mod, t, None, None, prm, None, tol, geo=geo)

@@ -45,6 +45,7 @@ import numpy as np
 
 from . import held as rh
 from .flight import Constant, Flight, last_crossing
+from .resets import declared_resets
 
 __all__ = ["TaylorModel", "TaylorPiece", "TaylorBackend", "NotExpressible", "TaylorFailure", "taylor_model", "TOL",
            "TINY", "REACH", "REST_TOL", "MAX_DENSE_N", "MAX_HELD"]
@@ -195,8 +196,11 @@ class TaylorModel:
 
         hy = _hy()
         s, n, m = self.system, self.n, self.m
-        for c in s.constraints:
-            if c.phi.has(sp.Abs, sp.Min, sp.Max, sp.Piecewise, sp.sign, sp.Heaviside):
+        # a guarded constraint (when: w(q) > 0) is followed on its surface, with its guard as an event
+        # of its own (vcirun.reference.resets)
+        surfaces = [c.surface if c.when is not None else c.phi for c in s.constraints]
+        for c, phi in zip(s.constraints, surfaces):
+            if phi.has(sp.Abs, sp.Min, sp.Max, sp.Piecewise, sp.sign, sp.Heaviside):
                 raise NotExpressible(f"constraint {c.name} is not smooth (abs, min, max or a piecewise form)")
         for what, ex in (("mass_matrix", s.M), ("potential", sp.Matrix([s.V])),
                          ("forcing", s.forcing if s.forcing is not None else sp.Matrix([0]))):
@@ -249,8 +253,9 @@ class TaylorModel:
             F = [F[i] + f[i] for i in range(n)]
             self.power = hy.sum([f[i] * v[i] for i in range(n)])
         self.F = F
-        self.phi = [conv(c.phi) for c in s.constraints]
-        G = s.constraint_jacobian
+        self.phi = [conv(phi) for phi in surfaces]
+        self.when = [conv(c.when) if c.when is not None else None for c in s.constraints]
+        G = sp.Matrix([[sp.diff(phi, q) for q in s.q] for phi in surfaces])
         self.G = [[conv(G[i, j]) for j in range(n)] for i in range(m)]
         self.u = [hy.sum([self.G[i][j] * v[j] for j in range(n)]) for i in range(m)]
         self.MinvF = [hy.sum([Minv[i][j] * F[j] for j in range(n)]) for i in range(n)]
@@ -322,6 +327,8 @@ class TaylorModel:
                 add(mu[A.index(i)], neg, ("release", i))
             else:
                 add(self.phi[i] + hy.par[self.off0 + i], neg, ("impact", i))
+                if self.when[i] is not None:
+                    add(self.when[i], pos, ("arm", i))
         for i in R:
             add(self.normal_acceleration(i, pdot) + hy.par[self.press0 + i], neg, ("pressed", i))
             add(self.phi[i] - hy.par[self.lift0 + i], pos, ("lift", i))
@@ -358,6 +365,7 @@ class TaylorBackend:
         self.steps = 0
         self._base = model.pars(self.prm)   # the parameter vector without resting contacts
         self._pars_of = {}                  # id(integrator) -> what its parameters were last set to
+        self.resets = declared_resets(model.system, mod, self.prm)   # guards and the declared map, or None
 
     def segment(self, t0, y0, T, A, R, geo=None):
         """One segment (vcirun.reference.flight); geo: the _Geometry at (t0, y0) if the caller has it.
@@ -432,6 +440,12 @@ class TaylorBackend:
                 retries = 0
                 if -nev <= code <= -1:
                     ev = kinds[-code - 1]
+                    if self.resets is not None and ev[1] in self.resets.guarded:
+                        if ev[0] == "arm":   # the guard arms (on or above the surface): no event
+                            self.resets.check_arming(float(ta.time), np.array(ta.state, float), ev[1])
+                            ev = None
+                        elif ev[0] == "impact" and not self.resets.armed(ev[1], np.array(ta.state, float)):
+                            ev = None        # the surface crossed where the guard is not armed: no event
                 continue
             starts += rec.starts[:k_bad]
             tcs += rec.tcs[:k_bad]
