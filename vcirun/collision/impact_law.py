@@ -198,26 +198,11 @@ def _lcp_solve_support(A, q, mask, k, wmax, x):
 def _lcp_rank_full(A, mask, k, wmax):
     """True if the principal submatrix A_SS (S = mask; symmetric PSD) is positive definite: Cholesky
     with every pivot above LCP_RANK_TOL wmax. The empty matrix counts as nonsingular."""
-    idx = np.empty(k, np.int64)
-    m = 0
+    sel = np.zeros(k, np.int64)
     for i in range(k):
         if (mask >> i) & 1:
-            idx[m] = i
-            m += 1
-    L = np.zeros((m, m))
-    for j in range(m):
-        d = A[idx[j], idx[j]]
-        for c in range(j):
-            d -= L[j, c] * L[j, c]
-        if not d > LCP_RANK_TOL * wmax:
-            return False
-        L[j, j] = math.sqrt(d)
-        for r in range(j + 1, m):
-            s = A[idx[r], idx[j]]
-            for c in range(j):
-                s -= L[r, c] * L[j, c]
-            L[r, j] = s / L[j, j]
-    return True
+            sel[i] = 1
+    return _cholesky_pd(A, sel, k, wmax)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

@@ -26,7 +26,7 @@ import numpy as np
 from ..run.api import simulate
 from ..run.resolve import resolve_numeric, resolve_system
 from ..methods.table import resolve_method
-from ..reference.stride import ReferenceReturnMap
+from ..reference.stride import ReferenceReturnMap, fd_jacobian
 
 
 @dataclass
@@ -110,16 +110,7 @@ class ReturnMap:
 
     def jacobian(self, x, fd_step=1e-3):
         """DP(x) by the fourth-order central difference (see the module docstring)."""
-        x = np.asarray(x, float)
-        m = x.shape[0]
-        J = np.empty((m, m))
-        for j in range(m):
-            d = fd_step * max(1.0, abs(x[j]))
-            e = np.zeros(m)
-            e[j] = d
-            f = [self(x + s * e)[0] for s in (2.0, 1.0, -1.0, -2.0)]
-            J[:, j] = (-f[0] + 8.0 * f[1] - 8.0 * f[2] + f[3]) / (12.0 * d)
-        return J
+        return fd_jacobian(self, x, fd_step)
 
 
 def _section_index(section, sysm, names) -> int:

@@ -19,7 +19,7 @@ from ..codegen.kernel_set import SYSTEM_KERNELS
 from .exact import _solve_dop853, _solve_taylor
 from .taylor import TOL, NotExpressible, TaylorFailure, taylor_model
 
-__all__ = ["ReferenceReturnMap"]
+__all__ = ["ReferenceReturnMap", "fd_jacobian"]
 
 
 class ReferenceReturnMap:
@@ -88,16 +88,22 @@ class ReferenceReturnMap:
 
     def jacobian(self, x, fd_step=1e-3):
         """DP(x) by the fourth-order central difference (see the module docstring)."""
-        x = np.asarray(x, float)
-        m = x.shape[0]
-        J = np.empty((m, m))
-        for j in range(m):
-            d = fd_step * max(1.0, abs(x[j]))
-            e = np.zeros(m)
-            e[j] = d
-            f = [self(x + s * e)[0] for s in (2.0, 1.0, -1.0, -2.0)]
-            J[:, j] = (-f[0] + 8.0 * f[1] - 8.0 * f[2] + f[3]) / (12.0 * d)
-        return J
+        return fd_jacobian(self, x, fd_step)
+
+
+def fd_jacobian(P, x, fd_step=1e-3):
+    """DP(x) of a return map P (P(x) -> (x+, return time)) by the fourth-order central difference,
+    stencil +-delta, +-2 delta with delta = fd_step max(1, |x_j|)."""
+    x = np.asarray(x, float)
+    m = x.shape[0]
+    J = np.empty((m, m))
+    for j in range(m):
+        d = fd_step * max(1.0, abs(x[j]))
+        e = np.zeros(m)
+        e[j] = d
+        f = [P(x + s * e)[0] for s in (2.0, 1.0, -1.0, -2.0)]
+        J[:, j] = (-f[0] + 8.0 * f[1] - 8.0 * f[2] + f[3]) / (12.0 * d)
+    return J
 
 
 def _section(section, system) -> int:
