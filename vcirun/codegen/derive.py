@@ -299,7 +299,7 @@ def generated_source(system, ks, kernel_path: str | None = None) -> str:
     Hamiltonian's kernels."""
     from ..core.record import module_constants
 
-    parts = [HEADER, f"NDOF = {system.n}", f"FORCED = {bool(system.is_forced)}",
+    parts = [HEADER, f"NDOF = {system.n}", f"BAND = {system.bandwidth}", f"FORCED = {bool(system.is_forced)}",
              f"RESET_MAP = {system.reset_map is not None}", f"RESET_LAW_FIRST = {bool(system.reset_law_first)}",
              system_kernels_source(system, kernel_path), module_constants()]
     names = list(ks.explicit_names)

@@ -298,6 +298,8 @@ def _constant(name: str, part: str, slot: str | None, placeholder, doc: str):
 NDOF = _constant("NDOF", "system", "int", 1, "number of coordinates n")
 NCON = _constant("NCON", "system", "int", 1, "number of constraints m")
 NODE_LEN = _constant("NODE_LEN", "system", "int", 1, "length of a point's node data (sys_node)")
+BAND = _constant("BAND", "system", "int", 0,
+                 "half-bandwidth of M(q) and of the step Jacobians (MechanicalSystem.bandwidth)")
 MH_M = _constant("MH_M", "modified", "int", 1, "number of eta's stage velocities (all stages)")
 FORCED = _constant("FORCED", "system", "bool", False, "the system has a generalized force")
 PARTIAL_IS_FULL = _constant("PARTIAL_IS_FULL", "steps", "bool", True,

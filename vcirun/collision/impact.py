@@ -25,10 +25,10 @@ import numpy as np
 from numba import njit
 
 from vcirun.codegen.frame import scratch, scratch2, scratch_i
-from vcirun.codegen.roles import NDOF, NCON, sys_M, sys_phi, sys_phis, sys_dphis, sys_restitution
+from vcirun.codegen.roles import NDOF, NCON, BAND, sys_M, sys_phi, sys_phis, sys_dphis, sys_restitution
 from vcirun.collision.impact_law import impact_law
 from vcirun.maps.dynamics import cva_lambda, delassus, gdot
-from vcirun.maps.linalg import solve_small
+from vcirun.maps.linalg import solve_band
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -60,7 +60,7 @@ def _newton_loss_one(q, pm, prm, g, e):
     x = scratch(NDOF)
     for i in range(NDOF):
         x[i] = g[i]
-    if not solve_small(A, x, NDOF):
+    if not solve_band(A, x, NDOF, BAND):
         return 0.0
     W = 0.0
     u = 0.0
@@ -153,11 +153,18 @@ def touch_tolerance(q, prm, i, u, h, event_tol):
 def _touch_tolerance_row(q, G, i, u, h, event_tol):
     """touch_tolerance with the constraint Jacobian G at q given (loops over the contacts build it
     once: O(m n), not O(m^2 n))."""
-    gq = 0.0
     qn = 0.0
     for j in range(NDOF):
-        gq = max(gq, abs(G[i, j]))
         qn = max(qn, abs(q[j]))
+    return _touch_tolerance_qn(qn, G, i, u, h, event_tol)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _touch_tolerance_qn(qn, G, i, u, h, event_tol):
+    """_touch_tolerance_row with qn = max_j |q_j| given (the loops over every contact take it once)."""
+    gq = 0.0
+    for j in range(NDOF):
+        gq = max(gq, abs(G[i, j]))
     return max(4.0 * event_tol * h * abs(u), 64.0 * 2.220446049250313e-16 * (1.0 + qn * gq))
 
 
@@ -206,17 +213,23 @@ def normal_velocities(q, p, prm):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _normal_velocities_into(q, p, prm, u):
+    G = scratch2(NCON, NDOF)
+    sys_dphis(q, prm, G)
+    _normal_velocities_G(q, p, prm, G, u)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _normal_velocities_G(q, p, prm, G, u):
+    """u = G M(q)^-1 p with G = grad phi at q given."""
     A = scratch2(NDOF, NDOF)
     x = scratch(NDOF)
     for i in range(NDOF):
         x[i] = p[i]
     sys_M(q, prm, A)
-    if not solve_small(A, x, NDOF):
+    if not solve_band(A, x, NDOF, BAND):
         for i in range(NCON):
             u[i] = np.nan
         return
-    G = scratch2(NCON, NDOF)
-    sys_dphis(q, prm, G)
     for i in range(NCON):
         s = 0.0
         for j in range(NDOF):
@@ -237,12 +250,17 @@ def touching_mask(q, p, h, event_tol, prm, mask, held):
         return k
     phis = scratch(NCON)
     sys_phis(q, prm, phis)
-    u = scratch(NCON)
-    _normal_velocities_into(q, p, prm, u)
     G = scratch2(NCON, NDOF)
     sys_dphis(q, prm, G)
+    u = scratch(NCON)
+    _normal_velocities_G(q, p, prm, G, u)
+    qn = 0.0
+    for j in range(NDOF):
+        qn = max(qn, abs(q[j]))
     for i in range(NCON):
-        if mask[i] == 0 and phis[i] <= _touch_tolerance_row(q, G, i, u[i], h, event_tol) and u[i] >= 0.0:
+        # (the tolerance is >= 0: a contact at or below its surface needs no tolerance, O(n) each)
+        if mask[i] == 0 and u[i] >= 0.0 and (phis[i] <= 0.0
+                                             or phis[i] <= _touch_tolerance_qn(qn, G, i, u[i], h, event_tol)):
             mask[i] = 1
             k += 1
     return k
@@ -257,10 +275,17 @@ def unmask_penetrating(q, prm, mask, held):
     phis = scratch(NCON)
     sys_phis(q, prm, phis)
     G = scratch2(NCON, NDOF)
-    sys_dphis(q, prm, G)
+    have_G = False  # built at the first candidate: only a negative phi_i can be below -tolerance
+    qn = 0.0
     k = 0
     for i in range(NCON):
-        if mask[i] == 1 and held[i] == 0 and phis[i] < -_touch_tolerance_row(q, G, i, 0.0, 1.0, 0.0):
-            mask[i] = 0
-            k += 1
+        if mask[i] == 1 and held[i] == 0 and phis[i] < 0.0:
+            if not have_G:
+                sys_dphis(q, prm, G)
+                for j in range(NDOF):
+                    qn = max(qn, abs(q[j]))
+                have_G = True
+            if phis[i] < -_touch_tolerance_qn(qn, G, i, 0.0, 1.0, 0.0):
+                mask[i] = 0
+                k += 1
     return k

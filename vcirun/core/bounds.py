@@ -51,17 +51,22 @@ def check_system_names(system) -> None:
             raise ValueError(f"system.{fld}: {problem}")
 
 
+# The largest K of each sized built-in scene. The cradle's model is linear in K (M = m I, V = 0, each
+# phi_i one difference of two coordinates), so its kernels grow like K; the n-link pendulum's M(q)
+# has K**2 entries of K-term sums, and its derivatives grow like K**4.
+SIZED_SCENE_CAPS = {"n_pendulum": MAX_COORDINATES, "newton_cradle": 128}
+
+
 def check_scene_size(system, field: str = "system") -> None:
-    """A sized built-in scene (`n_pendulum_K`, `newton_cradle_K`) within the coordinate cap: its symbolic
-    model and kernels grow like K**2 to K**4, and K = 100000 would build them until memory runs out."""
+    """A sized built-in scene (`n_pendulum_K`, `newton_cradle_K`) within its cap (`SIZED_SCENE_CAPS`):
+    K = 100000 would build its symbolic model and kernels until memory runs out."""
     if not isinstance(system, str):
         return
     m = re.fullmatch(r"([a-z_]+?)_(\d+)", system)
-    if m and m.group(1) in ("n_pendulum", "newton_cradle"):
-        k = int(m.group(2))
-        if not 1 <= k <= MAX_COORDINATES:
-            raise ValueError(f"{field}: {system} has {k} bodies; the built-in sized scenes take 1 to "
-                             f"{MAX_COORDINATES}")
+    if m and m.group(1) in SIZED_SCENE_CAPS:
+        k, cap = int(m.group(2)), SIZED_SCENE_CAPS[m.group(1)]
+        if not 1 <= k <= cap:
+            raise ValueError(f"{field}: {system} has {k} bodies; {m.group(1)}_K takes K from 1 to {cap}")
 
 
 def check_one_start(beta, q0, p0) -> None:

@@ -12,9 +12,9 @@ import numpy as np
 from numba import njit
 
 from vcirun.codegen.frame import scratch, scratch2
-from vcirun.codegen.roles import NDOF, NODE_LEN, FULL_STAGES, FULL_FRACS, sys_node, sys_node_M, ld_PmJc, ld_Ppc, ld_Ed
+from vcirun.codegen.roles import NDOF, BAND, NODE_LEN, FULL_STAGES, FULL_FRACS, sys_node, sys_node_M, ld_PmJc, ld_Ppc, ld_Ed
 from vcirun.maps.dynamics import velocity_from
-from vcirun.maps.linalg import solve_small, copy_into
+from vcirun.maps.linalg import solve_band, copy_into
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -39,7 +39,7 @@ def explicit_step(sid, q0, p0, h, t, prm, newton_tol, max_iter, v, q1, p1, c, cn
         ld_PmJc(sid, q0, v, h, t, prm, c, r, J)
         for i in range(NDOF):
             r[i] -= p0[i]
-        if not solve_small(J, r, NDOF):
+        if not solve_band(J, r, NDOF, BAND):
             break
         dn = 0.0
         vn = 0.0

@@ -231,6 +231,37 @@ class MechanicalSystem:
     def is_forced(self) -> bool:
         return self.forcing is not None and any(e != 0 for e in self.forcing)
 
+    @property
+    def bandwidth(self) -> int:
+        """Half-bandwidth b of the coupling of the coordinates: every entry (i, j) with |i - j| > b of
+        M(q), of the Hessian of L in (q, qdot) and of the Jacobian of the force is zero for every state.
+        Hence so is that entry of each discrete Lagrangian's step Jacobian dPm/dv (a sum of those blocks
+        at its nodes), and the steps solve it as a band matrix: b = 0 for a line of free balls (M = m I),
+        b = n - 1 for a pendulum chain. Read off the expressions' symbols (a term of a sum couples the
+        coordinates it contains), so b never understates the coupling; it may overstate it."""
+        if getattr(self, "_band", None) is None:
+            n = self.n
+            index = {s: i for i, s in enumerate(self.q)} | {s: i for i, s in enumerate(self.qd)}
+
+            def coupled(expr):
+                return {index[s] for s in sp.sympify(expr).free_symbols if s in index}
+
+            b = 0
+            cliques = [coupled(t) for t in sp.Add.make_args(self.V)]
+            for i in range(n):
+                for j in range(n):
+                    if self.M[i, j] != 0:
+                        b = max(b, abs(i - j))
+                        # T = 1/2 sum M_ij qd_i qd_j: its (q, qdot) Hessian couples i, j and M_ij's coordinates
+                        cliques += [coupled(t) | {i, j} for t in sp.Add.make_args(self.M[i, j])]
+            if self.forcing is not None:
+                cliques += [coupled(f) | {i} for i, f in enumerate(self.forcing)]
+            for c in cliques:
+                if c:
+                    b = max(b, max(c) - min(c))
+            self._band = b
+        return self._band
+
     def fingerprint(self) -> str:
         """Hash of the symbolic content (not the parameter values): the kernel cache key part."""
         if getattr(self, "_fp", None):

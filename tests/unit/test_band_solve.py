@@ -1,0 +1,82 @@
+"""The band solve of the step Jacobians and of M(q): the bits of the dense solve on every band matrix,
+and a bandwidth that never understates the coupling of a scene's coordinates."""
+import numpy as np
+import pytest
+import sympy as sp
+from hypothesis import given, settings, strategies as st
+
+from vcirun.maps.linalg import solve_band, solve_small
+from vcirun.mechanics.system import MechanicalSystem
+from vcirun.scenes import declarations as decl
+
+
+@settings(max_examples=300, deadline=None)
+@given(n=st.integers(1, 12), data=st.data())
+def test_band_solve_has_the_bits_of_the_dense_solve(n, data):
+    bw = data.draw(st.integers(0, n - 1))
+    seed = data.draw(st.integers(0, 2**32 - 1))
+    rng = np.random.default_rng(seed)
+    A = rng.normal(size=(n, n)) * np.exp(rng.normal(size=(n, 1)) * 3)  # rows of very different scales
+    A[np.abs(np.subtract.outer(np.arange(n), np.arange(n))) > bw] = 0.0
+    b = rng.normal(size=n)
+    A1, b1, A2, b2 = A.copy(), b.copy(), A.copy(), b.copy()
+    ok1, ok2 = solve_small(A1, b1, n), solve_band(A2, b2, n, bw)
+    assert ok1 == ok2
+    if ok1:
+        assert np.array_equal(b1, b2)
+        assert np.allclose(A @ b2, b, rtol=0, atol=1e-8 * np.abs(A).sum(axis=1).max() * np.abs(b2).max() + 1e-300)
+
+
+def test_singular_band_matrix_is_refused():
+    A = np.diag([1.0, 0.0, 2.0])
+    assert not solve_band(A, np.ones(3), 3, 0)
+
+
+def _numeric_band(system, rng, k=5):
+    """The widest |i - j| of a numerically nonzero entry of M, of the Hessian of L in (q, qdot) and of
+    the force's Jacobian, at k random states."""
+    q, qd = list(system.q), list(system.qd)
+    L = system.lagrangian()
+    z = q + qd
+    H = sp.hessian(L, z)
+    blocks = [system.M, H[:len(q), :len(q)], H[:len(q), len(q):], H[len(q):, :len(q)]]
+    if system.forcing is not None:
+        blocks += [system.forcing.jacobian(q), system.forcing.jacobian(qd)]
+    prm = dict(zip(system.param_symbols, system.param_values()))
+    b = 0
+    for _ in range(k):
+        vals = prm | dict(zip(z, rng.uniform(-1, 1, len(z)))) | {system.t: rng.uniform(0, 1)}
+        for B in blocks:
+            Bn = np.array(B.subs(vals).evalf(), dtype=float)
+            for i, j in zip(*np.nonzero(np.abs(Bn) > 1e-14)):
+                b = max(b, abs(int(i) - int(j)))
+    return b
+
+
+@pytest.mark.parametrize("make, expected", [
+    (lambda: decl.newton_cradle(12), 0),
+    (lambda: decl.n_pendulum(4), 3),
+    (lambda: decl.double_pendulum_walls(), 1),
+    (lambda: decl.ball_in_box(), 0),
+    (lambda: decl.cart_pendulum(), 1),
+    (lambda: decl.damped_oscillator(), 0),
+])
+def test_bandwidth_of_the_built_in_scenes(make, expected):
+    system = make()
+    assert system.bandwidth == expected
+    assert _numeric_band(system, np.random.default_rng(3)) <= system.bandwidth
+
+
+def test_bandwidth_counts_potential_and_force_coupling():
+    x = sp.symbols("x1:6")
+    xd = sp.symbols("x1_dot x2_dot x3_dot x4_dot x5_dot")
+    k, c = sp.symbols("k c")
+    # springs between neighbours (V couples i, i + 1) and a damper from ball 1 to ball 4
+    V = sum(k * (x[i + 1] - x[i]) ** 2 / 2 for i in range(4))
+    f = sp.Matrix([c * (xd[3] - xd[0]), 0, 0, -c * (xd[3] - xd[0]), 0])
+    s = MechanicalSystem("springs", list(x), {"k": 1.0, "c": 0.1}, sp.eye(5), V, phi=x[1] - x[0],
+                         qd=list(xd), forcing=f)
+    assert s.bandwidth == 3
+    s2 = MechanicalSystem("springs2", list(x), {"k": 1.0}, sp.eye(5), V, phi=x[1] - x[0])
+    assert s2.bandwidth == 1
+    assert _numeric_band(s2, np.random.default_rng(0)) == 1
