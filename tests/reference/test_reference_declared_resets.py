@@ -4,10 +4,12 @@ Measured (Taylor path; `vcirun.periodic_orbit("compass_gait", "reference", guess
 compass gait at 3 degrees, fixed point q = (-0.27102868, 0.27102868), p = (16.9430407, -1.86775612),
 stride period 0.7343463911587195 s, multipliers -0.199726127 +- 0.54447606 i, 0.131572624 (and
 ~1e-11: the section). The multipliers' finite-difference error: 4e-11 (fd_step 1e-4, 2.5e-5, 1e-5
-against 5e-5), 1.5e-7 at periodic_orbit's default fd_step 1e-3 (delta = 1e-3 |p| = 0.017 on p).
-CVA4 against it (same fd_step 1e-3), h = 0.01, 0.005, 0.0025, 0.00125: fixed point 3.8e-8, 2.4e-9,
+against 5e-5, periodic_orbit's default on the exact map), 1.5e-7 at fd_step 1e-3 (delta = 1e-3 |p| = 0.017 on p).
+CVA4 against it (both at fd_step 1e-3), h = 0.01, 0.005, 0.0025, 0.00125: fixed point 3.8e-8, 2.4e-9,
 1.5e-10, 9.6e-12; period 4.8e-9, 3.0e-10, 1.9e-11, 1.2e-12; multipliers 3.5e-8, 2.4e-9, 1.1e-10,
-1.2e-11 (order 4). The DOP853 path (rtol 1e-13) agrees with the Taylor path to 1e-11 (fixed point,
+1.2e-11 (order 4). Period doubling (the real multiplier at -1, by the secant in gamma), the exact map:
+gamma = 4.3908982497 degrees; CVA4 at h = 0.02, 0.01, 0.005, 0.0025: 1.67e-6, 1.39e-7, 6.8e-9,
+7.2e-10 degrees from it (at fd_step 1e-3 CVA4's converge to 1.9e-7 degrees off). The DOP853 path (rtol 1e-13) agrees with the Taylor path to 1e-11 (fixed point,
 period, multipliers)."""
 from __future__ import annotations
 
@@ -132,6 +134,40 @@ def test_compass_gait_cva4_converges_to_the_reference_gait(exact_gait):
     assert np.all(errs[-1] < 1e-9), errs[-1]
     assert np.max(np.abs(np.concatenate(ref.fixed_point) - np.concatenate(exact_gait.fixed_point))) < 1e-12
     assert s.n == 2
+
+
+def _real_multiplier(system, method, gamma, guess, h=None):
+    """The real multiplier nearest -1 of the gait at slope gamma, and its fixed point."""
+    o = periodic_orbit(system, method, h=h, guess=guess, params={"gamma": gamma}, fd_step=FD_STEP)
+    ev = np.asarray(o.eigenvalues)
+    return ev[np.abs(ev.imag) < 1e-9].real.min(), o.fixed_point
+
+
+def _doubling(method, h=None, guess=None):
+    """gamma where the compass gait's real multiplier crosses -1 (secant from 4.385, 4.395 degrees)."""
+    g0, g1 = np.deg2rad(4.385), np.deg2rad(4.395)
+    l0, x = _real_multiplier("compass_gait", method, g0, guess, h)
+    l1, x = _real_multiplier("compass_gait", method, g1, x, h)
+    for _ in range(8):
+        g2 = g1 - (l1 + 1.0) * (g1 - g0) / (l1 - l0)
+        l2, x = _real_multiplier("compass_gait", method, g2, x, h)
+        g0, l0, g1, l1 = g1, l1, g2, l2
+        if abs(l2 + 1.0) < 1e-10:
+            break
+    return g1
+
+
+@pytest.mark.slow
+def test_period_doubling_of_cva4_converges_to_the_exact_one(exact_gait):
+    """The slope of the compass gait's period doubling on the exact map (module docstring:
+    4.3908982497 degrees), and CVA4's at h = 0.01, 0.005, 0.0025 converging to it (at
+    fd_step 5e-5 on both maps; 1.39e-7, 6.8e-9, 7.2e-10 degrees measured)."""
+    guess = exact_gait.fixed_point
+    ref = np.rad2deg(_doubling("reference", guess=guess))
+    assert abs(ref - 4.3908982497) < 1e-8
+    errs = [abs(np.rad2deg(_doubling("CVA4", h=h, guess=guess)) - ref) for h in (0.01, 0.005, 0.0025)]
+    assert errs[0] < 5e-7 and errs[-1] < 5e-9, errs
+    assert errs[0] / errs[-1] > 40, errs   # ~ order 4 over two halvings (3.2 .. 4.4 per halving)
 
 
 def test_map_into_the_constraint_is_a_clear_error():

@@ -154,7 +154,9 @@ def test_core_text_reads_the_scene_sizes_at_run_time():
     ks = METHODS["MCVAC"].kernel_set()
     text = shared.core_source(ks)
     assert not names(text) & read
-    assert "slot(0)" in text and "(slot(4) != 0)" in text and "_slot_i8s(11)" in text and "MH_FLOW_S = 2" in text
+    slot = shared.SLOT
+    assert slot["NDOF"] == 0 and "slot(0)" in text and f"(slot({slot['FORCED']}) != 0)" in text
+    assert f"_slot_i8s({slot['FULL_STAGES']})" in text and "MH_FLOW_S = 2" in text
     fixed = shared.core_source(ks, ndof=3)
     assert "NDOF = 3" in fixed and names(fixed) & read == {"NDOF"}
     # CVA on SVC and its compositions CVA4, CVA6, CVA8 (5, 9, 17 stages) share one core

@@ -8,7 +8,8 @@ recorded impact configuration (the identity without one), p+ = the recorded mome
 reset. Its Jacobian is the fourth-order central finite difference of that discrete map (stencil
 +-delta, +-2 delta, delta = fd_step max(1, |x_j|)): the map is smooth in x to round-off (Newton
 and the event search converge far below their tolerances), so the Jacobian is accurate to about
-eps / fd_step + fd_step^4. The eigenvalues of DP are the orbit's Floquet multipliers; the image
+eps / fd_step + fd_step^4 |D^5 P| (default: FD_STEP of vcirun.reference.stride on the exact map,
+METHOD_FD_STEP on a method's). The eigenvalues of DP are the orbit's Floquet multipliers; the image
 of P lies on the section (codimension one for an impact surface), so one multiplier is ~0.
 
 method "reference": the exact return map (vcirun.reference.stride.ReferenceReturnMap) with the same
@@ -26,7 +27,11 @@ import numpy as np
 from ..run.api import simulate
 from ..run.resolve import resolve_numeric, resolve_system
 from ..methods.table import resolve_method
-from ..reference.stride import ReferenceReturnMap, fd_jacobian
+from ..reference.stride import FD_STEP, ReferenceReturnMap, fd_jacobian
+
+# A method's map carries its Newton and event-search noise (up to ~newton_tol relative), which a
+# smaller step amplifies: at 5e-5 CVA's multipliers on the compass gait no longer converge in h.
+METHOD_FD_STEP = 1e-3
 
 
 @dataclass
@@ -108,7 +113,7 @@ class ReturnMap:
             T *= 2.0
         raise RuntimeError(f"return map: no return to the section within T = {T:g} from {x.tolist()}")
 
-    def jacobian(self, x, fd_step=1e-3):
+    def jacobian(self, x, fd_step=METHOD_FD_STEP):
         """DP(x) by the fourth-order central difference (see the module docstring)."""
         return fd_jacobian(self, x, fd_step)
 
@@ -131,7 +136,7 @@ def _section_index(section, sysm, names) -> int:
 
 
 def periodic_orbit(system, method, *, h=None, guess, section=None, k=1, params=None, tol=1e-12, maxit=30,
-                   fd_step=1e-3, **options) -> PeriodicOrbit:
+                   fd_step=None, **options) -> PeriodicOrbit:
     """A fixed point of the return map of `method` at step h on `section` (a constraint's impact, just
     after its reset), by Newton on P(x) - x = 0 with the finite-difference Jacobian (module
     docstring), from guess = (q, p) or the flat state. k: impacts per return (2: a period-two orbit).
@@ -152,6 +157,8 @@ def periodic_orbit(system, method, *, h=None, guess, section=None, k=1, params=N
         P = ReturnMap(system, method, h=h, section=section, k=k, params=params, **options)
     if x.shape != (2 * P.n,):
         raise ValueError(f"guess: must be (q, p) with {P.n} entries each, or {2 * P.n} numbers (got {x.shape})")
+    if fd_step is None:
+        fd_step = FD_STEP if method == "reference" else METHOD_FD_STEP
     x, _ = P(x)   # onto the section
     it = 0
     step = np.inf
