@@ -34,8 +34,13 @@ def _check_grazing(r):
         assert r["impacts"] == r["ref_impacts"] >= 1
 
 
-@pytest.mark.parametrize("method", METHODS)
-@pytest.mark.parametrize("depth", [1e-2, 1e-6, 1e-12])
+# MCVAA at depth 1e-2 takes ~150 s of one core (a clean-clone run, cold cache):
+# in the slow set; the other depths keep MCVAA in the default suite
+GRAZING = [pytest.param(d, m, marks=pytest.mark.slow) if (d, m) == (1e-2, "MCVAA") else (d, m)
+           for d in (1e-2, 1e-6, 1e-12) for m in METHODS]
+
+
+@pytest.mark.parametrize("depth, method", GRAZING)
 def test_grazing_double_pendulum(method, depth):
     """Wall moved to depth inside the tip's first maximum reach: vn = 0.3 .. 3e-6. Measured: the
     contact is resolved down to depth 1e-6 (h = 1e-3), then missed; every run within the
