@@ -154,8 +154,12 @@ def test_block_dropped_settles_on_both_corners(block, theta0, path):
     assert held == (0, 1) and t1 == 3.0 and t0 < 1.0
     y = ref.state(3.0)
     H = mod.hamiltonian(y[:3].copy(), y[3:].copy(), prm)
-    assert abs(H - m * g * b) <= 8 * np.finfo(float).eps * m * g * b       # m g b to the last digits
-    assert np.max(np.abs(y[3:])) <= 1e-15 and abs(y[1] - b) <= 1e-15 and abs(y[2]) <= 1e-15
+    # Taylor: at rest on phi_A = 0 to the last digits. DOP853 integrates the index-reduced held
+    # equations, whose phi_A and u_A drift with the solver's error between projections: within its
+    # documented 1e-13 (docs/derivations/contacts.md 6.1; measured 4.5e-15 with scipy 1.17)
+    tol = 1e-15 if path == "taylor" else 1e-13
+    assert abs(H - m * g * b) <= (8 * np.finfo(float).eps * m * g * b if path == "taylor" else m * g * tol)
+    assert np.max(np.abs(y[3:])) <= tol and abs(y[1] - b) <= tol and abs(y[2]) <= tol
     mu = rh.held_multipliers(mod, 3.0, y[:3], y[3:], prm, (0, 1))
     np.testing.assert_allclose(mu, [m * g / 2, m * g / 2], rtol=1e-13)
     if theta0 == 0.0:   # flat: every bounce hits both corners at once (Moreau's LCP), in pairs

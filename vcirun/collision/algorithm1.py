@@ -299,7 +299,14 @@ def _impact_step(q, p, h, tau_max, t, have_end, prm, ntol, maxit, event_tol, max
                 itr, s = reset(qt, pt, d, s0, dE, Epre, vt, dtau, tau_rem, h, tc + dtau, prm, ntol, maxit, pp)
                 iters += abs(itr)
                 if itr < 0:
-                    return ST_RESET_FAILED, iters, nheld
+                    # An energy-based reset (R^VCI, R^MCVA) has no reflecting root at a slow or
+                    # grazing impact. Where its energy balance cannot matter, the impact law's p+ is
+                    # taken (as during a hold; docs/derivations/contacts.md 7.4)
+                    for j in range(NDOF):
+                        pp[j] = pt[j] + s0 * d[j]
+                    s = s0
+                    if not (resting and _law_suffices(qt, pt, pp, Epre, tc + dtau, h, ntol, prm, active, lam)):
+                        return ST_RESET_FAILED, iters, nheld
             k_imp += 1
             accumulating = _accumulating(dense, tc + dtau, h, max_impacts_step) or k_imp > max_impacts_step
             # dense impacts settle only where energy leaves (restitution < 1 or a force): elastic
@@ -349,6 +356,42 @@ def _inelastic(prm, active):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def _law_suffices(q, pm, pp, E_pre, t, h, ntol, prm, active, lam):
+    """After a reset without root, is the impact law's p+ = pp as good (docs/derivations/contacts.md
+    7.4)? True if every contact that took an impulse (lam_i > 0) leaves with a bounce _settle holds
+    (e_i < 1, normal velocity at most |d^2 phi_i/dt^2| h while pressed in: the reset's outcome would
+    be projected away). With several contacts also if none took one (p+ = p-), or if the impact's
+    normal kinetic energy, sum lam_i |u-_i| / (2 (1 + e_i)), is not large against the energy error
+    the reset must absorb, |E_pre - H| (vcirun.run.diagnosis's test), or is below the resolution
+    ntol |H| of the reset's energy equation (touching contacts whose normal velocities are the Newton
+    noise of the previous reset: balls moving together after a simultaneous impact). One elastic
+    contact, the paper's setting, keeps the paper's reset and its failure."""
+    e = scratch(NCON)
+    sys_restitution(prm, e)
+    um = normal_velocities(q, pm, prm)
+    u = normal_velocities(q, pp, prm)
+    hit = False
+    small = True
+    ke = 0.0
+    for j in range(NCON):
+        if active[j] == 0 or not lam[j] > 0.0:
+            continue
+        hit = True
+        ke += lam[j] * abs(um[j]) / (2.0 * (1.0 + e[j]))
+        a = normal_acceleration(q, pp, t, prm, j)
+        if not (e[j] < 1.0 and a < 0.0 and u[j] <= -a * h):
+            small = False
+    if small:
+        return True
+    if NCON == 1:
+        return False  # (one contact, elastic or not settling: the paper's R^VCI / R^MCVA, no substitute)
+    if not hit:
+        return True   # (the law gives no contact an impulse, u- within round-off of 0: p+ = p-)
+    H = hamiltonian(q, pm, prm)
+    return ke <= 10.0 * (abs(E_pre - H) + ntol * abs(H))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def _count(held):
     k = 0
     for j in range(NCON):
@@ -361,7 +404,8 @@ def _settle(q, pp, t, h, prm, held, active, lam, s, s0, accumulating, out, info)
     """After an impact (p+ = pp): hold the impact's contacts that come to rest -- all of them when
     impacts accumulate, else those with restitution < 1 left a normal velocity below |d^2 phi/dt^2| h
     while pressed in -- with a plastic projection (their normal velocities zeroed, the impulse added
-    to the impact's record through lam); release the held contacts the impulse pulled away.
+    to the impact's record through lam); release the held contacts the impulse pulled away, but keep
+    (and project) those whose flight would be one the small-bounce rule holds on landing.
     Returns the held count."""
     e = scratch(NCON)
     sys_restitution(prm, e)
@@ -370,13 +414,20 @@ def _settle(q, pp, t, h, prm, held, active, lam, s, s0, accumulating, out, info)
     for j in range(NCON):
         if active[j] == 0:
             continue
-        if held[j] != 0:
-            if u[j] > 0.0 and lam[j] == 0.0:  # pulled off its surface by the others' impulses
-                held[j] = 0
-                _record_release(out, info, t, j)
-            continue
         a = normal_acceleration(q, pp, t, prm, j)
-        if accumulating or (e[j] < 1.0 and a < 0.0 and u[j] <= -a * h):
+        small = e[j] < 1.0 and a < 0.0 and u[j] <= -a * h  # its next flight shorter than two steps
+        if held[j] != 0:
+            # pulled off its surface by the others' impulses: released, unless the flight would be
+            # one that the rule below holds on landing (a rocking link's two ends alternating at an
+            # accumulation point: one impact lifts the other end by less and less, without end)
+            if u[j] > 0.0 and lam[j] == 0.0:
+                if small:
+                    changed = True
+                else:
+                    held[j] = 0
+                    _record_release(out, info, t, j)
+            continue
+        if accumulating or small:
             held[j] = 1
             changed = True
     if changed:
