@@ -22,8 +22,7 @@ run). An array whose meminfo is NULL is not counted (NRT_incref/decref return at
   alloca for those measured the same loop time (CVA, MCVAA: 0.97-1.04), so there is one code path.
 
 The arithmetic is untouched (the same operations in the same order): the trajectories are those of
-np.empty and owned arrays, bit for bit but for the MCVA family's last digits, which vary from one
-compilation to another (docs/performance.md, *The loop without reference counting*).
+np.empty and owned arrays, bit for bit (docs/performance.md, *The loop without reference counting*).
 """
 from __future__ import annotations
 

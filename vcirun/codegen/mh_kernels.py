@@ -57,7 +57,7 @@ def _prim_program(st: StationaryEta, dag: DerivativeDag, used: set) -> list:
             continue
         for _, e in items:
             used |= e.free_symbols
-        repl, red = sp.cse([e for _, e in items], symbols=sp.numbered_symbols(f"{_P}{tag}"), order="none")
+        repl, red = sp.cse([e for _, e in items], symbols=sp.numbered_symbols(f"{_P}{tag}"), order="canonical")
         prog += list(repl) + [(s, e) for (s, _), e in zip(items, red)]
     used |= {s for s, _ in prog}
     for _, e in prog:
@@ -138,7 +138,7 @@ def _emit_dag_kernel(name: str, st: StationaryEta, dag: DerivativeDag, outs: lis
         targets.append(("return", ret))
     exprs = [e for t, e in targets if t != "group"]
     if len(targets) <= _CSE2_MAX_TARGETS:
-        repl, reduced = sp.cse(exprs, symbols=sp.numbered_symbols(f"{_P}d"), order="none")
+        repl, reduced = sp.cse(exprs, symbols=sp.numbered_symbols(f"{_P}d"), order="canonical")
     else:  # sympy's cse is superlinear: on very large DAGs (n >= 3, s = 4) it costs more than it saves
         repl, reduced = [], exprs
     reduced = iter(reduced)
@@ -178,7 +178,7 @@ def _partials(e) -> dict:
             elif f.is_Pow and f.base.is_Symbol and f.exp.is_Integer and f.exp > 0:
                 base, k = f.base, int(f.exp)
             else:
-                return {x: sp.diff(e, x) for x in e.free_symbols}
+                return {x: sp.diff(e, x) for x in sorted(e.free_symbols, key=lambda y: y.name)}
             rest = sp.Mul(c * k, *fs[:i], *fs[i + 1:], base ** (k - 1))
             out.setdefault(base, []).append(rest)
     return {x: sp.Add(*v) for x, v in out.items()}

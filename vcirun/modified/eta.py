@@ -391,7 +391,9 @@ class DerivativeDag:
     def D(self, e, j):
         e = sp.sympify(e)
         out = sp.S.Zero
-        for s in e.free_symbols:
+        # (symbols in name order: a set's order follows the hash seed, and the order in which nodes
+        # are created decides the generated program, hence its rounding)
+        for s in sorted(e.free_symbols, key=lambda x: x.name):
             ds = self.Dsym(s, j)
             if ds != 0:
                 out += sp.diff(e, s) * ds
