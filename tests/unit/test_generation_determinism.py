@@ -8,12 +8,9 @@ kernels of the MCVA family were the case met: under seeds 1 and 3 their text dif
 """
 from __future__ import annotations
 
-import hashlib
 import os
 import subprocess
 import sys
-
-import pytest
 
 _SCRIPT = r"""
 import hashlib, sys, tempfile
@@ -40,9 +37,7 @@ def _texts(seed: int) -> str:
     return r.stdout
 
 
-@pytest.mark.parametrize("seeds", [(1, 3)])
-def test_scene_source_is_the_same_under_two_hash_seeds(seeds):
-    a, b = (_texts(s) for s in seeds)
+def test_scene_source_is_the_same_under_two_hash_seeds():
+    a, b = _texts(1), _texts(3)   # (seeds under which the old generator's texts differed)
     assert a.count("\n") == len(CASES)
     assert a == b, (a, b)
-    assert hashlib.sha256(a.encode()).hexdigest()  # (the digests themselves, printed on failure)

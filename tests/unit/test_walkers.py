@@ -39,11 +39,12 @@ def test_the_gait_is_goswamis(reference):
     assert np.hypot(reference[5], reference[8]) < 1.0 and reference[8] > 0.5   # |-0.1997 +- 0.5445 i| = 0.58
 
 
-@pytest.mark.parametrize("method, order, hs", [("CVA", 2, (0.02, 0.01, 0.005)), ("CVA4", 4, (0.02, 0.01, 0.005))])
+@pytest.mark.parametrize("method, order, hs", [("CVA", 2, (0.02, 0.01, 0.005)), ("CVA4", 4, (0.02, 0.01, 0.005)),
+                                               ("MCVAA", 2, (0.02, 0.01, 0.005)), ("MCVAC", 2, (0.02, 0.01, 0.005))])
 def test_compass_gait_converges_at_the_method_order(reference, method, order, hs):
     """Fixed point (q, qdot) and period at the method's order; the multipliers' error decreases at
     least at half of it (not monotone in h: the discrete map's derivative changes where the impact
-    crosses a grid point; measured rates CVA 1.8, 1.6 and CVA4 3.2, 3.9)."""
+    crosses a grid point; measured rates CVA 1.8, 1.6, CVA4 3.2, 3.9, MCVAA 2.0, 2.0, MCVAC 2.2, 2.1)."""
     err = np.array([np.abs(_gait(method, h)[1] - reference) for h in hs])
     for name, cols, need in (("state", slice(0, 4), order - 0.3), ("period", slice(4, 5), order - 0.3),
                              ("multipliers", slice(5, 11), order / 2)):
