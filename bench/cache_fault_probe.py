@@ -380,7 +380,11 @@ def _full_disk(P: Probe):
     c = P.copy()
     mnt = c.parent / "small"
     mnt.mkdir()
-    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=24m", "tmpfs", str(mnt)], capture_output=True).returncode:
+    # room for the cache's kernels and little more (the filler takes the rest): 24 MB or 1.5 x the copy
+    need = sum(f.stat().st_size for f in (c / "kernels").rglob("*") if f.is_file())
+    size_mb = max(24, int(1.5 * need / 2**20) + 8)
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size_mb}m", "tmpfs", str(mnt)],
+                      capture_output=True).returncode:
         record("dirs", "full disk", "skipped", "cannot mount a tmpfs")
         return
     try:

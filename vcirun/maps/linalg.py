@@ -6,50 +6,15 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def solve_small(A, b, n, tiny=0.0):
-    """Solve A x = b in place (x returned in b) by Gaussian elimination with partial pivoting.
-    A (n, n) is destroyed. Returns False if a pivot is not above `tiny` (0: A is singular to
-    working precision; the impact law passes its rank tolerance) or not finite."""
-    for k in range(n):
-        piv = k
-        amax = abs(A[k, k])
-        for i in range(k + 1, n):
-            if abs(A[i, k]) > amax:
-                amax = abs(A[i, k])
-                piv = i
-        if not amax > tiny or not math.isfinite(amax):
-            return False
-        if piv != k:
-            for j in range(n):
-                tmp = A[k, j]
-                A[k, j] = A[piv, j]
-                A[piv, j] = tmp
-            tmp = b[k]
-            b[k] = b[piv]
-            b[piv] = tmp
-        inv = 1.0 / A[k, k]
-        for i in range(k + 1, n):
-            f = A[i, k] * inv
-            if f != 0.0:
-                for j in range(k + 1, n):
-                    A[i, j] -= f * A[k, j]
-                b[i] -= f * b[k]
-    for k in range(n - 1, -1, -1):
-        s = b[k]
-        for j in range(k + 1, n):
-            s -= A[k, j] * b[j]
-        b[k] = s / A[k, k]
-    return True
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def solve_band(A, b, n, bw):
-    """`solve_small` for a matrix whose entries (i, j) with |i - j| > bw are zero: the same
-    elimination with partial pivoting restricted to the band (rows k..k + bw below a pivot; with row
-    exchanges the upper band of the factor widens to 2 bw, as in LAPACK's gbtrf). The skipped
-    operations only add zeros, so the result has the bits of `solve_small`; bw >= n - 1 is
-    `solve_small`. O(n bw^2) instead of O(n^3) plus O(n^2) scans: a line of 100 free balls solves
-    its diagonal step Jacobian in O(n)."""
+def solve_band(A, b, n, bw, tiny=0.0):
+    """Solve A x = b in place (x returned in b) by Gaussian elimination with partial pivoting, for a
+    matrix whose entries (i, j) with |i - j| > bw are zero: the elimination restricted to the band
+    (rows k..k + bw below a pivot; with row exchanges the upper band of the factor widens to 2 bw,
+    as in LAPACK's gbtrf). The skipped operations only add zeros, so the result has the bits of the
+    dense elimination (bw = n - 1, `solve_small`). O(n bw^2) instead of O(n^3) plus O(n^2) scans: a
+    line of 100 free balls solves its diagonal step Jacobian in O(n). A (n, n) is destroyed.
+    Returns False if a pivot is not above `tiny` (0: A is singular to working precision; the impact
+    law passes its rank tolerance) or not finite."""
     for k in range(n):
         rows = min(n, k + bw + 1)
         cols = min(n, k + 2 * bw + 1)
@@ -59,7 +24,7 @@ def solve_band(A, b, n, bw):
             if abs(A[i, k]) > amax:
                 amax = abs(A[i, k])
                 piv = i
-        if not amax > 0.0 or not math.isfinite(amax):
+        if not amax > tiny or not math.isfinite(amax):
             return False
         if piv != k:
             for j in range(k, cols):
@@ -82,6 +47,12 @@ def solve_band(A, b, n, bw):
             s -= A[k, j] * b[j]
         b[k] = s / A[k, k]
     return True
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def solve_small(A, b, n, tiny=0.0):
+    """`solve_band` of a dense matrix (bw = n - 1): its loops then run over whole rows and columns."""
+    return solve_band(A, b, n, n - 1, tiny)
 
 
 # Element loops instead of slice assignment: numba compiles `a[:] = b` through a generic path
