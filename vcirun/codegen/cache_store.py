@@ -32,6 +32,8 @@ import threading
 import time
 from pathlib import Path
 
+from ..core.fsync import fsync_path
+
 ENV = "VCIRUN_CACHE_DIR"
 QUARANTINE = "quarantine"
 SEAL = "# vcirun-seal "
@@ -253,19 +255,6 @@ def tmp_name(path: Path) -> Path:
     return path.with_name(f".{path.name}{TMP_MARK}{owner_tag()}")
 
 
-def fsync_dir(d: Path) -> None:
-    try:
-        fd = os.open(d, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
 def write_atomic(path: Path, data: bytes | str, what: str = "") -> None:
     """Write `data` to `path` atomically and durably (temporary file, fsync, rename, fsync of the
     directory). CacheError naming the cache and the fix when it cannot."""
@@ -290,7 +279,7 @@ def write_atomic(path: Path, data: bytes | str, what: str = "") -> None:
         except OSError:
             pass
         raise write_error(path, e, what) from None
-    fsync_dir(path.parent)
+    fsync_path(path.parent, directory=True)
     sweep_stale(path.parent)
 
 
@@ -300,7 +289,7 @@ def publish(tmp: Path, path: Path, what: str = "") -> None:
         os.replace(tmp, path)
     except OSError as e:
         raise write_error(path, e, what) from None
-    fsync_dir(path.parent)
+    fsync_path(path.parent, directory=True)
 
 
 def read(path: Path) -> bytes | None:

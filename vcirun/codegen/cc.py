@@ -122,7 +122,8 @@ def compile_shared(units: list, out: Path, jobs: int | None = None, check=None) 
     import shutil
     from concurrent.futures import ThreadPoolExecutor
 
-    from .cache_store import BUILD_DIR_MARK, fsync_dir, owner_tag
+    from ..core.fsync import fsync_path
+    from .cache_store import BUILD_DIR_MARK, owner_tag
 
     cc = compiler()
     if cc is None:
@@ -154,7 +155,7 @@ def compile_shared(units: list, out: Path, jobs: int | None = None, check=None) 
         finally:
             os.close(fd)
         os.replace(tmp, out)
-        fsync_dir(out.parent)
+        fsync_path(out.parent, directory=True)
     finally:
         shutil.rmtree(d, ignore_errors=True)
     return out

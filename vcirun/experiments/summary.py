@@ -21,7 +21,7 @@ import h5py
 import numpy as np
 
 from ..io.checks import LIBVER
-from ..io.durable import fsync_path
+from ..core.fsync import fsync_path
 from ..io.errors import StorageError
 from ..io.reader import read_results
 

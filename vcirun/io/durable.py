@@ -1,6 +1,6 @@
 """Writes that survive a kill, a full disk and the HDF5 library's failure modes.
 
-- `fsync_path`: push a file (or a directory entry after a rename) to the disk.
+- (`vcirun.core.fsync.fsync_path` pushes a file, or a directory entry after a rename, to the disk.)
 - `reserve`: allocate a file's blocks before HDF5 writes into them, so that a full disk is met with
   ENOSPC here and not inside the HDF5 library (which, under ENOSPC, prints errors from deallocators
   and can crash the process).
@@ -20,24 +20,10 @@ import os
 import shutil
 from pathlib import Path
 
+from ..core.fsync import fsync_path
 from .errors import StorageError, one_line
 
-__all__ = ["fsync_path", "reserve", "ChildFailed", "child_setup", "run_isolated", "replace_with_copy"]
-
-
-def fsync_path(path: Path, directory: bool = False) -> None:
-    """fsync the file (or, with `directory`, the directory) at `path`; best effort: errors are ignored."""
-    flags = os.O_RDONLY | (getattr(os, "O_DIRECTORY", 0) if directory else 0)
-    try:
-        fd = os.open(path, flags)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
+__all__ = ["reserve", "ChildFailed", "child_setup", "run_isolated", "replace_with_copy"]
 
 
 def reserve(path: Path, nbytes: int) -> None:

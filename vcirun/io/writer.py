@@ -33,7 +33,8 @@ import numpy as np
 from ..run.trajectory_files import group_attrs
 from .checks import resolve_output
 from .compaction import BackgroundCompactor, compact_path
-from .durable import fsync_path, replace_with_copy
+from ..core.fsync import fsync_path
+from .durable import replace_with_copy
 from .errors import StorageError, os_text, write_error
 from .journal import Journal, applied, journal_path, read_journal, record_pieces, write_all
 from .lock import WriterLock, lock_path
