@@ -356,6 +356,17 @@ def _inelastic(prm, active):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def _small_bounce(q, pp, t, h, prm, j, e_j, u_j):
+    """Contact j leaves p+ = pp with a bounce that comes to rest: restitution e_j < 1 and a normal
+    velocity u_j at most |d^2 phi_j/dt^2| h while pressed in (its next flight shorter than two steps;
+    docs/derivations/contacts.md 7.2). The acceleration (a solve with M) only when e_j < 1."""
+    if not e_j < 1.0:
+        return False
+    a = normal_acceleration(q, pp, t, prm, j)
+    return a < 0.0 and u_j <= -a * h
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def _law_suffices(q, pm, pp, E_pre, t, h, ntol, prm, active, lam):
     """After a reset without root, is the impact law's p+ = pp as good (docs/derivations/contacts.md
     7.4)? True if every contact that took an impulse (lam_i > 0) leaves with a bounce _settle holds
@@ -378,10 +389,9 @@ def _law_suffices(q, pm, pp, E_pre, t, h, ntol, prm, active, lam):
             continue
         hit = True
         ke += lam[j] * abs(um[j]) / (2.0 * (1.0 + e[j]))
-        a = normal_acceleration(q, pp, t, prm, j)
-        if not (e[j] < 1.0 and a < 0.0 and u[j] <= -a * h):
+        if small and not _small_bounce(q, pp, t, h, prm, j, e[j], u[j]):
             small = False
-    if small:
+    if hit and small:
         return True
     if NCON == 1:
         return False  # (one contact, elastic or not settling: the paper's R^VCI / R^MCVA, no substitute)
@@ -414,20 +424,18 @@ def _settle(q, pp, t, h, prm, held, active, lam, s, s0, accumulating, out, info)
     for j in range(NCON):
         if active[j] == 0:
             continue
-        a = normal_acceleration(q, pp, t, prm, j)
-        small = e[j] < 1.0 and a < 0.0 and u[j] <= -a * h  # its next flight shorter than two steps
         if held[j] != 0:
             # pulled off its surface by the others' impulses: released, unless the flight would be
             # one that the rule below holds on landing (a rocking link's two ends alternating at an
             # accumulation point: one impact lifts the other end by less and less, without end)
             if u[j] > 0.0 and lam[j] == 0.0:
-                if small:
+                if _small_bounce(q, pp, t, h, prm, j, e[j], u[j]):
                     changed = True
                 else:
                     held[j] = 0
                     _record_release(out, info, t, j)
             continue
-        if accumulating or small:
+        if accumulating or _small_bounce(q, pp, t, h, prm, j, e[j], u[j]):
             held[j] = 1
             changed = True
     if changed:
