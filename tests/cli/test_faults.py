@@ -575,7 +575,7 @@ def test_resource_check_counts_every_contact(tmp_path, monkeypatch):
         "reference: {kind: exact, rtol: 1.0e-10}", "reference: {kind: none}"))
     cfg = load_config(p)
     pending = expand(cfg)
-    assert sweep._preflight(cfg, pending) == (2, 4)
+    assert sweep._preflight(cfg, pending)[:2] == (2, 4)
     seen = []
     real = sweep.stored_bytes
     monkeypatch.setattr(sweep, "stored_bytes", lambda N, n, m=1, **k: seen.append(m) or real(N, n, m, **k))

@@ -59,12 +59,15 @@ def arrays(path) -> dict:
 # --- the template -----------------------------------------------------------------------------------
 
 def _seed_core(dest: Path) -> None:
-    """Copy the CVA core (module and numba files) from the suite's cache, if it has them verified."""
+    """Copy the CVA core of the cart-pendulum (module and numba files) from the suite's cache, if it has
+    them verified."""
+    from vcirun.codegen.cache import core_key_for
     from vcirun.methods.table import METHODS
+    from vcirun.scenes.declarations import get_scene
 
     try:
         src = build.cache_dir()
-        key = build.core_key_of(METHODS["CVA"].kernel_set(), 2)
+        key = core_key_for(get_scene("cart_pendulum"), METHODS["CVA"].kernel_set())
     except cache_store.CacheError:
         return
     files = [src / f"core_{key}.py", *sorted((src / "__pycache__").glob(f"core_{key}.*"))]

@@ -200,3 +200,61 @@ def test_cold_build_estimate_counts_the_core_only_until_it_is_compiled(tmp_path,
     pyc.mkdir(parents=True, exist_ok=True)
     (pyc / f"core_{key}.integrate-21.py311.nbi").write_bytes(b"")
     assert cache.estimate_compile_s(ks, 2) == pytest.approx(3.0)
+
+
+def test_a_scene_takes_the_lean_core_only_when_it_has_one_unforced_contact():
+    """One constraint, no force, no declared reset: the lean core (those constants compiled in, the
+    several-contact impact pruned); any other scene: the general core, which reads them at run time."""
+    from vcirun.codegen import shared
+    from vcirun.codegen.kernel_set import SYSTEM_KERNELS
+    from vcirun.methods.table import METHODS
+    from vcirun.scenes.declarations import get_scene
+
+    ks = METHODS["CVA"].kernel_set()
+    feats = {name: build.system_core_features(ks, get_scene(name))
+             for name in ("cart_pendulum", "ball_in_box", "damped_oscillator", "rimless_wheel")}
+    assert feats == {"cart_pendulum": shared.LEAN, "ball_in_box": (), "damped_oscillator": (), "rimless_wheel": ()}
+    assert build.system_core_features(SYSTEM_KERNELS, get_scene("cart_pendulum")) == ()
+    lean, general = shared.core_source(ks, features=shared.LEAN), shared.core_source(ks)
+    assert "NCON = 1\nFORCED = False\n" in lean and "NCON = 1\n" not in general
+    assert build.core_key_of(ks, 2, shared.LEAN) != build.core_key_of(ks, 2)
+
+
+def test_linking_a_scene_to_a_core_compiled_for_other_constants_is_refused():
+    import types
+
+    from vcirun.codegen import shared
+    from vcirun.codegen.roles import ContractError
+    from vcirun.methods.table import METHODS
+
+    core = types.SimpleNamespace(FEATURES=shared.LEAN, CORE_KEY="k", __name__="core_k")
+    scene = types.SimpleNamespace(NCON=4, FORCED=False, RESET_MAP=False, RESET_LAW_FIRST=False)
+    with pytest.raises(ContractError, match="NCON = 4.*NCON = 1"):
+        shared.link("m", scene, core, METHODS["CVA"].kernel_set())
+
+
+def test_the_lean_core_gives_the_specialized_build_bit_for_bit(monkeypatch):
+    """The lean core against the specialized module of the same scene and method (one contact)."""
+    a, b = _both(monkeypatch, "cart_pendulum", "VCI", h=0.01, T=5.0, beta=3.2)
+    assert len(a.impacts) >= 3
+    _same(a, b)
+
+
+def test_cold_method_families_are_grouped_by_the_core_they_compile(tmp_path, monkeypatch):
+    """A sweep's preflight compiles cold kernel sets side by side, one group per shared core (MCVAA and
+    MCVAC share theirs); nothing is cold in a cache that holds them."""
+    from vcirun.experiments.precompile import compile_groups
+    from vcirun.scenes.declarations import get_scene
+
+    monkeypatch.delenv("VCIRUN_BUILD", raising=False)
+    methods = [(m, {}, {}) for m in ("CVA", "MCVAA", "VCI", "MCVAC")]
+    sysm = get_scene("cart_pendulum")
+    warm = compile_groups(sysm, methods)   # the suite's cache: compiled by the tests before, or now below
+    monkeypatch.setenv("VCIRUN_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(build, "_loaded", {})   # (modules this process loaded count as built)
+    groups = compile_groups(sysm, methods)
+    assert [[n for n, *_ in g] for g in groups] == [["CVA"], ["MCVAA", "MCVAC"], ["VCI"]]
+    monkeypatch.undo()
+    for m in ("CVA", "MCVAA", "VCI", "MCVAC"):
+        vcirun.simulate("cart_pendulum", m, h=0.01, T=0.01, beta=3.2)
+    assert compile_groups(sysm, methods) == [] and len(warm) <= 3

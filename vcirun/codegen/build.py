@@ -210,7 +210,7 @@ def _exec_module(key: str, path: Path, body: str, system_name: str, ks: KernelSe
     if body.startswith(shared.SCENE_MARK):
         t0 = time.perf_counter()
         scene = _import(f"vcirun_scene_{key}", path, body, _owner(label, key, None))
-        core = load_core(ks, int(scene.NDOF))
+        core = load_core(ks, int(scene.NDOF), shared.scene_features(ks, scene))
         mod = shared.link(name, scene, core, ks)   # compiles (or loads) the scene's kernels
         mod.CACHE_LABEL = core.CACHE_LABEL
         extra = {"link_s": time.perf_counter() - t0, "core_key": core.CORE_KEY,
@@ -317,9 +317,18 @@ def core_compiled(core_key: str) -> bool:
     return any(d.glob(f"core_{core_key}.integrate-*.nbi")) or any(d.glob(f"core_{core_key}.hamiltonian-*.nbi"))
 
 
-def core_key_of(ks: KernelSet, n: int) -> str:
-    """The key of the shared core of (ks, n) (vcirun.codegen.shared): one per kernel-set family, or
-    per (family, n) with VCIRUN_CORE_NDOF=fixed, which makes n a compile-time constant of the core.
+def system_core_features(ks: KernelSet, system) -> tuple:
+    """The features of the core that serves `system` (vcirun.codegen.shared.core_features)."""
+    from . import shared
+
+    return shared.core_features(ks, system.m, system.is_forced, system.reset_map is not None,
+                                system.reset_law_first)
+
+
+def core_key_of(ks: KernelSet, n: int, features: tuple = ()) -> str:
+    """The key of the shared core of (ks, n, features) (vcirun.codegen.shared): one per kernel-set
+    family and feature variant (the lean core or the general one), or per (family, variant, n) with
+    VCIRUN_CORE_NDOF=fixed, which makes n a compile-time constant of the core.
 
     It hashes what the core's machine code depends on: its text (units, bindings, constants, stubs),
     the intrinsics it imports (kcall.py, frame.py) and the numba, llvmlite and Python versions. Not the
@@ -328,9 +337,9 @@ def core_key_of(ks: KernelSet, n: int) -> str:
     from . import shared
 
     ndof = n if _core_ndof() == "fixed" else None
-    memo = (ks, ndof)
+    memo = (ks, ndof, features)
     if memo not in _core_keys:
-        text = shared.core_source(ks, ndof)
+        text = shared.core_source(ks, ndof, features)
         stamp = f"core|{numba.__version__}|{llvmlite.__version__}|{sys.version_info[:2]}|".encode()
         key = hashlib.sha256(stamp + text.encode() + (_PKG / "codegen/kcall.py").read_bytes()
                              + (_PKG / "codegen/frame.py").read_bytes()).hexdigest()[:20]
@@ -339,11 +348,13 @@ def core_key_of(ks: KernelSet, n: int) -> str:
     return _core_keys[memo]
 
 
-def load_core(ks: KernelSet, n: int):
-    """The shared core of (ks, n): from memory, or its module file in the cache (written now if missing;
-    a file whose bytes differ from the key's text is set aside and written again); numba compiles it
-    on its first call, or loads it from its cache."""
-    key = core_key_of(ks, n)
+def load_core(ks: KernelSet, n: int, features: tuple = ()):
+    """The shared core of (ks, n, features): from memory, or its module file in the cache (written now if
+    missing; a file whose bytes differ from the key's text is set aside and written again); numba
+    compiles it on its first call, or loads it from its cache."""
+    from . import shared
+
+    key = core_key_of(ks, n, features)
     if key not in _cores:   # kernel sets with the same units and bindings share the core
         text = _core_texts[key]
         path = cache_dir() / f"core_{key}.py"
@@ -357,10 +368,11 @@ def load_core(ks: KernelSet, n: int):
                 cache_store.quarantine(path, "differs from the text of its key (changed or damaged)",
                                        rebuild="writing it again")
             cache_store.write_atomic(path, text, what=path.name)
-        label = f"the shared core of {family(ks)}"
+        label = f"the shared core of {family(ks)}" + (f" ({shared.FEATURE_NAMES[features]})" if ks.full_stages else "")
         core = _import(f"vcirun_core_{key}", path, text,
                        _owner(label, key, lambda: cache_store.build_times().get(f"core|{key}")))
         core.CORE_KEY = key
+        core.FEATURES = features
         core.CACHE_LABEL = label
         _cores[key] = core
     return _cores[key]

@@ -23,7 +23,7 @@ from pathlib import Path
 from . import cache_lock, cache_store
 
 __all__ = ["CacheInfo", "ClearResult", "info", "clear", "cache_root", "announce_if_cold", "note_first_call",
-           "estimate_compile_s", "core_estimate_s", "COMPILE_CALLBACKS", "first_call_lock"]
+           "estimate_compile_s", "core_estimate_s", "cold_parts", "core_key_for", "tell", "COMPILE_CALLBACKS", "first_call_lock"]
 
 COMPILE_CALLBACKS: list = []   # f(message) on a cold build or a cache notice; the CLI prints it on stderr
 _log = logging.getLogger("vcirun.build")
@@ -33,7 +33,9 @@ _TIMES_FILE = cache_store.TIMES_FILE
 _DEFAULT_S = {"CVA": 10.0, "VCI": 10.0, "MCVA": 20.0}
 # shared build: a scene's kernels (cart-pendulum CVA 3.4 s, MCVAC 4.8 s) and a core (50-60 s, once per machine)
 _DEFAULT_SCENE_S = {"CVA": 3.5, "VCI": 3.5, "MCVA": 5.5}
-_DEFAULT_CORE_S = 55.0
+# first estimates of a core's compile (this machine, 2 cores): the general one, the lean one
+# (vcirun.codegen.shared.LEAN), the system-only one; the MCVA family's 5 s more
+_DEFAULT_CORE_S = {"general": 55.0, "lean": 35.0, "system": 6.0}
 LOCK_TIMEOUT_S = cache_lock.LOCK_TIMEOUT_S
 
 
@@ -56,12 +58,13 @@ def _times() -> dict:
     return cache_store.build_times()
 
 
-def core_estimate_s(core_key: str) -> float:
-    """Seconds numba takes to compile a shared core: this cache's record of it, else a first estimate."""
-    return float(_times().get(f"core|{core_key}", _DEFAULT_CORE_S))
+def core_estimate_s(core_key: str, first: float = None) -> float:
+    """Seconds numba takes to compile a shared core: this cache's record of it, else `first` (default a
+    general core's first estimate)."""
+    return float(_times().get(f"core|{core_key}", _DEFAULT_CORE_S["general"] if first is None else first))
 
 
-def estimate_compile_s(ks, n: int) -> float:
+def estimate_compile_s(ks, n: int, features: tuple = ()) -> float:
     """Seconds a cold build of (ks, n) is expected to take: this cache's last build of the same family
     and size, else of the same family at another size (scaled linearly in n), else a first estimate.
     Shared build (vcirun.codegen.shared): the scene's kernels, plus the core if numba has not cached it."""
@@ -70,8 +73,9 @@ def estimate_compile_s(ks, n: int) -> float:
     times, kind = _times(), (ks.reset or "system").upper()
     if build.build_mode() != "shared":
         return _by_family(times, build.family(ks), n, _DEFAULT_S.get(kind, 15.0))
-    key = build.core_key_of(ks, n)
-    core = 0.0 if build.core_compiled(key) else core_estimate_s(key)
+    key = build.core_key_of(ks, n, features)
+    first = _DEFAULT_CORE_S[("lean" if features else "general") if ks.full_stages else "system"]
+    core = 0.0 if build.core_compiled(key) else core_estimate_s(key, first + (5.0 if kind == "MCVA" else 0.0))
     return _by_family(times, "scene|" + build.family(ks), n, _DEFAULT_SCENE_S.get(kind, 3.5)) + core
 
 
@@ -86,26 +90,54 @@ def _by_family(times: dict, fam: str, n: int, first: float) -> float:
     return v * max(1.0, n / m)
 
 
-def announce_if_cold(system, ks) -> bool:
-    """Before loading the module of (system, ks): if it must be generated and compiled, say so
-    ("compiling kernels for <scene>/<family> (first time, about N s)") to the logger and callbacks."""
+def cold_parts(system, ks) -> tuple[str, ...]:
+    """What loading the module of symbolic `system` with `ks` has to compile: () when it is cached (or
+    was loaded, or set aside and said), ("scene",) for its kernels, ("scene", "core") for its kernels
+    and their shared core, ("core",) for the core alone (shared build)."""
     from . import build
 
     key = build.module_key(system, ks)
     if key in build._loaded or key in build.SET_ASIDE:   # (no file access on the path of every later call;
-        return False                                     # a module set aside was said when it was)
-    if (build.cache_dir() / f"vk_{key}.py").exists():
-        if build.build_mode() != "shared" or build.core_compiled(build.core_key_of(ks, system.n)):
-            return False
-    msg = (f"compiling kernels for {system.name}/{build.family(ks)} (first time, about "
-           f"{estimate_compile_s(ks, system.n):.0f} s; cached in {cache_root()})")
-    build.ANNOUNCED.add(key)
+        return ()                                        # a module set aside was said when it was)
+    parts = () if (build.cache_dir() / f"vk_{key}.py").exists() else ("scene",)
+    if build.build_mode() == "shared" and not build.core_compiled(core_key_for(system, ks)):
+        parts += ("core",)
+    return parts
+
+
+def core_key_for(system, ks) -> str:
+    """The key of the shared core that serves symbolic `system` with `ks`."""
+    from . import build
+
+    return build.core_key_of(ks, system.n, build.system_core_features(ks, system))
+
+
+def announce_if_cold(system, ks) -> bool:
+    """Before loading the module of (system, ks): if it must be generated and compiled, say so
+    ("compiling kernels for <scene>/<family> and their shared core (one contact, unforced) (first
+    time, about N s)") to the logger and callbacks, once."""
+    from . import build
+    from .shared import FEATURE_NAMES
+
+    parts = cold_parts(system, ks)
+    if not parts:
+        return False
+    feats = build.system_core_features(ks, system)
+    core = (" and their shared core" + (f" ({FEATURE_NAMES[feats]})" if ks.full_stages else "")) if "core" in parts else ""
+    msg = (f"compiling kernels for {system.name}/{build.family(ks)}{core} (first time, about "
+           f"{estimate_compile_s(ks, system.n, feats):.0f} s; cached in {cache_root()})")
+    build.ANNOUNCED.add(build.module_key(system, ks))
     if build.build_mode() == "shared":
-        build.ANNOUNCED.add(build.core_key_of(ks, system.n))
+        build.ANNOUNCED.add(core_key_for(system, ks))
+    tell(msg)
+    return True
+
+
+def tell(msg: str) -> None:
+    """A build notice to the logger and the callbacks (the CLI prints them on stderr)."""
     _log.info(msg)
     for cb in list(COMPILE_CALLBACKS):
         cb(msg)
-    return True
 
 
 def note_first_call(mod, ks, seconds: float) -> None:

@@ -161,14 +161,41 @@ from vcirun.codegen.kcall import f8ptr, i8ptr, kcall, slot
 """
 
 
-def core_source(ks: KernelSet, ndof: int | None = None) -> str:
+# The scene features a core may be compiled for. The *lean* core serves the common scene -- one
+# constraint, no generalized force, no declared reset map -- with these names module constants, so
+# numba prunes the branches they decide (the several-contact impact with its Delassus matrix and LCP,
+# the forced and the mapped paths) before typing them: the CVA core compiles in about 60 % of the
+# time of the general one (docs/performance.md, *Builds*). Every other scene takes the general core,
+# which reads them at run time. Two variants, not one per combination: the suite and a sweep
+# compile at most two cores per kernel-set family.
+LEAN = (("NCON", 1), ("FORCED", False), ("RESET_MAP", False), ("RESET_LAW_FIRST", False))
+FEATURE_NAMES = {LEAN: "one contact, unforced", (): "any contacts and forcing"}
+
+
+def core_features(ks: KernelSet, ncon: int, forced: bool, reset_map: bool, law_first: bool) -> tuple:
+    """The features of the core that serves a scene with these constants: LEAN or () (general). The
+    system-only set has no loop to prune: always ()."""
+    if ks.full_stages and dict(LEAN) == {"NCON": int(ncon), "FORCED": bool(forced), "RESET_MAP": bool(reset_map),
+                                         "RESET_LAW_FIRST": bool(law_first)}:
+        return LEAN
+    return ()
+
+
+def scene_features(ks: KernelSet, scene_mod) -> tuple:
+    """core_features of a scene module (its generated constants)."""
+    return core_features(ks, int(getattr(scene_mod, "NCON", 1)), bool(getattr(scene_mod, "FORCED", False)),
+                         bool(getattr(scene_mod, "RESET_MAP", False)), bool(getattr(scene_mod, "RESET_LAW_FIRST", False)))
+
+
+def core_source(ks: KernelSet, ndof: int | None = None, features: tuple = ()) -> str:
     """The core's module text for a kernel set: its units and bindings, with stubs for the kernels and
     the slot reads for the rest; checked against the unit contract like a specialized module.
     It depends on the kernel set only through which units and bindings it has (and the Gauss flow's
     stage count, a module-level choice of maps/gauss.py): one core serves CVA on every Ld and
     composition. ndof None: NDOF is read at run time (one core for every scene); an int: a
-    compile-time constant (one core per n; measured in docs/performance.md)."""
-    fixed = {} if ndof is None else {"NDOF": int(ndof)}
+    compile-time constant (one core per n; measured in docs/performance.md). features: LEAN or ()
+    (core_features): the scene constants compiled in."""
+    fixed = dict(features) | ({} if ndof is None else {"NDOF": int(ndof)})
     consts = "".join(f"{k} = {v}\n" for k, v in fixed.items())
     if ks.modified is not None:
         consts += f"MH_FLOW_S = {ks.modified[2] // 2}\n"
@@ -269,6 +296,10 @@ def _address(disp, attr, k: roles.KernelDecl, nbtypes) -> int:
 def link(name: str, scene_mod, core_mod, ks: KernelSet):
     """One module object with a specialized module's names: the scene's kernels and constants, the
     core's functions bound to this scene's slot table."""
+    for k, v in getattr(core_mod, "FEATURES", ()):
+        if getattr(scene_mod, k, None) != v:   # a core compiled for other scene constants
+            raise ContractError(f"{name}: the scene has {k} = {getattr(scene_mod, k, None)}, its core "
+                                f"{getattr(core_mod, 'CORE_KEY', core_mod.__name__)} was compiled for {k} = {v}")
     scene = SceneSlots(scene_mod, ks)
     mod = pytypes.ModuleType(name)
     mod.__file__ = getattr(scene_mod, "__file__", None)

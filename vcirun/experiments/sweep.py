@@ -41,7 +41,7 @@ from pathlib import Path
 
 from ..core.grid import grid_end, grid_note, grid_steps
 from ..core.sizes import check_run_memory, format_bytes, stored_bytes
-from ..core.tolerances import DEFAULT_TOLERANCES
+from ..core.tolerances import DEFAULT_TOLERANCES, split_options
 from ..io.durable import run_isolated
 from ..io.errors import StorageError
 from ..io.provenance import environment_attrs
@@ -176,38 +176,47 @@ class _Reporter:
 
 def _preflight(cfg: SweepConfig, pending: list[RunSpec]) -> tuple[int, int]:
     """One step of every method in this process: compiles (and caches on disk) the kernels the
-    workers use, and turns bad input the core rejects into an error before any file exists.
-    Returns the numbers of coordinates and of contacts, (n, m)."""
+    workers use (cold ones side by side, vcirun.experiments.precompile), and turns bad input the core
+    rejects into an error before any file exists. Returns the numbers of coordinates and of contacts
+    and how many kernel sets were compiled in side-by-side processes, (n, m, side)."""
     import vcirun
+
+    from .precompile import compile_side_by_side
 
     system, params, sysm = build_system(cfg)
     tol = cfg.tolerances.model_dump(exclude_none=True)
-    seen = set()
+    first = {}
     for spec in pending:
-        if spec.method.display in seen:
+        if spec.method.display in first:
             continue
-        seen.add(spec.method.display)
         kw = dict(h=spec.h, T=spec.h, **spec.method.simulate_kwargs(), **spec.ic.simulate_kwargs(), **tol)
         if params:
             kw["params"] = params
+        first[spec.method.display] = (spec, kw)
+    ref_kw = None
+    if not isinstance(cfg.reference, NoReference):
+        ref_kw = dict(T=min(cfg.h), params=params, **pending[0].ic.simulate_kwargs())
+        if isinstance(cfg.reference, MethodReference):
+            ref_kw.update(method=cfg.reference.method, h=min(cfg.reference.h, min(cfg.h) / 2))
+        else:
+            ref_kw.update(rtol=cfg.reference.rtol)
+    # cold kernels of several method families: compiled side by side, one process per core
+    side = compile_side_by_side(system, sysm, [(s.method.name, split_options(s.method.simulate_kwargs())[0], kw)
+                                        for s, kw in first.values()], default_workers(),
+                         reference=None if isinstance(cfg.reference, MethodReference) else ref_kw)
+    for spec, kw in first.values():
         try:
             vcirun.simulate(system, spec.method.name, **kw)
         except ValueError as e:
             raise SweepError(f"methods[{spec.method_index}] ({spec.label}): {_one_line(e)}") from None
-    if not isinstance(cfg.reference, NoReference):
-        ic = pending[0].ic
-        kw = dict(T=min(cfg.h), params=params, **ic.simulate_kwargs())
-        if isinstance(cfg.reference, MethodReference):
-            kw.update(method=cfg.reference.method, h=min(cfg.reference.h, min(cfg.h) / 2))
-        else:
-            kw.update(rtol=cfg.reference.rtol)
+    if ref_kw is not None:
         try:
-            vcirun.reference(system, **kw)
+            vcirun.reference(system, **ref_kw)
         except ValueError as e:
             raise SweepError(f"reference: {_one_line(e)}") from None
         except Exception:  # noqa: BLE001 - numerical trouble is reported per initial condition later
             pass
-    return sysm.n, sysm.m
+    return sysm.n, sysm.m, side
 
 
 def _check_resources(cfg: SweepConfig, pending: list[RunSpec], n: int, m: int, workers: int, path: Path,
@@ -331,9 +340,9 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
         from vcirun.codegen.build import BUILD_LOG
 
         t_pre, n_log = time.monotonic(), len(BUILD_LOG)
-        n, m = _preflight(cfg, pending or [specs[0]])
+        n, m, side = _preflight(cfg, pending or [specs[0]])
         summary.prepare_time = time.monotonic() - t_pre  # kernels loaded or compiled: not run time
-        summary.compiled = sum(not e["cached"] for e in BUILD_LOG[n_log:])
+        summary.compiled = side + sum(not e["cached"] for e in BUILD_LOG[n_log:])
         _check_resources(cfg, pending, n, m, workers, writer.path, writer)
         executor = executors.make_executor(ex_spec, workers=workers, start_method=start_method)
         executor.connect()  # a Dask cluster: reached (or a one-line error) before the file is created
