@@ -314,7 +314,20 @@ def core_compiled(core_key: str) -> bool:
     """Has numba's cache the core's loop (its index file for `integrate`, or for the system-only
     core's `hamiltonian`)?"""
     d = cache_dir() / "__pycache__"
-    return any(d.glob(f"core_{core_key}.integrate-*.nbi")) or any(d.glob(f"core_{core_key}.hamiltonian-*.nbi"))
+    if (d, core_key) in _compiled:   # (a listing of a large cache costs tens of ms)
+        return True
+    try:
+        names = os.listdir(d)
+    except OSError:
+        return False
+    heads = (f"core_{core_key}.integrate-", f"core_{core_key}.hamiltonian-")
+    if any(n.endswith(".nbi") and n.startswith(heads) for n in names):
+        _compiled.add((d, core_key))
+        return True
+    return False
+
+
+_compiled: set = set()   # (numba cache dir, core key) found compiled: advisory (announcements, parallel builds)
 
 
 def system_core_features(ks: KernelSet, system) -> tuple:
