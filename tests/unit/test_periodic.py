@@ -67,3 +67,33 @@ def test_vci_stride_map_jumps_where_the_impact_crosses_a_grid_point():
         jumps.append(abs(P(x + [hi, 0])[0][1] - P(x + [lo, 0])[0][1]))
     print("VCI stride-map jumps at h = 0.02, 0.01:", jumps)
     assert jumps[0] > 1e-4 and 2.5 < jumps[0] / jumps[1] < 6.0     # O(h^2)
+
+
+def test_vci_gait_by_iteration_converges_at_order_two_in_its_envelope():
+    """VCI's stride map jumps by O(h^2) (the test above), so Newton's fixed point need not exist; the
+    gait as simulated (solver "iterate": x <- P(x) until it stops moving, or settles on a cycle across
+    a jump) is within 10 h^2 of the closed form's speed and period at every h (the constant depends on
+    where the impact falls between grid points: 0.1-10 over h = 0.02 .. 0.0025). Its multiplier is the
+    derivative of the smooth piece of the map it settles on, which carries the O(h^2) energy target's
+    O(h) slope in the impact phase: it converges at order 1 only."""
+    ev_err = {}
+    for h in (0.02, 0.01, 0.005, 0.0025):
+        orb = periodic_orbit("rimless_wheel", "VCI", h=h, guess=([-PRM["alpha"]], [1.1 * ML2 * GAIT.omega]),
+                             solver="iterate")
+        w = orb.fixed_point[1][0] / ML2
+        assert abs(w - GAIT.omega) / GAIT.omega <= 11 * h ** 2
+        assert abs(orb.period - GAIT.period) <= 14 * h ** 2
+        assert orb.stable and orb.residual <= 2e-3
+        ev_err[h] = abs(orb.eigenvalues[0] - GAIT.eigenvalue)
+    assert ev_err[0.0025] < 0.5 * ev_err[0.01] and ev_err[0.0025] < 0.05
+
+
+def test_iterate_solver_agrees_with_newton_on_a_smooth_map():
+    """CVA's stride map is smooth: the simulated gait is Newton's fixed point, with its multipliers."""
+    g = ([-PRM["alpha"]], [1.1 * ML2 * GAIT.omega])
+    a = periodic_orbit("rimless_wheel", "CVA", h=0.01, guess=g)
+    b = periodic_orbit("rimless_wheel", "CVA", h=0.01, guess=g, solver="iterate")
+    np.testing.assert_allclose(b.fixed_point[1], a.fixed_point[1], rtol=1e-10)
+    assert abs(b.period - a.period) < 1e-10 and abs(b.eigenvalues[0] - a.eigenvalues[0]) < 1e-6
+    with pytest.raises(ValueError, match="solver"):
+        periodic_orbit("rimless_wheel", "CVA", h=0.01, guess=g, solver="bisect")

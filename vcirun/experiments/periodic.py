@@ -135,14 +135,25 @@ def _section_index(section, sysm, names) -> int:
     return names.index(section)
 
 
-def periodic_orbit(system, method, *, h=None, guess, section=None, k=1, params=None, tol=1e-12, maxit=30,
-                   fd_step=None, **options) -> PeriodicOrbit:
+def periodic_orbit(system, method, *, h=None, guess, section=None, k=1, params=None, tol=1e-12, maxit=None,
+                   fd_step=None, solver="newton", **options) -> PeriodicOrbit:
     """A fixed point of the return map of `method` at step h on `section` (a constraint's impact, just
-    after its reset), by Newton on P(x) - x = 0 with the finite-difference Jacobian (module
-    docstring), from guess = (q, p) or the flat state. k: impacts per return (2: a period-two orbit).
-    method "reference": the exact return map (vcirun.reference.stride.ReferenceReturnMap; no h; its
-    options path, rtol, T_max), the orbit every method's converges to.
-    Converged when the Newton step is below tol (1 + |x|); raises RuntimeError otherwise."""
+    after its reset), from guess = (q, p) or the flat state. k: impacts per return (2: a period-two
+    orbit). method "reference": the exact return map (vcirun.reference.stride.ReferenceReturnMap; no h;
+    its options path, rtol, T_max), the orbit every method's converges to.
+
+    solver "newton" (default): Newton on P(x) - x = 0 with the finite-difference Jacobian (module
+    docstring), at most maxit (30) steps; converged when the step is below tol (1 + |x|), else
+    RuntimeError. solver "iterate": the gait as simulated, for a stable orbit of a map that is not
+    smooth in x -- VCI's stride map jumps by O(h^2) where the impact time crosses a grid point
+    (R^VCI's energy target is the discrete energy of the partial step that reached the impact), so
+    Newton's fixed point need not exist. x <- P(x) until successive returns differ by tol (1 + |x|),
+    or for maxit (400) returns; the last return is the fixed point and `residual` says how far the
+    iteration still moves (the map's jump size where it settles on a cycle across a jump). Its
+    multipliers are those of the smooth piece of the map it settles on (the finite-difference
+    Jacobian with a step 1e3 times smaller than the returns' spacing of jumps, fd_step 1e-6 by default)."""
+    if solver not in ("newton", "iterate"):
+        raise ValueError(f"solver: {solver!r} is not 'newton' or 'iterate'")
     if isinstance(guess, (tuple, list)) and len(guess) == 2 and np.ndim(guess[0]) == 1:
         x = np.concatenate([np.asarray(guess[0], float), np.asarray(guess[1], float)])
     else:
@@ -158,8 +169,11 @@ def periodic_orbit(system, method, *, h=None, guess, section=None, k=1, params=N
     if x.shape != (2 * P.n,):
         raise ValueError(f"guess: must be (q, p) with {P.n} entries each, or {2 * P.n} numbers (got {x.shape})")
     if fd_step is None:
-        fd_step = FD_STEP if method == "reference" else METHOD_FD_STEP
+        fd_step = 1e-6 if solver == "iterate" else FD_STEP if method == "reference" else METHOD_FD_STEP
     x, _ = P(x)   # onto the section
+    if solver == "iterate":
+        return _iterate(P, x, tol, 400 if maxit is None else int(maxit), fd_step, method, h, k, params)
+    maxit = 30 if maxit is None else int(maxit)
     it = 0
     step = np.inf
     while it < maxit:
@@ -177,6 +191,28 @@ def periodic_orbit(system, method, *, h=None, guess, section=None, k=1, params=N
     J = P.jacobian(x, fd_step)
     ev = np.linalg.eigvals(J)
     ev = ev[np.argsort(-np.abs(ev), kind="stable")]
+    n = P.n
+    return PeriodicOrbit((x[:n].copy(), x[n:].copy()), period, ev, J, float(np.max(np.abs(Px - x))), it,
+                         str(method), float("nan") if h is None else float(h), int(k), dict(params or {}))
+
+
+def _iterate(P, x, tol, maxit, fd_step, method, h, k, params) -> PeriodicOrbit:
+    """periodic_orbit's solver "iterate" (see there)."""
+    it, move = 0, np.inf
+    while it < maxit:
+        it += 1
+        Px, _ = P(x)
+        move = float(np.max(np.abs(Px - x)))
+        x = Px
+        if move <= tol * (1.0 + float(np.max(np.abs(x)))):
+            break
+    Px, period = P(x)
+    J = P.jacobian(x, fd_step)
+    ev = np.linalg.eigvals(J)
+    ev = ev[np.argsort(-np.abs(ev), kind="stable")]
+    if np.max(np.abs(ev)) >= 1.0:
+        raise RuntimeError(f"periodic_orbit: solver 'iterate' settled on no stable orbit (multiplier "
+                           f"{ev[0]:.4g} after {it} returns); use solver 'newton'")
     n = P.n
     return PeriodicOrbit((x[:n].copy(), x[n:].copy()), period, ev, J, float(np.max(np.abs(Px - x))), it,
                          str(method), float("nan") if h is None else float(h), int(k), dict(params or {}))

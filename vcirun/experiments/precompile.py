@@ -47,7 +47,6 @@ def _compile(system, group: list[tuple[str, dict]], reference: dict | None) -> N
     import vcirun
 
     logging.getLogger("vcirun").setLevel(logging.ERROR)   # the parent said what is compiled, once
-
     for name, kw in group:
         vcirun.simulate(system, name, **kw)
     if reference is not None:

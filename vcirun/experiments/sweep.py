@@ -174,7 +174,7 @@ class _Reporter:
             self._progress = None
 
 
-def _preflight(cfg: SweepConfig, pending: list[RunSpec]) -> tuple[int, int]:
+def _preflight(cfg: SweepConfig, pending: list[RunSpec]) -> tuple[int, int, int]:
     """One step of every method in this process: compiles (and caches on disk) the kernels the
     workers use (cold ones side by side, vcirun.experiments.precompile), and turns bad input the core
     rejects into an error before any file exists. Returns the numbers of coordinates and of contacts
