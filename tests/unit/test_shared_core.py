@@ -258,3 +258,33 @@ def test_cold_method_families_are_grouped_by_the_core_they_compile(tmp_path, mon
     for m in ("CVA", "MCVAA", "VCI", "MCVAC"):
         vcirun.simulate("cart_pendulum", m, h=0.01, T=0.01, beta=3.2)
     assert compile_groups(sysm, methods) == [] and len(warm) <= 3
+
+
+def test_cold_scene_kernels_compile_side_by_side_in_worker_processes(tmp_path, monkeypatch):
+    """compile_side_by_side on a cache that holds the CVA and VCI cores but not the scene's kernels:
+    two spawn processes compile one kernel set each, and the parent then finds both cached."""
+    import shutil
+
+    from vcirun.codegen.cache import cold_parts, core_key_for
+    from vcirun.experiments.precompile import compile_side_by_side
+    from vcirun.methods.table import METHODS
+    from vcirun.scenes.declarations import get_scene
+
+    monkeypatch.delenv("VCIRUN_BUILD", raising=False)
+    sysm = get_scene("cart_pendulum")
+    methods = [(m, {}, dict(h=0.01, T=0.01, beta=3.2)) for m in ("CVA", "VCI")]
+    src = build.cache_dir()
+    for m, _, kw in methods:
+        vcirun.simulate("cart_pendulum", m, **kw)   # the suite's cache holds both cores (compiled now if not)
+    dest = tmp_path / "kernels"
+    (dest / "__pycache__").mkdir(parents=True)
+    for m, *_ in methods:
+        key = core_key_for(sysm, METHODS[m].kernel_set())
+        for f in [src / f"core_{key}.py", *(src / "__pycache__").glob(f"core_{key}.*")]:
+            shutil.copy2(f, dest / f.relative_to(src))
+    monkeypatch.setenv("VCIRUN_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(build, "_loaded", {})
+    assert [cold_parts(sysm, METHODS[m].kernel_set()) for m, *_ in methods] == [("scene",), ("scene",)]
+    assert compile_side_by_side("cart_pendulum", sysm, methods, cores=2) == 2
+    assert [cold_parts(sysm, METHODS[m].kernel_set()) for m, *_ in methods] == [(), ()]
+    assert compile_side_by_side("cart_pendulum", sysm, methods, cores=2) == 0   # nothing cold: nothing done
