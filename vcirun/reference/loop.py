@@ -197,6 +197,9 @@ def _steady(times) -> bool:
     return r2 <= 0.999 and abs(r2 - r1) <= 1e-2 * r2
 
 
+_LAW_COMPILED: set = set()   # system modules whose impact law this process has called
+
+
 def solve(backend, mod, q0, p0, prm, T, *, names, resting_contact=True, max_impacts=MAX_IMPACTS,
           max_events=MAX_EVENTS, resets=None, stop_after=None) -> Solution:
     """The exact nonsmooth solution on [0, T] from (q0, p0) on `backend`'s segments (see the module).
@@ -209,6 +212,11 @@ def solve(backend, mod, q0, p0, prm, T, *, names, resting_contact=True, max_impa
     e_of = np.empty(m)
     mod.sys_restitution(prm, e_of)
     d, lam, active = np.empty(n), np.empty(m), np.empty(m, dtype=np.int64)
+    if mod.__name__ not in _LAW_COMPILED:
+        # compile (or load) the impact law now, not at the first impact: a sweep's preflight, whose
+        # short reference meets none, then leaves it in the kernel cache for every worker
+        mod.impact_direction(y[:n].copy(), y[n:2 * n].copy(), 1.0, SIMULTANEOUS / 4, prm, d, lam, active)
+        _LAW_COMPILED.add(mod.__name__)
     sol = Solution()
     times_of = [[] for _ in range(m)]
     progress = _Progress(names, max_events)
