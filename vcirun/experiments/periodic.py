@@ -151,7 +151,7 @@ def periodic_orbit(system, method, *, h=None, guess, section=None, k=1, params=N
     or for maxit (400) returns; the last return is the fixed point and `residual` says how far the
     iteration still moves (the map's jump size where it settles on a cycle across a jump). Its
     multipliers are those of the smooth piece of the map it settles on (the finite-difference
-    Jacobian with a step 1e3 times smaller than the returns' spacing of jumps, fd_step 1e-6 by default)."""
+    Jacobian with fd_step 1e-6 by default, small against the O(h) spacing of the map's jumps)."""
     if solver not in ("newton", "iterate"):
         raise ValueError(f"solver: {solver!r} is not 'newton' or 'iterate'")
     if isinstance(guess, (tuple, list)) and len(guess) == 2 and np.ndim(guess[0]) == 1:
