@@ -187,6 +187,11 @@ def periodic_orbit(system, method, *, h=None, guess, section=None, k=1, params=N
             break
     if not step <= max(tol, 1e-9) * (1.0 + float(np.max(np.abs(x)))):
         raise RuntimeError(f"periodic_orbit: Newton did not converge in {maxit} iterations (last step {step:.3g})")
+    return _orbit(P, x, fd_step, it, method, h, k, params)
+
+
+def _orbit(P, x, fd_step, it, method, h, k, params) -> PeriodicOrbit:
+    """The PeriodicOrbit at x: its return, period, Jacobian and multipliers (|.| descending)."""
     Px, period = P(x)
     J = P.jacobian(x, fd_step)
     ev = np.linalg.eigvals(J)
@@ -198,7 +203,7 @@ def periodic_orbit(system, method, *, h=None, guess, section=None, k=1, params=N
 
 def _iterate(P, x, tol, maxit, fd_step, method, h, k, params) -> PeriodicOrbit:
     """periodic_orbit's solver "iterate" (see there)."""
-    it, move = 0, np.inf
+    it = 0
     while it < maxit:
         it += 1
         Px, _ = P(x)
@@ -206,13 +211,8 @@ def _iterate(P, x, tol, maxit, fd_step, method, h, k, params) -> PeriodicOrbit:
         x = Px
         if move <= tol * (1.0 + float(np.max(np.abs(x)))):
             break
-    Px, period = P(x)
-    J = P.jacobian(x, fd_step)
-    ev = np.linalg.eigvals(J)
-    ev = ev[np.argsort(-np.abs(ev), kind="stable")]
-    if np.max(np.abs(ev)) >= 1.0:
+    orb = _orbit(P, x, fd_step, it, method, h, k, params)
+    if not orb.stable:
         raise RuntimeError(f"periodic_orbit: solver 'iterate' settled on no stable orbit (multiplier "
-                           f"{ev[0]:.4g} after {it} returns); use solver 'newton'")
-    n = P.n
-    return PeriodicOrbit((x[:n].copy(), x[n:].copy()), period, ev, J, float(np.max(np.abs(Px - x))), it,
-                         str(method), float("nan") if h is None else float(h), int(k), dict(params or {}))
+                           f"{orb.eigenvalues[0]:.4g} after {it} returns); use solver 'newton'")
+    return orb
