@@ -68,5 +68,9 @@ def test_cli_periodic_prints_the_rimless_wheel_gait():
     r = CliRunner().invoke(app, ["periodic", "--system", "rimless_wheel", "--method", "CVA4", "--h", "0.005"])
     assert r.exit_code == 0, r.output
     assert "fixed point" in r.output and "multipliers 0.49999" in r.output and "(stable)" in r.output
+    assert "[jacobian fd]" in r.output
+    env = CliRunner().invoke(app, ["periodic", "--system", "rimless_wheel", "--method", "VCI", "--h", "0.01",
+                                   "--solver", "iterate", "--jacobian", "envelope"])
+    assert env.exit_code == 0 and "multipliers 0.4999" in env.output and "[jacobian envelope]" in env.output, env.output
     bad = CliRunner().invoke(app, ["periodic", "--system", "rimless_wheel", "--sweep", "gamma=1:2"])
     assert bad.exit_code == 1 and "NAME=START:STOP:COUNT" in bad.output

@@ -32,6 +32,8 @@ def periodic(
                                           help="With --sweep: the bifurcation diagram (.png) and its data (.json)."),
     solver: str = typer.Option("newton", "--solver", help="newton, or iterate: the stable gait as simulated "
                                                           "(VCI, whose stride map jumps by O(h^2))."),
+    jacobian: str = typer.Option("fd", "--jacobian", help="fd (finite differences), or envelope (with --solver "
+                                 "iterate): a tapered local cubic fit over a window ~ sqrt(h), for VCI's multipliers."),
 ):
     """Find a periodic orbit (Newton on the method's return map) and print its fixed point, period and
     multipliers; with --sweep, continue it along a parameter."""
@@ -45,16 +47,20 @@ def periodic(
         if sweep is None:
             from vcirun.experiments.periodic import periodic_orbit
 
-            o = periodic_orbit(system, method, h=h, guess=guess, params=params or None, k=k, solver=solver)
+            o = periodic_orbit(system, method, h=h, guess=guess, params=params or None, k=k, solver=solver,
+                               jacobian=jacobian)
             q, p = o.fixed_point
             typer.echo(f"fixed point q = {np.array2string(q, precision=12)}, p = {np.array2string(p, precision=12)}")
             typer.echo(f"period {o.period:.12g} s ({o.k} impact{'s' if o.k > 1 else ''}), residual {o.residual:.2e}, "
                        f"{o.iterations} {'Newton steps' if solver == 'newton' else 'returns'}")
             typer.echo("multipliers " + ", ".join(f"{z.real:.10g}{z.imag:+.3g}j" if abs(z.imag) > 0 else f"{z.real:.10g}"
-                                                  for z in o.eigenvalues) + ("  (stable)" if o.stable else "  (unstable)"))
+                                                  for z in o.eigenvalues) + ("  (stable)" if o.stable else "  (unstable)")
+                       + f"  [jacobian {o.jacobian_kind}]")
             return
         from vcirun.experiments.bifurcation import bifurcation_figure, continuation
 
+        if jacobian != "fd":
+            raise ValueError("--jacobian: continuation (--sweep) uses the finite-difference Jacobian; drop --jacobian")
         if solver != "newton":
             raise ValueError("--solver: continuation (--sweep) uses Newton; drop --solver iterate or --sweep")
         name, values = _sweep(sweep)

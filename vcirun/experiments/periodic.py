@@ -50,6 +50,7 @@ class PeriodicOrbit:
     h: float
     k: int = 1
     params: dict = field(default_factory=dict)
+    jacobian_kind: str = "fd"
 
     @property
     def stable(self) -> bool:
@@ -60,7 +61,8 @@ class PeriodicOrbit:
         return {"q": q.tolist(), "p": p.tolist(), "period": self.period,
                 "eigenvalues_real": self.eigenvalues.real.tolist(), "eigenvalues_imag": self.eigenvalues.imag.tolist(),
                 "residual": self.residual, "iterations": self.iterations, "method": self.method, "h": self.h,
-                "k": self.k, "params": dict(self.params), "stable": self.stable}
+                "k": self.k, "params": dict(self.params), "stable": self.stable,
+                "jacobian_kind": self.jacobian_kind}
 
 
 class ReturnMap:
@@ -118,6 +120,34 @@ class ReturnMap:
         return fd_jacobian(self, x, fd_step)
 
 
+# The envelope Jacobian (periodic_orbit(..., jacobian="envelope")): per coordinate j, a cubic fitted
+# by least squares, weights (1 - s^2)^2, to P(x + s w_j e_j) at ENVELOPE_POINTS equispaced s in
+# [-1, 1], w_j = ENVELOPE_C sqrt(h) |x_j| (floored); column j = its linear coefficient / w_j.
+# A cubic on a symmetric design has a derivative bias O(w^4) = O(h^2) (the even terms do not enter
+# the linear coefficient); the taper suppresses the boundary terms of the O(h^2) sawtooth that VCI's
+# map carries in the impact phase. Measured (docs/walkers.md): VCI's wheel multiplier within 7 h^2
+# of the closed form at h = 0.02 .. 6.25e-4, but the error per h^2 wanders (0.2 .. 6.4), no clean order.
+ENVELOPE_C = 1.0
+ENVELOPE_DEGREE = 3
+ENVELOPE_POINTS = 801
+
+
+def envelope_jacobian(P, x, h, c=ENVELOPE_C, degree=ENVELOPE_DEGREE, points=ENVELOPE_POINTS):
+    """DP of the smooth envelope of P at x (see ENVELOPE_C above)."""
+    x = np.asarray(x, float)
+    m = x.shape[0]
+    s = np.linspace(-1.0, 1.0, int(points))
+    rw = (1.0 - s ** 2)                       # sqrt of the weights (1 - s^2)^2
+    V = np.vander(s, int(degree) + 1, increasing=True) * rw[:, None]
+    floor = 1e-3 * (1.0 + float(np.max(np.abs(x))))
+    J = np.empty((m, m))
+    for j in range(m):
+        w = c * np.sqrt(h) * max(abs(x[j]), floor)
+        F = np.array([P(x + np.eye(m)[j] * (si * w))[0] for si in s])
+        J[:, j] = np.linalg.lstsq(V, F * rw[:, None], rcond=None)[0][1] / w
+    return J
+
+
 def _section_index(section, sysm, names) -> int:
     if section is None:
         if sysm is None:
@@ -136,7 +166,7 @@ def _section_index(section, sysm, names) -> int:
 
 
 def periodic_orbit(system, method, *, h=None, guess, section=None, k=1, params=None, tol=1e-12, maxit=None,
-                   fd_step=None, solver="newton", **options) -> PeriodicOrbit:
+                   fd_step=None, solver="newton", jacobian="fd", **options) -> PeriodicOrbit:
     """A fixed point of the return map of `method` at step h on `section` (a constraint's impact, just
     after its reset), from guess = (q, p) or the flat state. k: impacts per return (2: a period-two
     orbit). method "reference": the exact return map (vcirun.reference.stride.ReferenceReturnMap; no h;
@@ -151,9 +181,19 @@ def periodic_orbit(system, method, *, h=None, guess, section=None, k=1, params=N
     or for maxit (400) returns; the last return is the fixed point and `residual` says how far the
     iteration still moves (the map's jump size where it settles on a cycle across a jump). Its
     multipliers are those of the smooth piece of the map it settles on (the finite-difference
-    Jacobian with fd_step 1e-6 by default, small against the O(h) spacing of the map's jumps)."""
+    Jacobian with fd_step 1e-6 by default, small against the O(h) spacing of the map's jumps).
+
+    jacobian "fd" (default): the finite-difference Jacobian above. "envelope" (solver "iterate" only):
+    the Jacobian of the map's smooth envelope, a tapered local cubic least-squares fit over a window
+    ~ sqrt(h) (envelope_jacobian); on VCI's wheel its multiplier is within 7 h^2 of the closed form
+    at h = 0.02 .. 6.25e-4 (the pointwise one: order 1), but its error per h^2 is erratic in h (no
+    clean order 2), docs/walkers.md."""
     if solver not in ("newton", "iterate"):
         raise ValueError(f"solver: {solver!r} is not 'newton' or 'iterate'")
+    if jacobian not in ("fd", "envelope"):
+        raise ValueError(f"jacobian: {jacobian!r} is not 'fd' or 'envelope'")
+    if jacobian == "envelope" and (solver != "iterate" or method == "reference"):
+        raise ValueError("jacobian: 'envelope' needs solver 'iterate' and a method with a step h")
     if isinstance(guess, (tuple, list)) and len(guess) == 2 and np.ndim(guess[0]) == 1:
         x = np.concatenate([np.asarray(guess[0], float), np.asarray(guess[1], float)])
     else:
@@ -172,7 +212,7 @@ def periodic_orbit(system, method, *, h=None, guess, section=None, k=1, params=N
         fd_step = 1e-6 if solver == "iterate" else FD_STEP if method == "reference" else METHOD_FD_STEP
     x, _ = P(x)   # onto the section
     if solver == "iterate":
-        return _iterate(P, x, tol, 400 if maxit is None else int(maxit), fd_step, method, h, k, params)
+        return _iterate(P, x, tol, 400 if maxit is None else int(maxit), fd_step, method, h, k, params, jacobian)
     maxit = 30 if maxit is None else int(maxit)
     it = 0
     step = np.inf
@@ -190,18 +230,18 @@ def periodic_orbit(system, method, *, h=None, guess, section=None, k=1, params=N
     return _orbit(P, x, fd_step, it, method, h, k, params)
 
 
-def _orbit(P, x, fd_step, it, method, h, k, params) -> PeriodicOrbit:
+def _orbit(P, x, fd_step, it, method, h, k, params, jacobian="fd") -> PeriodicOrbit:
     """The PeriodicOrbit at x: its return, period, Jacobian and multipliers (|.| descending)."""
     Px, period = P(x)
-    J = P.jacobian(x, fd_step)
+    J = envelope_jacobian(P, x, h) if jacobian == "envelope" else P.jacobian(x, fd_step)
     ev = np.linalg.eigvals(J)
     ev = ev[np.argsort(-np.abs(ev), kind="stable")]
     n = P.n
     return PeriodicOrbit((x[:n].copy(), x[n:].copy()), period, ev, J, float(np.max(np.abs(Px - x))), it,
-                         str(method), float("nan") if h is None else float(h), int(k), dict(params or {}))
+                         str(method), float("nan") if h is None else float(h), int(k), dict(params or {}), jacobian)
 
 
-def _iterate(P, x, tol, maxit, fd_step, method, h, k, params) -> PeriodicOrbit:
+def _iterate(P, x, tol, maxit, fd_step, method, h, k, params, jacobian="fd") -> PeriodicOrbit:
     """periodic_orbit's solver "iterate" (see there)."""
     it = 0
     while it < maxit:
@@ -211,7 +251,7 @@ def _iterate(P, x, tol, maxit, fd_step, method, h, k, params) -> PeriodicOrbit:
         x = Px
         if move <= tol * (1.0 + float(np.max(np.abs(x)))):
             break
-    orb = _orbit(P, x, fd_step, it, method, h, k, params)
+    orb = _orbit(P, x, fd_step, it, method, h, k, params, jacobian)
     if not orb.stable:
         raise RuntimeError(f"periodic_orbit: solver 'iterate' settled on no stable orbit (multiplier "
                            f"{orb.eigenvalues[0]:.4g} after {it} returns); use solver 'newton'")
