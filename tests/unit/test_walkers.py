@@ -54,6 +54,34 @@ def test_compass_gait_converges_at_the_method_order(reference, method, order, hs
         assert np.all(rates > need), (name, rates)
 
 
+# The exact gait's multipliers (the reference's stride map, Taylor, fd_step 5e-5; accurate to 4e-11:
+# tests/reference/test_reference_declared_resets.py)
+EXACT_MULTIPLIERS = (-0.19972612682583946, 0.5444760621134417, 0.13157262406967357)   # Re, |Im| of the pair; real
+
+
+def _vci_envelope_errors(h):
+    """|Re|, ||Im||, |real| errors of VCI's envelope multipliers (solver "iterate") against the exact ones."""
+    o = periodic_orbit("compass_gait", "VCI", h=h, guess=(D.default_q0, D.default_p0), solver="iterate",
+                       jacobian="envelope")
+    ev = o.eigenvalues
+    pair, real = ev[np.abs(ev.imag) > 1e-9], ev[(np.abs(ev.imag) <= 1e-9) & (np.abs(ev) > 1e-3)]
+    assert len(pair) == 2 and len(real) == 1 and abs(ev[3]) < 1e-8, ev
+    return np.abs(np.array([pair[0].real, abs(pair[0].imag), real[0].real]) - EXACT_MULTIPLIERS)
+
+
+def test_vci_envelope_multipliers_converge_at_order_two():
+    """VCI's stride map jumps by O(h^2) where the impact time crosses a grid point (its pointwise
+    multipliers converge at order 1); the envelope Jacobian's multipliers (docs/walkers.md) converge at
+    order 2: largest error over Re, |Im| of the pair and the real one 2.60, 2.24, 2.23, 2.22 h^2 at
+    h = 0.02, 0.01, 0.005, 0.0025 (orders 2.21, 2.00, 2.01)."""
+    hs = np.array([0.02, 0.01, 0.005, 0.0025])
+    err = np.array([_vci_envelope_errors(h) for h in hs]).max(axis=1)
+    orders = np.log2(err[:-1] / err[1:])
+    print("VCI envelope multipliers, error / h^2:", (err / hs ** 2).tolist(), "orders:", orders.tolist())
+    assert np.all((err / hs ** 2 > 2.1) & (err / hs ** 2 < 2.7)), err / hs ** 2
+    assert 1.9 < orders[0] < 2.4 and np.all(np.abs(orders[1:] - 2.0) < 0.05), orders
+
+
 def test_period_doubling_is_detected_and_followed():
     br = continuation("compass_gait", "CVA4", h=0.01, param="gamma", values=np.deg2rad([4.3, 4.35, 4.4, 4.5]),
                       guess=(D.default_q0, D.default_p0))

@@ -33,7 +33,8 @@ def periodic(
     solver: str = typer.Option("newton", "--solver", help="newton, or iterate: the stable gait as simulated "
                                                           "(VCI, whose stride map jumps by O(h^2))."),
     jacobian: str = typer.Option("fd", "--jacobian", help="fd (finite differences), or envelope (with --solver "
-                                 "iterate): a tapered local cubic fit over a window ~ sqrt(h), for VCI's multipliers."),
+                                 "iterate): the derivative of the map's smooth envelope, fitted with a model of "
+                                 "VCI's sawtooth in the impact phase, for VCI's multipliers (order 2)."),
 ):
     """Find a periodic orbit (Newton on the method's return map) and print its fixed point, period and
     multipliers; with --sweep, continue it along a parameter."""

@@ -84,6 +84,7 @@ class ReturnMap:
         self.T_max = T_max
         self._T = None
         self.evaluations = 0
+        self.last_impact_times = np.empty(0)
 
     def _plus(self, q_minus, p_plus):
         qo, qdo = np.empty(self.n), np.empty(self.n)
@@ -104,6 +105,7 @@ class ReturnMap:
             if len(hits) >= self.k:
                 j = hits[self.k - 1]
                 t = float(tr.impacts[j])
+                self.last_impact_times = np.array(tr.impacts[: j + 1], float)   # every impact up to the return
                 self._T = max(self._T or 0.0, 1.25 * t + 4 * self.h)
                 qp, pp = self._plus(tr.impact_q[j], tr.impact_p_plus[j])
                 return np.concatenate([qp, pp]), t
@@ -120,32 +122,83 @@ class ReturnMap:
         return fd_jacobian(self, x, fd_step)
 
 
-# The envelope Jacobian (periodic_orbit(..., jacobian="envelope")): per coordinate j, a cubic fitted
-# by least squares, weights (1 - s^2)^2, to P(x + s w_j e_j) at ENVELOPE_POINTS equispaced s in
-# [-1, 1], w_j = ENVELOPE_C sqrt(h) |x_j| (floored); column j = its linear coefficient / w_j.
-# A cubic on a symmetric design has a derivative bias O(w^4) = O(h^2) (the even terms do not enter
-# the linear coefficient); the taper suppresses the boundary terms of the O(h^2) sawtooth that VCI's
-# map carries in the impact phase. Measured (docs/walkers.md): VCI's wheel multiplier within 7 h^2
-# of the closed form at h = 0.02 .. 6.25e-4, but the error per h^2 wanders (0.2 .. 6.4), no clean order.
-ENVELOPE_C = 1.0
-ENVELOPE_DEGREE = 3
-ENVELOPE_POINTS = 801
+# The envelope Jacobian (periodic_orbit(..., jacobian="envelope")). VCI's map is a smooth envelope E
+# plus a sawtooth h^2 G(theta, x) in the impact phase theta = t/h mod 1 (t: the impact time; a jump
+# where t crosses a grid point). Each sample's theta is known from its t, so one least-squares fit
+# (weights (1 - s^2)^4, ENVELOPE_POINTS equispaced s in [-1, 1] per line x + s d_j) of a polynomial in
+# s of ENVELOPE_DEGREE per line plus G's model -- Legendre polynomials in theta up to
+# ENVELOPE_PHASE_DEGREE, shared, and the same times s per line -- gives DE d_j free of the sawtooth.
+# The lines make t sweep ENVELOPE_TEETH steps each (fewer teeth do not tell G from the polynomial;
+# many per point leave G's unmodelled part aliased): d_j = w_j e_j, w_j = min(ENVELOPE_C |x_j|, the
+# half-width where t moves by ENVELOPE_TEETH / 2 steps), plus a multiple of the line along which t moves
+# most where t moves less along e_j. DE is taken at E's fixed point (one Newton step on the fitted E
+# from the gait, which is off it by a phase-dependent O(h^2), then the fit repeated there): 2 m
+# (ENVELOPE_POINTS + 2) evaluations of P (812 on the wheel, 1624 on the compass gait). Measured
+# (docs/walkers.md): VCI's wheel multiplier -0.72 h^2 from the closed form at each of 21 steps
+# h = 0.02 .. 6.25e-4 (order 2.00); the compass gait's 2.2 .. 2.6 h^2 at h = 0.02 .. 6.25e-4.
+ENVELOPE_C = 0.05
+ENVELOPE_DEGREE = 5
+ENVELOPE_POINTS = 201
+ENVELOPE_TEETH = 8
+ENVELOPE_PHASE_DEGREE = 3
 
 
-def envelope_jacobian(P, x, h, c=ENVELOPE_C, degree=ENVELOPE_DEGREE, points=ENVELOPE_POINTS):
-    """DP of the smooth envelope of P at x (see ENVELOPE_C above)."""
+def envelope_jacobian(P, x, h, c=ENVELOPE_C, degree=ENVELOPE_DEGREE, points=ENVELOPE_POINTS,
+                      teeth=ENVELOPE_TEETH, phase_degree=ENVELOPE_PHASE_DEGREE):
+    """DE at the fixed point of the smooth envelope E of P near x (see ENVELOPE_C above)."""
     x = np.asarray(x, float)
+    J, E = _envelope_fit(P, x, h, c, degree, points, teeth, phase_degree)
+    xe = x + np.linalg.lstsq(np.eye(len(x)) - J, E - x, rcond=None)[0]
+    return _envelope_fit(P, xe, h, c, degree, points, teeth, phase_degree)[0]
+
+
+def _envelope_fit(P, x, h, c, degree, points, teeth, phase_degree):
+    """(DE(x), E(x)) from one fit over the m lines through x (see ENVELOPE_C above)."""
     m = x.shape[0]
-    s = np.linspace(-1.0, 1.0, int(points))
-    rw = (1.0 - s ** 2)                       # sqrt of the weights (1 - s^2)^2
-    V = np.vander(s, int(degree) + 1, increasing=True) * rw[:, None]
+    eye = np.eye(m)
     floor = 1e-3 * (1.0 + float(np.max(np.abs(x))))
-    J = np.empty((m, m))
+    w0 = c * np.maximum(np.abs(x), floor)
+    dt = np.array([(P(x + w0[j] * eye[j])[1] - P(x - w0[j] * eye[j])[1]) / (2 * w0[j]) for j in range(m)])
+    w = np.minimum(w0, teeth * h / (2 * np.maximum(np.abs(dt), 1e-300)))
+    D = np.diag(w)
+    big = int(np.argmax(np.abs(dt) * w))                      # the line along which t moves most
+    sweep = 2 * np.abs(dt) * w                                 # t's range along each line
+    if sweep[big] >= 2 * h:
+        for j in range(m):
+            if j != big and sweep[j] < teeth * h:
+                D[big, j] = np.copysign((teeth * h - sweep[j]) / sweep[big] * w[big], dt[j] * dt[big])
+    s = np.linspace(-1.0, 1.0, int(points))
+    F, phases = [], []
     for j in range(m):
-        w = c * np.sqrt(h) * max(abs(x[j]), floor)
-        F = np.array([P(x + np.eye(m)[j] * (si * w))[0] for si in s])
-        J[:, j] = np.linalg.lstsq(V, F * rw[:, None], rcond=None)[0][1] / w
-    return J
+        for si in s:
+            y, t = P(x + si * D[:, j])
+            times = np.atleast_1d(P.last_impact_times if hasattr(P, "last_impact_times") else t)
+            F.append(y)
+            phases.append(times / h)
+    if len({len(p) for p in phases}) != 1:
+        raise RuntimeError("envelope Jacobian: the samples around the orbit differ in their number of impacts")
+    F, phases = np.array(F), np.array(phases)                  # (m * points, m), (m * points, impacts)
+    steps = np.floor(phases)
+    theta = phases - steps
+    degree, L = int(degree), int(phase_degree)
+    line = np.repeat(np.arange(m), len(s))
+    S = np.tile(s, m)
+    cols = [np.ones_like(S)]
+    for j in range(m):                                         # per-line polynomial, s^1 .. s^degree
+        cols += [np.where(line == j, S ** k, 0.0) for k in range(1, degree + 1)]
+    for i in range(theta.shape[1]):
+        if np.ptp(steps[:, i]) < 2:                            # this impact's phase does not sweep the sawtooth
+            continue
+        B = [np.polynomial.legendre.legval(2 * theta[:, i] - 1, [0] * l + [1]) for l in range(1, L + 1)]
+        cols += B
+        for j in range(m):
+            if np.ptp(steps[line == j, i]) >= 2:
+                cols += [np.where(line == j, S * b, 0.0) for b in B]
+    rw = np.tile((1.0 - s ** 2) ** 2, m)                       # sqrt of the weights (1 - s^2)^4
+    A = np.array(cols).T
+    coef = np.linalg.lstsq(A * rw[:, None], F * rw[:, None], rcond=None)[0]
+    G = np.array([coef[1 + j * degree] for j in range(m)]).T   # column j: DE d_j
+    return G @ np.linalg.inv(D), coef[0]
 
 
 def _section_index(section, sysm, names) -> int:
@@ -184,10 +237,11 @@ def periodic_orbit(system, method, *, h=None, guess, section=None, k=1, params=N
     Jacobian with fd_step 1e-6 by default, small against the O(h) spacing of the map's jumps).
 
     jacobian "fd" (default): the finite-difference Jacobian above. "envelope" (solver "iterate" only):
-    the Jacobian of the map's smooth envelope, a tapered local cubic least-squares fit over a window
-    ~ sqrt(h) (envelope_jacobian); on VCI's wheel its multiplier is within 7 h^2 of the closed form
-    at h = 0.02 .. 6.25e-4 (the pointwise one: order 1), but its error per h^2 is erratic in h (no
-    clean order 2), docs/walkers.md."""
+    the Jacobian of the map's smooth envelope at the envelope's fixed point, from least-squares fits
+    that model the O(h^2) sawtooth in the impact phase (envelope_jacobian; 812 evaluations of the map
+    on the wheel, 1624 on the compass gait); VCI's multipliers then converge at order 2 (wheel: -0.72
+    h^2 from the closed form at every h = 0.02 .. 6.25e-4; the pointwise one: order 1),
+    docs/walkers.md."""
     if solver not in ("newton", "iterate"):
         raise ValueError(f"solver: {solver!r} is not 'newton' or 'iterate'")
     if jacobian not in ("fd", "envelope"):
