@@ -74,13 +74,13 @@ def test_vci_gait_by_iteration_converges_at_order_two_in_its_envelope():
     gait as simulated (solver "iterate": x <- P(x) until it stops moving, or settles on a cycle across
     a jump) is within 11 h^2 and 14 h^2 of the closed form's speed and period at every h (the constant
     depends on where the impact falls between grid points: 0.44-10.8 for the speed over 21 steps
-    h = 0.02 .. 6.25e-4, docs/walkers.md). Its multiplier is the
-    derivative of the smooth piece of the map it settles on, which carries the O(h^2) energy target's
-    O(h) slope in the impact phase: it converges at order 1 only."""
+    h = 0.02 .. 6.25e-4, docs/walkers.md). Its multiplier with jacobian="fd" is the derivative of the
+    smooth piece of the map it settles on, which carries the O(h^2) energy target's O(h) slope in the
+    impact phase: it converges at order 1 only."""
     ev_err = {}
     for h in (0.02, 0.01, 0.005, 0.0025):
         orb = periodic_orbit("rimless_wheel", "VCI", h=h, guess=([-PRM["alpha"]], [1.1 * ML2 * GAIT.omega]),
-                             solver="iterate")
+                             solver="iterate", jacobian="fd")
         w = orb.fixed_point[1][0] / ML2
         assert abs(w - GAIT.omega) / GAIT.omega <= 11 * h ** 2
         assert abs(orb.period - GAIT.period) <= 14 * h ** 2
@@ -93,11 +93,30 @@ def test_iterate_solver_agrees_with_newton_on_a_smooth_map():
     """CVA's stride map is smooth: the simulated gait is Newton's fixed point, with its multipliers."""
     g = ([-PRM["alpha"]], [1.1 * ML2 * GAIT.omega])
     a = periodic_orbit("rimless_wheel", "CVA", h=0.01, guess=g)
-    b = periodic_orbit("rimless_wheel", "CVA", h=0.01, guess=g, solver="iterate")
+    b = periodic_orbit("rimless_wheel", "CVA", h=0.01, guess=g, solver="iterate", jacobian="fd")
     np.testing.assert_allclose(b.fixed_point[1], a.fixed_point[1], rtol=1e-10)
     assert abs(b.period - a.period) < 1e-10 and abs(b.eigenvalues[0] - a.eigenvalues[0]) < 1e-6
     with pytest.raises(ValueError, match="solver"):
         periodic_orbit("rimless_wheel", "CVA", h=0.01, guess=g, solver="bisect")
+
+
+def test_iterate_solver_decides_stability_across_a_jump():
+    """At h = 0.02 * 2^(-14/4) = 1.77e-3 VCI's wheel gait settles 1.2e-4 h before a grid point, so the
+    central finite-difference stencil (fd_step 1e-6) crosses the map's jump there: its multiplier is
+    -16, and solver "iterate" used to refuse the gait. Its default Jacobian is now the envelope's
+    (multiplier -0.72 h^2 from the closed form), and jacobian="fd" keeps its stencil on the gait's
+    smooth piece (one-sided there)."""
+    g = ([-PRM["alpha"]], [1.1 * ML2 * GAIT.omega])
+    h = 0.02 * 2.0 ** (-14 / 4)
+    orb = periodic_orbit("rimless_wheel", "VCI", h=h, guess=g, solver="iterate")
+    assert orb.jacobian_kind == "envelope" and orb.stable
+    assert abs((orb.eigenvalues[0].real - GAIT.eigenvalue) / h ** 2 + 0.72) < 0.01
+    piece = periodic_orbit("rimless_wheel", "VCI", h=h, guess=g, solver="iterate", jacobian="fd")
+    assert piece.jacobian_kind == "fd" and piece.stable and abs(piece.eigenvalues[0] - GAIT.eigenvalue) < 0.03
+    from vcirun.experiments.periodic import ReturnMap
+
+    central = np.linalg.eigvals(ReturnMap("rimless_wheel", "VCI", h=h).jacobian(np.concatenate(orb.fixed_point), 1e-6))
+    assert np.max(np.abs(central)) > 10                      # the stencil that crosses the jump
 
 
 def _vci_envelope_multiplier_errors(js):

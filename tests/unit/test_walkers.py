@@ -98,7 +98,10 @@ def test_cli_periodic_prints_the_rimless_wheel_gait():
     assert "fixed point" in r.output and "multipliers 0.49999" in r.output and "(stable)" in r.output
     assert "[jacobian fd]" in r.output
     env = CliRunner().invoke(app, ["periodic", "--system", "rimless_wheel", "--method", "VCI", "--h", "0.01",
-                                   "--solver", "iterate", "--jacobian", "envelope"])
+                                   "--solver", "iterate"])             # the envelope Jacobian by default
     assert env.exit_code == 0 and "multipliers 0.4999" in env.output and "[jacobian envelope]" in env.output, env.output
+    fd = CliRunner().invoke(app, ["periodic", "--system", "rimless_wheel", "--method", "VCI", "--h", "0.01",
+                                  "--solver", "iterate", "--jacobian", "fd"])
+    assert fd.exit_code == 0 and "[jacobian fd]" in fd.output, fd.output
     bad = CliRunner().invoke(app, ["periodic", "--system", "rimless_wheel", "--sweep", "gamma=1:2"])
     assert bad.exit_code == 1 and "NAME=START:STOP:COUNT" in bad.output

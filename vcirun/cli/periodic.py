@@ -32,9 +32,10 @@ def periodic(
                                           help="With --sweep: the bifurcation diagram (.png) and its data (.json)."),
     solver: str = typer.Option("newton", "--solver", help="newton, or iterate: the stable gait as simulated "
                                                           "(VCI, whose stride map jumps by O(h^2))."),
-    jacobian: str = typer.Option("fd", "--jacobian", help="fd (finite differences), or envelope (with --solver "
-                                 "iterate): the derivative of the map's smooth envelope, fitted with a model of "
-                                 "VCI's sawtooth in the impact phase, for VCI's multipliers (order 2)."),
+    jacobian: Optional[str] = typer.Option(None, "--jacobian", help="envelope (the default with --solver iterate): "
+                                           "the derivative of the map's smooth envelope, fitted with a model of VCI's "
+                                           "sawtooth in the impact phase (VCI's multipliers at order 2); or fd "
+                                           "(finite differences; the default with --solver newton)."),
 ):
     """Find a periodic orbit (Newton on the method's return map) and print its fixed point, period and
     multipliers; with --sweep, continue it along a parameter."""
@@ -60,7 +61,7 @@ def periodic(
             return
         from vcirun.experiments.bifurcation import bifurcation_figure, continuation
 
-        if jacobian != "fd":
+        if jacobian not in (None, "fd"):
             raise ValueError("--jacobian: continuation (--sweep) uses the finite-difference Jacobian; drop --jacobian")
         if solver != "newton":
             raise ValueError("--solver: continuation (--sweep) uses Newton; drop --solver iterate or --sweep")

@@ -121,6 +121,43 @@ class ReturnMap:
         """DP(x) by the fourth-order central difference (see the module docstring)."""
         return fd_jacobian(self, x, fd_step)
 
+    def piece_jacobian(self, x, fd_step):
+        """DP(x) of the smooth piece of the map that holds x: the piece is where every impact up to the
+        return stays in the same step (VCI's map jumps where an impact time crosses a grid point). The
+        fourth-order central difference where its stencil (+-delta, +-2 delta, delta = fd_step max(1,
+        |x_j|)) stays on the piece; else the fourth-order one-sided one (0, delta, .. 4 delta) on the
+        side that does."""
+        x = np.asarray(x, float)
+        m = x.shape[0]
+
+        def at(y):
+            f, _ = self(y)
+            return f, tuple(np.floor(self.last_impact_times / self.h).astype(int))
+
+        f0, piece = at(x)
+        J = np.empty((m, m))
+        for j in range(m):
+            d = fd_step * max(1.0, abs(x[j]))
+            e = np.zeros(m)
+            e[j] = d
+            pts = {s: at(x + s * e) for s in (2, 1, -1, -2)}
+            if all(pts[s][1] == piece for s in pts):
+                f = [pts[s][0] for s in (2, 1, -1, -2)]
+                J[:, j] = (-f[0] + 8.0 * f[1] - 8.0 * f[2] + f[3]) / (12.0 * d)
+                continue
+            for side in (1, -1):
+                if pts[side][1] != piece or pts[2 * side][1] != piece:
+                    continue
+                more = [at(x + side * s * e) for s in (3, 4)]
+                if all(b == piece for _, b in more):
+                    f = [f0, pts[side][0], pts[2 * side][0], more[0][0], more[1][0]]
+                    J[:, j] = (-25.0 * f[0] + 48.0 * f[1] - 36.0 * f[2] + 16.0 * f[3] - 3.0 * f[4]) / (12.0 * side * d)
+                    break
+            else:
+                raise RuntimeError(f"finite-difference Jacobian: the map jumps within 4 delta = {4 * d:.3g} on both "
+                                   f"sides of x[{j}]; use jacobian 'envelope' or a smaller fd_step")
+        return J
+
 
 # The envelope Jacobian (periodic_orbit(..., jacobian="envelope")). VCI's map is a smooth envelope E
 # plus a sawtooth h^2 G(theta, x) in the impact phase theta = t/h mod 1 (t: the impact time; a jump
@@ -219,7 +256,7 @@ def _section_index(section, sysm, names) -> int:
 
 
 def periodic_orbit(system, method, *, h=None, guess, section=None, k=1, params=None, tol=1e-12, maxit=None,
-                   fd_step=None, solver="newton", jacobian="fd", **options) -> PeriodicOrbit:
+                   fd_step=None, solver="newton", jacobian=None, **options) -> PeriodicOrbit:
     """A fixed point of the return map of `method` at step h on `section` (a constraint's impact, just
     after its reset), from guess = (q, p) or the flat state. k: impacts per return (2: a period-two
     orbit). method "reference": the exact return map (vcirun.reference.stride.ReferenceReturnMap; no h;
@@ -232,18 +269,27 @@ def periodic_orbit(system, method, *, h=None, guess, section=None, k=1, params=N
     (R^VCI's energy target is the discrete energy of the partial step that reached the impact), so
     Newton's fixed point need not exist. x <- P(x) until successive returns differ by tol (1 + |x|),
     or for maxit (400) returns; the last return is the fixed point and `residual` says how far the
-    iteration still moves (the map's jump size where it settles on a cycle across a jump). Its
-    multipliers are those of the smooth piece of the map it settles on (the finite-difference
-    Jacobian with fd_step 1e-6 by default, small against the O(h) spacing of the map's jumps).
+    iteration still moves (the map's jump size where it settles on a cycle across a jump). It returns
+    the orbit only if its multipliers (|.| < 1) say it is stable, else RuntimeError.
 
-    jacobian "fd" (default): the finite-difference Jacobian above. "envelope" (solver "iterate" only):
-    the Jacobian of the map's smooth envelope at the envelope's fixed point, from least-squares fits
-    that model the O(h^2) sawtooth in the impact phase (envelope_jacobian; 812 evaluations of the map
-    on the wheel, 1624 on the compass gait); VCI's multipliers then converge at order 2 (wheel: -0.72
-    h^2 from the closed form at every h = 0.02 .. 6.25e-4; the pointwise one: order 1),
-    docs/walkers.md."""
+    jacobian: default "envelope" with solver "iterate" on a method with a step h, else "fd".
+    "envelope": the Jacobian of the map's smooth envelope at the envelope's fixed point, from
+    least-squares fits that model the O(h^2) sawtooth in the impact phase (envelope_jacobian; 812
+    evaluations of the map on the wheel, 1624 on the compass gait: ~0.3 s and ~1 s); VCI's
+    multipliers then converge at order 2 (wheel: -0.72 h^2 from the closed form at every h = 0.02 ..
+    6.25e-4), docs/walkers.md. "fd": the finite-difference Jacobian above; with solver "iterate" the
+    derivative of the smooth piece of the map the gait settles on (ReturnMap.piece_jacobian, fd_step
+    1e-6 by default; one-sided where the central stencil would cross a jump; VCI: order 1)."""
     if solver not in ("newton", "iterate"):
         raise ValueError(f"solver: {solver!r} is not 'newton' or 'iterate'")
+    # The stability of the gait of a map with O(h^2) jumps is that of its smooth envelope: a difference
+    # quotient of the map across a jump is O(h^2) / delta (at fd_step 1e-6 it can say -16 for VCI's
+    # wheel multiplier 0.5, h = 1.77e-3), its derivative on one piece is off by an O(h) slope, and the
+    # iteration's successive differences say nothing once they are the size of the jumps (or when the
+    # guess is already on the gait). The envelope Jacobian models the jumps and converges at order 2
+    # at every h, so "iterate" decides with it unless "fd" is asked for.
+    if jacobian is None:
+        jacobian = "envelope" if solver == "iterate" and method != "reference" else "fd"
     if jacobian not in ("fd", "envelope"):
         raise ValueError(f"jacobian: {jacobian!r} is not 'fd' or 'envelope'")
     if jacobian == "envelope" and (solver != "iterate" or method == "reference"):
@@ -284,10 +330,16 @@ def periodic_orbit(system, method, *, h=None, guess, section=None, k=1, params=N
     return _orbit(P, x, fd_step, it, method, h, k, params)
 
 
-def _orbit(P, x, fd_step, it, method, h, k, params, jacobian="fd") -> PeriodicOrbit:
-    """The PeriodicOrbit at x: its return, period, Jacobian and multipliers (|.| descending)."""
+def _orbit(P, x, fd_step, it, method, h, k, params, jacobian="fd", piece=False) -> PeriodicOrbit:
+    """The PeriodicOrbit at x: its return, period, Jacobian and multipliers (|.| descending); piece:
+    the finite-difference Jacobian of the map's smooth piece at x (ReturnMap.piece_jacobian)."""
     Px, period = P(x)
-    J = envelope_jacobian(P, x, h) if jacobian == "envelope" else P.jacobian(x, fd_step)
+    if jacobian == "envelope":
+        J = envelope_jacobian(P, x, h)
+    elif piece and isinstance(P, ReturnMap):
+        J = P.piece_jacobian(x, fd_step)
+    else:
+        J = P.jacobian(x, fd_step)
     ev = np.linalg.eigvals(J)
     ev = ev[np.argsort(-np.abs(ev), kind="stable")]
     n = P.n
@@ -305,7 +357,7 @@ def _iterate(P, x, tol, maxit, fd_step, method, h, k, params, jacobian="fd") -> 
         x = Px
         if move <= tol * (1.0 + float(np.max(np.abs(x)))):
             break
-    orb = _orbit(P, x, fd_step, it, method, h, k, params, jacobian)
+    orb = _orbit(P, x, fd_step, it, method, h, k, params, jacobian, piece=True)
     if not orb.stable:
         raise RuntimeError(f"periodic_orbit: solver 'iterate' settled on no stable orbit (multiplier "
                            f"{orb.eigenvalues[0]:.4g} after {it} returns); use solver 'newton'")
