@@ -554,9 +554,13 @@ def test_runs_in_flight_are_checked_against_the_memory_limit(tiny, tmp_path, mon
     assert not (tmp_path / "r.h5").exists()
 
 
-def test_pool_workers_stream_each_run(tmp_path):
-    """One initial condition (one task per worker): the client still receives the runs one by one."""
+def test_pool_workers_stream_each_run(tmp_path, monkeypatch):
+    """One initial condition (one task per worker): the client still receives the runs as they finish
+    (here one by one: every run is older than a STREAM_INTERVAL of 0 when it is sent)."""
+    from vcirun.experiments import worker
     from vcirun.experiments.executors import LocalExecutor
+
+    monkeypatch.setattr(worker, "STREAM_INTERVAL", 0.0)
 
     p = tmp_path / "one.yaml"
     p.write_text(TINY.replace("beta: {start: 3.2, stop: 4.2, num: 2}", "beta: [3.2]").replace(

@@ -19,8 +19,9 @@ run and report the interruption. Storage (see `vcirun.io`): the client commits f
 journal beside the results file every `commit_interval` seconds (default 1 s, at a cost independent
 of the file's size), folds the journal into the HDF5 file in the background and when the sweep
 finishes; pool workers
-send each run to the client as soon as it is computed. A SIGKILL therefore loses at most the runs
-that finished in the last commit_interval (plus one commit's duration) and the runs being computed.
+send finished runs to the client within 0.1 s (worker.STREAM_INTERVAL). A SIGKILL therefore loses at
+most the runs that finished in the last commit_interval plus 0.1 s (and one commit's duration) and the
+runs being computed.
 Before anything is created the sweep checks the memory of its runs in flight and the disk space its
 results need.
 """
@@ -373,7 +374,7 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
                 writer.add_reference(result["ic_key"], *result["reference"])
             failed = 0
             for r in result["runs"]:
-                writer.add_run(r["run_id"], r["attrs"], r["arrays"])
+                writer.add_run(r["run_id"], r["attrs"], r["arrays"], r.get("text"))
                 failed += r["attrs"].get("status") != "ok"
             summary.computed += len(result["runs"])
             summary.failed += failed

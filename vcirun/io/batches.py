@@ -31,7 +31,7 @@ import numpy as np
 
 __all__ = ["BATCH_GROUPS", "ITEM_GROUPS", "Batch", "ItemView", "pack", "write_batch", "read_batch", "checked_batch",
            "batch_names", "next_batch_name", "delete_items", "count_items", "item_path", "split_item_path",
-           "jsonable_attr", "attr_from_json"]
+           "jsonable_attr", "attr_from_json", "item_text", "stamped"]
 
 BATCH_GROUPS = {"run": "run_batches", "reference": "reference_batches"}
 ITEM_GROUPS = {"run": "runs", "reference": "references"}   # v1 per-item groups; item paths
@@ -47,6 +47,17 @@ def jsonable_attr(v):
     if isinstance(v, np.generic):
         return v.item()
     return v
+
+
+def item_text(enc_attrs: dict) -> str:
+    """An item's encoded attributes as the JSON text a batch stores (its `attrs` dataset)."""
+    return json.dumps({k: jsonable_attr(v) for k, v in enc_attrs.items()}, allow_nan=True)
+
+
+def stamped(text: str, key: str, value) -> str:
+    """`text` (an item's JSON object) with one more attribute (a later duplicate key wins in JSON)."""
+    extra = json.dumps({key: value})[1:]
+    return "{" + extra if text.strip() == "{}" else text.rstrip()[:-1] + ", " + extra
 
 
 def attr_from_json(v):
@@ -84,6 +95,11 @@ class Batch:
     scalar: list               # fields held per item as 0-d arrays
     rows: np.ndarray           # (k, F) int64; -1: the item lacks the field
     data: dict                 # field -> concatenated array (or an h5py dataset: sliced on demand)
+    texts: list | None = None  # each item's attributes as JSON text where known (then attrs[i] may be None)
+
+    def text(self, i: int) -> str:
+        t = self.texts[i] if self.texts is not None else None
+        return t if t is not None else item_text(self.attrs[i])
 
     def __len__(self) -> int:
         return len(self.keys)
@@ -108,16 +124,19 @@ class Batch:
 
     def shape_of(self, i: int, name: str):
         """Shape of item i's array `name` (None if it lacks it), from the row table alone."""
-        try:
-            j = self.fields.index(name)
-        except ValueError:
+        tails = self.__dict__.get("_tails")
+        if tails is None:   # (an h5py dataset's shape costs ~10 us a call: read once per batch)
+            tails = self._tails = {n: (None if n in self.scalar else tuple(self.data[n].shape[1:]))
+                                   for n in self.fields}
+            self._col = {n: j for j, n in enumerate(self.fields)}
+        j = self._col.get(name)
+        if j is None:
             return None
         r = int(self.rows[i, j])
         if r < 0:
             return None
-        if name in self.scalar:
-            return ()
-        return (r,) + tuple(self.data[name].shape[1:])
+        tail = tails[name]
+        return () if tail is None else (r,) + tail
 
     def field(self, i: int, name: str, starts=None):
         """Item i's array `name` (KeyError if it lacks it)."""
@@ -141,7 +160,8 @@ class Batch:
             tail = tuple(self.data[name].shape[1:])
             data[name] = np.concatenate(parts) if parts else np.zeros((0,) + tail, self.data[name].dtype)
         return Batch([self.keys[i] for i in keep], [self.attrs[i] for i in keep], list(self.fields),
-                     list(self.scalar), self.rows[keep].reshape(len(keep), len(self.fields)), data)
+                     list(self.scalar), self.rows[keep].reshape(len(keep), len(self.fields)), data,
+                     None if self.texts is None else [self.texts[i] for i in keep])
 
 
 class ItemView:
@@ -173,11 +193,11 @@ def _signature(a: np.ndarray) -> tuple:
 
 
 def pack(items) -> list:
-    """Batches of (key, encoded attributes, arrays) items, arrays as a mapping or (name, array) pairs;
-    numeric arrays only. Items go to the first batch whose fields agree with theirs in dtype and
-    trailing shape (one batch for the runs of one sweep)."""
+    """Batches of (key, encoded attributes, arrays[, JSON text of the attributes]) items, arrays as a
+    mapping or (name, array) pairs; numeric arrays only. Items go to the first batch whose fields
+    agree with theirs in dtype and trailing shape (one batch for the runs of one sweep)."""
     groups = []   # [signature by field, [item, ...]]
-    for key, attrs, arrays in items:
+    for key, attrs, arrays, *text in items:
         arr = {}
         for name, v in (arrays.items() if isinstance(arrays, dict) else arrays):
             a = np.asarray(v)
@@ -185,13 +205,14 @@ def pack(items) -> list:
                 a = a.astype(float)
             arr[name] = a
         sig = {name: _signature(a) for name, a in arr.items()}
+        item = (str(key), attrs, arr, text[0] if text else None)
         for g in groups:
             if all(g[0].get(n, s) == s for n, s in sig.items()):
                 g[0].update(sig)
-                g[1].append((str(key), attrs, arr))
+                g[1].append(item)
                 break
         else:
-            groups.append([dict(sig), [(str(key), attrs, arr)]])
+            groups.append([dict(sig), [item]])
     out = []
     for sig, its in groups:
         fields = list(sig)
@@ -200,7 +221,7 @@ def pack(items) -> list:
         data = {}
         for j, name in enumerate(fields):
             parts = []
-            for i, (_, _, arr) in enumerate(its):
+            for i, (_, _, arr, _) in enumerate(its):
                 a = arr.get(name)
                 if a is None:
                     continue
@@ -209,7 +230,9 @@ def pack(items) -> list:
                 parts.append(a)
             data[name] = np.ascontiguousarray(np.concatenate(parts)) if len(parts) > 1 else \
                 np.ascontiguousarray(parts[0])
-        out.append(Batch([k for k, _, _ in its], [a for _, a, _ in its], fields, scalar, rows, data))
+        texts = [t for *_, t in its]
+        out.append(Batch([it[0] for it in its], [it[1] for it in its], fields, scalar, rows, data,
+                         texts if any(t is not None for t in texts) else None))
     return out
 
 
@@ -247,8 +270,7 @@ def write_batch(f, kind: str, batch: Batch, name: str | None = None) -> str:
         del f[path]
     g = f.create_group(path)
     g.create_dataset("key", data=np.array(batch.keys, dtype=object), dtype=text)
-    g.create_dataset("attrs", data=np.array([json.dumps({k: jsonable_attr(v) for k, v in a.items()},
-                                                        allow_nan=True) for a in batch.attrs], dtype=object),
+    g.create_dataset("attrs", data=np.array([batch.text(i) for i in range(len(batch.keys))], dtype=object),
                      dtype=text)
     write_encoded(f, path, meta, arrays, group=g)
     return path

@@ -27,8 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from ..run.trajectory_files import decode_attr, decode_attrs
-from .batches import (Batch, attr_from_json, delete_items, jsonable_attr, pack, split_item_path,
-                      write_batch)
+from .batches import Batch, attr_from_json, delete_items, jsonable_attr, pack, split_item_path, write_batch
 from .checks import NUMERIC_KINDS
 from .errors import StorageError, os_text, write_error
 
@@ -47,8 +46,10 @@ def journal_path(path) -> Path:
     return p.with_name(f".{p.name}.journal")
 
 
-def record_pieces(kind: str, key: str, enc_attrs: dict | None = None, arrays=(), extra: dict | None = None):
-    """(list of byte pieces, total length) of one record; array bytes are not copied."""
+def record_pieces(kind: str, key: str, enc_attrs: dict | None = None, arrays=(), extra: dict | None = None,
+                  items: str | None = None):
+    """(list of byte pieces, total length) of one record; array bytes are not copied. `items`: JSON
+    text put in place of the value _ITEMS of `extra`."""
     table, blobs, off = [], [], 0
     for name, value in arrays:
         a = np.ascontiguousarray(value)
@@ -61,7 +62,10 @@ def record_pieces(kind: str, key: str, enc_attrs: dict | None = None, arrays=(),
     header = {"kind": kind, "key": key, "arrays": table, **(extra or {})}
     if enc_attrs is not None:
         header["attrs"] = {k: jsonable_attr(v) for k, v in enc_attrs.items()}
-    hb = json.dumps(header, allow_nan=True).encode()
+    hb = json.dumps(header, allow_nan=True)
+    if items is not None:
+        hb = hb.replace(json.dumps(_ITEMS), items, 1)
+    hb = hb.encode()
     payload = [_HDR.pack(len(hb)), hb, *blobs]
     crc = 0
     for piece in payload:
@@ -71,10 +75,15 @@ def record_pieces(kind: str, key: str, enc_attrs: dict | None = None, arrays=(),
 
 
 def batch_pieces(kind: str, batch: Batch):
-    """(pieces, length) of the record of one batch of `kind` ("run" | "reference")."""
-    extra = {"keys": list(batch.keys), "items": [{k: jsonable_attr(v) for k, v in a.items()} for a in batch.attrs],
-             "fields": list(batch.fields), "scalar": list(batch.scalar), "rows": batch.rows.tolist()}
-    return record_pieces("batch", kind, None, [(n, batch.data[n]) for n in batch.fields], extra=extra)
+    """(pieces, length) of the record of one batch of `kind` ("run" | "reference"). The items' JSON
+    texts (made by the workers where they can) are spliced into the header as they are."""
+    extra = {"keys": list(batch.keys), "items": _ITEMS, "fields": list(batch.fields),
+             "scalar": list(batch.scalar), "rows": batch.rows.tolist()}
+    return record_pieces("batch", kind, None, [(n, batch.data[n]) for n in batch.fields], extra=extra,
+                         items="[" + ", ".join(batch.text(i) for i in range(len(batch.keys))) + "]")
+
+
+_ITEMS = "\x00items\x00"   # where batch_pieces splices the items' texts into a header
 
 
 def write_all(fd: int, pieces) -> None:

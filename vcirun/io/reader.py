@@ -100,13 +100,13 @@ def read_results(path) -> Results:
         return results_of(f, path)
 
 
-def results_of(f, path) -> Results:
+def results_of(f, path, check: bool = True) -> Results:
     """`read_results` of the open results file `f` at `path` (e.g. a copy being written, whose
-    `journal` attribute names no journal)."""
+    `journal` attribute names no journal); `check`: see vcirun.io.checks.scan_groups."""
     try:
         attrs = decode_attrs(f.attrs)
         run_attrs, ref_attrs, incomplete, damaged = scan_groups(
-            f, path, "rerun the sweep with --force or move the file away")
+            f, path, "rerun the sweep with --force or move the file away", check=check)
         runs = {k: (None, a) for k, a in run_attrs.items()}
         refs = {k: (None, a) for k, a in ref_attrs.items()}
         in_journal = overlay(_journal_of(path, f), runs, refs, attrs)

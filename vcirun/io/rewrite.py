@@ -15,7 +15,7 @@ import h5py
 
 from ..core.sizes import format_bytes
 from ..run.trajectory_files import encode_attr, group_attrs
-from .batches import count_items, delete_items, pack, write_batch
+from .batches import count_items, delete_items, pack, stamped, write_batch
 from .checks import FORMAT, LIBVER, SCHEMA_VERSION
 from .errors import StorageError, one_line
 from .journal import apply_journal
@@ -31,6 +31,14 @@ class Pending:
     key: str
     attrs: dict
     arrays: dict
+    text: str | None = None   # the attributes encoded as a batch stores them (vcirun.io.batches.item_text)
+
+    def item(self, stamp: str) -> tuple:
+        """(key, encoded attributes or None, arrays, JSON text or None) for vcirun.io.batches.pack,
+        with `committed_at`."""
+        if self.text is not None:
+            return self.key, None, self.arrays, stamped(self.text, "committed_at", stamp)
+        return self.key, group_attrs({**self.attrs, "committed_at": stamp}), self.arrays
 
 
 @dataclass
@@ -60,8 +68,7 @@ class Rewrite:
                 apply_journal(f, j, self.path)
             stamp = now_iso()
             for kind in ("reference", "run"):
-                items = [(p.key, group_attrs({**p.attrs, "committed_at": stamp}), p.arrays)
-                         for p in self.pending if p.kind == kind]
+                items = [p.item(stamp) for p in self.pending if p.kind == kind]
                 for b in pack(items):
                     write_batch(f, kind, b)
             f.attrs["history"] = encode_attr("history", self.history)

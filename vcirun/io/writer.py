@@ -30,7 +30,6 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from ..run.trajectory_files import group_attrs
 from .checks import resolve_output
 from .compaction import BackgroundCompactor, compact_path
 from ..core.fsync import fsync_path
@@ -186,10 +185,12 @@ class ResultsWriter:
                     self._deletions.append(item_path("run", rid))
 
     # -- queueing and committing ---------------------------------------------------------------------------
-    def add_run(self, run_id: str, attrs: dict, arrays: dict) -> None:
+    def add_run(self, run_id: str, attrs: dict, arrays: dict, text: str | None = None) -> None:
+        """Queue a run; `text`: its attributes encoded already (vcirun.io.batches.item_text of
+        group_attrs(attrs)), as the sweep's workers send them (the client then does not encode them)."""
         self._raise_auto_error()
         with self._mutex:
-            self._pending.append(Pending("run", run_id, attrs, arrays))
+            self._pending.append(Pending("run", run_id, attrs, arrays, text))
             self._pending_bytes += sum(int(np.asarray(a).nbytes) for a in arrays.values())
 
     def add_reference(self, key: str, attrs: dict, arrays: dict) -> None:
@@ -229,8 +230,7 @@ class ResultsWriter:
                 pieces += pc
                 total += n
             for kind in ("reference", "run"):   # the commit's items: one record per batch
-                items = [(p.key, group_attrs({**p.attrs, "committed_at": stamp}), p.arrays)
-                         for p in self._pending if p.kind == kind]
+                items = [p.item(stamp) for p in self._pending if p.kind == kind]
                 for b in pack(items):
                     pc, n = batch_pieces(kind, b)
                     pieces += pc
