@@ -95,11 +95,12 @@ def test_sweep_info_plot_resume_force(runner, tiny, count_runs):
     assert set(res.references) == {"beta=3.2", "beta=4.2"}
     for ref in res.references.values():
         assert ref["status"] == "ok" and ref["accuracy"] < 1e-8
-    with h5py.File(out, "r") as f:  # trajectories on the grid, time-major
-        g = f["runs"][res.runs[0].run_id]
-        n_steps = g.attrs["n_steps"]
-        assert g["q"].shape == (n_steps + 1, 2) and g["t"][-1] == pytest.approx(n_steps * g.attrs["h"])
-        assert f["references/beta=3.2/q"].shape[1] == 2
+    from vcirun.io.reader import load_reference, load_trajectory
+
+    tr = load_trajectory(out, res.runs[0].run_id)  # trajectories on the grid, time-major
+    n_steps = res.runs[0].attrs["n_steps"]
+    assert tr.q.shape == (n_steps + 1, 2) and tr.t[-1] == pytest.approx(n_steps * tr.h)
+    assert load_reference(out, "beta=3.2")["q"].shape[1] == 2
     stamps = {r.run_id: r.attrs["committed_at"] for r in res.runs}
 
     r = invoke(runner, "info", out)

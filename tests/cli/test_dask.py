@@ -116,8 +116,9 @@ def worker_pids(client) -> dict:
 
 
 def check_file(path: Path, expected_ids: set) -> Results:
-    with h5py.File(path, "r") as f:  # plain h5py opens it; every group in it is complete
-        assert all(bool(f["runs"][g].attrs["complete"]) for g in f["runs"])
+    with h5py.File(path, "r") as f:  # plain h5py opens it; every batch in it is complete
+        batches = f["run_batches"] if "run_batches" in f else {}
+        assert all(bool(batches[g].attrs["complete"]) for g in batches)
     res = read_results(path)
     ids = [r.run_id for r in res.runs]
     assert res.incomplete == [] and len(ids) == len(set(ids)) and set(ids) <= expected_ids

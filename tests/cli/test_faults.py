@@ -21,7 +21,6 @@ from typer.testing import CliRunner
 from vcirun.cli.main import app
 from vcirun.experiments import sweep
 from vcirun.experiments.config import load_config
-from vcirun.io.checks import run_problem
 from vcirun.io.errors import StorageError
 from vcirun.io.journal import read_journal
 from vcirun.io.reader import load_trajectory, read_results
@@ -69,6 +68,38 @@ def one_line(r, *words):
     return lines[0]
 
 
+def file_runs(f) -> list:
+    """Run ids the HDF5 file itself holds (its complete batches, not its journal), read with plain h5py."""
+    out = []
+    for name in sorted(f["run_batches"]) if "run_batches" in f else []:
+        b = f["run_batches"][name]
+        if b.attrs.get("complete"):
+            out += list(b["key"].asstr()[()])
+    return out
+
+
+def replace_field(path, key, field, value):
+    """Damage one stored run: its array `field` replaced by `value` (None: removed), the batch's row
+    table kept consistent (what a tool that rewrote the batch wrongly would leave)."""
+    from vcirun.io.batches import BATCH_GROUPS, Batch, read_batch, write_batch
+
+    with h5py.File(path, "a") as f:
+        for name in sorted(f[BATCH_GROUPS["run"]]):
+            b = read_batch(f[f"run_batches/{name}"], data=True)
+            if key not in b.keys:
+                continue
+            i, j = b.keys.index(key), b.fields.index(field)
+            st = b.starts()
+            parts = [b.data[field][st[k, j]:st[k + 1, j]] for k in range(len(b.keys))]
+            parts[i] = np.zeros((0,) + b.data[field].shape[1:]) if value is None else np.asarray(value)
+            rows = b.rows.copy()
+            rows[i, j] = -1 if value is None else len(value)
+            data = {**b.data, field: np.concatenate(parts).astype(b.data[field].dtype)}
+            write_batch(f, "run", Batch(b.keys, b.attrs, b.fields, b.scalar, rows, data), name=name)
+            return
+    raise KeyError(key)
+
+
 def runs(n, seed=0):
     out = {}
     for i in range(n):
@@ -99,11 +130,11 @@ def test_commits_append_to_the_journal_and_never_touch_the_file(tmp_path):
     back = load_trajectory(path, "r0003")
     np.testing.assert_array_equal(back.q, make_traj(seed=3).q)
     with h5py.File(path, "r") as f:  # plain h5py: the file is valid, its runs come at compaction
-        assert len(f["runs"]) == 0 and f.attrs["journal"] == w._token
+        assert len(file_runs(f)) == 0 and f.attrs["journal"] == w._token
     w.finish("complete")
     w.close()
     with h5py.File(path, "r") as f:
-        assert len(f["runs"]) == 6 and f.attrs["journal"] == ""
+        assert len(file_runs(f)) == 6 and f.attrs["journal"] == ""
     assert not w.journal_path.exists() and not w.tmp_path.exists()
 
 
@@ -126,7 +157,8 @@ def test_queued_runs_are_journalled_before_waiting_for_a_compaction_round(tmp_pa
 
     def waiting_for_the_compactor(*args, **kwargs):  # a kill here must not lose r0002..r0004
         j = read_journal(w.journal_path)  # (None at close() after finish: the journal is folded in)
-        seen.append(sorted(r.key for r in j.records if r.kind == "run") if j is not None else None)
+        seen.append(sorted(k for r in j.records if r.kind == "batch" and r.key == "run" for k in r.header["keys"])
+                    if j is not None else None)
 
     monkeypatch.setattr(w, "stop_background_compaction", waiting_for_the_compactor)
     getattr(w, end)(*(["complete"] if end == "finish" else []))
@@ -153,7 +185,7 @@ def test_a_torn_journal_tail_is_ignored_and_resume_folds_the_rest_in(tmp_path):
     with open(w.journal_path, "r+b") as fh:  # the kill hit the middle of the last append
         fh.truncate(good + 100)
     j = read_journal(w.journal_path)
-    assert j.torn and sum(r.kind == "run" for r in j.records) == 3
+    assert j.torn and sum(len(r.header["keys"]) for r in j.records if r.kind == "batch") == 3
     assert {r.run_id for r in read_results(path).runs} == {"r0000", "r0001", "r0002"}
     w2 = ResultsWriter(path, root_attrs={"name": "t"}, config_key=KEY).acquire()
     assert set(w2.complete_runs) == {"r0000", "r0001", "r0002"}
@@ -161,7 +193,7 @@ def test_a_torn_journal_tail_is_ignored_and_resume_folds_the_rest_in(tmp_path):
     w2.finish("complete")
     w2.close()
     with h5py.File(path, "r") as f:
-        assert sorted(f["runs"]) == ["r0000", "r0001", "r0002"]
+        assert sorted(file_runs(f)) == ["r0000", "r0001", "r0002"]
     hist = read_results(path).attrs["history"]
     assert [h["status"] for h in hist] == ["running", "complete"] and hist[0]["computed"] == 3  # the 4th run was torn
 
@@ -207,14 +239,14 @@ os.kill(os.getpid(), signal.SIGKILL)
         os.environ, PYTHONPATH=str(ROOT)))
     assert p.returncode == -signal.SIGKILL and "saved 5" in p.stdout, p.stderr
     with h5py.File(path, "r") as f:
-        assert "runs" in f
+        assert f.attrs["format"] == "vcirun-sweep" and not file_runs(f)
     r = cli("info", path)
     assert r.exit_code == 0 and "5 of" in r.output and "5 of them in the journal" in r.output
     with ResultsWriter(path, root_attrs={"name": "t"}, config_key=KEY) as w:
         assert len(w.complete_runs) == 5
         w.finish("complete")
     with h5py.File(path, "r") as f:
-        assert len(f["runs"]) == 5
+        assert len(file_runs(f)) == 5
 
 
 def test_background_compaction_folds_the_journal_in_while_the_sweep_runs(tmp_path):
@@ -232,7 +264,7 @@ def test_background_compaction_folds_the_journal_in_while_the_sweep_runs(tmp_pat
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:  # a round replaces the file with one holding the four runs
         with h5py.File(path, "r") as f:
-            if len(f["runs"]) == 4:
+            if len(file_runs(f)) == 4:
                 assert f.attrs["journal_applied"] > 0 and f.attrs["journal"] == w._token
                 break
         time.sleep(0.1)
@@ -246,7 +278,7 @@ def test_background_compaction_folds_the_journal_in_while_the_sweep_runs(tmp_pat
     w.finish("complete")
     w.close()
     with h5py.File(path, "r") as f:
-        assert sorted(f["runs"]) == sorted(k for k, _ in items) and f.attrs["journal_applied"] == 0
+        assert sorted(file_runs(f)) == sorted(k for k, _ in items) and f.attrs["journal_applied"] == 0
     assert not w.compact_path.exists() and not w.journal_path.exists()
 
 
@@ -255,36 +287,39 @@ def test_resume_recomputes_runs_whose_datasets_are_missing_or_misshapen(tiny):
     out = tiny.parent / "r.h5"
     run_sweep(load_config(tiny), output=out, workers=1, progress=False)
     expected = {s.run_id for s in expand(load_config(tiny))}
-    with h5py.File(out, "a") as f:
-        names = sorted(f["runs"])
-        del f["runs"][names[0]]["q"]
-        del f["runs"][names[1]]["t"]
-        f["runs"][names[1]]["t"] = np.zeros(3)
+    with h5py.File(out, "r") as f:
+        names = sorted(file_runs(f))
+    replace_field(out, names[0], "q", None)
+    replace_field(out, names[1], "t", np.zeros(3))
     res = read_results(out)
     assert {r.run_id for r in res.runs} == expected - set(names[:2])
-    assert "dataset q missing" in res.damaged[f"runs/{names[0]}"]
-    assert "dataset t has shape (3,)" in res.damaged[f"runs/{names[1]}"]
-    with pytest.raises(StorageError, match=r"is damaged \(dataset q missing\)"):  # never a q of shape (0, n), ok
+    assert "dataset q missing" in res.damaged[f"run_batches/00000001/{names[0]}"]
+    assert "dataset t has shape (3,)" in res.damaged[f"run_batches/00000001/{names[1]}"]
+    with pytest.raises(StorageError, match=r"no run"):  # never a q of shape (0, n), ok
         load_trajectory(out, names[0])
     s = run_sweep(load_config(tiny), output=out, workers=1, progress=False)
     assert s.computed == 2 and s.deleted_incomplete == 2
+    res = read_results(out)
+    assert not res.damaged and not res.incomplete and {r.run_id for r in res.runs} == expected
     with h5py.File(out, "r") as f:
-        assert not any(run_problem(g) for g in f["runs"].values()) and set(f["runs"]) == expected
+        assert sorted(file_runs(f)) == sorted(expected)
 
 
 def test_a_lost_references_group_is_recreated_and_recomputed(tiny):
     out = tiny.parent / "r.h5"
     run_sweep(load_config(tiny), output=out, workers=1, progress=False)
-    with h5py.File(out, "r") as f:
-        before = {k: f["references"][k]["q"][()] for k in f["references"]}
+    from vcirun.io.reader import load_reference
+
+    before = {k: load_reference(out, k)["q"] for k in read_results(out).references}
+    assert len(before) == 2
     with h5py.File(out, "a") as f:
-        del f["references"]
+        del f["reference_batches"]
+    assert not read_results(out).references
     s = run_sweep(load_config(tiny), output=out, workers=1, progress=False)
     assert s.computed == 0  # every run was stored: only the references are recomputed
-    with h5py.File(out, "r") as f:
-        assert set(f["references"]) == set(before)
-        for k, q in before.items():
-            np.testing.assert_array_equal(f["references"][k]["q"][()], q)
+    assert set(read_results(out).references) == set(before)
+    for k, q in before.items():
+        np.testing.assert_array_equal(load_reference(out, k)["q"], q)
 
 
 # --- output paths -----------------------------------------------------------------------------------------------
@@ -387,7 +422,8 @@ def test_full_disk_is_one_line_and_keeps_every_committed_run(tiny, tmp_path, siz
                      f"{exe} sweep {tiny} --output {out} -q --workers 1 2>{tmp_path}/err; echo RC=$?; {count}; "
                      f"ls -a {mnt}; mount -o remount,size=64m {mnt}; "
                      f"{sys.executable} -m vcirun.cli.main sweep {tiny} --output {out} -q --workers 1; echo RC2=$?; "
-                     f"{sys.executable} -c 'import h5py, sys; print(\"FINAL\", len(h5py.File(sys.argv[1])[\"runs\"]))' {out}",
+                     f"{sys.executable} -c 'from vcirun.io.reader import read_results; import sys; "
+                     f"print(\"FINAL\", len(read_results(sys.argv[1]).runs))' {out}",
                      tmp_path)
     err = (tmp_path / "err").read_text()
     assert "RC=1" in p.stdout and err.count("\n") == 1 and err.startswith("error: "), (p.stdout, err)
@@ -427,7 +463,7 @@ def test_simulated_enospc_in_the_journal_truncates_it_and_keeps_every_commit(tmp
     w.finish("complete")
     w.close()
     with h5py.File(path, "r") as f:
-        assert sorted(f["runs"]) == sorted([items[0][0], items[1][0]])
+        assert sorted(file_runs(f)) == sorted([items[0][0], items[1][0]])
 
 
 def test_an_hdf5_crash_during_a_rewrite_stays_in_the_child(tmp_path):
@@ -449,7 +485,7 @@ def test_an_hdf5_crash_during_a_rewrite_stays_in_the_child(tmp_path):
     with ResultsWriter(path, root_attrs={"name": "t"}, config_key=KEY) as w2:
         w2.finish("complete")
     with h5py.File(path, "r") as f:
-        assert len(f["runs"]) == 3
+        assert len(file_runs(f)) == 3
 
 
 # --- damaged files ----------------------------------------------------------------------------------------------------
@@ -473,8 +509,8 @@ def damaged_variants(good: Path, d: Path):
     def runs_dataset(p):
         shutil.copyfile(good, p)
         with h5py.File(p, "a") as f:
-            del f["runs"]
-            f["runs"] = np.arange(3)
+            del f["run_batches"]
+            f["run_batches"] = np.arange(3)
 
     for name, make in [("blocks", blocks), ("truncated", lambda p: p.write_bytes(data[: len(data) // 2])),
                        ("empty", lambda p: p.write_bytes(b"")), ("history", attr("history", "{not json")),
@@ -495,8 +531,10 @@ def test_damaged_results_files_are_one_line_for_info_plot_and_sweep(tiny, tmp_pa
             if r.exit_code != 0:
                 one_line(r)
             elif args[0] == "sweep":  # repaired by the resume: every run there, each verified
+                res = read_results(p)
+                assert len(res.runs) == 8 and not res.damaged and not res.incomplete
                 with h5py.File(p, "r") as f:
-                    assert len(f["runs"]) == 8 and not any(run_problem(g) for g in f["runs"].values())
+                    assert len(file_runs(f)) == 8
 
 
 # --- the sweep's own checks ----------------------------------------------------------------------------------------
@@ -516,9 +554,13 @@ def test_runs_in_flight_are_checked_against_the_memory_limit(tiny, tmp_path, mon
     assert not (tmp_path / "r.h5").exists()
 
 
-def test_pool_workers_stream_each_run(tmp_path):
-    """One initial condition (one task per worker): the client still receives the runs one by one."""
+def test_pool_workers_stream_each_run(tmp_path, monkeypatch):
+    """One initial condition (one task per worker): the client still receives the runs as they finish
+    (here one by one: every run is older than a STREAM_INTERVAL of 0 when it is sent)."""
+    from vcirun.experiments import worker
     from vcirun.experiments.executors import LocalExecutor
+
+    monkeypatch.setattr(worker, "STREAM_INTERVAL", 0.0)
 
     p = tmp_path / "one.yaml"
     p.write_text(TINY.replace("beta: {start: 3.2, stop: 4.2, num: 2}", "beta: [3.2]").replace(

@@ -60,10 +60,13 @@ def test_missing_runs_are_marked(sweep_file, tmp_path):
 
     part = tmp_path / "part.h5"
     shutil.copyfile(sweep_file, part)
+    from vcirun.io.batches import delete_items
+    from vcirun.io.reader import read_results
+
+    r = read_results(part).runs[0]
+    label, h, beta = r.attrs["label"], r.attrs["h"], r.attrs["beta"]
     with h5py.File(part, "a") as f:
-        rid = next(iter(f["runs"]))
-        label, h, beta = f["runs"][rid].attrs["label"], f["runs"][rid].attrs["h"], f["runs"][rid].attrs["beta"]
-        del f["runs"][rid]
+        delete_items(f, [f"runs/{r.run_id}"])
     ds = vcirun.open_results(part)
     cell = ds.sel({"method": label, "h": h, "beta": beta})
     assert str(cell.status.values) == "missing" and np.isnan(cell.l2_error) and np.isnan(cell.n_steps)

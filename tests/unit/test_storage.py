@@ -122,26 +122,81 @@ def test_without_trajectories_keeps_impacts_and_scalars(tmp_path):
     assert a["has_trajectory"] is False and a["n_steps"] == 40 and a["n_impacts"] == 2
 
 
+def _plain_item(f, kind_group, key):
+    """Item `key` of a results file read with plain h5py and json, as docs/reference/results_schema.md
+    shows: its attributes and its arrays."""
+    for name in sorted(f[kind_group]):
+        b = f[kind_group][name]
+        keys = list(b["key"].asstr()[()])
+        if key not in keys:
+            continue
+        i = keys.index(key)
+        fields = json.loads(b.attrs["fields"])
+        rows = b["rows"][()]
+        start = np.concatenate([np.zeros((1, len(fields)), int), np.cumsum(np.maximum(rows, 0), axis=0)])
+        arrays = {n: b[n][start[i, j]:start[i, j] + rows[i, j]] for j, n in enumerate(fields) if rows[i, j] >= 0}
+        return json.loads(b["attrs"].asstr()[i]), arrays, b
+    raise KeyError(key)
+
+
 def test_layout_is_readable_with_plain_h5py(tmp_path):
     tr = make_traj()
     ref_arrays = {"t": np.linspace(0, 1, 11), "q": np.zeros((11, 2)), "impacts": np.array([0.5])}
-    path = write(tmp_path / "r.h5", {"r1": run_attrs(tr, "MCVAC", tr.h, 3.2)},
+    path = write(tmp_path / "r.h5", {"r1": run_attrs(tr, "MCVAC", tr.h, 3.2),
+                                     "r2": run_attrs(make_traj(with_hmod=False, N=7, seed=2), "CVA", tr.h, 3.2)},
                  refs={"beta=3.2": ({"kind": "exact", "accuracy": 1e-11, "beta": 3.2}, ref_arrays)},
                  root={"name": "t", "tolerances": {"newton_tol": 1e-12}, "config_yaml": "name: t\n"})
     with h5py.File(path, "r") as f:
-        assert f.attrs["format"] == "vcirun-sweep" and f.attrs["schema_version"] == 1
+        assert f.attrs["format"] == "vcirun-sweep" and f.attrs["schema_version"] == 2
         assert f.attrs["config_key"] == KEY and f.attrs["config_yaml"] == "name: t\n"
         assert json.loads(f.attrs["tolerances"]) == {"newton_tol": 1e-12}
+        assert f.attrs["n_runs_complete"] == 2
         hist = json.loads(f.attrs["history"])
-        assert hist[-1]["status"] == "complete" and hist[-1]["computed"] == 1
-        g = f["runs/r1"]
-        assert g.attrs["complete"] == True  # noqa: E712 - numpy bool
-        assert g["q"].shape == (41, 2) and g["impact_step"].dtype == np.uint8
-        assert g.attrs["status"] == "ok" and g.attrs["label"] == "MCVAC"
-        assert json.loads(g.attrs["options"])["constrained"] is True
-        r = f["references/beta=3.2"]
-        assert r.attrs["complete"] == True and r.attrs["accuracy"] == 1e-11  # noqa: E712
-        np.testing.assert_array_equal(r["impacts"][()], [0.5])
+        assert hist[-1]["status"] == "complete" and hist[-1]["computed"] == 2
+        a, arrays, b = _plain_item(f, "run_batches", "r1")
+        assert b.attrs["complete"] == True and b.attrs["n_items"] == 2  # noqa: E712 - numpy bool
+        assert arrays["q"].shape == (41, 2) and arrays["impact_step"].dtype == np.uint8
+        np.testing.assert_array_equal(arrays["q"], tr.q)
+        assert a["status"] == "ok" and a["label"] == "MCVAC" and json.loads(a["options"])["constrained"] is True
+        a2, arrays2, _ = _plain_item(f, "run_batches", "r2")
+        assert arrays2["q"].shape == (8, 2) and "Hmod" not in arrays2 and a2["label"] == "CVA"
+        ra, rarr, rb = _plain_item(f, "reference_batches", "beta=3.2")
+        assert rb.attrs["complete"] == True and ra["accuracy"] == 1e-11  # noqa: E712
+        np.testing.assert_array_equal(rarr["impacts"], [0.5])
+
+
+def test_fast_group_writer_makes_what_h5py_high_level_calls_make(tmp_path):
+    """write_encoded uses h5py's low-level calls; every dataset and attribute it writes has the type,
+    shape, value and creation properties that `create_dataset(data=...)` / `attrs[k] = v` give."""
+    from vcirun.run.trajectory_files import group_attrs, write_encoded
+
+    attrs, arrays = run_attrs(make_traj(), "MCVAC", 0.01, 3.2)
+    attrs.update(message="niño \u2013 ok", fail_time=math.nan, q0=[0.1, -2.0], flag=np.bool_(False),
+                 big=np.int64(2**40), empty_list=[])
+    arrays.update(empty=np.zeros((0, 2)), scalar=np.array(3.5), i32=np.arange(3, dtype=np.int32))
+    enc = group_attrs(attrs)
+    with h5py.File(tmp_path / "a.h5", "w", libver="latest") as f:
+        write_encoded(f, "runs/fast", enc, arrays.items())
+        g = f.create_group("runs/slow")
+        for name, value in arrays.items():
+            g.create_dataset(name, data=np.asarray(value))
+        for key, value in enc.items():
+            g.attrs[key] = value
+        g.attrs["complete"] = True
+        fast, slow = f["runs/fast"], f["runs/slow"]
+        assert sorted(fast) == sorted(slow) and sorted(fast.attrs) == sorted(slow.attrs)
+        for name in slow:
+            a, b = fast[name], slow[name]
+            assert a.id.get_type().equal(b.id.get_type()) and a.shape == b.shape and a.dtype == b.dtype, name
+            assert a.id.get_create_plist().get_layout() == b.id.get_create_plist().get_layout(), name
+            assert a.id.get_create_plist().get_obj_track_times() == b.id.get_create_plist().get_obj_track_times()
+            np.testing.assert_array_equal(a[()], b[()], err_msg=name)
+        for key in slow.attrs:
+            a, b = fast.attrs.get_id(key), slow.attrs.get_id(key)
+            assert a.get_type().equal(b.get_type()) and a.shape == b.shape, key
+            x, y = fast.attrs[key], slow.attrs[key]
+            assert type(x) is type(y), key
+            np.testing.assert_array_equal(x, y, err_msg=key)
 
 
 def test_fast_group_writer_makes_what_h5py_high_level_calls_make(tmp_path):
@@ -181,27 +236,90 @@ def test_fast_group_writer_makes_what_h5py_high_level_calls_make(tmp_path):
 def test_incomplete_groups_are_ignored_by_readers_and_dropped_on_resume(tmp_path):
     tr = make_traj()
     path = write(tmp_path / "r.h5", {"good": run_attrs(tr, "CVA", tr.h, 3.2)})
-    # What a writer killed between its data and its marker would leave (e.g. another tool).
+    # What a writer killed between its data and its marker would leave (e.g. another tool): a batch
+    # without `complete`, and schema-1 groups without it
     with h5py.File(path, "a") as f:
+        g = f.create_group("run_batches/00000099")
+        g["q"] = np.zeros((3, 2))
         g = f.create_group("runs/half")
         g["q"] = np.zeros((3, 2))
         g.attrs["status"] = "ok"
         f.create_group("references/beta=9")
     res = read_results(path)
     assert [r.run_id for r in res.runs] == ["good"]
-    assert sorted(res.incomplete) == ["references/beta=9", "runs/half"]
+    assert sorted(res.incomplete) == ["references/beta=9", "run_batches/00000099", "runs/half"]
 
     w = ResultsWriter(path, root_attrs={"name": "t"}, config_key=KEY).acquire()
     try:
         assert set(w.complete_runs) == {"good"}
-        assert sorted(w.incomplete) == ["references/beta=9", "runs/half"]
+        assert sorted(w.incomplete) == ["references/beta=9", "run_batches/00000099", "runs/half"]
         w.start()  # the first commit deletes them
     finally:
         w.close()
     with h5py.File(path, "r") as f:
-        assert set(f["runs"]) == {"good"} and "beta=9" not in f["references"]
+        assert set(f["run_batches"]) == {"00000001"} and not len(f["runs"]) and "beta=9" not in f["references"]
+    assert [r.run_id for r in read_results(path).runs] == ["good"]
     hist = read_results(path).attrs["history"]
     assert len(hist) == 2  # both sessions recorded
+
+
+def test_schema_1_files_are_read_and_resumed(tmp_path):
+    """A file of schema 1 (a group per run) reads as before; a session resuming it adds batches, and
+    forgetting a run deletes its group."""
+    from vcirun.run.trajectory_files import write_group
+
+    tr, tr2 = make_traj(), make_traj(seed=3, status="newton_failed")
+    path = tmp_path / "v1.h5"
+    with h5py.File(path, "w") as f:
+        f.attrs.update(format="vcirun-sweep", schema_version=1, config_key=KEY, name="old")
+        for rid, t in (("a", tr), ("b", tr2)):
+            attrs, arrays = run_attrs(t, "CVA", t.h, 3.2)
+            write_group(f, f"runs/{rid}", {**attrs, "run_id": rid}, arrays)
+        f.create_group("references")
+    assert {r.run_id for r in read_results(path).runs} == {"a", "b"}
+    assert_same_traj(tr, load_trajectory(path, "a"))
+    with ResultsWriter(path, root_attrs={"name": "old"}, config_key=KEY) as w:
+        w.forget_runs(["b"])
+        w.add_run("c", *run_attrs(make_traj(seed=4), "CVA", 0.01, 3.7))
+        w.finish("complete")
+    res = read_results(path)
+    assert {r.run_id for r in res.runs} == {"a", "c"} and not res.incomplete
+    with h5py.File(path, "r") as f:
+        assert set(f["runs"]) == {"a"} and f.attrs["schema_version"] == 2 and f.attrs["n_runs_complete"] == 2
+    assert_same_traj(tr, load_trajectory(path, "a"))
+
+
+def test_batches_split_by_dtype_and_shape_and_keep_scalars(tmp_path):
+    from vcirun.io.batches import pack
+
+    items = [("a", {"x": 1.0}, {"q": np.zeros((3, 2)), "s": np.array(2.5)}),
+             ("b", {"x": 2.0}, {"q": np.ones((1, 2)), "extra": np.arange(4)}),
+             ("c", {"x": 3.0}, {"q": np.ones((2, 3))}),               # another trailing shape
+             ("d", {"x": 4.0}, {"q": np.ones((2, 2), np.float32)})]   # another dtype
+    batches = pack(items)
+    assert [b.keys for b in batches] == [["a", "b"], ["c"], ["d"]]
+    b = batches[0]
+    assert b.fields == ["q", "s", "extra"] and b.scalar == ["s"] and b.rows.tolist() == [[3, 1, -1], [1, -1, 4]]
+    a_arrays = dict(b.arrays(0))
+    assert a_arrays["s"].shape == () and float(a_arrays["s"]) == 2.5 and "extra" not in a_arrays
+    np.testing.assert_array_equal(dict(b.arrays(1))["extra"], np.arange(4))
+    assert b.view(1).shape_of("q") == (1, 2) and b.view(1).shape_of("s") is None
+    rest = b.select([1])
+    assert rest.keys == ["b"] and rest.data["q"].shape == (1, 2) and rest.data["s"].shape == (0,)
+
+
+def test_forgetting_one_run_rewrites_its_batch_without_it(tmp_path):
+    runs = {f"r{i}": run_attrs(make_traj(seed=i, N=10 + i), "CVA", 0.01, 3.2 + i) for i in range(4)}
+    path = write(tmp_path / "r.h5", runs)
+    with ResultsWriter(path, root_attrs={}, config_key=KEY) as w:
+        w.forget_runs(["r1", "r3"])
+        w.finish("complete")
+    assert [r.run_id for r in read_results(path).runs] == ["r0", "r2"]
+    for rid in ("r0", "r2"):
+        i = int(rid[1])
+        np.testing.assert_array_equal(load_trajectory(path, rid).q, make_traj(seed=i, N=10 + i).q)
+    with pytest.raises(StorageError, match="no run 'r1'"):
+        load_trajectory(path, "r1")
 
 
 def test_resume_refuses_a_file_from_another_config(tmp_path):
@@ -234,19 +352,19 @@ def test_unusable_files_are_reported(tmp_path, content, match):
 def test_failed_commit_leaves_previous_file_intact(tmp_path, monkeypatch):
     path = write(tmp_path / "r.h5", {"a": run_attrs(make_traj(), "CVA", 0.01, 3.2)})
     before = path.read_bytes()
-    # in this process (isolate=False), so that the writer sees the monkeypatched write_group
+    # in this process (isolate=False), so that the writer sees the monkeypatched write_batch
     w = ResultsWriter(path, root_attrs={"name": "t"}, config_key=KEY, isolate=False).acquire()
     calls = []
 
-    def boom(f, grp, attrs, arrays):
-        calls.append(grp)
+    def boom(f, kind, batch, name=None):
+        calls.append((kind, batch.keys))
         raise OSError("disk full (simulated)")
 
-    monkeypatch.setattr(rewrite, "write_group", boom)
+    monkeypatch.setattr(rewrite, "write_batch", boom)
     w.add_run("b", *run_attrs(make_traj(seed=1), "CVA", 0.01, 3.7))
     with pytest.raises(StorageError, match="cannot write results .*disk full .*committed before"):
         w.commit()
-    assert calls == ["runs/b"]
+    assert calls == [("run", ["b"])]
     assert path.read_bytes() == before  # the live file was never touched
     assert not w.tmp_path.exists()
     monkeypatch.undo()
@@ -311,6 +429,31 @@ def test_journal_record_bytes_are_fixed():
     assert hashlib.sha256(data).hexdigest() == "2317531c5c5450137510c85849e07bb62a792e14a1feee6e4de0f71e85bef7dd"
 
 
+def test_batch_records_round_trip_through_the_journal(tmp_path):
+    from vcirun.io.batches import pack
+    from vcirun.io.journal import batch_pieces, overlay
+
+    items = [("a", {"h": 0.01, "q0": np.array([1.0, 2.0]), "status": "ok"},
+              {"q": np.arange(6.0).reshape(3, 2), "s": np.array(7)}),
+             ("b", {"h": 0.02, "status": "ok"}, {"q": np.ones((1, 2))})]
+    (b,) = pack(items)
+    jp = tmp_path / "j"
+    fd = os.open(jp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+    write_all(fd, record_pieces("open", "", extra={"token": "tok", "config_key": KEY})[0])
+    write_all(fd, batch_pieces("run", b)[0])
+    write_all(fd, record_pieces("delete", "runs/a")[0])
+    os.close(fd)
+    j = read_journal(jp)
+    assert [(r.kind, r.key) for r in j.records] == [("batch", "run"), ("delete", "runs/a")]
+    with open(jp, "rb") as fh:
+        back = j.records[0].batch(fh)
+    assert back.keys == ["a", "b"] and back.rows.tolist() == b.rows.tolist() and back.scalar == ["s"]
+    np.testing.assert_array_equal(dict(back.arrays(0))["q"], items[0][2]["q"])
+    np.testing.assert_array_equal(back.attrs[0]["q0"], [1.0, 2.0])
+    runs, refs = {}, {}
+    assert overlay(j, runs, refs) == 2 and set(runs) == {"b"} and not refs   # a deleted, b held
+
+
 def test_journal_round_trip_stops_at_a_torn_or_damaged_record(tmp_path):
     q = np.arange(6.0).reshape(3, 2)
     jp = _journal(tmp_path / "j", ("run", "a", {"h": 0.01, "q0": np.array([1.0, 2.0])}, [("q", q)]),
@@ -342,19 +485,39 @@ def test_journal_round_trip_stops_at_a_torn_or_damaged_record(tmp_path):
     assert read_journal(tmp_path / "foreign") is None
 
 
-def test_a_damaged_run_group_is_named_by_its_check(tmp_path):
+def test_a_damaged_run_is_named_by_its_check(tmp_path):
+    tr = make_traj()
+    path = write(tmp_path / "r.h5", {"a": run_attrs(tr, "CVA", tr.h, 3.2), "b": run_attrs(tr, "CVA", tr.h, 3.7)})
+    with h5py.File(path, "a") as f:   # b's attributes now declare 2 steps where its arrays hold 40
+        g = f["run_batches/00000001"]
+        texts = list(g["attrs"].asstr()[()])
+        i = list(g["key"].asstr()[()]).index("b")
+        a = json.loads(texts[i])
+        a["n_steps"] = 2
+        texts[i] = json.dumps(a)
+        del g["attrs"]
+        g.create_dataset("attrs", data=np.array(texts, dtype=object), dtype=h5py.string_dtype())
+    res = read_results(path)
+    assert [r.run_id for r in res.runs] == ["a"]
+    assert res.damaged == {"run_batches/00000001/b": "dataset t has shape (41,), expected (3,)"}
+    with pytest.raises(StorageError, match="no run 'b'"):
+        load_trajectory(path, "b")
+    with ResultsWriter(path, root_attrs={}, config_key=KEY) as w:   # resume drops the damaged copy
+        assert set(w.complete_runs) == {"a"} and w.incomplete == ["run_batches/00000001/b"]
+        w.finish("complete")
+    res = read_results(path)
+    assert [r.run_id for r in res.runs] == ["a"] and not res.damaged and not res.incomplete
+
+
+def test_a_batch_whose_table_disagrees_with_its_data_is_damaged_whole(tmp_path):
     tr = make_traj()
     path = write(tmp_path / "r.h5", {"a": run_attrs(tr, "CVA", tr.h, 3.2), "b": run_attrs(tr, "CVA", tr.h, 3.7)})
     with h5py.File(path, "a") as f:
-        assert run_problem(f["runs/a"]) is None
-        del f["runs/b/q"]
-        f["runs/b/q"] = np.zeros((3, 2))
-        assert run_problem(f["runs/b"]) == "dataset q has shape (3, 2), expected (41, 2)"
+        g = f["run_batches/00000001"]
+        del g["q"]
+        g["q"] = np.zeros((5, 2))
     res = read_results(path)
-    assert [r.run_id for r in res.runs] == ["a"]
-    assert res.damaged == {"runs/b": "dataset q has shape (3, 2), expected (41, 2)"}
-    with pytest.raises(StorageError, match="run b is damaged .dataset q has shape"):
-        load_trajectory(path, "b")
+    assert not res.runs and res.damaged == {"run_batches/00000001": "dataset q has 5 rows, the table 82"}
 
 
 def test_output_path_checks(tmp_path):

@@ -17,8 +17,9 @@ Executor protocol (what `run_sweep` calls, in this order)::
 
 `LocalExecutor`: the `ProcessPoolExecutor` of the runner as it was (fork, one task per initial
 condition, parent-death signal), or in-process run by run for one worker; `task_size` caps the runs
-per task. Pool workers send each finished run to the client at once through a queue (a task of many
-runs is not held back until its last run: a hard kill of the client loses only uncommitted runs); a
+per task. Pool workers send finished runs to the client through a queue within
+`worker.STREAM_INTERVAL` (0.1 s) of their end (a task of many runs is not held back until its last
+run: a hard kill of the client loses only uncommitted runs); a
 reader thread moves the messages into the client, so the client never blocks on a worker that died
 in the middle of a message, and it learns of a dead worker from the pool's futures.
 
@@ -285,7 +286,7 @@ class LocalExecutor:
         try:
             while pending or received < expected:
                 try:
-                    msg = inbox.get(timeout=0.1)
+                    msg = inbox.get(timeout=0.01)  # (then the futures: the last ones end just after their last run)
                 except queue.Empty:
                     msg = None
                 if isinstance(msg, Exception):

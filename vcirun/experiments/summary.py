@@ -6,9 +6,11 @@ see named dimensions:
     h5py: f["summary/l2_error"].dims[0][0] is f["summary/method"]
 
 Written once when a sweep finishes (also after an interruption: it covers the runs the file holds),
-from `vcirun.io.results.collect`, the table behind `vcirun.open_results`. Strings are UTF-8
-variable-length; missing runs are NaN / "missing" (see vcirun.io.results). The write is atomic like the
-sweep's commits (copy, write, fsync, rename) and happens while the sweep still holds the file's lock.
+from `vcirun.io.results.collect`, the table behind `vcirun.open_results`: inside the writer's last
+rewrite of the file (`summary_hook`, no second copy of the file), or, where that did not leave one,
+by `write_summary` on its own (atomic like the sweep's commits: copy, write, fsync, rename), while the
+sweep still holds the file's lock. Strings are UTF-8 variable-length; missing runs are NaN / "missing"
+(see vcirun.io.results).
 """
 from __future__ import annotations
 
@@ -23,9 +25,9 @@ import numpy as np
 from ..io.checks import LIBVER
 from ..core.fsync import fsync_path
 from ..io.errors import StorageError
-from ..io.reader import read_results
+from ..io.reader import read_results, results_of
 
-__all__ = ["write_summary", "GROUP"]
+__all__ = ["write_summary", "summary_hook", "has_summary", "GROUP"]
 
 GROUP = "summary"
 
@@ -56,6 +58,33 @@ def _write_group(f: h5py.File, tab) -> None:
             d.attrs[k] = v
     for k, v in tab.attrs.items():
         g.attrs[k] = v
+
+
+def summary_hook(path):
+    """A final hook of the results writer (f(h5py.File) on the file's last copy): the summary group
+    of what that copy holds (its runs were verified when the session started or written by it: not
+    checked again). It never fails the rewrite (the runs matter more): on an error it leaves
+    no summary group, and the sweep then writes one apart with `write_summary`, which reports why."""
+    from vcirun.io.results import collect
+
+    def hook(f) -> None:
+        try:
+            _write_group(f, collect(results_of(f, Path(path), check=False)))
+        except Exception:  # noqa: BLE001 - see the docstring
+            with contextlib.suppress(Exception):
+                if GROUP in f:
+                    del f[GROUP]
+
+    return hook
+
+
+def has_summary(path) -> bool:
+    """Whether the results file at `path` has a summary group (False if it cannot be read)."""
+    try:
+        with h5py.File(path, "r") as f:
+            return GROUP in f
+    except OSError:
+        return False
 
 
 def write_summary(path, if_missing: bool = False) -> Path:

@@ -19,8 +19,9 @@ run and report the interruption. Storage (see `vcirun.io`): the client commits f
 journal beside the results file every `commit_interval` seconds (default 1 s, at a cost independent
 of the file's size), folds the journal into the HDF5 file in the background and when the sweep
 finishes; pool workers
-send each run to the client as soon as it is computed. A SIGKILL therefore loses at most the runs
-that finished in the last commit_interval (plus one commit's duration) and the runs being computed.
+send finished runs to the client within 0.1 s (worker.STREAM_INTERVAL). A SIGKILL therefore loses at
+most the runs that finished in the last commit_interval plus 0.1 s (and one commit's duration) and the
+runs being computed.
 Before anything is created the sweep checks the memory of its runs in flight and the disk space its
 results need.
 """
@@ -250,11 +251,13 @@ def _check_resources(cfg: SweepConfig, pending: list[RunSpec], n: int, m: int, w
                          + (" or set store_trajectories: false" if cfg.store_trajectories else ""))
 
 
-def _final_hooks(cfg: SweepConfig) -> list:
-    """The sweep finished and the file is final: callables f(h5py.File) that run inside the last rewrite
-    of a complete sweep (on the copy that then atomically replaces the file), e.g. a summary group of
-    every run. This is the one place where 'the file is final' happens."""
-    return []
+def _final_hooks(path: Path) -> list:
+    """The sweep finished (complete or not) and the file is final: callables f(h5py.File) that run
+    inside the writer's last rewrite (on the copy that then atomically replaces the file): the summary
+    group of every run. This is the one place where 'the file is final' happens."""
+    from .summary import summary_hook
+
+    return [summary_hook(path)]
 
 
 def _root_attrs(cfg: SweepConfig, config_text: str, config_path, specs: list[RunSpec]) -> dict:
@@ -314,7 +317,7 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
     writer = ResultsWriter(path, root_attrs=_root_attrs(cfg, config_text, config_path, specs),
                            config_key=cfg.canonical_sha256(), force=force, session=session,
                            commit_interval=commit_interval)
-    writer.final_hooks = _final_hooks(cfg)
+    writer.final_hooks = _final_hooks(writer.path)
     writer.acquire()
     executor = None
     try:
@@ -333,7 +336,7 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
             changed = writer.has_changes()
             if changed:
                 writer.finish("complete")
-            _finalize(writer, summary, if_missing=not changed)  # a no-op resume leaves the file untouched
+            _finalize(writer, summary, if_missing=True)  # a no-op resume leaves the file untouched
             summary.status_counts = _status_counts(writer)
             summary.wall_time = time.monotonic() - t_start
             return summary
@@ -371,7 +374,7 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
                 writer.add_reference(result["ic_key"], *result["reference"])
             failed = 0
             for r in result["runs"]:
-                writer.add_run(r["run_id"], r["attrs"], r["arrays"])
+                writer.add_run(r["run_id"], r["attrs"], r["arrays"], r.get("text"))
                 failed += r["attrs"].get("status") != "ok"
             summary.computed += len(result["runs"])
             summary.failed += failed
@@ -405,7 +408,7 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
                 reporter.stop()
                 t0 = time.perf_counter()
                 writer.finish(status)  # every finished run is committed, whatever happened
-                _finalize(writer, summary)  # the file is final: its summary group
+                _finalize(writer, summary, if_missing=True)  # the summary group, if the last rewrite left none
                 summary.write_time += time.perf_counter() - t0
             if on_main:
                 signal.signal(signal.SIGTERM, old_term)
@@ -428,13 +431,16 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
 
 
 def _finalize(writer: ResultsWriter, summary: SweepSummary, if_missing: bool = False) -> None:
-    """Write the file's summary group (vcirun.experiments.summary); a failure there is reported in
-    the summary, never allowed to cost the runs. Not after a failed write (a full disk), at the
-    resolved path (an output that is a symlink stays one), and in a forked child like every HDF5 write
-    of the sweep (run_isolated: an HDF5 crash there is an error here)."""
+    """Write the file's summary group (vcirun.experiments.summary; with `if_missing` only where it has
+    none); a failure there is reported in the summary, never allowed to cost the runs. Not after a
+    failed write (a full disk), at the resolved path (an output that is a symlink stays one), and in a
+    forked child like every HDF5 write of the sweep (run_isolated: an HDF5 crash there is an error here)."""
     if writer.failed:
         return
-    from .summary import write_summary
+    from .summary import has_summary, write_summary
+
+    if if_missing and has_summary(writer.path):
+        return
 
     try:
         run_isolated(lambda: write_summary(writer.path, if_missing=if_missing), writer.path,

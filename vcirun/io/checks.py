@@ -17,13 +17,14 @@ import numpy as np
 
 from ..core import record
 from ..run.trajectory_files import decode_attrs
+from .batches import BATCH_GROUPS, ITEM_GROUPS, checked_batch
 from .errors import StorageError, os_text
 
 __all__ = ["FORMAT", "SCHEMA_VERSION", "LIBVER", "NUMERIC_KINDS", "run_problem", "reference_problem",
            "scan_groups", "resolve_output"]
 
 FORMAT = "vcirun-sweep"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2   # 2: runs and references in batches (vcirun.io.batches); 1: a group each
 LIBVER = "latest"
 NUMERIC_KINDS = "biuf"  # the only array dtypes a results file or its journal holds
 
@@ -36,7 +37,10 @@ _ALWAYS_WRITTEN = {"t", "q", "p", "H", "Ed", "Hmod", "impact_step", "newton_iter
 def _shape_of(g, name):
     """Shape of dataset `name` of a group (None if absent; text if it is not a numeric array). HDF5
     groups are read with the low-level API: a third of the high-level cost, which counts when a resume
-    verifies thousands of runs."""
+    verifies thousands of runs. An item of a batch answers from its row table."""
+    shape_of = getattr(g, "shape_of", None)
+    if shape_of is not None:
+        return shape_of(name)
     if isinstance(g, h5py.Group):
         key = name.encode()
         try:
@@ -135,13 +139,19 @@ def reference_problem(g, attrs: dict | None = None) -> str | None:
     return None
 
 
-def scan_groups(f, path, fix: str):
-    """(runs, references, incomplete, damaged) of an open results file: {name: decoded attributes} of
-    the groups marked complete that pass their check, the paths of the other groups ("runs/NAME"), and
-    {path: problem} of those marked complete that fail it. A root entry `runs` or `references` that is
-    not a group is a StorageError ending with `fix`; a missing one holds nothing."""
+def scan_groups(f, path, fix: str, check: bool = True):
+    """(runs, references, incomplete, damaged) of an open results file: {key: decoded attributes} of
+    the items marked complete that pass their check, the paths of what fails (a group of schema 1
+    "runs/NAME", a whole batch "run_batches/NAME", one batch's copy of an item "run_batches/NAME/KEY";
+    vcirun.io.batches), and {path: problem} of what is marked complete but fails. Where a key is held
+    twice the later batch's copy counts. A root entry `runs`, `references` or a batch group that is not
+    a group is a StorageError ending with `fix`; a missing one holds nothing. `check=False` trusts
+    every item of a complete batch whose table agrees with its data (for a file whose items were
+    verified when its session started, or written by that session)."""
     runs, refs, incomplete, damaged = {}, {}, [], {}
-    for group, store, check in (("runs", runs, run_problem), ("references", refs, reference_problem)):
+    stores = {"run": runs, "reference": refs}
+    checks = {"run": run_problem, "reference": reference_problem}
+    for kind, group in ITEM_GROUPS.items():   # schema 1: one group per item
         if group not in f:
             continue
         if not isinstance(f[group], h5py.Group):
@@ -151,12 +161,41 @@ def scan_groups(f, path, fix: str):
             if not a.get("complete", False):
                 incomplete.append(f"{group}/{name}")
                 continue
-            problem = check(g, a)
+            problem = checks[kind](g, a)
             if problem:
                 incomplete.append(f"{group}/{name}")
                 damaged[f"{group}/{name}"] = problem
             else:
-                store[name] = a
+                stores[kind][name] = a
+    for kind, group in BATCH_GROUPS.items():
+        if group not in f:
+            continue
+        if not isinstance(f[group], h5py.Group):
+            raise StorageError(f"{path}: damaged results file (/{group} is not a group); {fix}")
+        for name in sorted(f[group]):
+            bpath = f"{group}/{name}"
+            g = f[bpath]
+            if not isinstance(g, h5py.Group) or not bool(g.attrs.get("complete", False)):
+                incomplete.append(bpath)
+                continue
+            b, problem = checked_batch(g)
+            if problem:
+                incomplete.append(bpath)
+                damaged[bpath] = problem
+                continue
+            starts = b.starts()
+            for i, key in enumerate(b.keys):
+                try:
+                    a = decode_attrs(b.attrs[i])
+                except Exception as e:  # noqa: BLE001
+                    a, problem = {}, f"attributes unreadable ({type(e).__name__})"
+                else:
+                    problem = checks[kind](b.view(i, starts), a) if check else None
+                if problem:
+                    incomplete.append(f"{bpath}/{key}")
+                    damaged[f"{bpath}/{key}"] = problem
+                else:
+                    stores[kind][key] = a
     return runs, refs, incomplete, damaged
 
 

@@ -17,6 +17,7 @@ from pathlib import Path
 import h5py
 
 from ..run.trajectory_files import encode_attr
+from .batches import count_items
 from .checks import LIBVER
 from .durable import child_setup, replace_with_copy
 from .journal import apply_journal, journal_path, read_journal
@@ -76,7 +77,7 @@ class BackgroundCompactor:
                     if sessions and isinstance(sessions[-1].header.get("history"), list):
                         f.attrs["history"] = encode_attr("history", sessions[-1].header["history"])
                         f.attrs["updated"] = str(sessions[-1].header.get("updated", now_iso()))
-                    f.attrs["n_runs_complete"] = len(f["runs"])
+                    f.attrs["n_runs_complete"] = count_items(f, "run")
                     f.attrs["journal_applied"] = int(new.good_end)
 
             replace_with_copy(self.path, compact_path(self.path), write,

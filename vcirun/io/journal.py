@@ -4,9 +4,12 @@ applying it to the HDF5 file or to a reader's view of it.
 A record is b"VJR1", a u64 payload length, a u32 CRC-32 of the payload, then the payload: a u32 header
 length, the header (JSON: kind, key, encoded attributes, array table) and the arrays' bytes. Arrays are
 numeric only (dtype kinds b/i/u/f), so reading a journal never unpickles anything. The first record is
-"open" (the session's random token and the config key); then "run", "reference", "delete" (a group
-path) and "session" (the history so far) records. A kill in the middle of an append leaves a torn tail
-(short, or failing its CRC): `read_journal` stops there, and everything before it is committed.
+"open" (the session's random token and the config key); then "batch" records (the runs or references
+of one commit, vcirun.io.batches: key "run" or "reference", the items' keys, attributes and row table
+in the header, the concatenated arrays as blobs), "delete" (an item path or a batch group) and
+"session" (the history so far). Journals of schema 1 hold one "run" or "reference" record per item;
+they are read and applied the same way. A kill in the middle of an append leaves a torn tail (short,
+or failing its CRC): `read_journal` stops there, and everything before it is committed.
 
 The file names the journal that extends it (root attribute `journal` = the token of its open record)
 and how much of it the file holds already (`journal_applied`, a byte offset); `file_journal` returns
@@ -23,12 +26,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..run.trajectory_files import decode_attr, write_encoded, decode_attrs
+from ..run.trajectory_files import decode_attr, decode_attrs
+from .batches import Batch, attr_from_json, delete_items, jsonable_attr, pack, split_item_path, write_batch
 from .checks import NUMERIC_KINDS
 from .errors import StorageError, os_text, write_error
 
-__all__ = ["journal_path", "record_pieces", "write_all", "JournalRecord", "Journal", "read_journal",
-           "overlay", "MemGroup", "applied", "file_journal", "apply_journal"]
+__all__ = ["journal_path", "record_pieces", "batch_pieces", "write_all", "JournalRecord", "Journal",
+           "read_journal", "overlay", "MemGroup", "applied", "file_journal", "apply_journal"]
 
 _MAGIC = b"VJR1"
 _REC = struct.Struct("<4sQI")
@@ -42,25 +46,10 @@ def journal_path(path) -> Path:
     return p.with_name(f".{p.name}.journal")
 
 
-def _jsonable_attr(v):
-    if isinstance(v, np.ndarray):
-        return {"__ndarray__": v.dtype.str, "shape": list(v.shape), "data": v.ravel().tolist()}
-    if isinstance(v, np.generic):
-        return v.item()
-    return v
-
-
-def _attr_from_json(v):
-    if isinstance(v, dict) and "__ndarray__" in v:
-        dt = np.dtype(v["__ndarray__"])
-        if dt.kind not in NUMERIC_KINDS:
-            raise ValueError("non-numeric array attribute")
-        return np.asarray(v["data"], dtype=dt).reshape(v["shape"])
-    return v
-
-
-def record_pieces(kind: str, key: str, enc_attrs: dict | None = None, arrays=(), extra: dict | None = None):
-    """(list of byte pieces, total length) of one record; array bytes are not copied."""
+def record_pieces(kind: str, key: str, enc_attrs: dict | None = None, arrays=(), extra: dict | None = None,
+                  items: str | None = None):
+    """(list of byte pieces, total length) of one record; array bytes are not copied. `items`: JSON
+    text put in place of the value _ITEMS of `extra`."""
     table, blobs, off = [], [], 0
     for name, value in arrays:
         a = np.ascontiguousarray(value)
@@ -72,14 +61,29 @@ def record_pieces(kind: str, key: str, enc_attrs: dict | None = None, arrays=(),
         off += mv.nbytes
     header = {"kind": kind, "key": key, "arrays": table, **(extra or {})}
     if enc_attrs is not None:
-        header["attrs"] = {k: _jsonable_attr(v) for k, v in enc_attrs.items()}
-    hb = json.dumps(header, allow_nan=True).encode()
+        header["attrs"] = {k: jsonable_attr(v) for k, v in enc_attrs.items()}
+    hb = json.dumps(header, allow_nan=True)
+    if items is not None:
+        hb = hb.replace(json.dumps(_ITEMS), items, 1)
+    hb = hb.encode()
     payload = [_HDR.pack(len(hb)), hb, *blobs]
     crc = 0
     for piece in payload:
         crc = zlib.crc32(piece, crc)
     length = _HDR.size + len(hb) + off
     return [_REC.pack(_MAGIC, length, crc), *payload], _REC.size + length
+
+
+def batch_pieces(kind: str, batch: Batch):
+    """(pieces, length) of the record of one batch of `kind` ("run" | "reference"). The items' JSON
+    texts (made by the workers where they can) are spliced into the header as they are."""
+    extra = {"keys": list(batch.keys), "items": _ITEMS, "fields": list(batch.fields),
+             "scalar": list(batch.scalar), "rows": batch.rows.tolist()}
+    return record_pieces("batch", kind, None, [(n, batch.data[n]) for n in batch.fields], extra=extra,
+                         items="[" + ", ".join(batch.text(i) for i in range(len(batch.keys))) + "]")
+
+
+_ITEMS = "\x00items\x00"   # where batch_pieces splices the items' texts into a header
 
 
 def write_all(fd: int, pieces) -> None:
@@ -93,14 +97,36 @@ def write_all(fd: int, pieces) -> None:
 
 @dataclass
 class JournalRecord:
-    kind: str              # "run" | "reference" | "delete" | "session"
+    kind: str              # "batch" | "delete" | "session" (and "run" | "reference" of schema 1)
     key: str
     header: dict
     blob_offset: int       # where the arrays start in the journal file
     end: int               # offset just past this record
 
     def attrs(self) -> dict:
-        return {k: _attr_from_json(v) for k, v in (self.header.get("attrs") or {}).items()}
+        return {k: attr_from_json(v) for k, v in (self.header.get("attrs") or {}).items()}
+
+    def item_attrs(self) -> list:
+        """The encoded attributes of a batch record's items."""
+        return [{k: attr_from_json(v) for k, v in a.items()} for a in self.header.get("items") or []]
+
+    def batch(self, fh) -> Batch:
+        """A batch record's Batch (arrays read from the open journal file `fh`); a schema-1 run or
+        reference record as a batch of one."""
+        if self.kind != "batch":
+            return pack([(self.key, self.attrs(), self.arrays(fh))])[0]
+        keys = [str(k) for k in self.header.get("keys") or []]
+        fields = [str(n) for n in self.header.get("fields") or []]
+        rows = np.asarray(self.header.get("rows") or [], dtype=np.int64).reshape(len(keys), len(fields))
+        data = dict(self.arrays(fh))
+        if set(data) != set(fields) or len(self.header.get("items") or []) != len(keys):
+            raise ValueError("journal batch: its table does not match its arrays")
+        return Batch(keys, self.item_attrs(), fields, [str(n) for n in self.header.get("scalar") or []], rows, data)
+
+    @property
+    def item_kind(self) -> str:
+        """"run" or "reference" for records that carry items."""
+        return self.key if self.kind == "batch" else self.kind
 
     def arrays(self, fh) -> list:
         """(name, array) pairs, read from the open journal file `fh`."""
@@ -224,12 +250,20 @@ def overlay(journal: Journal | None, runs: dict, refs: dict, attrs: dict | None 
         return 0
     added = 0
     for r in journal.records:
-        if r.kind in ("run", "reference"):
-            (runs if r.kind == "run" else refs)[r.key] = (r, decode_attrs(r.attrs()))
+        if r.kind == "batch":
+            target = runs if r.key == "run" else refs
+            for i, (key, a) in enumerate(zip(r.header.get("keys") or [], r.item_attrs())):
+                target[str(key)] = ((r, i), decode_attrs(a))
+                added += r.key == "run"
+        elif r.kind in ("run", "reference"):
+            (runs if r.kind == "run" else refs)[r.key] = ((r, 0), decode_attrs(r.attrs()))
             added += r.kind == "run"
         elif r.kind == "delete":
-            group, _, name = r.key.partition("/")
-            (runs if group == "runs" else refs).pop(name, None)
+            # every copy of an item; a batch path or one batch's copy names what the file's checks
+            # already set aside (damaged or incomplete), which no reader trusts
+            s = split_item_path(r.key)
+            if s is not None and s[2] is None:
+                (runs if s[0] == "run" else refs).pop(s[1], None)
         elif r.kind == "session" and attrs is not None:
             attrs["history"] = r.header.get("history") or attrs.get("history")
             attrs["updated"] = r.header.get("updated", attrs.get("updated"))
@@ -244,16 +278,23 @@ def apply_journal(f, j: Journal, path: Path) -> None:
     except OSError as e:
         raise write_error(path, e, f"read the journal {j.path.name}") from None
     with fh:
+        deletions = []   # consecutive delete records: one pass over the batches
         for r in j.records:
-            if r.kind in ("run", "reference"):
-                group = "runs" if r.kind == "run" else "references"
-                write_encoded(f, f"{group}/{r.key}", r.attrs(), r.arrays(fh))
-            elif r.kind == "delete" and r.key in f:
-                del f[r.key]
+            if r.kind == "delete":
+                deletions.append(r.key)
+                continue
+            if deletions:
+                delete_items(f, deletions)
+                deletions = []
+            if r.kind in ("batch", "run", "reference"):
+                write_batch(f, r.item_kind, r.batch(fh))
+        if deletions:
+            delete_items(f, deletions)
 
 
 class MemGroup:
-    """A journal record seen like an h5py group (what trajectory_from_group and the checks read)."""
+    """An item's attributes and arrays seen like an h5py group (what trajectory_from_group and the
+    checks read)."""
 
     def __init__(self, enc_attrs: dict, arrays: list):
         self.attrs = enc_attrs

@@ -17,11 +17,12 @@ import numpy as np
 
 from ..run.trajectory import trajectory_from_group
 from ..run.trajectory_files import decode_attr, decode_attrs
+from .batches import BATCH_GROUPS, ITEM_GROUPS, batch_names, checked_batch, item_path, split_item_path
 from .checks import FORMAT, reference_problem, run_problem, scan_groups
 from .errors import StorageError, one_line, short
 from .journal import Journal, MemGroup, file_journal, overlay
 
-__all__ = ["RunInfo", "Results", "read_results", "load_trajectory", "load_reference", "find_newest_results"]
+__all__ = ["RunInfo", "Results", "read_results", "results_of", "load_trajectory", "load_reference", "find_newest_results"]
 
 
 @dataclass
@@ -96,18 +97,24 @@ def read_results(path) -> Results:
     """Root attributes, complete runs (attributes only) and references of a results file, with the runs
     a killed session committed to its journal; groups that fail verification are listed in `incomplete`."""
     with _open_read(path) as f:
-        try:
-            attrs = decode_attrs(f.attrs)
-            run_attrs, ref_attrs, incomplete, damaged = scan_groups(
-                f, path, "rerun the sweep with --force or move the file away")
-            runs = {k: (None, a) for k, a in run_attrs.items()}
-            refs = {k: (None, a) for k, a in ref_attrs.items()}
-            in_journal = overlay(_journal_of(path, f), runs, refs, attrs)
-        except StorageError:
-            raise
-        except Exception as e:  # noqa: BLE001 - damaged metadata, attributes of the wrong type, ...
-            raise _damaged(path, e) from None
-    incomplete = [p for p in incomplete if p.partition("/")[2] not in (runs if p.startswith("runs/") else refs)]
+        return results_of(f, path)
+
+
+def results_of(f, path, check: bool = True) -> Results:
+    """`read_results` of the open results file `f` at `path` (e.g. a copy being written, whose
+    `journal` attribute names no journal); `check`: see vcirun.io.checks.scan_groups."""
+    try:
+        attrs = decode_attrs(f.attrs)
+        run_attrs, ref_attrs, incomplete, damaged = scan_groups(
+            f, path, "rerun the sweep with --force or move the file away", check=check)
+        runs = {k: (None, a) for k, a in run_attrs.items()}
+        refs = {k: (None, a) for k, a in ref_attrs.items()}
+        in_journal = overlay(_journal_of(path, f), runs, refs, attrs)
+    except StorageError:
+        raise
+    except Exception as e:  # noqa: BLE001 - damaged metadata, attributes of the wrong type, ...
+        raise _damaged(path, e) from None
+    incomplete = [p for p in incomplete if not _held(p, runs, refs)]
     run_list = [RunInfo(k, a) for k, (_, a) in runs.items()]
     # config order: method, then h, then initial condition
     ic_keys = attrs.get("ic_keys") if isinstance(attrs.get("ic_keys"), list) else []
@@ -129,6 +136,12 @@ def read_results(path) -> Results:
                    in_journal=in_journal, damaged=damaged)
 
 
+def _held(path: str, runs: dict, refs: dict) -> bool:
+    """Whether the item a failed path names is held all the same (by the journal, or another batch)."""
+    s = split_item_path(path)
+    return s is not None and s[1] in (runs if s[0] == "run" else refs)
+
+
 def _as_float(v) -> float:
     try:
         return float(v)
@@ -137,24 +150,50 @@ def _as_float(v) -> float:
 
 
 def _find_group(path, f, group: str, key: str):
-    """The group-like object of runs/<key> or references/<key> (None if absent or incomplete): the
-    journal's last record wins."""
+    """The group-like object of item `key` of `group` ("runs" | "references"), or None if absent or
+    not trusted: the journal's last record wins, then the file's latest batch copy that passes its
+    check, then a group of schema 1."""
+    kind = "run" if group == "runs" else "reference"
     j = _journal_of(path, f)
     rec = None
     if j is not None:
         for r in j.records:
-            if (r.kind == "run" and group == "runs" or r.kind == "reference" and group == "references") \
-                    and r.key == key:
-                rec = r
-            elif r.kind == "delete" and r.key == f"{group}/{key}":
+            if r.kind in ("batch", "run", "reference") and r.item_kind == kind:
+                if r.kind != "batch":
+                    rec = (r, 0) if r.key == key else rec
+                elif key in (r.header.get("keys") or ()):
+                    rec = (r, list(r.header["keys"]).index(key))
+            elif r.kind == "delete" and r.key == item_path(kind, key):
                 rec = "deleted"
     if rec == "deleted":
         return None
     if rec is not None:
+        r, i = rec
         with open(j.path, "rb") as fh:
-            return MemGroup(rec.attrs(), rec.arrays(fh))
-    if group in f and key in f[group] and isinstance(f[group][key], h5py.Group):
-        g = f[group][key]
+            b = r.batch(fh)
+        return MemGroup(b.attrs[i], b.arrays(i))
+    check = run_problem if kind == "run" else reference_problem
+    for name in reversed(batch_names(f, kind)):
+        g = f[f"{BATCH_GROUPS[kind]}/{name}"]
+        if not isinstance(g, h5py.Group) or not bool(g.attrs.get("complete", False)) or "key" not in g:
+            continue
+        try:
+            keys = [str(k) for k in g["key"].asstr()[()]]
+        except Exception:  # noqa: BLE001 - a damaged batch: not trusted
+            continue
+        if key not in keys:
+            continue
+        b, problem = checked_batch(g)
+        if problem:
+            continue
+        i = keys.index(key)
+        v = b.view(i)
+        if check(v, decode_attrs(v.attrs)):
+            continue  # a damaged copy: an earlier one may hold the item
+        return MemGroup(v.attrs, b.arrays(i))
+    group_name = ITEM_GROUPS[kind]
+    if group_name in f and key in f[group_name] and isinstance(f[group_name][key], h5py.Group):
+        g = f[group_name][key]
         return g if bool(g.attrs.get("complete", False)) else None
     return None
 

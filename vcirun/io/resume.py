@@ -12,6 +12,7 @@ from pathlib import Path
 import h5py
 
 from ..run.trajectory_files import decode_attr
+from .batches import split_item_path
 from .checks import FORMAT, scan_groups
 from .errors import StorageError, one_line, short
 from .journal import Journal, file_journal, overlay
@@ -73,6 +74,7 @@ def _read(f, path: Path, config_key: str) -> Existing:
     overlay(j, runs, refs)
     out.runs = {k: a for k, (_, a) in runs.items()}
     out.references = {k: a for k, (_, a) in refs.items()}
-    stale = {p for p in out.incomplete if p.partition("/")[2] in (runs if p.startswith("runs/") else refs)}
+    held = [(p, split_item_path(p)) for p in out.incomplete]
+    stale = {p for p, s in held if s is not None and s[1] in (runs if s[0] == "run" else refs)}
     out.incomplete = [p for p in out.incomplete if p not in stale or p in out.damaged]
     return out

@@ -14,7 +14,8 @@ from pathlib import Path
 import h5py
 
 from ..core.sizes import format_bytes
-from ..run.trajectory_files import encode_attr, write_group
+from ..run.trajectory_files import encode_attr, group_attrs
+from .batches import count_items, delete_items, pack, stamped, write_batch
 from .checks import FORMAT, LIBVER, SCHEMA_VERSION
 from .errors import StorageError, one_line
 from .journal import apply_journal
@@ -30,10 +31,14 @@ class Pending:
     key: str
     attrs: dict
     arrays: dict
+    text: str | None = None   # the attributes encoded as a batch stores them (vcirun.io.batches.item_text)
 
-    @property
-    def group(self) -> str:
-        return "runs" if self.kind == "run" else "references"
+    def item(self, stamp: str) -> tuple:
+        """(key, encoded attributes or None, arrays, JSON text or None) for vcirun.io.batches.pack,
+        with `committed_at`."""
+        if self.text is not None:
+            return self.key, None, self.arrays, stamped(self.text, "committed_at", stamp)
+        return self.key, group_attrs({**self.attrs, "committed_at": stamp}), self.arrays
 
 
 @dataclass
@@ -42,7 +47,7 @@ class Rewrite:
     fresh: bool          # a new file, written from scratch (else the copy of the file is updated)
     config_key: str
     root_attrs: dict
-    deletions: list      # group paths ("runs/NAME") to delete
+    deletions: list      # item and batch paths to delete (vcirun.io.batches.delete_items)
     journals: list       # journals whose records to apply, in order
     pending: list        # queued groups (Pending), written after the journals
     history: list        # the root history after this rewrite
@@ -54,24 +59,21 @@ class Rewrite:
         with h5py.File(tmp, "w" if self.fresh else "a", libver=LIBVER) as f:
             if self.fresh:
                 f.attrs["format"] = FORMAT
-                f.attrs["schema_version"] = SCHEMA_VERSION
                 f.attrs["config_key"] = self.config_key
-            for group in ("runs", "references"):
-                if group not in f:
-                    f.create_group(group)  # a file that lost one gets it back
+            f.attrs["schema_version"] = SCHEMA_VERSION  # what this writer adds is in batches
             for key, value in self.root_attrs.items():
                 f.attrs[key] = encode_attr(key, value)
-            for path in self.deletions:
-                if path in f:
-                    del f[path]
+            delete_items(f, self.deletions)
             for j in self.journals:
                 apply_journal(f, j, self.path)
             stamp = now_iso()
-            for p in self.pending:
-                write_group(f, f"{p.group}/{p.key}", {**p.attrs, "committed_at": stamp}, p.arrays)
+            for kind in ("reference", "run"):
+                items = [p.item(stamp) for p in self.pending if p.kind == kind]
+                for b in pack(items):
+                    write_batch(f, kind, b)
             f.attrs["history"] = encode_attr("history", self.history)
             f.attrs["updated"] = now_iso()
-            f.attrs["n_runs_complete"] = len(f["runs"])  # all groups here are complete
+            f.attrs["n_runs_complete"] = count_items(f, "run")
             f.attrs["journal"] = self.token
             f.attrs["journal_applied"] = 0  # a new journal (or none): nothing of it is in the file yet
             for hook in self.final_hooks:

@@ -30,13 +30,13 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from ..run.trajectory_files import group_attrs
 from .checks import resolve_output
 from .compaction import BackgroundCompactor, compact_path
 from ..core.fsync import fsync_path
 from .durable import replace_with_copy
 from .errors import StorageError, os_text, write_error
-from .journal import Journal, applied, journal_path, read_journal, record_pieces, write_all
+from .batches import item_path, pack
+from .journal import Journal, applied, batch_pieces, journal_path, read_journal, record_pieces, write_all
 from .lock import WriterLock, lock_path
 from .provenance import now_iso
 from .resume import read_existing
@@ -79,7 +79,7 @@ class ResultsWriter:
         self.incomplete: list[str] = []
         self.damaged: dict[str, str] = {}   # group path -> why it is not trusted
         self.prior_history: list = []
-        self.final_hooks: list = []          # callables f(h5py.File) run inside a complete sweep's last rewrite
+        self.final_hooks: list = []          # callables f(h5py.File) run inside the session's last rewrite
         self._pending: list[Pending] = []
         self._pending_bytes = 0
         self._deletions: list[str] = []
@@ -182,13 +182,15 @@ class ResultsWriter:
         with self._mutex:
             for rid in run_ids:
                 if self.complete_runs.pop(rid, None) is not None:
-                    self._deletions.append(f"runs/{rid}")
+                    self._deletions.append(item_path("run", rid))
 
     # -- queueing and committing ---------------------------------------------------------------------------
-    def add_run(self, run_id: str, attrs: dict, arrays: dict) -> None:
+    def add_run(self, run_id: str, attrs: dict, arrays: dict, text: str | None = None) -> None:
+        """Queue a run; `text`: its attributes encoded already (vcirun.io.batches.item_text of
+        group_attrs(attrs)), as the sweep's workers send them (the client then does not encode them)."""
         self._raise_auto_error()
         with self._mutex:
-            self._pending.append(Pending("run", run_id, attrs, arrays))
+            self._pending.append(Pending("run", run_id, attrs, arrays, text))
             self._pending_bytes += sum(int(np.asarray(a).nbytes) for a in arrays.values())
 
     def add_reference(self, key: str, attrs: dict, arrays: dict) -> None:
@@ -227,11 +229,12 @@ class ResultsWriter:
                 pc, n = record_pieces("delete", path)
                 pieces += pc
                 total += n
-            for p in self._pending:
-                enc = group_attrs({**p.attrs, "committed_at": stamp})
-                pc, n = record_pieces(p.kind, p.key, enc, p.arrays.items())
-                pieces += pc
-                total += n
+            for kind in ("reference", "run"):   # the commit's items: one record per batch
+                items = [p.item(stamp) for p in self._pending if p.kind == kind]
+                for b in pack(items):
+                    pc, n = batch_pieces(kind, b)
+                    pieces += pc
+                    total += n
             pc, n = record_pieces("session", "", extra={"history": list(self.prior_history) + [session],
                                                         "updated": stamp})
             pieces += pc
@@ -399,7 +402,7 @@ class ResultsWriter:
     def finish(self, status: str, final_hooks=None) -> None:
         """Commit what is queued, record how the current session ended ('complete', 'interrupted', ...) and
         compact: the journal is folded into the file and removed. `final_hooks` (default
-        `self.final_hooks`) run inside that last rewrite, on the open file, when status is 'complete'.
+        `self.final_hooks`) run inside that last rewrite, on the open file, whatever the status.
         After a failed write nothing more is written (the file and journal keep every committed run)."""
         self.stop_autocommit()
         try:
@@ -411,7 +414,7 @@ class ResultsWriter:
                 return
             self.session["status"] = status
             self.session["finished"] = now_iso()
-            hooks = list(self.final_hooks if final_hooks is None else final_hooks) if status == "complete" else []
+            hooks = list(self.final_hooks if final_hooks is None else final_hooks)
             if self._jfd is None:
                 self.commit(force_write=True)
                 return
