@@ -219,8 +219,8 @@ class _Cache(caching.FunctionCache):
 
 
 def adopt(mod, path: Path, owner: Owner) -> int:
-    """Give every cached numba function defined in the module at `path` the checked cache. Returns
-    how many."""
+    """Give every cached numba function defined in the module at `path` the checked cache, and its
+    compiles LLVM's optimisation level OPT_LEVEL (`kernel_opt`). Returns how many."""
     from numba.core.dispatcher import Dispatcher
 
     src = os.path.abspath(path)
@@ -232,5 +232,37 @@ def adopt(mod, path: Path, owner: Owner) -> int:
         if os.path.abspath(v.py_func.__code__.co_filename) != src:
             continue
         v._cache = _Cache(v.py_func, owner)
+        v.compile = _at_kernel_opt(v.compile)
         n += 1
     return n
+
+
+# LLVM's optimisation passes run at level 1 for the kernel cache's modules (numba's default is 3):
+# measured on the cart-pendulum's first simulation with an empty cache, CVA 43.5 -> 30.4 s, MCVAC
+# 47.0 -> 37.4 s, MCVAA 45.8 -> 40.1 s, with the loop's time unchanged (within 1 %) and every golden
+# trajectory bit for bit (bench/golden.py): numba's module passes run again on every callee linked
+# into each function (its design: one library per function), and the extra level-3 rounds bought
+# nothing here. Level 0 leaves the kernels uninlined (the CVA loop 11x slower). The target machine
+# (instruction selection) keeps numba's level. NUMBA_OPT set in the environment wins.
+OPT_LEVEL = 1
+
+
+def _at_kernel_opt(compile_):
+    """A dispatcher's compile with numba's OPT at OPT_LEVEL, under numba's compiler lock (another
+    thread's compile never sees it; nested compiles of callees keep it)."""
+
+    def compile(sig):
+        from numba.core import config
+        from numba.core.compiler_lock import global_compiler_lock
+
+        if "NUMBA_OPT" in os.environ:
+            return compile_(sig)
+        with global_compiler_lock:
+            before = config.OPT
+            config.OPT = config._OptLevel(OPT_LEVEL)
+            try:
+                return compile_(sig)
+            finally:
+                config.OPT = before
+
+    return compile

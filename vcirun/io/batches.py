@@ -188,6 +188,9 @@ class ItemView:
         return iter([n for n in self.batch.fields if n in self])
 
 
+_TABLE = ("key", "attrs", "rows")   # a batch's own datasets
+
+
 def _signature(a: np.ndarray) -> tuple:
     return (a.dtype.str, a.shape[1:] if a.ndim else "scalar")
 
@@ -200,6 +203,8 @@ def pack(items) -> list:
     for key, attrs, arrays, *text in items:
         arr = {}
         for name, v in (arrays.items() if isinstance(arrays, dict) else arrays):
+            if name in _TABLE:
+                raise ValueError(f"batch item {key!r}: an array may not be named {name!r} (a batch's own dataset)")
             a = np.asarray(v)
             if a.dtype.kind not in NUMERIC_KINDS:
                 a = a.astype(float)
