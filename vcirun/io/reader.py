@@ -27,7 +27,7 @@ __all__ = ["RunInfo", "Results", "read_results", "results_of", "load_trajectory"
 
 @dataclass
 class RunInfo:
-    """Attributes of one complete run group (arrays stay on disk; see `load_trajectory`)."""
+    """Attributes of one stored run (arrays stay on disk; see `load_trajectory`)."""
     run_id: str
     attrs: dict
 
