@@ -429,6 +429,21 @@ def test_journal_record_bytes_are_fixed():
     assert hashlib.sha256(data).hexdigest() == "2317531c5c5450137510c85849e07bb62a792e14a1feee6e4de0f71e85bef7dd"
 
 
+def test_attrs_text_is_the_encoding_of_group_attrs():
+    """The workers' one-pass encoding of a run's attributes equals the batch text of its encoded
+    attributes, for every kind of value a run records."""
+    from vcirun.io.batches import attrs_text, item_text
+    from vcirun.run.trajectory_files import group_attrs
+
+    attrs, _ = run_attrs(make_traj(status="newton_failed"), "MCVAC", 0.01, 3.2)
+    attrs.update(message="niño \x00 \udcff", fail_time=math.nan, q0=np.array([0.1, -2.0]), p0=[1, 2],
+                 flag=np.bool_(True), big=np.int64(2**40), f32=np.float32(0.5), none_text=None, l2_error=None,
+                 complete=True, wall_time_repeats=[1e-3, 2e-3], ok=False)
+    assert json.loads(attrs_text(attrs), parse_constant=str) == json.loads(item_text(group_attrs(attrs)),
+                                                                            parse_constant=str)
+    assert attrs_text(attrs) == item_text(group_attrs(attrs))
+
+
 def test_batch_records_round_trip_through_the_journal(tmp_path):
     from vcirun.io.batches import pack
     from vcirun.io.journal import batch_pieces, overlay

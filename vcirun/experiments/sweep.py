@@ -28,6 +28,7 @@ results need.
 from __future__ import annotations
 
 import contextlib
+import gc
 import hashlib
 import json
 import os
@@ -236,7 +237,8 @@ def _check_resources(cfg: SweepConfig, pending: list[RunSpec], n: int, m: int, w
     except ValueError as e:
         raise SweepError(f"{_one_line(e)} (with {min(workers, len(pending))} worker(s); fewer --workers need less)") \
             from None
-    need = sum(stored_bytes(steps[s.h], n, m, store_trajectories=cfg.store_trajectories) for s in pending)
+    per_h = {h: stored_bytes(N_h, n, m, store_trajectories=cfg.store_trajectories) for h, N_h in steps.items()}
+    need = sum(per_h[s.h] for s in pending)
     size = path.stat().st_size if path.exists() and not writer.force else 0
     total = size + 2 * need
     where = next((d for d in [path.parent, *path.parent.parents] if d.exists()), Path("."))
@@ -319,7 +321,7 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
                            commit_interval=commit_interval)
     writer.final_hooks = _final_hooks(writer.path)
     writer.acquire()
-    executor = None
+    executor, frozen = None, False
     try:
         known = {s.run_id for s in specs}
         if retry_failed:
@@ -345,6 +347,11 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
         t_pre, n_log = time.monotonic(), len(BUILD_LOG)
         n, m, side = _preflight(cfg, pending or [specs[0]])
         summary.prepare_time = time.monotonic() - t_pre  # kernels loaded or compiled: not run time
+        # What is loaded now (numba, LLVM, the kernels) stays for the sweep: frozen out of the garbage
+        # collector, whose full passes would otherwise walk it in the client and, copy-on-write, copy it
+        # into every forked worker and writer (unfrozen when the sweep ends).
+        gc.freeze()
+        frozen = True
         summary.compiled = side + sum(not e["cached"] for e in BUILD_LOG[n_log:])
         _check_resources(cfg, pending, n, m, workers, writer.path, writer)
         executor = executors.make_executor(ex_spec, workers=workers, start_method=start_method)
@@ -428,6 +435,8 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
         if executor is not None:
             executor.close()
         writer.close()
+        if frozen:
+            gc.unfreeze()
 
 
 def _finalize(writer: ResultsWriter, summary: SweepSummary, if_missing: bool = False) -> None:

@@ -25,8 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.sizes import limit_memory
-from ..io.batches import item_text
-from ..run.trajectory_files import group_attrs, trajectory_payload
+from ..io.batches import attrs_text
+from ..run.trajectory_files import trajectory_payload
 from .config import InitialCondition, MethodReference, MethodSpec, NoReference, SweepConfig, build_system
 
 __all__ = ["SweepError", "RunSpec", "Task", "make_tasks"]
@@ -284,7 +284,7 @@ def _execute_run(st: _WorkerState, spec: RunSpec, ref) -> dict:
                  q0=np.asarray(traj.q[0], float) if len(traj.q) else None,
                  p0=np.asarray(traj.p[0], float) if len(traj.p) else None)
     # encoded here, in parallel, as the results file stores it (the client only splices the texts)
-    return {"run_id": spec.run_id, "attrs": attrs, "arrays": arrays, "text": item_text(group_attrs(attrs))}
+    return {"run_id": spec.run_id, "attrs": attrs, "arrays": arrays, "text": attrs_text(attrs)}
 
 
 def _execute(task: Task, st: _WorkerState | None = None, emit=None) -> dict:

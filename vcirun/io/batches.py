@@ -31,7 +31,7 @@ import numpy as np
 
 __all__ = ["BATCH_GROUPS", "ITEM_GROUPS", "Batch", "ItemView", "pack", "write_batch", "read_batch", "checked_batch",
            "batch_names", "next_batch_name", "delete_items", "count_items", "item_path", "split_item_path",
-           "jsonable_attr", "attr_from_json", "item_text", "stamped"]
+           "jsonable_attr", "attr_from_json", "item_text", "attrs_text", "stamped"]
 
 BATCH_GROUPS = {"run": "run_batches", "reference": "reference_batches"}
 ITEM_GROUPS = {"run": "runs", "reference": "references"}   # v1 per-item groups; item paths
@@ -54,6 +54,23 @@ def item_text(enc_attrs: dict) -> str:
     return json.dumps({k: jsonable_attr(v) for k, v in enc_attrs.items()}, allow_nan=True)
 
 
+def attrs_text(attrs: dict) -> str:
+    """item_text(group_attrs(attrs)) in one pass: the plain numbers pass as they are (a sweep's workers
+    encode every run's ~45 attributes)."""
+    from ..run.trajectory_files import JSON_ATTRS, encode_attr, group_attrs
+
+    out = {}
+    for k, v in attrs.items():
+        t = type(v)
+        if (t is float or t is int or t is bool) and k not in JSON_ATTRS and k != "complete":
+            out[k] = v
+        else:
+            enc = group_attrs({k: v})
+            if k in enc:
+                out[k] = jsonable_attr(enc[k])
+    return json.dumps(out, allow_nan=True)
+
+
 def stamped(text: str, key: str, value) -> str:
     """`text` (an item's JSON object) with one more attribute (a later duplicate key wins in JSON)."""
     extra = json.dumps({key: value})[1:]
@@ -61,7 +78,7 @@ def stamped(text: str, key: str, value) -> str:
 
 
 def attr_from_json(v):
-    if isinstance(v, dict) and "__ndarray__" in v:
+    if type(v) is dict and "__ndarray__" in v:
         dt = np.dtype(v["__ndarray__"])
         if dt.kind not in NUMERIC_KINDS:
             raise ValueError("non-numeric array attribute")
@@ -191,33 +208,32 @@ class ItemView:
 _TABLE = ("key", "attrs", "rows")   # a batch's own datasets
 
 
-def _signature(a: np.ndarray) -> tuple:
-    return (a.dtype.str, a.shape[1:] if a.ndim else "scalar")
-
-
 def pack(items) -> list:
     """Batches of (key, encoded attributes, arrays[, JSON text of the attributes]) items, arrays as a
     mapping or (name, array) pairs; numeric arrays only. Items go to the first batch whose fields
     agree with theirs in dtype and trailing shape (one batch for the runs of one sweep)."""
-    groups = []   # [signature by field, [item, ...]]
+    by_sig: dict = {}   # items grouped by their exact signature first (the common case: a few kinds)
     for key, attrs, arrays, *text in items:
         arr = {}
         for name, v in (arrays.items() if isinstance(arrays, dict) else arrays):
             if name in _TABLE:
                 raise ValueError(f"batch item {key!r}: an array may not be named {name!r} (a batch's own dataset)")
-            a = np.asarray(v)
+            a = v if isinstance(v, np.ndarray) else np.asarray(v)
             if a.dtype.kind not in NUMERIC_KINDS:
                 a = a.astype(float)
             arr[name] = a
-        sig = {name: _signature(a) for name, a in arr.items()}
-        item = (str(key), attrs, arr, text[0] if text else None)
+        sig = tuple((name, a.dtype.str, a.shape[1:] if a.ndim else "scalar") for name, a in arr.items())
+        by_sig.setdefault(sig, []).append((str(key), attrs, arr, text[0] if text else None))
+    groups = []   # [fields' (dtype, trailing shape), [item, ...]]
+    for sig, its in by_sig.items():
+        fields = {name: (dt, tail) for name, dt, tail in sig}
         for g in groups:
-            if all(g[0].get(n, s) == s for n, s in sig.items()):
-                g[0].update(sig)
-                g[1].append(item)
+            if all(g[0].get(n, s) == s for n, s in fields.items()):
+                g[0].update(fields)
+                g[1].extend(its)
                 break
         else:
-            groups.append([dict(sig), [item]])
+            groups.append([fields, list(its)])
     out = []
     for sig, its in groups:
         fields = list(sig)

@@ -46,10 +46,8 @@ def journal_path(path) -> Path:
     return p.with_name(f".{p.name}.journal")
 
 
-def record_pieces(kind: str, key: str, enc_attrs: dict | None = None, arrays=(), extra: dict | None = None,
-                  items: str | None = None):
-    """(list of byte pieces, total length) of one record; array bytes are not copied. `items`: JSON
-    text put in place of the value _ITEMS of `extra`."""
+def record_pieces(kind: str, key: str, enc_attrs: dict | None = None, arrays=(), extra: dict | None = None):
+    """(list of byte pieces, total length) of one record; array bytes are not copied."""
     table, blobs, off = [], [], 0
     for name, value in arrays:
         a = np.ascontiguousarray(value)
@@ -62,10 +60,7 @@ def record_pieces(kind: str, key: str, enc_attrs: dict | None = None, arrays=(),
     header = {"kind": kind, "key": key, "arrays": table, **(extra or {})}
     if enc_attrs is not None:
         header["attrs"] = {k: jsonable_attr(v) for k, v in enc_attrs.items()}
-    hb = json.dumps(header, allow_nan=True)
-    if items is not None:
-        hb = hb.replace(json.dumps(_ITEMS), items, 1)
-    hb = hb.encode()
+    hb = json.dumps(header, allow_nan=True).encode()
     payload = [_HDR.pack(len(hb)), hb, *blobs]
     crc = 0
     for piece in payload:
@@ -75,15 +70,41 @@ def record_pieces(kind: str, key: str, enc_attrs: dict | None = None, arrays=(),
 
 
 def batch_pieces(kind: str, batch: Batch):
-    """(pieces, length) of the record of one batch of `kind` ("run" | "reference"). The items' JSON
-    texts (made by the workers where they can) are spliced into the header as they are."""
-    extra = {"keys": list(batch.keys), "items": _ITEMS, "fields": list(batch.fields),
-             "scalar": list(batch.scalar), "rows": batch.rows.tolist()}
-    return record_pieces("batch", kind, None, [(n, batch.data[n]) for n in batch.fields], extra=extra,
-                         items="[" + ", ".join(batch.text(i) for i in range(len(batch.keys))) + "]")
+    """(pieces, length) of the record of one batch of `kind` ("run" | "reference"): the row table in
+    the header, the items' JSON texts (made by the workers where they can) as one UTF-8 blob with
+    their end offsets, kept verbatim to the HDF5 batch, and the fields' arrays."""
+    texts = [batch.text(i).encode("utf-8", "surrogatepass") for i in range(len(batch.keys))]
+    ends = np.cumsum([len(t) for t in texts], dtype=np.int64) if texts else np.zeros(0, np.int64)
+    extra = {"keys": list(batch.keys), "fields": list(batch.fields), "scalar": list(batch.scalar),
+             "rows": batch.rows.tolist()}
+    arrays = [(_TEXTS, np.frombuffer(b"".join(texts), dtype=np.uint8)), (_TEXT_ENDS, ends)]
+    return record_pieces("batch", kind, None, arrays + [(n, batch.data[n]) for n in batch.fields], extra=extra)
 
 
-_ITEMS = "\x00items\x00"   # where batch_pieces splices the items' texts into a header
+_TEXTS, _TEXT_ENDS = "\x00texts", "\x00text_ends"   # a batch record's item texts (no field has such a name)
+
+
+class _LazyAttrs(list):
+    """The items' encoded attributes of a batch read from the journal, parsed from their texts when
+    first asked for (writing the batch to the HDF5 file needs the texts only)."""
+
+    def __init__(self, texts):
+        super().__init__([None] * len(texts))
+        self._texts, self._parsed = texts, False
+
+    def _parse(self):
+        if not self._parsed:
+            self._parsed = True
+            for i, t in enumerate(self._texts):
+                list.__setitem__(self, i, {k: attr_from_json(v) for k, v in json.loads(t).items()})
+
+    def __getitem__(self, i):
+        self._parse()
+        return list.__getitem__(self, i)
+
+    def __iter__(self):
+        self._parse()
+        return list.__iter__(self)
 
 
 def write_all(fd: int, pieces) -> None:
@@ -106,32 +127,53 @@ class JournalRecord:
     def attrs(self) -> dict:
         return {k: attr_from_json(v) for k, v in (self.header.get("attrs") or {}).items()}
 
-    def item_attrs(self) -> list:
+    def item_texts(self, fh) -> list:
+        """A batch record's items' attributes as the JSON texts the batch stores (read from `fh`)."""
+        (_, blob), (_, ends) = self.arrays(fh, (_TEXTS, _TEXT_ENDS))
+        keys = self.header.get("keys") or []
+        if len(ends) != len(keys) or (len(ends) and int(ends[-1]) != blob.size):
+            raise ValueError("journal batch: its item texts do not match its keys")
+        raw = blob.tobytes()
+        starts = np.concatenate([[0], ends[:-1]]).astype(int) if len(ends) else []
+        return [raw[a:int(b)].decode("utf-8", "surrogatepass") for a, b in zip(starts, ends)]
+
+    def item_attrs(self, fh) -> list:
         """The encoded attributes of a batch record's items."""
-        return [{k: attr_from_json(v) for k, v in a.items()} for a in self.header.get("items") or []]
+        return [{k: attr_from_json(v) for k, v in json.loads(t).items()} for t in self.item_texts(fh)]
 
     def batch(self, fh) -> Batch:
-        """A batch record's Batch (arrays read from the open journal file `fh`); a schema-1 run or
-        reference record as a batch of one."""
+        """A batch record's Batch (arrays read from the open journal file `fh`, the items' texts kept
+        verbatim, their attributes parsed when asked); a schema-1 run or reference record as a batch
+        of one."""
         if self.kind != "batch":
             return pack([(self.key, self.attrs(), self.arrays(fh))])[0]
         keys = [str(k) for k in self.header.get("keys") or []]
         fields = [str(n) for n in self.header.get("fields") or []]
         rows = np.asarray(self.header.get("rows") or [], dtype=np.int64).reshape(len(keys), len(fields))
-        data = dict(self.arrays(fh))
-        if set(data) != set(fields) or len(self.header.get("items") or []) != len(keys):
+        data = dict(self.arrays(fh, fields))
+        if set(data) != set(fields):
             raise ValueError("journal batch: its table does not match its arrays")
-        return Batch(keys, self.item_attrs(), fields, [str(n) for n in self.header.get("scalar") or []], rows, data)
+        texts = self.item_texts(fh)
+        return Batch(keys, _LazyAttrs(texts), fields, [str(n) for n in self.header.get("scalar") or []], rows, data,
+                     texts)
 
     @property
     def item_kind(self) -> str:
         """"run" or "reference" for records that carry items."""
         return self.key if self.kind == "batch" else self.kind
 
-    def arrays(self, fh) -> list:
-        """(name, array) pairs, read from the open journal file `fh`."""
+    def arrays(self, fh, names=None) -> list:
+        """(name, array) pairs (those of `names` only, in that order, when given), read from the open
+        journal file `fh`."""
         out = []
-        for name, dtype, shape, off, nbytes in self.header.get("arrays", []):
+        table = self.header.get("arrays", [])
+        if names is not None:
+            by = {row[0]: row for row in table}
+            missing = [n for n in names if n not in by]
+            if missing:
+                raise ValueError(f"journal record: no array {missing[0]!r}")
+            table = [by[n] for n in names]
+        for name, dtype, shape, off, nbytes in table:
             dt = np.dtype(dtype)
             if dt.kind not in NUMERIC_KINDS:
                 raise ValueError(f"journal array {name}: non-numeric dtype {dtype}")
@@ -249,25 +291,37 @@ def overlay(journal: Journal | None, runs: dict, refs: dict, attrs: dict | None 
     if journal is None:
         return 0
     added = 0
-    for r in journal.records:
-        if r.kind == "batch":
-            target = runs if r.key == "run" else refs
-            for i, (key, a) in enumerate(zip(r.header.get("keys") or [], r.item_attrs())):
-                target[str(key)] = ((r, i), decode_attrs(a))
-                added += r.key == "run"
-        elif r.kind in ("run", "reference"):
-            (runs if r.kind == "run" else refs)[r.key] = ((r, 0), decode_attrs(r.attrs()))
-            added += r.kind == "run"
-        elif r.kind == "delete":
-            # every copy of an item; a batch path or one batch's copy names what the file's checks
-            # already set aside (damaged or incomplete), which no reader trusts
-            s = split_item_path(r.key)
-            if s is not None and s[2] is None:
-                (runs if s[0] == "run" else refs).pop(s[1], None)
-        elif r.kind == "session" and attrs is not None:
-            attrs["history"] = r.header.get("history") or attrs.get("history")
-            attrs["updated"] = r.header.get("updated", attrs.get("updated"))
+    fh = open(journal.path, "rb") if any(r.kind == "batch" for r in journal.records) else None
+    try:
+        for r in journal.records:
+            if r.kind == "batch":
+                target = runs if r.key == "run" else refs
+                for i, (key, a) in enumerate(zip(r.header.get("keys") or [], r.item_attrs(fh))):
+                    target[str(key)] = ((r, i), decode_attrs(a))
+                    added += r.key == "run"
+                continue
+            added += _overlay_one(r, runs, refs, attrs)
+    finally:
+        if fh is not None:
+            fh.close()
     return added
+
+
+def _overlay_one(r, runs: dict, refs: dict, attrs) -> int:
+    """overlay() of a record that is not a batch; returns the runs it adds."""
+    if r.kind in ("run", "reference"):
+        (runs if r.kind == "run" else refs)[r.key] = ((r, 0), decode_attrs(r.attrs()))
+        return int(r.kind == "run")
+    if r.kind == "delete":
+        # every copy of an item; a batch path or one batch's copy names what the file's checks
+        # already set aside (damaged or incomplete), which no reader trusts
+        s = split_item_path(r.key)
+        if s is not None and s[2] is None:
+            (runs if s[0] == "run" else refs).pop(s[1], None)
+    elif r.kind == "session" and attrs is not None:
+        attrs["history"] = r.header.get("history") or attrs.get("history")
+        attrs["updated"] = r.header.get("updated", attrs.get("updated"))
+    return 0
 
 
 def apply_journal(f, j: Journal, path: Path) -> None:

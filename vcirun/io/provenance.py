@@ -20,6 +20,18 @@ def now_iso() -> str:
 
 
 def _version(dist: str) -> str:
+    """The installed version of a distribution: the Version line of its metadata's header (what
+    importlib.metadata.version returns, without parsing the whole file with the email parser: ~7 ms
+    for scipy's)."""
+    try:
+        text = metadata.distribution(dist).read_text("METADATA") or ""
+    except metadata.PackageNotFoundError:
+        return ""
+    for line in text.splitlines():
+        if not line.strip():
+            break   # the end of the header
+        if line.startswith("Version:"):
+            return line.split(":", 1)[1].strip()
     try:
         return metadata.version(dist)
     except metadata.PackageNotFoundError:

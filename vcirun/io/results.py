@@ -136,13 +136,15 @@ def collect(results) -> Table:
             if k in _STRINGS:
                 strings[k][idx] = "" if v is None else str(v)
                 continue
-            if k in _SKIP or isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)):
+            t = type(v)   # (plain floats and ints first: most of a run's attributes)
+            if k in _SKIP or not (t is float or t is int) and (
+                    isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating))):
                 continue
-            name = _RENAME.get(k, k)
-            if name not in numeric:
-                numeric[name] = (np.full(shape, np.nan), [])
-            numeric[name][0][idx] = np.nan if v is None else float(v)
-            numeric[name][1].append(isinstance(v, (int, np.integer)))
+            col = numeric.get(_RENAME.get(k, k))
+            if col is None:
+                col = numeric[_RENAME.get(k, k)] = (np.full(shape, np.nan), [])
+            col[0][idx] = float(v)
+            col[1].append(t is int or isinstance(v, np.integer))
         strings["run_id"][idx] = r.run_id
     dims3 = ("method", "h", ic_dim)
     variables = {}

@@ -191,7 +191,8 @@ class ResultsWriter:
         self._raise_auto_error()
         with self._mutex:
             self._pending.append(Pending("run", run_id, attrs, arrays, text))
-            self._pending_bytes += sum(int(np.asarray(a).nbytes) for a in arrays.values())
+            self._pending_bytes += sum(a.nbytes if isinstance(a, np.ndarray) else np.asarray(a).nbytes
+                                       for a in arrays.values())
 
     def add_reference(self, key: str, attrs: dict, arrays: dict) -> None:
         with self._mutex:

@@ -78,8 +78,12 @@ def decode_attr(key, value):
     return value
 
 
+_PLAIN = (float, int, bool)
+
+
 def decode_attrs(attrs) -> dict:
-    return {k: decode_attr(k, v) for k, v in attrs.items()}
+    # plain numbers are what they are (most of a run's ~45 attributes; a sweep's summary decodes all)
+    return {k: v if type(v) in _PLAIN else decode_attr(k, v) for k, v in attrs.items()}
 
 
 
