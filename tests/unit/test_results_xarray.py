@@ -73,6 +73,20 @@ def test_missing_runs_are_marked(sweep_file, tmp_path):
     assert ds.n_steps.dtype == np.float64 and ds.attrs["n_runs"] == 11
 
 
+def test_summary_group_equals_open_results(sweep_file):
+    """The summary group a sweep writes from its own record of the runs is the table vcirun.open_results
+    reads back from the stored runs, every variable bit for bit."""
+    ds = vcirun.open_results(sweep_file)
+    sm = xr.open_dataset(sweep_file, group="summary", engine="h5netcdf")
+    assert set(sm.data_vars) == set(ds.data_vars)
+    for name in ds.data_vars:
+        a, b = ds[name].values, sm[name].values
+        if a.dtype.kind in "OUS" or b.dtype.kind in "OUS":
+            assert [str(x) for x in a.ravel()] == [str(x) for x in b.ravel()], name
+        else:
+            np.testing.assert_array_equal(a, b, err_msg=name)
+
+
 def test_summary_group_has_dimension_scales(sweep_file):
     with h5py.File(sweep_file, "r") as f:
         g = f["summary"]

@@ -60,16 +60,27 @@ def _write_group(f: h5py.File, tab) -> None:
         g.attrs[k] = v
 
 
-def summary_hook(path):
+def summary_hook(path, held=None):
     """A final hook of the results writer (f(h5py.File) on the file's last copy): the summary group
-    of what that copy holds (its runs were verified when the session started or written by it: not
-    checked again). It never fails the rewrite (the runs matter more): on an error it leaves
-    no summary group, and the sweep then writes one apart with `write_summary`, which reports why."""
+    of what that copy holds. `held`: a callable returning ({run id: attributes}, {key: reference
+    attributes}) of exactly the items the copy holds (the writer's own record of them, in the forked
+    writer's memory), so that nothing is read back; else they are read from the copy (without
+    re-checking: they were verified when the session started or written by it). It never fails the
+    rewrite (the runs matter more): on an error it leaves no summary group, and the sweep then writes
+    one apart with `write_summary`, which reports why."""
+    from vcirun.io.reader import Results, RunInfo
     from vcirun.io.results import collect
+    from vcirun.run.trajectory_files import decode_attrs
+
+    def results(f):
+        if held is None:
+            return results_of(f, Path(path), check=False)
+        runs, refs = held()
+        return Results(Path(path), decode_attrs(f.attrs), [RunInfo(k, a) for k, a in runs.items()], dict(refs))
 
     def hook(f) -> None:
         try:
-            _write_group(f, collect(results_of(f, Path(path), check=False)))
+            _write_group(f, collect(results(f)))
         except Exception:  # noqa: BLE001 - see the docstring
             with contextlib.suppress(Exception):
                 if GROUP in f:

@@ -253,13 +253,14 @@ def _check_resources(cfg: SweepConfig, pending: list[RunSpec], n: int, m: int, w
                          + (" or set store_trajectories: false" if cfg.store_trajectories else ""))
 
 
-def _final_hooks(path: Path) -> list:
+def _final_hooks(writer: ResultsWriter) -> list:
     """The sweep finished (complete or not) and the file is final: callables f(h5py.File) that run
     inside the writer's last rewrite (on the copy that then atomically replaces the file): the summary
-    group of every run. This is the one place where 'the file is final' happens."""
+    group of every run, from the writer's record of what the file holds. This is the one place where
+    'the file is final' happens."""
     from .summary import summary_hook
 
-    return [summary_hook(path)]
+    return [summary_hook(writer.path, held=lambda: (writer.complete_runs, writer.references))]
 
 
 def _root_attrs(cfg: SweepConfig, config_text: str, config_path, specs: list[RunSpec]) -> dict:
@@ -319,7 +320,7 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
     writer = ResultsWriter(path, root_attrs=_root_attrs(cfg, config_text, config_path, specs),
                            config_key=cfg.canonical_sha256(), force=force, session=session,
                            commit_interval=commit_interval)
-    writer.final_hooks = _final_hooks(writer.path)
+    writer.final_hooks = _final_hooks(writer)
     writer.acquire()
     executor, frozen = None, False
     try:

@@ -26,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..run.trajectory_files import encode_attr
+
 __all__ = ["open_results", "collect", "Table"]
 
 # run attributes that are bookkeeping, not metrics (indices, process ids, flags)
@@ -133,8 +135,8 @@ def collect(results) -> Table:
     numeric, strings = {}, {s: np.full(shape, "missing" if s == "status" else "", dtype=object) for s in _STRINGS}
     for idx, r in cells.items():
         for k, v in r.attrs.items():
-            if k in _STRINGS:
-                strings[k][idx] = "" if v is None else str(v)
+            if k in _STRINGS:   # (as stored: text HDF5 can hold)
+                strings[k][idx] = "" if v is None else encode_attr(k, str(v))
                 continue
             t = type(v)   # (plain floats and ints first: most of a run's attributes)
             if k in _SKIP or not (t is float or t is int) and (
@@ -158,11 +160,12 @@ def collect(results) -> Table:
         variables[name] = (dims3, strings[name], {})
 
     # per initial condition: start state and the reference's facts
-    n = next((len(r.attrs["q0"]) for r in res.runs if isinstance(r.attrs.get("q0"), list)), 0)
+    # (q0, p0: lists as read from a file, arrays as a sweep's workers give them)
+    n = next((len(r.attrs["q0"]) for r in res.runs if isinstance(r.attrs.get("q0"), (list, np.ndarray))), 0)
     if n:
         q0, p0 = np.full((len(ic_keys), n), np.nan), np.full((len(ic_keys), n), np.nan)
         for r in res.runs:
-            if isinstance(r.attrs.get("q0"), list) and isinstance(r.attrs.get("p0"), list):
+            if isinstance(r.attrs.get("q0"), (list, np.ndarray)) and isinstance(r.attrs.get("p0"), (list, np.ndarray)):
                 q0[ii[r.attrs["ic_key"]]] = r.attrs["q0"]
                 p0[ii[r.attrs["ic_key"]]] = r.attrs["p0"]
         variables["q0"] = ((ic_dim, "coordinate"), q0, {"long_name": "initial coordinates"})

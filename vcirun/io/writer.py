@@ -45,6 +45,9 @@ from .rewrite import Pending, Rewrite, failure, free_space_error
 __all__ = ["ResultsWriter", "DEFAULT_COMMIT_INTERVAL"]
 
 DEFAULT_COMMIT_INTERVAL = 1.0  # seconds between journal commits (the loss bound of a hard kill)
+# A queue of this many items is committed at once: the commits of a fast sweep then happen while its
+# workers compute, not all in the serial finish (one batch group per commit; 4 for the fig4 sweep).
+COMMIT_RUNS = 128
 
 
 class ResultsWriter:
@@ -201,13 +204,14 @@ class ResultsWriter:
             self._pending.append(Pending("reference", key, attrs, arrays))
 
     def maybe_commit(self) -> bool:
-        """Commit if `commit_interval` has passed since the last commit (or the queue holds > 256 MB)."""
+        """Commit if `commit_interval` has passed since the last commit, or the queue holds COMMIT_RUNS
+        items or 256 MB."""
         self._raise_auto_error()
         with self._mutex:
             if not self._pending:
                 return False
             if (time.monotonic() - self._last_commit >= self.commit_interval
-                    or self._pending_bytes > 256 * 2**20):
+                    or len(self._pending) >= COMMIT_RUNS or self._pending_bytes > 256 * 2**20):
                 self.commit()
                 return True
             return False
