@@ -204,7 +204,8 @@ def test_cold_build_estimate_counts_the_core_only_until_it_is_compiled(tmp_path,
 
 def test_a_scene_takes_the_lean_core_only_when_it_has_one_unforced_contact():
     """One constraint, no force, no declared reset: the lean core (those constants compiled in, the
-    several-contact impact pruned); any other scene: the general core, which reads them at run time."""
+    several-contact impact pruned), for a method's kernel set and the system-only one (the exact
+    reference's) alike; any other scene: the general core, which reads them at run time."""
     from vcirun.codegen import shared
     from vcirun.codegen.kernel_set import SYSTEM_KERNELS
     from vcirun.methods.table import METHODS
@@ -214,7 +215,8 @@ def test_a_scene_takes_the_lean_core_only_when_it_has_one_unforced_contact():
     feats = {name: build.system_core_features(ks, get_scene(name))
              for name in ("cart_pendulum", "ball_in_box", "damped_oscillator", "rimless_wheel")}
     assert feats == {"cart_pendulum": shared.LEAN, "ball_in_box": (), "damped_oscillator": (), "rimless_wheel": ()}
-    assert build.system_core_features(SYSTEM_KERNELS, get_scene("cart_pendulum")) == ()
+    assert build.system_core_features(SYSTEM_KERNELS, get_scene("cart_pendulum")) == shared.LEAN
+    assert build.system_core_features(SYSTEM_KERNELS, get_scene("ball_in_box")) == ()
     lean, general = shared.core_source(ks, features=shared.LEAN), shared.core_source(ks)
     assert "NCON = 1\nFORCED = False\n" in lean and "NCON = 1\n" not in general
     assert build.core_key_of(ks, 2, shared.LEAN) != build.core_key_of(ks, 2)
@@ -240,9 +242,27 @@ def test_the_lean_core_gives_the_specialized_build_bit_for_bit(monkeypatch):
     _same(a, b)
 
 
+def test_cva_and_vci_share_one_core_that_binds_each_its_reset():
+    """R^CVA and R^VCI in one core (the same full and partial maps): every CVA composition and VCI map
+    to the same core text, which holds both resets and chooses by VCI_STAGE (the energy gradient only
+    VCI's kernel set generates); MCVA's core stays its own."""
+    from vcirun.codegen import shared
+    from vcirun.methods.table import METHODS, resolve_method
+
+    sets = [METHODS[m].kernel_set() for m in ("CVA", "VCI", "CVA4", "CVA8")] + [resolve_method("VCI", ld="midpoint").kernel_set()]
+    texts = {shared.core_source(ks, features=shared.LEAN) for ks in sets}
+    assert len(texts) == 1
+    text = texts.pop()
+    assert "def reset_cva(" in text and "def reset_vci(" in text and "reset = reset_cva_or_vci" in text
+    assert "    if slot(%d) < 0:\n        return reset_cva(" % shared.SLOT["VCI_STAGE"] in text
+    assert METHODS["CVA"].kernel_set().vci_stage is None and METHODS["VCI"].kernel_set().vci_stage is not None
+    mcva = shared.core_source(METHODS["MCVAC"].kernel_set(), features=shared.LEAN)
+    assert "reset_cva_or_vci" not in mcva and "reset = reset_mcva" in mcva
+
+
 def test_cold_method_families_are_grouped_by_the_core_they_compile(tmp_path, monkeypatch):
-    """A sweep's preflight compiles cold kernel sets side by side, one group per shared core (MCVAA and
-    MCVAC share theirs); nothing is cold in a cache that holds them."""
+    """A sweep's preflight compiles cold kernel sets side by side, one group per shared core (CVA and
+    VCI share theirs, MCVAA and MCVAC theirs); nothing is cold in a cache that holds them."""
     from vcirun.experiments.precompile import compile_groups
     from vcirun.scenes.declarations import get_scene
 
@@ -252,7 +272,7 @@ def test_cold_method_families_are_grouped_by_the_core_they_compile(tmp_path, mon
     monkeypatch.setenv("VCIRUN_CACHE_DIR", str(tmp_path))
     monkeypatch.setattr(build, "_loaded", {})   # (modules this process loaded count as built)
     groups = compile_groups(sysm, methods)
-    assert [[n for n, *_ in g] for g in groups] == [["CVA"], ["MCVAA", "MCVAC"], ["VCI"]]
+    assert [[n for n, *_ in g] for g in groups] == [["CVA", "VCI"], ["MCVAA", "MCVAC"]]
     monkeypatch.undo()
     for m in ("CVA", "MCVAA", "VCI", "MCVAC"):
         vcirun.simulate("cart_pendulum", m, h=0.01, T=0.01, beta=3.2)

@@ -35,7 +35,7 @@ _DEFAULT_S = {"CVA": 10.0, "VCI": 10.0, "MCVA": 20.0}
 _DEFAULT_SCENE_S = {"CVA": 3.5, "VCI": 3.5, "MCVA": 5.5}
 # first estimates of a core's compile (this machine, 2 cores): the general one, the lean one
 # (vcirun.codegen.shared.LEAN), the system-only one; the MCVA family's 5 s more
-_DEFAULT_CORE_S = {"general": 55.0, "lean": 35.0, "system": 6.0}
+_DEFAULT_CORE_S = {"general": 50.0, "lean": 30.0, "system": 12.0, "system lean": 4.0}
 LOCK_TIMEOUT_S = cache_lock.LOCK_TIMEOUT_S
 
 
@@ -74,7 +74,8 @@ def estimate_compile_s(ks, n: int, features: tuple = ()) -> float:
     if build.build_mode() != "shared":
         return _by_family(times, build.family(ks), n, _DEFAULT_S.get(kind, 15.0))
     key = build.core_key_of(ks, n, features)
-    first = _DEFAULT_CORE_S[("lean" if features else "general") if ks.full_stages else "system"]
+    first = _DEFAULT_CORE_S[("lean" if features else "general") if ks.full_stages else
+                            ("system lean" if features else "system")]
     core = 0.0 if build.core_compiled(key) else core_estimate_s(key, first + (5.0 if kind == "MCVA" else 0.0))
     return _by_family(times, "scene|" + build.family(ks), n, _DEFAULT_SCENE_S.get(kind, 3.5)) + core
 

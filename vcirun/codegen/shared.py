@@ -28,6 +28,7 @@ one, VCIRUN_CORE_NDOF=fixed); measured in docs/performance.md, *The shared build
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import re
 import threading
 import types as pytypes
@@ -174,9 +175,10 @@ FEATURE_NAMES = {LEAN: "one contact, unforced", (): "any contacts and forcing"}
 
 def core_features(ks: KernelSet, ncon: int, forced: bool, reset_map: bool, law_first: bool) -> tuple:
     """The features of the core that serves a scene with these constants: LEAN or () (general). The
-    system-only set has no loop to prune: always ()."""
-    if ks.full_stages and dict(LEAN) == {"NCON": int(ncon), "FORCED": bool(forced), "RESET_MAP": bool(reset_map),
-                                         "RESET_LAW_FIRST": bool(law_first)}:
+    system-only set (the exact reference's kernels) too: its impact law prunes the same branches
+    (cart-pendulum reference, empty cache: 14.3 s general, 5.0 s lean; the same bits)."""
+    if dict(LEAN) == {"NCON": int(ncon), "FORCED": bool(forced), "RESET_MAP": bool(reset_map),
+                      "RESET_LAW_FIRST": bool(law_first)}:
         return LEAN
     return ()
 
@@ -187,6 +189,31 @@ def scene_features(ks: KernelSet, scene_mod) -> tuple:
                          bool(getattr(scene_mod, "RESET_MAP", False)), bool(getattr(scene_mod, "RESET_LAW_FIRST", False)))
 
 
+# R^CVA and R^VCI bind to the same full and partial maps: one core holds both and calls the one its
+# scene's kernel set binds, told apart at run time by VCI_STAGE, the stage id of the energy gradient
+# that R^VCI needs and its kernel set alone generates (-1 for CVA's; roles.kernel_set). CVA and VCI
+# then compile one core between them (the quick sweep's cold build: three cores of ~36, 37 and 48 s
+# on two processes made 73 s; two made ~50 s), and a branch per impact costs nothing measurable.
+MERGED_RESETS = ("cva", "vci")
+
+
+def core_kernel_set(ks: KernelSet) -> KernelSet:
+    """The kernel set a core is built from: CVA's and VCI's (MERGED_RESETS on the Ld partial map, no
+    modified Hamiltonian) are built as VCI's, which has every part both need; any other as itself."""
+    if ks.full_stages and ks.modified is None and ks.partial == "ld" and ks.reset in MERGED_RESETS:
+        return dataclasses.replace(ks, reset="vci", vci_stage=ks.vci_stage or ks.full_stages[0][0])
+    return ks
+
+
+_MERGED_RESET = """@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def reset_cva_or_vci(q, pm, d, s0, dE, E_pre, vpre, dtau, tau_rem, h, t, prm, ntol, maxit, pp):
+    # R^VCI where the scene's kernel set generates the energy gradient (its stage id >= 0), else R^CVA
+    if VCI_STAGE < 0:
+        return reset_cva(q, pm, d, s0, dE, E_pre, vpre, dtau, tau_rem, h, t, prm, ntol, maxit, pp)
+    return reset_vci(q, pm, d, s0, dE, E_pre, vpre, dtau, tau_rem, h, t, prm, ntol, maxit, pp)
+"""
+
+
 def core_source(ks: KernelSet, ndof: int | None = None, features: tuple = ()) -> str:
     """The core's module text for a kernel set: its units and bindings, with stubs for the kernels and
     the slot reads for the rest; checked against the unit contract like a specialized module.
@@ -195,6 +222,8 @@ def core_source(ks: KernelSet, ndof: int | None = None, features: tuple = ()) ->
     composition. ndof None: NDOF is read at run time (one core for every scene); an int: a
     compile-time constant (one core per n; measured in docs/performance.md). features: LEAN or ()
     (core_features): the scene constants compiled in."""
+    merged = core_kernel_set(ks) is not ks
+    ks = core_kernel_set(ks)
     fixed = dict(features) | ({} if ndof is None else {"NDOF": int(ndof)})
     consts = "".join(f"{k} = {v}\n" for k, v in fixed.items())
     if ks.modified is not None:
@@ -205,10 +234,18 @@ def core_source(ks: KernelSet, ndof: int | None = None, features: tuple = ()) ->
     declared += [f"{k.name} = 0" for k in roles.KERNELS.values() if not k.core]
     units.check_generated("\n".join(declared) + "\n" + stub_text + "\n", ks)
     parts = [HEADER, stub_text]
-    for u in units.select_units(ks):
+    chosen = units.select_units(ks)
+    if merged:   # R^CVA's unit beside R^VCI's, and the reset role bound to the choice between them
+        cva = units.Unit(roles.reset_map("cva").unit)
+        chosen.insert(chosen.index(next(u for u in chosen if u.path == roles.reset_map("vci").unit)), cva)
+    for u in chosen:
         units.check_unit(u)
         parts.append(_read_at_run_time(u.body, fixed))
-    parts += [f"{role} = {target}" for role, target in units.bindings(ks).items()]
+    binds = units.bindings(ks)
+    if merged:
+        parts.append(_read_at_run_time(_MERGED_RESET, fixed))
+        binds["reset"] = "reset_cva_or_vci"
+    parts += [f"{role} = {target}" for role, target in binds.items()]
     return "\n\n".join(parts) + "\n"
 
 
