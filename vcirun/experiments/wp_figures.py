@@ -27,7 +27,6 @@ from pathlib import Path
 
 import numpy as np
 
-from . import workprecision as wp
 from ..run.plotting import COLORS, MARKERS, fmt_h, new_figure, styled
 from .figures import save_figure
 
@@ -159,6 +158,8 @@ def long_horizon_figure(res: dict, timing: str = "cpu"):
 
 
 def _tables_markdown(res: dict) -> tuple[str, str]:
+    from . import workprecision as wp   # (here: it imports the reference and numba, which a plot never needs)
+
     buf = io.StringIO()
     wp.print_tables(res, file=buf)
     text = buf.getvalue()
@@ -169,12 +170,16 @@ def _tables_markdown(res: dict) -> tuple[str, str]:
 def print_study_tables(path, file=None) -> None:
     import sys
 
+    from . import workprecision as wp
+
     wp.print_tables(wp.load(path), file=file or sys.stdout)
 
 
 def plot_study(path, outdir=None) -> list[Path]:
     """Every figure and table of a saved study; returns the written paths."""
     path = Path(path)
+    from . import workprecision as wp
+
     res = wp.load(path)
     outdir = Path(outdir) if outdir is not None else path.parent / "figures" / res["name"]
     outdir.mkdir(parents=True, exist_ok=True)
