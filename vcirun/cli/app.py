@@ -64,6 +64,22 @@ def _expected_errors():
     return (ConfigError, StorageError, SweepError, CliError)
 
 
+def _control_flow() -> tuple:
+    """The exceptions typer and click end a command with (re-raised as they are): typer's own, and
+    click's where it is installed (typer >= 0.29 carries its own copy of click and needs none)."""
+    import importlib
+
+    out = [typer.Exit, typer.Abort]
+    for module, names in (("click.exceptions", ("Exit", "Abort", "ClickException")),
+                          ("typer._click.exceptions", ("ClickException",)), ("typer.exceptions", ("TyperException",))):
+        try:
+            m = importlib.import_module(module)
+        except ImportError:
+            continue
+        out += [getattr(m, n) for n in names if isinstance(getattr(m, n, None), type)]
+    return tuple(out)
+
+
 def _reads_results(fn):
     """`info` and `plot`: a results file that cannot be read (damaged blocks, wrong types where the
     readers expect numbers, permissions) ends in one line naming the file, never in a traceback."""
@@ -71,12 +87,9 @@ def _reads_results(fn):
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
-        import click
-
         try:
             return fn(*args, **kwargs)
-        except (typer.Exit, typer.Abort, click.exceptions.Exit, click.exceptions.Abort,
-                click.exceptions.ClickException):
+        except _control_flow():
             raise
         except (OSError, KeyError, ValueError, TypeError, IndexError, AttributeError, RuntimeError,
                 MemoryError) as e:
