@@ -271,6 +271,7 @@ def main(argv=None):
     section_throughput(res, quick=a.quick, k=a.k, base=a.base, preshared=a.preshared, rows=tuple(a.rows.split(",")),
                        base_cache=a.base_cache)
     if a.json:
+        Path(a.json).parent.mkdir(parents=True, exist_ok=True)
         Path(a.json).write_text(json.dumps(res, indent=1, default=float))
 
 

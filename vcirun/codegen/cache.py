@@ -64,10 +64,11 @@ def core_estimate_s(core_key: str, first: float = None) -> float:
     return float(_times().get(f"core|{core_key}", _DEFAULT_CORE_S["general"] if first is None else first))
 
 
-def estimate_compile_s(ks, n: int, features: tuple = ()) -> float:
+def estimate_compile_s(ks, n: int, features: tuple = (), with_core: bool = True) -> float:
     """Seconds a cold build of (ks, n) is expected to take: this cache's last build of the same family
     and size, else of the same family at another size (scaled linearly in n), else a first estimate.
-    Shared build (vcirun.codegen.shared): the scene's kernels, plus the core if numba has not cached it."""
+    Shared build (vcirun.codegen.shared): the scene's kernels, plus the core if numba has not cached it
+    and `with_core` (False: another build compiles it)."""
     from . import build
 
     times, kind = _times(), (ks.reset or "system").upper()
@@ -76,7 +77,8 @@ def estimate_compile_s(ks, n: int, features: tuple = ()) -> float:
     key = build.core_key_of(ks, n, features)
     first = _DEFAULT_CORE_S[("lean" if features else "general") if ks.full_stages else
                             ("system lean" if features else "system")]
-    core = 0.0 if build.core_compiled(key) else core_estimate_s(key, first + (5.0 if kind == "MCVA" else 0.0))
+    core = 0.0 if build.core_compiled(key) or not with_core else \
+        core_estimate_s(key, first + (5.0 if kind == "MCVA" else 0.0))
     return _by_family(times, "scene|" + build.family(ks), n, _DEFAULT_SCENE_S.get(kind, 3.5)) + core
 
 
@@ -113,10 +115,11 @@ def core_key_for(system, ks) -> str:
     return build.core_key_of(ks, system.n, build.system_core_features(ks, system))
 
 
-def announce_if_cold(system, ks) -> bool:
+def announce_if_cold(system, ks, cores_covered=()) -> bool:
     """Before loading the module of (system, ks): if it must be generated and compiled, say so
     ("compiling kernels for <scene>/<family> and their shared core (one contact, unforced) (first
-    time, about N s)") to the logger and callbacks, once."""
+    time, about N s)") to the logger and callbacks, once; `cores_covered`: core keys whose compile
+    an earlier announcement of the same build named already."""
     from . import build
     from .shared import FEATURE_NAMES
 
@@ -124,9 +127,11 @@ def announce_if_cold(system, ks) -> bool:
     if not parts:
         return False
     feats = build.system_core_features(ks, system)
-    core = (" and their shared core" + (f" ({FEATURE_NAMES[feats]})" if ks.full_stages else "")) if "core" in parts else ""
+    # a core another kernel set of the same build covers (CVA's and VCI's share one) is not repeated
+    with_core = "core" in parts and (build.build_mode() != "shared" or core_key_for(system, ks) not in cores_covered)
+    core = (" and their shared core" + (f" ({FEATURE_NAMES[feats]})" if ks.full_stages else "")) if with_core else ""
     msg = (f"compiling kernels for {system.name}/{build.family(ks)}{core} (first time, about "
-           f"{estimate_compile_s(ks, system.n, feats):.0f} s; cached in {cache_root()})")
+           f"{estimate_compile_s(ks, system.n, feats, with_core=with_core):.0f} s; cached in {cache_root()})")
     build.ANNOUNCED.add(build.module_key(system, ks))
     if build.build_mode() == "shared":
         build.ANNOUNCED.add(core_key_for(system, ks))

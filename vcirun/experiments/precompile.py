@@ -61,10 +61,12 @@ def compile_side_by_side(system, sysm, methods: list[tuple[str, dict, dict]], co
     returns the number of kernel sets compiled there (0: fewer than two builds or one core, nothing
     done here)."""
     from vcirun.codegen.build import system_core_features
-    from vcirun.codegen.cache import announce_if_cold, cold_parts, estimate_compile_s, tell
+    from vcirun.codegen.cache import announce_if_cold, cold_parts, core_key_for, estimate_compile_s, tell
     from vcirun.codegen.kernel_set import SYSTEM_KERNELS
 
-    jobs = [(sum(estimate_compile_s(ks, sysm.n, system_core_features(ks, sysm)) for *_, ks in g),
+    # (a group shares one core: counted with its first kernel set only)
+    jobs = [(sum(estimate_compile_s(ks, sysm.n, system_core_features(ks, sysm), with_core=(i == 0))
+                 for i, (*_, ks) in enumerate(g)),
              [(n, kw) for n, kw, _ in g], None, [ks for *_, ks in g]) for g in compile_groups(sysm, methods)]
     if reference is not None and cold_parts(sysm, SYSTEM_KERNELS):
         jobs.append((estimate_compile_s(SYSTEM_KERNELS, sysm.n), [], reference, [SYSTEM_KERNELS]))
@@ -72,9 +74,11 @@ def compile_side_by_side(system, sysm, methods: list[tuple[str, dict, dict]], co
     if workers < 2:
         return 0
     jobs.sort(key=lambda j: -j[0])   # longest first: the pool hands the next one to the first free process
+    covered = set()
     for *_, kss in jobs:
         for ks in kss:
-            announce_if_cold(sysm, ks)
+            announce_if_cold(sysm, ks, covered)
+            covered.add(core_key_for(sysm, ks))
     tell(f"(the {len(jobs)} builds above run side by side in {workers} processes)")
     # spawn: a fresh interpreter per worker (numba's compiler state is not forked)
     with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
