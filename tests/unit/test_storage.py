@@ -199,40 +199,6 @@ def test_fast_group_writer_makes_what_h5py_high_level_calls_make(tmp_path):
             np.testing.assert_array_equal(x, y, err_msg=key)
 
 
-def test_fast_group_writer_makes_what_h5py_high_level_calls_make(tmp_path):
-    """write_encoded uses h5py's low-level calls; every dataset and attribute it writes has the type,
-    shape, value and creation properties that `create_dataset(data=...)` / `attrs[k] = v` give."""
-    from vcirun.run.trajectory_files import group_attrs, write_encoded
-
-    attrs, arrays = run_attrs(make_traj(), "MCVAC", 0.01, 3.2)
-    attrs.update(message="niño \u2013 ok", fail_time=math.nan, q0=[0.1, -2.0], flag=np.bool_(False),
-                 big=np.int64(2**40), empty_list=[])
-    arrays.update(empty=np.zeros((0, 2)), scalar=np.array(3.5), i32=np.arange(3, dtype=np.int32))
-    enc = group_attrs(attrs)
-    with h5py.File(tmp_path / "a.h5", "w", libver="latest") as f:
-        write_encoded(f, "runs/fast", enc, arrays.items())
-        g = f.create_group("runs/slow")
-        for name, value in arrays.items():
-            g.create_dataset(name, data=np.asarray(value))
-        for key, value in enc.items():
-            g.attrs[key] = value
-        g.attrs["complete"] = True
-        fast, slow = f["runs/fast"], f["runs/slow"]
-        assert sorted(fast) == sorted(slow) and sorted(fast.attrs) == sorted(slow.attrs)
-        for name in slow:
-            a, b = fast[name], slow[name]
-            assert a.id.get_type().equal(b.id.get_type()) and a.shape == b.shape and a.dtype == b.dtype, name
-            assert a.id.get_create_plist().get_layout() == b.id.get_create_plist().get_layout(), name
-            assert a.id.get_create_plist().get_obj_track_times() == b.id.get_create_plist().get_obj_track_times()
-            np.testing.assert_array_equal(a[()], b[()], err_msg=name)
-        for key in slow.attrs:
-            a, b = fast.attrs.get_id(key), slow.attrs.get_id(key)
-            assert a.get_type().equal(b.get_type()) and a.shape == b.shape, key
-            x, y = fast.attrs[key], slow.attrs[key]
-            assert type(x) is type(y), key
-            np.testing.assert_array_equal(x, y, err_msg=key)
-
-
 def test_incomplete_groups_are_ignored_by_readers_and_dropped_on_resume(tmp_path):
     tr = make_traj()
     path = write(tmp_path / "r.h5", {"good": run_attrs(tr, "CVA", tr.h, 3.2)})
