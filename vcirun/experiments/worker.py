@@ -291,8 +291,8 @@ def _execute(task: Task, st: _WorkerState | None = None, emit=None) -> dict:
     """Worker entry point: the reference (if this task stores it) and every run of the task
     (state: this process's, or `st` given by the Dask executor). With `emit`, the runs are sent on
     as they are computed (result dicts of the runs finished within STREAM_INTERVAL, the reference
-    with the first) and the return value only counts the messages (`streamed`). simulate's memory check uses the sweep's
-    max_memory inside."""
+    with the first) and the return value only counts the messages (`streamed`). simulate's memory
+    check uses the sweep's max_memory inside."""
     st = st or _STATE
     if st is None:  # pragma: no cover - initializer always runs first
         raise RuntimeError("worker not initialised")

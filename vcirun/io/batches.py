@@ -57,7 +57,7 @@ def item_text(enc_attrs: dict) -> str:
 def attrs_text(attrs: dict) -> str:
     """item_text(group_attrs(attrs)) in one pass: the plain numbers pass as they are (a sweep's workers
     encode every run's ~45 attributes)."""
-    from ..run.trajectory_files import JSON_ATTRS, encode_attr, group_attrs
+    from ..run.trajectory_files import JSON_ATTRS, group_attrs
 
     out = {}
     for k, v in attrs.items():
