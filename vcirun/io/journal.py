@@ -5,8 +5,9 @@ A record is b"VJR1", a u64 payload length, a u32 CRC-32 of the payload, then the
 length, the header (JSON: kind, key, encoded attributes, array table) and the arrays' bytes. Arrays are
 numeric only (dtype kinds b/i/u/f), so reading a journal never unpickles anything. The first record is
 "open" (the session's random token and the config key); then "batch" records (the runs or references
-of one commit, vcirun.io.batches: key "run" or "reference", the items' keys, attributes and row table
-in the header, the concatenated arrays as blobs), "delete" (an item path or a batch group) and
+of one commit, vcirun.io.batches: key "run" or "reference", the items' keys and row table in the
+header; their attributes' JSON texts and the concatenated arrays as blobs), "delete" (an item path
+or a batch group) and
 "session" (the history so far). Journals of schema 1 hold one "run" or "reference" record per item;
 they are read and applied the same way. A kill in the middle of an append leaves a torn tail (short,
 or failing its CRC): `read_journal` stops there, and everything before it is committed.
@@ -291,7 +292,10 @@ def overlay(journal: Journal | None, runs: dict, refs: dict, attrs: dict | None 
     if journal is None:
         return 0
     added = 0
-    fh = open(journal.path, "rb") if any(r.kind == "batch" for r in journal.records) else None
+    try:
+        fh = open(journal.path, "rb") if any(r.kind == "batch" for r in journal.records) else None
+    except OSError:   # removed since it was read (its session just folded it into the file)
+        return 0
     try:
         for r in journal.records:
             if r.kind == "batch":
