@@ -133,3 +133,36 @@ def test_numeric_layers_load_no_sympy_and_compile_nothing(module):
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == "", f"importing {module} loaded {r.stdout.strip()}"
+
+
+# Imports of other distributions vcirun may make: its declared dependencies (pyproject.toml), what
+# they install with them (llvmlite with numba, pandas with xarray), and the optional extras that
+# say so when missing (dask: `vcirun sweep --scheduler`). `make run` installs only the dependencies.
+PROVIDED_BY = {"yaml": "pyyaml", "llvmlite": "numba", "pandas": "xarray"}
+OPTIONAL = {"dask": "dask", "distributed": "dask", "h5netcdf": "netcdf"}
+
+
+def test_every_third_party_import_is_a_declared_dependency():
+    """A module vcirun imports that none of its dependencies installs works in the test environment
+    (which has the test tools and Dask) and fails for a user of `make run` (the CLI once imported
+    click, which only Dask's dependencies install)."""
+    import ast
+    import re
+
+    tomllib = pytest.importorskip("tomllib")   # (Python >= 3.11)
+    root = Path(__file__).resolve().parents[2]
+    meta = tomllib.loads((root / "pyproject.toml").read_text())["project"]
+    declared = {re.split(r"[<>=\[ ;]", d, maxsplit=1)[0].lower() for d in meta["dependencies"]}
+    extras = set(meta.get("optional-dependencies", {}))
+    names = set()
+    for p in (root / "vcirun").rglob("*.py"):
+        for node in ast.walk(ast.parse(p.read_text())):
+            if isinstance(node, ast.Import):
+                names |= {a.name.split(".")[0] for a in node.names}
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                names.add(node.module.split(".")[0])
+    third = {n for n in names if n not in sys.stdlib_module_names and n != "vcirun"}
+    undeclared = sorted(n for n in third if PROVIDED_BY.get(n, n) not in declared
+                        and OPTIONAL.get(n) not in extras)
+    assert not undeclared, f"imported but installed by no dependency of vcirun: {undeclared}"
+    assert {"numpy", "numba", "h5py", "typer"} <= third   # (the scan sees the imports)
