@@ -220,7 +220,7 @@ class _Cache(caching.FunctionCache):
 
 def adopt(mod, path: Path, owner: Owner) -> int:
     """Give every cached numba function defined in the module at `path` the checked cache, and its
-    compiles LLVM's optimisation level OPT_LEVEL (`kernel_opt`). Returns how many."""
+    compiles LLVM's optimisation level OPT_LEVEL (`_at_kernel_opt`). Returns how many."""
     from numba.core.dispatcher import Dispatcher
 
     src = os.path.abspath(path)
@@ -238,8 +238,8 @@ def adopt(mod, path: Path, owner: Owner) -> int:
 
 
 # LLVM's optimisation passes run at level 1 for the kernel cache's modules (numba's default is 3):
-# measured on the cart-pendulum's first simulation with an empty cache, CVA 43.5 -> 30.4 s, MCVAC
-# 47.0 -> 37.4 s, MCVAA 45.8 -> 40.1 s, with the loop's time unchanged (within 1 %) and every golden
+# measured on the cart-pendulum's first simulation with an empty cache, CVA 43.5 -> 33.3 s (twice),
+# MCVAC 47.0 -> 43.3-46.9 s (noisy), with the loop's time unchanged (within 1 %) and every golden
 # trajectory bit for bit (bench/golden.py): numba's module passes run again on every callee linked
 # into each function (its design: one library per function), and the extra level-3 rounds bought
 # nothing here. Level 0 leaves the kernels uninlined (the CVA loop 11x slower). The target machine

@@ -319,8 +319,8 @@ class LocalExecutor:
 def _widen_pipe(q, size: int = 1 << 20) -> None:
     """Give the result queue's pipe a buffer of `size` bytes where the OS allows (Linux: F_SETPIPE_SZ,
     up to /proc/sys/fs/pipe-max-size, 1 MiB by default): a message of a few runs' trajectories (a few
-    hundred kB) is then written at once instead of in 64 kB turns with the client's reader, which cost
-    the fig4 sweep's workers 9 % of their time."""
+    hundred kB) is then written at once instead of in 64 kB turns with the client's reader (the fig4
+    sweep's workers spent 9 % of their time sending with the default buffer, 6 % with this one)."""
     try:
         import fcntl
 

@@ -105,14 +105,9 @@ def write_summary(path, if_missing: bool = False) -> Path:
     from vcirun.io.results import collect
 
     path = Path(path)
-    if if_missing:
-        try:
-            with h5py.File(path, "r") as f:
-                if GROUP in f:
-                    return path
-        except OSError as e:
-            raise StorageError(f"{path}: not a readable HDF5 file ({' '.join(str(e).split())})") from None
-    res = read_results(path)
+    if if_missing and has_summary(path):
+        return path
+    res = read_results(path)   # (a file that cannot be read: a StorageError naming it)
     tab = collect(res)
     tmp = path.with_name(f".{path.name}.summary-partial")
     try:

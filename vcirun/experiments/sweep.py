@@ -449,9 +449,8 @@ def _finalize(writer: ResultsWriter, summary: SweepSummary, if_missing: bool = F
         return
     from .summary import has_summary, write_summary
 
-    if if_missing and has_summary(writer.path):
+    if if_missing and has_summary(writer.path):   # (checked here: no forked writer for nothing)
         return
-
     try:
         run_isolated(lambda: write_summary(writer.path, if_missing=if_missing), writer.path,
                      isolate=writer.isolate)

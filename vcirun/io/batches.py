@@ -130,14 +130,7 @@ class Batch:
     def arrays(self, i: int, starts=None) -> list:
         """(name, array) pairs of item i, in field order (arrays it lacks are left out)."""
         st = self.starts() if starts is None else starts
-        out = []
-        for j, name in enumerate(self.fields):
-            r = int(self.rows[i, j])
-            if r < 0:
-                continue
-            a = np.asarray(self.data[name][st[i, j]:st[i, j] + r])
-            out.append((name, a.reshape(()) if name in self.scalar else a))
-        return out
+        return [(name, self.field(i, name, st)) for j, name in enumerate(self.fields) if self.rows[i, j] >= 0]
 
     def shape_of(self, i: int, name: str):
         """Shape of item i's array `name` (None if it lacks it), from the row table alone."""
