@@ -4,7 +4,7 @@
 
 mode "build": import vcirun, run one simulation (the first one compiles or loads the kernels),
   report import time, time to the first finished simulation, the symbolic/write time of the cache
-  miss (build.BUILD_LOG), whether any symbolic module was imported, and optionally the
+  miss (the kernel cache's build report), whether any symbolic module was imported, and optionally the
   microseconds per step (CPU time of the call, wall beside) of a longer run with the constraint
   ignored, in the same process (warm kernels).
   With measure_sim, also the median loop and CPU time of the first simulation's settings.
@@ -78,9 +78,10 @@ def main():
     if a.get("constrained") is not None:
         kw["constrained"] = a["constrained"]
     t0 = time.perf_counter()
-    tr = vcirun.simulate(a["system"], a["method"], **kw)
+    with default().report() as built:
+        tr = vcirun.simulate(a["system"], a["method"], **kw)
     t1 = time.perf_counter()
-    log = build.BUILD_LOG[-1] if build.BUILD_LOG else {}
+    log = built.entries[-1] if built.entries else {}
     out.update(first_sim_s=t1 - t0, to_first_sim_s=t1 - T_START, cached=bool(log.get("cached")),
                generate_s=float(log.get("generate_s", float("nan"))), status=tr.status,
                derive_imported="vcirun.codegen.derive" in sys.modules,

@@ -87,11 +87,12 @@ _PROBE = r"""
 import time, sys
 t0 = time.perf_counter()
 import vcirun
-from vcirun.codegen import build
+from vcirun.codegen.kernel_cache import default
 t1 = time.perf_counter()
-tr = vcirun.simulate("cart_pendulum", sys.argv[1], h=1e-2, T=5, beta=3.2)
+with default().report() as built:
+    tr = vcirun.simulate("cart_pendulum", sys.argv[1], h=1e-2, T=5, beta=3.2)
 t2 = time.perf_counter()
-print(t1 - t0, t2 - t1, int(build.BUILD_LOG[-1]["cached"]), int("sympy.core" in sys.modules and "vcirun.codegen.derive" in sys.modules))
+print(t1 - t0, t2 - t1, int(built.entries[-1]["cached"]), int("sympy.core" in sys.modules and "vcirun.codegen.derive" in sys.modules))
 """
 
 

@@ -179,6 +179,7 @@ def profile(system: str, method: str, extra: dict | None = None) -> dict:
 
     import vcirun
     from vcirun.codegen import build
+    from vcirun.codegen.kernel_cache import default
 
     t_import = time.perf_counter() - T_START
     stack = Stack()
@@ -189,7 +190,8 @@ def profile(system: str, method: str, extra: dict | None = None) -> dict:
     t0 = time.perf_counter() - stack.excl.get(("sympy", "import sympy"), 0.0)
     c0 = Stack.clocks()[1] - stack.cpu.get(("sympy", "import sympy"), 0.0)
     # the symbolic part: resolve_system + module_source; afterwards the stack's base is "other"
-    orig_exec = build._exec_module
+    kc = default()
+    orig_exec = kc._exec_module
 
     def exec_module(*a, **k):
         stack.push("other", "module exec")
@@ -199,13 +201,14 @@ def profile(system: str, method: str, extra: dict | None = None) -> dict:
             stack.pop()
             stack.relabel("other")   # numba's compile from here on
 
-    build._exec_module = exec_module
-    tr = vcirun.simulate(system, method, **kw)
+    kc._exec_module = exec_module   # (an instance attribute: this cache's loads go through it)
+    with kc.report() as built:
+        tr = vcirun.simulate(system, method, **kw)
     wall = time.perf_counter() - t0
     cpu = Stack.clocks()[1] - c0
     stack.pop()
-    build._exec_module = orig_exec
-    log = build.BUILD_LOG[-1]
+    del kc._exec_module
+    log = built.entries[-1]
     path = build.cache_dir() / f"vk_{log['key']}.py"
     by_stage = {s: 0.0 for s in STAGES}
     by_stage_cpu = {s: 0.0 for s in STAGES}

@@ -57,8 +57,12 @@ ROOT = Path(__file__).resolve().parent.parent
 def module_path(tree: Path, cache: str, system: str, method: str, beta) -> str:
     """The kernel module file of (system, method) as `tree` generates it."""
     code = (f"import vcirun\nfrom vcirun.codegen import build\n"
-            f"vcirun.simulate({system!r}, {method!r}, h=0.1, T=0.2, beta={beta!r})\n"
-            f"print(build.cache_dir() / ('vk_' + build.BUILD_LOG[-1]['key'] + '.py'))\n")
+            f"run = lambda: vcirun.simulate({system!r}, {method!r}, h=0.1, T=0.2, beta={beta!r})\n"
+            "try:\n    from vcirun.codegen.kernel_cache import default\n"
+            "except ImportError:   # a tree with the build log as a module list\n"
+            "    run(); key = build.BUILD_LOG[-1]['key']\n"
+            "else:\n    with default().report() as built:\n        run()\n    key = built.entries[-1]['key']\n"
+            "print(build.cache_dir() / ('vk_' + key + '.py'))\n")
     env = dict(os.environ, VCIRUN_CACHE_DIR=cache, PYTHONPATH=str(tree))
     r = subprocess.run([sys.executable, "-c", code], env=env, cwd=tree, capture_output=True, text=True)
     if r.returncode:
@@ -73,11 +77,12 @@ def load(path: str, method: str | None = None):
     if shared_scene:
         # a scene module of the shared build: linked to THIS tree's core of the method's
         # kernel set (for an OLD_TREE of the shared build, run it with VCIRUN_BUILD=specialized)
-        from vcirun.codegen import build
+        from vcirun.codegen.kernel_cache import default
         from vcirun.methods.table import resolve_method
 
         ks = resolve_method(method).kernel_set()
-        return _Timed(build._exec_module(key, Path(path), "compare_trees", ks, True, 0.0, False), "record")
+        return _Timed(default()._exec_module(key, Path(path), Path(path).read_text(), "compare_trees", ks, True, 0.0,
+                                             False), "record")
     spec = importlib.util.spec_from_file_location(f"vcirun_kernels_{key}", path)  # the name numba's cache knows
     mod = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = mod
@@ -171,18 +176,14 @@ def compare(system, method, h, T, beta, mods, repeats, vcirun, resolve, quiet=Fa
     loop = {"old": [], "new": []}
     wall = {"old": [], "new": []}
     last = {}
-    orig = resolve.load_module
-    try:
-        for r in range(repeats):
-            for tag in (("old", "new") if r % 2 == 0 else ("new", "old")):   # alternate who goes first
-                mod = mods[tag]
-                resolve.load_module = lambda s, k, m=mod: m   # a substitute loader: no warm index
-                tr = vcirun.simulate(system, method, h=h, T=T, beta=beta, energies=False, resting_contact=resting)
-                loop[tag].append(mod.last)
-                wall[tag].append(tr.wall_time)
-                last[tag] = tr
-    finally:
-        resolve.load_module = orig
+    for r in range(repeats):
+        for tag in (("old", "new") if r % 2 == 0 else ("new", "old")):   # alternate who goes first
+            mod = mods[tag]
+            tr = vcirun.simulate(system, method, h=h, T=T, beta=beta, energies=False, resting_contact=resting,
+                                 loader=lambda s, k, m=mod: m)   # a substitute loader: no warm index
+            loop[tag].append(mod.last)
+            wall[tag].append(tr.wall_time)
+            last[tag] = tr
     o, n = last["old"], last["new"]
     med = {k: statistics.median(v) * 1e3 for k, v in loop.items()}
     medw = {k: statistics.median(v) * 1e3 for k, v in wall.items()}
@@ -263,12 +264,10 @@ def capture_loop(m, system, method, h, T, beta, resting=True):
         m._mod._mod = _Capture()
     else:
         m._mod = _Capture()
-    orig = resolve.load_module
-    resolve.load_module = lambda s, k: m
     try:
-        tr = vcirun.simulate(system, method, h=h, T=T, beta=beta, energies=False, resting_contact=resting)
+        tr = vcirun.simulate(system, method, h=h, T=T, beta=beta, energies=False, resting_contact=resting,
+                             loader=lambda s, k: m)
     finally:
-        resolve.load_module = orig
         if m.abi == "positional":
             m._mod._mod = holder
         else:

@@ -4,7 +4,7 @@ pendulum (n = K = 1, 2, 4, 8) and the cart-pendulum.
 
 Per (scene, kernel path), in fresh processes (bench/_probe.py, as bench_all.py) and a fresh kernel
 cache directory, so every build is cold (symbolic work + numba compile, nothing on disk):
-  symbolic_s    module generation on the cache miss (sympy + source assembly, build.BUILD_LOG)
+  symbolic_s    module generation on the cache miss (sympy + source assembly, the build report)
   numba_s       first 10-step simulation minus symbolic_s (numba compile of the whole module)
   source_chars  size of the generated module
   us_per_step   CPU microseconds per smooth step (constraint ignored, h = 1e-3, 20000 steps, median

@@ -56,9 +56,11 @@ import vcirun
 t_imp = time.perf_counter() - T0
 kw = dict(h=1e-2, T=5.0)
 kw.update(json.loads(sys.argv[2]))
-tr = vcirun.simulate(sys.argv[1], "CVA", **kw)
+from vcirun.codegen.kernel_cache import default
+with default().report() as built:
+    tr = vcirun.simulate(sys.argv[1], "CVA", **kw)
 t_sim = time.perf_counter() - T0
-from vcirun.codegen.build import BUILD_LOG
+BUILD_LOG = built.entries
 print(json.dumps({"import_s": t_imp, "to_first_sim_s": t_sim, "status": tr.status,
                   "impacts": len(tr.impacts), "sympy": "sympy" in sys.modules,
                   "scipy_integrate": "scipy.integrate" in sys.modules, "scipy": "scipy" in sys.modules,

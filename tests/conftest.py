@@ -44,11 +44,12 @@ def _build_log(request):
     import json
     import time
 
-    from vcirun.codegen import build
+    from vcirun.codegen.kernel_cache import default
 
-    n0, t0 = len(build.BUILD_LOG), time.perf_counter()
-    yield
-    new = [e for e in build.BUILD_LOG[n0:] if not e["cached"]]
+    t0 = time.perf_counter()
+    with default().report() as built:
+        yield
+    new = [e for e in built.entries if not e["cached"]]
     if new:
         with open(path, "a") as f:
             f.write(json.dumps({"test": request.node.nodeid, "wall_s": round(time.perf_counter() - t0, 2),

@@ -104,15 +104,15 @@ def test_one_default_cache_for_every_entry_point(monkeypatch, tmp_path):
 
 def test_compile_announcement(monkeypatch, tmp_path, capsys):
     """A module missing from the cache is announced before it is built (without building it here)."""
-    from vcirun.codegen import cache
+    from vcirun.codegen import cache, cache_store
     from vcirun.cli import app as cli
     from vcirun.scenes.declarations import get_scene
     from vcirun.methods.table import resolve_method
 
     monkeypatch.setenv("VCIRUN_CACHE_DIR", str(tmp_path / "empty"))
-    monkeypatch.setattr(cache, "COMPILE_CALLBACKS", [])
-    from vcirun.codegen import build
-    monkeypatch.setattr(build, "_loaded", {})  # (another test may have loaded it in this process)
+    monkeypatch.setattr(cache_store, "LISTENERS", [])
+    from vcirun.codegen.kernel_cache import default
+    monkeypatch.setattr(default(), "loaded", {})  # (another test may have loaded it in this process)
     cli._announce_compiles()
     ks = resolve_method("MCVAC").kernel_set()
     assert cache.announce_if_cold(get_scene("cart_pendulum"), ks)

@@ -12,7 +12,7 @@ import pytest
 
 import vcirun
 from convergence.helpers import fit_order
-from vcirun.codegen import build
+from vcirun.codegen.kernel_cache import default
 from vcirun.mechanics.loader import load_system_yaml
 from vcirun.scenes.oracles import ball_in_box_exact, newton_cradle_velocities
 
@@ -187,9 +187,9 @@ def test_yaml_constraints_with_a_restitution_parameter():
     assert [c.name for c in s.constraints] == ["floor", "c1", "c2", "right"]
     assert list(s.restitution_values()) == [1.0, 1.0, 0.5, 1.0]
     a = vcirun.simulate(s, "CVA", h=1e-2, T=1.5)
-    n_modules = len(build._loaded)
+    n_modules = len(default().loaded)
     b = vcirun.simulate(s, "CVA", h=1e-2, T=1.5, params={"e": 0.8})
-    assert len(build._loaded) == n_modules  # no new module for a new restitution
+    assert len(default().loaded) == n_modules  # no new module for a new restitution
     assert a.ok and b.ok and not np.allclose(a.q, b.q)
     k = list(b.impact_contact).index(0)        # the first floor impact: u+ = -0.8 u-
     assert b.impact_p_plus[k][1] == pytest.approx(-0.8 * b.impact_p_minus[k][1], rel=1e-12)

@@ -1,7 +1,7 @@
 """The generalized MCVA (Section 4.4) runs on every discrete Lagrangian of the
 library for s = 1, 2, 3 (and 4), and refuses an unsupported combination with a clear message.
 
-The default suite runs the generated module uncompiled (vcirun.run.resolve.load_module replaced by
+The default suite runs the generated module uncompiled (simulate's loader=
 vcirun.codegen.evaluate.python_module_for: same source text, no numba compile) on a short run with
 one impact; the compiled runs of the whole matrix on the Figure 3 setting are marked slow
 (one numba compile of ~10-20 s per combination).
@@ -21,8 +21,9 @@ from vcirun.codegen.evaluate import python_module_for
 
 
 @pytest.fixture
-def uncompiled(monkeypatch):
-    monkeypatch.setattr(vcirun.run.resolve, "load_module", python_module_for)
+def uncompiled():
+    """simulate's loader for the generated module run as Python."""
+    return python_module_for
 
 
 def _short_state():
@@ -35,7 +36,8 @@ def _short_state():
 @pytest.mark.parametrize("ld", MH_LDS)
 def test_generalized_mcva_runs_uncompiled(uncompiled, ld, s):
     q0, p0 = _short_state()
-    tr = vcirun.simulate("cart_pendulum", "MCVA", ld=ld, mh_order=s, flow_order=4, h=0.02, T=0.5, q0=q0, p0=p0)
+    tr = vcirun.simulate("cart_pendulum", "MCVA", ld=ld, mh_order=s, flow_order=4, h=0.02, T=0.5, q0=q0, p0=p0,
+                         loader=uncompiled)
     assert tr.status == "ok", tr.message
     assert len(tr.impacts) == 1 and tr.impacts[0] == pytest.approx(0.163, abs=0.01)
     assert tr.Hmod is not None and np.all(np.isfinite(tr.Hmod))
@@ -47,7 +49,8 @@ def test_generalized_mcva_runs_uncompiled(uncompiled, ld, s):
 def test_generalized_mcva_order4_and_flow6_uncompiled(uncompiled):
     q0, p0 = _short_state()
     for ld, s, g in [("SVC", 4, 4), ("SVA", 4, 6), ("SE2", 2, 6)]:
-        tr = vcirun.simulate("cart_pendulum", "MCVA", ld=ld, mh_order=s, flow_order=g, h=0.02, T=0.5, q0=q0, p0=p0)
+        tr = vcirun.simulate("cart_pendulum", "MCVA", ld=ld, mh_order=s, flow_order=g, h=0.02, T=0.5, q0=q0, p0=p0,
+                             loader=uncompiled)
         assert tr.status == "ok" and len(tr.impacts) == 1
 
 

@@ -179,17 +179,20 @@ import numpy as np
 from numba.core import event
 import vcirun
 from vcirun.codegen import build
+from vcirun.codegen.kernel_cache import default
 compiles = set()   # functions numba compiled (a load from its cache runs no compiler pass)
 class L(event.Listener):
     def on_start(self, ev): compiles.add(ev.data["qualname"])
     def on_end(self, ev): pass
 event.register("numba:run_pass", L())
-tr = vcirun.simulate("oscillator_wall", "CVA", h=0.05, T=3.0)
-mod = list(build._loaded.values())[-1]
+with default().report() as built:
+    tr = vcirun.simulate("oscillator_wall", "CVA", h=0.05, T=3.0)
+entry = built.entries[-1]
+mod = default().loaded[entry["key"]]
 mod.mass_matrix_ok(tr.q[0], np.array([1.0, 1.0, 0.5]), np.empty((1, 1)))  # (the warm path's check: compiled too)
-text = (build.cache_dir() / ("vk_" + build.BUILD_LOG[-1]["key"] + ".py")).read_text()
+text = (build.cache_dir() / ("vk_" + entry["key"] + ".py")).read_text()
 print(json.dumps({"q": tr.q.ravel().tolist(), "p": tr.p.ravel().tolist(), "impacts": len(tr.impacts),
-                  "compiles": sorted(compiles), "cached": build.BUILD_LOG[-1]["cached"],
+                  "compiles": sorted(compiles), "cached": entry["cached"],
                   "c_kernels": text.count("ExternalFunction(")}))
 """
 

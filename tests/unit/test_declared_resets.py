@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 
 import vcirun
-import vcirun.run.resolve
 from vcirun.codegen.evaluate import python_module_for
 from vcirun.mechanics.loader import load_system_yaml
 
@@ -24,12 +23,13 @@ V_STAR = -np.sqrt(3) / 2
 
 
 @pytest.fixture
-def uncompiled(monkeypatch):
-    monkeypatch.setattr(vcirun.run.resolve, "load_module", python_module_for)
+def uncompiled():
+    """simulate's loader for the generated module run as Python."""
+    return python_module_for
 
 
-def _run(system, method="CVA", h=1e-2, T=4.0):
-    tr = vcirun.simulate(system, method, h=h, T=T)
+def _run(system, method="CVA", h=1e-2, T=4.0, loader=None):
+    tr = vcirun.simulate(system, method, h=h, T=T, loader=loader)
     assert tr.ok, tr.message
     return tr
 
@@ -37,7 +37,7 @@ def _run(system, method="CVA", h=1e-2, T=4.0):
 def test_velocity_map_against_closed_form(uncompiled):
     """reset: {qdot: [-e x_dot]}: x = cos t, then -cos(s)/2 - e V_STAR sin(s), s = t - t*."""
     s = load_system_yaml(_osc(reset={"qdot": ["-e*x_dot"]}))
-    tr = _run(s)
+    tr = _run(s, loader=uncompiled)
     assert tr.impacts.shape == (1,)
     assert abs(tr.impacts[0] - T_STAR) < 1e-4
     assert tr.impact_p_plus[0, 0] == pytest.approx(-0.5 * tr.impact_p_minus[0, 0], rel=1e-13)
@@ -53,7 +53,7 @@ def test_configuration_map_against_closed_form(uncompiled):
     """reset: {q: [x + 1], qdot: [-x_dot]}: from the wall to x = 1/2 moving right: x = cos(s)/2 -
     V_STAR sin(s) until the wall is reached again."""
     s = load_system_yaml(_osc(reset={"q": ["x + 1"], "qdot": ["-x_dot"]}))
-    tr = _run(s, T=3.5)
+    tr = _run(s, T=3.5, loader=uncompiled)
     assert abs(tr.impacts[0] - T_STAR) < 1e-4
     sft = tr.t - T_STAR
     exact = np.where(sft < 0, np.cos(tr.t), 0.5 * np.cos(sft) - V_STAR * np.sin(sft))
@@ -64,7 +64,7 @@ def test_plastic_then_map(uncompiled):
     """plastic: true and a map: the impact law (zero normal velocity) first, then the map: at rest,
     moved to x = 1/2: x = cos(s)/2 after the impact."""
     s = load_system_yaml(_osc(plastic=True, reset={"q": ["x + 1"]}))
-    tr = _run(s, T=3.0)
+    tr = _run(s, T=3.0, loader=uncompiled)
     assert abs(tr.impact_p_plus[0, 0]) < 1e-12
     sft = tr.t - tr.impacts[0]
     exact = np.where(sft < 0, np.cos(tr.t), 0.5 * np.cos(sft))
@@ -74,9 +74,9 @@ def test_plastic_then_map(uncompiled):
 def test_guard_acts_only_where_armed(uncompiled):
     """when: the wall acts where the guard is armed at the crossing (x > -0.9 there: one impact) and
     is absent where it is not (x > -0.4 fails at x = -1/2: the oscillator passes through, x = cos t)."""
-    armed = _run(load_system_yaml(_osc(when="x > -0.9", reset={"qdot": ["-x_dot"]})), T=3.0)
+    armed = _run(load_system_yaml(_osc(when="x > -0.9", reset={"qdot": ["-x_dot"]})), T=3.0, loader=uncompiled)
     assert armed.impacts.shape == (1,)
-    off = _run(load_system_yaml(_osc(when="x > -0.4", reset={"qdot": ["-x_dot"]})), T=3.0)
+    off = _run(load_system_yaml(_osc(when="x > -0.4", reset={"qdot": ["-x_dot"]})), T=3.0, loader=uncompiled)
     assert off.impacts.shape == (0,)
     assert np.max(np.abs(off.q[:, 0] - np.cos(off.t))) < 1e-3
 
@@ -106,7 +106,7 @@ def test_rimless_wheel_strides(uncompiled):
     from vcirun.scenes.declarations import get_scene
 
     a = get_scene("rimless_wheel").params["alpha"]
-    tr = _run("rimless_wheel", h=1e-2, T=2.0)
+    tr = _run("rimless_wheel", h=1e-2, T=2.0, loader=uncompiled)
     assert len(tr.impacts) >= 2
     np.testing.assert_allclose(tr.impact_q[:, 0], a, atol=1e-12)
     np.testing.assert_allclose(tr.impact_p_plus[:, 0], np.cos(2 * a) * tr.impact_p_minus[:, 0], rtol=1e-14)

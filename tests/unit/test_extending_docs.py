@@ -2,7 +2,7 @@
 
 The ```python test blocks of docs/extending.md run in order in one namespace, in a temporary working
 directory into which the ```<lang> file=NAME blocks are written first. They run uncompiled
-(vcirun.codegen.evaluate.python_module_for stands in for the kernel loader), so no numba compile is
+(vcirun.codegen.evaluate.python_module_for is the default kernel cache's loader here), so no numba compile is
 needed; the registries the examples extend (the Ld library, the reset table, the record table) are
 restored afterwards.
 """
@@ -31,14 +31,14 @@ def test_blocks_are_found():
 
 
 def test_extending_examples_run(tmp_path, monkeypatch):
-    import vcirun.run.resolve
     from vcirun.codegen import roles
     from vcirun.codegen.evaluate import python_module_for
+    from vcirun.codegen.kernel_cache import default
     from vcirun.core import record
     from vcirun.discrete import lagrangians
 
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr(vcirun.run.resolve, "load_module", python_module_for)
+    monkeypatch.setattr(default(), "loader", python_module_for)   # the docs' calls run uncompiled
     monkeypatch.setattr(roles, "RESETS", dict(roles.RESETS))
     monkeypatch.setattr(record, "FIELDS", record.FIELDS)
 

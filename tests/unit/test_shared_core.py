@@ -23,6 +23,7 @@ import pytest
 
 import vcirun
 from vcirun.codegen import build
+from vcirun.codegen.kernel_cache import default
 
 
 def _both(monkeypatch, system, method, **kw):
@@ -47,8 +48,8 @@ def test_shared_build_equals_specialized_several_contacts(monkeypatch):
     spec, shar = _both(monkeypatch, "ball_in_box", "CVA", h=0.01, T=3.0, params={"e": 0.9})
     assert len(shar.impacts) > 3
     _same(spec, shar)
-    assert any(hasattr(m, "SHARED_CORE") for m in build._loaded.values())
-    assert any(not hasattr(m, "SHARED_CORE") for m in build._loaded.values())
+    assert any(hasattr(m, "SHARED_CORE") for m in default().loaded.values())
+    assert any(not hasattr(m, "SHARED_CORE") for m in default().loaded.values())
 
 
 @pytest.mark.slow
@@ -192,7 +193,7 @@ def test_cold_build_estimate_counts_the_core_only_until_it_is_compiled(tmp_path,
     monkeypatch.setenv("VCIRUN_CACHE_DIR", str(tmp_path))
     monkeypatch.delenv("VCIRUN_BUILD", raising=False)
     ks = METHODS["CVA"].kernel_set()
-    key = build.core_key_of(ks, 2)
+    key = default().core_key_of(ks, 2)
     (tmp_path / "build_times.json").write_text(json.dumps({"scene|CVA[SVC]|2": 3.0, f"core|{key}": 50.0}))
     assert cache.estimate_compile_s(ks, 2) == pytest.approx(53.0)
     assert cache.estimate_compile_s(ks, 4) == pytest.approx(56.0)   # the scene part linear in n
@@ -219,7 +220,7 @@ def test_a_scene_takes_the_lean_core_only_when_it_has_one_unforced_contact():
     assert build.system_core_features(SYSTEM_KERNELS, get_scene("ball_in_box")) == ()
     lean, general = shared.core_source(ks, features=shared.LEAN), shared.core_source(ks)
     assert "NCON = 1\nFORCED = False\n" in lean and "NCON = 1\n" not in general
-    assert build.core_key_of(ks, 2, shared.LEAN) != build.core_key_of(ks, 2)
+    assert default().core_key_of(ks, 2, shared.LEAN) != default().core_key_of(ks, 2)
 
 
 def test_linking_a_scene_to_a_core_compiled_for_other_constants_is_refused():
@@ -270,7 +271,7 @@ def test_cold_method_families_are_grouped_by_the_core_they_compile(tmp_path, mon
     methods = [(m, {}, {}) for m in ("CVA", "MCVAA", "VCI", "MCVAC")]
     sysm = get_scene("cart_pendulum")
     monkeypatch.setenv("VCIRUN_CACHE_DIR", str(tmp_path))
-    monkeypatch.setattr(build, "_loaded", {})   # (modules this process loaded count as built)
+    monkeypatch.setattr(default(), "loaded", {})   # (modules this process loaded count as built)
     groups = compile_groups(sysm, methods)
     assert [[n for n, *_ in g] for g in groups] == [["CVA", "VCI"], ["MCVAA", "MCVAC"]]
     monkeypatch.undo()
@@ -302,7 +303,7 @@ def test_cold_scene_kernels_compile_side_by_side_in_worker_processes(tmp_path, m
         for f in [src / f"core_{key}.py", *(src / "__pycache__").glob(f"core_{key}.*")]:
             shutil.copy2(f, dest / f.relative_to(src))
     monkeypatch.setenv("VCIRUN_CACHE_DIR", str(tmp_path))
-    monkeypatch.setattr(build, "_loaded", {})
+    monkeypatch.setattr(default(), "loaded", {})
     assert [cold_parts(sysm, METHODS[m].kernel_set()) for m, *_ in methods] == [("scene",), ("scene",)]
     assert compile_side_by_side("cart_pendulum", sysm, methods, cores=2) == 2
     assert [cold_parts(sysm, METHODS[m].kernel_set()) for m, *_ in methods] == [(), ()]

@@ -247,7 +247,6 @@ def _compiled_expanded(system, ks, directory):
                          ids=[f"{s}-{m}" + "".join(f"-{v}" for v in o.values()) for s, m, o, _ in SIMS])
 def test_simulation_agrees_with_expanded_path(system_name, method, mopts, kw, tmp_path, monkeypatch):
     import vcirun
-    import vcirun.run.resolve as resolve
     from vcirun.codegen.build import load_module
     from vcirun.methods.table import resolve_method
 
@@ -260,8 +259,7 @@ def test_simulation_agrees_with_expanded_path(system_name, method, mopts, kw, tm
         assert "vcirun.codegen.tensor" in getattr(kernel, "py_func", kernel).__doc__
     a = vcirun.simulate(system, method, **mopts, **kw)
     exp_mod = _compiled_expanded(system, ks, tmp_path)
-    monkeypatch.setattr(resolve, "load_module", lambda s, k: exp_mod)
-    b = vcirun.simulate(system, method, **mopts, **kw)
+    b = vcirun.simulate(system, method, **mopts, **kw, loader=lambda s, k: exp_mod)
     assert a.status == b.status == "ok"
     assert len(a.impacts) == len(b.impacts)
     if method != "midpoint":

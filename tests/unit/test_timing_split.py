@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 import vcirun
-from vcirun.run import plan, resolve
 from vcirun.codegen import build
+from vcirun.codegen.kernel_cache import KernelCache
 
 
 class _Counting:
@@ -25,7 +25,7 @@ class _Counting:
         return self._mod.integrate(*args)
 
 
-def test_first_call_of_a_module_is_made_untimed(monkeypatch):
+def test_first_call_of_a_module_is_made_untimed():
     real = build.load_module
     proxies = []
 
@@ -33,10 +33,9 @@ def test_first_call_of_a_module_is_made_untimed(monkeypatch):
         proxies.append(_Counting(real(system, ks)))
         return proxies[-1]
 
-    monkeypatch.setattr(resolve, "load_module", loader)
-    monkeypatch.setattr(plan, "_FIRST_CALLS", set())
-    a = vcirun.simulate("cart_pendulum", "CVA", h=1e-2, T=1, beta=3.2)
-    b = vcirun.simulate("cart_pendulum", "CVA", h=1e-2, T=1, beta=3.2)
+    kc = KernelCache(loader=loader)   # one cache for both calls: it remembers the first call
+    a = vcirun.simulate("cart_pendulum", "CVA", h=1e-2, T=1, beta=3.2, loader=kc)
+    b = vcirun.simulate("cart_pendulum", "CVA", h=1e-2, T=1, beta=3.2, loader=kc)
     calls = [c for p in proxies for c in p.calls]
     assert calls == [1, 100, 100]      # one untimed step, then only the two timed integrations
     np.testing.assert_array_equal(a.q, b.q)

@@ -21,6 +21,7 @@ import vcirun
 import vcirun.run.api as api
 import vcirun.run.resolve as resolve
 from vcirun.codegen import build
+from vcirun.codegen.kernel_cache import KernelCache, default
 from vcirun.methods.table import METHODS
 
 YAML = """name: warm_cart_yaml
@@ -45,21 +46,23 @@ args = json.loads(sys.argv[1])
 import vcirun
 from vcirun.run import api, resolve
 from vcirun.codegen import build
+from vcirun.codegen.kernel_cache import default
 from vcirun.methods.table import resolve_method
-out = []
+out, log = [], []
 for system, method, kw, force_cold, instance in args["runs"]:
     if force_cold:  # delete the index entry: the symbolic path must run (and write it again)
         ident = resolve._warm_ident(system)[0]
-        build._index_path(ident, resolve_method(method).kernel_set()).unlink(missing_ok=True)
+        default().index_path(ident, resolve_method(method).kernel_set()).unlink(missing_ok=True)
     if instance:
         system = resolve.resolve_system(system)
-    n0 = len(build.BUILD_LOG)
-    tr = vcirun.simulate(system, method, **kw)
+    with default().report() as built:
+        tr = vcirun.simulate(system, method, **kw)
+    log += built.entries
     fields = {f: getattr(tr, f) for f in args["fields"]}
     out.append({"fields": {f: [v.dtype.str, list(v.shape), v.tobytes().hex()] for f, v in fields.items()},
                 "status": tr.status, "system": tr.system, "options": tr.options,
-                "log": build.BUILD_LOG[n0:]})
-print(json.dumps({"runs": out, "log": build.BUILD_LOG, "sympy": "sympy" in sys.modules, "scipy_integrate": "scipy.integrate" in sys.modules,
+                "log": built.entries})
+print(json.dumps({"runs": out, "log": log, "sympy": "sympy" in sys.modules, "scipy_integrate": "scipy.integrate" in sys.modules,
                   "vcirun.mechanics": "vcirun.mechanics" in sys.modules,
                   "derive": "vcirun.codegen.derive" in sys.modules}))
 """
@@ -139,41 +142,41 @@ def test_warm_key_follows_the_hashed_files(tmp_path, monkeypatch):
     monkeypatch.setattr(build, "_PKG", pkg)
     ks = METHODS["CVA"].kernel_set()
     ident = ("scene", "cart_pendulum")
-    k0 = build.warm_key(ident, ks)
-    assert k0 == build.warm_key(ident, ks)
-    assert build.warm_key(("scene", "double_pendulum"), ks) != k0
-    assert build.warm_key(ident, METHODS["VCI"].kernel_set()) != k0
+    k0 = build.warm_key_of(ident, ks)
+    assert k0 == build.warm_key_of(ident, ks)
+    assert build.warm_key_of(("scene", "double_pendulum"), ks) != k0
+    assert build.warm_key_of(ident, METHODS["VCI"].kernel_set()) != k0
     for rel in ["scenes/data.py", "core/system_data.py", "scenes/declarations.py", "mechanics/loader.py",
                 "collision/reset_cva.py",
                 "codegen/derive.py", "mechanics/system.py"]:
         f = pkg / rel
         text = f.read_text()
         f.write_text(text + "\n# edited\n")
-        assert build.warm_key(ident, ks) != k0, rel
+        assert build.warm_key_of(ident, ks) != k0, rel
         f.write_text(text)
-        assert build.warm_key(ident, ks) == k0
+        assert build.warm_key_of(ident, ks) == k0
     # sympy (its srepr makes the fingerprint) and PyYAML versions
     stamp = build._dependency_stamp()
     assert b"no sympy" not in stamp and b"no yaml" not in stamp
     monkeypatch.setattr(build, "_dependency_stamp", lambda: stamp + b"|other sympy")
-    assert build.warm_key(ident, ks) != k0
+    assert build.warm_key_of(ident, ks) != k0
     monkeypatch.setattr(build, "_dependency_stamp", lambda: stamp)
     # the kernel module of the MCVA family also hashes vcirun/modified: so does its index key
     mk = METHODS["MCVAC"].kernel_set()
-    m0 = build.warm_key(ident, mk)
+    m0 = build.warm_key_of(ident, mk)
     (pkg / "modified" / "series.py").write_text((pkg / "modified" / "series.py").read_text() + "\n#\n")
-    assert build.warm_key(ident, mk) != m0 and build.warm_key(ident, ks) == k0
+    assert build.warm_key_of(ident, mk) != m0 and build.warm_key_of(ident, ks) == k0
 
 
 def test_corrupt_or_stale_index_entries_fall_back_to_the_symbolic_path():
     ks = METHODS["CVA"].kernel_set()
     ident = ("scene", "cart_pendulum")
-    resolve._WARM_HITS.clear()
-    d, load, sysm = resolve.resolve_numeric("cart_pendulum", ks)
+    kc = KernelCache()   # a new process: nothing read from the index yet
+    d, load, sysm = resolve.resolve_numeric("cart_pendulum", ks, kc)
     load()
-    path = build._index_path(ident, ks)
+    path = kc.index_path(ident, ks)
     assert path.is_file()
-    assert resolve.resolve_numeric("cart_pendulum", ks)[2] is None  # indexed: no symbolic system
+    assert resolve.resolve_numeric("cart_pendulum", ks, kc)[2] is None  # indexed: no symbolic system
     ref = vcirun.simulate("cart_pendulum", "CVA", h=2e-2, T=2.0, beta=3.2)
     good = path.read_text()
     entry = json.loads(good)
@@ -183,15 +186,14 @@ def test_corrupt_or_stale_index_entries_fall_back_to_the_symbolic_path():
                    json.dumps({k: v for k, v in entry.items() if k != "module"})]
     for bad in bad_entries:
         path.write_text(bad)
-        resolve._WARM_HITS.clear()  # a new process: the per-process memo of index hits is empty
-        d, load, sysm = resolve.resolve_numeric("cart_pendulum", ks)
+        kc = KernelCache()  # a new process: the memo of index hits is empty
+        d, load, sysm = resolve.resolve_numeric("cart_pendulum", ks, kc)
         assert sysm is not None, bad  # the symbolic path
-        tr = vcirun.simulate("cart_pendulum", "CVA", h=2e-2, T=2.0, beta=3.2)
+        tr = vcirun.simulate("cart_pendulum", "CVA", h=2e-2, T=2.0, beta=3.2, loader=kc)
         assert np.array_equal(tr.q, ref.q) and np.array_equal(tr.p, ref.p)
         assert json.loads(path.read_text())["module"] == entry["module"]  # rewritten by the fallback
     path.unlink()
-    resolve._WARM_HITS.clear()
-    tr = vcirun.simulate("cart_pendulum", "CVA", h=2e-2, T=2.0, beta=3.2)
+    tr = vcirun.simulate("cart_pendulum", "CVA", h=2e-2, T=2.0, beta=3.2, loader=KernelCache())
     assert np.array_equal(tr.q, ref.q) and path.is_file()
 
 
@@ -199,7 +201,7 @@ def test_yaml_index_entry_fields(yaml_file):
     ks = METHODS["CVA"].kernel_set()
     ident, raw = resolve._warm_ident(str(yaml_file))
     assert ident[0] == "yaml" and raw == yaml_file.read_bytes()
-    build._index_path(ident, ks).unlink(missing_ok=True)
+    default().index_path(ident, ks).unlink(missing_ok=True)
     d, load, sysm = resolve.resolve_numeric(str(yaml_file), ks)
     assert sysm is not None
     load()
@@ -210,8 +212,8 @@ def test_yaml_index_entry_fields(yaml_file):
     assert d2.default_p0.tobytes() == sysm.default_p0.tobytes()
 
 
-def test_substituted_load_module_disables_the_warm_index(monkeypatch):
-    """Tests run modules uncompiled by monkeypatching vcirun.run.resolve.load_module: that must win."""
+def test_a_substitute_loader_disables_the_warm_index():
+    """A loader passed to simulate (e.g. to run modules uncompiled) is used, whatever the index holds."""
     calls = []
 
     def fake(system, ks):
@@ -220,9 +222,13 @@ def test_substituted_load_module_disables_the_warm_index(monkeypatch):
 
     ks = METHODS["CVA"].kernel_set()
     resolve.resolve_numeric("cart_pendulum", ks)[1]()  # indexed
-    monkeypatch.setattr(resolve, "load_module", fake)
-    vcirun.simulate("cart_pendulum", "CVA", h=2e-2, T=1.0, beta=3.2)
+    a = vcirun.simulate("cart_pendulum", "CVA", h=2e-2, T=1.0, beta=3.2, loader=fake)
     assert calls == ["cart_pendulum"]
+    b = vcirun.simulate("cart_pendulum", "CVA", h=2e-2, T=1.0, beta=3.2, loader=fake)
+    assert calls == ["cart_pendulum"] * 2   # a function: no plan kept between calls
+    assert np.array_equal(a.q, b.q)
+    with pytest.raises(ValueError, match="loader: expected a KernelCache or a function"):
+        vcirun.simulate("cart_pendulum", "CVA", h=2e-2, T=1.0, beta=3.2, loader="compiled")
 
 
 def test_import_vcirun_is_light_and_names_resolve():

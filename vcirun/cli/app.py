@@ -36,12 +36,12 @@ def _announce_compiles() -> None:
     on stderr (once per process)."""
     from vcirun.codegen import cache
 
-    if _say_compile not in cache.COMPILE_CALLBACKS:
-        cache.COMPILE_CALLBACKS.append(_say_compile)
+    cache.listen(_say_compile)
 
 
-def _say_compile(message: str) -> None:
+def _say_compile(message: str) -> bool:
     typer.echo(message, err=True)
+    return True   # shown (vcirun.codegen.cache.listen)
 
 
 def _fail(message: str, code: int = 1):

@@ -41,8 +41,7 @@ def periodic(
     multipliers; with --sweep, continue it along a parameter."""
     from vcirun.codegen import cache
 
-    if _say_compile not in cache.COMPILE_CALLBACKS:
-        cache.COMPILE_CALLBACKS.append(_say_compile)
+    cache.listen(_say_compile)
     try:
         params = _parse_params(param)
         guess = _guess(system, params, _vector(q0, "--q0"), _vector(p0, "--p0"))
@@ -81,8 +80,9 @@ def periodic(
         raise typer.Exit(1)
 
 
-def _say_compile(message: str) -> None:
+def _say_compile(message: str) -> bool:
     typer.echo(message, err=True)
+    return True   # shown (vcirun.codegen.cache.listen)
 
 
 def _parse_params(items) -> dict:

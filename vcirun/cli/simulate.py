@@ -43,7 +43,7 @@ def simulate_once(system: str, method: str, *, h: float, T: float, beta: float |
 
     import vcirun
     from vcirun.core.grid import GridWarning
-    from vcirun.codegen import build
+    from vcirun.codegen.kernel_cache import default
 
     kw = {k: v for k, v in dict(ld=ld, mh_order=mh_order, flow_order=flow_order, params=params or None,
                                 constrained=constrained, newton_tol=newton_tol, event_tol=event_tol).items()
@@ -54,17 +54,16 @@ def simulate_once(system: str, method: str, *, h: float, T: float, beta: float |
         if beta is not None:
             raise CliError("initial state: give either --beta or --q0/--p0, not both")
         kw.update(q0=q0, p0=p0)
-    n_log = len(build.BUILD_LOG)
     t0 = time.perf_counter()
     try:
-        with warnings.catch_warnings(record=True) as notes:
+        with warnings.catch_warnings(record=True) as notes, default().report() as built:
             warnings.simplefilter("always", GridWarning)
             traj = vcirun.simulate(system, method, h=h, T=T, beta=beta, **kw)
     except ValueError as e:
         raise CliError(str(e)) from None
     for w in notes:
         typer.echo(f"note: {w.message}", err=True)
-    traj.compiled_now = any(not e["cached"] for e in build.BUILD_LOG[n_log:])
+    traj.compiled_now = built.compiled
     return traj, time.perf_counter() - t0
 
 

@@ -23,9 +23,8 @@ from pathlib import Path
 from . import cache_lock, cache_store
 
 __all__ = ["CacheInfo", "ClearResult", "info", "clear", "cache_root", "announce_if_cold", "note_first_call",
-           "estimate_compile_s", "core_estimate_s", "cold_parts", "core_key_for", "tell", "COMPILE_CALLBACKS", "first_call_lock"]
+           "estimate_compile_s", "core_estimate_s", "cold_parts", "core_key_for", "tell", "listen", "first_call_lock"]
 
-COMPILE_CALLBACKS: list = []   # f(message) on a cold build or a cache notice; the CLI prints it on stderr
 _log = logging.getLogger("vcirun.build")
 _TIMES_FILE = cache_store.TIMES_FILE
 # first estimates before this cache has timed a build (measured on this 2-core machine: CVA on the
@@ -40,14 +39,11 @@ _DEFAULT_CORE_S = {"general": 50.0, "lean": 30.0, "system": 12.0, "system lean":
 LOCK_TIMEOUT_S = cache_lock.LOCK_TIMEOUT_S
 
 
-def _forward(message: str) -> bool:
-    """A cache notice (vcirun.codegen.cache_store.say) to the callbacks; False if there are none."""
-    for cb in list(COMPILE_CALLBACKS):
-        cb(message)
-    return bool(COMPILE_CALLBACKS)
-
-
-cache_store.LISTENERS.append(_forward)
+def listen(callback) -> None:
+    """Show build notices and cache notices through `callback(message) -> True` (the CLI prints them on
+    stderr); once per callback. Without a listener, notices go to the logger "vcirun.build"."""
+    if callback not in cache_store.LISTENERS:
+        cache_store.LISTENERS.append(callback)
 
 
 def cache_root() -> Path:
@@ -65,20 +61,21 @@ def core_estimate_s(core_key: str, first: float = None) -> float:
     return float(_times().get(f"core|{core_key}", _DEFAULT_CORE_S["general"] if first is None else first))
 
 
-def estimate_compile_s(ks, n: int, features: tuple = (), with_core: bool = True) -> float:
+def estimate_compile_s(ks, n: int, features: tuple = (), with_core: bool = True, kc=None) -> float:
     """Seconds a cold build of (ks, n) is expected to take: this cache's last build of the same family
     and size, else of the same family at another size (scaled linearly in n), else a first estimate.
     Shared build (vcirun.codegen.shared): the scene's kernels, plus the core if numba has not cached it
-    and `with_core` (False: another build compiles it)."""
+    and `with_core` (False: another build compiles it). `kc`: the kernel cache (default: the API's)."""
     from . import build
 
+    kc = _kc(kc)
     times, kind = _times(), (ks.reset or "system").upper()
     if build.build_mode() != "shared":
         return _by_family(times, build.family(ks), n, _DEFAULT_S.get(kind, 15.0))
-    key = build.core_key_of(ks, n, features)
+    key = kc.core_key_of(ks, n, features)
     first = _DEFAULT_CORE_S[("lean" if features else "general") if ks.full_stages else
                             ("system lean" if features else "system")]
-    core = 0.0 if build.core_compiled(key) or not with_core else \
+    core = 0.0 if kc.core_compiled(key) or not with_core else \
         core_estimate_s(key, first + (5.0 if kind == "MCVA" else 0.0))
     return _by_family(times, "scene|" + build.family(ks), n, _DEFAULT_SCENE_S.get(kind, 3.5)) + core
 
@@ -94,29 +91,36 @@ def _by_family(times: dict, fam: str, n: int, first: float) -> float:
     return v * max(1.0, n / m)
 
 
-def cold_parts(system, ks) -> tuple[str, ...]:
+def _kc(kc):
+    from .kernel_cache import default
+
+    return default() if kc is None else kc
+
+
+def cold_parts(system, ks, kc=None) -> tuple[str, ...]:
     """What loading the module of symbolic `system` with `ks` has to compile: () when it is cached (or
     was loaded, or set aside and said), ("scene",) for its kernels, ("scene", "core") for its kernels
-    and their shared core, ("core",) for the core alone (shared build)."""
+    and their shared core, ("core",) for the core alone (shared build). `kc`: the kernel cache."""
     from . import build
 
-    key = build.module_key(system, ks)
-    if key in build._loaded or key in build.SET_ASIDE:   # (no file access on the path of every later call;
-        return ()                                        # a module set aside was said when it was)
-    parts = () if (build.cache_dir() / f"vk_{key}.py").exists() else ("scene",)
-    if build.build_mode() == "shared" and not build.core_compiled(core_key_for(system, ks)):
+    kc = _kc(kc)
+    key = kc.module_key(system, ks)
+    if key in kc.loaded or key in kc.set_aside:   # (no file access on the path of every later call;
+        return ()                                 # a module set aside was said when it was)
+    parts = () if (kc.cache_dir() / f"vk_{key}.py").exists() else ("scene",)
+    if build.build_mode() == "shared" and not kc.core_compiled(core_key_for(system, ks, kc)):
         parts += ("core",)
     return parts
 
 
-def core_key_for(system, ks) -> str:
+def core_key_for(system, ks, kc=None) -> str:
     """The key of the shared core that serves symbolic `system` with `ks`."""
     from . import build
 
-    return build.core_key_of(ks, system.n, build.system_core_features(ks, system))
+    return _kc(kc).core_key_of(ks, system.n, build.system_core_features(ks, system))
 
 
-def announce_if_cold(system, ks, cores_covered=()) -> bool:
+def announce_if_cold(system, ks, cores_covered=(), kc=None) -> bool:
     """Before loading the module of (system, ks): if it must be generated and compiled, say so
     ("compiling kernels for <scene>/<family> and their shared core (one contact, unforced) (first
     time, about N s)") to the logger and callbacks, once; `cores_covered`: core keys whose compile
@@ -124,36 +128,38 @@ def announce_if_cold(system, ks, cores_covered=()) -> bool:
     from . import build
     from .shared import FEATURE_NAMES
 
-    parts = cold_parts(system, ks)
+    kc = _kc(kc)
+    parts = cold_parts(system, ks, kc)
     if not parts:
         return False
     feats = build.system_core_features(ks, system)
     # a core another kernel set of the same build covers (CVA's and VCI's share one) is not repeated
-    with_core = "core" in parts and (build.build_mode() != "shared" or core_key_for(system, ks) not in cores_covered)
+    with_core = "core" in parts and (build.build_mode() != "shared"
+                                     or core_key_for(system, ks, kc) not in cores_covered)
     core = (" and their shared core" + (f" ({FEATURE_NAMES[feats]})" if ks.full_stages else "")) if with_core else ""
     msg = (f"compiling kernels for {system.name}/{build.family(ks)}{core} (first time, about "
-           f"{estimate_compile_s(ks, system.n, feats, with_core=with_core):.0f} s; cached in {cache_root()})")
-    build.ANNOUNCED.add(build.module_key(system, ks))
+           f"{estimate_compile_s(ks, system.n, feats, with_core=with_core, kc=kc):.0f} s; cached in {cache_root()})")
+    kc.announced.add(kc.module_key(system, ks))
     if build.build_mode() == "shared":
-        build.ANNOUNCED.add(core_key_for(system, ks))
+        kc.announced.add(core_key_for(system, ks, kc))
     tell(msg)
     return True
 
 
 def tell(msg: str) -> None:
-    """A build notice to the logger and the callbacks (the CLI prints them on stderr)."""
+    """A build notice to the logger and the listeners (`listen`: the CLI prints them on stderr)."""
     _log.info(msg)
-    for cb in list(COMPILE_CALLBACKS):
+    for cb in list(cache_store.LISTENERS):
         cb(msg)
 
 
-def note_first_call(mod, ks, seconds: float) -> None:
-    """After numba's first call of a module's loop: if the module was generated in this process,
+def note_first_call(mod, ks, seconds: float, kc=None) -> None:
+    """After numba's first call of a module's loop: if the module was generated by kernel cache `kc`,
     record generation + first call as the build time of its family and size (the next estimate)."""
     from . import build
 
     key = mod.__name__.rsplit("_", 1)[-1]
-    entry = next((e for e in reversed(build.BUILD_LOG) if e["key"] == key), None)
+    entry = _kc(kc).entries.get(key)
     if entry is None or (entry["cached"] and not entry.get("core_cold")):
         return
     try:
@@ -171,7 +177,7 @@ def note_first_call(mod, ks, seconds: float) -> None:
 
 
 @contextlib.contextmanager
-def first_call_lock(mod, timeout_s: float = LOCK_TIMEOUT_S):
+def first_call_lock(mod, timeout_s: float = LOCK_TIMEOUT_S, kc=None):
     """Held around numba's first call of a module's loop, across processes: the sweep workers (or
     test workers) that start on the same cold module wait for the one compiling it and then load its
     machine code from numba's cache, instead of each compiling the same code at once (2 workers, 2
@@ -179,12 +185,10 @@ def first_call_lock(mod, timeout_s: float = LOCK_TIMEOUT_S):
     the holder no longer runs and is reported when the holder is stopped or hung
     (vcirun.codegen.cache_lock); past `timeout_s` of waiting, or where locks are unavailable, the call
     goes ahead unlocked (only time is lost then, never a result)."""
-    from . import build
-
     # a shared-build module's loop is its kernel set's core (vcirun.codegen.shared): lock on that
     key = getattr(mod, "LOCK_KEY", None) or mod.__name__.rsplit("_", 1)[-1]
     try:
-        path = build.cache_dir() / f"vk_{key}.lock"
+        path = _kc(kc).cache_dir() / f"vk_{key}.lock"
     except cache_store.CacheError:
         path = None
     if path is None:

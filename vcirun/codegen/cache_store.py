@@ -280,7 +280,6 @@ def write_atomic(path: Path, data: bytes | str, what: str = "") -> None:
             pass
         raise write_error(path, e, what) from None
     fsync_path(path.parent, directory=True)
-    sweep_stale(path.parent)
 
 
 def publish(tmp: Path, path: Path, what: str = "") -> None:
@@ -348,16 +347,11 @@ def _pid_alive(pid: int) -> bool:
         return True
 
 
-_swept: set = set()
-
-
-def sweep_stale(d: Path, force: bool = False) -> int:
+def sweep_stale(d: Path) -> int:
     """Remove the temporary files and C build directories of processes that no longer run (killed
-    mid-write), once per directory and process unless `force`. Returns how many were removed."""
+    mid-write) from directory `d` (vcirun.codegen.kernel_cache sweeps each cache directory once per
+    kernel cache). Returns how many were removed."""
     d = Path(d)
-    if d in _swept and not force:
-        return 0
-    _swept.add(d)
     import shutil
 
     n = 0

@@ -3,7 +3,7 @@
 `SystemData` holds n, the parameter names and default values, an initial-condition map
 beta -> (q0, qdot0), the default start (a state, or a beta of the map) and a description. A `MechanicalSystem` (symbolic) and a
 built-in scene's numeric data (`vcirun.scenes.data`) both reduce to it, so a warm start (kernel
-module cached, see `vcirun.codegen.build.warm_lookup`) resolves a system without importing sympy.
+module cached, see `vcirun.codegen.kernel_cache.KernelCache.warm_lookup`) resolves a system without importing sympy.
 The rules for a run's initial state (`requested_start`, `check_mass_matrix`, `start_tolerance`)
 live here once, for the symbolic and the numeric paths alike.
 """

@@ -343,17 +343,18 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
             summary.status_counts = _status_counts(writer)
             summary.wall_time = time.monotonic() - t_start
             return summary
-        from vcirun.codegen.build import BUILD_LOG
+        from vcirun.codegen.kernel_cache import default
 
-        t_pre, n_log = time.monotonic(), len(BUILD_LOG)
-        n, m, side = _preflight(cfg, pending or [specs[0]])
+        t_pre = time.monotonic()
+        with default().report() as built:
+            n, m, side = _preflight(cfg, pending or [specs[0]])
         summary.prepare_time = time.monotonic() - t_pre  # kernels loaded or compiled: not run time
         # What is loaded now (numba, LLVM, the kernels) stays for the sweep: frozen out of the garbage
         # collector, whose full passes would otherwise walk it in the client and, copy-on-write, copy it
         # into every forked worker and writer (unfrozen when the sweep ends).
         gc.freeze()
         frozen = True
-        summary.compiled = side + sum(not e["cached"] for e in BUILD_LOG[n_log:])
+        summary.compiled = side + built.generated
         _check_resources(cfg, pending, n, m, workers, writer.path, writer)
         executor = executors.make_executor(ex_spec, workers=workers, start_method=start_method)
         executor.connect()  # a Dask cluster: reached (or a one-line error) before the file is created

@@ -6,6 +6,7 @@ import time
 
 import numpy as np
 
+from ..codegen import kernel_cache
 from ..core import record
 from ..core.bounds import nonfinite_start
 from ..core.grid import GridWarning
@@ -19,7 +20,7 @@ _LOCAL = threading.local()   # this thread's reused loop buffers (vcirun.run.pla
 
 
 def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, constrained=None,
-             t0=0.0, energies=True, resting_contact=True, **options) -> tr.Trajectory:
+             t0=0.0, energies=True, resting_contact=True, loader=None, **options) -> tr.Trajectory:
     """Simulate `system` with `method` on the grid t_k = t0 + k h, k = 0..N, N = floor(T / h).
 
     system : built-in name ('cart_pendulum', 'double_pendulum', 'oscillator_wall', ...), YAML path,
@@ -37,6 +38,10 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     energies: False skips H, Ed (and the MCVA family's Hmod) along the grid, leaving NaN after t0;
              for runs that only need the trajectory, e.g. timing against solve_ivp, which does
              not evaluate H either.
+    loader : where the kernels come from: None (the kernel cache, compiled), a
+             vcirun.codegen.kernel_cache.KernelCache, or a function (symbolic system, kernel set) ->
+             module used instead of the cache, e.g. vcirun.codegen.evaluate.python_module_for to
+             run the generated module as Python (no warm index, no plan kept between calls).
     Numerical failure is returned as the trajectory's status (never raised); bad input raises
     ValueError naming the field.
 
@@ -45,7 +50,8 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     mass matrix on every path, so warm and cold starts give the same bits.
     """
     p = plan(system, method, h=h, T=T, t0=t0, constrained=constrained, energies=energies,
-             resting_contact=resting_contact, options=options, start=dict(beta=beta, q0=q0, p0=p0, params=params))
+             resting_contact=resting_contact, options=options, start=dict(beta=beta, q0=q0, p0=p0, params=params),
+             kc=kernel_cache.of(loader))
     sysd, h, N, t0 = p.sysd, p.h, p.N, p.t0
     prm = sysd.param_values(params)
     p.check_memory()  # before any buffer is allocated

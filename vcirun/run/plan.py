@@ -6,9 +6,10 @@ size the memory check, build the settings vector and load the compiled module th
 a built-in scene named by a string the result is kept per (system, method, h, T, t0, options), so a
 repeated call validates only its initial state and parameters. Each value of the key is kept with
 its type, so that a value the checks reject (``constrained=1``, ``h=True``) never matches an
-accepted one that compares equal. A YAML file, a MechanicalSystem instance or a substitute for
-`load_module` (tests that run modules uncompiled) is resolved on every call (a file may change, an
-instance may be mutated).
+accepted one that compares equal. The kept plans belong to the kernel cache that loaded their modules
+(vcirun.codegen.kernel_cache); a YAML file or a MechanicalSystem instance is resolved on every call (a
+file may change, an instance may be mutated), and so is every call with a substitute loader (a
+function passed as `loader=`).
 
 `Buffers` holds one run's output tuple for reuse by the next run of the same plan in the same
 thread: every buffer with a fill value is refilled before a run, so a reused buffer starts exactly
@@ -20,9 +21,7 @@ from __future__ import annotations
 
 import math
 import os
-import threading
 import time
-from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,6 +36,7 @@ from ..core.system_data import (
     requested_start,
     start_tolerance,
 )
+from ..codegen.kernel_cache import KernelCache, default
 from ..core.tolerances import split_options
 from ..methods.table import resolve_method
 from ..scenes.data import scene_args
@@ -67,6 +67,7 @@ class Plan:
     need: int               # bytes of one run's buffers (validation.run_bytes)
     ks: object = None       # the method's KernelSet
     hit: tuple = None       # what resolve_numeric returned (a kept plan is valid while its warm memo holds it)
+    kc: KernelCache = None  # the kernel cache that loads its module
     _mod: object = None
 
     @property
@@ -87,35 +88,31 @@ class Plan:
         return self.sysd.param_values(params)
 
 
-_FIRST_CALLS: set = set()
-
-
 def first_call(mod, plan: Plan, q0, p0, prm) -> None:
     """numba's first call of a module's loop (load from its cache, or compile) is not integration:
-    one untimed step from the run's start, so a run's wall_time measures the integration only."""
-    if mod.__name__ in _FIRST_CALLS:
+    one untimed step from the run's start, so a run's wall_time measures the integration only (once per
+    module and kernel cache)."""
+    kc = plan.kc or default()
+    if mod.__name__ in kc.first_calls:
         return
     from ..codegen.cache import first_call_lock, note_first_call
 
-    _FIRST_CALLS.add(mod.__name__)
+    kc.first_calls.add(mod.__name__)
     t_first = time.perf_counter()
-    with first_call_lock(mod):  # one compile per module across processes (sweep and test workers)
+    with first_call_lock(mod, kc=kc):  # one compile per module across processes (sweep and test workers)
         run_loop(mod, q0, p0, plan.t0, plan.h, 1, prm, plan.settings, plan.sysd.n, plan.max_impacts_step)
-    note_first_call(mod, plan.meth.kernel_set(), time.perf_counter() - t_first)
+    note_first_call(mod, plan.meth.kernel_set(), time.perf_counter() - t_first, kc=kc)
 
 
-_PLANS: OrderedDict = OrderedDict()
-_PLANS_MAX = 64
-_PLANS_LOCK = threading.Lock()
+_PLANS_MAX = 64   # plans kept per kernel cache
 
 
 def _key(system, method, h, T, t0, constrained, energies, resting_contact, options):
     """The key of a plan kept for reuse (None: resolve per call): a built-in scene's name (checked
     when the plan is stored), the method's name, every value with its type, the build mode."""
     from ..codegen import build
-    from . import resolve
 
-    if type(system) is not str or type(method) is not str or resolve.load_module is not build.load_module:
+    if type(system) is not str or type(method) is not str:
         return None
     key = (system, method, build.build_id(), os.environ.get("VCIRUN_KERNEL_PATH", ""), type(h), h, type(T), T,
            type(t0), t0, type(constrained), constrained, type(energies), energies, type(resting_contact),
@@ -130,17 +127,19 @@ def _key(system, method, h, T, t0, constrained, energies, resting_contact, optio
 
 
 def plan(system, method, *, h, T, t0=0.0, constrained=None, energies=True, resting_contact=True,
-         options: dict | None = None, start: dict | None = None) -> Plan:
+         options: dict | None = None, start: dict | None = None, kc: KernelCache | None = None) -> Plan:
     """The Plan of a run; `start` holds the per-run arguments (beta, q0, p0, params) of a call,
-    validated here with the rest (same checks, order and messages as one call of simulate)."""
+    validated here with the rest (same checks, order and messages as one call of simulate). `kc`: the
+    kernel cache (default: the API's), which keeps the plan when the run names a built-in scene."""
     options = dict(options or {})
     start = start or {}
-    key = _key(system, method, h, T, t0, constrained, energies, resting_contact, options)
+    kc = default() if kc is None else kc
+    key = _key(system, method, h, T, t0, constrained, energies, resting_contact, options) if kc.warm else None
     if key is not None:
-        with _PLANS_LOCK:
-            p = _PLANS.get(key)
+        with kc.lock:
+            p = kc.plans.get(key)
             if p is not None:
-                _PLANS.move_to_end(key)
+                kc.plans.move_to_end(key)
         if p is not None and _still_warm(p, key):
             check_start_args(**start)
             return p
@@ -151,7 +150,7 @@ def plan(system, method, *, h, T, t0=0.0, constrained=None, energies=True, resti
         system = resolve_system(system)  # bad names and files raise here, before a bad method does
     meth = resolve_method(method, **mopts)
     ks = meth.kernel_set()
-    hit = resolve_numeric(system, ks)
+    hit = resolve_numeric(system, ks, kc)
     sysd, load, sysm = hit
     if constrained is None:
         constrained = meth.constrained
@@ -160,21 +159,19 @@ def plan(system, method, *, h, T, t0=0.0, constrained=None, energies=True, resti
     p = Plan(system=system, sysd=sysd, sysm=sysm, meth=meth, load=load, h=h, T=T, N=N, t0=float(t0), tol=tol,
              mopts=mopts, constrained=bool(constrained), energies=bool(energies),
              resting_contact=bool(resting_contact), settings=settings, note=grid_note(h, T),
-             need=run_bytes(N, sysd.n), ks=ks, hit=hit)
+             need=run_bytes(N, sysd.n), ks=ks, hit=hit, kc=kc)
     if key is not None and sysm is None and scene_args(system) is not None:   # warm: nothing symbolic held
-        with _PLANS_LOCK:
-            _PLANS[key] = p
-            while len(_PLANS) > _PLANS_MAX:
-                _PLANS.popitem(last=False)
+        with kc.lock:
+            kc.plans[key] = p
+            while len(kc.plans) > _PLANS_MAX:
+                kc.plans.popitem(last=False)
     return p
 
 
 def _still_warm(p: Plan, key) -> bool:
-    """The warm-start memo that served plan `p` still holds its entry (tests clear it to start anew)."""
-    from . import resolve
-
+    """The warm-start memo that served plan `p` still holds its entry."""
     memo = (("scene", key[0]), p.ks, key[3], key[2])
-    return resolve._WARM_HITS.get(memo) is p.hit
+    return p.kc.warm_hits.get(memo) is p.hit
 
 
 

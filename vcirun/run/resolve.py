@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from ..codegen import build
-from ..codegen.build import load_module
+from ..codegen.kernel_cache import KernelCache, default
 from ..core.system_data import SystemData
 from ..scenes.data import scene_args, scene_data
 
@@ -102,42 +102,39 @@ def _entry_data(sysm) -> dict:
             "coordinates": [str(c) for c in sysm.q]}
 
 
-_WARM_HITS: dict = {}
-
-
-def resolve_numeric(system, ks: build.KernelSet):
+def resolve_numeric(system, ks: build.KernelSet, kc: KernelCache | None = None):
     """(SystemData, loader, symbolic system or None) for `system` (built-in name, YAML path or
-    MechanicalSystem) and kernel set `ks`; loader() returns the compiled module.
+    MechanicalSystem) and kernel set `ks`; loader() returns the module from kernel cache `kc` (default:
+    the API's).
 
     A built-in name or a YAML file whose (identity, ks) is in the warm index is served from it:
     no symbolic system, no sympy. Otherwise (and always for a MechanicalSystem instance) the
     symbolic system is built and its module loaded or generated; names and files are then indexed.
-    A substitute for `load_module` (tests monkeypatch it to run modules uncompiled) is always used:
-    it turns the warm index off."""
-    genuine = load_module is build.load_module
-    ident, raw = _warm_ident(system) if genuine else (None, None)
+    A kernel cache with a substitute loader (KernelCache(loader=...)) has no warm index."""
+    kc = default() if kc is None else kc
+    ident, raw = _warm_ident(system) if kc.warm else (None, None)
     if ident is not None:
         memo = (ident, ks, os.environ.get("VCIRUN_KERNEL_PATH", ""), build.build_id())
-        hit = _WARM_HITS.get(memo)
-        if hit is not None:   # this process has read the entry already: no file access per call
+        hit = kc.warm_hits.get(memo)
+        if hit is not None:   # this cache has read the entry already: no file access per call
             return hit
-        entry = build.warm_lookup(ident, ks)
+        entry = kc.warm_lookup(ident, ks)
         d = _data_from_entry(ident, entry) if entry is not None else None
         if d is not None:
-            hit = (d, lambda: build.load_cached_module(entry["module"], d.name, ks), None)
-            _WARM_HITS[memo] = hit
+            hit = (d, lambda: kc.load_cached_module(entry["module"], d.name, ks), None)
+            kc.warm_hits[memo] = hit
             return hit
     sysm = resolve_system(system)
     d = SystemData.of(sysm)
 
     def load():
-        if genuine:
+        if kc.warm:
             from ..codegen.cache import announce_if_cold
 
-            announce_if_cold(sysm, ks)  # "compiling kernels for <scene>/<family> (first time, about N s)"
-        mod = load_module(sysm, ks)
+            announce_if_cold(sysm, ks, kc=kc)  # "compiling kernels for <scene>/<family> (first time, about N s)"
+        mod = kc.load_module(sysm, ks)
         if ident is not None and (raw is None or _warm_ident(system)[1] == raw):  # the file we hashed
-            build.warm_record(ident, ks, build.module_key(sysm, ks), _entry_data(sysm))
+            kc.warm_record(ident, ks, kc.module_key(sysm, ks), _entry_data(sysm))
         return mod
 
     return d, load, sysm
