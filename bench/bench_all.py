@@ -45,6 +45,11 @@ Sections (`--only a,b,...` to pick; `--quick` for a short smoke run):
             long_horizon.yaml) through `vcirun study` (vcirun.experiments.studies), with their figures; the
             10x target is read on vcirun's front (best method at each accuracy) of the two T = 5 studies
 
+  tiers     first results in seconds (bench/tiers.py): `make run` in a fresh clone, the first CLI
+            simulate of MCVAA and of the rocking block on an empty cache, the fig4 sweep on an empty
+            cache on the auto tier against the compiled one (today's pipeline), the compiled tier's
+            loop and call against /work/main
+
   throughput the target table of sweeps at the speed of the compiled loop (bench/throughput.py):
             simulate() against its loop, an ensemble of 10^5 runs against the loop time per core, the
             fig4 sweep against today's tree (/work/base) and a first simulate against the tree before
@@ -73,6 +78,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import vcirun  # noqa: E402
 from throughput import section_throughput  # noqa: E402 (bench/throughput.py: the section's rows)
+from tiers import section_tiers  # noqa: E402 (bench/tiers.py: first results in seconds)
 
 METHODS = ["CVA", "VCI", "MCVAA", "MCVAC"]
 PAPER_TABLE2 = {"MCVAA": {3.2e-2: (2.71, 0.61), 1e-2: (2.40, 0.39)},
@@ -716,7 +722,8 @@ SECTIONS = {"steps": section_steps, "sim5": section_sim5, "impact": section_impa
             "sweep": section_sweep, "yardstick": section_yardstick, "scaling": section_scaling, "dof": section_dof,
             "tensor": section_tensor, "wp": section_wp, "coldbuild": section_coldbuild, "contacts": section_contacts,
              "bodies": section_bodies, "cacheverify": section_cacheverify,
-             "throughput": lambda res: section_throughput(res, quick=QUICK), "reference": section_reference}
+             "throughput": lambda res: section_throughput(res, quick=QUICK), "reference": section_reference,
+             "tiers": lambda res: section_tiers(res, quick=QUICK, log=log)}
 
 
 def main(argv=None):

@@ -1,13 +1,21 @@
 """Shared fixtures: compiled modules per (system, method) and a seeded random generator.
 
-Compiled modules are cached in-process by vcirun.codegen.build and on disk under
-$VCIRUN_CACHE_DIR (default ~/.cache/vcirun): a cold run pays numba's compile time once per
+Compiled modules are cached in-process by the default vcirun.codegen.kernel_cache.KernelCache and on
+disk under $VCIRUN_CACHE_DIR (default ~/.cache/vcirun): a cold run pays numba's compile time once per
 (system, kernel set); set VCIRUN_CACHE_DIR to an empty directory to measure a cold run.
+
+The suite runs on the compiled tier (VCIRUN_TIER=compiled, unless set otherwise): its runs are sized for
+compiled loops, and the tests of the interpreted tier and of the switch between the two
+(tests/unit/test_tiers.py) ask for their tiers themselves.
 """
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
+
+os.environ.setdefault("VCIRUN_TIER", "compiled")   # (before vcirun reads it; subprocesses inherit it)
 
 
 def _compiled(system, method):

@@ -17,7 +17,8 @@ def _mb(n: int) -> str:
 
 @cache_app.command("info", epilog="Example:\n\n  vcirun cache info")
 def cache_info():
-    """Where the compiled kernels are and how much space they take."""
+    """Where the compiled kernels are, how much space they take, what is compiled and what is being
+    compiled (in the background or by another run)."""
     from vcirun.codegen import cache
     from vcirun.codegen.cache_store import CacheError
 
@@ -28,6 +29,17 @@ def cache_info():
     typer.echo(f"{i.path}: {i.modules} compiled modules, {i.cores} shared cores, {i.index_entries} warm-start entries, "
                f"{i.files} files, {_mb(i.bytes)} (of these {i.shared_objects} C kernel libraries, {i.numba_files} numba "
                f"files" + (f", {i.quarantined} files set aside by a failed check" if i.quarantined else "") + ")")
+    if i.compiled:
+        typer.echo(f"compiled tier ready for {len(i.compiled)}: " + ", ".join(sorted(i.compiled)))
+    import time
+
+    for what, who in i.building:
+        since = who.get("since")
+        took = f" for {time.time() - since:.0f} s" if isinstance(since, (int, float)) else ""
+        typer.echo(f"being compiled: {what} (process {who.get('pid', '?')}{took})")
+    for system, reason, log in i.failed:
+        typer.echo(f"background compile failed: {system}: {reason} (log {log}; runs stay interpreted; "
+                   "`vcirun cache clear` or --tier compiled tries again)")
     typer.echo("It grows with every vcirun version and system; `vcirun cache clear` empties it (the next run of "
                "each system compiles again).")
 

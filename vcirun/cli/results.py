@@ -61,7 +61,8 @@ def sweep(
               f"{summary.path}; run the same command again to resume", code)
     counts = ", ".join(f"{n} {s}" for s, n in sorted(summary.status_counts.items()))
     what = (f"compiling kernels for {summary.compiled} method famil{'ies' if summary.compiled > 1 else 'y'} (first "
-            "time; cached now)" if summary.compiled else "loading kernels")
+            "time; cached now)" if summary.compiled and not summary.interpreted else
+            "deriving kernels" if summary.interpreted else "loading kernels")
     prep = (f", of which {summary.prepare_time:.1f} s {what} before the first run"
             if summary.prepare_time >= 0.05 * max(summary.wall_time, 1e-9) and summary.prepare_time >= 1.0 else "")
     typer.echo(f"{summary.path}: {summary.total} runs ({summary.computed} computed, {summary.skipped} already "
@@ -72,6 +73,11 @@ def sweep(
         typer.echo(f"dask: {st['tasks']} tasks of up to {st.get('task_size_max')} runs on {summary.workers} worker "
                    f"threads" + (f"; measured {1e3 * cost:.3g} ms per run" if cost else "")
                    + f", {1e3 * st.get('per_task_overhead_s', float('nan')):.3g} ms per empty task")
+    if summary.interpreted:
+        typer.echo(f"note: {summary.interpreted} of the {summary.computed} runs ran on the interpreted tier while "
+                   "the compiled one was built in the background: same numbers, no wall_time (kept apart as "
+                   "wall_time_interpreted); `vcirun sweep --force` times them once `vcirun cache info` shows "
+                   "the compiled tier ready")
     if summary.computed and summary.failed:
         typer.echo(f"note: {summary.failed} run(s) did not finish with status ok; `vcirun info {summary.path}` "
                    "lists their messages")

@@ -35,9 +35,9 @@ def _parse_vector(text: str | None, name: str):
 
 def simulate_once(system: str, method: str, *, h: float, T: float, beta: float | None = None, ld=None,
                   mh_order=None, flow_order=None, params: dict | None = None, constrained: bool | None = None,
-                  newton_tol=None, event_tol=None, q0=None, p0=None):
+                  newton_tol=None, event_tol=None, q0=None, p0=None, tier=None):
     """One run through `vcirun.simulate`; bad input becomes CliError. Returns (trajectory, seconds);
-    `traj.compiled_now` says whether kernels were generated during the call."""
+    `traj.built` is the kernel cache's report of the call (vcirun.codegen.kernel_cache.BuildReport)."""
     import time
     import warnings
 
@@ -58,12 +58,12 @@ def simulate_once(system: str, method: str, *, h: float, T: float, beta: float |
     try:
         with warnings.catch_warnings(record=True) as notes, default().report() as built:
             warnings.simplefilter("always", GridWarning)
-            traj = vcirun.simulate(system, method, h=h, T=T, beta=beta, **kw)
+            traj = vcirun.simulate(system, method, h=h, T=T, beta=beta, tier=tier, **kw)
     except ValueError as e:
         raise CliError(str(e)) from None
     for w in notes:
         typer.echo(f"note: {w.message}", err=True)
-    traj.compiled_now = built.compiled
+    traj.built = built
     return traj, time.perf_counter() - t0
 
 
@@ -83,11 +83,26 @@ def summary_lines(traj, total_seconds: float) -> list[tuple[str, str]]:
     if drift.dHmod is not None:
         rows.append(("max |Hmod - Hmod0|", f"{drift.dHmod:.3e}"))
     setup = max(0.0, total_seconds - traj.wall_time)
-    what = ("compiling kernels (first time; cached for the next runs)" if getattr(traj, "compiled_now", False)
-            else "loading kernels and setting up")
-    rows.append(("wall time", f"{traj.wall_time:.4g} s integrating; {total_seconds:.3g} s in total, of which "
-                              f"{setup:.3g} s {what}"))
+    rows.append(("wall time", f"{traj.wall_time:.4g} s integrating{_on_tier(traj)}; {total_seconds:.3g} s in "
+                              f"total, of which {setup:.3g} s {_setup_words(traj)}"))
     return rows
+
+
+def _on_tier(traj) -> str:
+    return " on the interpreted tier" if getattr(traj, "tier", None) == "interpreted" else ""
+
+
+def _setup_words(traj) -> str:
+    """What the time before the integration went to, from the call's build report."""
+    built = getattr(traj, "built", None)
+    if built is not None and built.unsaved:
+        return (f"compiling kernels (not cached: {built.unsaved[0][1][:120]}; the next run compiles them "
+                "again)")
+    if built is not None and built.compiled:
+        return "compiling kernels (cached for the next runs)"
+    if getattr(traj, "tier", None) == "interpreted":
+        return "deriving kernels and setting up (the compiled tier is built in the background)"
+    return "loading kernels and setting up"
 
 
 @app.command(epilog="Examples:\n\n"
@@ -122,6 +137,10 @@ def simulate(
     output: Optional[Path] = typer.Option(None, "--output", "-o",
                                           help="Save the trajectory: .h5 (read with "
                                                "vcirun.run.trajectory.read_trajectory), .nc, .csv or .npz."),
+    tier: Optional[str] = typer.Option(None, "--tier",
+                                       help="auto (default; VCIRUN_TIER): compiled kernels when cached, else "
+                                            "interpreted at once while they compile in the background; "
+                                            "compiled: wait for the compiler; interpreted: never compile."),
 ):
     """Simulate one run and print a summary (steps, impacts, status, energy error, wall time)."""
     _announce_compiles()
@@ -129,7 +148,8 @@ def simulate(
         traj, total = simulate_once(system, method, h=h, T=T, beta=beta, ld=ld, mh_order=mh_order,
                                     flow_order=flow_order, params=_parse_params(param),
                                     constrained=False if unconstrained else None, newton_tol=newton_tol,
-                                    event_tol=event_tol, q0=_parse_vector(q0, "--q0"), p0=_parse_vector(p0, "--p0"))
+                                    event_tol=event_tol, q0=_parse_vector(q0, "--q0"), p0=_parse_vector(p0, "--p0"),
+                                    tier=tier)
         if output is not None:
             try:
                 traj.save(output)

@@ -160,17 +160,40 @@ def module_key_of(system, ks: KernelSet, backend: str | None = None) -> str:
 def generate(system, ks: KernelSet, d: Path) -> str:
     """The module text of (system, ks), generated now (sympy; the C compiler for its leaf kernels, whose
     shared objects go to the kernel directory `d`)."""
-    from .derive import module_source  # sympy work happens only here, on a cache miss
+    from .derive import generated_source  # sympy work happens only here, on a cache miss
+
+    return module_text(generated_source(system, ks), ks, len(system.param_symbols), d, system.name)
+
+
+def module_text(generated: str, ks: KernelSet, nprm: int, d: Path, system_name: str) -> str:
+    """The compiled tier's module text from the generated part of (system, ks) (`derive.generated_source`,
+    which is all the sympy work): its leaf kernels compiled by the C compiler into `d` when there is one
+    (vcirun.codegen.cc.backend), then the scene module of the shared build (those kernels, the number
+    of parameters, the pointer wrappers) or the specialized module (with the units and bindings)."""
+    from . import cc, units
 
     if not cache_store.writable(d):
-        raise CacheError(f"kernel cache {d.parent}: {d} is read-only and holds no usable kernels for {system.name}/"
+        raise CacheError(f"kernel cache {d.parent}: {d} is read-only and holds no usable kernels for {system_name}/"
                          f"{family(ks)}: make it writable (or run once where it is), or set "
                          f"{cache_store.ENV} to a writable directory")
-    if build_mode() == "shared":
-        from .derive import scene_source
+    if cc.backend() == "c":
+        from .c_link import c_kernels
 
-        return scene_source(system, ks, c_dir=d)
-    return module_source(system, ks, c_dir=d)
+        generated = c_kernels(generated, d)
+    if build_mode() == "shared":
+        from .shared import SCENE_MARK, pointer_wrappers
+
+        return (f"{SCENE_MARK}: the kernels of one scene; the loop is the shared core's\n" + generated
+                + f"\n\nNPRM = {nprm}\n\n" + pointer_wrappers(ks))
+    return units.assemble(generated, ks)
+
+
+def interpreted_text(generated: str, ks: KernelSet) -> str:
+    """The interpreted tier's module text: the generated part with the units and bindings, every kernel
+    numba source (run as Python by vcirun.codegen.evaluate): the specialized module without C."""
+    from . import units
+
+    return units.assemble(generated, ks)
 
 
 def system_core_features(ks: KernelSet, system) -> tuple:
@@ -213,12 +236,15 @@ def warm_key_of(ident: tuple, ks: KernelSet, backend: str | None = None) -> str:
 
 # --- the default kernel cache's loads (vcirun.codegen.kernel_cache.default) --------------------------
 
-def load_module(system, ks: KernelSet):
-    """The compiled module for (symbolic system, ks) from the default kernel cache
-    (vcirun.codegen.kernel_cache.KernelCache.load_module)."""
+def load_module(system, ks: KernelSet, tier: str = "compiled"):
+    """The module for (symbolic system, ks) from the default kernel cache: compiled (waiting for the
+    compiler if need be: KernelCache.load_module), or on another tier (KernelCache.module; None is
+    $VCIRUN_TIER, else auto)."""
     from .kernel_cache import default
 
-    return default().load_module(system, ks)
+    if tier == "compiled":
+        return default().load_module(system, ks)
+    return default().module(system, ks, tier)
 
 
 def module_key(system, ks: KernelSet) -> str:

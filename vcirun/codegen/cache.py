@@ -146,11 +146,28 @@ def announce_if_cold(system, ks, cores_covered=(), kc=None) -> bool:
     return True
 
 
+QUIET_ENV = "VCIRUN_QUIET"
+
+
 def tell(msg: str) -> None:
-    """A build notice to the logger and the listeners (`listen`: the CLI prints them on stderr)."""
+    """A build notice ("compiling ... about N s", which tier runs): to the listeners (`listen`: the CLI
+    prints them on stderr), else to the logger "vcirun.build" at INFO, which prints it on stderr unless
+    logging is configured otherwise: off with VCIRUN_QUIET=1, or as any logger
+    (logging.getLogger("vcirun").setLevel(logging.WARNING))."""
+    if cache_store.LISTENERS:
+        for cb in list(cache_store.LISTENERS):
+            cb(msg)
+        return
+    if os.environ.get(QUIET_ENV, "").strip() not in ("", "0"):
+        return
+    top = logging.getLogger("vcirun")
+    if not top.hasHandlers():   # nothing configured: the notice goes to stderr, as the CLI's do
+        handler = logging.StreamHandler()
+        handler.setFormatter(logging.Formatter("%(message)s"))
+        top.addHandler(handler)
+        if top.level == logging.NOTSET:
+            top.setLevel(logging.INFO)
     _log.info(msg)
-    for cb in list(cache_store.LISTENERS):
-        cb(msg)
 
 
 def note_first_call(mod, ks, seconds: float, kc=None) -> None:
@@ -160,8 +177,9 @@ def note_first_call(mod, ks, seconds: float, kc=None) -> None:
 
     key = mod.__name__.rsplit("_", 1)[-1]
     entry = _kc(kc).entries.get(key)
-    if entry is None or (entry["cached"] and not entry.get("core_cold")):
+    if entry is None or entry.get("noted") or (entry["cached"] and not entry.get("core_cold")):
         return
+    entry["noted"] = True   # (the first calls that compiled are timed once: a later first call only loads)
     try:
         times = _times()
         if "link_s" in entry:   # shared build: the scene's kernels, and the core's first compile apart
@@ -209,6 +227,9 @@ class CacheInfo:
     shared_objects: int = 0   # C kernels (vkc_*.so)
     numba_files: int = 0      # numba's compiled code (kernels/__pycache__/)
     quarantined: int = 0      # files set aside by a failed check (quarantine/)
+    compiled: list = field(default_factory=list)   # "system/family" of the modules marked compiled
+    building: list = field(default_factory=list)   # (what, holder info) of the compiles in progress
+    failed: list = field(default_factory=list)     # (system, reason, log) of background compiles that failed
 
 
 def _walk(root: Path) -> list:
@@ -234,18 +255,36 @@ def _check_root(root: Path) -> None:
 
 
 def info() -> CacheInfo:
-    """What the cache holds (nothing is created)."""
+    """What the cache holds, what is compiled and what is being compiled (nothing is created)."""
+    from . import background
+
     root = cache_root()
     _check_root(root)
     files = _walk(root) if root.is_dir() else []
     k = root / "kernels"
     top = [p for p in files if p.parent == k]
-    return CacheInfo(root, sum(p.name.startswith("vk_") and p.suffix == ".py" for p in top),
-                     sum(p.name.startswith("wi_") and p.suffix == ".json" for p in top), len(files),
-                     sum(_size(p) for p in files), sum(p.name.startswith("core_") and p.suffix == ".py" for p in top),
-                     sum(p.name.startswith("vkc_") and p.suffix == ".so" for p in top),
-                     sum(p.parent == k / "__pycache__" for p in files),
-                     sum(p.parent == root / cache_store.QUARANTINE for p in files))
+    out = CacheInfo(root, sum(p.name.startswith("vk_") and p.suffix == ".py" for p in top),
+                    sum(p.name.startswith("wi_") and p.suffix == ".json" for p in top), len(files),
+                    sum(_size(p) for p in files), sum(p.name.startswith("core_") and p.suffix == ".py" for p in top),
+                    sum(p.name.startswith("vkc_") and p.suffix == ".so" for p in top),
+                    sum(p.parent == k / "__pycache__" for p in files),
+                    sum(p.parent == root / cache_store.QUARANTINE for p in files))
+    for p in sorted(top):
+        name = p.name
+        if name.startswith("vk_") and name.endswith(".ready"):
+            m = background.marker(k, name[3:-6])
+            if m is not None:
+                out.compiled.append(f"{m.get('system')}/{m.get('family')}")
+        elif name.endswith(".lock") and (name.startswith("bg_") or name.startswith("vk_")) \
+                and not name.startswith("bg_slot"):
+            who = cache_lock.holder(p)
+            if who is not None:
+                out.building.append((who.get("what", name[:-5]), who))
+        elif name.startswith("bg_") and name.endswith(".failed"):
+            f = background.failure(k, name[3:-7])
+            if f is not None:
+                out.failed.append((f.get("system"), f.get("reason"), f.get("log")))
+    return out
 
 
 @dataclass

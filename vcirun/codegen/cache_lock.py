@@ -184,3 +184,63 @@ def _acquire(fd: int, path: Path, what: str, timeout_s: float) -> bool:
 def _stalled(info: dict, path: Path, how: str, fix: str) -> None:
     cache_store.say(f"kernel cache: {_describe(info)} holds the compile lock {path} for {info.get('what')} but {how}: "
                     f"compiling here instead; {fix}")
+
+
+@contextlib.contextmanager
+def try_held(path: Path, what: str):
+    """Hold the lock `path` while the block runs if it is free now: yields True (held, named, kept alive
+    by the heartbeat) or False (another process holds it; nothing is waited for). Where locks cannot be
+    made, yields True (the caller goes ahead: only time is lost then)."""
+    try:
+        import fcntl
+
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    except (ImportError, OSError):
+        yield True
+        return
+    beat = None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            yield False
+            return
+        except OSError:
+            yield True
+            return
+        try:
+            _record(fd, what)
+        except OSError:
+            pass
+        beat = _Heartbeat(fd)
+        beat.start()
+        yield True
+    finally:
+        if beat is not None:
+            beat.stop.set()
+            try:
+                os.ftruncate(fd, 0)
+            except OSError:
+                pass
+        os.close(fd)
+
+
+def holder(path: Path) -> dict | None:
+    """Who holds the lock `path` now ({pid, host, what, command, since}; {} when the holder wrote no
+    record), or None when it is free or missing. Takes nothing: a free lock is released at once."""
+    try:
+        import fcntl
+
+        fd = os.open(path, os.O_RDONLY)
+    except (ImportError, OSError):
+        return None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return _holder(fd) or {}
+        except OSError:
+            return None
+        return None
+    finally:
+        os.close(fd)

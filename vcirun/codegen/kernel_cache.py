@@ -28,7 +28,7 @@ from pathlib import Path
 import llvmlite
 import numba
 
-from . import build, cache_store, numba_cache
+from . import build, cache_lock, cache_store, numba_cache
 from .cache_store import CacheDamage
 from .kernel_set import KernelSet
 
@@ -37,11 +37,15 @@ __all__ = ["KernelCache", "BuildReport", "default", "of"]
 
 @dataclass
 class BuildReport:
-    """The build entries of the modules loaded while the report was open (`KernelCache.report`): dicts
-    with key, system, kernels, cached (the module file was in the cache), generate_s, warm_index and,
-    shared build, link_s, core_key, core_cold (numba had not cached the core's loop)."""
+    """What the kernel cache did while the report was open (`KernelCache.report`). entries: the build
+    entries of the modules loaded, dicts with key, system, kernels, cached (the module file was in the
+    cache), generate_s, warm_index and, shared build, link_s, core_key, core_cold (numba had not cached
+    the core's loop); numba_compiles: (module label, function) numba compiled for want of cached code;
+    unsaved: (module label, why) compiled code that could not be saved in the cache."""
 
     entries: list = field(default_factory=list)
+    numba_compiles: list = field(default_factory=list)
+    unsaved: list = field(default_factory=list)
 
     @property
     def generated(self) -> int:
@@ -50,8 +54,8 @@ class BuildReport:
 
     @property
     def compiled(self) -> bool:
-        """Something was generated, or a shared core was compiled, during the report."""
-        return any(not e["cached"] or e.get("core_cold") for e in self.entries)
+        """Something was generated or compiled during the report."""
+        return bool(self.numba_compiles) or any(not e["cached"] or e.get("core_cold") for e in self.entries)
 
 
 class KernelCache:
@@ -60,8 +64,9 @@ class KernelCache:
     loader: None (the disk cache: generate, compile, load; warm index on), or f(symbolic system,
     kernel set) -> module used instead (no disk cache, no warm index)."""
 
-    def __init__(self, loader=None):
+    def __init__(self, loader=None, background: bool = False):
         self.loader = loader
+        self.background = background  # the background compile process itself (vcirun.codegen.background)
         self.lock = threading.RLock()
         self.loaded: dict = {}        # module key -> module
         self.set_aside: set = set()   # module keys whose file was found damaged and set aside here
@@ -79,6 +84,10 @@ class KernelCache:
         self._compiled: set = set()   # (numba cache dir, core key) found compiled: advisory
         self._bodies: dict = {}       # module key -> verified text, from warm_lookup to load_cached_module
         self._dirs: set = set()       # kernel directories swept of dead processes' leftovers
+        self._generated: dict = {}    # module key -> (generated text, number of parameters)
+        self._interpreted: dict = {}  # module key -> the interpreted tier's module
+        self.started: dict = {}       # module key -> background compile process started by this cache
+        self.told: set = set()        # module keys whose tier notice or compile failure this cache said
 
     @property
     def warm(self) -> bool:
@@ -104,6 +113,11 @@ class KernelCache:
             self.entries[entry["key"]] = entry
             for rep in self._reports:
                 rep.entries.append(entry)
+
+    def _event(self, label: str, kind: str, detail: str) -> None:
+        with self.lock:
+            for rep in self._reports:
+                (rep.numba_compiles if kind == "compiled" else rep.unsaved).append((label, detail))
 
     # --- where, and keys ---------------------------------------------------------------------------
 
@@ -141,32 +155,150 @@ class KernelCache:
     # --- modules -----------------------------------------------------------------------------------
 
     def load_module(self, system, ks: KernelSet):
-        """The module for (symbolic system, ks): from this cache's memory, from the disk cache (checked
-        against its digests), or generated now; a damaged entry is set aside and generated again. With a
-        substitute loader: what it returns."""
+        """The compiled module for (symbolic system, ks): from this cache's memory, from the disk cache
+        (checked against its digests), or generated now; a damaged entry is set aside and generated again.
+        With a substitute loader: what it returns."""
         if self.loader is not None:
             return self.loader(system, ks)
-        key = self.module_key(system, ks)
+        return self.compiled(self.module_key(system, ks), system.name, ks, system)
+
+    def module(self, system, ks: KernelSet, tier=None):
+        """The module for (symbolic system, ks) on `tier` (vcirun.codegen.tiers: None is $VCIRUN_TIER, else
+        auto: compiled when it is there, else interpreted while it compiles in the background)."""
+        from .tiers import Kernels
+
+        if self.loader is not None:
+            return self.loader(system, ks)
+        return Kernels(self, ks, system.name, len(system.param_symbols), sysm=system)(tier)
+
+    def generated(self, key: str, ks: KernelSet, system=None) -> tuple[str, int] | None:
+        """(text, number of parameters) of the generated part of module `key` (vcirun.codegen.derive:
+        all of its sympy work), the input of both tiers: from memory, from `vg_<key>.py` (sealed; a
+        damaged file is set aside), else derived now from symbolic `system` and written (best effort);
+        None when neither the file nor the system is at hand."""
+        if key in self._generated:
+            return self._generated[key]
+        path = self.cache_dir() / f"vg_{key}.py"
+        try:
+            data = cache_store.read(path)
+            found = None if data is None else cache_store.unseal_text(data, key)
+        except CacheDamage as e:
+            cache_store.quarantine(path, e.reason, rebuild="deriving it again")
+            found = None
+        except ValueError as e:
+            cache_store.quarantine(path, str(e), rebuild="deriving it again")
+            found = None
+        if found is not None and isinstance(found[1].get("nprm"), int) and found[1].get("kernels") == ks.key_text():
+            out = (found[0], found[1]["nprm"])
+        elif system is None:
+            return None
+        else:
+            from .derive import generated_source   # sympy work happens only here
+
+            out = (generated_source(system, ks), len(system.param_symbols))
+            try:
+                cache_store.write_atomic(path, cache_store.seal_text(
+                    out[0], {"key": key, "system": system.name, "kernels": ks.key_text(), "nprm": out[1]}),
+                    what=path.name)
+            except cache_store.CacheError:
+                pass   # a read-only cache: this process keeps the text in memory
+        self._generated[key] = out
+        return out
+
+    def compiled(self, key: str, system_name: str, ks: KernelSet, system=None):
+        """The compiled tier's module `key`: from memory, from its file in the cache (checked), or made
+        now from the generated part (`generated`; the C compiler, numba); a damaged entry is set aside and
+        made again. A background compile of the same module in progress is waited for (its lock), not
+        repeated. A module loaded from disk has its entry points compiled (or loaded) by numba and is
+        marked compiled for the processes that choose a tier (`ready`)."""
+        if key in self.loaded:
+            return self.loaded[key]
+        from . import background
+
+        d = self.cache_dir()
+        lock = contextlib.nullcontext() if self.background else cache_lock.held(
+            background.lock_path(d, key), f"the compiled tier of {system_name}/{build.family(ks)}")
+        with lock:
+            mod = self._compiled_module(key, system_name, ks, system)
+            if not self.background and background.marker(d, key) is None:
+                nprm = self._nprm(key, ks, system, mod)
+                if nprm is not None:
+                    self.finish(mod, key, system_name, ks, nprm)
+        return mod
+
+    def _nprm(self, key, ks, system, mod) -> int | None:
+        if system is not None:
+            return len(system.param_symbols)
+        if hasattr(mod, "NPRM"):
+            return int(mod.NPRM)
+        gen = self.generated(key, ks)
+        return None if gen is None else gen[1]
+
+    def finish(self, mod, key: str, system_name: str, ks: KernelSet, nprm: int) -> None:
+        """numba's first calls of the module's entry points (under the module's first-call lock), then
+        its marker: the compiled tier of `key` is there."""
+        from . import background
+        from .cache import first_call_lock, note_first_call
+
+        t0 = time.perf_counter()
+        with first_call_lock(mod, kc=self):
+            background.exercise(mod, ks, nprm)
+        note_first_call(mod, ks, time.perf_counter() - t0, kc=self)   # (the next estimate of this build)
+        background.write_marker(self.cache_dir(), key, {
+            "system": system_name, "family": build.family(ks), "kernels": ks.key_text(),
+            "seconds": round(time.perf_counter() - t0, 2), "time": time.time()})
+
+    def _compiled_module(self, key: str, system_name: str, ks: KernelSet, system=None):
         if key in self.loaded:
             return self.loaded[key]
         path = self.cache_dir() / f"vk_{key}.py"
         for attempt in range(2):
             t0 = time.perf_counter()
-            found = self._verified_entry(path, key)
+            body = self._bodies.pop(key, None)   # (checked by warm_lookup just now)
+            found = (body, {}) if body is not None else self._verified_entry(path, key)
             cached = found is not None
             if found is None:
-                body = build.generate(system, ks, self.cache_dir())
+                gen = self.generated(key, ks, system)
+                if gen is None:
+                    raise CacheDamage(path, "is missing or damaged")
+                body = build.module_text(gen[0], ks, gen[1], self.cache_dir(), system_name)
                 cache_store.write_atomic(path, cache_store.seal_text(
-                    body, {"key": key, "system": system.name, "kernels": ks.key_text()}), what=path.name)
+                    body, {"key": key, "system": system_name, "kernels": ks.key_text()}), what=path.name)
             else:
                 body = found[0]
             try:
-                return self._exec_module(key, path, body, system.name, ks, cached, time.perf_counter() - t0, False)
+                return self._exec_module(key, path, body, system_name, ks, cached, time.perf_counter() - t0,
+                                         system is None)
             except CacheDamage as e:   # a shared object that changed between its check and its load
                 if attempt:
                     raise
                 self._set_aside_so(e)
         raise AssertionError("unreachable")
+
+    def interpreted(self, key: str, system_name: str, ks: KernelSet, system=None):
+        """The interpreted tier's module `key`: the generated part with the units and bindings run as
+        Python (vcirun.codegen.evaluate.run_as_python), from the generated text in memory or in the cache
+        (`generated`; no numba compile, no C compiler). Its TIER is "interpreted"."""
+        mod = self._interpreted.get(key)
+        if mod is None:
+            from .evaluate import run_as_python
+
+            gen = self.generated(key, ks, system)
+            if gen is None:
+                raise CacheDamage(self.cache_dir() / f"vg_{key}.py", "is missing or damaged")
+            mod = run_as_python(build.interpreted_text(gen[0], ks), f"vcirun_interpreted_{key}",
+                                str(self.cache_dir() / f"vg_{key}.py"))
+            mod.TIER = "interpreted"
+            mod.CACHE_LABEL = f"kernels for {system_name}/{build.family(ks)} (interpreted)"
+            self._interpreted[key] = mod
+        return mod
+
+    def ready(self, key: str) -> bool:
+        """Is the compiled tier of module `key` there: loaded by this cache, or marked compiled in the
+        cache by any process?"""
+        from . import background
+
+        return key in self.loaded or background.marker(self.cache_dir(), key) is not None
 
     def is_loaded(self, key: str) -> bool:
         return key in self.loaded
@@ -189,7 +321,7 @@ class KernelCache:
         return mod
 
     def _owner(self, label: str, key: str, estimate) -> numba_cache.Owner:
-        owner = numba_cache.Owner(label, estimate)
+        owner = numba_cache.Owner(label, estimate, lambda kind, detail: self._event(label, kind, detail))
         owner.announced = key in self.announced   # a cold build said so already
         return owner
 
@@ -328,8 +460,8 @@ class KernelCache:
     # --- warm index: name or YAML file -> module key and numeric data, without the symbolic system ----
 
     def warm_lookup(self, ident: tuple, ks: KernelSet) -> dict | None:
-        """The index entry of (ident, ks) whose module and shared objects are in the cache and match their
-        digests, or None. An entry that fails its seal, or names a module of another system or kernel set,
+        """The index entry of (ident, ks) whose module and shared objects (or, before the compiled tier is
+        there, whose generated text) are in the cache and match their digests, or None. An entry that fails its seal, or names a module of another system or kernel set,
         is set aside (said on one line); the caller then takes the symbolic path, which writes it again."""
         path = self.index_path(ident, ks)
         try:
@@ -350,11 +482,11 @@ class KernelCache:
             reason = str(e) if isinstance(e, ValueError) else f"lacks a field ({type(e).__name__}: {e})"
             cache_store.quarantine(path, reason, rebuild="rebuilding it from the symbolic system")
             return None
-        if key in self.loaded:
+        if key in self.loaded or key in self._interpreted:
             return entry
         found = self._verified_entry(self.cache_dir() / f"vk_{key}.py", key)
-        if found is None:
-            return None
+        if found is None:   # no compiled module (yet): the generated text serves both tiers
+            return entry if self.generated(key, ks) is not None else None
         body, meta = found
         if meta.get("kernels") != ks.key_text() or meta.get("system") != entry.get("name"):
             cache_store.quarantine(path, f"points at the module of {meta.get('system')}/{meta.get('kernels')}",
@@ -374,18 +506,9 @@ class KernelCache:
             pass
 
     def load_cached_module(self, key: str, system_name: str, ks: KernelSet):
-        """The module with this key from memory or from the disk cache (no generation; the caller found it
-        with `warm_lookup`, which checked it)."""
-        if key in self.loaded:
-            return self.loaded[key]
-        path = self.cache_dir() / f"vk_{key}.py"
-        body = self._bodies.pop(key, None)
-        if body is None:
-            found = self._verified_entry(path, key)
-            if found is None:
-                raise CacheDamage(path, "is missing or damaged")
-            body = found[0]
-        return self._exec_module(key, path, body, system_name, ks, True, 0.0, True)
+        """The compiled module with this key (the caller found it with `warm_lookup`): from memory, its
+        file, or the generated text in the cache (no symbolic work); CacheDamage when none is usable."""
+        return self.compiled(key, system_name, ks)
 
 
 _DEFAULT = KernelCache()

@@ -34,13 +34,17 @@ MAGIC = b"vcirun-numba 1 "
 
 class Owner:
     """What a claimed module is, for the lines this module says: `label` ("kernels for cart_pendulum/
-    MCVA[SVC,s=4]", "the shared core of CVA[SVC]") and `estimate()` (seconds a compile takes, or None)."""
+    MCVA[SVC,s=4]", "the shared core of CVA[SVC]"), `estimate()` (seconds a compile takes, or None) and
+    `on_event(kind, detail)` ("compiled" with the function numba compiles for want of cached code,
+    "unsaved" with why its code could not be saved: the kernel cache's build reports)."""
 
-    def __init__(self, label: str, estimate=None):
-        self.label, self.estimate = label, estimate
+    def __init__(self, label: str, estimate=None, on_event=None):
+        self.label, self.estimate, self.on_event = label, estimate, on_event
         self.announced = False
 
     def compiling(self, fn: str) -> None:
+        if self.on_event is not None:
+            self.on_event("compiled", fn)
         if self.announced:
             return
         self.announced = True
@@ -51,11 +55,14 @@ class Owner:
                 about = "" if s is None else f", about {float(s):.0f} s"
             except Exception:  # noqa: BLE001 - an estimate never stops a run
                 about = ""
-        cache_store.say(f"compiling {self.label} (numba's cached code for {fn} is missing or was set aside{about}; "
-                        f"cached in {cache_store.root()})")
+        # (a damaged file was said by its quarantine line, which counts as this announcement)
+        cache_store.say(f"compiling {self.label}: {fn} is not compiled yet for this vcirun on this machine{about} "
+                        f"(cached in {cache_store.root()})")
 
     def unsaved(self, where: str, e: Exception) -> None:
         text = " ".join(str(e).split())
+        if self.on_event is not None:
+            self.on_event("unsaved", text)
         cache_store.say(f"kernel cache: cannot save the compiled code of {self.label} in {where} ({text}); this "
                         f"process runs it from memory, the next one compiles it again", once=f"unsaved|{where}")
 

@@ -77,7 +77,9 @@ class ReturnMap:
         meth = resolve_method(method)
         sysd, load, sysm = resolve_numeric(self.system, meth.kernel_set())
         self.n = sysd.n
-        self.mod = load()
+        self.mod = load(options.get("tier"))
+        # one tier for every evaluation of this map (a Newton iteration never mixes them)
+        self.options = dict(options, tier="interpreted" if load.tier == "interpreted" else "compiled")
         self.prm = sysd.param_values(self.params)
         names = [c.name for c in sysm.constraints] if sysm is not None else None
         self.section = _section_index(section, sysm, names)
@@ -301,6 +303,7 @@ def periodic_orbit(system, method, *, h=None, guess, section=None, k=1, params=N
     if method == "reference":
         if h is not None:
             raise ValueError("h: the exact return map (method 'reference') has no step; drop h")
+        options.pop("tier", None)   # (the exact map's system kernels: compiled)
         P = ReferenceReturnMap(system, section=section, k=k, params=params, **options)
     elif h is None:
         raise ValueError(f"h: the return map of {method} needs a step h")

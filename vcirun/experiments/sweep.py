@@ -71,6 +71,7 @@ class SweepSummary:
     write_time: float = 0.0    # seconds the client spent storing results, final commit included (serial)
     prepare_time: float = 0.0  # seconds of the preflight: loading or (cold cache) compiling the kernels
     compiled: int = 0          # kernel modules the preflight generated and compiled (cold cache)
+    interpreted: int = 0       # computed runs that ran on the interpreted tier (untimed: wall_time None)
     summary_error: str = ""    # why the summary group could not be written ("" if it was)
 
     @property
@@ -177,13 +178,15 @@ class _Reporter:
 
 
 def _preflight(cfg: SweepConfig, pending: list[RunSpec]) -> tuple[int, int, int]:
-    """One step of every method in this process: compiles (and caches on disk) the kernels the
-    workers use (cold ones side by side, vcirun.experiments.precompile), and turns bad input the core
-    rejects into an error before any file exists. Returns the numbers of coordinates and of contacts
+    """One step of every method in this process: loads the kernels the workers use (on the tier asked
+    for, VCIRUN_TIER: compiled ones, cold ones compiled side by side, vcirun.experiments.precompile; in
+    the auto tier the interpreted ones while the compiled ones are built in the background), and turns
+    bad input the core rejects into an error before any file exists. Returns the numbers of coordinates and of contacts
     and how many kernel sets were compiled in side-by-side processes, (n, m, side)."""
     import vcirun
 
     from .precompile import compile_side_by_side
+    from vcirun.codegen.tiers import requested
 
     system, params, sysm = build_system(cfg)
     tol = cfg.tolerances.model_dump(exclude_none=True)
@@ -202,10 +205,14 @@ def _preflight(cfg: SweepConfig, pending: list[RunSpec]) -> tuple[int, int, int]
             ref_kw.update(method=cfg.reference.method, h=min(cfg.reference.h, min(cfg.h) / 2))
         else:
             ref_kw.update(rtol=cfg.reference.rtol)
-    # cold kernels of several method families: compiled side by side, one process per core
-    side = compile_side_by_side(system, sysm, [(s.method.name, split_options(s.method.simulate_kwargs())[0], kw)
-                                        for s, kw in first.values()], default_workers(),
-                         reference=None if isinstance(cfg.reference, MethodReference) else ref_kw)
+    # the compiled tier asked for: cold kernels of several method families compiled side by side, one
+    # process per core; otherwise (auto) the first runs below start on the interpreted tier and each
+    # kernel set's compiled tier is built in the background (vcirun.codegen.tiers)
+    side = 0
+    if requested() == "compiled":
+        side = compile_side_by_side(system, sysm, [(s.method.name, split_options(s.method.simulate_kwargs())[0], kw)
+                                                   for s, kw in first.values()], default_workers(),
+                                    reference=None if isinstance(cfg.reference, MethodReference) else ref_kw)
     for spec, kw in first.values():
         try:
             vcirun.simulate(system, spec.method.name, **kw)
@@ -385,6 +392,8 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
             for r in result["runs"]:
                 writer.add_run(r["run_id"], r["attrs"], r["arrays"], r.get("text"))
                 failed += r["attrs"].get("status") != "ok"
+                if r["attrs"].get("tier") == "interpreted":
+                    summary.interpreted += 1
             summary.computed += len(result["runs"])
             summary.failed += failed
             writer.maybe_commit()

@@ -262,12 +262,17 @@ def _execute_run(st: _WorkerState, spec: RunSpec, ref) -> dict:
             return {"run_id": spec.run_id, "attrs": attrs, "arrays": {}}
         calls.append(time.perf_counter() - t0)
         walls.append(float(traj.wall_time))
-        if traj.status != "ok":
-            break  # a failure is not worth timing again
+        if traj.status != "ok" or getattr(traj, "tier", None) == "interpreted":
+            break  # a failure is not worth timing again; an interpreted run is not timed (below)
     traj.wall_time = min(walls)  # identical runs: the spread is timing noise, the minimum the cost
     call = min(calls)
     attrs, arrays = trajectory_payload(traj, store_arrays=st.cfg.store_trajectories)
     attrs["wall_time_repeats"] = walls
+    attrs["tier"] = str(getattr(traj, "tier", "compiled"))
+    if attrs["tier"] == "interpreted":
+        # the run's numbers are the compiled tier's (vcirun.codegen.tiers); its time is not: kept apart,
+        # so that no table or figure of wall_time mixes the tiers (Table II's means skip a None)
+        attrs["wall_time_interpreted"], attrs["wall_time"], attrs["wall_time_repeats"] = walls[0], None, []
     l2, note = None, ""
     if isinstance(st.cfg.reference, NoReference):
         note = "no reference configured"

@@ -223,10 +223,10 @@ def _difference(sysm, a, b, H0, T) -> tuple:
     return acc, 4.0 * _EPS * (1 + events) * (scale + T * speed), scale
 
 
-def _exact(sysm, q0, p0, prm, T, rtol, check_accuracy, resting_contact, path="auto"):
+def _exact(sysm, q0, p0, prm, T, rtol, check_accuracy, resting_contact, path="auto", tier="compiled"):
     """(Solution, accuracy, kind, why) of the exact solve: the Taylor path where the system is
     expressible, else DOP853 (why: the reason); path "taylor" or "dop853" asks for one."""
-    mod = load_module(sysm, SYSTEM_KERNELS)
+    mod = load_module(sysm, SYSTEM_KERNELS, tier)
     model = taylor_model(sysm)
     H0 = float(mod.hamiltonian(q0, p0, prm))
     why = model.expressible() if path != "dop853" else "the DOP853 path was asked for"
@@ -292,7 +292,7 @@ def _check_start(system, q0, prm) -> None:
 
 
 def reference(system, *, T, beta=None, q0=None, p0=None, params=None, rtol=1e-13, method="exact", h=None,
-              check_accuracy=True, resting_contact=True) -> Reference:
+              check_accuracy=True, resting_contact=True, tier=None) -> Reference:
     """The nonsmooth solution on [0, T] from (q0, p0) or the scene's initial-condition map at beta.
 
     method='exact' (default): the event-driven solve of the module docstring. ref.kind says which path
@@ -304,13 +304,18 @@ def reference(system, *, T, beta=None, q0=None, p0=None, params=None, rtol=1e-13
     on (q, qdot = M^-1 p) between its grid points (exact at the grid points).
     resting_contact (as simulate's): contacts that come to rest are held on their surface and
     released where their force turns tensile (ref.releases, ref.release_contact, ref.held_intervals);
-    False raises where a contact would have to be held."""
+    False raises where a contact would have to be held.
+    tier: the system kernels' tier (vcirun.codegen.tiers; default $VCIRUN_TIER, else auto: interpreted
+    while the compiled ones are built in the background); the same reference either way."""
     from ..core.bounds import check_reference_args
     from ..run.api import simulate
     from ..run.resolve import resolve_system
 
     check_reference_args(T=T, rtol=rtol, method=method, h=h, beta=beta, q0=q0, p0=p0, params=params,
                          system=system, resting_contact=resting_contact, check_accuracy=check_accuracy)
+    from ..codegen.tiers import requested
+
+    tier = requested(tier)
     sysm = resolve_system(system)
     prm = sysm.param_values(params)
     q0, p0 = sysm.initial_state(beta=beta, q0=q0, p0=p0, params=prm)
@@ -318,24 +323,25 @@ def reference(system, *, T, beta=None, q0=None, p0=None, params=None, rtol=1e-13
     if method != "exact":
         if h is None:
             raise ValueError("reference.h: a fine step is required for a method reference")
-        tr = simulate(sysm, method, h=h, T=T, q0=q0, p0=p0, params=params, resting_contact=resting_contact)
+        tr = simulate(sysm, method, h=h, T=T, q0=q0, p0=p0, params=params, resting_contact=resting_contact,
+                      tier=tier)
         if tr.status != "ok":
             raise RuntimeError(f"reference: {method} at h={h} failed: {tr.message}")
-        return _grid_reference(sysm, tr, prm)
+        return _grid_reference(sysm, tr, prm, tier)
     return solve_exact(sysm, q0, p0, prm, T, rtol=rtol, check_accuracy=check_accuracy,
-                       resting_contact=resting_contact)
+                       resting_contact=resting_contact, tier=tier)
 
 
 def solve_exact(sysm, q0, p0, prm, T, *, rtol=1e-13, check_accuracy=True, resting_contact=True,
-                path="auto") -> Reference:
+                path="auto", tier="compiled") -> Reference:
     """The exact Reference of the MechanicalSystem sysm from (q0, p0) at the parameter vector prm
     (`reference` after its validation); path "auto" (Taylor where expressible, else DOP853),
-    "taylor" (NotExpressible if it cannot) or "dop853"."""
+    "taylor" (NotExpressible if it cannot) or "dop853"; tier: the system kernels' (vcirun.codegen.tiers)."""
     q0, p0 = np.asarray(q0, float), np.asarray(p0, float)
     _check_start(sysm, q0, prm)
     try:
-        sol, acc, kind, why = _exact(sysm, q0, p0, prm, T, rtol, check_accuracy, resting_contact, path)
-        mod = load_module(sysm, SYSTEM_KERNELS)
+        sol, acc, kind, why = _exact(sysm, q0, p0, prm, T, rtol, check_accuracy, resting_contact, path, tier)
+        mod = load_module(sysm, SYSTEM_KERNELS, tier)
         H0 = float(mod.hamiltonian(q0, p0, prm))
         n = sysm.n
         pieces = sol.pieces
@@ -352,7 +358,7 @@ def solve_exact(sysm, q0, p0, prm, T, *, rtol=1e-13, check_accuracy=True, restin
                                "cannot be trusted")
         if mod.FORCED:
             whole = Reference(sol.pieces, n, [], H0, T, width=2 * n + 1)
-            ref.energy_balance = _energy_balance(sysm, ref, lambda tt: whole.state(tt)[:, 2 * n], prm, T)
+            ref.energy_balance = _energy_balance(sysm, ref, lambda tt: whole.state(tt)[:, 2 * n], prm, T, tier)
     except ReferenceCostError:
         raise
     except (ArithmeticError, ValueError, IndexError, np.linalg.LinAlgError) as e:
@@ -362,9 +368,9 @@ def solve_exact(sysm, q0, p0, prm, T, *, rtol=1e-13, check_accuracy=True, restin
     return ref
 
 
-def _energy_balance(system, ref, work, prm, T) -> float:
+def _energy_balance(system, ref, work, prm, T, tier="compiled") -> float:
     """max over a dense grid of |H(t) - H(0) - W(t)|, W the work integral carried by the solve."""
-    mod = load_module(system, SYSTEM_KERNELS)
+    mod = load_module(system, SYSTEM_KERNELS, tier)
     tt = np.linspace(0.0, T, 2001)
     y = ref.state(tt)
     n = system.n
@@ -382,8 +388,8 @@ class _Hermite:
         return self.f(t).T
 
 
-def _grid_reference(system, tr, prm):
-    mod = load_module(system, SYSTEM_KERNELS)
+def _grid_reference(system, tr, prm, tier="compiled"):
+    mod = load_module(system, SYSTEM_KERNELS, tier)
     n = system.n
     buf = np.empty(2 * n)
     dq = np.empty_like(tr.q)

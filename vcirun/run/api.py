@@ -20,7 +20,7 @@ _LOCAL = threading.local()   # this thread's reused loop buffers (vcirun.run.pla
 
 
 def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, constrained=None,
-             t0=0.0, energies=True, resting_contact=True, loader=None, **options) -> tr.Trajectory:
+             t0=0.0, energies=True, resting_contact=True, tier=None, loader=None, **options) -> tr.Trajectory:
     """Simulate `system` with `method` on the grid t_k = t0 + k h, k = 0..N, N = floor(T / h).
 
     system : built-in name ('cart_pendulum', 'double_pendulum', 'oscillator_wall', ...), YAML path,
@@ -38,7 +38,11 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     energies: False skips H, Ed (and the MCVA family's Hmod) along the grid, leaving NaN after t0;
              for runs that only need the trajectory, e.g. timing against solve_ivp, which does
              not evaluate H either.
-    loader : where the kernels come from: None (the kernel cache, compiled), a
+    tier   : "auto" (default, or $VCIRUN_TIER): the compiled kernels when they are cached, else the
+             interpreted ones at once while the compiled ones are built in the background (later
+             calls switch); "compiled": wait for them; "interpreted": run the generated kernels as
+             Python. Same numbers either way (vcirun.codegen.tiers); `traj.tier` says which ran.
+    loader : where the kernels come from: None (the kernel cache), a
              vcirun.codegen.kernel_cache.KernelCache, or a function (symbolic system, kernel set) ->
              module used instead of the cache, e.g. vcirun.codegen.evaluate.python_module_for to
              run the generated module as Python (no warm index, no plan kept between calls).
@@ -51,7 +55,7 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     """
     p = plan(system, method, h=h, T=T, t0=t0, constrained=constrained, energies=energies,
              resting_contact=resting_contact, options=options, start=dict(beta=beta, q0=q0, p0=p0, params=params),
-             kc=kernel_cache.of(loader))
+             kc=kernel_cache.of(loader), tier=tier)
     sysd, h, N, t0 = p.sysd, p.h, p.N, p.t0
     prm = sysd.param_values(params)
     p.check_memory()  # before any buffer is allocated
@@ -70,7 +74,9 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     t_start = time.perf_counter()
     out, counters = run_loop(mod, q0, p0, t0, h, N, prm, p.settings, sysd.n, p.max_impacts_step, buffers)
     wall = time.perf_counter() - t_start
-    return trajectory_of(p, mod, out, counters, q0, p0, prm, beta, wall)
+    traj = trajectory_of(p, mod, out, counters, q0, p0, prm, beta, wall)
+    traj.tier = p.tier_used
+    return traj
 
 
 def trajectory_of(p, mod, out, counters, q0, p0, prm, beta, wall) -> tr.Trajectory:

@@ -20,6 +20,7 @@ those of simulate. What differs is around the loop:
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import threading
@@ -242,17 +243,18 @@ def _dataset(ctx: _Context, res: dict, lo: int, wall: float):
         coords["p0"] = (rc, np.array(per["p0"][lo: lo + k]))
     attrs = {"system": p.sysd.name, "method": p.meth.name, "h": p.h, "T": p.N * p.h, "t0": p.t0, "N": p.N,
              "constrained": int(p.constrained), "energies": int(p.energies), "wall_time": wall,
+             "tier": str(p.tier_used),
              "messages": [f"run {i}: {m}" for i, m in sorted(res["messages"].items())]}
     return xr.Dataset(data, coords=coords, attrs=attrs)
 
 
 def _prepare(system, method, h, T, beta, q0, p0, params, outputs, constrained, t0, energies, resting_contact,
-             workers, options):
+             workers, options, tier=None):
     if outputs not in OUTPUTS:
         raise ValueError(f"outputs: must be one of {', '.join(OUTPUTS)} (got {describe(outputs)})")
     k, per = _inputs(beta, q0, p0, params)
     p = plan(system, method, h=h, T=T, t0=t0, constrained=constrained, energies=energies,
-             resting_contact=resting_contact, options=options)
+             resting_contact=resting_contact, options=options, tier=tier)
     n = p.sysd.n
     for name in ("q0", "p0"):
         if per[name] is not None and per[name].shape != (k, n):
@@ -266,6 +268,9 @@ def _prepare(system, method, h, T, beta, q0, p0, params, outputs, constrained, t
             workers = os.cpu_count() or 1
     workers = int(check_number("workers", workers, ge=1, le=1024, integer=True))
     check_run_memory(p.N, n, copies=workers, field="h")
+    p.module()
+    if p.tier_used in ("compiled", "interpreted"):   # one tier for the whole ensemble (a copy: p may be kept)
+        p = dataclasses.replace(p, tier=p.tier_used)
     ctx = _Context(p, per, k, outputs)
     mod = p.module()
     for i in range(k):   # numba's first call of the loop, untimed, from the first start it accepts
@@ -282,7 +287,7 @@ def _prepare(system, method, h, T, beta, q0, p0, params, outputs, constrained, t
 
 
 def ensemble(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, outputs="final",
-             constrained=None, t0=0.0, energies=True, resting_contact=True, workers=None, **options):
+             constrained=None, t0=0.0, energies=True, resting_contact=True, workers=None, tier=None, **options):
     """Run k initial conditions or parameter sets of `system` with `method` on the grid of h and T;
     an xarray Dataset over `run` (and `coordinate`).
 
@@ -292,14 +297,14 @@ def ensemble(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     simulate's, for every run. outputs: "final" (q_final, p_final over (run, coordinate), status,
     fail_step, n_steps, n_impacts, H0, energy_error = max |H - H(0)|) or "trajectory" (also q, p
     over (run, t, coordinate) and H over (run, t), NaN after a run's last state). workers: threads
-    (default: every core).
+    (default: every core). tier: simulate's, one for the whole ensemble (attrs["tier"] says which).
 
     Each run equals `vcirun.simulate` with the same arguments, bit for bit; a failed run is its
     status, a refused start `invalid_input` (message in attrs["messages"]). Bad arguments of the
     whole ensemble (shapes, lengths, names, h, T, tolerances) raise ValueError naming the field.
     """
     ctx, workers = _prepare(system, method, h, T, beta, q0, p0, params, outputs, constrained, t0, energies,
-                            resting_contact, workers, options)
+                            resting_contact, workers, options, tier)
     if outputs == "trajectory":
         need = ctx.k * (ctx.plan.N + 1) * (2 * ctx.plan.sysd.n + 1) * 8
         if need > memory_limit():
@@ -313,13 +318,13 @@ def ensemble(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
 
 def iter_ensemble(system, method, *, h, T, batch=4096, beta=None, q0=None, p0=None, params=None,
                   outputs="final", constrained=None, t0=0.0, energies=True, resting_contact=True, workers=None,
-                  **options):
+                  tier=None, **options):
     """`ensemble` one batch of runs at a time: yields a Dataset per `batch` runs (its `run` coordinate
     the runs' indices), so that any k, with full trajectories too, needs the memory of one batch.
     The module's lock is held while a batch computes, not between batches."""
     batch = int(check_number("batch", batch, ge=1, integer=True))
     ctx, workers = _prepare(system, method, h, T, beta, q0, p0, params, outputs, constrained, t0, energies,
-                            resting_contact, workers, options)
+                            resting_contact, workers, options, tier)
     for lo in range(0, ctx.k, batch):
         t = time.perf_counter()
         hi = min(ctx.k, lo + batch)

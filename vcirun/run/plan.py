@@ -2,7 +2,7 @@
 (system, method, grid, options), and the loop's buffers.
 
 `vcirun.simulate` and `vcirun.ensemble` validate their arguments, resolve the system and the method,
-size the memory check, build the settings vector and load the compiled module through `plan`; for
+size the memory check, build the settings vector and load the module through `plan`; for
 a built-in scene named by a string the result is kept per (system, method, h, T, t0, options), so a
 repeated call validates only its initial state and parameters. Each value of the key is kept with
 its type, so that a value the checks reject (``constrained=1``, ``h=True``) never matches an
@@ -46,7 +46,9 @@ from .resolve import _warmable, resolve_numeric, resolve_system
 @dataclass(eq=False)
 class Plan:
     """A resolved (system, method, grid, options): everything a run takes except its start and
-    parameters. `module()` loads the compiled module (`first_call` makes numba's first call of its loop)."""
+    parameters. `module()` loads the module on the tier asked for (`tier`: auto, interpreted or compiled,
+    vcirun.codegen.tiers; `tier_used` says which one it returned) and, in the auto tier, moves to the
+    compiled one as soon as it is there (`first_call` makes numba's first call of a compiled loop)."""
 
     system: object
     sysd: SystemData
@@ -68,6 +70,8 @@ class Plan:
     ks: object = None       # the method's KernelSet
     hit: tuple = None       # what resolve_numeric returned (a kept plan is valid while its warm memo holds it)
     kc: KernelCache = None  # the kernel cache that loads its module
+    tier: str = "auto"
+    tier_used: str = None
     _mod: object = None
 
     @property
@@ -75,8 +79,9 @@ class Plan:
         return int(self.tol["max_impacts_step"])
 
     def module(self):
-        if self._mod is None:
-            self._mod = self.load()
+        if self._mod is None or (self.tier_used == "interpreted" and self.tier == "auto" and self.load.ready()):
+            self._mod = self.load(self.tier)
+            self.tier_used = self.load.tier
         return self._mod
 
     def check_memory(self) -> None:
@@ -93,7 +98,7 @@ def first_call(mod, plan: Plan, q0, p0, prm) -> None:
     one untimed step from the run's start, so a run's wall_time measures the integration only (once per
     module and kernel cache)."""
     kc = plan.kc or default()
-    if mod.__name__ in kc.first_calls:
+    if mod.__name__ in kc.first_calls or getattr(mod, "TIER", "") == "interpreted":
         return
     from ..codegen.cache import first_call_lock, note_first_call
 
@@ -107,14 +112,14 @@ def first_call(mod, plan: Plan, q0, p0, prm) -> None:
 _PLANS_MAX = 64   # plans kept per kernel cache
 
 
-def _key(system, method, h, T, t0, constrained, energies, resting_contact, options):
+def _key(system, method, h, T, t0, constrained, energies, resting_contact, options, tier):
     """The key of a plan kept for reuse (None: resolve per call): a built-in scene's name (checked
-    when the plan is stored), the method's name, every value with its type, the build mode."""
+    when the plan is stored), the method's name, every value with its type, the build mode, the tier."""
     from ..codegen import build
 
     if type(system) is not str or type(method) is not str:
         return None
-    key = (system, method, build.build_id(), os.environ.get("VCIRUN_KERNEL_PATH", ""), type(h), h, type(T), T,
+    key = (system, method, build.build_id(), os.environ.get("VCIRUN_KERNEL_PATH", ""), tier, type(h), h, type(T), T,
            type(t0), t0, type(constrained), constrained, type(energies), energies, type(resting_contact),
            resting_contact)
     if options:
@@ -127,14 +132,19 @@ def _key(system, method, h, T, t0, constrained, energies, resting_contact, optio
 
 
 def plan(system, method, *, h, T, t0=0.0, constrained=None, energies=True, resting_contact=True,
-         options: dict | None = None, start: dict | None = None, kc: KernelCache | None = None) -> Plan:
+         options: dict | None = None, start: dict | None = None, kc: KernelCache | None = None,
+         tier=None) -> Plan:
     """The Plan of a run; `start` holds the per-run arguments (beta, q0, p0, params) of a call,
     validated here with the rest (same checks, order and messages as one call of simulate). `kc`: the
-    kernel cache (default: the API's), which keeps the plan when the run names a built-in scene."""
+    kernel cache (default: the API's), which keeps the plan when the run names a built-in scene; `tier`:
+    vcirun.codegen.tiers.requested (None: $VCIRUN_TIER, else auto)."""
+    from ..codegen.tiers import requested
+
     options = dict(options or {})
     start = start or {}
     kc = default() if kc is None else kc
-    key = _key(system, method, h, T, t0, constrained, energies, resting_contact, options) if kc.warm else None
+    tier = requested(tier)
+    key = _key(system, method, h, T, t0, constrained, energies, resting_contact, options, tier) if kc.warm else None
     if key is not None:
         with kc.lock:
             p = kc.plans.get(key)
@@ -159,7 +169,7 @@ def plan(system, method, *, h, T, t0=0.0, constrained=None, energies=True, resti
     p = Plan(system=system, sysd=sysd, sysm=sysm, meth=meth, load=load, h=h, T=T, N=N, t0=float(t0), tol=tol,
              mopts=mopts, constrained=bool(constrained), energies=bool(energies),
              resting_contact=bool(resting_contact), settings=settings, note=grid_note(h, T),
-             need=run_bytes(N, sysd.n), ks=ks, hit=hit, kc=kc)
+             need=run_bytes(N, sysd.n), ks=ks, hit=hit, kc=kc, tier=tier)
     if key is not None and sysm is None and scene_args(system) is not None:   # warm: nothing symbolic held
         with kc.lock:
             kc.plans[key] = p
@@ -170,7 +180,7 @@ def plan(system, method, *, h, T, t0=0.0, constrained=None, energies=True, resti
 
 def _still_warm(p: Plan, key) -> bool:
     """The warm-start memo that served plan `p` still holds its entry."""
-    memo = (("scene", key[0]), p.ks, key[3], key[2])
+    memo = (("scene", key[0]), p.ks, key[3], key[2])   # (ident, ks, kernel path, build id)
     return p.kc.warm_hits.get(memo) is p.hit
 
 

@@ -1,7 +1,7 @@
 """From what a user names (a built-in scene, a YAML file, a MechanicalSystem) to the numeric system
-and its compiled module: the symbolic path (sympy, on a cache miss) or the warm index (a
-built-in name or a YAML file whose module is cached starts without any symbolic work). Used by
-vcirun.simulate and by a Trajectory that re-attaches its dynamics."""
+and its module on a tier (vcirun.codegen.tiers): the symbolic path (sympy, on a cache miss) or the
+warm index (a built-in name or a YAML file whose module is cached starts without any symbolic work).
+Used by vcirun.simulate and by a Trajectory that re-attaches its dynamics."""
 from __future__ import annotations
 
 import hashlib
@@ -12,6 +12,7 @@ import numpy as np
 
 from ..codegen import build
 from ..codegen.kernel_cache import KernelCache, default
+from ..codegen.tiers import Kernels
 from ..core.system_data import SystemData
 from ..scenes.data import scene_args, scene_data
 
@@ -103,9 +104,9 @@ def _entry_data(sysm) -> dict:
 
 
 def resolve_numeric(system, ks: build.KernelSet, kc: KernelCache | None = None):
-    """(SystemData, loader, symbolic system or None) for `system` (built-in name, YAML path or
-    MechanicalSystem) and kernel set `ks`; loader() returns the module from kernel cache `kc` (default:
-    the API's).
+    """(SystemData, kernels, symbolic system or None) for `system` (built-in name, YAML path or
+    MechanicalSystem) and kernel set `ks`; kernels(tier=None) returns the module from kernel cache `kc`
+    (default: the API's) on that tier (vcirun.codegen.tiers.Kernels; `kernels.tier` says which ran).
 
     A built-in name or a YAML file whose (identity, ks) is in the warm index is served from it:
     no symbolic system, no sympy. Otherwise (and always for a MechanicalSystem instance) the
@@ -121,20 +122,16 @@ def resolve_numeric(system, ks: build.KernelSet, kc: KernelCache | None = None):
         entry = kc.warm_lookup(ident, ks)
         d = _data_from_entry(ident, entry) if entry is not None else None
         if d is not None:
-            hit = (d, lambda: kc.load_cached_module(entry["module"], d.name, ks), None)
+            hit = (d, Kernels(kc, ks, d.name, len(d.params), key=entry["module"],
+                              resolve=lambda: resolve_system(system)), None)
             kc.warm_hits[memo] = hit
             return hit
     sysm = resolve_system(system)
     d = SystemData.of(sysm)
 
-    def load():
-        if kc.warm:
-            from ..codegen.cache import announce_if_cold
-
-            announce_if_cold(sysm, ks, kc=kc)  # "compiling kernels for <scene>/<family> (first time, about N s)"
-        mod = kc.load_module(sysm, ks)
+    def indexed(tier):
         if ident is not None and (raw is None or _warm_ident(system)[1] == raw):  # the file we hashed
             kc.warm_record(ident, ks, kc.module_key(sysm, ks), _entry_data(sysm))
-        return mod
 
-    return d, load, sysm
+    return d, Kernels(kc, ks, sysm.name, len(sysm.param_symbols), sysm=sysm,
+                      on_load=indexed if kc.warm else None), sysm

@@ -124,13 +124,14 @@ def _forcing(sysm):
 
 
 def verify(system, methods=None, *, q0=None, p0=None, beta=None, T=5.0, h=None, params=None,
-           progress=None) -> VerifyResult:
+           progress=None, tier=None) -> VerifyResult:
     """Run the numerical checks of vcirun's test suite on `system` with `methods`.
 
     system : built-in name, YAML path or MechanicalSystem; methods: names (list or "CVA,MCVAC"; default
              CVA and MCVAC) or Method objects; q0, p0 or beta: the start state (as vcirun.simulate);
     T      : final time of every run; h: the step ladder (default 0.04 / 2^k, k = 0..6);
     params : parameter overrides; progress: callable(str) told what is being computed.
+    tier   : the kernels' tier, as vcirun.simulate's (the same numbers on either).
 
     Checks (each a verdict pass / warn / fail / skip with its number and threshold; see
     vcirun.verification.checks): derivatives of every generated kernel the methods' modules define
@@ -147,7 +148,9 @@ def verify(system, methods=None, *, q0=None, p0=None, beta=None, T=5.0, h=None, 
 
     Returns a VerifyResult (`.ok`, `.checks`, `.save(path)` writes the Markdown report and figure).
     Bad input raises ValueError naming the field."""
-    s = _Session(system, methods, q0, p0, beta, T, h, params, progress)
+    from ..codegen.tiers import requested
+
+    s = _Session(system, methods, q0, p0, beta, T, h, params, progress, requested(tier))
     s.references()
     s.choose_probes()
     for meth in s.meths:
@@ -161,7 +164,7 @@ def verify(system, methods=None, *, q0=None, p0=None, beta=None, T=5.0, h=None, 
 class _Session:
     """The state of one verification: the system, start state, ladder, references, and the results."""
 
-    def __init__(self, system, methods, q0, p0, beta, T, h, params, progress):
+    def __init__(self, system, methods, q0, p0, beta, T, h, params, progress, tier="compiled"):
         from ..run.resolve import resolve_system
         from ..codegen.build import load_module
         from ..methods.table import METHODS
@@ -195,7 +198,8 @@ class _Session:
         if self.force is not None:
             self.res.notes.append("forced system: the exact smooth solution adds the declared generalized force to "
                                   "Hamilton's equations (sympy.lambdify of the declaration)")
-        self.base = load_module(sysm, METHODS["CVA"].kernel_set())   # system kernels + Hamilton's equations
+        self.tier = tier
+        self.base = load_module(sysm, METHODS["CVA"].kernel_set(), tier)   # system kernels + Hamilton's equations
         self.H0 = float(self.base.hamiltonian(self.q0, self.p0, prm))
         Mq0 = self.M(self.q0)
         self.lam0 = float(np.linalg.eigvalsh(0.5 * (Mq0 + Mq0.T))[0])
@@ -235,7 +239,8 @@ class _Session:
 
         with warnings.catch_warnings():   # said once, in the report's notes (see __init__)
             warnings.simplefilter("ignore", GridWarning)
-            return simulate(self.sysm, meth, h=h, T=self.T, q0=self.q0, p0=self.p0, params=self.params, **kw)
+            return simulate(self.sysm, meth, h=h, T=self.T, q0=self.q0, p0=self.p0, params=self.params,
+                            tier=self.tier, **kw)
 
     # --- the exact solutions ------------------------------------------------------------------------
     def references(self):
@@ -269,7 +274,7 @@ class _Session:
         self.ref, self.ref_ok = None, False
         self.ref_reason = "no exact nonsmooth reference (vcirun.reference failed)"
         try:
-            self.ref = reference(self.sysm, T=T, q0=self.q0, p0=self.p0, params=self.params)
+            self.ref = reference(self.sysm, T=T, q0=self.q0, p0=self.p0, params=self.params, tier=self.tier)
         except (RuntimeError, ValueError) as e:
             self.add(ck.Check("reference", None, ck.FAIL, float("nan"), "vcirun.reference succeeds",
                               "the exact nonsmooth solution on [0, T]", _message(e, "reference")))
@@ -330,7 +335,7 @@ class _Session:
         ks = meth.kernel_set()
         self.say(f"{name}: loading its compiled module")
         try:
-            mod = load_module(self.sysm, ks)
+            mod = load_module(self.sysm, ks, self.tier)
         except ValueError as e:   # a method the system's declaration does not support
             self.add(ck.skip("every check", name, f"{name} does not run on this system: {' '.join(str(e).split())}"))
             return
