@@ -24,6 +24,7 @@ from vcirun.collision.impact import impact_direction, normal_velocities, touch_t
 from vcirun.maps.dynamics import hamiltonian, force_power, velocity_guess
 from vcirun.maps.held import held_step, contact_forces, project_momentum, normal_acceleration
 from vcirun.maps.linalg import copy_into, set_row
+from vcirun.maps.steps import step_resolves_force
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -128,8 +129,8 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
             H[i] = hamiltonian(q, p, prm)
             Hmod[i] = modified_energy(q, p, h, prm)
         Ed[i] = E
-        if it < 0:
-            status = ST_NEWTON_FAILED
+        if it < 0 or (FORCED and not step_resolves_force(q, p, h, t, prm)):
+            status = ST_NEWTON_FAILED   # (a stiff force: the step's root is not the motion either)
             fail = i
             break
         iters = it
@@ -275,7 +276,11 @@ def _impact(st, ti, dtau, tau_rem, E_pre, k_imp):
     if mapped:
         status, iters, s = _declared_reset(st, ti, dtau, tau_rem, E_pre, s0)
     elif k <= 0:
-        status, iters, k, s, s0 = _touching(st, ti)
+        status, iters, k, s, s0 = _touching(st, ti, k)
+        if status == ST_OK and k == 0:
+            # the law's degenerate case (touching, no impulse): no impact to record or count; a
+            # search that stops at such contacts again and again within the step has failed
+            return (ST_EVENT_FAILED if k_imp > st.max_impacts_step else ST_OK), iters, False
     elif nheld > 0:
         status, iters, s = _impact_in_hold(st, s0)
     else:
@@ -304,23 +309,53 @@ def _declared_reset(st, ti, dtau, tau_rem, E_pre, s0):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _touching(st, ti):
-    """The search stopped at a contact that the impact law finds not approaching (normal velocity ~0:
-    grazing or resting), or whose law has no solution. With held contacts allowed, the touching
-    contacts the motion presses into are held (the multiplier test of `initially_held`), as an
-    impact of zero impulse; otherwise, or if none is, the run fails (no elastic reset exists).
-    Returns (status, iterations, contacts held, s, s0)."""
-    if not st.resting:
-        return ST_RESET_FAILED, 0, 0, 0.0, 0.0
-    k = initially_held(st.qt, st.pt, ti, st.h, st.event_tol, st.prm, st.held)
-    for j in range(NCON):
-        st.active[j] = st.held[j]
-        st.lam[j] = 0.0
-    if k <= 0:
-        return ST_RESET_FAILED, 0, k, 1.0, 1.0
-    st.n[N_HELD] = _count(st.held)
-    copy_into(st.pp, st.pt)
-    return ST_OK, 0, k, 1.0, 1.0
+def _touching(st, ti, k_law):
+    """The search stopped at contacts that the impact law finds not approaching (k_law = 0: normal
+    velocity ~0, grazing or resting), or whose law has no solution (k_law < 0). With held contacts
+    allowed, the touching contacts the motion presses into are held (the multiplier test of
+    `initially_held`), as an impact of zero impulse. Else, with no contact held, several constraints
+    and no approaching contact, a located contact whose normal velocity moves its gap by less than
+    the gap's round-off within a grid step is the law's degenerate case (_unresolved_touch): touching,
+    no impulse, the state goes on (returned as k = 0). Otherwise the run fails: no elastic reset
+    exists. Returns (status, iterations, contacts held, s, s0)."""
+    nheld = st.n[N_HELD]
+    if st.resting:
+        k = initially_held(st.qt, st.pt, ti, st.h, st.event_tol, st.prm, st.held)
+        for j in range(NCON):
+            st.active[j] = st.held[j]
+            st.lam[j] = 0.0
+        if k > 0:
+            st.n[N_HELD] = _count(st.held)
+            copy_into(st.pp, st.pt)
+            return ST_OK, 0, k, 1.0, 1.0
+    if k_law == 0 and nheld == 0 and _unresolved_touch(st):
+        copy_into(st.pp, st.pt)
+        return ST_OK, 0, 0, 0.0, 0.0
+    return ST_RESET_FAILED, 0, 0, 0.0, 0.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _unresolved_touch(st):
+    """Several constraints: at the search's root (st.qt, st.pt), every contact at or past its surface
+    (phi_i <= 0; at least the smallest phi_i) has a normal velocity u_i >= 0 whose motion over a
+    grid step, u_i h, is below the round-off of phi_i there, 64 eps (1 + max |q| max |grad phi_i|)
+    (touch_tolerance's round-off term). The sign of those gaps within the step is then rounding, not
+    motion: the root is not an event (bodies moving together, their relative velocities the noise
+    of the previous impact's law; docs/derivations/contacts.md 1.8). One constraint: False (the
+    paper's grazing failure)."""
+    if NCON == 1:
+        return False
+    sys_phis(st.qt, st.prm, st.phis)
+    i0 = 0
+    for i in range(1, NCON):
+        if st.phis[i] < st.phis[i0]:
+            i0 = i
+    u = normal_velocities(st.qt, st.pt, st.prm)
+    for i in range(NCON):
+        if i == i0 or st.phis[i] <= 0.0:
+            if not (u[i] >= 0.0 and u[i] * st.h <= touch_tolerance(st.qt, st.prm, i, 0.0, st.h, 0.0)):
+                return False
+    return True
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
