@@ -94,7 +94,7 @@ def mcvac_symbolic(Ks) -> list:
         ks = resolve_method("MCVAC").kernel_set()
         t0 = time.process_time()
         a = derive.system_kernels_source(s, "tensor") + derive.ld_kernels_source(
-            s, list(ks.explicit_names), ks.vci_stage, "tensor")
+            s, list(ks.explicit_names), ks.part("energy_gradient"), "tensor")
         t1 = time.process_time()
         b = modified_kernels_source(s, ks)
         t2 = time.process_time()

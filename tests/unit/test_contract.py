@@ -111,7 +111,7 @@ def test_units_are_selected_by_what_the_generated_part_provides():
 
 def test_a_binding_nothing_can_meet_names_the_missing_symbol():
     """R^VCI without the energy gradient of its stage: the error names the unit and the symbol."""
-    ks = KernelSet(full_stages=(("SVC", 1.0),), partial="ld", reset="vci", vci_stage=None)
+    ks = KernelSet(full_stages=(("SVC", 1.0),), partial="ld", reset="vci", parts=())
     with pytest.raises(units.ContractError, match=r"reset_vci is provided by collision/reset_vci.py, which "
                                                   r"requires ld_Edv"):
         units.select_units(ks)
@@ -124,7 +124,9 @@ def test_bindings_and_kernel_sets_come_from_the_descriptors():
         r = roles.reset_map(m.reset)
         assert b["reset"] == r.function and b["partial"] == roles.PARTIALS[m.partial].function
         assert b["modified_energy"] == roles.MODIFIED_ENERGY[m.has_modified_energy][1]
-        assert (ks.vci_stage is not None) == ("energy_gradient" in r.needs)
+        assert [p for p, _ in ks.parts] == [p for p in roles.PARTS if p in set(r.needs) | set(
+            roles.PARTIALS[m.partial].needs)]
+        assert (ks.part("energy_gradient") is not None) == ("energy_gradient" in r.needs)
         assert m.has_modified_energy == r.modified_hamiltonian
         assert ("Hmod" in r.fills) == m.has_modified_energy
     with pytest.raises(ValueError, match="reset: unknown reset 'bogus'"):

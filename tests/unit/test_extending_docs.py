@@ -3,8 +3,8 @@
 The ```python test blocks of docs/extending.md run in order in one namespace, in a temporary working
 directory into which the ```<lang> file=NAME blocks are written first. They run uncompiled
 (vcirun.codegen.evaluate.python_module_for is the default kernel cache's loader here), so no numba compile is
-needed; the registries the examples extend (the Ld library, the reset table, the record table) are
-restored afterwards.
+needed; the registries the examples extend (the Ld library, the reset, kernel and part tables, the
+record table) are restored afterwards.
 """
 from __future__ import annotations
 
@@ -40,6 +40,8 @@ def test_extending_examples_run(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(default(), "loader", python_module_for)   # the docs' calls run uncompiled
     monkeypatch.setattr(roles, "RESETS", dict(roles.RESETS))
+    monkeypatch.setattr(roles, "KERNELS", dict(roles.KERNELS))   # (a kernel the examples declare: theirs alone)
+    monkeypatch.setattr(roles, "PARTS", dict(roles.PARTS))
     monkeypatch.setattr(record, "FIELDS", record.FIELDS)
 
     found = blocks((DOCS / "extending.md").read_text())
@@ -49,6 +51,7 @@ def test_extending_examples_run(tmp_path, monkeypatch):
             (tmp_path / m.group(1)).write_text(body)
     namespace: dict = {"__name__": "extending_md"}
     library = dict(lagrangians.LIBRARY)   # other modules hold this dict itself: restored in place
+    names = set(vars(roles))               # (a declared kernel's name is bound in roles too)
     try:
         for k, (info, body) in enumerate(found):
             if info == "python test":
@@ -59,6 +62,8 @@ def test_extending_examples_run(tmp_path, monkeypatch):
     finally:
         lagrangians.LIBRARY.clear()
         lagrangians.LIBRARY.update(library)
+        for k in set(vars(roles)) - names:
+            delattr(roles, k)
 
 
 def test_trajectory_fields_page_lists_every_record_row():

@@ -24,6 +24,7 @@ import pytest
 import vcirun
 from vcirun.codegen import build
 from vcirun.codegen.kernel_cache import default
+from vcirun.codegen.roles import mat, vec   # (annotations of a kernel declared in a test)
 
 
 def _both(monkeypatch, system, method, **kw):
@@ -244,9 +245,10 @@ def test_the_lean_core_gives_the_specialized_build_bit_for_bit(monkeypatch):
 
 
 def test_cva_and_vci_share_one_core_that_binds_each_its_reset():
-    """R^CVA and R^VCI in one core (the same full and partial maps): every CVA composition and VCI map
-    to the same core text, which holds both resets and chooses by VCI_STAGE (the energy gradient only
-    VCI's kernel set generates); MCVA's core stays its own."""
+    """R^CVA and R^VCI in one core (their needs differ only in the energy gradient, a part a scene may
+    lack): every CVA composition and VCI map to the same core text, which holds both resets and calls
+    the one its scene's kernel set binds (RESET_ID, the index in core_resets); MCVA's core stays its
+    own. No reset is named in the rule: it follows from the descriptors."""
     from vcirun.codegen import shared
     from vcirun.methods.table import METHODS, resolve_method
 
@@ -254,11 +256,13 @@ def test_cva_and_vci_share_one_core_that_binds_each_its_reset():
     texts = {shared.core_source(ks, features=shared.LEAN) for ks in sets}
     assert len(texts) == 1
     text = texts.pop()
-    assert "def reset_cva(" in text and "def reset_vci(" in text and "reset = reset_cva_or_vci" in text
-    assert "    if slot(%d) < 0:\n        return reset_cva(" % shared.SLOT["VCI_STAGE"] in text
-    assert METHODS["CVA"].kernel_set().vci_stage is None and METHODS["VCI"].kernel_set().vci_stage is not None
+    assert "def reset_cva(" in text and "def reset_vci(" in text and "reset = reset_of_scene" in text
+    assert "    if slot(%d) == 0:\n        return reset_cva(" % shared.SLOT["RESET_ID"] in text
+    assert [r.name for r in shared.core_resets(METHODS["CVA"].kernel_set())] == ["cva", "vci"]
+    assert METHODS["CVA"].kernel_set().part("energy_gradient") is None
+    assert METHODS["VCI"].kernel_set().part("energy_gradient") == "SVC"
     mcva = shared.core_source(METHODS["MCVAC"].kernel_set(), features=shared.LEAN)
-    assert "reset_cva_or_vci" not in mcva and "reset = reset_mcva" in mcva
+    assert "reset_of_scene" not in mcva and "reset = reset_mcva" in mcva
 
 
 def test_cold_method_families_are_grouped_by_the_core_they_compile(tmp_path, monkeypatch):
@@ -308,3 +312,46 @@ def test_cold_scene_kernels_compile_side_by_side_in_worker_processes(tmp_path, m
     assert compile_side_by_side("cart_pendulum", sysm, methods, cores=2) == 2
     assert [cold_parts(sysm, METHODS[m].kernel_set()) for m, *_ in methods] == [(), ()]
     assert compile_side_by_side("cart_pendulum", sysm, methods, cores=2) == 0   # nothing cold: nothing done
+
+
+def test_a_kernel_declared_at_run_time_takes_the_next_slot_and_its_reset_a_core_of_its_own(monkeypatch, tmp_path):
+    """A reset that needs a new kernel (docs/extending.md): the kernel's declaration adds its part and
+    a slot after the others (no other core's text changes), the reset's core calls it through that
+    slot, and the scene module defines it from its symbolic definition with the ABI wrapper."""
+    import sympy as sp
+
+    from vcirun.codegen import roles, shared
+    from vcirun.codegen.derive import scene_source
+    from vcirun.methods.table import METHODS, Method
+    from vcirun.scenes.declarations import get_scene
+
+    monkeypatch.setattr(roles, "KERNELS", dict(roles.KERNELS))
+    monkeypatch.setattr(roles, "PARTS", dict(roles.PARTS))
+    monkeypatch.setattr(roles, "RESETS", dict(roles.RESETS))
+    cva_core = shared.core_source(METHODS["CVA"].kernel_set(), features=shared.LEAN)
+    before = len(shared.layout())
+
+    @roles.kernel("test_hessian", derive=lambda s: {"out": sp.hessian(s.V, list(s.q))})
+    def sys_test_hessV(q: vec("NDOF"), prm: vec("NPRM"), out: mat("NDOF", "NDOF")) -> int:
+        """out = V''(q)."""
+
+    monkeypatch.delattr(roles, "sys_test_hessV")
+    unit = tmp_path / "reset_test.py"
+    unit.write_text("from numba import njit\n\nfrom vcirun.codegen.frame import scratch2\n"
+                    "from vcirun.codegen.roles import NDOF, sys_test_hessV\n\n\n"
+                    '@njit(cache=True, nogil=True, error_model="numpy")\n'
+                    "def reset_test(q, pm, d, s0, dE, E_pre, vpre, dtau, tau_rem, h, t, prm, ntol, maxit, pp):\n"
+                    "    K = scratch2(NDOF, NDOF)\n    sys_test_hessV(q, prm, K)\n"
+                    "    for i in range(NDOF):\n        pp[i] = pm[i] + (s0 + 0.0 * K[0, 0]) * d[i]\n    return 1, s0\n")
+    roles.register_reset(roles.ResetMap("test_h", str(unit), "reset_test", needs=("test_hessian",)))
+    ks = Method("CVA_test_h", ld="SVC", reset="test_h").kernel_set()
+    assert ks.parts == (("test_hessian", True),)
+    assert [r.name for r in shared.core_resets(ks)] == ["test_h"]          # registered from outside: its own core
+    slot = shared.slots()["sys_test_hessV"]
+    assert slot == before and len(shared.layout()) == before + 1         # the next slot; the others keep theirs
+    assert shared.core_source(METHODS["CVA"].kernel_set(), features=shared.LEAN) == cva_core
+    core = shared.core_source(ks, features=shared.LEAN)
+    assert f"def sys_test_hessV(q, prm, out):\n    return kcall(slot({slot}), 0, 'aab'" in core
+    assert "def reset_test(" in core and "reset = reset_test" in core and "def reset_cva(" not in core
+    scene = scene_source(get_scene("oscillator_wall"), ks)
+    assert "def sys_test_hessV(q, prm, out):" in scene and "def _p_sys_test_hessV(q, prm, out):" in scene

@@ -28,6 +28,7 @@ import os
 import sympy as sp
 
 from ..discrete.lagrangians import get_ld, step_expressions
+from . import units
 from .kernels import Kernel
 from .roles import partial_map
 
@@ -226,18 +227,19 @@ def ld_kernels(system, name: str, sid: int, need_edv: bool) -> list[Kernel]:
     return ks
 
 
-def ld_kernels_source(system, names, vci_stage=None, path: str | None = None) -> str:
-    """Source of the explicit step kernels of `names` (<LD>_Edv only for vci_stage) on the chosen path."""
+def ld_kernels_source(system, names, edv=None, path: str | None = None) -> str:
+    """Source of the explicit step kernels of `names` (<LD>_Edv only for the Ld `edv`, the energy
+    gradient's) on the chosen path."""
     parts = []
     handled = []
     if kernel_path(path) == "tensor":
         from .tensor import tensor_ld_source
 
-        text, handled = tensor_ld_source(system, list(names), {vci_stage} if vci_stage else set())
+        text, handled = tensor_ld_source(system, list(names), {edv} if edv else set())
         parts.append(text)
     for sid, nm in enumerate(names):
         if nm not in handled:
-            for k in ld_kernels(system, nm, sid, need_edv=(nm == vci_stage)):
+            for k in ld_kernels(system, nm, sid, need_edv=(nm == edv)):
                 parts.append(k.emit())
             parts.append(_EXPANDED_CACHED_WRAPPERS.format(name=nm))
     return "\n\n".join(parts)
@@ -295,36 +297,73 @@ def scene_source(system, ks, kernel_path: str | None = None, c_dir=None) -> str:
 def generated_source(system, ks, kernel_path: str | None = None) -> str:
     """The generated part of a module, by the parts of vcirun.codegen.roles (PARTS): the system
     kernels and the record's constants always; the step kernels of the full map's stages (with
-    their dispatchers by stage id); the energy gradient dEd/dv of ks.vci_stage; the modified
-    Hamiltonian's kernels."""
+    their dispatchers by stage id); the energy gradient dEd/dv of its Ld (ks.part("energy_gradient"));
+    the modified Hamiltonian's kernels; the kernels declared with their symbolic definition whose
+    part the kernel set has (`derived_kernels`)."""
     from ..core.record import module_constants
 
     parts = [HEADER, f"NDOF = {system.n}", f"BAND = {system.bandwidth}", f"FORCED = {bool(system.is_forced)}",
              f"RESET_MAP = {system.reset_map is not None}", f"RESET_LAW_FIRST = {bool(system.reset_law_first)}",
              system_kernels_source(system, kernel_path), module_constants()]
     names = list(ks.explicit_names)
+    edv = ks.part("energy_gradient")
     if names:
+        from .shared import core_resets
+
         sid = {nm: i for i, nm in enumerate(names)}
         parts += [f"FULL_STAGES = np.array({[sid[s] for s, _ in ks.full_stages]}, dtype=np.int64)",
                   f"FULL_FRACS = np.array({[float(f) for _, f in ks.full_stages]}, dtype=np.float64)",
-                  f"VCI_STAGE = {sid.get(ks.vci_stage, -1)}",
+                  f"EDV_STAGE = {sid.get(edv, -1)}",
+                  # which of the resets of its shared core the kernel set binds (the specialized
+                  # module binds it by name: then unused)
+                  f"RESET_ID = {[r.name for r in core_resets(ks)].index(ks.reset)}",
                   # forced DEL (discrete Lagrange-d'Alembert): f^- = FORCE_A[sid] h f(q0, v, t),
                   # f^+ = FORCE_B[sid] h f(q1, v, t + h) per explicit stage (trapezoidal for SVC)
                   f"FORCE_A = np.array({[float(get_ld(nm).forcing_weights[0]) for nm in names]}, dtype=np.float64)",
                   f"FORCE_B = np.array({[float(get_ld(nm).forcing_weights[1]) for nm in names]}, dtype=np.float64)",
                   # Algorithm 1 reuses the full step as the collision search's first partial step
                   f"PARTIAL_IS_FULL = {partial_map(ks.partial).is_full}"]
-        parts.append(ld_kernels_source(system, names, ks.vci_stage, kernel_path))
+        parts.append(ld_kernels_source(system, names, edv, kernel_path))
         parts.append(_dispatch("ld_PmJ", "q0, v, h, t, prm, r, J", "PmJ", names, False))
         parts.append(_dispatch("ld_Pp", "q0, v, h, t, prm, out", "Pp", names, False))
         parts.append(_dispatch("ld_PmJc", "q0, v, h, t, prm, c, r, J", "PmJc", names, False, inline=True))
         parts.append(_dispatch("ld_Ppc", "q0, v, h, t, prm, c, out, cn", "Ppc", names, False, inline=True))
         parts.append(_dispatch("ld_Ed", "q0, v, h, prm", "Ed", names, True))
-    if ks.vci_stage:  # the part "energy_gradient": dEd/dv of one stage, for the resets that need it
+    if edv:  # the part "energy_gradient": dEd/dv of one stage, for the resets that need it
         parts.append('@njit(cache=True, nogil=True, error_model="numpy")\ndef ld_Edv(sid, q0, v, h, prm, out):\n'
-                     f"    {ks.vci_stage}_Edv(q0, v, h, prm, out)\n")
-    if ks.modified is not None:
+                     f"    {edv}_Edv(q0, v, h, prm, out)\n")
+    if ks.part("modified") is not None:
         from .mh_kernels import modified_kernels_source
 
         parts.append(modified_kernels_source(system, ks))
+    parts += [k.emit() for k in derived_kernels(system, units.generated_parts(ks))]
     return "\n\n".join(parts) + "\n"
+
+
+def derived_kernels(system, parts) -> list[Kernel]:
+    """The kernels declared with their symbolic definition (vcirun.codegen.roles.kernel(derive=...))
+    whose part is among `parts`: inputs q, qd, t as the system's coordinates, velocities and time."""
+    from .roles import KERNELS
+
+    inputs = {"q": system.q, "qd": system.qd, "t": system.t}
+    out = []
+    for k in KERNELS.values():
+        if k.derive is None or k.part not in parts:
+            continue
+        defs = k.derive(system)
+        args = [a for a, _ in k.args if a != "prm"]
+        outs = [a for a in args if a in defs]
+        ins = [a for a in args if a not in defs]
+        bad = [a for a in ins if a not in inputs] + [a for a in defs if a not in outs and a != "return"]
+        order = ins + ["prm"] + outs
+        if bad or (k.returns == "float") != ("return" in defs) or [a for a, _ in k.args] != order:
+            raise ValueError(f"kernel {k.name}: its derive gives {sorted(defs)} for arguments ({k.arg_names}); "
+                             "outputs are its array arguments that are not inputs (q, qd, t), or 'return' for a "
+                             "float kernel; the arguments in the order inputs, prm, outputs")
+        if k.returns == "float":
+            out.append(Kernel(k.name, [(a, inputs[a]) for a in ins], [("value", sp.sympify(defs["return"]))],
+                              system.param_symbols))
+        else:
+            out.append(Kernel(k.name, [(a, inputs[a]) for a in ins], [(a, sp.Matrix(defs[a])) for a in outs],
+                              system.param_symbols))
+    return out

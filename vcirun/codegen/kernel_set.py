@@ -9,22 +9,41 @@ from dataclasses import dataclass
 class KernelSet:
     """What one compiled module must contain: the explicit stages of the full map, which partial map
     and reset to bind (names of the descriptors in vcirun.codegen.roles), and the generated parts
-    their descriptors need. vcirun.codegen.roles.kernel_set builds it from a method's data."""
+    their descriptors need beyond the system's and the full map's, each with its argument:
+    ((part, argument), ...) in the order of vcirun.codegen.roles.PARTS, e.g.
+    ("energy_gradient", "SVC") for dEd/dv of that explicit Ld, ("modified", ("SVC", 3, 4)) for the
+    truncated modified Hamiltonian of (Ld, mh_order, flow_order). vcirun.codegen.roles.kernel_set
+    builds it from a method's data."""
 
     full_stages: tuple                 # ((explicit Ld name, fraction of h), ...)
     partial: str = "ld"                # a key of roles.PARTIALS
     reset: str = "cva"                 # a key of roles.RESETS
-    vci_stage: str | None = None       # explicit Ld of the part "energy_gradient" (its dEd/dv; R^VCI)
-    modified: tuple | None = None      # (Ld name, mh_order, flow_order): the part "modified" (H~)
+    parts: tuple = ()                  # ((part name, its argument), ...): a key of roles.PARTS each
 
     def key_text(self) -> str:
         return repr(self)
 
+    def part(self, name: str):
+        """The argument of the generated part `name`, None when the kernel set has no such part."""
+        for p, arg in self.parts:
+            if p == name:
+                return arg
+        return None
+
+    @property
+    def modified(self):
+        """part("modified"): the (Ld, mh_order, flow_order) of the truncated modified Hamiltonian the
+        module carries (the MCVA family), or None."""
+        return self.part("modified")
+
     @property
     def explicit_names(self) -> tuple:
+        """The explicit Lds the module's step kernels are generated for, in stage-id order: the full
+        map's, then the Ld of a part whose argument names one (the energy gradient's)."""
         names = [s for s, _ in self.full_stages]
-        if self.vci_stage and self.vci_stage not in names:
-            names.append(self.vci_stage)
+        for _, arg in self.parts:
+            if isinstance(arg, str) and arg not in names:
+                names.append(arg)
         return tuple(dict.fromkeys(names))
 
 

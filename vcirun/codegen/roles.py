@@ -17,8 +17,10 @@ names in the module. Called from Python, a declaration raises: the numbers exist
 
 Adding a reset that uses existing kernels: one unit file defining a function with the signature of
 the role `reset`, and one `ResetMap` row (in RESETS, or at run time through `register_reset`).
-A reset or partial map that needs a new kernel: a `@kernel` declaration of its part here, the
-generator's emitter of it (vcirun.codegen.derive), the unit, the row.
+A reset that needs a new kernel of the system: one `@kernel(part, derive=...)` declaration (its
+signature and its symbolic definition; a new part is declared with it), the unit, the row naming
+the part in its needs (docs/extending.md, *Add a reset*, runs such an example). A kernel generated
+per Ld or per modified Hamiltonian also needs its generator's emitter (vcirun.codegen.derive).
 
 No numba, no sympy: the method table and the warm path import this. (No `from __future__ import
 annotations`: the declarations are read from their evaluated annotations.)
@@ -68,7 +70,10 @@ class KernelDecl:
     """A generated kernel as the units call it. part: the GENERATED part that defines it; per_stage:
     the units call it as name(sid, ...) and the scene defines <LD>_<suffix>(...) for each explicit Ld
     of the full map (suffix: the name after "ld_"); core: called through the shared core's slot table
-    (False: a scene-module name only); returns "int" (0) or "float"."""
+    (False: a scene-module name only); returns "int" (0) or "float"; derive: None for the kernels
+    vcirun.codegen.derive emits by their own generators, else the kernel's symbolic definition,
+    derive(system) -> {output argument (or "return" for a float kernel): sympy expression or
+    Matrix}, its inputs among q, qd, t (the system's coordinates, velocities and time)."""
 
     name: str
     part: str
@@ -77,6 +82,7 @@ class KernelDecl:
     per_stage: bool
     core: bool
     doc: str
+    derive: object = None
 
     @property
     def arg_names(self) -> str:
@@ -103,6 +109,30 @@ class KernelDecl:
 KERNELS: dict[str, KernelDecl] = {}
 
 
+@dataclass(frozen=True)
+class PartDecl:
+    """A generated part of a module. arg: what a kernel set gives the part (KernelSet.parts): "ld"
+    (an explicit Ld name: its kernels are generated for that Ld), "mh" ((Ld, mh_order, flow_order)),
+    "none" (True: the part depends on the system alone); per_scene: a shared core may hold the part
+    while a scene's kernel set lacks it (its kernels' slots are then empty and the units do not call
+    them), so resets whose needs differ only in such parts share one core (vcirun.codegen.shared)."""
+
+    name: str
+    arg: str
+    per_scene: bool
+    doc: str
+
+
+PARTS: dict[str, PartDecl] = {p.name: p for p in (
+    PartDecl("system", "none", False, "the system kernels and constants: every module"),
+    PartDecl("record", "none", False, "the record's index and status constants (vcirun.core.record): every module"),
+    PartDecl("steps", "none", False, "the step kernels of the full map's explicit Lds, by stage id"),
+    PartDecl("energy_gradient", "ld", True, "dEd/dv of one explicit Ld (R^VCI's energy condition)"),
+    PartDecl("modified", "mh", False, "the truncated modified Hamiltonian H~ and its Gauss flow (the MCVA family)"),
+)}
+BASE_PARTS = ("system", "record", "steps")   # every method's module; KernelSet.parts names the others
+
+
 def _unavailable(name: str, what: str):
     def call(*args, **kwargs):
         raise ContractError(f"{name} is {what}: call it on a module from vcirun.codegen.build.load_module "
@@ -110,10 +140,17 @@ def _unavailable(name: str, what: str):
     return call
 
 
-def kernel(part: str, *, per_stage: bool = False, core: bool = True):
-    """Declare a generated kernel by its Python signature (annotations: Spec; return: int or float)."""
+DERIVED_INPUTS = ("q", "qd", "t")   # the inputs of a kernel declared with `derive`
+
+
+def kernel(part: str, *, per_stage: bool = False, core: bool = True, derive=None):
+    """Declare a generated kernel by its Python signature (annotations: Spec; return: int or float).
+    derive: the kernel's symbolic definition (KernelDecl.derive), which vcirun.codegen.derive emits
+    in every module whose kernel set has `part`; a part that is not in PARTS is declared with it
+    (one that depends on the system alone: arg "none"). The declared name is also bound in this
+    module, so that a unit's `from vcirun.codegen.roles import NAME` resolves."""
     def deco(fn):
-        sig = inspect.signature(fn)
+        sig = inspect.signature(fn, eval_str=True)   # (annotations given as text: a module under `annotations`)
         params = list(sig.parameters.values())
         if per_stage:
             if not params or params[0].name != "sid":
@@ -121,12 +158,28 @@ def kernel(part: str, *, per_stage: bool = False, core: bool = True):
             params = params[1:]
         decl = KernelDecl(fn.__name__, part, tuple((p.name, p.annotation) for p in params),
                           "float" if sig.return_annotation is float else "int", per_stage, core,
-                          inspect.getdoc(fn) or "")
+                          inspect.getdoc(fn) or "", derive)
         for a, s in decl.args:
             if not isinstance(s, Spec):
                 raise ContractError(f"{fn.__name__}: argument {a} needs a Spec annotation (F8, I8, vec, mat)")
+        if derive is not None:
+            if per_stage:
+                raise ContractError(f"{fn.__name__}: a kernel with `derive` depends on the system alone (not per_stage)")
+            bad = [a for a, s in decl.args if s.kind in "fi" and a not in DERIVED_INPUTS]
+            if bad:
+                raise ContractError(f"{fn.__name__}: scalar argument {bad[0]!r}: a derived kernel's inputs are "
+                                    f"{DERIVED_INPUTS} and prm")
+        if decl.name in KERNELS and KERNELS[decl.name] != decl:
+            raise ContractError(f"kernel {decl.name!r}: already declared (part {KERNELS[decl.name].part!r})")
+        if part not in PARTS:
+            if derive is None:
+                raise ContractError(f"{fn.__name__}: part {part!r} is not declared (PARTS: {', '.join(PARTS)}); a "
+                                    "kernel of a new part gives its symbolic definition (derive=...)")
+            PARTS[part] = PartDecl(part, "none", False, f"{fn.__name__}: {decl.doc.splitlines()[0] if decl.doc else ''}")
         KERNELS[decl.name] = decl
-        return functools.wraps(fn)(_unavailable(fn.__name__, f"a generated kernel (part {part!r})"))
+        stub = functools.wraps(fn)(_unavailable(fn.__name__, f"a generated kernel (part {part!r})"))
+        globals().setdefault(decl.name, stub)
+        return stub
     return deco
 
 
@@ -239,11 +292,11 @@ def ld_Pp(sid: I8, q0: vec("NDOF"), v: vec("NDOF"), h: F8, t: F8, prm: vec("NPRM
     """ld_Ppc without node data (a scene-module name)."""
 
 
-# --- the energy gradient of one explicit Ld (part "energy_gradient": ks.vci_stage) -----------------
+# --- the energy gradient of one explicit Ld (part "energy_gradient": ks.part("energy_gradient")) ----
 
 @kernel("energy_gradient", per_stage=True)
 def ld_Edv(sid: I8, q0: vec("NDOF"), v: vec("NDOF"), h: F8, prm: vec("NPRM"), out: vec("NDOF")) -> int:
-    """out = d(-D3 Ld)/dv of the kernel set's vci_stage (sid: that stage's id, VCI_STAGE)."""
+    """out = d(-D3 Ld)/dv of the energy gradient's Ld (sid: that Ld's stage id, EDV_STAGE)."""
 
 
 # --- the truncated modified Hamiltonian (part "modified": vcirun/codegen/mh_kernels.py) -------------
@@ -304,7 +357,10 @@ MH_M = _constant("MH_M", "modified", "int", 1, "number of eta's stage velocities
 FORCED = _constant("FORCED", "system", "bool", False, "the system has a generalized force")
 PARTIAL_IS_FULL = _constant("PARTIAL_IS_FULL", "steps", "bool", True,
                             "the partial map is the full map at step tau (PartialMap.is_full)")
-VCI_STAGE = _constant("VCI_STAGE", "steps", "int", -1, "stage id of the energy gradient's Ld (-1: none)")
+EDV_STAGE = _constant("EDV_STAGE", "steps", "int", -1, "stage id of the energy gradient's Ld (-1: none)")
+RESET_ID = _constant("RESET_ID", "steps", "int", 0,
+                     "index of the kernel set's reset among the resets its shared core holds "
+                     "(vcirun.codegen.shared.core_resets)")
 MH_ORDER = _constant("MH_ORDER", "modified", "int", 3, "s of H~^{O(h^s)}")
 MH_NSTAGE = _constant("MH_NSTAGE", "modified", "int", 1, "explicit stages of the modified Hamiltonian's Ld")
 FULL_STAGES = _constant("FULL_STAGES", "steps", "i8", np.zeros(1, np.int64),
@@ -330,9 +386,6 @@ def generated_names(part: str) -> tuple:
     """The names a generated part defines (kernels and constants)."""
     return tuple(n for n, c in CONSTANTS.items() if c.part == part) + tuple(
         n for n, k in KERNELS.items() if k.part == part)
-
-
-PARTS = ("system", "record", "steps", "energy_gradient", "modified")
 
 
 # --- the roles Algorithm 1 calls ---------------------------------------------------------------------
@@ -459,9 +512,11 @@ def register_reset(r: ResetMap) -> ResetMap:
     if not (Path(__file__).resolve().parent.parent / r.unit).is_file():
         raise ContractError(f"reset {r.name!r}: unit {r.unit} is not a file (give a path relative to the vcirun "
                             "package, or an absolute one)")
-    bad = [p for p in r.needs if p not in PARTS]
+    bad = [p for p in r.needs if p not in PARTS or p in BASE_PARTS]
     if bad:
-        raise ContractError(f"reset {r.name!r}: needs {bad[0]!r}, not a generated part (choose from {PARTS})")
+        raise ContractError(f"reset {r.name!r}: needs {bad[0]!r}, not a generated part beyond every module's "
+                            f"(choose from {', '.join(p for p in PARTS if p not in BASE_PARTS)}, or declare its "
+                            "kernel with @kernel(part, derive=...))")
     RESETS[r.name] = r
     return r
 
@@ -482,13 +537,17 @@ def partial_map(name: str) -> PartialMap:
 
 def kernel_set(ld: str, stages: tuple, partial: str, reset: str | None, mh_order=None, flow_order=None) -> KernelSet:
     """The kernel set of a method: the full map's stages, the partial map and reset it binds, and the
-    generated parts their descriptors need (the energy gradient of `ld`, the modified Hamiltonian
-    of (ld, mh_order, flow_order))."""
+    generated parts their descriptors need, each with its argument (PartDecl.arg): the Ld `ld` (the
+    energy gradient), (ld, mh_order, flow_order) (the modified Hamiltonian), or True."""
     r, pm = reset_map(reset), partial_map(partial)
     needs = set(r.needs) | set(pm.needs)
     return KernelSet(full_stages=tuple(stages), partial=pm.name, reset=r.name,
-                     vci_stage=ld if "energy_gradient" in needs else None,
-                     modified=(ld, mh_order, flow_order) if "modified" in needs else None)
+                     parts=tuple((p, part_argument(p, ld, mh_order, flow_order)) for p in PARTS if p in needs))
+
+
+def part_argument(part: str, ld: str, mh_order=None, flow_order=None):
+    """What a kernel set gives `part` (PartDecl.arg) for a method on the explicit Ld `ld`."""
+    return {"ld": ld, "mh": (ld, mh_order, flow_order), "none": True}[PARTS[part].arg]
 
 
 # --- names Python calls on a module (vcirun.run, reference/, experiments/, verification/) -----------

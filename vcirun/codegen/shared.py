@@ -29,9 +29,11 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import re
 import threading
 import types as pytypes
+from pathlib import Path
 
 import numpy as np
 
@@ -49,11 +51,13 @@ BOOLEANS = tuple(n for n, c in roles.CONSTANTS.items() if c.slot == "bool")
 ARRAYS = tuple((n, c.slot) for n, c in roles.CONSTANTS.items() if c.slot in ("i8", "f8"))  # (address, length)
 MAX_STAGE_KERNELS = 4   # distinct explicit Lds of one full map (SE1 + SE2 is 2; compositions repeat one)
 
-# The kernels the core calls by address: the declarations of vcirun.codegen.roles with core=True.
-# A kernel is called with the arrays' data pointers only (numba's array ABI passes seven words per
-# array: 8.2 ns against 3.4 ns per 8-array call, measured); the scene's wrapper `_p_<name>` rebuilds
-# the arrays with their declared shapes (carray) and calls the kernel, inlined into it.
-CORE_KERNELS = tuple(k for k in roles.KERNELS.values() if k.core)
+# The kernels the core calls by address: the declarations of vcirun.codegen.roles with core=True
+# (`core_kernels()`: a kernel declared at run time joins at the end). A kernel is called with the
+# arrays' data pointers only (numba's array ABI passes seven words per array: 8.2 ns against 3.4 ns
+# per 8-array call, measured); the scene's wrapper `_p_<name>` rebuilds the arrays with their
+# declared shapes (carray) and calls the kernel, inlined into it.
+def core_kernels() -> tuple:
+    return tuple(k for k in roles.KERNELS.values() if k.core)
 
 
 def _stage_slots(k: roles.KernelDecl) -> int:
@@ -77,7 +81,7 @@ def _wrapper(k: roles.KernelDecl, attr: str) -> list[str]:
 def pointer_wrappers(ks: KernelSet) -> str:
     """The scene module's `_p_<kernel>` wrappers of a kernel set (vcirun.codegen.derive.scene_source)."""
     lines = ["from numba import carray", ""]
-    for _, kind, k, sid in LAYOUT:
+    for _, kind, k, sid in layout():
         if kind != "kernel":
             continue
         attr = kernel_attr(k, sid, ks)
@@ -91,19 +95,41 @@ SCENE_MARK = "# vcirun scene module"   # first line of a scene module's file (vc
 _DECO = '@njit(cache=True, nogil=True, error_model="numpy", inline="always")'
 
 
-def _layout() -> list[tuple]:
-    """The slot table, the same for every kernel set: [(slot name, kind, kernel declaration, stage id)];
-    kind "scalar", "array" (two slots: address, length) or "kernel"."""
+def layout() -> tuple:
+    """The slot table, the same for every kernel set: ((slot name, kind, kernel declaration, stage
+    id), ...); kind "scalar", "array" (two slots: address, length) or "kernel". A kernel declared at
+    run time takes the next slots (the others keep theirs, so no core's text changes)."""
+    return _layout(core_kernels())
+
+
+@functools.lru_cache(maxsize=8)
+def _layout(kernels: tuple) -> tuple:
+    from .kcall import NSLOTS
+
     out = [(s, "scalar", None, None) for s in SCALARS]
     for name, _ in ARRAYS:
         out += [(name, "array", None, None), (name + ".len", "array_len", None, None)]
-    for k in CORE_KERNELS:
+    for k in kernels:
         out += [(_slot_name(k, sid), "kernel", k, sid) for sid in range(_stage_slots(k) if k.per_stage else 1)]
-    return out
+    if len(out) > NSLOTS:
+        raise ContractError(f"the shared core's slot table holds {NSLOTS} slots, the declarations need {len(out)} "
+                            "(vcirun.codegen.kcall.NSLOTS)")
+    return tuple(out)
 
 
-LAYOUT = _layout()
-SLOT = {name: i for i, (name, *_) in enumerate(LAYOUT)}
+def slots() -> dict:
+    """{slot name: index} of `layout()`."""
+    return {name: i for i, (name, *_) in enumerate(layout())}
+
+
+def __getattr__(name):   # LAYOUT, SLOT, CORE_KERNELS: the current tables
+    if name == "LAYOUT":
+        return layout()
+    if name == "SLOT":
+        return slots()
+    if name == "CORE_KERNELS":
+        return core_kernels()
+    raise AttributeError(name)
 
 
 def kernel_attr(k: roles.KernelDecl, sid: int, ks: KernelSet) -> str | None:
@@ -115,31 +141,33 @@ def kernel_attr(k: roles.KernelDecl, sid: int, ks: KernelSet) -> str | None:
     if k.part == "steps":
         names = ks.explicit_names
         return f"{names[sid]}_{k.suffix}" if sid < len(names) else None
-    return f"{ks.vci_stage}_{k.suffix}"
+    return f"{ks.part(k.part)}_{k.suffix}"   # a per-Ld part (the energy gradient): its Ld's kernel
 
 
 def _stubs(ks: KernelSet) -> str:
     lines = []
     parts = units.generated_parts(ks)
-    for k in CORE_KERNELS:
+    slot_of = slots()
+    for k in core_kernels():
         if k.part not in parts:
             continue
         a, call = k.arg_names, f"{k.ret_literal}, {k.spec!r}, ({k.arg_names},))"
         if not k.per_stage:
-            lines += [_DECO, f"def {k.name}({a}):", f"    return kcall(slot({SLOT[k.name]}), {call}", ""]
+            lines += [_DECO, f"def {k.name}({a}):", f"    return kcall(slot({slot_of[k.name]}), {call}", ""]
         elif _stage_slots(k) > 1:
-            lines += [_DECO, f"def {k.name}(sid, {a}):", f"    return kcall(slot({SLOT[_slot_name(k, 0)]} + sid), {call}",
+            lines += [_DECO, f"def {k.name}(sid, {a}):", f"    return kcall(slot({slot_of[_slot_name(k, 0)]} + sid), {call}",
                       ""]
         else:
-            lines += [_DECO, f"def {k.name}(sid, {a}):", f"    return kcall(slot({SLOT[_slot_name(k, 0)]}), {call}", ""]
+            lines += [_DECO, f"def {k.name}(sid, {a}):", f"    return kcall(slot({slot_of[_slot_name(k, 0)]}), {call}", ""]
     for name, kind in (("_slot_i8s", "i8"), ("_slot_f8s", "f8")):   # a run-time array: carray over (address, length)
         lines += [_DECO, f"def {name}(k):", f"    return carray({kind}ptr(slot(k)), (slot(k + 1),))", ""]
     return "\n".join(lines)
 
 
 def _runtime_names(fixed: dict) -> dict:
-    sub = {s: (f"(slot({SLOT[s]}) != 0)" if s in BOOLEANS else f"slot({SLOT[s]})") for s in SCALARS}
-    sub |= {a: f"_slot_{kind}s({SLOT[a]})" for a, kind in ARRAYS}
+    slot_of = slots()
+    sub = {s: (f"(slot({slot_of[s]}) != 0)" if s in BOOLEANS else f"slot({slot_of[s]})") for s in SCALARS}
+    sub |= {a: f"_slot_{kind}s({slot_of[a]})" for a, kind in ARRAYS}
     return {k: v for k, v in sub.items() if k not in fixed}
 
 
@@ -189,29 +217,54 @@ def scene_features(ks: KernelSet, scene_mod) -> tuple:
                          bool(getattr(scene_mod, "RESET_MAP", False)), bool(getattr(scene_mod, "RESET_LAW_FIRST", False)))
 
 
-# R^CVA and R^VCI bind to the same full and partial maps: one core holds both and calls the one its
-# scene's kernel set binds, told apart at run time by VCI_STAGE, the stage id of the energy gradient
-# that R^VCI needs and its kernel set alone generates (-1 for CVA's; roles.kernel_set). CVA and VCI
-# then compile one core between them (the quick sweep's cold build: three cores of ~36, 37 and 48 s
-# on two processes made 73 s; two made ~50 s), and a branch per impact costs nothing measurable.
-MERGED_RESETS = ("cva", "vci")
+# Resets whose needs differ only in parts a scene may lack (roles.PartDecl.per_scene: R^CVA and R^VCI,
+# which differs by the energy gradient) share one core: it holds every such reset of the package's
+# table and calls the one of its scene's kernel set, chosen at run time by the scene's RESET_ID (a
+# branch per impact costs nothing measurable). CVA and VCI then compile one core between them (the
+# quick sweep's cold build: three cores of ~36, 37 and 48 s on two processes made 73 s; two made
+# ~50 s). A reset registered from outside the package (its unit an absolute path) gets a core of its
+# own, so that registering one changes no other core.
+
+
+def core_resets(ks: KernelSet) -> tuple:
+    """The ResetMap rows one shared core holds for a kernel set, in table order (RESET_ID indexes
+    them): its own reset, and the package's resets whose needs differ from it only in parts a scene
+    may lack."""
+    own = roles.reset_map(ks.reset)
+    if Path(own.unit).is_absolute():
+        return (own,)
+
+    def fixed(r):
+        return {p for p in r.needs if not roles.PARTS[p].per_scene}
+
+    return tuple(r for r in roles.RESETS.values()
+                 if r is own or (not Path(r.unit).is_absolute() and fixed(r) == fixed(own)))
 
 
 def core_kernel_set(ks: KernelSet) -> KernelSet:
-    """The kernel set a core is built from: CVA's and VCI's (MERGED_RESETS on the Ld partial map, no
-    modified Hamiltonian) are built as VCI's, which has every part both need; any other as itself."""
-    if ks.full_stages and ks.modified is None and ks.partial == "ld" and ks.reset in MERGED_RESETS:
-        return dataclasses.replace(ks, reset="vci", vci_stage=ks.vci_stage or ks.full_stages[0][0])
-    return ks
+    """The kernel set a core is built from: ks with the parts the resets it shares its core with
+    need (core_resets; such a part takes the full map's first Ld as its argument, which the core's
+    text does not depend on)."""
+    if not ks.full_stages:
+        return ks
+    have = {p for p, _ in ks.parts}
+    need = {p for r in core_resets(ks) for p in r.needs} - have
+    if not need:
+        return ks
+    ld = ks.full_stages[0][0]
+    add = tuple((p, roles.part_argument(p, ld)) for p in need)
+    return dataclasses.replace(ks, parts=tuple(sorted(ks.parts + add, key=lambda pa: list(roles.PARTS).index(pa[0]))))
 
 
-_MERGED_RESET = """@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def reset_cva_or_vci(q, pm, d, s0, dE, E_pre, vpre, dtau, tau_rem, h, t, prm, ntol, maxit, pp):
-    # R^VCI where the scene's kernel set generates the energy gradient (its stage id >= 0), else R^CVA
-    if VCI_STAGE < 0:
-        return reset_cva(q, pm, d, s0, dE, E_pre, vpre, dtau, tau_rem, h, t, prm, ntol, maxit, pp)
-    return reset_vci(q, pm, d, s0, dE, E_pre, vpre, dtau, tau_rem, h, t, prm, ntol, maxit, pp)
-"""
+def _reset_dispatch(resets: tuple) -> str:
+    """The role `reset` of a core holding several resets: the scene's (RESET_ID), by its index."""
+    sig = ", ".join(roles.ROLES["reset"].params)
+    lines = ['@njit(cache=True, nogil=True, error_model="numpy", inline="always")', f"def reset_of_scene({sig}):",
+             "    # the scene kernel set's reset, by its index among the core's (core_resets)"]
+    for i, r in enumerate(resets[:-1]):
+        lines += [f"    if RESET_ID == {i}:", f"        return {r.function}({sig})"]
+    lines.append(f"    return {resets[-1].function}({sig})")
+    return "\n".join(lines) + "\n"
 
 
 def core_source(ks: KernelSet, ndof: int | None = None, features: tuple = ()) -> str:
@@ -222,29 +275,25 @@ def core_source(ks: KernelSet, ndof: int | None = None, features: tuple = ()) ->
     composition. ndof None: NDOF is read at run time (one core for every scene); an int: a
     compile-time constant (one core per n; measured in docs/performance.md). features: LEAN or ()
     (core_features): the scene constants compiled in."""
-    merged = core_kernel_set(ks) is not ks
+    resets = core_resets(ks) if ks.full_stages else None
     ks = core_kernel_set(ks)
     fixed = dict(features) | ({} if ndof is None else {"NDOF": int(ndof)})
     consts = "".join(f"{k} = {v}\n" for k, v in fixed.items())
-    if ks.modified is not None:
-        consts += f"MH_FLOW_S = {ks.modified[2] // 2}\n"
+    if ks.part("modified") is not None:
+        consts += f"MH_FLOW_S = {ks.part('modified')[2] // 2}\n"
     stub_text = "\n\n".join([consts, record.module_constants(), _stubs(ks)])
     # the contract check only: the slot-read names and the scene-only kernels
     declared = [f"{s} = 0" for s in list(SCALARS) + [a for a, _ in ARRAYS]]
     declared += [f"{k.name} = 0" for k in roles.KERNELS.values() if not k.core]
     units.check_generated("\n".join(declared) + "\n" + stub_text + "\n", ks)
     parts = [HEADER, stub_text]
-    chosen = units.select_units(ks)
-    if merged:   # R^CVA's unit beside R^VCI's, and the reset role bound to the choice between them
-        cva = units.Unit(roles.reset_map("cva").unit)
-        chosen.insert(chosen.index(next(u for u in chosen if u.path == roles.reset_map("vci").unit)), cva)
-    for u in chosen:
+    for u in units.select_units(ks, resets):
         units.check_unit(u)
         parts.append(_read_at_run_time(u.body, fixed))
     binds = units.bindings(ks)
-    if merged:
-        parts.append(_read_at_run_time(_MERGED_RESET, fixed))
-        binds["reset"] = "reset_cva_or_vci"
+    if resets is not None and len(resets) > 1:   # the role `reset` bound to the scene's choice among them
+        parts.append(_read_at_run_time(_reset_dispatch(resets), fixed))
+        binds["reset"] = "reset_of_scene"
     parts += [f"{role} = {target}" for role, target in binds.items()]
     return "\n\n".join(parts) + "\n"
 
@@ -296,7 +345,7 @@ class SceneSlots:
                                       f"core has slots for {MAX_STAGE_KERNELS} (vcirun.codegen.shared)")
         self.arrays = {}
         self.values = []
-        for name, kind, k, sid in LAYOUT:
+        for name, kind, k, sid in layout():
             if kind == "scalar":
                 self.values.append(int(getattr(scene_mod, name, 0)))
             elif kind == "array":

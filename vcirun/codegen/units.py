@@ -33,6 +33,7 @@ import builtins
 import functools
 import re
 import symtable
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -105,25 +106,35 @@ def _provides(text: str, filename: str) -> tuple:
 
 
 UNITS = tuple(Unit(p) for p in (
-    "maps/linalg.py", "maps/dynamics.py", "maps/steps.py", "maps/gauss.py", "maps/held.py",
-    "collision/events.py", "collision/impact_law.py", "collision/impact.py", "collision/declared.py",
+    "maps/linalg.py", "maps/newton.py", "maps/dynamics.py", "maps/steps.py", "maps/gauss.py", "maps/held.py",
+    "collision/state.py", "collision/events.py", "collision/impact_law.py", "collision/impact.py", "collision/declared.py",
     "collision/algorithm1.py"))
 UNIT = {u.path: u for u in UNITS}
 _RESET_SLOT = UNITS.index(UNIT["collision/algorithm1.py"])   # a bound reset's unit: before the loop
 
-GENERATED = {part: roles.generated_names(part) for part in roles.PARTS}
+class _Generated(Mapping):
+    """{part: the names it defines}, read from the declarations when asked (a kernel declared at run
+    time, e.g. with a part of its own, is in it from then on)."""
+
+    def __getitem__(self, part):
+        if part not in roles.PARTS:
+            raise KeyError(part)
+        return roles.generated_names(part)
+
+    def __iter__(self):
+        return iter(roles.PARTS)
+
+    def __len__(self):
+        return len(roles.PARTS)
+
+
+GENERATED = _Generated()
 
 
 def generated_parts(ks) -> tuple:
-    """The GENERATED parts a kernel set's module holds."""
-    parts = ["system", "record"]
-    if ks.full_stages:
-        parts.append("steps")
-    if ks.vci_stage:
-        parts.append("energy_gradient")
-    if ks.modified is not None:
-        parts.append("modified")
-    return tuple(parts)
+    """The GENERATED parts a kernel set's module holds, in roles.PARTS order."""
+    have = {"system", "record"} | ({"steps"} if ks.full_stages else set()) | {p for p, _ in ks.parts}
+    return tuple(p for p in roles.PARTS if p in have)
 
 
 def bindings(ks) -> dict:
@@ -132,7 +143,7 @@ def bindings(ks) -> dict:
         return {}
     return {"full": roles.FULL_MAP[1], "partial": roles.partial_map(ks.partial).function,
             "reset": roles.reset_map(ks.reset).function,
-            "modified_energy": roles.MODIFIED_ENERGY[ks.modified is not None][1]}
+            "modified_energy": roles.MODIFIED_ENERGY["modified" in generated_parts(ks)][1]}
 
 
 def implementations() -> dict:
@@ -145,31 +156,33 @@ def implementations() -> dict:
 
 
 def entry_points(ks) -> tuple:
-    parts = ("system",) + (("steps",) if ks.full_stages else ()) + (("modified",) if ks.modified is not None else ())
-    return tuple(n for p in parts for n in roles.ENTRY[p])
+    return tuple(n for p in generated_parts(ks) for n in roles.ENTRY.get(p, ()))
 
 
-def candidate_units(ks) -> tuple:
-    """UNITS, with the unit of the kernel set's reset when it binds one."""
+def candidate_units(ks, resets=None) -> tuple:
+    """UNITS, with the units of the kernel set's reset (or of the resets given: ResetMap rows) when it
+    binds one, before the loop's."""
     if not ks.full_stages:
         return UNITS
-    r = roles.reset_map(ks.reset)
-    return UNITS[:_RESET_SLOT] + (Unit(r.unit),) + UNITS[_RESET_SLOT:]
+    rows = (roles.reset_map(ks.reset),) if resets is None else tuple(resets)
+    return UNITS[:_RESET_SLOT] + tuple(dict.fromkeys(Unit(r.unit) for r in rows)) + UNITS[_RESET_SLOT:]
 
 
-def select_units(ks) -> list[Unit]:
-    """The units of a kernel set's module, in module order (see the module docstring)."""
-    return list(_select(ks, _descriptor_state()))
+def select_units(ks, resets=None) -> list[Unit]:
+    """The units of a kernel set's module, in module order (see the module docstring); resets: the
+    ResetMap rows whose units the module holds (a shared core's several: vcirun.codegen.shared),
+    by default the kernel set's own."""
+    return list(_select(ks, None if resets is None else tuple(resets), _descriptor_state()))
 
 
 def _descriptor_state() -> tuple:
-    # registered resets change what a kernel set's reset name means: part of the memo key
-    return tuple(roles.RESETS.items())
+    # registered resets and declared kernels change what a kernel set's names mean: part of the memo key
+    return tuple(roles.RESETS.items()), tuple(roles.KERNELS)
 
 
 @functools.lru_cache(maxsize=256)
-def _select(ks, _state) -> tuple:
-    candidates = candidate_units(ks)
+def _select(ks, resets, _state) -> tuple:
+    candidates = candidate_units(ks, resets)
     avail = {n for part in generated_parts(ks) for n in GENERATED[part]}
     binds = bindings(ks)
     included: list[Unit] = []

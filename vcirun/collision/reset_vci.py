@@ -7,10 +7,11 @@ from numba import njit
 
 from vcirun.codegen.frame import scratch, scratch2
 from vcirun.codegen.roles import (
-    NDOF, NODE_LEN, FORCED, VCI_STAGE, FORCE_A, FORCE_B, sys_node, sys_force, sys_force_jac, ld_PmJc, ld_Ed, ld_Edv, RESET_MAP
+    NDOF, NODE_LEN, FORCED, EDV_STAGE, FORCE_A, FORCE_B, sys_node, sys_force, sys_force_jac, ld_PmJc, ld_Ed, ld_Edv, RESET_MAP
 )
 from vcirun.maps.dynamics import velocity_guess, force_power
 from vcirun.maps.linalg import solve_small
+from vcirun.maps.newton import NEWTON_CONVERGED, NEWTON_GO_ON, newton_stop
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -33,7 +34,7 @@ def reset_vci(q, pm, d, s0, dE, E_pre, vpre, dtau, tau_rem, h, t, prm, ntol, max
         return -1, s0
     E_target = E_pre - dE
     if FORCED:
-        E_target += FORCE_B[VCI_STAGE] * dtau * force_power(q, vpre, t, prm)
+        E_target += FORCE_B[EDV_STAGE] * dtau * force_power(q, vpre, t, prm)
     if RESET_MAP and s0 == 0.0:
         # a declared reset map (collision/declared.py): pm is the map's p+ at the post-impact q and d
         # = pm; the root near lam = 0 (pp = (1 + lam) p+, lam = O(h^2)) balances the discrete energy
@@ -76,16 +77,16 @@ def _vci_newton(q, pm, E_target, tau_rem, t, prm, ntol, maxit, g, lam_start, pp)
     fo = scratch(NDOF)
     fq = scratch2(NDOF, NDOF)
     fv = scratch2(NDOF, NDOF)
-    aw = FORCE_A[VCI_STAGE] * tau_rem  # W^-(w) = aw f(q, w, t) . w
+    aw = FORCE_A[EDV_STAGE] * tau_rem  # W^-(w) = aw f(q, w, t) . w
     sys_node(q, prm, c)  # q is fixed: its node data once, not per iteration
     it = 0
     ok = False
     dprev = np.inf
     while it < maxit:
         it += 1
-        ld_PmJc(VCI_STAGE, q, w, tau_rem, t, prm, c, r, J)
-        E = ld_Ed(VCI_STAGE, q, w, tau_rem, prm)
-        ld_Edv(VCI_STAGE, q, w, tau_rem, prm, ev)
+        ld_PmJc(EDV_STAGE, q, w, tau_rem, t, prm, c, r, J)
+        E = ld_Ed(EDV_STAGE, q, w, tau_rem, prm)
+        ld_Edv(EDV_STAGE, q, w, tau_rem, prm, ev)
         if FORCED and aw != 0.0:
             sys_force(q, w, t, prm, fo)
             sys_force_jac(q, w, t, prm, fq, fv)
@@ -113,14 +114,9 @@ def _vci_newton(q, pm, E_target, tau_rem, t, prm, ntol, maxit, g, lam_start, pp)
             xn = max(xn, abs(w[i]))
         lam -= F[NDOF]
         dn = max(dn, abs(F[NDOF]))
-        if not math.isfinite(dn):
-            break
-        if dn <= ntol * (1.0 + xn):
-            ok = True
-            break
-        # round-off floor, as in explicit_step (vcirun/maps/steps.py)
-        if it >= 3 and dn >= dprev and dn <= math.sqrt(ntol) * (1.0 + xn):
-            ok = True
+        stop = newton_stop(it, dn, dprev, xn, ntol, False)
+        if stop != NEWTON_GO_ON:
+            ok = stop == NEWTON_CONVERGED
             break
         dprev = dn
     return (it if ok else -it), lam

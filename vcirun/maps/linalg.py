@@ -55,6 +55,24 @@ def solve_small(A, b, n, tiny=0.0):
     return solve_band(A, b, n, n - 1, tiny)
 
 
+@njit(cache=True, nogil=True, error_model="numpy")
+def positive_definite(A, n):
+    """True if the symmetric part of A (n x n) is positive definite: its Cholesky factorisation exists
+    with finite positive pivots. A's lower triangle is destroyed."""
+    for j in range(n):
+        for i in range(j, n):
+            s = 0.5 * (A[i, j] + A[j, i])
+            for k in range(j):
+                s -= A[i, k] * A[j, k]
+            if i == j:
+                if not (s > 0.0 and math.isfinite(s)):
+                    return False
+                A[j, j] = math.sqrt(s)
+            else:
+                A[i, j] = s / A[j, j]
+    return True
+
+
 # Element loops instead of slice assignment: numba compiles `a[:] = b` through a generic path
 # that pulls in string formatting and costs seconds of compile time per module.
 @njit(cache=True, nogil=True, error_model="numpy")

@@ -6,15 +6,17 @@
 # per Newton iteration; Pp writes the data of its end point, which is the start point of the next
 # stage of a composition (the same bits). SVC stages: 3 node evaluations instead of 7, and the work
 # arrays are on the step's stack frame (vcirun.codegen.frame: no allocation, no reference count).
-import math
-
 import numpy as np
 from numba import njit
 
 from vcirun.codegen.frame import scratch, scratch2
-from vcirun.codegen.roles import NDOF, BAND, NODE_LEN, FULL_STAGES, FULL_FRACS, sys_node, sys_node_M, ld_PmJc, ld_Ppc, ld_Ed
-from vcirun.maps.dynamics import velocity_from
-from vcirun.maps.linalg import solve_band, copy_into
+from vcirun.codegen.roles import (
+    NDOF, BAND, NODE_LEN, FORCED, FULL_STAGES, FULL_FRACS, FORCE_A, sys_M, sys_node, sys_node_M, sys_force_jac, ld_PmJc,
+    ld_Ppc, ld_Ed
+)
+from vcirun.maps.dynamics import velocity_from, velocity_guess
+from vcirun.maps.linalg import positive_definite, solve_band, copy_into
+from vcirun.maps.newton import NEWTON_CONVERGED, NEWTON_GO_ON, newton_stop
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -47,30 +49,9 @@ def explicit_step(sid, q0, p0, h, t, prm, newton_tol, max_iter, v, q1, p1, c, cn
             v[i] -= r[i]
             dn = max(dn, abs(r[i]))
             vn = max(vn, abs(v[i]))
-        if not math.isfinite(dn):
-            break
-        if dn <= newton_tol * (1.0 + vn):
-            converged = True
-            break
-        # Quadratic phase (exact Jacobian): with contraction theta = dn / dprev, the error left after
-        # this correction is at most theta / (1 - theta) * dn (the bound under mere linear
-        # convergence, so it is conservative; Hairer & Wanner's stopping rule for simplified
-        # Newton). Once it is below newton_tol the next iteration could only confirm it: stopping
-        # saves it (a third of a smooth step). The step then honours newton_tol, not round-off: the
-        # map carries noise up to ~newton_tol relative (measured: symplecticity defect and orders
-        # unchanged; a grid point exactly on phi = 0 needs a wider search, see stress.boundary_start).
-        theta = dn / dprev  # (dprev = inf on the first iteration: no rate known, theta = 0 ignored)
-        if it >= 2 and theta < 0.1 and theta / (1.0 - theta) * dn <= newton_tol * (1.0 + vn):
-            converged = True
-            break
-        # Round-off floor: past the quadratic phase (it >= 3) a correction that no longer decreases,
-        # yet is below sqrt(newton_tol) relative, is rounding noise. With an ill-conditioned
-        # Jacobian (nearly singular M, cond ~ 1e4 and up) that floor lies above newton_tol, and
-        # without this test Newton cycles between two neighbouring floats until max_iter and reports
-        # newton_failed on a regular step (double pendulum with m1 = 1e-4, cart-pendulum with
-        # m2/m1 = 1e4).
-        if it >= 3 and dn >= dprev and dn <= math.sqrt(newton_tol) * (1.0 + vn):
-            converged = True
+        stop = newton_stop(it, dn, dprev, vn, newton_tol, True)
+        if stop != NEWTON_GO_ON:
+            converged = stop == NEWTON_CONVERGED
             break
         dprev = dn
     for i in range(NDOF):
@@ -142,3 +123,42 @@ def ld_step(q0, p0, h, t, prm, ntol, maxit, q1, p1, vlast, want_E=True):
 def ld_partial(q0, p0, tau, h, t, prm, ntol, maxit, q1, p1, vlast):
     """Phi^partial = Phi^full_tau (CVA, VCI): the same discrete Lagrangian at step tau."""
     return ld_step(q0, p0, tau, t, prm, ntol, maxit, q1, p1, vlast, np.bool_(True))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def step_resolves_force(q, p, h, t, prm):
+    """Whether a step h from (q, p) at t resolves the force's dependence on the velocity. In a stage of
+    length h_s the step velocity v solves Pm(q, v, h_s) = p, whose v-Jacobian is M(q) - a h_s
+    df/dqdot + O(h_s) (a: the stage's weight of f^- = a h_s f(q, v, t), FORCE_A). While the symmetric
+    part of M - a h_s df/dqdot is positive definite, v follows the momentum as M^-1 does; once
+    h_s |df/dqdot| reaches the mass (a force that grows with the velocity faster than the step
+    resolves, e.g. f = c qdot with a h c >= m), the root of the step equation no longer describes the
+    motion (one degree of freedom: v = p / (m - a h c) points against p, q stalls and p flips sign
+    every step while the motion grows like exp(c t / m)). Checked at the extreme stage weights of
+    the full map (the set of weights with a positive definite matrix is an interval around 0), with
+    df/dqdot at the state's velocity M^-1 p. True for an unforced system."""
+    if not FORCED:
+        return True
+    cmax = 0.0
+    cmin = 0.0
+    for s in range(FULL_STAGES.shape[0]):
+        c = FORCE_A[FULL_STAGES[s]] * FULL_FRACS[s] * h
+        cmax = max(cmax, c)
+        cmin = min(cmin, c)
+    v = scratch(NDOF)
+    velocity_guess(q, p, prm, v)
+    fq = scratch2(NDOF, NDOF)
+    fv = scratch2(NDOF, NDOF)
+    sys_force_jac(q, v, t, prm, fq, fv)
+    M = scratch2(NDOF, NDOF)
+    A = scratch2(NDOF, NDOF)
+    sys_M(q, prm, M)
+    for c in (cmax, cmin):
+        if c == 0.0:
+            continue
+        for i in range(NDOF):
+            for j in range(NDOF):
+                A[i, j] = M[i, j] - c * fv[i, j]
+        if not positive_definite(A, NDOF):
+            return False
+    return True

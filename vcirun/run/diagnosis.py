@@ -34,6 +34,10 @@ def failure_cause(mod, status, Q, p, t0, fail, h, prm, tol, H0, impacts) -> str:
         if status == EVENT_FAILED:
             return "the collision-time search did not bracket the root to event_tol * h within 200 iterations"
         t = t0 + fail * h
+        if status == NEWTON_FAILED:
+            stiff = _stiff_force(mod, Q[-1], p, prm, h, t)
+            if stiff:
+                return stiff
         causes = _conditioning(mod, status, Q, prm, t0, h, t) + _divergence(mod, status, Q[-1], p, prm, h, H0)
         if status == RESET_FAILED and not causes:
             causes += _impact_law(mod, Q[-1], p, prm, h, t, tol) or _reset(mod, Q[-1], p, prm, h, t, tol)
@@ -74,6 +78,31 @@ def _conditioning(mod, status, Q, prm, t0, h, t) -> list:
         return [f"mass matrix approaching singularity at the failure (cond(M) = {worst:.3g} at "
                 f"t = {t_worst:.6g}, the largest along the motion)"]
     return []
+
+
+def _stiff_force(mod, q, p, prm, h, t) -> str:
+    """The step h does not resolve the force's velocity dependence at (q, p) (the loop's check,
+    vcirun/maps/steps.py step_resolves_force): M - a h_s df/dqdot not positive definite."""
+    if not getattr(mod, "FORCED", False):
+        return ""
+    n = len(q)
+    M = np.empty((n, n))
+    mod.sys_M(q, prm, M)
+    v = np.linalg.solve(M, p)
+    fq, fv = np.empty((n, n)), np.empty((n, n))
+    mod.sys_force_jac(q, v, t, prm, fq, fv)
+    weights = [float(mod.FORCE_A[s]) * float(f) for s, f in zip(mod.FULL_STAGES, mod.FULL_FRACS)]
+    with np.errstate(over="ignore", invalid="ignore"):
+        sym = 0.5 * fv + 0.5 * fv.T
+    for c in (max(weights + [0.0]) * h, min(weights + [0.0]) * h):
+        if c != 0.0:
+            lam = np.linalg.eigvalsh(0.5 * (M + M.T) - c * sym) if np.all(np.isfinite(sym)) else np.array([-np.inf])
+            if not lam.min() > 0.0:
+                rate = float(np.max(np.abs(np.linalg.eigvalsh(sym)))) if np.all(np.isfinite(sym)) else np.inf
+                return (f"the force changes with the velocity faster than the step resolves at t = {t:.6g}: "
+                        f"M - {c / h:.3g} h df/dqdot is not positive definite (|df/dqdot| up to {rate:.3g}), so "
+                        f"the implicit step's root does not follow the motion: step h too large")
+    return ""
 
 
 def _divergence(mod, status, q, p, prm, h, H0) -> list:
