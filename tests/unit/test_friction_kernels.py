@@ -133,3 +133,17 @@ def test_frictionless_builtins_have_zero_friction_kernels(name):
     mod.sys_friction(prm, mu, mus)
     mod.sys_dslips(np.full(s.n, 0.3), np.ones(s.n), prm, dd)
     assert not W.any() and not mu.any() and not mus.any() and not dd.any()
+
+
+def test_friction_at_checks_overrides(frictional):
+    from vcirun.core.system_data import friction_at
+
+    s, mod = frictional
+    names = [c.name for c in s.constraints]
+    mu, mus = friction_at(mod, s.param_values(), s.name, names)
+    assert np.array_equal(mu, s.friction_values()[0]) and np.array_equal(mus, s.friction_values()[1])
+    with pytest.raises(ValueError, match=rf"contact '{names[0]}' has friction mu = -0.1"):
+        friction_at(mod, s.param_values({"mu": -0.1}), s.name, names)
+    if "mus" in s.params:
+        with pytest.raises(ValueError, match=r"contact 'AB' has static friction mu_s = 0.1 < mu = 0.2"):
+            friction_at(mod, s.param_values({"mus": 0.1}), s.name, names)
