@@ -264,7 +264,8 @@ def _alpha(a, b) -> float:
 def housner_ratio(a, b) -> float:
     """omega+ / omega- at a plastic corner impact of a rectangular block (height a, width b, uniform)
     rocking without sliding: 1 - 3/2 sin^2 alpha, alpha = atan(b / a) (the angular momentum about the
-    impacting corner is kept)."""
+    impacting corner is kept). Housner's picture, in which the old corner lifts off, needs this ratio
+    > 0: b / a < sqrt(2); a wider block would press its old corner in too."""
     return 1.0 - 1.5 * math.sin(_alpha(a, b)) ** 2
 
 
@@ -303,6 +304,9 @@ def housner_rocking(theta0, *, a, b, g=9.81, impacts=3) -> HousnerRocking:
     if not 0.0 < theta0 < al:
         raise ValueError(f"theta0: the tilt must lie in (0, alpha = {al:.6g}) to rock back (got {theta0})")
     r = housner_ratio(a, b)
+    if not r > 0.0:
+        raise ValueError(f"b: a block with b / a = {b / a:.6g} >= sqrt(2) does not rock on its corners (the old "
+                         "corner would not lift off at an impact); give a slenderer block")
     k = 3.0 * g / (2.0 * R)
 
     def quarter(A):
@@ -317,9 +321,8 @@ def housner_rocking(theta0, *, a, b, g=9.81, impacts=3) -> HousnerRocking:
         return val
 
     times, wm, wp, amps = [], [], [], []
-    t, A = 0.0, theta0
+    t, A = quarter(theta0), theta0   # the first fall; then up to each amplitude and back: two quarters
     for _ in range(int(impacts)):
-        t += quarter(A)
         w_minus = math.sqrt(k * 2.0 * math.sin(al - A / 2) * math.sin(A / 2))
         w_plus = r * w_minus
         times.append(t)
@@ -327,7 +330,7 @@ def housner_rocking(theta0, *, a, b, g=9.81, impacts=3) -> HousnerRocking:
         wp.append(w_plus)
         A = al - math.acos(min(math.cos(al) + w_plus * w_plus / k, 1.0))
         amps.append(A)
-        t += 2.0 * quarter(A)   # up to the amplitude and back down to the flat position
+        t += 2.0 * quarter(A)
     return HousnerRocking(times, wm, wp, amps)
 
 
