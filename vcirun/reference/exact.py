@@ -220,7 +220,7 @@ def _difference(sysm, a, b, H0, T) -> tuple:
     else:
         tt = np.linspace(0.0, T, 2001)
         qa, qb = ra.state(tt)[:, :n], rb.state(tt)[:, :n]
-        speed = float(np.max(np.abs(np.diff(qa, axis=0)))) / (tt[1] - tt[0])
+        speed = float(np.max(np.abs(np.diff(qa, axis=0)))) / (tt[1] - tt[0]) if T > 0.0 else 0.0
     if sysm.reset_map is not None and a.impacts and _sequence(a) == _sequence(b):
         # a declared map moves q at each impact: between the two solves' impact times the one is past
         # the jump and the other not; those points compare the times (dt below), not q

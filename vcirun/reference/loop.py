@@ -375,6 +375,8 @@ def solve(backend, mod, q0, p0, prm, T, *, names, resting_contact=True, max_impa
             progress.after(t, y, A, fl.reason, i, S)
     except rf.PainleveError as e:
         sol.status, sol.message, sol.t_end = "painleve", str(e), e.t
+        if not sol.pieces:   # (at the start: the solution is the start state alone)
+            sol.pieces.append((t, t, Constant(y)))
     return sol
 
 
