@@ -9,7 +9,10 @@ every watched function separately, at `samples` + 1 points:
   than the sample spacing, the near-grazing impact that a sign test alone misses;
 - each held contact: its force mu_i crossing 0 downwards (a release);
 - each resting contact: its normal acceleration crossing 0 downwards (pushed in), and its phi_i below
-  minus its round-off offset (it left and came back, by less than the offset; the root is refined).
+  minus its round-off offset (it left and came back, by less than the offset; the root is refined);
+- with friction (modes S of the held contacts, vcirun.reference.friction): a sliding contact's slip
+  velocity reaching 0 (stick), a sticking contact's tangential force reaching the static cone (slip),
+  and det K of a held set with sliding contacts reaching 0 (painleve).
 
 The step is bounded by the flight's own scales: no longer than `reach` times the time any contact
 not held could need to reach its surface, (u + sqrt(u^2 + 2 |a| max(phi, 0))) / |a| (phi_i, u_i and
@@ -78,8 +81,8 @@ class Dop853Backend:
             return self._buf.copy()
         return np.append(self._buf, mod.force_power(y[:n], self._buf[:n].copy(), t, self.prm))
 
-    def _rhs(self, A):
-        return self._free_rhs if not A else rh.held_rhs(self.mod, self.prm, A)
+    def _rhs(self, A, S=None):
+        return self._free_rhs if not A else rh.held_rhs(self.mod, self.prm, A, S)
 
     # --- what is watched ---------------------------------------------------------------------
     def _phis_u(self, y):
@@ -104,16 +107,17 @@ class Dop853Backend:
         return max(self.reach * rh.approach_time(g, A, free), 1e3 * _EPS * max(1.0, abs(t)))
 
     # --- one segment -------------------------------------------------------------------------
-    def segment(self, t0, y0, T, A, R, geo=None):
+    def segment(self, t0, y0, T, A, R, geo=None, S=None):
         from scipy.integrate import DOP853, OdeSolution
 
         A, R = tuple(A), list(R)
+        S = None if S is None else tuple(S)
         n, m = self.n, self.m
         phi0, _ = self._phis_u(np.asarray(y0, float))
         # above the resting contact's own |phi| (within the rest tolerance) and its round-off
         off = {i: 4.0 * (abs(phi0[i]) + self.rest_offset(y0[:n], i)) for i in R}
         drift_tol = 1e3 * self.atol
-        solver = DOP853(self._rhs(A), float(t0), np.array(y0, float), float(T), rtol=self.rtol, atol=self.atol)
+        solver = DOP853(self._rhs(A, S), float(t0), np.array(y0, float), float(T), rtol=self.rtol, atol=self.atol)
         ts, interps = [float(t0)], []
         while solver.status == "running":
             free = [i for i in range(m) if i not in A and i not in R]
@@ -128,7 +132,7 @@ class Dop853Backend:
             dense = solver.dense_output()
             ts.append(float(solver.t))
             interps.append(dense)
-            hit = self._check(dense, solver.t_old, solver.t, A, R, off, free)
+            hit = self._check(dense, solver.t_old, solver.t, A, R, off, free, S)
             if hit is not None:
                 te, kind, i = hit
                 piece = OdeSolution(ts, interps)
@@ -149,7 +153,7 @@ class Dop853Backend:
             return Flight(float(t0), float(t0), np.array(y0, float), "end", -1, Constant(y0))
         return Flight(float(t0), float(solver.t), np.array(solver.y, float), "end", -1, OdeSolution(ts, interps))
 
-    def _check(self, dense, ta, tb, A, R, off, free):
+    def _check(self, dense, ta, tb, A, R, off, free, S=None):
         """The earliest event inside the step [ta, tb]: (time, kind, contact) or None."""
         from scipy.optimize import brentq
 
@@ -199,18 +203,20 @@ class Dop853Backend:
         if R or A:
             geo = [rh._Geometry(self.mod, s, Y[:n, k], Y[n:2 * n, k], self.prm) for k, s in enumerate(ss)]
             if R:   # (pushed in while still on its surface: a contact that rose past its offset has left)
-                acc = np.array([g.held_acc(A) for g in geo])
+                acc = np.array([g.held_acc(A, S) for g in geo])
                 for i in R:
                     k = next((k for k in range(K) if acc[k, i] >= 0.0 > acc[k + 1, i] and PH[k, i] <= 2.0 * off[i]),
                              None)
                     if k is not None:
-                        cands.append(((ss[k], ss[k + 1]), self._acc_of(dense, A, i), "pressed", i))
+                        cands.append(((ss[k], ss[k + 1]), self._acc_of(dense, A, i, S), "pressed", i))
             if A:
-                mu = np.array([g.mu(A) for g in geo])
+                mu = np.array([g.mu(A, S) for g in geo])
                 for a, i in enumerate(A):
                     k = next((k for k in range(K) if mu[k, a] >= 0.0 > mu[k + 1, a]), None)
                     if k is not None:
-                        cands.append(((ss[k], ss[k + 1]), self._mu_of(dense, A, a), "release", i))
+                        cands.append(((ss[k], ss[k + 1]), self._mu_of(dense, A, a, S), "release", i))
+                if rh._frictional(S):
+                    self._friction_candidates(dense, ss, geo, A, S, cands)
         if not cands:
             return None
         best = None
@@ -223,18 +229,52 @@ class Dop853Backend:
                 best = (te, kind, i)
         return best
 
-    def _acc_of(self, dense, A, i):
+    def _acc_of(self, dense, A, i, S=None):
         n = self.n
 
         def f(s):
             y = dense(s)
-            return rh._Geometry(self.mod, s, y[:n], y[n:2 * n], self.prm).held_acc(A)[i]
+            return rh._Geometry(self.mod, s, y[:n], y[n:2 * n], self.prm).held_acc(A, S)[i]
         return f
 
-    def _mu_of(self, dense, A, a):
+    def _mu_of(self, dense, A, a, S=None):
         n = self.n
 
         def f(s):
             y = dense(s)
-            return rh._Geometry(self.mod, s, y[:n], y[n:2 * n], self.prm).mu(A)[a]
+            return rh._Geometry(self.mod, s, y[:n], y[n:2 * n], self.prm).mu(A, S)[a]
         return f
+
+    def _friction_candidates(self, dense, ss, geo, A, S, cands):
+        """The friction events of the held set A in the modes S on the samples ss (geometries geo): a
+        sliding contact's s v_t crossing 0 downwards (stick), a sticking contact's mu_s lam_n -+ lam_t
+        crossing 0 downwards (slip), det K crossing 0 downwards with sliding contacts (painleve)."""
+        from .friction import coefficients, response
+
+        _, mus = coefficients(self.mod, self.prm)
+        K = len(ss) - 1
+        n = self.n
+
+        def at(fn):
+            def f(s):
+                y = dense(s)
+                return fn(rh._Geometry(self.mod, s, y[:n], y[n:2 * n], self.prm))
+            return f
+
+        def watch(values, fn, kind, i):
+            k = next((k for k in range(K) if values[k] >= 0.0 > values[k + 1]), None)
+            if k is not None:
+                cands.append(((ss[k], ss[k + 1]), at(fn), kind, i))
+
+        for a, (i, s) in enumerate(zip(A, S)):
+            if s in (1, -1):
+                fn = (lambda g, i=i, s=s: s * g.wt[i])
+                watch([fn(g) for g in geo], fn, "stick", i)
+            elif s == rh.STICK:
+                for sign in (1.0, -1.0):
+                    fn = (lambda g, a=a, i=i, sign=sign: mus[i] * g.forces(A, S).lam_n[a] - sign * g.forces(A, S).lam_t[a])
+                    watch([fn(g) for g in geo], fn, "slip", i)
+        if any(s in (1, -1) for s in S):
+            j = next(i for i, s in zip(A, S) if s in (1, -1))
+            fn = (lambda g: response(g.forces(A, S).K, S))
+            watch([fn(g) for g in geo], fn, "painleve", j)

@@ -26,6 +26,11 @@ a plastic impact, or whose impacts accumulate (the Zeno time extrapolated from i
 contacts accumulating together are held together) is held on the index-reduced constrained dynamics
 (vcirun/reference/held.py) and released where its contact force turns tensile; docs/derivations/contacts.md 6.
 
+Coulomb friction (vcirun.reference.friction): held contacts slide or stick, every mode change a
+located event (ref.transitions), impacts take the frictional impact law (ref.impact_tangential); a
+held problem with sliding contacts that has no solution or several (Painleve's paradox) ends the
+reference there with ref.status "painleve" and ref.message naming the contact, the time and B.
+
 Declared resets and guards (vcirun.mechanics.hybrid): the declared map at each impact of its
 constraint, guards honoured on both paths, the state after the map checked admissible
 (vcirun.reference.resets); the exact return map on a section: vcirun.reference.stride.
@@ -83,6 +88,14 @@ class Reference:
         self.releases = np.zeros(0)
         self.release_contact = np.zeros(0, np.int64)
         self.held_intervals = []
+        # friction: the tangential impulse of each impact entry, the mode changes of held contacts
+        # [(t, contact, mode after)] and the held intervals with their modes [(t0, t1, held, modes)]
+        # (mode codes: vcirun.reference.friction, +1 / -1 sliding, 0 sticking, 2 smooth)
+        self.impact_tangential = np.zeros(len(self.impacts))
+        self.transitions = []
+        self.mode_intervals = []
+        self.status = "ok"        # "painleve": the solve ended at T (< the T asked for) on Painleve's paradox
+        self.message = ""
         self._width = 2 * n if width is None else width
 
     def __repr__(self) -> str:
@@ -155,7 +168,8 @@ def _solve_dop853(sysm, mod, q0, p0, prm, T, rtol, resting_contact, samples=8, r
 
 
 def _sequence(sol):
-    return [i for _, i, _ in sol.impacts], [i for _, i in sol.releases]
+    return ([i for _, i, _ in sol.impacts], [i for _, i in sol.releases], [(i, s) for _, i, s in sol.transitions],
+            sol.status)
 
 
 def _first_difference(a, b, names) -> str:
@@ -195,6 +209,7 @@ def _difference(sysm, a, b, H0, T) -> tuple:
     smooth in between), or on a 2001-point grid."""
     n = sysm.n
     w = 2 * n + (1 if sysm.is_forced else 0)
+    T = min([T] + [s.t_end for s in (a, b) if s.t_end is not None])   # (a solve that ended early: to there)
     ra, rb = Reference(a.pieces, n, [], H0, T, width=w), Reference(b.pieces, n, [], H0, T, width=w)
     sa, sb = _taylor_steps(a), _taylor_steps(b)
     if sa is not None and sb is not None:
@@ -205,7 +220,7 @@ def _difference(sysm, a, b, H0, T) -> tuple:
     else:
         tt = np.linspace(0.0, T, 2001)
         qa, qb = ra.state(tt)[:, :n], rb.state(tt)[:, :n]
-        speed = float(np.max(np.abs(np.diff(qa, axis=0)))) / (tt[1] - tt[0])
+        speed = float(np.max(np.abs(np.diff(qa, axis=0)))) / (tt[1] - tt[0]) if T > 0.0 else 0.0
     if sysm.reset_map is not None and a.impacts and _sequence(a) == _sequence(b):
         # a declared map moves q at each impact: between the two solves' impact times the one is past
         # the jump and the other not; those points compare the times (dt below), not q
@@ -215,7 +230,9 @@ def _difference(sysm, a, b, H0, T) -> tuple:
             keep &= ~((tt >= lo - 4 * _EPS * max(1.0, abs(lo))) & (tt <= hi + 4 * _EPS * max(1.0, abs(hi))))
         tt, qa, qb = tt[keep], qa[keep], qb[keep]
     acc = float(np.max(np.abs(qa - qb)))
-    dt = [x[0] - y[0] for x, y in zip(a.impacts + a.releases, b.impacts + b.releases)]
+    dt = [x[0] - y[0] for x, y in zip(a.impacts + a.releases + a.transitions, b.impacts + b.releases + b.transitions)]
+    if a.t_end is not None and b.t_end is not None:
+        dt.append(a.t_end - b.t_end)
     if dt and _sequence(a) == _sequence(b):
         acc = max(acc, float(np.max(np.abs(dt))))
     events = len(a.impacts) + len(a.releases) + len(a.intervals)
@@ -347,12 +364,17 @@ def solve_exact(sysm, q0, p0, prm, T, *, rtol=1e-13, check_accuracy=True, restin
         pieces = sol.pieces
         if mod.FORCED:
             pieces = [(a, b, _Slice(f, 2 * n)) for a, b, f in sol.pieces]
-        ref = Reference(pieces, n, [i[0] for i in sol.impacts], H0, T, accuracy=acc, kind=kind,
+        T_end = T if sol.t_end is None else sol.t_end
+        ref = Reference(pieces, n, [i[0] for i in sol.impacts], H0, T_end, accuracy=acc, kind=kind,
                         impact_contact=[i[1] for i in sol.impacts], impact_impulse=[i[2] for i in sol.impacts])
         ref.kind_reason = why
         ref.releases = np.array([r[0] for r in sol.releases], float)
         ref.release_contact = np.array([r[1] for r in sol.releases], np.int64)
         ref.held_intervals = list(sol.intervals)
+        ref.impact_tangential = np.array(sol.tangential, float) if sol.tangential else np.zeros(len(sol.impacts))
+        ref.transitions = list(sol.transitions)
+        ref.mode_intervals = list(sol.mode_intervals)
+        ref.status, ref.message = sol.status, sol.message
         if check_accuracy and not np.isfinite(acc):
             raise RuntimeError(f"reference: the accuracy check of {sysm.name} is not finite ({acc}): the solve "
                                "cannot be trusted")

@@ -16,6 +16,10 @@ With v = M^-1 p, F = -dH/dq + f (the p-part of dynamics_rhs) and G = G_A (rows g
 
 c_i = v^T Hess(phi_i) v, Mdot v = sys_Mdotv(q, v); mu_i >= 0 is the compressive contact force
 (it pushes along +grad phi_i). Release: mu_i crosses 0 downwards.
+
+With Coulomb friction a held contact also has a mode (sliding with the sign of its slip velocity, or
+sticking), given as a tuple S aligned with A; the forces of (A, S) are vcirun.reference.friction's.
+S None (or every contact SMOOTH) is the frictionless dynamics above, computed as above.
 """
 from __future__ import annotations
 
@@ -43,7 +47,7 @@ class _Geometry:
     Mdot v on first use."""
 
     __slots__ = ("n", "m", "t", "q", "p", "M", "v", "F", "phis", "G", "u", "_c", "_Mdv", "_mod", "_prm", "_minv_f",
-                 "_held_acc")
+                 "_held_acc", "_Wt", "_dslip", "_forces")
 
     def __init__(self, mod, t, q, p, prm):
         n, m = int(mod.NDOF), int(mod.NCON)
@@ -61,8 +65,9 @@ class _Geometry:
         self.G = np.empty((m, n))
         mod.sys_dphis(self.q, prm, self.G)
         self.u = self.G @ self.v
-        self._c = self._Mdv = self._minv_f = None
+        self._c = self._Mdv = self._minv_f = self._Wt = self._dslip = None
         self._held_acc = {}
+        self._forces = {}
 
     @property
     def c(self):
@@ -77,6 +82,37 @@ class _Geometry:
             self._Mdv = np.empty(self.n)
             self._mod.sys_Mdotv(self.q, self.v, self._prm, self._Mdv)
         return self._Mdv
+
+    @property
+    def Wt(self):
+        """The slip rows W_t (m x n, zero rows where a contact has no friction)."""
+        if self._Wt is None:
+            self._Wt = np.empty((self.m, self.n))
+            self._mod.sys_slips(self.q, self._prm, self._Wt)
+        return self._Wt
+
+    @property
+    def wt(self):
+        """The slip velocities W_t v."""
+        return self.Wt @ self.v
+
+    @property
+    def dslip(self):
+        """v^T dW_t,i/dq v: the velocity terms of d(v_t,i)/dt."""
+        if self._dslip is None:
+            self._dslip = np.empty(self.m)
+            self._mod.sys_dslips(self.q, self.v, self._prm, self._dslip)
+        return self._dslip
+
+    def forces(self, A, S):
+        """The held forces of the held set A in the friction modes S (vcirun.reference.friction.Forces),
+        kept per (A, S)."""
+        from .friction import held_forces
+
+        key = (tuple(A), tuple(S))
+        if key not in self._forces:
+            self._forces[key] = held_forces(self, tuple(A), tuple(S))
+        return self._forces[key]
 
     def near(self, candidates=None, tol=None):
         """The contacts among `candidates` (default all) on their surface, |phi_i| <= tol (1 + |q| |grad
@@ -106,14 +142,23 @@ class _Geometry:
         idx = list(A)
         return self.G[idx] @ np.linalg.solve(self.M, self.F - self.Mdv) + self.c[idx]
 
-    def mu(self, A):
+    def mu(self, A, S=None):
+        """The normal forces of the held set A (in the friction modes S: vcirun.reference.friction)."""
+        if _frictional(S):
+            return self.forces(A, S).lam_n
         W, _ = self.W(A)
         return np.linalg.solve(W, -self.free_acc(A))
 
-    def held_acc(self, A):
+    def held_acc(self, A, S=None):
         """d^2/dt^2 phi_i of every contact along the held flow of A (0 for i in A, up to round-off):
-        G M^-1 (F + G_A^T mu - Mdot v) + c (kept per A)."""
+        G M^-1 (F + G_A^T mu - Mdot v) + c (kept per A; in the friction modes S: with the forces of
+        vcirun.reference.friction)."""
         A = tuple(A)
+        if _frictional(S):
+            key = (A, tuple(S))
+            if key not in self._held_acc:
+                self._held_acc[key] = self.G @ np.linalg.solve(self.M, self.forces(A, S).pdot - self.Mdv) + self.c
+            return self._held_acc[key]
         if A not in self._held_acc:
             f = self.F - self.Mdv
             if A:
@@ -124,6 +169,16 @@ class _Geometry:
     def acc_scale(self):
         return max(float(np.max(np.abs(self.G @ np.linalg.solve(self.M, self.F)))), float(np.max(np.abs(self.c))),
                    _EPS)
+
+
+def _frictional(S) -> bool:
+    """Some held contact of the modes S has friction (a mode other than SMOOTH)."""
+    return S is not None and any(s != SMOOTH for s in S)
+
+
+# the friction modes of a held contact (vcirun.reference.friction): sliding is +1 / -1 (the sign of its
+# slip velocity), sticking STICK, no friction at these parameters SMOOTH
+STICK, SMOOTH = 0, 2
 
 
 def held_multipliers(mod, t, q, p, prm, A) -> np.ndarray:
@@ -142,19 +197,23 @@ def free_normal_accelerations(mod, t, q, p, prm) -> np.ndarray:
     return g.free_acc(range(g.m))
 
 
-def held_rhs(mod, prm, A):
-    """f(t, y) for solve_ivp: the held dynamics qdot = v, pdot = F + G_A^T mu (and W' = f . v when
-    y carries the work as a last component, len(y) = 2n + 1)."""
+def held_rhs(mod, prm, A, S=None):
+    """f(t, y) for solve_ivp: the held dynamics qdot = v, pdot = F + G_A^T mu (with friction modes S:
+    the forces of vcirun.reference.friction; and W' = f . v when y carries the work as a last
+    component, len(y) = 2n + 1)."""
     A = tuple(int(i) for i in A)
     n = int(mod.NDOF)
     forced = bool(mod.FORCED)
+    fric = _frictional(S)
 
     def rhs(t, y):
         g = _Geometry(mod, t, y[:n], y[n:2 * n], prm)
         out = np.empty(len(y))
         out[:n] = g.v
         out[n:2 * n] = g.F
-        if A:
+        if fric:
+            out[n:2 * n] = g.forces(A, S).pdot
+        elif A:
             out[n:2 * n] += g.G[list(A)].T @ g.mu(A)
         if len(y) > 2 * n:
             out[2 * n] = mod.force_power(g.q, g.v.copy(), float(t), prm) if forced else 0.0
@@ -165,8 +224,9 @@ def held_rhs(mod, prm, A):
 
 # --- the projection ---------------------------------------------------------------------------
 
-def project(mod, q, p, prm, A, iters=8):
-    """(q, p) projected onto phi_A(q) = 0 and the hidden constraint G_A M^-1 p = 0.
+def project(mod, q, p, prm, A, iters=8, stick=()):
+    """(q, p) projected onto phi_A(q) = 0 and the hidden constraint G_A M^-1 p = 0 (and W_t,i M^-1 p = 0
+    for the sticking contacts i of `stick`: their slip velocities).
 
     Positions: Newton along M^-1 G^T, q <- q - M^-1 G^T (G M^-1 G^T)^-1 phi_A(q) (the M-orthogonal
     direction, so the correction changes the kinetic metric least), G and M re-evaluated each
@@ -196,15 +256,20 @@ def project(mod, q, p, prm, A, iters=8):
         q = q - X @ np.linalg.solve(G[A] @ X, r)
     mod.sys_M(q, prm, M)
     mod.sys_dphis(q, prm, G)
-    X = np.linalg.solve(M, G[A].T)
     Ga = G[A]
+    if stick:
+        Wt = np.empty((m, n))
+        mod.sys_slips(q, prm, Wt)
+        Ga = np.vstack([Ga, Wt[list(stick)]])
+    X = np.linalg.solve(M, Ga.T)
     p = p - Ga.T @ np.linalg.solve(Ga @ X, X.T @ p)
     return q, p
 
 
-def _project_y(mod, y, prm, A):
+def _project_y(mod, y, prm, A, S=None):
     n = int(mod.NDOF)
-    q, p = project(mod, y[:n], y[n:2 * n], prm, A)
+    stick = [i for i, s in zip(A, S) if s == STICK] if _frictional(S) else ()
+    q, p = project(mod, y[:n], y[n:2 * n], prm, A, stick=stick)
     out = np.array(y, dtype=float)
     out[:n], out[n:2 * n] = q, p
     return out

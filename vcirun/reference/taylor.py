@@ -28,6 +28,13 @@ not held), all terminal:
               round-off, as between identical pendulums swinging in unison, is no event);
     lift_i    (i in R): phi_i - par[lift_i] crosses 0 upwards (it has left: the next segment watches
               it with offset 0).
+With Coulomb friction the held set carries its modes S (vcirun.reference.friction): the held
+dynamics take the rows and force directions of the modes (sliding: G_i - mu_i s W_t,i; sticking: the
+slip row W_t,i as a further held row, kappa from d(W_t,i v)/dq . v), and the events
+    stick_i   (i sliding with sign s): its slip velocity W_t,i v crosses 0 against s;
+    slip_i    (i sticking): mu_s,i lam_n,i -+ lam_t,i crosses 0 downwards (the static cone reached);
+    painleve  (some contact sliding): det K of the held rows crosses 0 downwards.
+The held rows (normal and sticking) count against MAX_HELD.
 Parameters: the system's, then off_i (m), lift_i (m), the pressed offsets (m), then M^-1 entries for
 a constant dense M.
 
@@ -260,6 +267,14 @@ class TaylorModel:
         self.u = [hy.sum([self.G[i][j] * v[j] for j in range(n)]) for i in range(m)]
         self.MinvF = [hy.sum([Minv[i][j] * F[j] for j in range(n)]) for i in range(n)]
         self._kappa = {}
+        self._wkappa = {}
+        if s.has_friction:   # the slip rows, slip velocities and coefficients (vcirun.reference.friction)
+            Wt = s.slip_matrix
+            self.Wt = [[conv(Wt[i, j]) for j in range(n)] for i in range(m)]
+            self.w = [hy.sum([self.Wt[i][j] * v[j] for j in range(n)]) for i in range(m)]
+            mu, mus = s.friction_coefficients
+            self.mu = [conv(x) for x in mu]
+            self.mus = [conv(x) for x in mus]
 
     def kappa(self, i):
         """d u_i / dq . v (the velocity terms of d u_i / dt)."""
@@ -267,6 +282,44 @@ class TaylorModel:
             hy = _hy()
             self._kappa[i] = hy.sum([hy.diff(self.u[i], self.vars[j]) * self.v[j] for j in range(self.n)])
         return self._kappa[i]
+
+    def wkappa(self, i):
+        """d (W_t,i v) / dq . v (the velocity terms of the slip acceleration of contact i)."""
+        if i not in self._wkappa:
+            hy = _hy()
+            self._wkappa[i] = hy.sum([hy.diff(self.w[i], self.vars[j]) * self.v[j] for j in range(self.n)])
+        return self._wkappa[i]
+
+    def frictional_dynamics(self, A, S):
+        """(pdot (n), lam (the held rows: the normal forces of A, then the tangential forces of its
+        sticking contacts), det K) of the held set A in the friction modes S as heyoka expressions."""
+        key = (tuple(A), tuple(S))
+        if key in self._held:
+            return self._held[key]
+        hy = _hy()
+        n = self.n
+        stick = [i for i, s in zip(A, S) if s == rh.STICK]
+        if len(A) + len(stick) > MAX_HELD:
+            raise NotExpressible(f"{len(A) + len(stick)} held rows (contacts held with sticking friction) together: "
+                                 f"no explicit inverse (the Taylor path holds up to {MAX_HELD})")
+        C = [self.G[i] for i in A] + [self.Wt[i] for i in stick]
+        D = []
+        for i, s in zip(A, S):
+            if s in (1, -1):
+                D.append([self.G[i][j] - self.mu[i] * float(s) * self.Wt[i][j] for j in range(n)])
+            else:
+                D.append(self.G[i])
+        D += [self.Wt[i] for i in stick]
+        k = len(C)
+        X = [[hy.sum([self.Minv[j][l] * D[r][l] for l in range(n)]) for r in range(k)] for j in range(n)]
+        K = [[hy.sum([C[r][j] * X[j][c] for j in range(n)]) for c in range(k)] for r in range(k)]
+        kap = [self.kappa(i) for i in A] + [self.wkappa(i) for i in stick]
+        b = [hy.sum([C[r][j] * self.MinvF[j] for j in range(n)]) + kap[r] for r in range(k)]
+        det, adj = _det_adj(K)
+        lam = [-hy.sum([adj[r][c] * b[c] for c in range(k)]) / det for r in range(k)]
+        pdot = [self.F[j] + hy.sum([D[r][j] * lam[r] for r in range(k)]) for j in range(n)]
+        self._held[key] = (pdot, lam, det)
+        return self._held[key]
 
     def held_dynamics(self, A):
         """(pdot (n), mu (|A|)) of the held set A as heyoka expressions."""
@@ -298,17 +351,21 @@ class TaylorModel:
         Mp = [hy.sum([self.Minv[j][k] * pdot[k] for k in range(n)]) for j in range(n)]
         return self.kappa(i) + hy.sum([self.G[i][j] * Mp[j] for j in range(n)])
 
-    def integrator(self, A=(), R=(), tol=TOL):
-        """The heyoka integrator of the held set A with the resting set R (kept per process) and its
-        event kinds [(kind, contact)] in heyoka's event order."""
-        key = (tuple(A), tuple(R), float(tol))
+    def integrator(self, A=(), R=(), tol=TOL, S=None):
+        """The heyoka integrator of the held set A (in the friction modes S, None: frictionless) with the
+        resting set R (kept per process) and its event kinds [(kind, contact)] in heyoka's event order."""
+        fric = rh._frictional(S)
+        key = (tuple(A), tuple(R), float(tol)) + ((tuple(S),) if fric else ())
         if key in self._integrators:
             return self._integrators[key]
         if self.reason is not None:
             raise NotExpressible(self.reason)
         hy = _hy()
         n, m = self.n, self.m
-        pdot, mu = self.held_dynamics(A)
+        if fric:
+            pdot, mu, det = self.frictional_dynamics(A, S)
+        else:
+            pdot, mu = self.held_dynamics(A)
         eqs = [(self.vars[i], self.v[i]) for i in range(n)] + [(self.vars[n + i], pdot[i]) for i in range(n)]
         if self.forced:
             eqs.append((self.vars[2 * n], self.power))
@@ -332,6 +389,17 @@ class TaylorModel:
         for i in R:
             add(self.normal_acceleration(i, pdot) + hy.par[self.press0 + i], neg, ("pressed", i))
             add(self.phi[i] - hy.par[self.lift0 + i], pos, ("lift", i))
+        if fric:
+            rows = len(A)
+            for a, (i, s) in enumerate(zip(A, S)):
+                if s in (1, -1):
+                    add(self.w[i], neg if s > 0 else pos, ("stick", i))
+                elif s == rh.STICK:
+                    add(self.mus[i] * mu[a] - mu[rows], neg, ("slip", i))
+                    add(self.mus[i] * mu[a] + mu[rows], neg, ("slip", i))
+                    rows += 1
+            if any(s in (1, -1) for s in S):
+                add(det, neg, ("painleve", next(i for i, s in zip(A, S) if s in (1, -1))))
         # pars left to heyoka: as many as the highest index used (a prefix of the layout of `pars`)
         ta = hy.taylor_adaptive(eqs, np.zeros(len(eqs)), tol=float(tol), compact_mode=len(eqs) > 12,
                                 **({"t_events": events} if events else {}))
@@ -367,7 +435,7 @@ class TaylorBackend:
         self._pars_of = {}                  # id(integrator) -> what its parameters were last set to
         self.resets = declared_resets(model.system, mod, self.prm)   # guards and the declared map, or None
 
-    def segment(self, t0, y0, T, A, R, geo=None):
+    def segment(self, t0, y0, T, A, R, geo=None, S=None):
         """One segment (vcirun.reference.flight); geo: the _Geometry at (t0, y0) if the caller has it.
 
         The first step is at most REACH times the approach time of the free contacts (a hop after an
@@ -380,7 +448,7 @@ class TaylorBackend:
         model = self.model
         n, m = model.n, model.m
         A, R = tuple(A), tuple(R)
-        ta, kinds = model.integrator(A, R, self.tol)
+        ta, kinds = model.integrator(A, R, self.tol, S)
         g = geo if geo is not None else rh._Geometry(self.mod, t0, y0[:n], y0[n:2 * n], self.prm)
         scale = self._scales(g)
         phi0 = g.phis.tolist()

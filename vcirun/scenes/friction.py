@@ -1,0 +1,143 @@
+"""Scenes with Coulomb friction (vcirun.mechanics.friction), each with its closed form in
+vcirun.scenes.friction_oracles (derivations: docs/derivations/friction.md, "Closed forms"):
+
+- `spinning_ball`: a ball dropped with spin on a floor (Capobianco et al. 2021, section 10.1);
+- `incline`: a block (a point mass) on an incline, launched uphill or released at rest;
+- `coulomb_oscillator`: a block on a floor attached to a spring, Coulomb-damped;
+- `rocking_block_friction`: a block rocking on its corners without sliding (Housner), released at
+  rest on one corner;
+- `painleve_rod`: a uniform rod sliding on one end (Painleve's paradox for mu > 4/3);
+- `link_chain_friction`: a chain of links falling on a floor with friction at every link end.
+
+Each returns a MechanicalSystem whose parameters are symbols (mu, mu_s, ... overridable at run time
+through params=); the start state is built from the arguments (exactly on the contact surface where
+the scene starts held)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import sympy as sp
+
+from ..mechanics.bodies import Body, Joint, PointContact, planar_system
+from ..mechanics.system import Constraint, MechanicalSystem
+
+__all__ = ["spinning_ball", "incline", "coulomb_oscillator", "rocking_block_friction", "painleve_rod",
+           "link_chain_friction", "block_corner"]
+
+
+def spinning_ball(w0=50.0, *, m=1.0, R=0.1, mu=0.2, g=9.81, h=1.0, v0=0.0) -> MechanicalSystem:
+    """A ball (mass m, radius R, inertia 2/5 m R^2) on a free planar joint (x, y: its centre, phi: its
+    angle), released at centre height h with horizontal velocity v0 and spin phidot = w0 onto the floor
+    y = 0: restitution 0, friction mu (the rim's material point slides at xdot + R phidot). Defaults:
+    Capobianco et al. 2021, section 10.1."""
+    s = planar_system("spinning_ball", [Body("ball", "m", "2*m*R**2/5", radius="R")],
+                      [Joint("free", "ball", coordinates=("x", "y", "phi"))],
+                      [PointContact("floor", "ball", radius="R", restitution=0, friction="mu")],
+                      params={"m": m, "R": R, "mu": mu, "g": g}, gravity="g", q0=[0.0, h, 0.0],
+                      qdot0=[v0, 0.0, w0],
+                      description="a ball dropped with spin on a floor, plastic impact with Coulomb friction "
+                                  "(Capobianco et al. 2021, section 10.1)")
+    return s
+
+
+def incline(theta=0.3, *, mu=0.2, mu_s=None, v0=0.0, m=1.0, g=9.81) -> MechanicalSystem:
+    """A point mass (x, y) on the line through the origin with normal (-sin theta, cos theta): phi =
+    -sin(theta) x + cos(theta) y, restitution 0, friction mu, static friction mu_s (default mu), the
+    slip row (cos theta, sin theta) (up the slope). Starts at the origin with velocity v0 up the slope
+    (held from the start). Parameters m, g, theta, mu, mu_s."""
+    mu_s = mu if mu_s is None else mu_s
+    x, y = sp.symbols("x y")
+    M_, g_, th = sp.symbols("m g theta")
+    c = Constraint("slope", -sp.sin(th) * x + sp.cos(th) * y, sp.Integer(0), friction=sp.Symbol("mu"),
+                   static_friction=sp.Symbol("mu_s"), slip=(sp.cos(th), sp.sin(th)))
+    s = MechanicalSystem(name="incline", q=[x, y], params={"m": m, "g": g, "theta": theta, "mu": mu, "mu_s": mu_s},
+                         M=sp.eye(2) * M_, V=M_ * g_ * y, constraints=[c],
+                         description="a block on an incline of angle theta with Coulomb friction mu, mu_s")
+    s.default_q0 = np.zeros(2)
+    s.default_p0 = m * v0 * np.array([math.cos(theta), math.sin(theta)])
+    return s
+
+
+def coulomb_oscillator(x0=1.0, *, v0=0.0, m=1.0, k=10.0, mu=0.1, mu_s=None, g=9.81) -> MechanicalSystem:
+    """A block (x, y) on the floor y = 0 attached to a spring k at x = 0: V = k x^2/2 + m g y,
+    restitution 0, friction mu, static friction mu_s (default mu), slip row (1, 0). Starts on the floor
+    at (x0, 0) with velocity v0 (held from the start)."""
+    mu_s = mu if mu_s is None else mu_s
+    x, y = sp.symbols("x y")
+    M_, g_, k_ = sp.symbols("m g k")
+    c = Constraint("floor", y, sp.Integer(0), friction=sp.Symbol("mu"), static_friction=sp.Symbol("mu_s"),
+                   slip=(sp.Integer(1), sp.Integer(0)))
+    s = MechanicalSystem(name="coulomb_oscillator", q=[x, y],
+                         params={"m": m, "k": k, "g": g, "mu": mu, "mu_s": mu_s},
+                         M=sp.eye(2) * M_, V=k_ * x ** 2 / 2 + M_ * g_ * y, constraints=[c],
+                         description="a block on a floor attached to a spring, Coulomb friction mu, mu_s")
+    s.default_q0 = np.array([float(x0), 0.0])
+    s.default_p0 = np.array([m * v0, 0.0])
+    return s
+
+
+def block_corner(theta, a, b, side):
+    """The corner (side b/2, -a/2) of a block at angle theta, relative to its centre."""
+    cx, cy = side * b / 2.0, -a / 2.0
+    return cx * math.cos(theta) - cy * math.sin(theta), cx * math.sin(theta) + cy * math.cos(theta)
+
+
+def rocking_block_friction(theta0=0.1, *, a=1.0, b=0.4, m=1.0, g=9.81, mu=0.8, mu_s=None) -> MechanicalSystem:
+    """A rectangular block (height a, width b, mass m, inertia m (a^2 + b^2)/12) on a free planar joint
+    (x, y, theta of its centre), its two lower corners point contacts with the floor y = 0: plastic
+    (restitution 0), friction mu, static friction mu_s (default mu). Starts at rest on one corner at the
+    tilt theta0 (the left corner for theta0 > 0), which lies exactly on the floor: Housner's rocking
+    (vcirun.scenes.friction_oracles.housner_rocking) while the corners stick."""
+    mu_s = mu if mu_s is None else mu_s
+    side = -1 if theta0 > 0 else 1
+    rx, ry = block_corner(theta0, a, b, side)
+    s = planar_system("rocking_block_friction", [Body("block", "m", "m*(a**2 + b**2)/12")],
+                      [Joint("free", "block", coordinates=("x", "y", "theta"))],
+                      [PointContact("left", "block", ("-b/2", "-a/2"), restitution=0, friction="mu",
+                                    static_friction="mu_s"),
+                       PointContact("right", "block", ("b/2", "-a/2"), restitution=0, friction="mu",
+                                    static_friction="mu_s")],
+                      params={"m": m, "a": a, "b": b, "g": g, "mu": mu, "mu_s": mu_s}, gravity="g",
+                      q0=[-rx, -ry, theta0],
+                      description="a block rocking on its corners without sliding (Housner), plastic corner "
+                                  "impacts, Coulomb friction mu, mu_s")
+    return s
+
+
+def painleve_rod(theta0=0.5, *, xdot0=-1.0, thetadot0=0.0, mu=1.5, mu_s=None, m=1.0, l=1.0, g=9.81) -> MechanicalSystem:
+    """A uniform rod (length 2 l, mass m, inertia m l^2 / 3) on a free planar joint (x, y, theta of its
+    centre), its end A = C - l (cos theta, sin theta) on the floor y = 0: restitution 0, friction mu,
+    static friction mu_s (default mu). Starts with A on the floor (held) at the tilt theta0, centre
+    velocity (xdot0, l cos(theta0) thetadot0) (the end's normal velocity zero) and angular velocity
+    thetadot0: the end slides at xdot0 + l sin(theta0) thetadot0. Painleve's B (friction_oracles.painleve_B)
+    decides the held problem."""
+    mu_s = mu if mu_s is None else mu_s
+    y0 = l * math.sin(theta0)
+    s = planar_system("painleve_rod", [Body("rod", "m", "m*l**2/3")],
+                      [Joint("free", "rod", coordinates=("x", "y", "theta"))],
+                      [PointContact("end", "rod", ("-l", 0), restitution=0, friction="mu", static_friction="mu_s")],
+                      params={"m": m, "l": l, "g": g, "mu": mu, "mu_s": mu_s}, gravity="g", q0=[0.0, y0, theta0],
+                      qdot0=[xdot0, l * math.cos(theta0) * thetadot0, thetadot0],
+                      description="a uniform rod sliding on one end with Coulomb friction (Painleve's paradox "
+                                  "for mu > 4/3)")
+    return s
+
+
+def link_chain_friction(n=5, *, m=0.2, l=0.3, g=9.81, e=0.3, mu=0.5, height=0.5) -> MechanicalSystem:
+    """The link chain of vcirun.scenes.mechanisms.link_chain (N uniform links joined by revolute joints,
+    the first on a free joint) with friction mu at every link end: falling on the floor y = 0, it no
+    longer skates sideways."""
+    n = int(n)
+    bodies = [Body(f"link{i}", "m", "m*l**2/12", ("l/2", 0)) for i in range(1, n + 1)]
+    joints = [Joint("free", "link1", coordinates=("x", "y", "theta1"))]
+    joints += [Joint("revolute", f"link{i}", f"link{i - 1}", ("l", 0), f"theta{i}", absolute=True)
+               for i in range(2, n + 1)]
+    contacts = [PointContact("end0", "link1", restitution="e", friction="mu")]
+    contacts += [PointContact(f"end{i}", f"link{i}", ("l", 0), restitution="e", friction="mu") for i in range(1, n + 1)]
+    angles = [0.3 * (-1) ** k + 0.05 for k in range(1, n + 1)]
+    return planar_system(f"link_chain_friction_{n}", bodies, joints, contacts,
+                         params={"m": m, "l": l, "g": g, "e": e, "mu": mu}, gravity="g",
+                         q0=[0.0, height] + angles,
+                         description=f"chain of {n} links falling on the floor y = 0 with friction mu at the link "
+                                     "ends")
