@@ -59,6 +59,10 @@ from vcirun.collision.impact_law import (impact_law, LCP_UNIQUE, LCP_INFEASIBLE,
                                          LEMKE_MAX_PIVOTS)
 
 FRIC_SOLVED = 3
+FRIC_TRIES = 4          # Lemke's method is tried up to this many times on a group: round-off on a degenerate
+                        # problem (dependent contact rows, exact ties) can end a path on a ray that exact
+                        # arithmetic would not meet; tries 1.. use other covering vectors and shift q by
+FRIC_SHIFT = 1e-13      # at most 2 FRIC_SHIFT max |q| (positive: slack), far below the check's LCP_FEAS_TOL
 FRIC_TIE_TOL = 1e-12    # ratios of Lemke's ratio test within this (relative) of the least tie
 FRIC_RHS_TOL = 1e-14    # a tableau right-hand side below this times max |q| counts as 0 (a degenerate vertex)
 
@@ -197,27 +201,20 @@ def friction_impact_law(W, u, e, mu, lam):
                 ip[i] = -1
                 im[i] = -1
                 ig[i] = -1
-        _fr_tableau(A, u, mu, lam1, r, k, ctc, nc, ia, ib, iz, ip, im, ig, T, m)
-        code = _fr_lemke(T, basis, m, x)
+        code = 1
+        for attempt in range(FRIC_TRIES):
+            _fr_tableau(A, u, mu, lam1, r, k, ctc, nc, ia, ib, iz, ip, im, ig, T, m, attempt, qs)
+            code = _fr_lemke(T, basis, m, x)
+            if code == 0:
+                _fr_extract(x, ctc, nc, ia, ib, ip, im, mu, P, lt)
+                if _fr_check(A, u, mu, lam1, r, P, lt, fric, k, ctc, nc, qs, wmax):
+                    break
+                code = 2
         if code != 0:
             for i in range(n2):
                 lam[i] = 0.0
             return LCP_INFEASIBLE if code == 1 else LCP_DEGENERATE
-        for c in range(nc):
-            i = ctc[c]
-            p = x[ia[i]]
-            if box[i]:
-                p += x[ib[i]]
-            P[i] = p if p > 0.0 else 0.0
-            if fric[i]:
-                lt[i] = x[ip[i]] - x[im[i]]
         acted = True
-    # Coulomb's cone exactly (Lemke's round-off), then the law's conditions checked on the result
-    for i in range(k):
-        if abs(lt[i]) > mu[i] * P[i]:
-            lt[i] = mu[i] * P[i] if lt[i] > 0.0 else -mu[i] * P[i]
-    if not _fr_check(A, u, mu, lam1, r, P, lt, fric, k, qs, wmax):
-        return LCP_DEGENERATE
     for i in range(k):
         lam[i] = P[i]
         lam[k + i] = lt[i]
@@ -265,20 +262,22 @@ def _fr_groups(A, fric, k):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _fr_tableau(A, u, mu, lam1, r, k, ctc, nc, ia, ib, iz, ip, im, ig, T, m):
+def _fr_tableau(A, u, mu, lam1, r, k, ctc, nc, ia, ib, iz, ip, im, ig, T, m, attempt, qs):
     """Lemke's tableau [I | -M | -1 | q] of one group's stage-2 LCP w = q + M x >= 0, x >= 0, x . w = 0.
 
     Unknowns per contact i: a (ia; the normal impulse P if the contact has no rebound graph), b (ib;
     P = a + b, b <= lam1 the part of stage 1's impulse kept), z (iz; the slack of b <= lam1),
     beta+ (ip), beta- (im) (lam_t = beta+ - beta-), gamma (ig; the slip speed). Rows (u+ = u- + W [P; lam_t]):
       a: u+_n            b: u+_n - r + z        z: lam1 - b
-      beta+: u+_t + gamma    beta-: -u+_t + gamma    gamma: mu (a + b) - beta+ - beta-."""
+      beta+: u+_t + gamma    beta-: -u+_t + gamma    gamma: mu (a + b) - beta+ - beta-.
+    Attempt 0: covering vector 1 and q as is; attempts 1..: _fr_cover's vector and q_i + FRIC_SHIFT qs
+    times a factor in [1, 2] (a deterministic perturbation that breaks exact ties)."""
     nco = 2 * m + 2
     for i in range(m):
         for j in range(nco):
             T[i, j] = 0.0
         T[i, i] = 1.0
-        T[i, 2 * m] = -1.0
+        T[i, 2 * m] = -_fr_cover(i, m, attempt)
     for ci in range(nc):
         i = ctc[ci]
         rows_n = 1 if ib[i] < 0 else 2
@@ -324,11 +323,27 @@ def _fr_tableau(A, u, mu, lam1, r, k, ctc, nc, ia, ib, iz, ip, im, ig, T, m):
             T[ig[i], m + ip[i]] += 1.0
             T[ig[i], m + im[i]] += 1.0
             T[ig[i], 2 * m + 1] = 0.0
+    if attempt > 0:
+        for i in range(m):
+            T[i, 2 * m + 1] += FRIC_SHIFT * qs * (1.0 + ((7 * i + attempt) % 11) / 10.0)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _fr_cover(i, m, attempt):
+    """Entry i of the covering vector of an attempt: 1 (Lemke's usual), then two ramps and a
+    sawtooth, all in [1, 2]."""
+    if attempt == 0:
+        return 1.0
+    if attempt == 1:
+        return 1.0 + (i + 1.0) / m
+    if attempt == 2:
+        return 2.0 - i / m
+    return 1.0 + ((7 * i) % 11) / 10.0
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _fr_lemke(T, basis, m, x):
-    """Lemke's complementary pivoting on the tableau T[:m] = [I | -M | -1 | q] (covering vector 1).
+    """Lemke's complementary pivoting on the tableau T[:m] = [I | -M | -d | q] (d the covering vector).
     Ratio test: the least ratio rhs / column entry (right-hand sides below FRIC_RHS_TOL max |q| count
     as 0), ties within FRIC_TIE_TOL; among ties z0 leaves if it can (the solution), else the
     lexicographic rule on the w columns (B^-1), which excludes cycling. Returns 0 with x the solution,
@@ -386,11 +401,16 @@ def _fr_lemke(T, basis, m, x):
 @njit(cache=True, nogil=True, error_model="numpy")
 def _fr_lex_less(T, a, b, c, m):
     """Row a before row b in the lexicographic rule on column c: the rows of B^-1 (the w columns)
-    divided by their column-c entries, compared in order."""
+    divided by their column-c entries, compared in order; entries within FRIC_TIE_TOL of the rows'
+    largest ratio count as equal (exact ties that round-off split)."""
+    big = 0.0
+    for j in range(m):
+        big = max(big, abs(T[a, j] / T[a, c]), abs(T[b, j] / T[b, c]))
+    tol = FRIC_TIE_TOL * big
     for j in range(m):
         ra = T[a, j] / T[a, c]
         rb = T[b, j] / T[b, c]
-        if ra != rb:
+        if abs(ra - rb) > tol:
             return ra < rb
     return a < b
 
@@ -414,12 +434,32 @@ def _fr_pivot(T, basis, r, c, m):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _fr_check(A, u, mu, lam1, r, P, lt, fric, k, qs, wmax):
-    """The law's conditions on (P, lt), to LCP_FEAS_TOL qs in velocity units (impulses times max W_ii):
-    u+_n >= 0, the rebound graph between P_i and u+_n,i, the cone |lt_i| <= mu_i P_i (exact here),
-    and friction opposing a slip: lt_i = -mu_i P_i sign(u+_t,i) where |u+_t,i| is above the tolerance."""
+def _fr_extract(x, ctc, nc, ia, ib, ip, im, mu, P, lt):
+    """P_i = a + b (>= 0) and lt_i = beta+ - beta-, put into Coulomb's cone exactly (round-off), for
+    the group's contacts."""
+    for c in range(nc):
+        i = ctc[c]
+        p = x[ia[i]]
+        if ib[i] >= 0:
+            p += x[ib[i]]
+        P[i] = p if p > 0.0 else 0.0
+        t = 0.0
+        if ip[i] >= 0:
+            t = x[ip[i]] - x[im[i]]
+            if abs(t) > mu[i] * P[i]:
+                t = mu[i] * P[i] if t > 0.0 else -mu[i] * P[i]
+        lt[i] = t
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _fr_check(A, u, mu, lam1, r, P, lt, fric, k, ctc, nc, qs, wmax):
+    """The law's conditions on (P, lt) at the group's contacts, to LCP_FEAS_TOL qs in velocity units
+    (impulses times max W_ii): u+_n >= 0, the rebound graph between P_i and u+_n,i, and friction
+    opposing a slip, lt_i = -mu_i P_i sign(u+_t,i) where |u+_t,i| is above the tolerance (the cone
+    |lt_i| <= mu_i P_i holds exactly, _fr_extract)."""
     tol = LCP_FEAS_TOL * max(qs, 1e-300)
-    for i in range(k):
+    for c in range(nc):
+        i = ctc[c]
         vn = u[i]
         vt = u[k + i]
         for j in range(k):
