@@ -24,22 +24,24 @@
 #            - Coulomb on the final slip: |lam_t,i| <= mu_i P_i, lam_t,i u+_t,i = -mu_i P_i |u+_t,i|.
 #   mu = 0 everywhere: lam_n = impact_law's lam bit for bit, lam_t = 0. e = 0 everywhere: the standard
 #   plastic Moreau-Coulomb impact (P >= 0 _|_ u+_n >= 0, Coulomb on u+_t).
-# Stage 2 is a linear complementarity problem (LCP) of at most 6 unknowns per frictional contact
-# (3 for its normal law, 3 for the planar cone), one per group of contacts that W couples, solved by
-# Lemke's method with the lexicographic ratio test (exact pivoting; its matrix is copositive and the
-# derivation shows that Lemke cannot end on a secondary ray when u- = [Gn; Gt] M^-1 p-). Memory: a
-# dense tableau m x (2m + 2), m <= 6 * (contacts of the largest coupled group), allocated once per call.
+# Stage 2 is a linear complementarity problem (LCP) of at most 6 unknowns per contact (3 for its
+# normal law, 3 for the planar cone), one per group of contacts that W couples, solved by Lemke's
+# method with the lexicographic ratio test (exact pivoting; its matrix is copositive and the
+# derivation shows that Lemke cannot end on a secondary ray when u- = [Gn; Gt] M^-1 p-). Round-off on
+# degenerate groups (dependent rows, exact ties) is met by up to FRIC_TRIES attempts, each result
+# checked against the law's conditions. Memory: a dense tableau m x (2m + 2) on the heap, m <= 6 times
+# the contacts of the largest coupled group, allocated once per call.
 #
-# Case codes (impact_law's, one more; the first two describe the whole law's solution):
-#   LCP_UNIQUE (0)          W positive definite and the solution certified unique: the smallest
-#                           eigenvalue of W (on the rows that take part) exceeds max mu_i times the
-#                           Frobenius norm of the tangent rows (the derivation's uniqueness bound), or no
-#                           contact with friction has a normal impulse.
-#   LCP_SINGULAR_UNIQUE (1) returned as impact_law returns it where friction does not act (every mu_i
-#   LCP_MIN_NORM (2)        = 0, or no normal impulse at a contact with friction); see impact_law.
+# Case codes (impact_law's, one more):
+#   LCP_UNIQUE (0)          stage 1 unique (W_nn positive definite) and, in every group where friction acts,
+#                           stage 2's solution certified unique: a contact alone in its group by enumerating
+#                           the pieces of its law, a larger group by the bound lambda_min(W_g) > max mu_i
+#                           ||tangent rows of W_g||_F (the derivation's uniqueness bound).
+#   LCP_SINGULAR_UNIQUE (1) impact_law's codes, returned as impact_law returns them where friction does not
+#   LCP_MIN_NORM (2)        act (every mu_i = 0, or no normal impulse in a group with friction).
 #   FRIC_SOLVED (3)         a solution of the law, not certified unique: rigid-body Coulomb friction at an
-#                           impact can have several (a jam) when friction couples strongly into the normal
-#                           directions; the one Lemke's method reaches from lam = 0 is returned.
+#                           impact can have several (friction jams the impact when it couples strongly into
+#                           the normal directions); the one Lemke's method reaches from lam = 0 is returned.
 #   LCP_INFEASIBLE (-1)     stage 1 has no solution, or Lemke ended on a secondary ray (impossible when u-
 #                           is a velocity of the system, i.e. in the range of W). lam = 0.
 #   LCP_BAD_INPUT (-2)      shapes that disagree, a non-finite entry, e outside [0, 1], mu < 0, W not
@@ -61,8 +63,8 @@ from vcirun.collision.impact_law import (impact_law, LCP_UNIQUE, LCP_INFEASIBLE,
 FRIC_SOLVED = 3
 FRIC_TRIES = 4          # Lemke's method is tried up to this many times on a group: round-off on a degenerate
                         # problem (dependent contact rows, exact ties) can end a path on a ray that exact
-                        # arithmetic would not meet; tries 1.. use other covering vectors and shift q by
-FRIC_SHIFT = 1e-13      # at most 2 FRIC_SHIFT max |q| (positive: slack), far below the check's LCP_FEAS_TOL
+                        # arithmetic would not meet; tries 1.. use other covering vectors and add to q
+FRIC_SHIFT = 1e-13      # this times the velocity scale times a factor in [1, 2] (a slack far below LCP_FEAS_TOL)
 FRIC_TIE_TOL = 1e-12    # ratios of Lemke's ratio test within this (relative) of the least tie
 FRIC_RHS_TOL = 1e-14    # a tableau right-hand side below this times max |q| counts as 0 (a degenerate vertex)
 
@@ -173,6 +175,7 @@ def friction_impact_law(W, u, e, mu, lam):
     for i in range(k):
         P[i] = lam1[i]
     acted = False
+    certified = code1 == LCP_UNIQUE
     for g in range(ngroups):
         if takes_part[g] != 3:
             continue
@@ -215,14 +218,17 @@ def friction_impact_law(W, u, e, mu, lam):
                 lam[i] = 0.0
             return LCP_INFEASIBLE if code == 1 else LCP_DEGENERATE
         acted = True
+        if certified:
+            if nc == 1:
+                certified = _fr_single_unique(A, u, mu, lam1, r, ctc[0], box[ctc[0]], fric[ctc[0]], k, qs, wmax)
+            else:
+                certified = _fr_certified(A, mu, fric, k, ctc, nc, wmax)
     for i in range(k):
         lam[i] = P[i]
         lam[k + i] = lt[i]
     if not acted:
         return code1
-    if _fr_certified(A, mu, fric, k, wmax):
-        return LCP_UNIQUE
-    return FRIC_SOLVED
+    return LCP_UNIQUE if certified else FRIC_SOLVED
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -456,8 +462,17 @@ def _fr_check(A, u, mu, lam1, r, P, lt, fric, k, ctc, nc, qs, wmax):
     """The law's conditions on (P, lt) at the group's contacts, to LCP_FEAS_TOL qs in velocity units
     (impulses times max W_ii): u+_n >= 0, the rebound graph between P_i and u+_n,i, and friction
     opposing a slip, lt_i = -mu_i P_i sign(u+_t,i) where |u+_t,i| is above the tolerance (the cone
-    |lt_i| <= mu_i P_i holds exactly, _fr_extract)."""
-    tol = LCP_FEAS_TOL * max(qs, 1e-300)
+    |lt_i| <= mu_i P_i holds exactly, _fr_extract). The tolerance is LCP_FEAS_TOL times the larger of qs
+    and max W_ii times the largest impulse (the round-off of u+ = u- + W lam grows with lam: with
+    dependent rows and a large mu, impulses that cancel, G^T lam = 0, can be large), times max(1, mu_i)
+    (mu enters the tableau: Lemke's round-off grows with it)."""
+    big = 0.0
+    mmax = 1.0
+    for c in range(nc):
+        i = ctc[c]
+        big = max(big, P[i], abs(lt[i]))
+        mmax = max(mmax, mu[i])
+    tol = LCP_FEAS_TOL * mmax * max(qs, big * wmax, 1e-300)
     for c in range(nc):
         i = ctc[c]
         vn = u[i]
@@ -491,24 +506,25 @@ def _fr_check(A, u, mu, lam1, r, P, lt, fric, k, ctc, nc, qs, wmax):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _fr_certified(A, mu, fric, k, wmax):
-    """The uniqueness bound (docs/derivations/friction.md): W restricted to the rows that take part
-    (every normal row, the tangent rows of the contacts with friction) minus c I positive definite,
-    c = max mu_i (over those contacts) times the Frobenius norm of those tangent rows. Cholesky with
+def _fr_certified(A, mu, fric, k, ctc, nc, wmax):
+    """The uniqueness bound of several contacts (docs/derivations/friction.md): W restricted to the
+    group's rows (its normal rows, the tangent rows of its contacts with friction) minus c I positive
+    definite, c = the group's max mu_i times the Frobenius norm of those tangent rows. Cholesky with
     pivots above LCP_RANK_TOL max W_ii."""
-    idx = np.empty(2 * k, np.int64)
+    idx = np.empty(2 * nc, np.int64)
     n = 0
-    for i in range(k):
-        idx[n] = i
+    for a in range(nc):
+        idx[n] = ctc[a]
         n += 1
     mmax = 0.0
-    for i in range(k):
+    for a in range(nc):
+        i = ctc[a]
         if fric[i]:
             idx[n] = k + i
             n += 1
             mmax = max(mmax, mu[i])
     fro = 0.0
-    for a in range(k, n):
+    for a in range(nc, n):
         for b in range(n):
             fro += A[idx[a], idx[b]] ** 2
     c = mmax * math.sqrt(fro)
@@ -526,3 +542,79 @@ def _fr_certified(A, mu, fric, k, wmax):
                 s2 -= L[rr, s] * L[j, s]
             L[rr, j] = s2 / L[j, j]
     return True
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _fr_single_unique(A, u, mu, lam1, r, i, box, fr, k, qs, wmax):
+    """One contact alone in its group: True if stage 2 has exactly one solution, by enumeration of its
+    pieces (normal: the rebound graph's four, or u+_n = 0 / P = 0 without rebound; tangential: stick,
+    slide +, slide -, or none without friction), each a 2 x 2 linear system, candidates checked with
+    the tolerances of _fr_check and counted once when they coincide."""
+    wnn = A[i, i]
+    wnt = A[i, k + i]
+    wtt = A[k + i, k + i]
+    tol = LCP_FEAS_TOL * max(qs, 1e-300)
+    sols = np.empty((12, 2))
+    ns = 0
+    nn = 4 if box else 2
+    nt = 3 if fr else 1
+    for a in range(nn):
+        for t in range(nt):
+            # rows [c0 c1 | d]: c0 P + c1 lt = d
+            if box:
+                if a == 0:      # u+_n = 0
+                    r0, r1, d0 = wnn, wnt, -u[i]
+                elif a == 1:    # P = lam1
+                    r0, r1, d0 = 1.0, 0.0, lam1[i]
+                elif a == 2:    # u+_n = r
+                    r0, r1, d0 = wnn, wnt, r[i] - u[i]
+                else:           # P = 0
+                    r0, r1, d0 = 1.0, 0.0, 0.0
+            else:
+                if a == 0:
+                    r0, r1, d0 = wnn, wnt, -u[i]
+                else:
+                    r0, r1, d0 = 1.0, 0.0, 0.0
+            if not fr:          # lt = 0
+                s0, s1, d1 = 0.0, 1.0, 0.0
+            elif t == 0:        # stick: u+_t = 0
+                s0, s1, d1 = wnt, wtt, -u[k + i]
+            else:               # slide: lt = -sigma mu P
+                sg = 1.0 if t == 1 else -1.0
+                s0, s1, d1 = sg * mu[i], 1.0, 0.0
+            det = r0 * s1 - r1 * s0
+            if abs(det) <= LCP_RANK_TOL * max(abs(r0 * s1), abs(r1 * s0), 1e-300):
+                continue
+            P = (d0 * s1 - r1 * d1) / det
+            lt = (r0 * d1 - d0 * s0) / det
+            vn = u[i] + wnn * P + wnt * lt
+            vt = u[k + i] + wnt * P + wtt * lt
+            if P * wmax < -tol or vn < -tol:
+                continue
+            pw = P * wmax
+            lw = lam1[i] * wmax
+            if box:
+                if a == 0 and lw - pw > tol:
+                    continue
+                if a == 1 and (vn > r[i] + tol):
+                    continue
+                if a == 2 and pw - lw > tol:
+                    continue
+                if a == 3 and vn < r[i] - tol:
+                    continue
+            if fr:
+                if t == 0 and (abs(lt) - mu[i] * P) * wmax > tol:
+                    continue
+                if t == 1 and vt < -tol:
+                    continue
+                if t == 2 and vt > tol:
+                    continue
+            new = True
+            for q in range(ns):
+                if (abs(sols[q, 0] - P) + abs(sols[q, 1] - lt)) * wmax <= 10.0 * tol:
+                    new = False
+            if new:
+                sols[ns, 0] = P
+                sols[ns, 1] = lt
+                ns += 1
+    return ns == 1
