@@ -63,8 +63,9 @@ from vcirun.collision.impact_law import (impact_law, LCP_UNIQUE, LCP_INFEASIBLE,
 FRIC_SOLVED = 3
 FRIC_TRIES = 4          # Lemke's method is tried up to this many times on a group: round-off on a degenerate
                         # problem (dependent contact rows, exact ties) can end a path on a ray that exact
-                        # arithmetic would not meet; tries 1.. use other covering vectors and add to q
-FRIC_SHIFT = 1e-13      # this times the velocity scale times a factor in [1, 2] (a slack far below LCP_FEAS_TOL)
+                        # arithmetic would not meet; try t = 1, 2, 3 uses another covering vector and adds to q
+FRIC_SHIFT = 1e-13      # this times 10^(t - 1) times the velocity scale times a factor in [1, 2]: a slack of
+                        # at most 2e-11 of the velocity scale, below the check's LCP_FEAS_TOL
 FRIC_TIE_TOL = 1e-12    # ratios of Lemke's ratio test within this (relative) of the least tie
 FRIC_RHS_TOL = 1e-14    # a tableau right-hand side below this times max |q| counts as 0 (a degenerate vertex)
 
@@ -276,8 +277,9 @@ def _fr_tableau(A, u, mu, lam1, r, k, ctc, nc, ia, ib, iz, ip, im, ig, T, m, att
     beta+ (ip), beta- (im) (lam_t = beta+ - beta-), gamma (ig; the slip speed). Rows (u+ = u- + W [P; lam_t]):
       a: u+_n            b: u+_n - r + z        z: lam1 - b
       beta+: u+_t + gamma    beta-: -u+_t + gamma    gamma: mu (a + b) - beta+ - beta-.
-    Attempt 0: covering vector 1 and q as is; attempts 1..: _fr_cover's vector and q_i + FRIC_SHIFT qs
-    times a factor in [1, 2] (a deterministic perturbation that breaks exact ties)."""
+    Attempt 0: covering vector 1 and q as is; attempt t = 1, 2, 3: _fr_cover's vector and
+    q_i + FRIC_SHIFT 10^(t - 1) qs times a factor in [1, 2] (a deterministic perturbation that breaks
+    exact ties)."""
     nco = 2 * m + 2
     for i in range(m):
         for j in range(nco):
@@ -330,8 +332,9 @@ def _fr_tableau(A, u, mu, lam1, r, k, ctc, nc, ia, ib, iz, ip, im, ig, T, m, att
             T[ig[i], m + im[i]] += 1.0
             T[ig[i], 2 * m + 1] = 0.0
     if attempt > 0:
+        shift = FRIC_SHIFT * qs * 10.0 ** (attempt - 1)
         for i in range(m):
-            T[i, 2 * m + 1] += FRIC_SHIFT * qs * (1.0 + ((7 * i + attempt) % 11) / 10.0)
+            T[i, 2 * m + 1] += shift * (1.0 + ((7 * i + attempt) % 11) / 10.0)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -367,7 +370,8 @@ def _fr_lemke(T, basis, m, x):
     if T[r, rhs] >= 0.0:
         return 0
     rtol = FRIC_RHS_TOL * qs
-    _fr_pivot(T, basis, r, 2 * m, m)
+    nz = np.empty(2 * m + 2, np.int64)
+    _fr_pivot(T, basis, r, 2 * m, m, nz)
     entering = r + m
     for _ in range(LEMKE_MAX_PIVOTS * m):
         cmax = 0.0
@@ -394,7 +398,7 @@ def _fr_lemke(T, basis, m, x):
                     if row < 0 or _fr_lex_less(T, i, row, entering, m):
                         row = i
         leaving = basis[row]
-        _fr_pivot(T, basis, row, entering, m)
+        _fr_pivot(T, basis, row, entering, m, nz)
         if leaving == 2 * m:
             for i in range(m):
                 if basis[i] >= m and basis[i] < 2 * m:
@@ -422,17 +426,24 @@ def _fr_lex_less(T, a, b, c, m):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _fr_pivot(T, basis, r, c, m):
-    """Gauss-Jordan pivot on T[r, c]: column c's variable replaces basis[r]."""
+def _fr_pivot(T, basis, r, c, m, nz):
+    """Gauss-Jordan pivot on T[r, c]: column c's variable replaces basis[r]. The other rows are updated
+    on the columns where the pivot row is nonzero only (nz: work array of 2m + 2 indices); for finite
+    entries the skipped operations subtract zeros, so the result is the dense pivot's bit for bit."""
     nco = 2 * m + 2
     piv = T[r, c]
+    nn = 0
     for j in range(nco):
         T[r, j] /= piv
+        if T[r, j] != 0.0:
+            nz[nn] = j
+            nn += 1
     for i in range(m):
         if i != r:
             f = T[i, c]
             if f != 0.0:
-                for j in range(nco):
+                for jj in range(nn):
+                    j = nz[jj]
                     T[i, j] -= f * T[r, j]
                 T[i, c] = 0.0
     T[r, c] = 1.0
