@@ -205,6 +205,12 @@ def friction_impact_law(W, u, e, mu, lam):
                 ip[i] = -1
                 im[i] = -1
                 ig[i] = -1
+        acted = True
+        if nc == 1:     # one contact: its law's pieces enumerated; one solution is taken as it is
+            i = ctc[0]
+            if _fr_single(A, u, mu, lam1, r, i, box[i], fric[i], k, qs, wmax, P, lt) == 1:
+                continue
+            certified = False
         code = 1
         for attempt in range(FRIC_TRIES):
             _fr_tableau(A, u, mu, lam1, r, k, ctc, nc, ia, ib, iz, ip, im, ig, T, m, attempt, qs)
@@ -218,12 +224,8 @@ def friction_impact_law(W, u, e, mu, lam):
             for i in range(n2):
                 lam[i] = 0.0
             return LCP_INFEASIBLE if code == 1 else LCP_DEGENERATE
-        acted = True
-        if certified:
-            if nc == 1:
-                certified = _fr_single_unique(A, u, mu, lam1, r, ctc[0], box[ctc[0]], fric[ctc[0]], k, qs, wmax)
-            else:
-                certified = _fr_certified(A, mu, fric, k, ctc, nc, wmax)
+        if certified and nc > 1:
+            certified = _fr_certified(A, mu, fric, k, ctc, nc, wmax)
     for i in range(k):
         lam[i] = P[i]
         lam[k + i] = lt[i]
@@ -556,11 +558,12 @@ def _fr_certified(A, mu, fric, k, ctc, nc, wmax):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _fr_single_unique(A, u, mu, lam1, r, i, box, fr, k, qs, wmax):
-    """One contact alone in its group: True if stage 2 has exactly one solution, by enumeration of its
-    pieces (normal: the rebound graph's four, or u+_n = 0 / P = 0 without rebound; tangential: stick,
-    slide +, slide -, or none without friction), each a 2 x 2 linear system, candidates checked with
-    the tolerances of _fr_check and counted once when they coincide."""
+def _fr_single(A, u, mu, lam1, r, i, box, fr, k, qs, wmax, P, lt):
+    """One contact alone in its group: the number of stage 2's solutions, by enumeration of its pieces
+    (normal: the rebound graph's four, or u+_n = 0 / P = 0 without rebound; tangential: stick, slide +,
+    slide -, or none without friction), each a 2 x 2 linear system, candidates checked with the
+    tolerances of _fr_check and counted once when they coincide. With one solution, P[i] and lt[i]
+    are set to it (lt put into the cone exactly)."""
     wnn = A[i, i]
     wnt = A[i, k + i]
     wtt = A[k + i, k + i]
@@ -596,13 +599,13 @@ def _fr_single_unique(A, u, mu, lam1, r, i, box, fr, k, qs, wmax):
             det = r0 * s1 - r1 * s0
             if abs(det) <= LCP_RANK_TOL * max(abs(r0 * s1), abs(r1 * s0), 1e-300):
                 continue
-            P = (d0 * s1 - r1 * d1) / det
-            lt = (r0 * d1 - d0 * s0) / det
-            vn = u[i] + wnn * P + wnt * lt
-            vt = u[k + i] + wnt * P + wtt * lt
-            if P * wmax < -tol or vn < -tol:
+            p_ = (d0 * s1 - r1 * d1) / det
+            t_ = (r0 * d1 - d0 * s0) / det
+            vn = u[i] + wnn * p_ + wnt * t_
+            vt = u[k + i] + wnt * p_ + wtt * t_
+            if p_ * wmax < -tol or vn < -tol:
                 continue
-            pw = P * wmax
+            pw = p_ * wmax
             lw = lam1[i] * wmax
             if box:
                 if a == 0 and lw - pw > tol:
@@ -614,7 +617,7 @@ def _fr_single_unique(A, u, mu, lam1, r, i, box, fr, k, qs, wmax):
                 if a == 3 and vn < r[i] - tol:
                     continue
             if fr:
-                if t == 0 and (abs(lt) - mu[i] * P) * wmax > tol:
+                if t == 0 and (abs(t_) - mu[i] * p_) * wmax > tol:
                     continue
                 if t == 1 and vt < -tol:
                     continue
@@ -622,10 +625,16 @@ def _fr_single_unique(A, u, mu, lam1, r, i, box, fr, k, qs, wmax):
                     continue
             new = True
             for q in range(ns):
-                if (abs(sols[q, 0] - P) + abs(sols[q, 1] - lt)) * wmax <= 10.0 * tol:
+                if (abs(sols[q, 0] - p_) + abs(sols[q, 1] - t_)) * wmax <= 10.0 * tol:
                     new = False
             if new:
-                sols[ns, 0] = P
-                sols[ns, 1] = lt
+                sols[ns, 0] = p_
+                sols[ns, 1] = t_
                 ns += 1
-    return ns == 1
+    if ns == 1:
+        P[i] = max(sols[0, 0], 0.0)
+        t_ = sols[0, 1]
+        if abs(t_) > mu[i] * P[i]:
+            t_ = mu[i] * P[i] if t_ > 0.0 else -mu[i] * P[i]
+        lt[i] = t_ if fr else 0.0
+    return ns
