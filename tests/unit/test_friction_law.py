@@ -619,3 +619,21 @@ def test_unit_needs_no_generated_name():
     units.check_unit(u)
     assert set(u.imports) == {"vcirun.collision.impact_law"}
     assert "friction_impact_law" in u.provides and "FRIC_SOLVED" in u.provides
+
+
+def test_reference_wrapper():
+    """vcirun.reference.friction: the same compiled unit, compiled once per process, Python-callable."""
+    from vcirun.reference import friction
+
+    mod = friction.friction_law_module()
+    assert friction.friction_law_module() is mod
+    m, R = 1.0, 0.1
+    W = np.diag([1 / m, 1 / m + R * R / (0.4 * m * R * R)])
+    u = [-4.202142, 5.0]
+    code, lam = friction.friction_impact(W, u, [0.0], [0.2])
+    assert friction.code_name(code) == "LCP_UNIQUE"
+    ref_code, ref = _solve(_compiled_unit(), W, u, [0.0], [0.2])
+    assert code == ref_code and np.array_equal(lam, ref)
+    code, lam = friction.friction_impact(W, u, [0.0], [-1.0])
+    assert friction.code_name(code) == "LCP_BAD_INPUT" and np.all(lam == 0.0)
+    assert {n for n in friction.CODES} <= set(dir(mod))
