@@ -42,10 +42,10 @@ def friction_law_module():
     name = f"vcirun_unit_friction_law_{key}"
     if name not in sys.modules:
         spec = importlib.util.spec_from_file_location(name, path)
-        mod = importlib.util.module_from_spec(spec)
-        sys.modules[name] = mod
+        law = importlib.util.module_from_spec(spec)
+        sys.modules[name] = law
         try:
-            spec.loader.exec_module(mod)
+            spec.loader.exec_module(law)
         except BaseException:
             sys.modules.pop(name, None)
             raise
@@ -54,7 +54,7 @@ def friction_law_module():
 
 def friction_impact(W, u, e, mu) -> tuple[int, np.ndarray]:
     """(case code, impulses) of the frictional impact law for k contacts (see the module docstring)."""
-    mod = friction_law_module()
+    law = friction_law_module()
     W = np.ascontiguousarray(W, dtype=np.float64)
     u = np.ascontiguousarray(u, dtype=np.float64).reshape(-1)
     e = np.ascontiguousarray(e, dtype=np.float64).reshape(-1)
@@ -62,14 +62,14 @@ def friction_impact(W, u, e, mu) -> tuple[int, np.ndarray]:
     if W.ndim != 2:
         raise ValueError(f"friction_impact: W must be a (2k, 2k) matrix, got shape {W.shape}")
     lam = np.zeros(u.shape[0])
-    code = int(mod.friction_impact_law(W, u, e, mu, lam))
+    code = int(law.friction_impact_law(W, u, e, mu, lam))
     return code, lam
 
 
 def code_name(code: int) -> str:
     """The name of a case code (e.g. 'FRIC_SOLVED')."""
-    mod = friction_law_module()
+    law = friction_law_module()
     for n in CODES:
-        if getattr(mod, n) == code:
+        if getattr(law, n) == code:
             return n
     return f"code {code}"
