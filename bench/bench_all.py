@@ -50,6 +50,10 @@ Sections (`--only a,b,...` to pick; `--quick` for a short smoke run):
             cache on the auto tier against the compiled one (today's pipeline), the compiled tier's
             loop and call against /work/main
 
+  friction  the frictional impact law (bench/friction_bench.py): the energy change of 10^4 random
+            frictional impacts (target: no gain) and microseconds per impact against impact_law for
+            k = 1, 2, 8, 50 contacts, coupled and uncoupled
+
   throughput the target table of sweeps at the speed of the compiled loop (bench/throughput.py):
             simulate() against its loop, an ensemble of 10^5 runs against the loop time per core, the
             fig4 sweep against today's tree (/work/base) and a first simulate against the tree before
@@ -77,6 +81,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import vcirun  # noqa: E402
+from friction_bench import section_friction  # noqa: E402 (bench/friction_bench.py: the section's rows)
 from throughput import section_throughput  # noqa: E402 (bench/throughput.py: the section's rows)
 from tiers import section_tiers  # noqa: E402 (bench/tiers.py: first results in seconds)
 
@@ -723,7 +728,8 @@ SECTIONS = {"steps": section_steps, "sim5": section_sim5, "impact": section_impa
             "tensor": section_tensor, "wp": section_wp, "coldbuild": section_coldbuild, "contacts": section_contacts,
              "bodies": section_bodies, "cacheverify": section_cacheverify,
              "throughput": lambda res: section_throughput(res, quick=QUICK), "reference": section_reference,
-             "tiers": lambda res: section_tiers(res, quick=QUICK, log=log)}
+             "tiers": lambda res: section_tiers(res, quick=QUICK, log=log),
+             "friction": lambda res: section_friction(res, quick=QUICK)}
 
 
 def main(argv=None):

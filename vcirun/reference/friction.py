@@ -32,9 +32,6 @@ At an impact the touching contacts take the frictional impact law of vcirun/coll
 """
 from __future__ import annotations
 
-import hashlib
-import importlib.util
-import sys
 from itertools import combinations
 from typing import NamedTuple
 
@@ -234,38 +231,14 @@ def check_painleve(g, A, S, names) -> None:
 
 # --- the frictional impact law -------------------------------------------------------------------------
 
-LAW_UNIT = "collision/friction_law.py"
-_LAW: list = []
 
 
 def impact_law():
     """friction_impact_law(W, u, e, mu, lam) of vcirun/collision/friction_law.py (rows [normal_1..k,
-    tangent_1..k], returns its case code), compiled once (its standalone source, cached with the kernels)."""
-    if _LAW:
-        return _LAW[0]
-    from pathlib import Path
+    tangent_1..k], returns its case code), compiled once (vcirun.reference.friction_law)."""
+    from .friction_law import friction_law_module
 
-    from ..codegen import units
-    from ..codegen.build import cache_dir
-
-    if not (Path(units.PKG) / LAW_UNIT).is_file():
-        raise RuntimeError(f"reference: the frictional impact law ({LAW_UNIT}) is not installed: a frictional "
-                           "impact cannot be resolved")
-    text = units.standalone_source([LAW_UNIT])
-    key = hashlib.sha256(text.encode()).hexdigest()[:16]
-    path = cache_dir() / f"unit_friction_law_{key}.py"
-    if not path.exists():
-        tmp = path.with_suffix(f".{key}.tmp")
-        tmp.write_text(text)
-        tmp.replace(path)
-    name = f"vcirun_unit_friction_law_{key}"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, path)
-        mod = importlib.util.module_from_spec(spec)
-        sys.modules[name] = mod
-        spec.loader.exec_module(mod)
-    _LAW.append(sys.modules[name].friction_impact_law)
-    return _LAW[0]
+    return friction_law_module().friction_impact_law
 
 
 def impact(mod, t, q, p, prm, contacts, e_of):
