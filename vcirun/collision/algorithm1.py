@@ -8,7 +8,7 @@ import math
 import numpy as np
 from numba import njit
 
-from vcirun.codegen.frame import borrow, scratch, scratch2, scratch_i
+from vcirun.codegen.frame import borrow, scratch, scratch_i
 from vcirun.codegen.roles import (
     NDOF, NCON, FORCED, PARTIAL_IS_FULL, O_Q, O_P, O_H, O_ED, O_HMOD, O_IMPACTS, O_IMPACT_Q, O_IMPACT_P_MINUS,
     O_IMPACT_P_PLUS, O_IMPACT_IMPULSE, O_IMPACT_CONTACT, O_IMPACT_STEP, O_PARTIAL_STEPS, O_NEWTON_ITERS,
@@ -19,6 +19,7 @@ from vcirun.codegen.roles import (
 )
 from vcirun.collision.declared import declared_reset
 from vcirun.collision.events import search_collision, step_admissible
+from vcirun.collision.state import LoopState, N_COUNTS, N_HELD
 from vcirun.collision.impact import impact_direction, normal_velocities, touch_tolerance
 from vcirun.maps.dynamics import hamiltonian, force_power, velocity_guess
 from vcirun.maps.held import held_step, contact_forces, project_momentum, normal_acceleration
@@ -43,22 +44,26 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
     (vcirun.core.record.COUNTERS). energies = 0 skips H, the discrete energy Ed and the modified energy
     along the grid (set at t0 only): a run that only needs the trajectory saves their per-step cost.
 
+    Each grid step is one of the loop's cases, each a function over the loop's state (st, a
+    LoopState: collision/state.py): a free flight (_free_flight: the full map) or, with contacts
+    held, a hold (_hold: the constrained map); the step is taken when it stays admissible, else it
+    is an event step (_event_step: partial steps to each collision and the impact there, _impact,
+    which is one of _declared_reset, _touching, _impact_in_hold, _method_reset, then _after_impact);
+    a held contact whose force turns tensile inside the step is released there (_release).
+
     Held contacts (resting_contact = 1; docs/derivations/contacts.md): a contact is held when the run
     starts resting on it, when its impacts accumulate, or when an impact with restitution e < 1
     leaves it a normal velocity below |d^2 phi/dt^2| h; while held every step is the constrained map
     (maps/held.py); it is released where its contact force would turn tensile (located within the
     step by the linear interpolation of the force), and the step goes on free from there."""
     constrained = settings[S_CONSTRAINED] != 0.0
-    ntol = settings[S_NEWTON_TOL]
-    maxit = int(settings[S_MAX_ITER])
-    event_tol = settings[S_EVENT_TOL]
-    max_impacts_step = int(settings[S_MAX_IMPACTS_STEP])
     energies = settings[S_ENERGIES] != 0.0
     resting = constrained and settings[S_RESTING_CONTACT] != 0.0
     # (vcirun.codegen.frame) the caller's arrays borrowed and the loop's own on this frame: nothing
     # the loop passes down is reference-counted (about half the loop time otherwise)
     out = borrow(out)
     prm = borrow(prm)
+    info = borrow(info)
     Q = out[O_Q]
     P = out[O_P]
     H = out[O_H]
@@ -68,17 +73,29 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
     newton_iters = out[O_NEWTON_ITERS]
     q = scratch(NDOF)
     p = scratch(NDOF)
-    copy_into(q, q0)
-    copy_into(p, p0)
     qt = scratch(NDOF)
     pt = scratch(NDOF)
     vt = scratch(NDOF)
-    work = scratch2(4, NDOF)
+    qh = scratch(NDOF)
+    ph = scratch(NDOF)
+    pp = scratch(NDOF)
+    d = scratch(NDOF)
+    qn = scratch(NDOF)
+    pmap = scratch(NDOF)
     held = scratch_i(NCON)
     mu = scratch(NCON)
     mu_end = scratch(NCON)
     imp = scratch(NCON)
-    phis = scratch(NCON)  # step_admissible's scratch (no allocation per step)
+    phis = scratch(NCON)
+    lam = scratch(NCON)
+    active = scratch_i(NCON)
+    n = scratch_i(N_COUNTS)
+    dense = scratch(3)
+    st = LoopState(q, p, qt, pt, vt, qh, ph, pp, d, qn, pmap, held, mu, mu_end, imp, phis, lam, active, n, dense,
+                   out, info, prm, h, settings[S_NEWTON_TOL], int(settings[S_MAX_ITER]), settings[S_EVENT_TOL],
+                   int(settings[S_MAX_IMPACTS_STEP]), resting)
+    copy_into(q, q0)
+    copy_into(p, p0)
     for j in range(NCON):
         held[j] = 0
         mu[j] = 0.0
@@ -88,11 +105,10 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
     info[I_N_IMPACTS] = 0
     info[I_N_PARTIAL] = 0
     info[I_N_RELEASES] = 0
-    nheld = initially_held(q, p, t0, h, event_tol, prm, held) if resting else 0
+    n[N_HELD] = initially_held(q, p, t0, h, st.event_tol, prm, held) if resting else 0
     # accumulation across steps: dense = [time of the last impact, start of the current
     # run of impacts that each follow the previous one by less than one grid step h, its length]
     # (see _accumulating)
-    dense = scratch(3)
     dense[0] = -math.inf
     dense[1] = 0.0
     dense[2] = 0.0
@@ -101,12 +117,13 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
     i = 0
     while i < N:
         t = t0 + i * h
+        nheld = n[N_HELD]
         if nheld > 0:  # (the rows start false / 0)
-            _record_contacts(out, np.int64(i), q, p, t, prm, held, nheld, mu)
+            _record_contacts(st, np.int64(i), t)
         if nheld == 0:
-            it, E = full(q, p, h, t, prm, ntol, maxit, qt, pt, vt, energies or i == 0)
+            it, E = _free_flight(st, t, energies or i == 0)
         else:
-            it, E = held_step(q, p, h, t, prm, ntol, maxit, held, qt, pt, vt, imp)
+            it, E = _hold(st, h, t)
         if energies or i == 0:
             H[i] = hamiltonian(q, p, prm)
             Hmod[i] = modified_energy(q, p, h, prm)
@@ -123,22 +140,16 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
             frac, c = _release_fraction(mu, mu_end, held)
         if c >= 0:
             impact_step[i] = True  # a step with an event inside (a release)
-            status, itc, nheld = _release_step(q, p, h, t, frac * h, c, prm, ntol, maxit, event_tol,
-                                               max_impacts_step, resting, qt, pt, vt, work, dense, out, info,
-                                               held, nheld)
+            status, itc = _release(st, t, frac * h, c)
             iters += itc
         elif (not constrained) or ((sys_phi(qt, prm) > 0.0) if (NCON == 1 and nheld == 0) else (
-                _phis_positive(qt, prm, phis) or step_admissible(q, p, qt, h, event_tol, prm, held, nheld, phis))):
-            # (step_admissible's common cases first, called directly: through it, its six array
-            # arguments cost ~0.1 us of numba reference counting per step; bench/compare_trees.py
-            # --nrt-count, and make bench's contacts section for several constraints)
+                _phis_positive(qt, prm, phis) or step_admissible(q, p, qt, h, st.event_tol, prm, held, nheld, phis))):
+            # (step_admissible's common cases first: one constraint, or every phi_i > 0 after the step)
             copy_into(q, qt)
             copy_into(p, pt)
         else:
             impact_step[i] = True
-            status, itc, nheld = _impact_step(q, p, h, h, t, PARTIAL_IS_FULL and nheld == 0, prm, ntol, maxit,
-                                              event_tol, max_impacts_step, resting, qt, pt, vt, work, dense,
-                                              out, info, held, nheld)
+            status, itc = _event_step(st, h, t, PARTIAL_IS_FULL and nheld == 0)
             iters += itc
         if status != ST_OK:
             fail = i
@@ -151,14 +162,14 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
         set_row(Q, i + 1, q)
         set_row(P, i + 1, p)
         i += 1
-    if status == ST_OK and nheld > 0:
-        _record_contacts(out, N, q, p, t0 + N * h, prm, held, nheld, mu)
+    if status == ST_OK and n[N_HELD] > 0:
+        _record_contacts(st, N, t0 + N * h)
     if status == ST_OK and energies:
         # energies at the last grid state (its discrete energy from one more trial step)
-        if nheld == 0:
-            it, E = full(q, p, h, t0 + N * h, prm, ntol, maxit, qt, pt, vt, np.bool_(True))
+        if n[N_HELD] == 0:
+            it, E = _free_flight(st, t0 + N * h, np.bool_(True))
         else:
-            it, E = held_step(q, p, h, t0 + N * h, prm, ntol, maxit, held, qt, pt, vt, imp)
+            it, E = _hold(st, h, t0 + N * h)
         H[N] = hamiltonian(q, p, prm)
         Ed[N] = E
         Hmod[N] = modified_energy(q, p, h, prm)
@@ -168,19 +179,215 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
     return status
 
 
+# --- the cases of a grid step --------------------------------------------------------------------------
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _free_flight(st, t, want_E):
+    """The full map from the grid state (st.q, st.p) at t into (st.qt, st.pt, st.vt); no contact held.
+    Returns (Newton iterations, < 0 on failure; the step's discrete energy, NaN unless want_E)."""
+    return full(st.q, st.p, st.h, t, st.prm, st.ntol, st.maxit, st.qt, st.pt, st.vt, want_E)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _hold(st, tau, t):
+    """The constrained map over tau with the held contacts on their surfaces (maps/held.py) from
+    (st.q, st.p) at t into (st.qt, st.pt, st.vt). Returns (Newton iterations, < 0 on failure;
+    discrete energy)."""
+    return held_step(st.q, st.p, tau, t, st.prm, st.ntol, st.maxit, st.held, st.qt, st.pt, st.vt, st.imp)
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
-def _record_contacts(out, k, q, p, t, prm, held, nheld, mu):
-    """contact_active[k] and contact_force[k] at grid state k; mu receives the held contacts' forces."""
-    active = out[O_CONTACT_ACTIVE]
-    force = out[O_CONTACT_FORCE]
-    if nheld > 0:
-        contact_forces(q, p, t, prm, held, mu)
+def _release(st, t, tau, c):
+    """A grid step from t in which held contact c is released after tau: the constrained map to
+    t + tau, the release (recorded), then the rest of the step as an event step from there.
+    Returns (status, iterations)."""
+    it = 0
+    if tau > 0.0:
+        it, _ = _hold(st, tau, t)
+        if it < 0:
+            return ST_NEWTON_FAILED, -it
+        copy_into(st.q, st.qt)
+        copy_into(st.p, st.pt)
+    st.held[c] = 0
+    st.n[N_HELD] -= 1
+    _record_release(st, t + tau, c)
+    status, itc = _event_step(st, st.h - tau, t + tau, np.bool_(False))
+    return status, it + itc
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _event_step(st, tau_max, t, have_end):
+    """Lines 5-17 of Algorithm 1: the step of length tau_max (<= the grid step h) from (st.q, st.p) at
+    t whose full step left the admissible set, by partial steps to each collision and the impact
+    there (_impact). have_end: (st.qt, st.pt, st.vt) hold that full step on entry (reused as the
+    first partial step when the partial map is the full map). On success (st.q, st.p) hold the
+    state at t + tau_max. With held contacts the partial steps are the constrained map. Returns
+    (status, Newton iterations)."""
+    copy_into(st.qh, st.q)
+    copy_into(st.ph, st.p)
+    tc = t
+    k_imp = 0
+    iters = 0
+    while tau_max > 0.0:
+        code, dtau, E_pre, itc = search_collision(st.qh, st.ph, tau_max, st.h, tc, st.prm, st.ntol, st.maxit,
+                                                  st.event_tol, st.qt, st.pt, st.vt, have_end, st.held,
+                                                  st.n[N_HELD])
+        have_end = False
+        iters += itc
+        if code < 0:
+            return (ST_NEWTON_FAILED if code == -1 else ST_EVENT_FAILED), iters
+        _log_partial(st, dtau)
+        tau_rem = tau_max - dtau
+        if code == 1:
+            k_imp += 1
+            status, itc, mapped = _impact(st, tc + dtau, dtau, tau_rem, E_pre, k_imp)
+            iters += itc
+            if status != ST_OK:
+                return status, iters
+            copy_into(st.qh, st.qn if mapped else st.qt)
+            copy_into(st.ph, st.pp)
+            tau_max = tau_rem
+            tc += dtau
+        else:
+            copy_into(st.qh, st.qt)
+            copy_into(st.ph, st.pt)
+            tau_max = 0.0
+    copy_into(st.q, st.qh)
+    copy_into(st.p, st.ph)
+    return ST_OK, iters
+
+
+# --- the impact and its cases ---------------------------------------------------------------------------
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _impact(st, ti, dtau, tau_rem, E_pre, k_imp):
+    """The impact at ti, where the search left the state just before it in (st.qt, st.pt) (the
+    partial step of length dtau that reached it, its discrete energy E_pre and step velocity st.vt;
+    tau_rem: the time left in the step): the impact law (collision/impact.py: which contacts, their
+    impulses, the direction st.d, Newton's multiplier s0 and the energy it removes; one contact in
+    closed form, several by Moreau's law), then one of the cases: a declared reset map, touching
+    without approach, an impact during a hold, the method's reset. st.pp receives the momentum
+    after it (with a declared map, st.qn the configuration). k_imp: the impacts of this grid step so
+    far, this one included. Returns (status, iterations, mapped: the declared map moved q)."""
+    k, s0, dE = impact_direction(st.qt, st.pt, st.h, st.event_tol, st.prm, st.d, st.lam, st.active)
+    nheld = st.n[N_HELD]
+    mapped = RESET_MAP and nheld == 0 and k > 0
+    if mapped:
+        status, iters, s = _declared_reset(st, ti, dtau, tau_rem, E_pre, s0)
+    elif k <= 0:
+        status, iters, k, s, s0 = _touching(st, ti)
+    elif nheld > 0:
+        status, iters, s = _impact_in_hold(st, s0)
+    else:
+        status, iters, s = _method_reset(st, ti, dtau, tau_rem, E_pre, s0, dE)
+    if status != ST_OK:
+        return status, iters, mapped
+    return _after_impact(st, ti, k, s, s0, mapped, k_imp), iters, mapped
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _declared_reset(st, ti, dtau, tau_rem, E_pre, s0):
+    """A declared reset map (vcirun.mechanics.hybrid) at an impact with no contact held: the map
+    takes (st.qt, st.pt) to (st.qn, st.pmap), then the method's reset at q+ from the map's p+ and
+    along it, with the energy the map removes (R^CVA: the map itself; R^MCVA's target is the
+    pre-impact H~ less it; docs/derivations/declared_resets.md). Returns (status, iterations, the
+    record's multiplier: the impact law's s0 when it acts first, else 0)."""
+    dEm = declared_reset(st.qt, st.pt, st.d, s0, st.prm, st.qn, st.pmap)
+    Hm = modified_energy(st.qt, st.pt, st.h, st.prm)
+    if Hm == Hm:  # (a modified energy: R^MCVA's target is the pre-impact H~ less dEm)
+        dEm += modified_energy(st.qn, st.pmap, st.h, st.prm) - Hm
+    itr, s = reset(st.qn, st.pmap, st.pmap, 0.0, dEm, E_pre, st.vt, dtau, tau_rem, st.h, ti, st.prm, st.ntol,
+                   st.maxit, st.pp)
+    if itr < 0:
+        return ST_RESET_FAILED, -itr, 0.0
+    return ST_OK, itr, (s0 if RESET_LAW_FIRST else 0.0)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _touching(st, ti):
+    """The search stopped at a contact that the impact law finds not approaching (normal velocity ~0:
+    grazing or resting), or whose law has no solution. With held contacts allowed, the touching
+    contacts the motion presses into are held (the multiplier test of `initially_held`), as an
+    impact of zero impulse; otherwise, or if none is, the run fails (no elastic reset exists).
+    Returns (status, iterations, contacts held, s, s0)."""
+    if not st.resting:
+        return ST_RESET_FAILED, 0, 0, 0.0, 0.0
+    k = initially_held(st.qt, st.pt, ti, st.h, st.event_tol, st.prm, st.held)
+    for j in range(NCON):
+        st.active[j] = st.held[j]
+        st.lam[j] = 0.0
+    if k <= 0:
+        return ST_RESET_FAILED, 0, k, 1.0, 1.0
+    st.n[N_HELD] = _count(st.held)
+    copy_into(st.pp, st.pt)
+    return ST_OK, 0, k, 1.0, 1.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _impact_in_hold(st, s0):
+    """An impact of free contacts while others are held: the impact law's p+ = pt + s0 d (R^CVA with
+    restitution; the paper's energy-based resets are not defined for the constrained map).
+    Returns (status, iterations, s0)."""
+    for j in range(NDOF):
+        st.pp[j] = st.pt[j] + s0 * st.d[j]
+    return ST_OK, 0, s0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _method_reset(st, ti, dtau, tau_rem, E_pre, s0, dE):
+    """The method's reset (the role `reset`: R^CVA, R^VCI, R^MCVA, ...) along the impact law's
+    direction, one contact or several. An energy-based reset (R^VCI, R^MCVA) has no reflecting root
+    at a slow or grazing impact: where its energy balance cannot matter (_law_suffices), the impact
+    law's p+ is taken (as during a hold; docs/derivations/contacts.md 7.4), else the run fails.
+    Returns (status, iterations, the multiplier s of p+ = pt + s d)."""
+    itr, s = reset(st.qt, st.pt, st.d, s0, dE, E_pre, st.vt, dtau, tau_rem, st.h, ti, st.prm, st.ntol, st.maxit,
+                   st.pp)
+    if itr >= 0:
+        return ST_OK, itr, s
+    for j in range(NDOF):
+        st.pp[j] = st.pt[j] + s0 * st.d[j]
+    if not (st.resting and _law_suffices(st.qt, st.pt, st.pp, E_pre, ti, st.h, st.ntol, st.prm, st.active,
+                                         st.lam)):
+        return ST_RESET_FAILED, -itr, s0
+    return ST_OK, -itr, s0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _after_impact(st, ti, k, s, s0, mapped, k_imp):
+    """What follows every impact: the accumulation test (impacts denser than the grid, or more than
+    the cap in one step: held where energy leaves, else the run stops), the record's capacity, the
+    holds and releases the impact settles (_settle), and its entries in the record. Returns the
+    status."""
+    accumulating = _accumulating(st.dense, ti, st.h, st.max_impacts_step) or k_imp > st.max_impacts_step
+    # dense impacts settle only where energy leaves (restitution < 1 or a force): elastic
+    # impacts of a conservative system stay the documented limit (docs/derivations/contacts.md 7.2)
+    if accumulating and not (st.resting and _dissipative(st.qt, st.pt, ti, st.prm, st.active)):
+        return ST_ACCUMULATION
+    if st.info[I_N_IMPACTS] + k > st.out[O_IMPACTS].shape[0]:
+        return ST_ACCUMULATION  # (the record is full: the caller reruns with room)
+    if st.resting and not mapped and (accumulating or st.n[N_HELD] > 0 or _inelastic(st.prm, st.active)):
+        # (_settle holds or releases nothing otherwise: skipped, the same result)
+        st.n[N_HELD] = _settle(st, ti, s, s0, accumulating)
+    _record_impacts(st, ti, s, s0)
+    return ST_OK
+
+
+# --- helpers of the grid step ---------------------------------------------------------------------------
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _record_contacts(st, k, t):
+    """contact_active[k] and contact_force[k] at grid state k (st.q, st.p); st.mu receives the held
+    contacts' forces."""
+    active = st.out[O_CONTACT_ACTIVE]
+    force = st.out[O_CONTACT_FORCE]
+    if st.n[N_HELD] > 0:
+        contact_forces(st.q, st.p, t, st.prm, st.held, st.mu)
     else:
         for j in range(NCON):
-            mu[j] = 0.0
+            st.mu[j] = 0.0
     for j in range(NCON):
-        active[k, j] = held[j] != 0
-        force[k, j] = mu[j]
+        active[k, j] = st.held[j] != 0
+        force[k, j] = st.mu[j]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -200,28 +407,6 @@ def _release_fraction(mu, mu_end, held):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _release_step(q, p, h, t, tau, c, prm, ntol, maxit, event_tol, max_impacts_step, resting, qt, pt, vt, work,
-                  dense, out, info, held, nheld):
-    """A step in which held contact c is released after tau: the constrained map to t + tau, the
-    release (recorded), then the rest of the step as Algorithm 1 from there. Returns (status,
-    iterations, held count)."""
-    imp = scratch(NCON)
-    it = 0
-    if tau > 0.0:
-        it, _ = held_step(q, p, tau, t, prm, ntol, maxit, held, qt, pt, vt, imp)
-        if it < 0:
-            return ST_NEWTON_FAILED, -it, nheld
-        copy_into(q, qt)
-        copy_into(p, pt)
-    held[c] = 0
-    nheld -= 1
-    _record_release(out, info, t + tau, c)
-    status, itc, nheld = _impact_step(q, p, h, h - tau, t + tau, np.bool_(False), prm, ntol, maxit, event_tol,
-                                      max_impacts_step, resting, qt, pt, vt, work, dense, out, info, held, nheld)
-    return status, it + itc, nheld
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
 def _phis_positive(qt, prm, phis):
     """Every phi_i(qt) > 0 (phis: scratch): a full step with several contacts is admissible then,
     whatever is touching or held (step_admissible's first test, without its other arguments)."""
@@ -230,106 +415,6 @@ def _phis_positive(qt, prm, phis):
         if not phis[j] > 0.0:
             return False
     return True
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _impact_step(q, p, h, tau_max, t, have_end, prm, ntol, maxit, event_tol, max_impacts_step, resting, qt, pt, vt,
-                 work, dense, out, info, held, nheld):
-    """Lines 5-17 of Algorithm 1: the step of length tau_max (<= the grid step h) from (q, p) at t whose full step left the
-    admissible set, by partial steps to each collision and resets. have_end: (qt, pt, vt) hold that
-    full step on entry (reused as the first partial step when the partial map is the full map);
-    work: 4 x NDOF scratch. On success (q, p) hold the state at t + tau_max. With held contacts the
-    partial steps are the constrained map and the impacts of the others follow the impact law
-    (R^CVA with restitution: the paper's energy-based resets are not defined for the constrained
-    map). Returns (status, Newton iterations, held count)."""
-    qh = work[0]
-    ph = work[1]
-    pp = work[2]
-    d = work[3]
-    lam = scratch(NCON)
-    active = scratch_i(NCON)
-    qn = scratch(NDOF)      # q+ and p+ of a declared reset map
-    pmap = scratch(NDOF)
-    copy_into(qh, q)
-    copy_into(ph, p)
-    tc = t
-    k_imp = 0
-    iters = 0
-    while tau_max > 0.0:
-        code, dtau, Epre, itc = search_collision(qh, ph, tau_max, h, tc, prm, ntol, maxit, event_tol,
-                                                 qt, pt, vt, have_end, held, nheld)
-        have_end = False
-        iters += itc
-        if code < 0:
-            return (ST_NEWTON_FAILED if code == -1 else ST_EVENT_FAILED), iters, nheld
-        _log_partial(out[O_PARTIAL_STEPS], info, dtau)
-        tau_rem = tau_max - dtau
-        if code == 1:
-            # the impact law (which contacts, Newton's multiplier, the energy it removes), then the
-            # method's reset along its direction
-            k, s0, dE = impact_direction(qt, pt, h, event_tol, prm, d, lam, active)
-            mapped = RESET_MAP and nheld == 0 and k > 0
-            if mapped:
-                # a declared reset map (vcirun.mechanics.hybrid): the method's reset at q+, from the
-                # map's p+ and along it, with the energy the map removes (R^CVA: the map itself;
-                # docs/derivations/declared_resets.md)
-                dEm = declared_reset(qt, pt, d, s0, prm, qn, pmap)
-                Hm = modified_energy(qt, pt, h, prm)
-                if Hm == Hm:  # (a modified energy: R^MCVA's target is the pre-impact H~ less dEm)
-                    dEm += modified_energy(qn, pmap, h, prm) - Hm
-                itr, s = reset(qn, pmap, pmap, 0.0, dEm, Epre, vt, dtau, tau_rem, h, tc + dtau, prm, ntol, maxit, pp)
-                iters += abs(itr)
-                if itr < 0:
-                    return ST_RESET_FAILED, iters, nheld
-                s = s0 if RESET_LAW_FIRST else 0.0   # the record's impulse: the impact law's
-            elif k <= 0:
-                if not resting:
-                    return ST_RESET_FAILED, iters, nheld  # no approaching contact (grazing), or no LCP solution
-                k, s0 = _grazing_hold(qt, pt, tc + dtau, h, event_tol, prm, held, active, lam)
-                if k <= 0:
-                    return ST_RESET_FAILED, iters, nheld
-                nheld = _count(held)
-                copy_into(pp, pt)
-                s = s0
-            elif nheld > 0:
-                for j in range(NDOF):
-                    pp[j] = pt[j] + s0 * d[j]
-                s = s0
-            else:
-                itr, s = reset(qt, pt, d, s0, dE, Epre, vt, dtau, tau_rem, h, tc + dtau, prm, ntol, maxit, pp)
-                iters += abs(itr)
-                if itr < 0:
-                    # An energy-based reset (R^VCI, R^MCVA) has no reflecting root at a slow or
-                    # grazing impact. Where its energy balance cannot matter, the impact law's p+ is
-                    # taken (as during a hold; docs/derivations/contacts.md 7.4)
-                    for j in range(NDOF):
-                        pp[j] = pt[j] + s0 * d[j]
-                    s = s0
-                    if not (resting and _law_suffices(qt, pt, pp, Epre, tc + dtau, h, ntol, prm, active, lam)):
-                        return ST_RESET_FAILED, iters, nheld
-            k_imp += 1
-            accumulating = _accumulating(dense, tc + dtau, h, max_impacts_step) or k_imp > max_impacts_step
-            # dense impacts settle only where energy leaves (restitution < 1 or a force): elastic
-            # impacts of a conservative system stay the documented limit (docs/derivations/contacts.md 7.2)
-            if accumulating and not (resting and _dissipative(qt, pt, tc + dtau, prm, active)):
-                return ST_ACCUMULATION, iters, nheld
-            if info[I_N_IMPACTS] + k > out[O_IMPACTS].shape[0]:
-                return ST_ACCUMULATION, iters, nheld  # (the record is full: the caller reruns with room)
-            if resting and not mapped and (accumulating or nheld > 0 or _inelastic(prm, active)):
-                # (_settle holds or releases nothing otherwise: skipped, the same result)
-                nheld = _settle(qt, pp, tc + dtau, h, prm, held, active, lam, s, s0, accumulating, out, info)
-            _record_impacts(out, info, tc + dtau, qt, pt, pp, s, s0, lam, active)
-            copy_into(qh, qn if mapped else qt)
-            copy_into(ph, pp)
-            tau_max = tau_rem
-            tc += dtau
-        else:
-            copy_into(qh, qt)
-            copy_into(ph, pt)
-            tau_max = 0.0
-    copy_into(q, qh)
-    copy_into(p, ph)
-    return ST_OK, iters, nheld
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -410,16 +495,21 @@ def _count(held):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _settle(q, pp, t, h, prm, held, active, lam, s, s0, accumulating, out, info):
-    """After an impact (p+ = pp): hold the impact's contacts that come to rest -- all of them when
-    impacts accumulate, else those with restitution < 1 left a normal velocity below |d^2 phi/dt^2| h
-    while pressed in -- with a plastic projection (their normal velocities zeroed, the impulse added
-    to the impact's record through lam); release the held contacts the impulse pulled away, but keep
-    (and project) those whose flight would be one the small-bounce rule holds on landing.
-    Returns the held count."""
+def _settle(st, t, s, s0, accumulating):
+    """After an impact at t (p+ = st.pp at st.qt): hold the impact's contacts that come to rest -- all
+    of them when impacts accumulate, else those with restitution < 1 left a normal velocity below
+    |d^2 phi/dt^2| h while pressed in -- with a plastic projection (their normal velocities zeroed,
+    the impulse added to the impact's record through st.lam); release the held contacts the impulse
+    pulled away, but keep (and project) those whose flight would be one the small-bounce rule holds
+    on landing. Returns the held count."""
+    q = st.qt
+    pp = st.pp
+    held = st.held
+    active = st.active
+    lam = st.lam
     e = scratch(NCON)
-    sys_restitution(prm, e)
-    u = normal_velocities(q, pp, prm)
+    sys_restitution(st.prm, e)
+    u = normal_velocities(q, pp, st.prm)
     changed = False
     for j in range(NCON):
         if active[j] == 0:
@@ -429,35 +519,22 @@ def _settle(q, pp, t, h, prm, held, active, lam, s, s0, accumulating, out, info)
             # one that the rule below holds on landing (a rocking link's two ends alternating at an
             # accumulation point: one impact lifts the other end by less and less, without end)
             if u[j] > 0.0 and lam[j] == 0.0:
-                if _small_bounce(q, pp, t, h, prm, j, e[j], u[j]):
+                if _small_bounce(q, pp, t, st.h, st.prm, j, e[j], u[j]):
                     changed = True
                 else:
                     held[j] = 0
-                    _record_release(out, info, t, j)
+                    _record_release(st, t, j)
             continue
-        if accumulating or _small_bounce(q, pp, t, h, prm, j, e[j], u[j]):
+        if accumulating or _small_bounce(q, pp, t, st.h, st.prm, j, e[j], u[j]):
             held[j] = 1
             changed = True
     if changed:
         pi = scratch(NCON)
-        project_momentum(q, pp, prm, held, pi)
+        project_momentum(q, pp, st.prm, held, pi)
         for j in range(NCON):
             if active[j] != 0:
                 lam[j] += pi[j] * (s0 / s) if s != 0.0 else pi[j]
     return _count(held)
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _grazing_hold(q, p, t, h, event_tol, prm, held, active, lam):
-    """An impact with no approaching contact (normal velocity ~0: grazing or resting) when held
-    contacts are allowed: hold the touching contacts the motion presses into (the multiplier test of
-    `initially_held`). Returns (contacts now held at this state, 1.0); their entries are impacts of
-    zero impulse."""
-    k = initially_held(q, p, t, h, event_tol, prm, held)
-    for j in range(NCON):
-        active[j] = held[j]
-        lam[j] = 0.0
-    return k, 1.0
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -493,12 +570,12 @@ def initially_held(q, p, t, h, event_tol, prm, held):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _record_release(out, info, t, c):
-    k = info[I_N_RELEASES]
-    if k < out[O_RELEASES].shape[0]:
-        out[O_RELEASES][k] = t
-        out[O_RELEASE_CONTACT][k] = c
-        info[I_N_RELEASES] = k + 1
+def _record_release(st, t, c):
+    k = st.info[I_N_RELEASES]
+    if k < st.out[O_RELEASES].shape[0]:
+        st.out[O_RELEASES][k] = t
+        st.out[O_RELEASE_CONTACT][k] = c
+        st.info[I_N_RELEASES] = k + 1
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -519,29 +596,32 @@ def _accumulating(dense, t_imp, h, max_impacts_step):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _log_partial(log, info, dtau):
-    k = info[I_N_PARTIAL]
+def _log_partial(st, dtau):
+    log = st.out[O_PARTIAL_STEPS]
+    k = st.info[I_N_PARTIAL]
     if k < log.shape[0]:
         log[k] = dtau
-        info[I_N_PARTIAL] = k + 1
+        st.info[I_N_PARTIAL] = k + 1
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _record_impacts(out, info, t_imp, q, pm, pp, s, s0, lam, active):
+def _record_impacts(st, t_imp, s, s0):
     """One entry of every per-impact row of vcirun.core.record.FIELDS per contact that took an impulse
-    (simultaneous impacts: one entry each, at the same time and state). The reset's multiplier s
-    scales the impact law's impulses: contact i took lam_i s / s0 (one contact: s itself)."""
+    (simultaneous impacts: one entry each, at the same time and state: st.qt, st.pt before, st.pp
+    after). The reset's multiplier s scales the impact law's impulses st.lam: contact i took
+    lam_i s / s0 (one contact: s itself)."""
+    out = st.out
     for i in range(NCON):
-        if active[i] == 0 or (NCON > 1 and not lam[i] > 0.0):
+        if st.active[i] == 0 or (NCON > 1 and not st.lam[i] > 0.0):
             continue
-        k = info[I_N_IMPACTS]
+        k = st.info[I_N_IMPACTS]
         out[O_IMPACTS][k] = t_imp
-        set_row(out[O_IMPACT_Q], k, q)
-        set_row(out[O_IMPACT_P_MINUS], k, pm)
-        set_row(out[O_IMPACT_P_PLUS], k, pp)
-        out[O_IMPACT_IMPULSE][k] = s if NCON == 1 else lam[i] * (s / s0)
+        set_row(out[O_IMPACT_Q], k, st.qt)
+        set_row(out[O_IMPACT_P_MINUS], k, st.pt)
+        set_row(out[O_IMPACT_P_PLUS], k, st.pp)
+        out[O_IMPACT_IMPULSE][k] = s if NCON == 1 else st.lam[i] * (s / s0)
         out[O_IMPACT_CONTACT][k] = i
-        info[I_N_IMPACTS] = k + 1
+        st.info[I_N_IMPACTS] = k + 1
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

@@ -11,6 +11,7 @@ from vcirun.codegen.roles import (
 )
 from vcirun.maps.dynamics import velocity_guess, force_power
 from vcirun.maps.linalg import solve_small
+from vcirun.maps.newton import NEWTON_CONVERGED, NEWTON_GO_ON, newton_stop
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -113,14 +114,9 @@ def _vci_newton(q, pm, E_target, tau_rem, t, prm, ntol, maxit, g, lam_start, pp)
             xn = max(xn, abs(w[i]))
         lam -= F[NDOF]
         dn = max(dn, abs(F[NDOF]))
-        if not math.isfinite(dn):
-            break
-        if dn <= ntol * (1.0 + xn):
-            ok = True
-            break
-        # round-off floor, as in explicit_step (vcirun/maps/steps.py)
-        if it >= 3 and dn >= dprev and dn <= math.sqrt(ntol) * (1.0 + xn):
-            ok = True
+        stop = newton_stop(it, dn, dprev, xn, ntol, False)
+        if stop != NEWTON_GO_ON:
+            ok = stop == NEWTON_CONVERGED
             break
         dprev = dn
     return (it if ok else -it), lam

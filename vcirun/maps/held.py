@@ -12,7 +12,6 @@
 # restricted to it), so the held phase keeps the VI structure. lam + mu is the stage's contact
 # impulse. The instantaneous contact force of the continuous motion (the index-reduced multiplier,
 # `contact_forces`) decides holding (compressive, > 0) and release (it would turn tensile).
-import math
 
 import numpy as np
 from numba import njit
@@ -24,6 +23,7 @@ from vcirun.codegen.roles import (
 )
 from vcirun.maps.dynamics import delassus, dynamics_rhs, velocity_guess
 from vcirun.maps.linalg import solve_small, copy_into
+from vcirun.maps.newton import NEWTON_CONVERGED, NEWTON_GO_ON, newton_stop
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -201,13 +201,9 @@ def held_stage(sid, q0, p0, hs, t, prm, ntol, maxit, held, v, q1, p1, imp):
             x[j] -= F[j]
             dn = max(dn, abs(F[j]))
             xn = max(xn, abs(x[j]))
-        if not math.isfinite(dn):
-            break
-        if dn <= ntol * (1.0 + xn):
-            ok = True
-            break
-        if it >= 3 and dn >= dprev and dn <= math.sqrt(ntol) * (1.0 + xn):  # round-off floor
-            ok = True
+        stop = newton_stop(it, dn, dprev, xn, ntol, False)
+        if stop != NEWTON_GO_ON:
+            ok = stop == NEWTON_CONVERGED
             break
         dprev = dn
     for j in range(NDOF):

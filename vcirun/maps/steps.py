@@ -6,8 +6,6 @@
 # per Newton iteration; Pp writes the data of its end point, which is the start point of the next
 # stage of a composition (the same bits). SVC stages: 3 node evaluations instead of 7, and the work
 # arrays are on the step's stack frame (vcirun.codegen.frame: no allocation, no reference count).
-import math
-
 import numpy as np
 from numba import njit
 
@@ -15,6 +13,7 @@ from vcirun.codegen.frame import scratch, scratch2
 from vcirun.codegen.roles import NDOF, BAND, NODE_LEN, FULL_STAGES, FULL_FRACS, sys_node, sys_node_M, ld_PmJc, ld_Ppc, ld_Ed
 from vcirun.maps.dynamics import velocity_from
 from vcirun.maps.linalg import solve_band, copy_into
+from vcirun.maps.newton import NEWTON_CONVERGED, NEWTON_GO_ON, newton_stop
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -47,30 +46,9 @@ def explicit_step(sid, q0, p0, h, t, prm, newton_tol, max_iter, v, q1, p1, c, cn
             v[i] -= r[i]
             dn = max(dn, abs(r[i]))
             vn = max(vn, abs(v[i]))
-        if not math.isfinite(dn):
-            break
-        if dn <= newton_tol * (1.0 + vn):
-            converged = True
-            break
-        # Quadratic phase (exact Jacobian): with contraction theta = dn / dprev, the error left after
-        # this correction is at most theta / (1 - theta) * dn (the bound under mere linear
-        # convergence, so it is conservative; Hairer & Wanner's stopping rule for simplified
-        # Newton). Once it is below newton_tol the next iteration could only confirm it: stopping
-        # saves it (a third of a smooth step). The step then honours newton_tol, not round-off: the
-        # map carries noise up to ~newton_tol relative (measured: symplecticity defect and orders
-        # unchanged; a grid point exactly on phi = 0 needs a wider search, see stress.boundary_start).
-        theta = dn / dprev  # (dprev = inf on the first iteration: no rate known, theta = 0 ignored)
-        if it >= 2 and theta < 0.1 and theta / (1.0 - theta) * dn <= newton_tol * (1.0 + vn):
-            converged = True
-            break
-        # Round-off floor: past the quadratic phase (it >= 3) a correction that no longer decreases,
-        # yet is below sqrt(newton_tol) relative, is rounding noise. With an ill-conditioned
-        # Jacobian (nearly singular M, cond ~ 1e4 and up) that floor lies above newton_tol, and
-        # without this test Newton cycles between two neighbouring floats until max_iter and reports
-        # newton_failed on a regular step (double pendulum with m1 = 1e-4, cart-pendulum with
-        # m2/m1 = 1e4).
-        if it >= 3 and dn >= dprev and dn <= math.sqrt(newton_tol) * (1.0 + vn):
-            converged = True
+        stop = newton_stop(it, dn, dprev, vn, newton_tol, True)
+        if stop != NEWTON_GO_ON:
+            converged = stop == NEWTON_CONVERGED
             break
         dprev = dn
     for i in range(NDOF):
