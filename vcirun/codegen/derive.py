@@ -40,8 +40,8 @@ from vcirun.codegen.frame import scratch, scratch2
 
 
 def system_kernels(system, with_dhq: bool = True) -> list[Kernel]:
-    """M(q), V(q), phi(q), grad phi(q) and dH/dq at fixed x = M^-1 p (so H and its gradient need
-    no symbolic inverse of M: the solve happens numerically). with_dhq=False leaves sys_dHq out
+    """M(q), V(q), phi(q), grad phi(q), the friction kernels and dH/dq at fixed x = M^-1 p (so H and
+    its gradient need no symbolic inverse of M: the solve happens numerically). with_dhq=False leaves sys_dHq out
     (the tensor path emits it from the tensors: vcirun.codegen.tensor.dhq_source)."""
     n = system.n
     q = system.q
@@ -79,6 +79,7 @@ def system_kernels(system, with_dhq: bool = True) -> list[Kernel]:
     ks.append(Kernel("sys_reset_map", [("q", q), ("qd", qdv)],
                      [("qo", sp.Matrix(rmap[0])), ("qdo", sp.Matrix([sp.sympify(e).subs(sub) for e in rmap[1]]))],
                      prm))
+    ks += friction_kernels(system, v)
     if with_dhq:
         x = list(sp.symbols(f"xm0:{n}"))
         ks.append(Kernel("sys_dHq", [("q", q), ("x", x)], [("out", system.dH_dq_at(x))], prm))
@@ -90,6 +91,21 @@ def _depends(expr, q) -> list:
     """(index, coordinate) of the coordinates expr depends on, in coordinate order."""
     free = sp.sympify(expr).free_symbols
     return [(i, s) for i, s in enumerate(q) if s in free]
+
+
+def friction_kernels(system, v: list) -> list[Kernel]:
+    """sys_slips(q, prm, out) = W_t(q), the slip rows (zero rows where a contact has no friction),
+    sys_dslips(q, v, prm, out) = (v^T dW_t,i/dq v)_i, the velocity term of d(v_t,i)/dt along qdot = v
+    (derivatives only along the coordinates an entry depends on), and sys_friction(prm, mu, mu_s), the
+    coefficients (vcirun.mechanics.friction). Zero kernels for a frictionless system."""
+    q, prm, m = system.q, system.param_symbols, system.m
+    W = system.slip_matrix
+    mu, mus = system.friction_coefficients
+    dd = sp.Matrix([sum((sp.diff(W[i, j], b) * v[j] * v[k] for j in range(system.n)
+                         for k, b in _depends(W[i, j], q)), sp.Integer(0)) for i in range(m)])
+    return [Kernel("sys_slips", [("q", q)], [("out", W)], prm),
+            Kernel("sys_dslips", [("q", q), ("v", v)], [("out", dd)], prm),
+            Kernel("sys_friction", [], [("mu", sp.Matrix(mu)), ("mu_s", sp.Matrix(mus))], prm)]
 
 
 def force_kernels(system) -> list[Kernel]:
@@ -301,6 +317,7 @@ def generated_source(system, ks, kernel_path: str | None = None) -> str:
 
     parts = [HEADER, f"NDOF = {system.n}", f"BAND = {system.bandwidth}", f"FORCED = {bool(system.is_forced)}",
              f"RESET_MAP = {system.reset_map is not None}", f"RESET_LAW_FIRST = {bool(system.reset_law_first)}",
+             f"FRICTION = {bool(system.has_friction)}",
              system_kernels_source(system, kernel_path), module_constants()]
     names = list(ks.explicit_names)
     if names:

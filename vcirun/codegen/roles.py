@@ -178,6 +178,22 @@ def sys_restitution(prm: vec("NPRM"), out: vec("NCON")) -> int:
 
 
 @kernel("system")
+def sys_slips(q: vec("NDOF"), prm: vec("NPRM"), out: mat("NCON", "NDOF")) -> int:
+    """out = W_t(q), the slip rows: contact i slides at v_t,i = W_t,i(q) qdot, the friction force opposes
+    it (vcirun.mechanics.friction); zero rows where contact i has no friction."""
+
+
+@kernel("system")
+def sys_dslips(q: vec("NDOF"), v: vec("NDOF"), prm: vec("NPRM"), out: vec("NCON")) -> int:
+    """out_i = v^T (dW_t,i/dq) v: the velocity term of d(v_t,i)/dt = W_t,i(q) qddot + out_i along qdot = v."""
+
+
+@kernel("system")
+def sys_friction(prm: vec("NPRM"), mu: vec("NCON"), mu_s: vec("NCON")) -> int:
+    """mu_i, mu_s,i = the kinetic and static friction coefficients of contact i (0 where frictionless)."""
+
+
+@kernel("system")
 def sys_dHq(q: vec("NDOF"), x: vec("NDOF"), prm: vec("NPRM"), out: vec("NDOF")) -> int:
     """out = dH/dq at fixed x = M(q)^-1 p."""
 
@@ -316,6 +332,8 @@ RESET_MAP = _constant("RESET_MAP", "system", "bool", False,
                       "the system declares a reset map (sys_reset_map; vcirun.mechanics.hybrid)")
 RESET_LAW_FIRST = _constant("RESET_LAW_FIRST", "system", "bool", False,
                             "the impact law acts before the declared map (plastic: true or a restitution)")
+FRICTION = _constant("FRICTION", "system", "bool", False,
+                     "some contact has friction: a coefficient that is a number > 0 or a parameter (sys_friction)")
 MH_FLOW_S = _constant("MH_FLOW_S", "modified", None, 2,
                       "stages of the Gauss flow (a module-level choice of maps/gauss.py)")
 
@@ -499,7 +517,7 @@ ENTRY = {
                "mass_matrix_ok", "impact_direction", "gap", "gap_slope", "touching_mask",
                "sys_M", "sys_V", "sys_phi", "sys_dphi", "sys_phis", "sys_dphis", "sys_ddphis", "sys_Mdotv",
                "sys_restitution", "sys_dHq", "sys_node", "sys_force", "sys_force_jac", "sys_reset_map",
-               "declared_reset"),
+               "declared_reset", "sys_slips", "sys_dslips", "sys_friction"),
     # a method's module: the loop, the collision-time search, its full map
     "steps": ("integrate", "collision_time", "ld_step", "full"),
     # the MCVA family's module: the modified Hamiltonian and its Gauss flow

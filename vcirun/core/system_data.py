@@ -108,6 +108,25 @@ def start_tolerance(q0, grad_phi) -> float:
     return 64 * np.finfo(float).eps * (1.0 + float(np.max(np.abs(q0))) * float(np.max(np.abs(grad_phi))))
 
 
+def friction_at(mod, prm, name: str, contacts=None) -> tuple:
+    """(mu, mu_s) of every contact at a run's parameter values, from the compiled module's
+    sys_friction (zeros without FRICTION), checked: finite, mu >= 0 and mu_s >= mu (a parameter
+    override may break what the declaration's defaults satisfied). contacts: names for the message."""
+    m = int(getattr(mod, "NCON", 1))
+    mu, mu_s = np.zeros(m), np.zeros(m)
+    if getattr(mod, "FRICTION", False):
+        mod.sys_friction(np.ascontiguousarray(prm, dtype=float), mu, mu_s)
+    for i in range(m):
+        who = f"contact {contacts[i]!r}" if contacts is not None else f"contact {i}"
+        if not (np.isfinite(mu[i]) and np.isfinite(mu_s[i])) or mu[i] < 0.0:
+            raise ValueError(f"params: system {name}: {who} has friction mu = {mu[i]!r} at these parameters; "
+                             "give its friction parameter a finite value >= 0")
+        if mu_s[i] < mu[i]:
+            raise ValueError(f"params: system {name}: {who} has static friction mu_s = {mu_s[i]!r} < mu = "
+                             f"{mu[i]!r} at these parameters; the static coefficient is at least the kinetic one")
+    return mu, mu_s
+
+
 def merge_params(defaults: dict, overrides: dict) -> dict:
     unknown = set(overrides) - set(defaults)
     if unknown:

@@ -7,11 +7,15 @@
                    parent's plus the coordinate, or the coordinate itself with absolute=True
         prismatic: one length along `axis` (parent frame, normalised); the body keeps the parent's angle
         free    : three coordinates (x, y, theta), x and y along the parent's axes from `at`
-    PointContact(name, body, point=(0, 0), radius=0, line_point=(0, 0), normal=(0, 1), restitution=1)
+    PointContact(name, body, point=(0, 0), radius=0, line_point=(0, 0), normal=(0, 1), restitution=1,
+                 friction=0, static_friction=None)
         the point (or the rim of the circle of that radius around it) of a body stays on the side of
         the ground line through line_point where `normal` points: phi = n.(P - line_point)/|n| - radius
-    CircleContact(name, bodies=(A, B), centers=(com, com), radii=(rA, rB), restitution=1)
+    CircleContact(name, bodies=(A, B), centers=(com, com), radii=(rA, rB), restitution=1, friction=0,
+                  static_friction=None)
         two circles stay apart: phi = |C_A - C_B| - r_A - r_B
+    friction (mu) and static_friction (mu_s >= mu; default mu) of a contact: Coulomb friction
+        (vcirun.mechanics.friction), its slip row from the geometry and the bodies' spin (`slip_row`)
     Spring(a, b, k, length=0, point_a=, point_b=), Damper(a, b, c, point_a=, point_b=): between two
         points (body or "ground"): V += k (l - length)^2 / 2; forcing -c (dl/dt) grad l.
     gravity: g (acceleration g along -y) or a vector (gx, gy): V = -sum m_b g . com_b.
@@ -41,6 +45,7 @@ import numpy as np
 import sympy as sp
 
 from .expressions import parse_expression
+from .friction import coefficient
 from .system import Constraint, MechanicalSystem
 
 GROUND = "ground"
@@ -79,6 +84,8 @@ class PointContact:
     line_point: tuple = (0, 0)
     normal: tuple = (0, 1)
     restitution: object = 1
+    friction: object = 0
+    static_friction: object = None
     field: str = ""
 
 
@@ -89,6 +96,8 @@ class CircleContact:
     centers: tuple | None = None
     radii: tuple | None = None
     restitution: object = 1
+    friction: object = 0
+    static_friction: object = None
     field: str = ""
 
 
@@ -376,6 +385,13 @@ def _restitution(e, params: dict, fld: str) -> sp.Expr:
 
 def _contact(c, k: int, frames: dict, byname: dict, scope: _Scope, params: dict, start, P: str) -> Constraint:
     f = _fld(c, f"{P}contacts[{k}]")
+    if not isinstance(c, (PointContact, CircleContact)):
+        raise ValueError(f"{f}: must be a PointContact or a CircleContact")
+    mu = coefficient(c.friction, params, f"{f}.friction")
+    mus = None if c.static_friction is None else coefficient(c.static_friction, params, f"{f}.static_friction",
+                                                             "static_friction")
+    frictional = mu != 0 or (mus is not None and mus != 0)
+    slip = None
     if isinstance(c, PointContact):
         pt = _point(frames, c.body, c.point, scope, f"{f}.body")
         x, y = _xy(pt)
@@ -384,8 +400,14 @@ def _contact(c, k: int, frames: dict, byname: dict, scope: _Scope, params: dict,
         nrm = sp.sqrt(nx ** 2 + ny ** 2)
         if nrm == 0:
             raise ValueError(f"{f}.line.normal: must be a nonzero direction")
-        phi = (nx * (x - lx) + ny * (y - ly)) / nrm - scope.scalar(c.radius, f"{f}.radius")
-    elif isinstance(c, CircleContact):
+        radius = scope.scalar(c.radius, f"{f}.radius")
+        phi = (nx * (x - lx) + ny * (y - ly)) / nrm - radius
+        if frictional:
+            # the rim's material point at the contact, C - r n: velocity v_C + omega x (-r n) =
+            # v_C + r omega t with t = (n_y, -n_x)/|n|, so v_t = t . J_C qdot + r omega
+            slip = tuple(sp.expand((ny * sp.diff(x, s) - nx * sp.diff(y, s)) / nrm)
+                         + radius * sp.diff(frames[c.body][1], s) for s in scope.q)
+    else:
         if not isinstance(c.bodies, (list, tuple)) or len(c.bodies) != 2 or c.bodies[0] == c.bodies[1]:
             raise ValueError(f"{f}.circles: name two different bodies (got {c.bodies!r})")
         pts, rs = [], []
@@ -402,10 +424,17 @@ def _contact(c, k: int, frames: dict, byname: dict, scope: _Scope, params: dict,
             pts.append(_xy(_point(frames, bn, center, scope, f"{f}.centers[{s}]")))
             rs.append(scope.scalar(r, f"{f}.radii[{s}]"))
         dx, dy = sp.expand(pts[0][0] - pts[1][0]), sp.expand(pts[0][1] - pts[1][1])
-        phi = _separation(dx, dy, scope, start, f) - rs[0] - rs[1]
-    else:
-        raise ValueError(f"{f}: must be a PointContact or a CircleContact")
-    return Constraint(str(c.name), phi, _restitution(c.restitution, params, f))
+        d = _separation(dx, dy, scope, start, f)
+        phi = d - rs[0] - rs[1]
+        if frictional:
+            # n = (C_A - C_B)/d from B to A, t = (n_y, -n_x); the material points at the contact,
+            # C_A - r_A n and C_B + r_B n, slide relative to each other at
+            # v_t = (v_A - v_B) . t + r_A omega_A + r_B omega_B
+            slip = tuple(sp.expand(dy * sp.diff(dx, s) - dx * sp.diff(dy, s)) / d
+                         + rs[0] * sp.diff(frames[c.bodies[0]][1], s) + rs[1] * sp.diff(frames[c.bodies[1]][1], s)
+                         for s in scope.q)
+    return Constraint(str(c.name), phi, _restitution(c.restitution, params, f), friction=mu, static_friction=mus,
+                      slip=slip, field=f)
 
 
 def _separation(dx, dy, scope: _Scope, start, fld: str) -> sp.Expr:

@@ -11,7 +11,8 @@
       - {type: prismatic, body: cart, coordinate: y, axis: [0, 1]}
       - {type: revolute, body: bob, parent: cart, coordinate: theta}   # at: [x, y] in the parent frame
     contacts:
-      - {name: floor, body: cart, line: {point: [0, 0], normal: [0, 1]}}   # point, radius, restitution
+      - {name: floor, body: cart, line: {point: [0, 0], normal: [0, 1]}}   # point, radius, restitution,
+                                                                            # friction, static_friction
       - {name: "c{i}", repeat: [1, 9], circles: ["ball{i}", "ball{i+1}"], restitution: e}
     springs: [{a: ground, b: bob, k: k, length: l0, point_b: [0, 0]}]       # dampers: c instead of k
     q0: {y: 1.0}                                 # a list in coordinate order, or a mapping (others 0)
@@ -42,7 +43,8 @@ KEYS = {"name", "description", "parameters", "gravity", "bodies", "joints", "con
 _ITEM_KEYS = {
     "bodies": {"name", "mass", "inertia", "com", "radius", "repeat"},
     "joints": {"type", "body", "parent", "at", "coordinate", "coordinates", "axis", "absolute", "repeat"},
-    "contacts": {"name", "body", "point", "radius", "line", "circles", "centers", "radii", "restitution", "repeat"},
+    "contacts": {"name", "body", "point", "radius", "line", "circles", "centers", "radii", "restitution", "friction",
+                 "static_friction", "repeat"},
     "springs": {"a", "b", "k", "length", "point_a", "point_b", "repeat"},
     "dampers": {"a", "b", "c", "point_a", "point_b", "repeat"},
 }
@@ -91,7 +93,8 @@ def _contact(f: str, it: dict, k: int):
         if "body" in it or "line" in it:
             raise ValueError(f"{f}: give either circles: [A, B] or body and line, not both")
         return CircleContact(name, tuple(it["circles"]) if isinstance(it["circles"], list) else it["circles"],
-                             it.get("centers"), it.get("radii"), e, field=f)
+                             it.get("centers"), it.get("radii"), e, it.get("friction", 0), it.get("static_friction"),
+                             field=f)
     if "body" not in it:
         raise ValueError(f"{f}: a contact names a body (point against a line) or circles: [A, B]")
     line = it.get("line", {})
@@ -99,7 +102,7 @@ def _contact(f: str, it: dict, k: int):
         raise ValueError(f"{f}.line: must be a mapping {{point: [x, y], normal: [nx, ny]}} (the admissible side "
                          "is where the normal points)")
     return PointContact(name, it["body"], it.get("point", (0, 0)), it.get("radius", 0), line.get("point", (0, 0)),
-                        line.get("normal", (0, 1)), e, field=f)
+                        line.get("normal", (0, 1)), e, it.get("friction", 0), it.get("static_friction"), field=f)
 
 
 def _flag(v, fld):

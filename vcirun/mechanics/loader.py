@@ -7,7 +7,10 @@
     potential: "0.5*k*x**2"
     constraint: "x + 1"                # phi(q) >= 0 (one elastic constraint), or several:
     # constraints: ["x + 1", {name: floor, phi: "theta + 1", restitution: 0.9}]   (restitution: a
-    #   number in [0, 1] or a parameter name; default 1)
+    #   number in [0, 1] or a parameter name; default 1; Coulomb friction: friction: mu, a number >= 0
+    #   or a parameter name, static_friction: mu_s >= mu, and the slip row: slip: [W_t(q), one
+    #   expression per coordinate] or tangent_gap: psi(q), whose gradient is the row; see
+    #   vcirun.mechanics.friction)
     forcing: ["-0.1*x_dot", "0"]        # optional f(q, qdot, t); velocities are <coord>_dot
     q0: [0.5, 0.0]                       # optional default initial state (with p0 or qdot0)
     qdot0: [0.0, 1.0]
@@ -35,12 +38,13 @@ from ..core.names import (
 from ..core.values import describe
 from ..core.yaml_loader import yaml_load
 from .expressions import ALLOWED_FUNCTIONS, ExpressionError, parse_expression, parse_matrix
+from .friction import FRICTION_KEYS, coefficient
 from .hybrid import HYBRID_KEYS, check_constraint_hybrid, parse_hybrid
 from .system import Constraint, MechanicalSystem
 
 _KEYS = {"name", "coordinates", "parameters", "mass_matrix", "potential", "constraint", "constraints", "forcing",
          "q0", "p0", "qdot0", "description"}
-_CONSTRAINT_KEYS = {"name", "phi", "restitution", *HYBRID_KEYS}
+_CONSTRAINT_KEYS = {"name", "phi", "restitution", *HYBRID_KEYS, *FRICTION_KEYS}
 
 
 def load_system_yaml(source, field_prefix: str = "system") -> MechanicalSystem:
@@ -99,8 +103,9 @@ def load_system_yaml(source, field_prefix: str = "system") -> MechanicalSystem:
 
 def _constraints(data: dict, sym: dict, params: dict, field_prefix: str, qd: list) -> list:
     """The Constraint list of `constraint:` (one elastic) or `constraints:` (items: an expression, or
-    {name, phi, restitution, reset, plastic, when}; restitution a number in [0, 1] or a parameter name;
-    reset, plastic, when: vcirun.mechanics.hybrid)."""
+    {name, phi, restitution, reset, plastic, when, friction, static_friction, slip | tangent_gap};
+    restitution a number in [0, 1] or a parameter name; reset, plastic, when:
+    vcirun.mechanics.hybrid; friction and the slip row: vcirun.mechanics.friction)."""
     if "constraint" in data:
         fld = f"{field_prefix}.constraint"
         return [Constraint("phi", parse_expression(_expression(data["constraint"], fld), sym, fld))]
@@ -111,6 +116,7 @@ def _constraints(data: dict, sym: dict, params: dict, field_prefix: str, qd: lis
     if len(items) > MAX_COORDINATES:
         raise ValueError(f"{field_prefix}.constraints: {len(items)} constraints; the limit is {MAX_COORDINATES}")
     out, names = [], {}
+    q = [sym[s.name[:-len("_dot")]] for s in qd]   # the coordinates (velocities are <coordinate>_dot)
     for i, item in enumerate(items):
         fld = f"{field_prefix}.constraints[{i}]"
         if isinstance(item, dict):
@@ -134,11 +140,41 @@ def _constraints(data: dict, sym: dict, params: dict, field_prefix: str, qd: lis
             else:
                 e = sp.Float(float(e)) if float(e) != 1.0 else sp.Integer(1)
             hyb = parse_hybrid(item, len(qd), sym, {s.name: s for s in qd}, fld)
+            fric = _friction(item, sym, params, fld, q)
         else:
             name, phi, e = f"c{i}", parse_expression(_expression(item, fld), sym, fld), sp.Integer(1)
-            hyb = {}
-        out.append(Constraint(name, phi, e, **hyb))
+            hyb, fric = {}, {}
+        out.append(Constraint(name, phi, e, **hyb, **fric, field=fld))
     check_distinct_names(names, field_prefix)  # (they name contacts in records)
+    return out
+
+
+def _friction(item: dict, sym: dict, params: dict, fld: str, q: list) -> dict:
+    """{friction, static_friction, slip} of one constraint mapping (vcirun.mechanics.friction); the row
+    of `tangent_gap: psi` is grad psi."""
+    out = {}
+    if "friction" in item:
+        out["friction"] = coefficient(item["friction"], params, f"{fld}.friction")
+    if "static_friction" in item:
+        out["static_friction"] = coefficient(item["static_friction"], params, f"{fld}.static_friction",
+                                             "static_friction")
+    if "slip" in item and "tangent_gap" in item:
+        raise ValueError(f"{fld}.tangent_gap: give either slip (the row) or tangent_gap (its gradient is the "
+                         "row), not both")
+    if "slip" in item:
+        row = item["slip"]
+        if not isinstance(row, list) or len(row) != len(q):
+            got = f"{len(row)} entries" if isinstance(row, list) else describe(row)
+            raise ValueError(f"{fld}.slip: must be a list of {len(q)} expressions, one per coordinate "
+                             f"({', '.join(map(str, q))}); got {got}")
+        out["slip"] = tuple(parse_expression(_expression(e, f"{fld}.slip[{k}]"), sym, f"{fld}.slip[{k}]")
+                            for k, e in enumerate(row))
+    elif "tangent_gap" in item:
+        psi = parse_expression(_expression(item["tangent_gap"], f"{fld}.tangent_gap"), sym, f"{fld}.tangent_gap")
+        if not (psi.free_symbols & set(q)):
+            raise ValueError(f"{fld}.tangent_gap: {item['tangent_gap']!r} does not depend on the coordinates; its "
+                             "gradient (the slip row) would be zero")
+        out["slip"] = tuple(sp.diff(psi, s) for s in q)
     return out
 
 

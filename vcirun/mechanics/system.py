@@ -1,5 +1,6 @@
 """Symbolic mechanical systems L = 1/2 qdot^T M(q) qdot - V(q) with unilateral constraints phi_i(q) >= 0,
-each with a restitution coefficient (one elastic constraint is the paper's case).
+each with a restitution coefficient (one elastic constraint is the paper's case) and optionally Coulomb
+friction (vcirun.mechanics.friction).
 
 A `MechanicalSystem` is pure data plus derived sympy objects; it never computes numbers itself:
 the only bridge to numbers is `vcirun.codegen`. Parameters stay symbols so that a parameter change
@@ -14,6 +15,8 @@ import numpy as np
 import sympy as sp
 
 from ..core.system_data import check_mass_matrix, param_vector, requested_start
+from .friction import check_constraint_friction, coefficient, static_coefficient
+from .friction import has_friction as contact_has_friction
 from .hybrid import check_constraint_hybrid, guarded, law_first, reset_map_exprs
 
 
@@ -21,7 +24,10 @@ from .hybrid import check_constraint_hybrid, guarded, law_first, reset_map_exprs
 class Constraint:
     """One unilateral constraint phi(q) >= 0: its name, phi (sympy, in q and the parameters) and its
     restitution coefficient e in [0, 1] (a number, or a parameter symbol so that params={"e": 0.8}
-    changes it without recompiling)."""
+    changes it without recompiling); Coulomb friction (vcirun.mechanics.friction): the kinetic
+    coefficient mu (`friction`, a number >= 0 or a parameter symbol; 0: frictionless), the static one
+    mu_s >= mu (`static_friction`, None: mu) and the slip row W_t(q) (`slip`, n expressions in q and the
+    parameters, or None): the slip velocity is W_t(q) qdot, the friction force opposes it."""
 
     name: str
     phi: sp.Expr
@@ -33,6 +39,10 @@ class Constraint:
     reset_qd: tuple | None = None
     plastic: bool = False
     surface: sp.Expr | None = None   # phi without its guard (set by the system)
+    friction: sp.Expr = sp.Integer(0)
+    static_friction: sp.Expr | None = None
+    slip: tuple | None = None
+    field: str = ""   # where it was declared (the friction checks' messages); set by the readers
 
 
 @dataclass(eq=False)
@@ -100,10 +110,17 @@ class MechanicalSystem:
             raw = sp.sympify(c.surface if c.surface is not None else c.phi)
             when = None if c.when is None else sp.sympify(c.when)
             e0 = sp.Integer(0) if c.plastic else sp.sympify(c.restitution)
+            fld = c.field or f"system {self.name}: constraints[{i}] ({c.name})"
+            mu = coefficient(c.friction, self.params, f"{fld}.friction")
+            mus = None if c.static_friction is None else coefficient(c.static_friction, self.params,
+                                                                     f"{fld}.static_friction", "static_friction")
+            if c.slip is not None and (isinstance(c.slip, (str, bytes)) or not hasattr(c.slip, "__len__")):
+                raise ValueError(f"{fld}.slip: must be a list of {self.n} expressions (got {c.slip!r})")
             c = Constraint(str(c.name), guarded(raw, when), e0, when,
                            None if c.reset_q is None else tuple(sp.sympify(x) for x in c.reset_q),
                            None if c.reset_qd is None else tuple(sp.sympify(x) for x in c.reset_qd),
-                           bool(c.plastic), raw)
+                           bool(c.plastic), raw, mu, mus,
+                           None if c.slip is None else tuple(sp.sympify(x) for x in c.slip), str(c.field))
             if not (c.surface.free_symbols & set(self.q)):
                 # phi constant in q: either no configuration is admissible or the constraint never acts
                 raise ValueError(f"system {self.name}: constraint {c.name}: phi = {c.phi} does not depend on the "
@@ -123,6 +140,7 @@ class MechanicalSystem:
         self.constraints = cons
         self.phi = cons[0].phi if len(cons) == 1 else sp.Min(*[c.phi for c in cons])
         check_constraint_hybrid(self)
+        check_constraint_friction(self)
 
     @property
     def reset_map(self) -> tuple | None:
@@ -147,6 +165,8 @@ class MechanicalSystem:
         for i, c in enumerate(self.constraints or []):
             if hasattr(c, "phi"):
                 parts.append((f"constraints[{i}]", sp.Matrix([sp.sympify(c.phi), sp.sympify(c.restitution)])))
+            if getattr(c, "slip", None) is not None and not isinstance(c.slip, (str, bytes)):
+                parts.append((f"constraints[{i}].slip", sp.Matrix([sp.sympify(e) for e in c.slip])))
         if self.forcing is not None:
             parts.append(("forcing", self.forcing))
         for fld, expr in parts:
@@ -222,6 +242,24 @@ class MechanicalSystem:
         """G (m x n): row i is grad phi_i."""
         return sp.Matrix([[sp.diff(c.phi, s) for s in self.q] for c in self.constraints])
 
+    @property
+    def has_friction(self) -> bool:
+        """Some contact has a friction coefficient that is not literally 0 (a number > 0 or a parameter):
+        the module constant FRICTION."""
+        return any(contact_has_friction(c) for c in self.constraints)
+
+    @property
+    def slip_matrix(self) -> sp.Matrix:
+        """W_t (m x n): row i is constraint i's slip row, zero where the contact has no friction."""
+        return sp.Matrix([[sp.sympify(e) for e in c.slip] if contact_has_friction(c) else [0] * self.n
+                          for c in self.constraints])
+
+    @property
+    def friction_coefficients(self) -> tuple:
+        """((mu_1, ..., mu_m), (mu_s1, ..., mu_sm)) as sympy numbers or parameter symbols."""
+        return (tuple(sp.sympify(c.friction) for c in self.constraints),
+                tuple(static_coefficient(c) for c in self.constraints))
+
     def hamiltonian_symbolic(self):
         """H(q, p) = 1/2 p^T M(q)^{-1} p + V(q) with symbols p_i; only sensible for small n."""
         p = sp.Matrix([sp.Symbol(f"p_{s.name}") for s in self.q])
@@ -267,12 +305,16 @@ class MechanicalSystem:
         if getattr(self, "_fp", None):
             return self._fp
         cons = [(c.name, sp.srepr(c.phi), sp.srepr(c.restitution)) for c in self.constraints]
+        # friction enters only where some contact has it (a frictionless system keeps its cache keys)
+        fric = [(c.name, sp.srepr(c.friction), sp.srepr(static_coefficient(c)), sp.srepr(sp.Matrix(c.slip)))
+                for c in self.constraints if contact_has_friction(c)]
         # one elastic constraint named "phi" fingerprints as the single-phi case (its cache keys unchanged)
         phi = sp.srepr(self.phi) if cons == [("phi", sp.srepr(self.phi), sp.srepr(sp.Integer(1)))] else cons
         text = repr((self.name, [str(s) for s in self.q], list(self.params), sp.srepr(self.M),
                      sp.srepr(self.V), phi,
                      sp.srepr(self.forcing) if self.forcing is not None else None)
-                    + ((sp.srepr(self.reset_map), self.reset_law_first) if self.reset_map is not None else ()))
+                    + ((sp.srepr(self.reset_map), self.reset_law_first) if self.reset_map is not None else ())
+                    + ((("friction", fric),) if fric else ()))
         self._fp = hashlib.sha256(text.encode()).hexdigest()[:16]
         return self._fp
 
@@ -333,6 +375,21 @@ class MechanicalSystem:
         vals = dict(zip(self.params, self.param_values() if params is None else np.asarray(params, float)))
         return np.array([float(c.restitution.subs({sp.Symbol(k): v for k, v in vals.items()}))
                          for c in self.constraints])
+
+    def friction_values(self, params=None) -> tuple:
+        """(mu, mu_s), two arrays of length m at the parameter values (zeros where frictionless)."""
+        vals = {sp.Symbol(k): v for k, v in zip(self.params, self.param_values() if params is None
+                                                  else np.asarray(params, float))}
+        mu, mus = self.friction_coefficients
+        return (np.array([float(sp.sympify(x).subs(vals)) for x in mu]),
+                np.array([float(sp.sympify(x).subs(vals)) for x in mus]))
+
+    def slip_matrix_value(self, q, params=None) -> np.ndarray:
+        """W_t(q) (m x n), zero rows where a contact has no friction."""
+        if not hasattr(self, "_slip_lam"):
+            self._slip_lam = sp.lambdify((self.q, self.param_symbols), self.slip_matrix, "numpy")
+        prm = self.param_values() if params is None else np.asarray(params, float)
+        return np.array(self._slip_lam(list(q), list(prm)), dtype=float).reshape(self.m, self.n)
 
     def check_hyperregular(self, q, params=None) -> None:
         """The Legendre transform must be invertible: M(q) symmetric positive definite."""

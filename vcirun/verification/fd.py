@@ -209,6 +209,29 @@ def _check_held_contact(c, s):
     return rows
 
 
+def _check_friction(c, s):
+    """Modules with friction (FRICTION): sys_dslips = v^T (dW_t,i/dq) v against FD of sys_slips along
+    v = M^-1 p, times v (d/da W_t(q + a v) v at a = 0)."""
+    mod, prm, n, m = c.mod, c.prm, c.n, _ncon(c.mod)
+    if not getattr(mod, "FRICTION", False):
+        return []
+    v = np.linalg.solve(c.M(s.q), s.p)
+
+    def slips(q):
+        W = np.empty((m, n))
+        mod.sys_slips(np.ascontiguousarray(q, float), prm, W)
+        return W
+
+    out = np.empty(m)
+    mod.sys_dslips(s.q, v, prm, out)
+    # the step along v scaled like sys_ddphis' (a displacement of 1e-3 max(1, |q|) in q)
+    e = FD_STEP * max(1.0, float(np.max(np.abs(s.q)))) / max(float(np.max(np.abs(v))), 1e-300)
+    f = lambda a: slips(s.q + a * v) @ v  # noqa: E731
+    ref = (-f(2 * e) + 8 * f(e) - 8 * f(-e) + f(-2 * e)) / (12 * e)
+    return [("sys_dslips", "FD of sys_slips along v, times v", rel_err(out, ref, _floor(float(
+        np.max(np.abs(f(0.0)))))), FD_THRESHOLDS)]
+
+
 def _check_force(c, s):
     """Forced modules: sys_force against the declared force (sympy.lambdify), sys_force_jac against FD
     of sys_force, dynamics_rhs = hamilton_rhs + (0, f), force_power = f . v."""
@@ -422,6 +445,7 @@ KERNEL_CHECKS = [
     (("sys_phi", "sys_dphi"), _check_dphi),
     (("sys_phis", "sys_dphis"), _check_dphis),          # several constraints
     (("sys_M",), _check_held_contact),                  # sys_ddphis, sys_Mdotv where defined
+    (("sys_M", "sys_slips", "sys_dslips"), _check_friction),   # modules with friction
     (("sys_dHq", "sys_M", "hamiltonian"), _check_dhq),
     (("hamiltonian", "sys_M", "sys_V"), _check_hamiltonian),
     (("hamilton_rhs", "hamiltonian"), _check_rhs),
