@@ -201,7 +201,7 @@ def system_core_features(ks: KernelSet, system) -> tuple:
     from . import shared
 
     return shared.core_features(ks, system.m, system.is_forced, system.reset_map is not None,
-                                system.reset_law_first)
+                                system.reset_law_first, system.has_friction)
 
 
 # --- warm index: name or YAML file -> module key and numeric data, without the symbolic system ----

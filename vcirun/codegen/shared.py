@@ -191,30 +191,35 @@ from vcirun.codegen.kcall import f8ptr, i8ptr, kcall, slot
 
 
 # The scene features a core may be compiled for. The *lean* core serves the common scene -- one
-# constraint, no generalized force, no declared reset map -- with these names module constants, so
-# numba prunes the branches they decide (the several-contact impact with its Delassus matrix and LCP,
-# the forced and the mapped paths) before typing them: the CVA core compiles in about 60 % of the
-# time of the general one (docs/performance.md, *Builds*). Every other scene takes the general core,
-# which reads them at run time. Two variants, not one per combination: the suite and a sweep
-# compile at most two cores per kernel-set family.
-LEAN = (("NCON", 1), ("FORCED", False), ("RESET_MAP", False), ("RESET_LAW_FIRST", False))
-FEATURE_NAMES = {LEAN: "one contact, unforced", (): "any contacts and forcing"}
+# constraint, no generalized force, no declared reset map, no friction -- with these names module
+# constants, so numba prunes the branches they decide (the several-contact impact with its Delassus
+# matrix and LCP, the forced, mapped and frictional paths) before typing them: the CVA core compiles
+# in about 60 % of the time of the general one (docs/performance.md, *Builds*). A frictionless scene
+# that is not lean takes the frictionless core (FRICTION compiled in as False: the held steps with
+# friction modes, the frictional impact law and the mode events pruned); a scene with friction takes
+# the general core, which reads every flag at run time. Three variants, not one per combination.
+LEAN = (("NCON", 1), ("FORCED", False), ("RESET_MAP", False), ("RESET_LAW_FIRST", False), ("FRICTION", False))
+FRICTIONLESS = (("FRICTION", False),)
+FEATURE_NAMES = {LEAN: "one contact, unforced", FRICTIONLESS: "any contacts and forcing, no friction",
+                 (): "any contacts, forcing and friction"}
 
 
-def core_features(ks: KernelSet, ncon: int, forced: bool, reset_map: bool, law_first: bool) -> tuple:
-    """The features of the core that serves a scene with these constants: LEAN or () (general). The
-    system-only set (the exact reference's kernels) too: its impact law prunes the same branches
-    (cart-pendulum reference, empty cache: 14.3 s general, 5.0 s lean; the same bits)."""
+def core_features(ks: KernelSet, ncon: int, forced: bool, reset_map: bool, law_first: bool,
+                  friction: bool = False) -> tuple:
+    """The features of the core that serves a scene with these constants: LEAN, FRICTIONLESS or ()
+    (general). The system-only set (the exact reference's kernels) too: its impact law prunes the same
+    branches (cart-pendulum reference, empty cache: 14.3 s general, 5.0 s lean; the same bits)."""
     if dict(LEAN) == {"NCON": int(ncon), "FORCED": bool(forced), "RESET_MAP": bool(reset_map),
-                      "RESET_LAW_FIRST": bool(law_first)}:
+                      "RESET_LAW_FIRST": bool(law_first), "FRICTION": bool(friction)}:
         return LEAN
-    return ()
+    return () if friction else FRICTIONLESS
 
 
 def scene_features(ks: KernelSet, scene_mod) -> tuple:
     """core_features of a scene module (its generated constants)."""
     return core_features(ks, int(getattr(scene_mod, "NCON", 1)), bool(getattr(scene_mod, "FORCED", False)),
-                         bool(getattr(scene_mod, "RESET_MAP", False)), bool(getattr(scene_mod, "RESET_LAW_FIRST", False)))
+                         bool(getattr(scene_mod, "RESET_MAP", False)), bool(getattr(scene_mod, "RESET_LAW_FIRST", False)),
+                         bool(getattr(scene_mod, "FRICTION", False)))
 
 
 # Resets whose needs differ only in parts a scene may lack (roles.PartDecl.per_scene: R^CVA and R^VCI,

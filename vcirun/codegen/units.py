@@ -107,7 +107,8 @@ def _provides(text: str, filename: str) -> tuple:
 
 UNITS = tuple(Unit(p) for p in (
     "maps/linalg.py", "maps/newton.py", "maps/dynamics.py", "maps/steps.py", "maps/gauss.py", "maps/held.py",
-    "collision/state.py", "collision/events.py", "collision/impact_law.py", "collision/impact.py", "collision/declared.py",
+    "maps/friction.py", "collision/state.py", "collision/events.py", "collision/impact_law.py",
+    "collision/friction_law.py", "collision/impact.py", "collision/impact_friction.py", "collision/declared.py",
     "collision/algorithm1.py"))
 UNIT = {u.path: u for u in UNITS}
 _RESET_SLOT = UNITS.index(UNIT["collision/algorithm1.py"])   # a bound reset's unit: before the loop

@@ -12,16 +12,21 @@ from vcirun.codegen.frame import borrow, scratch, scratch_i
 from vcirun.codegen.roles import (
     NDOF, NCON, FORCED, PARTIAL_IS_FULL, O_Q, O_P, O_H, O_ED, O_HMOD, O_IMPACTS, O_IMPACT_Q, O_IMPACT_P_MINUS,
     O_IMPACT_P_PLUS, O_IMPACT_IMPULSE, O_IMPACT_CONTACT, O_IMPACT_STEP, O_PARTIAL_STEPS, O_NEWTON_ITERS,
-    O_CONTACT_ACTIVE, O_CONTACT_FORCE, O_RELEASES, O_RELEASE_CONTACT, I_STATUS, I_FAIL_STEP, I_N_IMPACTS,
-    I_N_PARTIAL, I_STEPS, I_N_RELEASES, S_CONSTRAINED, S_NEWTON_TOL, S_MAX_ITER, S_EVENT_TOL, S_MAX_IMPACTS_STEP,
-    S_ENERGIES, S_RESTING_CONTACT, ST_OK, ST_NEWTON_FAILED, ST_EVENT_FAILED, ST_RESET_FAILED, ST_ACCUMULATION,
-    ST_NONFINITE, RESET_MAP, RESET_LAW_FIRST, sys_phi, sys_phis, sys_restitution, full, reset, modified_energy
+    O_CONTACT_ACTIVE, O_CONTACT_FORCE, O_RELEASES, O_RELEASE_CONTACT, O_IMPACT_IMPULSE_T, O_CONTACT_MODE,
+    O_FRICTION_WORK, O_MODE_CHANGES, O_MODE_CHANGE_CONTACT, O_MODE_CHANGE_KIND, I_STATUS, I_FAIL_STEP, I_N_IMPACTS,
+    I_N_PARTIAL, I_STEPS, I_N_RELEASES, I_N_MODE_CHANGES, S_CONSTRAINED, S_NEWTON_TOL, S_MAX_ITER, S_EVENT_TOL,
+    S_MAX_IMPACTS_STEP, S_ENERGIES, S_RESTING_CONTACT, ST_OK, ST_NEWTON_FAILED, ST_EVENT_FAILED, ST_RESET_FAILED,
+    ST_ACCUMULATION, ST_NONFINITE, ST_PAINLEVE, RESET_MAP, RESET_LAW_FIRST, FRICTION, sys_phi, sys_phis,
+    sys_restitution, full, reset, modified_energy
 )
 from vcirun.collision.declared import declared_reset
 from vcirun.collision.events import search_collision, step_admissible
-from vcirun.collision.state import LoopState, N_COUNTS, N_HELD
+from vcirun.collision.state import LoopState, N_COUNTS, N_HELD, N_STEP
 from vcirun.collision.impact import impact_direction, normal_velocities, touch_tolerance
+from vcirun.collision.impact_friction import friction_impact_direction
 from vcirun.maps.dynamics import hamiltonian, force_power, velocity_guess
+from vcirun.maps.friction import (friction_step, friction_forces, friction_project, mode_event_values, assign_modes,
+                                  slipping, HELD_STICK, FRICTION_PAINLEVE)
 from vcirun.maps.held import held_step, contact_forces, project_momentum, normal_acceleration
 from vcirun.maps.linalg import copy_into, set_row
 from vcirun.maps.steps import step_resolves_force
@@ -90,9 +95,17 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
     phis = scratch(NCON)
     lam = scratch(NCON)
     active = scratch_i(NCON)
+    impt = scratch(NCON)
+    lamt = scratch(NCON)
+    lt = scratch(NCON)
+    lt_end = scratch(NCON)
+    ev = scratch(NCON)
+    ev_end = scratch(NCON)
+    fw = scratch(1)
     n = scratch_i(N_COUNTS)
     dense = scratch(3)
-    st = LoopState(q, p, qt, pt, vt, qh, ph, pp, d, qn, pmap, held, mu, mu_end, imp, phis, lam, active, n, dense,
+    st = LoopState(q, p, qt, pt, vt, qh, ph, pp, d, qn, pmap, held, mu, mu_end, imp, phis, lam, active,
+                   impt, lamt, lt, lt_end, ev, ev_end, fw, n, dense,
                    out, info, prm, h, settings[S_NEWTON_TOL], int(settings[S_MAX_ITER]), settings[S_EVENT_TOL],
                    int(settings[S_MAX_IMPACTS_STEP]), resting)
     copy_into(q, q0)
@@ -101,26 +114,35 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
         held[j] = 0
         mu[j] = 0.0
         mu_end[j] = 0.0
+        lamt[j] = 0.0
+    fw[0] = 0.0
     set_row(Q, 0, q)
     set_row(P, 0, p)
     info[I_N_IMPACTS] = 0
     info[I_N_PARTIAL] = 0
     info[I_N_RELEASES] = 0
+    info[I_N_MODE_CHANGES] = 0
     n[N_HELD] = initially_held(q, p, t0, h, st.event_tol, prm, held) if resting else 0
+    status = ST_OK
+    if FRICTION and n[N_HELD] > 0 and assign_modes(q, p, t0, prm, held, -1, -1, mu, lt) == FRICTION_PAINLEVE:
+        status = ST_PAINLEVE
     # accumulation across steps: dense = [time of the last impact, start of the current
     # run of impacts that each follow the previous one by less than one grid step h, its length]
     # (see _accumulating)
     dense[0] = -math.inf
     dense[1] = 0.0
     dense[2] = 0.0
-    status = ST_OK
-    fail = -1
+    fail = -1 if status == ST_OK else 0
     i = 0
-    while i < N:
+    while i < N and status == ST_OK:
         t = t0 + i * h
+        n[N_STEP] = i
         nheld = n[N_HELD]
         if nheld > 0:  # (the rows start false / 0)
-            _record_contacts(st, np.int64(i), t)
+            if not _record_contacts(st, np.int64(i), t):
+                status = ST_PAINLEVE
+                fail = i
+                break
         if nheld == 0:
             it, E = _free_flight(st, t, energies or i == 0)
         else:
@@ -136,16 +158,29 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
         iters = it
         frac = -1.0
         c = -1
+        kind = 0
         if nheld > 0:
-            contact_forces(qt, pt, t + h, prm, held, mu_end)
-            frac, c = _release_fraction(mu, mu_end, held)
+            if FRICTION:
+                if mode_event_values(qt, pt, t + h, prm, held, st.ev_end, mu_end, st.lt_end) == FRICTION_PAINLEVE:
+                    status = ST_PAINLEVE
+                    fail = i
+                    break
+                frac, c, kind = _mode_event_fraction(st)
+            else:
+                contact_forces(qt, pt, t + h, prm, held, mu_end)
+                frac, c = _release_fraction(mu, mu_end, held)
         if c >= 0:
-            impact_step[i] = True  # a step with an event inside (a release)
-            status, itc = _release(st, t, frac * h, c)
+            impact_step[i] = True  # a step with an event inside (a release, a friction mode's end)
+            if FRICTION:
+                status, itc = _mode_change(st, t, frac * h, c, kind)
+            else:
+                status, itc = _release(st, t, frac * h, c)
             iters += itc
         elif (not constrained) or ((sys_phi(qt, prm) > 0.0) if (NCON == 1 and nheld == 0) else (
                 _phis_positive(qt, prm, phis) or step_admissible(q, p, qt, h, st.event_tol, prm, held, nheld, phis))):
             # (step_admissible's common cases first: one constraint, or every phi_i > 0 after the step)
+            if FRICTION and nheld > 0:
+                out[O_FRICTION_WORK][i] += fw[0]
             copy_into(q, qt)
             copy_into(p, pt)
         else:
@@ -164,7 +199,9 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
         set_row(P, i + 1, p)
         i += 1
     if status == ST_OK and n[N_HELD] > 0:
-        _record_contacts(st, N, t0 + N * h)
+        if not _record_contacts(st, N, t0 + N * h):
+            status = ST_PAINLEVE
+            fail = N
     if status == ST_OK and energies:
         # energies at the last grid state (its discrete energy from one more trial step)
         if n[N_HELD] == 0:
@@ -191,9 +228,12 @@ def _free_flight(st, t, want_E):
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _hold(st, tau, t):
-    """The constrained map over tau with the held contacts on their surfaces (maps/held.py) from
-    (st.q, st.p) at t into (st.qt, st.pt, st.vt). Returns (Newton iterations, < 0 on failure;
-    discrete energy)."""
+    """The constrained map over tau with the held contacts on their surfaces (maps/held.py; with
+    friction maps/friction.py, its friction work in st.fw[0]) from (st.q, st.p) at t into (st.qt,
+    st.pt, st.vt). Returns (Newton iterations, < 0 on failure; discrete energy)."""
+    if FRICTION:
+        return friction_step(st.q, st.p, tau, t, st.prm, st.ntol, st.maxit, st.held, st.qt, st.pt, st.vt, st.imp,
+                             st.impt, st.fw)
     return held_step(st.q, st.p, tau, t, st.prm, st.ntol, st.maxit, st.held, st.qt, st.pt, st.vt, st.imp)
 
 
@@ -216,6 +256,164 @@ def _release(st, t, tau, c):
     return status, it + itc
 
 
+# --- friction: the end of a held contact's mode, located inside the step ------------------------------
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _mode_event_fraction(st):
+    """(fraction of the step, contact, kind) of the first event of a held contact inside the held step
+    just taken, by linear interpolation between its values at the step's start (st.mu, st.ev) and end
+    (st.mu_end, st.ev_end): kind 0 a release (normal force turning tensile), 1 a slip that stops, 2 a
+    stick that ends (maps/friction.py mode_event_values); (-1, -1, 0) if none. The start of the
+    located search (_locate_mode_event)."""
+    best = 2.0
+    c = -1
+    kind = 0
+    for j in range(NCON):
+        if st.held[j] == 0:
+            continue
+        if st.mu_end[j] < 0.0:
+            f = 0.0 if st.mu[j] <= 0.0 else st.mu[j] / (st.mu[j] - st.mu_end[j])
+            if f < best:
+                best = f
+                c = j
+                kind = 0
+        if st.ev_end[j] < 0.0:
+            f = 0.0 if not st.ev[j] > 0.0 else (st.ev[j] / (st.ev[j] - st.ev_end[j]) if math.isfinite(st.ev[j])
+                                                 else 1.0)
+            if f < best:
+                best = f
+                c = j
+                kind = 1 if slipping(st.held[j]) else 2
+    return (best if c >= 0 else -1.0), c, kind
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _mode_event_value(st, te, c, kind, ev, lam, lt):
+    """The event function of held contact c at (st.qt, st.pt), time te: its normal force (kind 0) or its
+    mode event value (ev, lam, lt: scratch). NaN in Painleve's case."""
+    code = mode_event_values(st.qt, st.pt, te, st.prm, st.held, ev, lam, lt)
+    if code == FRICTION_PAINLEVE:
+        return np.nan
+    return lam[c] if kind == 0 else ev[c]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _locate_mode_event(st, t, tau0, c, kind):
+    """The root tau in [0, h] of held contact c's event function along the held step from (st.q, st.p)
+    at t (positive at tau = 0 unless the event is at the start, negative at h), from the
+    interpolated tau0: secant iterations on the held map's own value, safeguarded by the bracket
+    (Illinois), to event_tol h, ending at an evaluated point. On return (st.qt, st.pt) hold the state
+    at tau and st.fw[0] its friction work. Returns (status, tau, iterations)."""
+    h = st.h
+    ga = st.mu[c] if kind == 0 else st.ev[c]
+    gb = st.mu_end[c] if kind == 0 else st.ev_end[c]
+    ev = scratch(NCON)
+    lam = scratch(NCON)
+    lt = scratch(NCON)
+    if not (ga > 0.0 and math.isfinite(ga)):
+        copy_into(st.qt, st.q)
+        copy_into(st.pt, st.p)
+        st.fw[0] = 0.0
+        return ST_OK, 0.0, 0
+    a = 0.0
+    b = h
+    tol = st.event_tol * h
+    x = tau0 if (tau0 > a and tau0 < b) else 0.5 * (a + b)
+    xp = np.nan
+    gp = np.nan
+    side = 0
+    iters = 0
+    for _ in range(100):
+        it, _E = _hold(st, x, t)
+        if it < 0:
+            return ST_NEWTON_FAILED, x, iters - it
+        iters += it
+        g = _mode_event_value(st, t + x, c, kind, ev, lam, lt)
+        if g != g:
+            return ST_PAINLEVE, x, iters
+        if g > 0.0:
+            a = x
+            ga = g
+            if side == 1:
+                gb *= 0.5
+            side = 1
+        elif g < 0.0:
+            b = x
+            gb = g
+            if side == -1:
+                ga *= 0.5
+            side = -1
+        else:
+            return ST_OK, x, iters
+        step = g * (x - xp) / (g - gp) if (math.isfinite(xp) and g != gp) else np.nan
+        if (math.isfinite(step) and abs(step) <= 0.1 * tol) or b - a <= tol:
+            return ST_OK, x, iters
+        xn = x - step
+        if not (math.isfinite(xn) and xn > a and xn < b):
+            xn = (a * gb - b * ga) / (gb - ga)
+            if not (xn > a and xn < b):
+                xn = 0.5 * (a + b)
+        xp = x
+        gp = g
+        x = xn
+    return ST_EVENT_FAILED, x, iters
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _mode_change(st, t, tau0, c, kind):
+    """A grid step from t in which held contact c's mode ends (kind as _mode_event_fraction): the held
+    map to the located event, the change there (kind 0: released; 1: its slip stopped, stuck if
+    Coulomb's static bound holds, else slipping the other way; 2: its stick ended, slipping where the
+    unbalanced force drives; the other held contacts' modes re-decided with it: maps/friction.py
+    assign_modes), recorded, then the rest of the step as an event step from there. Returns
+    (status, iterations)."""
+    status, tau, it = _locate_mode_event(st, t, tau0, c, kind)
+    if status != ST_OK:
+        return status, it
+    if tau > 0.0:
+        st.out[O_FRICTION_WORK][st.n[N_STEP]] += st.fw[0]
+        copy_into(st.q, st.qt)
+        copy_into(st.p, st.pt)
+    te = t + tau
+    before = st.held[c]
+    if kind == 0:
+        st.held[c] = 0
+        st.n[N_HELD] -= 1
+        _record_release(st, te, c)
+        if st.n[N_HELD] > 0 and assign_modes(st.q, st.p, te, st.prm, st.held, -1, -1, st.mu, st.lt) == FRICTION_PAINLEVE:
+            return ST_PAINLEVE, it
+    else:
+        rest = c if kind == 1 else -1
+        moving = c if kind == 2 else -1
+        if kind == 2:
+            # slipping where the unbalanced tangential force drives: against the stuck force at the event
+            if friction_forces(st.q, st.p, te, st.prm, st.held, st.mu, st.lt) == FRICTION_PAINLEVE:
+                return ST_PAINLEVE, it
+            st.held[c] = -1 if st.lt[c] > 0.0 else 1
+        if assign_modes(st.q, st.p, te, st.prm, st.held, rest, moving, st.mu, st.lt) == FRICTION_PAINLEVE:
+            return ST_PAINLEVE, it
+        if st.held[c] == HELD_STICK:
+            # the slip velocity is zero to the event tolerance: zeroed (with the held normal velocities)
+            friction_project(st.q, st.p, st.prm, st.held, st.lam, st.lamt)
+            for j in range(NCON):
+                st.lam[j] = 0.0
+                st.lamt[j] = 0.0
+        if st.held[c] != before:
+            _record_mode_change(st, te, c, 1 if st.held[c] == HELD_STICK else (2 if before == HELD_STICK else 3))
+    status, itc = _event_step(st, st.h - tau, te, np.bool_(False))
+    return status, it + itc
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _record_mode_change(st, t, c, kind):
+    k = st.info[I_N_MODE_CHANGES]
+    if k < st.out[O_MODE_CHANGES].shape[0]:
+        st.out[O_MODE_CHANGES][k] = t
+        st.out[O_MODE_CHANGE_CONTACT][k] = c
+        st.out[O_MODE_CHANGE_KIND][k] = kind
+        st.info[I_N_MODE_CHANGES] = k + 1
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def _event_step(st, tau_max, t, have_end):
     """Lines 5-17 of Algorithm 1: the step of length tau_max (<= the grid step h) from (st.q, st.p) at
@@ -230,13 +428,16 @@ def _event_step(st, tau_max, t, have_end):
     k_imp = 0
     iters = 0
     while tau_max > 0.0:
+        nheld = st.n[N_HELD]
         code, dtau, E_pre, itc = search_collision(st.qh, st.ph, tau_max, st.h, tc, st.prm, st.ntol, st.maxit,
                                                   st.event_tol, st.qt, st.pt, st.vt, have_end, st.held,
-                                                  st.n[N_HELD])
+                                                  nheld, st.fw)
         have_end = False
         iters += itc
         if code < 0:
             return (ST_NEWTON_FAILED if code == -1 else ST_EVENT_FAILED), iters
+        if FRICTION and nheld > 0:   # the partial held step taken: its friction work
+            st.out[O_FRICTION_WORK][st.n[N_STEP]] += st.fw[0]
         _log_partial(st, dtau)
         tau_rem = tau_max - dtau
         if code == 1:
@@ -270,7 +471,11 @@ def _impact(st, ti, dtau, tau_rem, E_pre, k_imp):
     without approach, an impact during a hold, the method's reset. st.pp receives the momentum
     after it (with a declared map, st.qn the configuration). k_imp: the impacts of this grid step so
     far, this one included. Returns (status, iterations, mapped: the declared map moved q)."""
-    k, s0, dE = impact_direction(st.qt, st.pt, st.h, st.event_tol, st.prm, st.d, st.lam, st.active)
+    if FRICTION:
+        k, s0, dE = friction_impact_direction(st.qt, st.pt, st.h, st.event_tol, st.prm, st.d, st.lam, st.lamt,
+                                              st.active)
+    else:
+        k, s0, dE = impact_direction(st.qt, st.pt, st.h, st.event_tol, st.prm, st.d, st.lam, st.active)
     nheld = st.n[N_HELD]
     mapped = RESET_MAP and nheld == 0 and k > 0
     if mapped:
@@ -327,6 +532,9 @@ def _touching(st, ti, k_law):
         if k > 0:
             st.n[N_HELD] = _count(st.held)
             copy_into(st.pp, st.pt)
+            if FRICTION:
+                for j in range(NCON):
+                    st.lamt[j] = 0.0
             return ST_OK, 0, k, 1.0, 1.0
     if k_law == 0 and nheld == 0 and _unresolved_touch(st):
         copy_into(st.pp, st.pt)
@@ -404,6 +612,11 @@ def _after_impact(st, ti, k, s, s0, mapped, k_imp):
         # (_settle holds or releases nothing otherwise: skipped, the same result)
         st.n[N_HELD] = _settle(st, ti, s, s0, accumulating)
     _record_impacts(st, ti, s, s0)
+    if FRICTION and st.n[N_HELD] > 0:
+        # the held contacts' modes after the impulse (a stuck contact may be set slipping, a landing one
+        # sticks where its slip velocity left the impact at rest and the static bound holds)
+        if assign_modes(st.qt, st.pp, ti, st.prm, st.held, -1, -1, st.mu, st.lt) == FRICTION_PAINLEVE:
+            return ST_PAINLEVE
     return ST_OK
 
 
@@ -411,18 +624,28 @@ def _after_impact(st, ti, k, s, s0, mapped, k_imp):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _record_contacts(st, k, t):
-    """contact_active[k] and contact_force[k] at grid state k (st.q, st.p); st.mu receives the held
-    contacts' forces."""
+    """contact_active[k], contact_force[k] (and with friction contact_mode[k]) at grid state k (st.q,
+    st.p); st.mu receives the held contacts' normal forces (with friction st.lt their tangential
+    forces and st.ev their mode event values). Returns False in Painleve's case."""
     active = st.out[O_CONTACT_ACTIVE]
     force = st.out[O_CONTACT_FORCE]
+    ok = True
     if st.n[N_HELD] > 0:
-        contact_forces(st.q, st.p, t, st.prm, st.held, st.mu)
+        if FRICTION:
+            ok = mode_event_values(st.q, st.p, t, st.prm, st.held, st.ev, st.mu, st.lt) != FRICTION_PAINLEVE
+        else:
+            contact_forces(st.q, st.p, t, st.prm, st.held, st.mu)
     else:
         for j in range(NCON):
             st.mu[j] = 0.0
     for j in range(NCON):
         active[k, j] = st.held[j] != 0
         force[k, j] = st.mu[j]
+    if FRICTION:
+        mode = st.out[O_CONTACT_MODE]
+        for j in range(NCON):
+            mode[k, j] = st.held[j]
+    return ok
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -654,7 +877,12 @@ def _record_impacts(st, t_imp, s, s0):
         set_row(out[O_IMPACT_Q], k, st.qt)
         set_row(out[O_IMPACT_P_MINUS], k, st.pt)
         set_row(out[O_IMPACT_P_PLUS], k, st.pp)
-        out[O_IMPACT_IMPULSE][k] = s if NCON == 1 else st.lam[i] * (s / s0)
+        if FRICTION:   # (s0 = 1: the law's impulses scaled by the reset's multiplier)
+            out[O_IMPACT_IMPULSE][k] = st.lam[i] * (s / s0)
+            out[O_IMPACT_IMPULSE_T][k] = st.lamt[i] * (s / s0)
+        else:
+            out[O_IMPACT_IMPULSE][k] = s if NCON == 1 else st.lam[i] * (s / s0)
+            out[O_IMPACT_IMPULSE_T][k] = 0.0
         out[O_IMPACT_CONTACT][k] = i
         st.info[I_N_IMPACTS] = k + 1
 

@@ -13,8 +13,9 @@ import numpy as np
 from numba import njit
 
 from vcirun.codegen.frame import scratch, scratch_i
-from vcirun.codegen.roles import NCON, sys_phi, sys_phis, partial
+from vcirun.codegen.roles import NCON, FRICTION, sys_phi, sys_phis, partial
 from vcirun.collision.impact import gap, gap_slope, touching_mask, unmask_penetrating
+from vcirun.maps.friction import friction_step
 from vcirun.maps.held import held_step
 
 N_SCAN = 4  # interior samples of the initial bracket (first-root search), when the cubic model is unsure
@@ -91,11 +92,15 @@ def step_admissible(q, p, qt, h, event_tol, prm, held, nheld, phis):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def partial_map(q0, p0, tau, h, t, prm, ntol, maxit, q1, p1, v1, held, nheld):
+def partial_map(q0, p0, tau, h, t, prm, ntol, maxit, q1, p1, v1, held, nheld, fw):
     """Phi^partial_tau, or with contacts held the constrained map of the full step's discrete
-    Lagrangian (maps/held.py: every method)."""
+    Lagrangian (maps/held.py: every method; maps/friction.py with friction: fw[0] receives its
+    friction work, the caller's to count when it takes the step)."""
     if nheld > 0:
         imp = scratch(NCON)
+        if FRICTION:
+            impt = scratch(NCON)
+            return friction_step(q0, p0, tau, t, prm, ntol, maxit, held, q1, p1, v1, imp, impt, fw)
         return held_step(q0, p0, tau, t, prm, ntol, maxit, held, q1, p1, v1, imp)
     return partial(q0, p0, tau, h, t, prm, ntol, maxit, q1, p1, v1)
 
@@ -114,12 +119,13 @@ def collision_time(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt, v
     nheld = 0
     for i in range(NCON):
         nheld += 1 if held[i] != 0 else 0
+    fw = scratch(1)
     return search_collision(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt, vt, np.bool_(False), held,
-                            nheld)
+                            nheld, fw)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def search_collision(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt, vt, have_end, held, nheld):
+def search_collision(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt, vt, have_end, held, nheld, fw):
     """collision_time; have_end: (qt, pt) already hold Phi^partial_{tau_max}(qh, ph) (Algorithm 1's
     full step, when the partial map is the full one), so it is not recomputed. held (NCON), nheld:
     the held contacts: partial steps are then the constrained map and the held contacts
@@ -137,7 +143,7 @@ def search_collision(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt,
     iters = 0
     E = np.nan
     if not have_end:
-        it, E = partial_map(qh, ph, tau_max, h, t, prm, ntol, maxit, qt, pt, vt, held, nheld)
+        it, E = partial_map(qh, ph, tau_max, h, t, prm, ntol, maxit, qt, pt, vt, held, nheld, fw)
         if it < 0:
             return -1, tau_max, E, -it
         iters += it
@@ -148,7 +154,7 @@ def search_collision(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt,
         return -1, tau_max, E, iters
     if gb >= 0.0:
         if have_end:  # the caller's full step knows E; recompute only when asked for the state's energy
-            it, E = partial_map(qh, ph, tau_max, h, t, prm, ntol, maxit, qt, pt, vt, held, nheld)
+            it, E = partial_map(qh, ph, tau_max, h, t, prm, ntol, maxit, qt, pt, vt, held, nheld, fw)
             iters += abs(it)
         return 0, tau_max, E, iters
     db = gap_slope(qt, pt, prm, mask)
@@ -159,24 +165,24 @@ def search_collision(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt,
     tol = event_tol * h
     if ga <= 0.0:
         code, a, ga, da, b, gb, db, E, itc = _leave_surface(qh, ph, tau_max, h, t, prm, ntol, maxit, tol, qt, pt,
-                                                              vt, mask, b, gb, db, held, nheld)
+                                                              vt, mask, b, gb, db, held, nheld, fw)
         iters += itc
         if code != 0:
             return code, (a if code == 1 else b), E, iters
     c = _model_first_root(a, ga, da, b, gb, db)
     if c < 0.0:
         code, c, a, ga, b, gb, E, itc = _scan_bracket(qh, ph, h, t, prm, ntol, maxit, qt, pt, vt, mask, a, ga, b, gb,
-                                                      held, nheld)
+                                                      held, nheld, fw)
         iters += itc
         if code != 0:
             return code, c, E, iters
     code, tau, E, itc = _refine_root(qh, ph, h, t, prm, ntol, maxit, tol, qt, pt, vt, mask, c, a, ga, b, gb, held,
-                                     nheld)
+                                     nheld, fw)
     return code, tau, E, iters + itc
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _leave_surface(qh, ph, tau_max, h, t, prm, ntol, maxit, tol, qt, pt, vt, mask, b, gb, db, held, nheld):
+def _leave_surface(qh, ph, tau_max, h, t, prm, ntol, maxit, tol, qt, pt, vt, mask, b, gb, db, held, nheld, fw):
     """On (or numerically just past) the surface at tau = 0: the trivial root at 0 is not a
     collision. Halve towards 0 until g > 0; the first collision lies before any point with g < 0.
     Returns (code, a, ga, da, b, gb, db, E, iters): code 0 with the bracket [a, b]; 1 = moving into the
@@ -187,7 +193,7 @@ def _leave_surface(qh, ph, tau_max, h, t, prm, ntol, maxit, tol, qt, pt, vt, mas
     E = np.nan
     while s > 1e-3 * tol:
         s *= 0.5
-        it, E = partial_map(qh, ph, s, h, t, prm, ntol, maxit, qt, pt, vt, held, nheld)
+        it, E = partial_map(qh, ph, s, h, t, prm, ntol, maxit, qt, pt, vt, held, nheld, fw)
         if it < 0:
             return -1, 0.0, 0.0, 0.0, s, gb, db, E, iters - it
         iters += it
@@ -197,12 +203,12 @@ def _leave_surface(qh, ph, tau_max, h, t, prm, ntol, maxit, tol, qt, pt, vt, mas
         b = s
         gb = gs
         db = gap_slope(qt, pt, prm, mask)
-    it, E = partial_map(qh, ph, 0.0, h, t, prm, ntol, maxit, qt, pt, vt, held, nheld)
+    it, E = partial_map(qh, ph, 0.0, h, t, prm, ntol, maxit, qt, pt, vt, held, nheld, fw)
     return 1, 0.0, 0.0, 0.0, b, gb, db, E, iters + abs(it)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _scan_bracket(qh, ph, h, t, prm, ntol, maxit, qt, pt, vt, mask, a, ga, b, gb, held, nheld):
+def _scan_bracket(qh, ph, h, t, prm, ntol, maxit, qt, pt, vt, mask, a, ga, b, gb, held, nheld, fw):
     """The cubic model is unsure (several sign changes, or no slopes): sample the bracket for the first
     sign change, as a plain bracket would skip an earlier root. Returns (code, c, a, ga, b, gb, E,
     iters): code 0 with the false-position point c of the narrowed bracket; 1 = a sample landed on
@@ -213,7 +219,7 @@ def _scan_bracket(qh, ph, h, t, prm, ntol, maxit, qt, pt, vt, mask, a, ga, b, gb
     E = np.nan
     for j in range(1, N_SCAN):
         c = a0 + span * j / N_SCAN
-        it, E = partial_map(qh, ph, c, h, t, prm, ntol, maxit, qt, pt, vt, held, nheld)
+        it, E = partial_map(qh, ph, c, h, t, prm, ntol, maxit, qt, pt, vt, held, nheld, fw)
         if it < 0:
             return -1, c, a, ga, b, gb, E, iters - it
         iters += it
@@ -231,7 +237,7 @@ def _scan_bracket(qh, ph, h, t, prm, ntol, maxit, qt, pt, vt, mask, a, ga, b, gb
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _refine_root(qh, ph, h, t, prm, ntol, maxit, tol, qt, pt, vt, mask, c, a, ga, b, gb, held, nheld):
+def _refine_root(qh, ph, h, t, prm, ntol, maxit, tol, qt, pt, vt, mask, c, a, ga, b, gb, held, nheld, fw):
     """From c in the bracket [a, b] (g(a) > 0 > g(b)): secant on the partial map's own g (Newton with
     the flow's slope for the first correction), safeguarded by the bracket: a step that leaves it, or
     a bracket that stops shrinking, falls back to Illinois / bisection. Stops when the correction is
@@ -246,7 +252,7 @@ def _refine_root(qh, ph, h, t, prm, ntol, maxit, tol, qt, pt, vt, mask, c, a, ga
     iters = 0
     E = np.nan
     for k in range(200):
-        it, E = partial_map(qh, ph, c, h, t, prm, ntol, maxit, qt, pt, vt, held, nheld)
+        it, E = partial_map(qh, ph, c, h, t, prm, ntol, maxit, qt, pt, vt, held, nheld, fw)
         if it < 0:
             return -1, c, E, iters - it
         iters += it
@@ -288,7 +294,7 @@ def _refine_root(qh, ph, h, t, prm, ntol, maxit, tol, qt, pt, vt, mask, c, a, ga
             # bracket collapsed: report the end closer to the surface, with its state
             tau = a if abs(ga) < abs(gb) else b
             if tau != c:
-                it, E = partial_map(qh, ph, tau, h, t, prm, ntol, maxit, qt, pt, vt, held, nheld)
+                it, E = partial_map(qh, ph, tau, h, t, prm, ntol, maxit, qt, pt, vt, held, nheld, fw)
                 iters += abs(it)
             return 1, tau, E, iters
         xp = c

@@ -11,7 +11,8 @@
 from collections import namedtuple
 
 N_HELD = 0     # n[N_HELD]: how many contacts are held (mode[j] != 0)
-N_COUNTS = 1   # the length of n
+N_STEP = 1     # n[N_STEP]: the index k of the grid step k -> k+1 being taken
+N_COUNTS = 2   # the length of n
 
 LoopState = namedtuple("LoopState", (
     # the grid state (q, p) at the step's start (at its end once the step is taken) and the trial
@@ -20,11 +21,16 @@ LoopState = namedtuple("LoopState", (
     # the event step: (qh, ph) the state at the current time inside the step; at an impact pp the
     # momentum after it, d the impact law's direction, (qn, pmap) the declared reset map's (q+, p+)
     "qh", "ph", "pp", "d", "qn", "pmap",
-    # per contact (NCON): held, the contact mode (0 free, 1 held; held[j] != 0 means held: a mode of
-    # friction's stick/slip states is another nonzero value); mu and mu_end, the held contacts'
-    # forces at the step's start and end; imp, the impulses of a held step; phis, phi_i scratch;
-    # lam and active, the impact law's impulses and the contacts at the impact
+    # per contact (NCON): held, the contact mode (0 free; held[j] != 0 means held: +1 or -1 slipping
+    # in that direction, frictionless held contacts +1, 2 stuck: maps/friction.py); mu and mu_end,
+    # the held contacts' normal forces at the step's start and end; imp, the impulses of a held step;
+    # phis, phi_i scratch; lam and active, the impact law's impulses and the contacts at the impact
     "held", "mu", "mu_end", "imp", "phis", "lam", "active",
+    # friction (FRICTION only): impt, a held step's tangential impulses; lamt, the impact law's; lt and
+    # lt_end, the held contacts' tangential forces at the step's start and end; ev and ev_end, their
+    # mode event values there (maps/friction.py mode_event_values); fw[0], the friction work of the
+    # last held step taken or tried (counted into the record where the step is taken)
+    "impt", "lamt", "lt", "lt_end", "ev", "ev_end", "fw",
     # n: counts (N_HELD); dense: the accumulation detector (_accumulating)
     "n", "dense",
     # the record (vcirun.core.record: out[O_*], info[I_*]) and the scene's parameter vector

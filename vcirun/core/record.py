@@ -29,6 +29,7 @@ AXES = {
     "impact": "one entry per impact, in time order",
     "partial": "one entry per partial step of Algorithm 1",
     "release": "one entry per release of a held contact, in time order",
+    "mode": "one entry per change of a held contact's friction mode (slip, stick), in time order",
 }
 
 
@@ -91,10 +92,24 @@ FIELDS = (
           contacts=True),
     Field("releases", "release", False, "float64", None, "impacts", "times at which a held contact is released"),
     Field("release_contact", "release", False, "int64", None, "impacts", "index of each released constraint"),
+    # friction (docs/derivations/friction.md): zero, and no entries, for frictionless systems
+    Field("impact_impulse_t", "impact", False, "float64", None, "impacts",
+          "tangential (friction) impulse of each contact impact: p+ = p- + sum of lambda_i grad phi_i(q) + "
+          "lambda_t,i W_t,i(q) (0 without friction)"),
+    Field("contact_mode", "grid", False, "int8", 0, "trajectory",
+          "mode of each contact at t_k: 0 free, +1 or -1 held and slipping (the sign of its slip velocity; "
+          "frictionless held contacts are +1), 2 held and stuck", contacts=True),
+    Field("friction_work", "step", False, "float64", 0.0, "trajectory",
+          "work of the friction forces of held contacts over step k -> k+1 (<= 0)"),
+    Field("mode_changes", "mode", False, "float64", None, "impacts",
+          "times at which a held contact changes its friction mode (located events)"),
+    Field("mode_change_contact", "mode", False, "int64", None, "impacts", "index of each such constraint"),
+    Field("mode_change_kind", "mode", False, "int64", None, "impacts",
+          "1 slip -> stick, 2 stick -> slip, 3 slip reversed (slip stopped, stick not possible)"),
 )
 FIELD = {f.name: f for f in FIELDS}
 
-COUNTERS = ("status", "fail_step", "n_impacts", "n_partial", "steps", "n_releases")
+COUNTERS = ("status", "fail_step", "n_impacts", "n_partial", "steps", "n_releases", "n_mode_changes")
 
 # the constraint switch, the tolerances of vcirun.core.tolerances.TOLERANCES (each once) and two flags,
 # in the order of the generated modules' S_<NAME> constants
@@ -108,6 +123,7 @@ STATUSES = (
     ("reset_failed", "the reset map found no nontrivial root"),
     ("accumulation", "impacts denser than the grid for > max_impacts_step steps (or in one step)"),
     ("nonfinite", "a state became inf/NaN (or the initial energy is not finite)"),
+    ("painleve", "a held contact slipping with friction has no unique normal force (Painleve's paradox)"),
 )
 STATUS_CODES = {code: name for code, (name, _) in enumerate(STATUSES)}
 STATUS_OF = {name: code for code, name in STATUS_CODES.items()}
@@ -138,9 +154,10 @@ def impact_capacity(N: int) -> int:
 
 def axis_rows(N: int, cap_impacts: int | None = None) -> dict:
     """{axis: rows} of the loop's buffers for an N-step run: N + 1 grid states, N steps, the impact
-    record (`impact_capacity(N)` unless given), twice that plus 16 partial steps, releases as impacts."""
+    record (`impact_capacity(N)` unless given), twice that plus 16 partial steps, releases and mode
+    changes as impacts."""
     cap = impact_capacity(N) if cap_impacts is None else int(cap_impacts)
-    return {"grid": int(N) + 1, "step": int(N), "impact": cap, "partial": 2 * cap + 16, "release": cap}
+    return {"grid": int(N) + 1, "step": int(N), "impact": cap, "partial": 2 * cap + 16, "release": cap, "mode": cap}
 
 
 def allocate(N: int, n: int, m: int = 1, cap_impacts: int | None = None) -> tuple:
@@ -160,7 +177,7 @@ def trim(out: tuple, counters: dict, modified: bool) -> dict:
     steps taken, impacts and partial steps up to their counts (copies where the buffer is larger)."""
     steps = counters["steps"]
     used = {"grid": steps + 1, "step": steps, "impact": counters["n_impacts"], "partial": counters["n_partial"],
-            "release": counters["n_releases"]}
+            "release": counters["n_releases"], "mode": counters["n_mode_changes"]}
     arrays = {}
     for f, buf in zip(FIELDS, out):
         if f.only == "modified" and not modified:
@@ -178,10 +195,10 @@ def stored_names(kind: str) -> tuple:
 
 def schema_markdown() -> str:
     """The per-run datasets table of docs/reference/results_schema.md (tests check the document holds it)."""
-    hdf = {"float64": "f8", "int64": "i8", "bool": "u1"}
+    hdf = {"float64": "f8", "int64": "i8", "int8": "i1", "bool": "u1"}
     lines = ["| dataset | shape, dtype | stored | meaning |", "|---|---|---|---|",
              "| `t` | (N+1,) f8 | with trajectories | grid times t0 + k h |"]
-    size = {"grid": "N+1", "step": "N", "impact": "K_i", "partial": "K_p", "release": "K_r"}
+    size = {"grid": "N+1", "step": "N", "impact": "K_i", "partial": "K_p", "release": "K_r", "mode": "K_m"}
     when = {"impacts": "always", "trajectory": "with trajectories"}
     for f in FIELDS:
         if f.stored == "no":

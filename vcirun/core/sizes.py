@@ -39,15 +39,16 @@ def run_bytes(N: int, n: int, m: int = 1) -> int:
 
 
 def stored_bytes(N: int, n: int, m: int = 1, *, store_trajectories: bool = True, impacts: int = 0,
-                 partial_steps: int | None = None, releases: int = 0) -> int:
+                 partial_steps: int | None = None, releases: int = 0, mode_changes: int = 0) -> int:
     """Bytes of one run's datasets in the results file (and of its result message to the client):
     every stored row of the run record ("impacts" rows always, "trajectory" rows and the times t with
     `store_trajectories`), with `impacts` impact entries, `partial_steps` partial steps (default two
-    per impact) and `releases` releases, plus the run's attributes."""
+    per impact), `releases` releases and `mode_changes` friction mode changes, plus the run's attributes."""
     N, n, m = int(N), int(n), int(m)
     impacts = int(impacts)
     rows = {"grid": N + 1, "step": N, "impact": impacts,
-            "partial": 2 * impacts if partial_steps is None else int(partial_steps), "release": int(releases)}
+            "partial": 2 * impacts if partial_steps is None else int(partial_steps), "release": int(releases),
+            "mode": int(mode_changes)}
     b = STORED_OVERHEAD + (8 * (N + 1) if store_trajectories else 0)
     for f in record.FIELDS:
         if f.stored == "impacts" or (f.stored == "trajectory" and store_trajectories):

@@ -96,9 +96,11 @@ def run_problem(g, attrs: dict | None = None) -> str | None:
     if n is None or n < 1:
         return "cannot tell the number of coordinates (no q0 attribute nor impact_q dataset)"
     k = _int_attr(a, "n_partial_steps")
-    # n_releases and n_contacts are optional (a file whose schema has no release or per-contact rows):
+    # n_releases, n_mode_changes and n_contacts are optional (a file whose schema has no release, mode or
+    # per-contact rows):
     # without them those rows are not checked
-    size = {"grid": N + 1, "step": N, "impact": m, "partial": k, "release": _int_attr(a, "n_releases")}
+    size = {"grid": N + 1, "step": N, "impact": m, "partial": k, "release": _int_attr(a, "n_releases"),
+            "mode": _int_attr(a, "n_mode_changes")}
     mc = _int_attr(a, "n_contacts")
     want = {"t": ((N + 1,), True)} if a.get("has_trajectory") is True else {}
     for f in record.FIELDS:  # each stored row of the run record, at its declared length

@@ -91,7 +91,7 @@ def trajectory_of(p, mod, out, counters, q0, p0, prm, beta, wall) -> tr.Trajecto
         message = (f"{status} in step {fail} (t = {t0 + fail * h:.6g}) from q = {Q[fail].tolist()}, "
                    f"p = {P[fail].tolist()}")
         cause = failure_cause(mod, status, Q[: fail + 1], P[fail], t0, fail, h, prm, tol, float(arrays["H"][0]),
-                              arrays["impacts"])
+                              arrays["impacts"], modes=arrays["contact_mode"][: fail + 1])
         if cause:
             message += f"; cause: {cause}"
     # an energy that is not finite from the start (e.g. q0 = 1e300) is a failure, not ok

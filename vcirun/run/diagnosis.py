@@ -7,7 +7,7 @@ import numpy as np
 
 from ..core.record import STATUSES
 
-OK, NEWTON_FAILED, EVENT_FAILED, RESET_FAILED, ACCUMULATION, NONFINITE = (name for name, _ in STATUSES)
+OK, NEWTON_FAILED, EVENT_FAILED, RESET_FAILED, ACCUMULATION, NONFINITE, PAINLEVE = (name for name, _ in STATUSES)
 
 COND_SINGULAR = 1e4   # cond(M) along the motion above this: nearly singular (built-in scenes: < 30)
 COND_RISING = 1e3     # ... above this and largest right before a Newton failure: heading into it
@@ -25,10 +25,13 @@ def accumulation_onset(impacts, h) -> float:
     return float(imp[k])
 
 
-def failure_cause(mod, status, Q, p, t0, fail, h, prm, tol, H0, impacts) -> str:
-    """A short diagnosis of a failed run from its grid states Q[0..fail] (p: momentum at Q[fail]);
-    "" if nothing specific is found (the status itself then says what failed). Never raises."""
+def failure_cause(mod, status, Q, p, t0, fail, h, prm, tol, H0, impacts, modes=None) -> str:
+    """A short diagnosis of a failed run from its grid states Q[0..fail] (p: momentum at Q[fail];
+    modes: the record's contact_mode up to the failing step, for friction); "" if nothing specific is
+    found (the status itself then says what failed). Never raises."""
     try:
+        if status == PAINLEVE:
+            return _painleve(mod, Q[-1], prm, t0 + fail * h, h, None if modes is None else modes[-1])
         if status == ACCUMULATION:
             return _accumulation(impacts, h, int(tol["max_impacts_step"]))
         if status == EVENT_FAILED:
@@ -198,3 +201,29 @@ def fastest_mode(mod, q, p, prm) -> float:
         mod.hamilton_rhs(yb, prm, fb)
         J[:, j] = (fa - fb) / (2 * e)
     return float(np.max(np.abs(np.linalg.eigvals(J))))
+
+
+def _painleve(mod, q, prm, t, h, mode) -> str:
+    """Which slipping contact meets Painleve's paradox at the failing step: B_j = G_j M^-1 (G_j -
+    mu_j s_j W_j)^T <= 0 (docs/derivations/friction.md), with the contact's name index and B."""
+    n, m = q.shape[0], int(mod.NCON)
+    G, W, A = np.empty((m, n)), np.empty((m, n)), np.empty((n, n))
+    mu, mus = np.empty(m), np.empty(m)
+    mod.sys_dphis(q, prm, G)
+    mod.sys_slips(q, prm, W)
+    mod.sys_M(q, prm, A)
+    mod.sys_friction(prm, mu, mus)
+    Minv = np.linalg.inv(A)
+    out = []
+    for j in range(m):
+        if mu[j] <= 0.0:
+            continue
+        for s in ((int(mode[j]),) if mode is not None and int(mode[j]) in (1, -1) else (1, -1)):
+            B = float(G[j] @ Minv @ (G[j] - mu[j] * s * W[j]))
+            scale = float(G[j] @ Minv @ G[j])
+            if B <= 1e-12 * scale:
+                out.append(f"contact {j} slipping in direction {s:+d} at t = {t:.9g} (within one step h = {h:g}) has "
+                           f"B = G M^-1 (G - mu s W)^T = {B:.6g} (frictionless {scale:.6g}): Painleve's paradox, the "
+                           "normal force that keeps it on its surface is not unique or does not exist (rigid-body "
+                           "Coulomb friction has no solution there; docs/derivations/friction.md)")
+    return "; ".join(out)

@@ -21,7 +21,7 @@ from ..core import record
 
 # Status strings a run can end with (codes and meanings: vcirun.core.record.STATUSES). Failures are data:
 # they carry the step, time and state.
-OK, NEWTON_FAILED, EVENT_FAILED, RESET_FAILED, ACCUMULATION, NONFINITE = (name for name, _ in record.STATUSES)
+OK, NEWTON_FAILED, EVENT_FAILED, RESET_FAILED, ACCUMULATION, NONFINITE, PAINLEVE = (name for name, _ in record.STATUSES)
 STATUS_CODES = record.STATUS_CODES
 
 
@@ -234,10 +234,10 @@ class Trajectory:
                 f"steps={self.n_steps}, impacts={len(self.impacts)}, status={self.status!r})")
 
 
-_SIZES = {"grid": "N+1", "step": "N", "impact": "K_i", "partial": "K_p", "release": "K_r"}
+_SIZES = {"grid": "N+1", "step": "N", "impact": "K_i", "partial": "K_p", "release": "K_r", "mode": "K_m"}
 Trajectory.__doc__ = (
     "Time-major record of a run on the grid t_k = t0 + k h (N = grid steps taken, n = degrees of freedom,\n"
-    "m = constraints, K_i impacts, K_p partial steps, K_r releases). t (N+1,) grid times; the arrays, one\n"
+    "m = constraints, K_i impacts, K_p partial steps, K_r releases, K_m mode changes). t (N+1,) grid times; the arrays, one\n"
     "per vcirun.core.record.FIELDS row:\n"
     + "\n".join(f"  {f.name} ({_SIZES[f.axis]}{', n' if f.dof else ''}{', m' if f.contacts else ''}"
                 f"{',' if not (f.dof or f.contacts) else ''}) {f.dtype}: {f.doc}"

@@ -108,6 +108,7 @@ def trajectory_payload(traj, *, store_arrays: bool = True) -> tuple[dict, dict]:
         "beta": float("nan") if traj.beta is None else float(traj.beta),
         "wall_time": float(traj.wall_time), "n_steps": int(len(traj.t) - 1), "n_impacts": int(len(traj.impacts)),
         "n_partial_steps": int(len(traj.partial_steps)), "n_releases": int(len(traj.releases)),
+        "n_mode_changes": int(len(traj.mode_changes)),
         "n_contacts": _n_contacts(traj),
         "newton_iters_total": int(np.sum(traj.newton_iters)) if len(traj.newton_iters) else 0,
         "has_Hmod": traj.Hmod is not None, "has_trajectory": bool(store_arrays),
