@@ -21,6 +21,7 @@ Safety model: bounded loss at a constant commit cost.
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import threading
 import time
@@ -70,8 +71,16 @@ class ResultsWriter:
         self.config_key = config_key
         self.force = force
         if commit_interval is None:
-            commit_interval = float(os.environ.get("VCIRUN_COMMIT_INTERVAL", DEFAULT_COMMIT_INTERVAL))
-        self.commit_interval = max(0.0, float(commit_interval))
+            commit_interval = os.environ.get("VCIRUN_COMMIT_INTERVAL", DEFAULT_COMMIT_INTERVAL)
+            field = "VCIRUN_COMMIT_INTERVAL"
+        else:
+            field = "commit_interval"
+        try:
+            self.commit_interval = float(commit_interval)
+        except (TypeError, ValueError):
+            self.commit_interval = math.nan
+        if not (math.isfinite(self.commit_interval) and self.commit_interval >= 0):
+            raise StorageError(f"{field}: must be a number of seconds >= 0, e.g. 1 (got {commit_interval!r})")
         self.isolate = isolate  # HDF5 rewrites in a forked child (durable.run_isolated); False: in this process
         self.session = dict(session or {})
         self.session.setdefault("started", now_iso())
