@@ -90,6 +90,7 @@ class ResultsWriter:
         self.references: dict[str, dict] = {}
         self.incomplete: list[str] = []
         self.damaged: dict[str, str] = {}   # group path -> why it is not trusted
+        self.notes: list[str] = []           # what a resume found damaged beyond groups (journal records)
         self.prior_history: list = []
         self.final_hooks: list = []          # callables f(h5py.File) run inside the session's last rewrite
         self._pending: list[Pending] = []
@@ -187,6 +188,7 @@ class ResultsWriter:
         e = read_existing(self.path, self.config_key)
         self.prior_history, self.complete_runs, self.references = e.history, e.runs, e.references
         self.incomplete, self.damaged, self._old_journal = e.incomplete, e.damaged, e.journal
+        self.notes = [e.journal.skipped_text()] if e.journal is not None and e.journal.skipped else []
         self._deletions.extend(self.incomplete)
 
     def forget_runs(self, run_ids) -> None:
@@ -239,18 +241,19 @@ class ResultsWriter:
                        "updated": now_iso()}
             pieces, total = [], 0
             stamp = now_iso()
+            tok = {"token": self._token}   # (each record names its session: see vcirun.io.journal)
             for path in self._deletions:
-                pc, n = record_pieces("delete", path)
+                pc, n = record_pieces("delete", path, extra=tok)
                 pieces += pc
                 total += n
             for kind in ("reference", "run"):   # the commit's items: one record per batch
                 items = [p.item(stamp) for p in self._pending if p.kind == kind]
                 for b in pack(items):
-                    pc, n = batch_pieces(kind, b)
+                    pc, n = batch_pieces(kind, b, self._token)
                     pieces += pc
                     total += n
             pc, n = record_pieces("session", "", extra={"history": list(self.prior_history) + [session],
-                                                        "updated": stamp})
+                                                        "updated": stamp, **tok})
             pieces += pc
             total += n
             try:
