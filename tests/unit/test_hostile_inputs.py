@@ -189,10 +189,11 @@ def test_sizes_are_capped(tmp_path):
     with pytest.raises(ValueError, match="system.coordinates: 100 coordinates; the limit is 32"):
         load_system_yaml(s)
     one_line_config_error(tmp_path, CONFIG.replace("system: cart_pendulum", "system: n_pendulum_100000")
-                          .replace("beta: [3.2]\n", ""), "system: n_pendulum_100000 has 100000 bodies")
-    with pytest.raises(ValueError, match="system: n_pendulum_100000 has 100000 bodies"):
+                          .replace("beta: [3.2]\n", ""), "system: n_pendulum_100000 has 100,000 coordinates",
+                          "n_pendulum_K takes K from 1 to 32")
+    with pytest.raises(ValueError, match="system: n_pendulum_100000 has 100,000 coordinates"):
         vcirun.simulate("n_pendulum_100000", "CVA", h=0.01, T=0.1)
-    with pytest.raises(ValueError, match="system: newton_cradle_5000 has 5000 bodies"):
+    with pytest.raises(ValueError, match="system: newton_cradle_5000 has 5,000 coordinates and 4,999 contacts"):
         vcirun.reference("newton_cradle_5000", T=0.1)
     chunk = "(" + "-".join(["-x"] * 80) + ")"  # 7199 nodes in 7259 characters (under the length cap)
     s.write_text(SYSTEM.replace('"0.5*k*x**2"', '"' + "*".join([chunk] * 30) + '"'))

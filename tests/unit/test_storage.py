@@ -10,6 +10,7 @@ import math
 import os
 import re
 import signal
+import zlib
 from pathlib import Path
 
 import h5py
@@ -478,10 +479,13 @@ def test_a_damaged_run_is_named_by_its_check(tmp_path):
         texts[i] = json.dumps(a)
         del g["attrs"]
         g.create_dataset("attrs", data=np.array(texts, dtype=object), dtype=h5py.string_dtype())
+        crc = g["crc"][()]   # ... and checksums that agree (a writer that stored what it was given)
+        crc[i, 0] = zlib.crc32(texts[i].encode(), zlib.crc32(b"b\0"))
+        g["crc"][...] = crc
     res = read_results(path)
     assert [r.run_id for r in res.runs] == ["a"]
     assert res.damaged == {"run_batches/00000001/b": "dataset t has shape (41,), expected (3,)"}
-    with pytest.raises(StorageError, match="no run 'b'"):
+    with pytest.raises(StorageError, match=r"run b is damaged \(dataset t has shape"):
         load_trajectory(path, "b")
     with ResultsWriter(path, root_attrs={}, config_key=KEY) as w:   # resume drops the damaged copy
         assert set(w.complete_runs) == {"a"} and w.incomplete == ["run_batches/00000001/b"]

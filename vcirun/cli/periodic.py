@@ -8,7 +8,7 @@ from typing import List, Optional
 import numpy as np
 import typer
 
-from .app import app
+from .app import CliError, _announce_compiles, _fail, app, check_output
 
 EPILOG = ("Examples:\n\n"
           "  vcirun periodic --system rimless_wheel --method CVA4 --h 0.002\n\n"
@@ -39,10 +39,19 @@ def periodic(
 ):
     """Find a periodic orbit (Newton on the method's return map) and print its fixed point, period and
     multipliers; with --sweep, continue it along a parameter."""
-    from vcirun.codegen import cache
-
-    cache.listen(_say_compile)
+    _announce_compiles()
     try:
+        if k < 1:
+            raise ValueError(f"--k: must be a positive integer, the impacts per period (got {k})")
+        if not (np.isfinite(h) and h > 0):
+            raise ValueError(f"--h: must be a positive finite step (got {h:g})")
+        if output is not None and sweep is None:
+            raise ValueError("--output: writes the bifurcation diagram of --sweep; add --sweep or drop --output")
+        if output is not None:
+            check_output(output.with_suffix(".png"), "--output", also=(output.with_suffix(".json"),),
+                         example="bifurcation.png")
+        if sweep is not None:
+            name, values = _sweep(sweep)   # before anything is computed
         params = _parse_params(param)
         guess = _guess(system, params, _vector(q0, "--q0"), _vector(p0, "--p0"))
         if sweep is None:
@@ -64,7 +73,6 @@ def periodic(
             raise ValueError("--jacobian: continuation (--sweep) uses the finite-difference Jacobian; drop --jacobian")
         if solver != "newton":
             raise ValueError("--solver: continuation (--sweep) uses Newton; drop --solver iterate or --sweep")
-        name, values = _sweep(sweep)
         br = continuation(system, method, h=h, param=name, values=values, guess=guess, params=params or None)
         for v, o in zip(br.values, br.orbits):
             typer.echo(f"{name} = {v:.6g}: period-{o.k}, q = {np.array2string(o.fixed_point[0], precision=6)}, "
@@ -72,17 +80,15 @@ def periodic(
         typer.echo(f"period doubling at {name} = {br.doubling:.9g}" if br.doubling is not None
                    else "no period doubling in the range")
         if output is not None:
-            bifurcation_figure(br, output.with_suffix(".png"))
-            br.save(output.with_suffix(".json"))
+            try:
+                output.parent.mkdir(parents=True, exist_ok=True)
+                bifurcation_figure(br, output.with_suffix(".png"))
+                br.save(output.with_suffix(".json"))
+            except OSError as e:
+                raise CliError(f"--output {e.filename or output}: cannot write ({e.strerror or e})") from None
             typer.echo(f"saved {output.with_suffix('.png')} and {output.with_suffix('.json')}")
-    except (ValueError, RuntimeError) as e:
-        typer.echo(f"error: {' '.join(str(e).split())}", err=True)
-        raise typer.Exit(1)
-
-
-def _say_compile(message: str) -> bool:
-    typer.echo(message, err=True)
-    return True   # shown (vcirun.codegen.cache.listen)
+    except (ValueError, RuntimeError, CliError) as e:
+        _fail(str(e))
 
 
 def _parse_params(items) -> dict:
@@ -133,6 +139,12 @@ def _sweep(text: str):
         a, b, n = float(parts[0]), float(parts[1]), int(parts[2])
     except ValueError:
         raise ValueError(f"--sweep: expected NAME=START:STOP:COUNT (got {text!r})") from None
-    if n < 2:
-        raise ValueError(f"--sweep: COUNT must be at least 2 (got {n})")
+    if not (np.isfinite(a) and np.isfinite(b)):
+        raise ValueError(f"--sweep: START and STOP must be finite numbers (got {text!r})")
+    if not 2 <= n <= MAX_SWEEP_VALUES:
+        raise ValueError(f"--sweep: COUNT must be from 2 to {MAX_SWEEP_VALUES:,} (got {n}); each value is a Newton "
+                         "solve of the return map")
     return name.strip(), np.linspace(a, b, n)
+
+
+MAX_SWEEP_VALUES = 10_000

@@ -273,6 +273,8 @@ def info(
 ):
     """Summarize a results file: provenance, then a table of runs (method, h, beta, status, impacts,
     L2 error, wall time) and the messages of failed runs."""
+    from rich.markup import escape
+
     from vcirun.io.reader import read_results
     from vcirun.experiments.tables import print_table, runs_table
 
@@ -295,6 +297,15 @@ def info(
                   + (f"; {res.in_journal} of them in the journal of a session that did not finish (the next "
                      "`vcirun sweep` of this config folds them into the file)" if getattr(res, "in_journal", 0)
                      else ""))
+    if res.damaged:
+        say(f"  [bold red]{len(res.damaged)} stored item(s) fail their checks and are not shown[/bold red] (`vcirun "
+            "sweep` of the same config recomputes them):")
+        for p, why in list(res.damaged.items())[:10]:
+            say(escape(f"    {p}: {why}"))
+        if len(res.damaged) > 10:
+            say(f"    ... and {len(res.damaged) - 10} more")
+    for note in getattr(res, "notes", ()):
+        say(f"  [bold red]note[/bold red]: {escape(note)}")
     say(f"  created {a.get('created', '?')}, updated {a.get('updated', '?')}; vcirun "
                   f"{a.get('vcirun_version', '?')}, git {str(a.get('git_commit', ''))[:10] or 'n/a'}"
                   + (" (dirty)" if a.get("git_dirty") == "yes" else ""))

@@ -7,7 +7,7 @@ from typing import List, Optional
 import typer
 
 from ..run.energy import energy_drift
-from .app import CliError, _announce_compiles, _console, _fail, app
+from .app import CliError, _announce_compiles, _console, _fail, app, check_output
 
 
 def _parse_params(items: list[str]) -> dict:
@@ -145,6 +145,7 @@ def simulate(
     """Simulate one run and print a summary (steps, impacts, status, energy error, wall time)."""
     _announce_compiles()
     try:
+        check_output(output, "--output", (".h5", ".hdf5", ".nc", ".csv", ".npz"), example="run.h5")
         traj, total = simulate_once(system, method, h=h, T=T, beta=beta, ld=ld, mh_order=mh_order,
                                     flow_order=flow_order, params=_parse_params(param),
                                     constrained=False if unconstrained else None, newton_tol=newton_tol,

@@ -11,8 +11,8 @@ from .app import _console, _fail, app
 @app.command(epilog="Examples:\n\n  vcirun systems\n\n  vcirun systems cart_pendulum")
 def systems(name: Optional[str] = typer.Argument(None, help="One scene (default: all).", show_default=False)):
     """The built-in scenes: coordinates, parameters (default, unit, meaning), constraints and initial
-    states. The sized scenes (n_pendulum_K, newton_cradle_K, link_chain_K, cradle_K) run with any K;
-    YAML files declare your own."""
+    states. The sized scenes (n_pendulum_K, newton_cradle_K, link_chain_K, cradle_K) run with K in
+    their range (`vcirun systems cradle_3` says it); YAML files declare your own."""
     from vcirun.scenes.catalog import describe, listed_scenes
 
     console = _console()

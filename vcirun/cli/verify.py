@@ -6,7 +6,7 @@ from typing import List, Optional
 
 import typer
 
-from .app import CliError, _console, _fail, app
+from .app import CliError, _console, _fail, app, check_output
 from .simulate import _parse_params, _parse_vector
 
 
@@ -29,7 +29,10 @@ def verify_system(system: str, *, methods: str = "CVA,MCVAC", q0=None, p0=None, 
                             progress=progress)
     except ValueError as e:
         raise CliError(str(e)) from None
-    written = res.save(output) if output is not None else []
+    try:
+        written = res.save(output) if output is not None else []
+    except OSError as e:
+        raise CliError(f"--output {e.filename or output}: cannot write the report ({e.strerror or e})") from None
     return res, written
 
 
@@ -58,6 +61,8 @@ def verify_command(
     orders (smooth and through impacts), symplecticity, modified-Hamiltonian conservation, impact times
     and energy across impacts; one verdict per check (pass / warn / fail, the number, the threshold)."""
     try:
+        check_output(output, "--output", also=() if output is None else (output.with_suffix(".png"),),
+                     example="report.md")
         res, written = verify_system(system, methods=methods, q0=_parse_vector(q0, "--q0"),
                                      p0=_parse_vector(p0, "--p0"), beta=beta, T=T, h=_parse_vector(h, "--h"),
                                      params=_parse_params(param), output=output,

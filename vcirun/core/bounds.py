@@ -7,12 +7,12 @@ No sympy and no numba here.
 from __future__ import annotations
 
 import math
-import re
 
 import numpy as np
 
 from .grid import grid_steps
-from .names import MAX_COORDINATES, ascii_name_problem, check_distinct_names, reserved_name_problem
+from .limits import check_count, sized_family
+from .names import ascii_name_problem, check_distinct_names, reserved_name_problem
 from .tolerances import check_tolerances
 from .values import check_bool, check_number, check_state_vector, describe
 
@@ -51,22 +51,24 @@ def check_system_names(system) -> None:
             raise ValueError(f"system.{fld}: {problem}")
 
 
-# The largest K of each sized built-in scene. The cradle's model is linear in K (M = m I, V = 0, each
-# phi_i one difference of two coordinates), so its kernels grow like K; the n-link pendulum's M(q)
-# has K**2 entries of K-term sums, and its derivatives grow like K**4.
-SIZED_SCENE_CAPS = {"n_pendulum": MAX_COORDINATES, "newton_cradle": 128}
-
-
 def check_scene_size(system, field: str = "system") -> None:
-    """A sized built-in scene (`n_pendulum_K`, `newton_cradle_K`) within its cap (`SIZED_SCENE_CAPS`):
-    K = 100000 would build its symbolic model and kernels until memory runs out."""
-    if not isinstance(system, str):
+    """A sized built-in scene (`n_pendulum_K`, `link_chain_K`, `cradle_K`, `newton_cradle_K`) within
+    its range (vcirun.core.limits.FAMILY_SIZES): K = 100000 would build its symbolic model and kernels
+    until memory runs out. A MechanicalSystem within the caps on coordinates, contacts and parameters."""
+    if isinstance(system, str):
+        try:
+            sized_family(system)
+        except ValueError as e:
+            raise ValueError(f"{field}{str(e)[len('system'):]}") from None
         return
-    m = re.fullmatch(r"([a-z_]+?)_(\d+)", system)
-    if m and m.group(1) in SIZED_SCENE_CAPS:
-        k, cap = int(m.group(2)), SIZED_SCENE_CAPS[m.group(1)]
-        if not 1 <= k <= cap:
-            raise ValueError(f"{field}: {system} has {k} bodies; {m.group(1)}_K takes K from 1 to {cap}")
+    q, params = getattr(system, "q", None), getattr(system, "params", None)
+    constraints = getattr(system, "constraints", None)
+    if isinstance(q, (list, tuple)):
+        check_count("coordinates", f"{field}.q", len(q))
+    if isinstance(constraints, (list, tuple)):
+        check_count("contacts", f"{field}.constraints", len(constraints))
+    if isinstance(params, dict):
+        check_count("parameters", f"{field}.params", len(params))
 
 
 def check_one_start(beta, q0, p0) -> None:

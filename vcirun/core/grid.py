@@ -12,14 +12,14 @@ from __future__ import annotations
 
 import math
 
+from .limits import cap
 from .values import check_number
 
 __all__ = ["MAX_STEPS", "MIN_H", "GridWarning", "grid_count", "grid_steps", "grid_note", "grid_end"]
 
-# Beyond 1e12 steps nothing fits in memory anyway (and T / h stops being an exact integer count near
-# 2**53); below 1e-50 the h**k terms of the discrete Lagrangians and of the modified Hamiltonians
-# (k <= 6) leave the normal floating-point range.
-MAX_STEPS = 1e12
+# MAX_STEPS: the caps table (vcirun.core.limits). Below MIN_H the h**k terms of the discrete
+# Lagrangians and of the modified Hamiltonians (k <= 6) leave the normal floating-point range.
+MAX_STEPS = cap("steps")
 MIN_H = 1e-50
 _REL = 1e-9  # relative slack of the floor: T / h within 1e-9 of an integer counts as that integer
 

@@ -13,15 +13,17 @@ import keyword
 import re
 import unicodedata
 
+from .limits import cap
 from .values import describe
 
-__all__ = ["MAX_COORDINATES", "MAX_PARAMETERS", "MAX_NAME_CHARS", "ascii_name_problem", "reserved_name_problem",
+__all__ = ["MAX_COORDINATES", "MAX_CONTACTS", "MAX_PARAMETERS", "MAX_NAME_CHARS", "ascii_name_problem", "reserved_name_problem",
            "check_identifier", "check_distinct_names", "check_system_name", "check_description"]
 
-# Declarations of user systems (the generated kernels grow like n**2 to n**4).
-MAX_COORDINATES = 32
-MAX_PARAMETERS = 1024
-MAX_NAME_CHARS = 64
+# Declarations of user systems (vcirun.core.limits.CAPS says why each cap is where it is).
+MAX_COORDINATES = cap("coordinates")
+MAX_CONTACTS = cap("contacts")
+MAX_PARAMETERS = cap("parameters")
+MAX_NAME_CHARS = cap("name_characters")
 
 
 def ascii_name_problem(name: str) -> str | None:

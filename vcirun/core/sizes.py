@@ -21,7 +21,7 @@ from . import record
 from .values import as_real, describe
 
 __all__ = ["run_bytes", "stored_bytes", "parse_bytes", "format_bytes", "memory_limit", "set_memory_limit",
-           "limit_memory", "check_run_memory"]
+           "limit_memory", "check_run_memory", "check_ladder_memory"]
 
 STORED_OVERHEAD = 4096  # attributes and group structure of one run in a results file
 
@@ -135,4 +135,22 @@ def check_run_memory(N: int, n: int, *, m: int = 1, copies: int = 1, extra: int 
         raise ValueError(f"{field}: {N:.4g} steps of {n} coordinates need about {format_bytes(need)} for {who} "
                          f"(limit {format_bytes(lim)}); raise h or lower T"
                          + (hint or ", or raise the limit (VCIRUN_MAX_MEMORY=32GB, or max_memory in a sweep config)"))
+    return need
+
+
+def check_ladder_memory(hs, T: float, n: int, m: int = 1, field: str = "T") -> int:
+    """Refuse a step ladder on [0, T] (`vcirun.verify`) whose largest run or whose smooth reference
+    (the state at every grid point of every step, 2n + 1 numbers each) exceeds the memory limit, before
+    anything runs; each step within the step cap (vcirun.core.grid.grid_steps). Returns the estimate."""
+    from .grid import grid_steps
+
+    Ns = [grid_steps(h, T)[2] for h in hs]
+    run = max(run_bytes(N, n, m) for N in Ns)
+    reference = 8 * (2 * n + 1) * sum(N + 1 for N in Ns)
+    need, lim = run + reference, memory_limit()
+    if need > lim:
+        raise ValueError(f"{field}: the runs at h = {min(hs):g} on [0, {T:g}] ({max(Ns):.4g} steps of {n} coordinates) "
+                         f"and the exact reference on their grids need about {format_bytes(need)} (limit "
+                         f"{format_bytes(lim)}); lower T or raise the steps h, or raise the limit "
+                         "(VCIRUN_MAX_MEMORY=32GB)")
     return need

@@ -24,6 +24,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..core.grid import MIN_H
+from ..core.values import check_number, describe
 from ..run.api import simulate
 from ..run.resolve import resolve_numeric, resolve_system
 from ..methods.table import resolve_method
@@ -70,8 +72,11 @@ class ReturnMap:
     the constraint with a declared reset, else the first), after k impacts there."""
 
     def __init__(self, system, method, *, h, section=None, k=1, params=None, T_max=None, **options):
+        h, k = check_step(h), check_impacts(k)
+        if T_max is not None:
+            T_max = check_number("T_max", T_max, gt=0)
         self.system = resolve_system(system) if isinstance(system, str) else system
-        self.method, self.h, self.k = method, float(h), int(k)
+        self.method, self.h, self.k = method, h, k
         self.params = dict(params or {})
         self.options = options
         meth = resolve_method(method)
@@ -99,9 +104,17 @@ class ReturnMap:
         q0, p0 = x[: self.n], x[self.n:]
         T = self._T or 4.0
         for _ in range(8):
-            T = self.h * np.ceil(T / self.h - 1e-9)   # a whole number of steps
-            tr = simulate(self.system, self.method, h=self.h, T=T, q0=q0, p0=p0, params=self.params or None,
-                          energies=False, **self.options)
+            T = self.h * max(1.0, np.ceil(T / self.h - 1e-9))   # a whole number of steps, at least one
+            try:
+                tr = simulate(self.system, self.method, h=self.h, T=T, q0=q0, p0=p0, params=self.params or None,
+                              energies=False, **self.options)
+            except ValueError as e:
+                field, _, why = str(e).partition(": ")
+                if field not in ("T", "h"):
+                    raise
+                # the span is the return map's own search (T = 4 s, doubled until k impacts), not the user's
+                raise ValueError(f"h: the return map's search for {self.k} impact{'s' * (self.k > 1)} on the "
+                                 f"section runs over T = {T:g} s at h = {self.h:g}, and {why}") from None
             self.evaluations += 1
             hits = np.flatnonzero(tr.impact_contact == self.section) if len(tr.impacts) else np.array([], int)
             if len(hits) >= self.k:
@@ -114,7 +127,7 @@ class ReturnMap:
             if not tr.ok:
                 raise RuntimeError(f"return map: the run from {x.tolist()} stopped ({tr.status}: {tr.message}) "
                                    f"after {len(hits)} of {self.k} impacts on the section")
-            if self.T_max is not None and T >= self.T_max:
+            if (self.T_max is not None and T >= self.T_max) or not np.isfinite(2.0 * T):
                 break
             T *= 2.0
         raise RuntimeError(f"return map: no return to the section within T = {T:g} from {x.tolist()}")
@@ -240,6 +253,28 @@ def _envelope_fit(P, x, h, c, degree, points, teeth, phase_degree):
     return G @ np.linalg.inv(D), coef[0]
 
 
+def check_step(h) -> float:
+    """The step of a return map: a finite number >= MIN_H (vcirun.core.grid)."""
+    h = check_number("h", h, gt=0)
+    if h < MIN_H:
+        raise ValueError(f"h: must be >= {MIN_H:g} (got {h:g}); smaller steps underflow the h**k terms of the "
+                         "discrete Lagrangians")
+    return h
+
+
+def check_impacts(k) -> int:
+    """k, the impacts on the section per return: a positive integer (k = 0 would accept the first
+    state as its own return and let the search span grow without end)."""
+    if isinstance(k, (bool, np.bool_)):
+        raise ValueError(f"k: must be a positive integer, the impacts per period (got {k!r})")
+    return int(check_number("k", k, ge=1, le=MAX_IMPACTS_PER_PERIOD, integer=True))
+
+
+# k of a period-k orbit: each return runs until the k-th impact, every Newton step evaluates the
+# map 4 (2 m) + 1 times
+MAX_IMPACTS_PER_PERIOD = 10_000
+
+
 def _section_index(section, sysm, names) -> int:
     if section is None:
         if sysm is None:
@@ -284,6 +319,14 @@ def periodic_orbit(system, method, *, h=None, guess, section=None, k=1, params=N
     1e-6 by default; one-sided where the central stencil would cross a jump; VCI: order 1)."""
     if solver not in ("newton", "iterate"):
         raise ValueError(f"solver: {solver!r} is not 'newton' or 'iterate'")
+    k = check_impacts(k)
+    tol = check_number("tol", tol, gt=0, lt=1)
+    if maxit is not None:
+        maxit = check_number("maxit", maxit, ge=1, le=100_000, integer=True)
+    if fd_step is not None:
+        fd_step = check_number("fd_step", fd_step, gt=0, lt=1)
+    if h is not None:
+        h = check_step(h)
     # The stability of the gait of a map with O(h^2) jumps is that of its smooth envelope: a difference
     # quotient of the map across a jump is O(h^2) / delta (at fd_step 1e-6 it can say -16 for VCI's
     # wheel multiplier 0.5, h = 1.77e-3), its derivative on one piece is off by an O(h) slope, and the
@@ -296,10 +339,15 @@ def periodic_orbit(system, method, *, h=None, guess, section=None, k=1, params=N
         raise ValueError(f"jacobian: {jacobian!r} is not 'fd' or 'envelope'")
     if jacobian == "envelope" and (solver != "iterate" or method == "reference"):
         raise ValueError("jacobian: 'envelope' needs solver 'iterate' and a method with a step h")
-    if isinstance(guess, (tuple, list)) and len(guess) == 2 and np.ndim(guess[0]) == 1:
-        x = np.concatenate([np.asarray(guess[0], float), np.asarray(guess[1], float)])
-    else:
-        x = np.asarray(guess, float).ravel().copy()
+    try:
+        if isinstance(guess, (tuple, list)) and len(guess) == 2 and np.ndim(guess[0]) == 1:
+            x = np.concatenate([np.asarray(guess[0], float), np.asarray(guess[1], float)])
+        else:
+            x = np.asarray(guess, float).ravel().copy()
+    except (TypeError, ValueError):
+        raise ValueError(f"guess: must be (q, p) or the flat state, numbers (got {describe(guess)})") from None
+    if not np.all(np.isfinite(x)):
+        raise ValueError(f"guess: must be finite numbers (got {describe(guess)})")
     if method == "reference":
         if h is not None:
             raise ValueError("h: the exact return map (method 'reference') has no step; drop h")

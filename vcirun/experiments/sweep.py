@@ -379,6 +379,8 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
                          + (f", {summary.deleted_incomplete} incomplete or damaged groups discarded"
                             if summary.deleted_incomplete else "")
                          + (f", {len(ref_only)} missing reference(s) to recompute" if ref_only else ""))
+        for note in writer.notes:   # damaged journal records skipped: their runs are among the pending
+            reporter.log(f"note: {note}")
         ref_T, ref_h = reference_horizon(cfg), min(cfg.h)
         status, broken = "complete", ""
         on_main = threading.current_thread() is threading.main_thread()

@@ -10,13 +10,19 @@ fixed number of objects whatever its size:
         attrs   (k,) text     each item's attributes as one JSON object (the encoded attributes of a
                               v1 run group: JSON-valued ones stay JSON text inside it; NaN as NaN)
         rows    (k, F) i8     rows of array field j held by item i; -1 where the item lacks the field
+        crc     (k, F+1) u4   CRC-32 of item i's key and attributes text (column 0) and of its rows of
+                              field j (column j + 1, little-endian bytes; 0 where it lacks the field)
         <field> (sum_i rows[i, j], ...)  the items' arrays of that field, concatenated along axis 0
         attributes: fields (JSON list, the column order of rows), scalar_fields (JSON list: fields
                     stored per item as 0-d arrays, kept here as one row each), n_items, complete
                     (written last; a batch without it is ignored)
 
 Item i's array `name` is `data[name][start:start + rows[i, j]]` with start the sum of rows[:i, j]
-clipped at 0. Items of one batch share each field's dtype and trailing shape (`pack` splits
+clipped at 0. The checksums are computed once, when the items are packed in the client (before the
+journal record that carries them), and travel with the items into the file, so bit rot anywhere on the
+way or at rest shows as an item whose data fail their checksum (`data_problems`); the readers report
+it and a resume recomputes it, nothing serves it as data. A batch without `crc` (files written before
+it existed) is read unverified. Items of one batch share each field's dtype and trailing shape (`pack` splits
 otherwise). Sequence numbers grow with every batch written; where one key appears in several
 batches the later one holds the current item. Item paths name an item wherever it is stored:
 "runs/<key>" (every copy, and a v1 group of that name) or "<batch path>/<key>" (the copy in one
@@ -25,13 +31,15 @@ batch), and are what deletion records and the readers' lists of damaged items ca
 from __future__ import annotations
 
 import json
+import zlib
 from dataclasses import dataclass
 
 import numpy as np
 
 __all__ = ["BATCH_GROUPS", "ITEM_GROUPS", "Batch", "ItemView", "pack", "write_batch", "read_batch", "checked_batch",
            "batch_names", "next_batch_name", "delete_items", "count_items", "item_path", "split_item_path",
-           "jsonable_attr", "attr_from_json", "item_text", "attrs_text", "stamped"]
+           "jsonable_attr", "attr_from_json", "item_text", "attrs_text", "stamped", "checksums", "data_problems",
+           "CHECK_BYTES"]
 
 BATCH_GROUPS = {"run": "run_batches", "reference": "reference_batches"}
 ITEM_GROUPS = {"run": "runs", "reference": "references"}   # v1 per-item groups; item paths
@@ -113,10 +121,17 @@ class Batch:
     rows: np.ndarray           # (k, F) int64; -1: the item lacks the field
     data: dict                 # field -> concatenated array (or an h5py dataset: sliced on demand)
     texts: list | None = None  # each item's attributes as JSON text where known (then attrs[i] may be None)
+    crc: np.ndarray | None = None  # (k, F + 1) uint32 checksums (`checksums`), where known
 
     def text(self, i: int) -> str:
         t = self.texts[i] if self.texts is not None else None
         return t if t is not None else item_text(self.attrs[i])
+
+    def checksums(self) -> np.ndarray:
+        """The (k, F + 1) CRC-32 table (computed from the data in memory the first time)."""
+        if self.crc is None:
+            self.crc = checksums(self)
+        return self.crc
 
     def __len__(self) -> int:
         return len(self.keys)
@@ -171,7 +186,8 @@ class Batch:
             data[name] = np.concatenate(parts) if parts else np.zeros((0,) + tail, self.data[name].dtype)
         return Batch([self.keys[i] for i in keep], [self.attrs[i] for i in keep], list(self.fields),
                      list(self.scalar), self.rows[keep].reshape(len(keep), len(self.fields)), data,
-                     None if self.texts is None else [self.texts[i] for i in keep])
+                     None if self.texts is None else [self.texts[i] for i in keep],
+                     None if self.crc is None else self.crc[keep].reshape(len(keep), len(self.fields) + 1))
 
 
 class ItemView:
@@ -198,7 +214,84 @@ class ItemView:
         return iter([n for n in self.batch.fields if n in self])
 
 
-_TABLE = ("key", "attrs", "rows")   # a batch's own datasets
+_TABLE = ("key", "attrs", "rows", "crc")   # a batch's own datasets
+CHECK_BYTES = 32 * 2**20   # verification reads a field in slabs of whole items of about this size
+
+
+def _text_crc(key: str, text: str) -> int:
+    return zlib.crc32(text.encode("utf-8", "surrogatepass"), zlib.crc32(key.encode("utf-8", "surrogatepass") + b"\0"))
+
+
+def _le(a: np.ndarray) -> np.ndarray:
+    """`a` as C-contiguous little-endian data (the bytes a checksum covers on any machine)."""
+    return np.ascontiguousarray(a, dtype=a.dtype.newbyteorder("<") if a.dtype.byteorder not in "|<" else a.dtype)
+
+
+def _row_crcs(a: np.ndarray, counts) -> list:
+    """CRC-32 of consecutive runs of `counts` rows of the array `a` (in memory)."""
+    b = memoryview(_le(a)).cast("B") if a.size else memoryview(b"")
+    per_row = a.dtype.itemsize * int(np.prod(a.shape[1:], dtype=np.int64)) if a.ndim else a.dtype.itemsize
+    out, off = [], 0
+    for r in counts:
+        n = int(r) * per_row
+        out.append(zlib.crc32(b[off:off + n]))
+        off += n
+    return out
+
+
+def checksums(batch: Batch) -> np.ndarray:
+    """(k, F + 1) uint32: CRC-32 of each item's key and attributes text, and of its rows of each field."""
+    k, F = len(batch.keys), len(batch.fields)
+    out = np.zeros((k, F + 1), dtype=np.uint32)
+    for i in range(k):
+        out[i, 0] = _text_crc(str(batch.keys[i]), batch.text(i))
+    for j, name in enumerate(batch.fields):
+        rows = batch.rows[:, j]
+        crcs = _row_crcs(np.asarray(batch.data[name]), np.maximum(rows, 0))
+        out[:, j + 1] = np.where(rows >= 0, np.asarray(crcs, dtype=np.uint32), 0)
+    return out
+
+
+def data_problems(batch: Batch, items=None) -> dict:
+    """{item index: why its stored data cannot be trusted} for the items `items` (default all) of a
+    batch read with `read_batch`: a key, attributes text or field whose CRC-32 differs from the table's
+    (bit rot, a damaged block, an edit), or data HDF5 cannot read. {} for a batch without checksums
+    (written before they existed). Reads each field once, in slabs of about CHECK_BYTES of whole items."""
+    if batch.crc is None:
+        return {}
+    k, F = len(batch.keys), len(batch.fields)
+    want = range(k) if items is None else sorted(set(int(i) for i in items))
+    if batch.crc.shape != (k, F + 1):
+        return {i: f"checksum table has shape {batch.crc.shape}, expected {(k, F + 1)}" for i in want}
+    out = {}
+    for i in want:
+        if _text_crc(str(batch.keys[i]), batch.text(i)) != int(batch.crc[i, 0]):
+            out[i] = "key or attributes fail their checksum (the stored text changed since it was written)"
+    starts = batch.starts()
+    for j, name in enumerate(batch.fields):
+        d = batch.data[name]
+        per_row = max(1, d.dtype.itemsize * int(np.prod(d.shape[1:], dtype=np.int64)))
+        slab: list = []
+        for i in [*want, None]:
+            if i is not None and batch.rows[i, j] < 0:
+                continue
+            if slab and (i is None or i != slab[-1] + 1 or
+                         (starts[i + 1, j] - starts[slab[0], j]) * per_row > CHECK_BYTES):
+                a0, a1 = int(starts[slab[0], j]), int(starts[slab[-1] + 1, j])
+                try:
+                    a = np.asarray(d[a0:a1])
+                except Exception as e:  # noqa: BLE001 - HDF5 cannot read the blocks
+                    for t in slab:
+                        out.setdefault(t, f"dataset {name} unreadable ({type(e).__name__})")
+                else:
+                    for t, c in zip(slab, _row_crcs(a, [batch.rows[t, j] for t in slab])):
+                        if c != int(batch.crc[t, j + 1]):
+                            out.setdefault(t, f"dataset {name} fails its checksum (the stored data changed since "
+                                              "they were written)")
+                slab = []
+            if i is not None:
+                slab.append(i)
+    return out
 
 
 def pack(items) -> list:
@@ -275,7 +368,7 @@ def write_batch(f, kind: str, batch: Batch, name: str | None = None) -> str:
     name = name or next_batch_name(f, kind)
     path = f"{group}/{name}"
     text = h5py.string_dtype()
-    arrays = [("rows", batch.rows)] + [(n, batch.data[n]) for n in batch.fields]
+    arrays = [("rows", batch.rows), ("crc", batch.checksums())] + [(n, batch.data[n]) for n in batch.fields]
     meta = {"fields": json.dumps(batch.fields), "scalar_fields": json.dumps(batch.scalar),
             "n_items": len(batch.keys), "kind": kind}
     # the text datasets first; write_encoded writes the numeric ones and the attributes, `complete` last
@@ -299,10 +392,12 @@ def read_batch(g, data: bool = False) -> Batch:
     scalar = decode_attr("scalar_fields", g.attrs.get("scalar_fields", "[]"))
     scalar = json.loads(scalar) if isinstance(scalar, str) else list(scalar)
     keys = [str(k) for k in g["key"].asstr()[()]]
-    attrs = [{k: attr_from_json(v) for k, v in json.loads(s).items()} for s in g["attrs"].asstr()[()]]
+    texts = [str(t) for t in g["attrs"].asstr()[()]]
+    attrs = [{k: attr_from_json(v) for k, v in json.loads(t).items()} for t in texts]
     rows = np.asarray(g["rows"][()], dtype=np.int64)
+    crc = np.asarray(g["crc"][()], dtype=np.uint32) if "crc" in g else None
     arrays = {n: (g[n][()] if data else g[n]) for n in fields}
-    return Batch(keys, attrs, fields, scalar, rows.reshape(len(keys), len(fields)), arrays)
+    return Batch(keys, attrs, fields, scalar, rows.reshape(len(keys), len(fields)), arrays, texts, crc)
 
 
 def checked_batch(g):

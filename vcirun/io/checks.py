@@ -3,7 +3,8 @@
 - The file's identity: root attribute `format` = FORMAT, `schema_version` = SCHEMA_VERSION, written
   with HDF5 library version bounds LIBVER (layout: docs/reference/results_schema.md).
 - `run_problem` / `reference_problem`: why a group marked complete cannot be trusted (datasets
-  missing, shapes other than its attributes declare), or None. Resume and the readers trust only
+  missing, shapes other than its attributes declare), or None; an item of a batch is also held to
+  its checksums (vcirun.io.batches.data_problems: every byte of its key, attributes and arrays). Resume and the readers trust only
   what these verify; `scan_groups` sorts a file's groups into trusted, incomplete and damaged.
 - `resolve_output`: the path a sweep writes (a symlink's target), checked for the usual mistakes.
 """
@@ -17,7 +18,7 @@ import numpy as np
 
 from ..core import record
 from ..run.trajectory_files import decode_attrs
-from .batches import BATCH_GROUPS, ITEM_GROUPS, checked_batch
+from .batches import BATCH_GROUPS, ITEM_GROUPS, checked_batch, data_problems
 from .errors import StorageError, os_text
 
 __all__ = ["FORMAT", "SCHEMA_VERSION", "LIBVER", "NUMERIC_KINDS", "run_problem", "reference_problem",
@@ -147,9 +148,10 @@ def scan_groups(f, path, fix: str, check: bool = True):
     "runs/NAME", a whole batch "run_batches/NAME", one batch's copy of an item "run_batches/NAME/KEY";
     vcirun.io.batches), and {path: problem} of what is marked complete but fails. Where a key is held
     twice the later batch's copy counts. A root entry `runs`, `references` or a batch group that is not
-    a group is a StorageError ending with `fix`; a missing one holds nothing. `check=False` trusts
-    every item of a complete batch whose table agrees with its data (for a file whose items were
-    verified when its session started, or written by that session)."""
+    a group is a StorageError ending with `fix`; a missing one holds nothing. `check=True` reads every
+    item's data to verify its checksums. `check=False` trusts every item of a complete batch whose
+    table agrees with its data (for a file whose items were verified when its session started, or
+    written by that session)."""
     runs, refs, incomplete, damaged = {}, {}, [], {}
     stores = {"run": runs, "reference": refs}
     checks = {"run": run_problem, "reference": reference_problem}
@@ -186,13 +188,14 @@ def scan_groups(f, path, fix: str, check: bool = True):
                 damaged[bpath] = problem
                 continue
             starts = b.starts()
+            rot = data_problems(b) if check else {}
             for i, key in enumerate(b.keys):
                 try:
                     a = decode_attrs(b.attrs[i])
                 except Exception as e:  # noqa: BLE001
                     a, problem = {}, f"attributes unreadable ({type(e).__name__})"
                 else:
-                    problem = checks[kind](b.view(i, starts), a) if check else None
+                    problem = rot.get(i) or (checks[kind](b.view(i, starts), a) if check else None)
                 if problem:
                     incomplete.append(f"{bpath}/{key}")
                     damaged[f"{bpath}/{key}"] = problem

@@ -8,9 +8,17 @@ numeric only (dtype kinds b/i/u/f), so reading a journal never unpickles anythin
 of one commit, vcirun.io.batches: key "run" or "reference", the items' keys and row table in the
 header; their attributes' JSON texts and the concatenated arrays as blobs), "delete" (an item path
 or a batch group) and
-"session" (the history so far). Journals of schema 1 hold one "run" or "reference" record per item;
-they are read and applied the same way. A kill in the middle of an append leaves a torn tail (short,
-or failing its CRC): `read_journal` stops there, and everything before it is committed.
+"session" (the history so far); every record after the open one carries the session's token too.
+Journals of schema 1 hold one "run" or "reference" record per item; they are read and applied the
+same way.
+
+A kill in the middle of an append leaves a torn tail (short, or failing its CRC): everything before
+it is committed. A record damaged in the middle (a flipped byte, a bad block) is skipped, not taken
+for the end: `read_journal` looks for the next record that starts with the magic and passes its CRC
+and reads on from there; `Journal.skipped` counts the damaged stretches and `skipped_bytes` their
+size, and the readers say so (the runs a skipped record held are missing, and a resume recomputes
+them). Only damage with no intact record after it is a torn tail. A damaged open record loses only
+the token, which the next intact record carries.
 
 The file names the journal that extends it (root attribute `journal` = the token of its open record)
 and how much of it the file holds already (`journal_applied`, a byte offset); `file_journal` returns
@@ -70,14 +78,14 @@ def record_pieces(kind: str, key: str, enc_attrs: dict | None = None, arrays=(),
     return [_REC.pack(_MAGIC, length, crc), *payload], _REC.size + length
 
 
-def batch_pieces(kind: str, batch: Batch):
-    """(pieces, length) of the record of one batch of `kind` ("run" | "reference"): the row table in
-    the header, the items' JSON texts (made by the workers where they can) as one UTF-8 blob with
-    their end offsets, kept verbatim to the HDF5 batch, and the fields' arrays."""
+def batch_pieces(kind: str, batch: Batch, token: str = ""):
+    """(pieces, length) of the record of one batch of `kind` ("run" | "reference"): the row table and
+    the items' checksums in the header, the items' JSON texts (made by the workers where they can) as
+    one UTF-8 blob with their end offsets, kept verbatim to the HDF5 batch, and the fields' arrays."""
     texts = [batch.text(i).encode("utf-8", "surrogatepass") for i in range(len(batch.keys))]
     ends = np.cumsum([len(t) for t in texts], dtype=np.int64) if texts else np.zeros(0, np.int64)
     extra = {"keys": list(batch.keys), "fields": list(batch.fields), "scalar": list(batch.scalar),
-             "rows": batch.rows.tolist()}
+             "rows": batch.rows.tolist(), "crc": batch.checksums().tolist(), **({"token": token} if token else {})}
     arrays = [(_TEXTS, np.frombuffer(b"".join(texts), dtype=np.uint8)), (_TEXT_ENDS, ends)]
     return record_pieces("batch", kind, None, arrays + [(n, batch.data[n]) for n in batch.fields], extra=extra)
 
@@ -155,8 +163,10 @@ class JournalRecord:
         if set(data) != set(fields):
             raise ValueError("journal batch: its table does not match its arrays")
         texts = self.item_texts(fh)
+        crc = self.header.get("crc")   # the items' checksums, made when they were packed (vcirun.io.batches)
+        crc = None if crc is None else np.asarray(crc, dtype=np.uint32).reshape(len(keys), len(fields) + 1)
         return Batch(keys, _LazyAttrs(texts), fields, [str(n) for n in self.header.get("scalar") or []], rows, data,
-                     texts)
+                     texts, crc)
 
     @property
     def item_kind(self) -> str:
@@ -190,18 +200,31 @@ class JournalRecord:
 class Journal:
     path: Path
     token: str = ""
-    config_key: str = ""
+    config_key: str | None = ""  # None: its open record was damaged (the token came from a later record)
     records: list = field(default_factory=list)  # after the "open" record, in order
     good_end: int = 0     # offset past the last complete record
     torn: bool = False    # bytes after good_end (a kill or a disk-full in the middle of an append)
     applied: int = 0      # records ending at or before this offset are in the file already (see `after`)
+    skipped: int = 0      # damaged stretches between intact records (each one record or more)
+    skipped_bytes: int = 0
+    damage: list = field(default_factory=list)  # (start, end) offsets of each skipped stretch
 
     def after(self, offset: int) -> "Journal":
-        """The records the file does not hold yet: those ending past `offset` (its `journal_applied`)."""
+        """The records the file does not hold yet: those ending past `offset` (its `journal_applied`);
+        damage the file holds already (before `offset`) is no longer counted."""
         if not offset:
             return self
+        damage = [(a, b) for a, b in self.damage if b > offset]
         return Journal(self.path, self.token, self.config_key, [r for r in self.records if r.end > offset],
-                       self.good_end, self.torn, max(self.applied, int(offset)))
+                       self.good_end, self.torn, max(self.applied, int(offset)), len(damage),
+                       sum(b - max(a, int(offset)) for a, b in damage), damage)
+
+    def skipped_text(self) -> str:
+        """'' when nothing was skipped, else the sentence the readers print."""
+        if not self.skipped:
+            return ""
+        return (f"{self.skipped} damaged record{'s' * (self.skipped > 1)} ({self.skipped_bytes:,} bytes) in the "
+                f"journal {self.path.name} skipped; the runs they held are missing (a resume recomputes them)")
 
     @property
     def new_bytes(self) -> int:
@@ -209,9 +232,9 @@ class Journal:
 
 
 def read_journal(path) -> Journal | None:
-    """The complete records of a journal file (None if there is none or it does not start with an
-    "open" record). Stops at the first record that is truncated or fails its CRC: what follows was
-    never committed."""
+    """The intact records of a journal file (None if there is none or it is not one of ours). A record
+    that is truncated or fails its CRC is skipped when an intact record follows it (see the module
+    docstring: `skipped`), else it is the torn tail, where reading stops."""
     jp = Path(path)
     try:
         fh = open(jp, "rb")
@@ -222,41 +245,30 @@ def read_journal(path) -> Journal | None:
     with fh:
         size = os.fstat(fh.fileno()).st_size
         j = Journal(jp)
-        pos = 0
+        pos, first = 0, True
         while pos + _REC.size <= size:
-            fh.seek(pos)
-            magic, length, crc = _REC.unpack(fh.read(_REC.size))
-            if magic != _MAGIC or pos + _REC.size + length > size or length < _HDR.size:
-                break
-            (hlen,) = _HDR.unpack(fh.read(_HDR.size))
-            if hlen > min(length - _HDR.size, _MAX_HEADER):
-                break
-            hb = fh.read(hlen)
-            c = zlib.crc32(_HDR.pack(hlen))
-            c = zlib.crc32(hb, c)
-            remaining = length - _HDR.size - hlen
-            blob_offset = fh.tell()
-            while remaining > 0:
-                chunk = fh.read(min(remaining, 1 << 20))
-                if not chunk:
-                    break
-                c = zlib.crc32(chunk, c)
-                remaining -= len(chunk)
-            if remaining or c != crc:
-                break
-            try:
-                header = json.loads(hb)
-                kind, key = str(header["kind"]), str(header.get("key", ""))
-            except (ValueError, KeyError, TypeError):
-                break
-            end = pos + _REC.size + length
-            if not j.records and kind != "open" and not j.token:
-                return None  # not a journal of ours
+            rec = _record_at(fh, pos, size)
+            if rec is None:
+                nxt = _next_record(fh, pos + 1, size)
+                if nxt is None:
+                    break          # the torn tail
+                j.skipped += 1
+                j.skipped_bytes += nxt - pos
+                j.damage.append((pos, nxt))
+                pos, first = nxt, False
+                continue
+            header, blob_offset, end = rec
+            kind, key = str(header["kind"]), str(header.get("key", ""))
+            if first and kind != "open":
+                return None        # not a journal of ours
+            first = False
             if kind == "open":
                 if j.token:
-                    break  # a second open record: not a journal this module wrote
+                    break          # a second open record: not a journal this module wrote
                 j.token, j.config_key = str(header.get("token", "")), str(header.get("config_key", ""))
             else:
+                if not j.token and header.get("token"):   # the open record was damaged
+                    j.token, j.config_key = str(header["token"]), None
                 j.records.append(JournalRecord(kind, key, header, blob_offset, end))
             j.good_end = end
             pos = end
@@ -264,6 +276,56 @@ def read_journal(path) -> Journal | None:
             return None
         j.torn = j.good_end < size
         return j
+
+
+def _record_at(fh, pos: int, size: int):
+    """(header, blob offset, end) of the intact record at `pos`, or None (truncated, failing its CRC,
+    or not a record)."""
+    fh.seek(pos)
+    magic, length, crc = _REC.unpack(fh.read(_REC.size))
+    if magic != _MAGIC or pos + _REC.size + length > size or length < _HDR.size:
+        return None
+    (hlen,) = _HDR.unpack(fh.read(_HDR.size))
+    if hlen > min(length - _HDR.size, _MAX_HEADER):
+        return None
+    hb = fh.read(hlen)
+    c = zlib.crc32(_HDR.pack(hlen))
+    c = zlib.crc32(hb, c)
+    remaining = length - _HDR.size - hlen
+    blob_offset = fh.tell()
+    while remaining > 0:
+        chunk = fh.read(min(remaining, 1 << 20))
+        if not chunk:
+            break
+        c = zlib.crc32(chunk, c)
+        remaining -= len(chunk)
+    if remaining or c != crc:
+        return None
+    try:
+        header = json.loads(hb)
+        str(header["kind"])
+    except (ValueError, KeyError, TypeError):
+        return None
+    if not isinstance(header, dict):
+        return None
+    return header, blob_offset, pos + _REC.size + length
+
+
+def _next_record(fh, start: int, size: int) -> int | None:
+    """The offset of the first intact record at or after `start` (None: none, the rest is a torn
+    tail). Scans for the magic in blocks; a false match inside a payload fails its CRC."""
+    block = 1 << 20
+    pos = start
+    while pos + _REC.size <= size:
+        fh.seek(pos)
+        buf = fh.read(block + len(_MAGIC) - 1)
+        i = buf.find(_MAGIC)
+        while i >= 0:
+            if _record_at(fh, pos + i, size) is not None:
+                return pos + i
+            i = buf.find(_MAGIC, i + 1)
+        pos += block
+    return None
 
 
 def applied(f) -> int:
@@ -281,8 +343,9 @@ def file_journal(path, f) -> Journal | None:
     if not expected:
         return None
     j = read_journal(journal_path(path))
-    if j is None or j.token != expected or j.config_key != decode_attr("config_key", f.attrs.get("config_key", "")):
-        return None
+    if j is None or j.token != expected or (
+            j.config_key is not None and j.config_key != decode_attr("config_key", f.attrs.get("config_key", ""))):
+        return None   # (the token is random: it alone names the session when the open record was damaged)
     return j.after(applied(f))
 
 

@@ -17,7 +17,7 @@ import numpy as np
 
 from ..run.trajectory import trajectory_from_group
 from ..run.trajectory_files import decode_attr, decode_attrs
-from .batches import BATCH_GROUPS, ITEM_GROUPS, batch_names, checked_batch, item_path, split_item_path
+from .batches import BATCH_GROUPS, ITEM_GROUPS, batch_names, checked_batch, data_problems, item_path, split_item_path
 from .checks import FORMAT, reference_problem, run_problem, scan_groups
 from .errors import StorageError, one_line, short
 from .journal import Journal, MemGroup, file_journal, overlay
@@ -52,6 +52,7 @@ class Results:
     incomplete: list[str] = field(default_factory=list)
     in_journal: int = 0   # runs committed to the journal of a session that did not finish (not yet in the HDF5 file)
     damaged: dict = field(default_factory=dict)  # group path -> why it is not trusted
+    notes: list = field(default_factory=list)    # what the readers could not show (damaged journal records)
 
     @property
     def name(self) -> str:
@@ -85,12 +86,18 @@ def _damaged(path, e: BaseException) -> StorageError:
                         "(it recomputes what is missing) or move the file away")
 
 
-def _journal_of(path, f) -> Journal | None:
-    """The journal records that extend this file, or None (a journal that cannot be read is ignored)."""
+def _journal_of(path, f, notes: list | None = None) -> Journal | None:
+    """The journal records that extend this file, or None; a journal that cannot be read, or records
+    of it skipped as damaged, are said in `notes`."""
     try:
-        return file_journal(path, f)
-    except StorageError:
+        j = file_journal(path, f)
+    except StorageError as e:
+        if notes is not None:
+            notes.append(f"{e}; the runs committed there are not shown")
         return None
+    if j is not None and j.skipped and notes is not None:
+        notes.append(j.skipped_text())
+    return j
 
 
 def read_results(path) -> Results:
@@ -109,7 +116,8 @@ def results_of(f, path, check: bool = True) -> Results:
             f, path, "rerun the sweep with --force or move the file away", check=check)
         runs = {k: (None, a) for k, a in run_attrs.items()}
         refs = {k: (None, a) for k, a in ref_attrs.items()}
-        in_journal = overlay(_journal_of(path, f), runs, refs, attrs)
+        notes: list = []
+        in_journal = overlay(_journal_of(path, f, notes), runs, refs, attrs)
     except StorageError:
         raise
     except Exception as e:  # noqa: BLE001 - damaged metadata, attributes of the wrong type, ...
@@ -133,7 +141,7 @@ def results_of(f, path, check: bool = True) -> Results:
 
     run_list.sort(key=order)
     return Results(Path(path), attrs, run_list, {k: a for k, (_, a) in refs.items()}, incomplete,
-                   in_journal=in_journal, damaged=damaged)
+                   in_journal=in_journal, damaged=damaged, notes=notes)
 
 
 def _held(path: str, runs: dict, refs: dict) -> bool:
@@ -149,10 +157,11 @@ def _as_float(v) -> float:
         return float("nan")
 
 
-def _find_group(path, f, group: str, key: str):
+def _find_group(path, f, group: str, key: str, problems: list | None = None):
     """The group-like object of item `key` of `group` ("runs" | "references"), or None if absent or
     not trusted: the journal's last record wins, then the file's latest batch copy that passes its
-    check, then a group of schema 1."""
+    check (checksums included), then a group of schema 1. `problems` collects why copies were not
+    trusted."""
     kind = "run" if group == "runs" else "reference"
     j = _journal_of(path, f)
     rec = None
@@ -185,10 +194,15 @@ def _find_group(path, f, group: str, key: str):
             continue
         b, problem = checked_batch(g)
         if problem:
+            if problems is not None:
+                problems.append(problem)
             continue
         i = keys.index(key)
         v = b.view(i)
-        if check(v, decode_attrs(v.attrs)):
+        problem = data_problems(b, [i]).get(i) or check(v, decode_attrs(v.attrs))
+        if problem:
+            if problems is not None:
+                problems.append(problem)
             continue  # a damaged copy: an earlier one may hold the item
         return MemGroup(v.attrs, b.arrays(i))
     group_name = ITEM_GROUPS[kind]
@@ -202,7 +216,10 @@ def load_trajectory(path, run_id: str):
     """The `Trajectory` of one stored run (StorageError if it is missing or fails verification)."""
     with _open_read(path) as f:
         try:
-            g = _find_group(path, f, "runs", run_id)
+            problems = []
+            g = _find_group(path, f, "runs", run_id, problems)
+            if g is None and problems:
+                raise StorageError(f"{path}: run {run_id} is damaged ({problems[0]}); rerun the sweep to recompute it")
             if g is None:
                 raise StorageError(f"{path}: no run {run_id!r}")
             problem = run_problem(g)
@@ -219,7 +236,11 @@ def load_reference(path, key: str) -> dict:
     """A stored reference: {'attrs': ..., 't', 'q', 'p', 'impacts'} (arrays that exist)."""
     with _open_read(path) as f:
         try:
-            g = _find_group(path, f, "references", key)
+            problems = []
+            g = _find_group(path, f, "references", key, problems)
+            if g is None and problems:
+                raise StorageError(f"{path}: reference {key} is damaged ({problems[0]}); rerun the sweep to "
+                                   "recompute it")
             if g is None:
                 raise StorageError(f"{path}: no reference {key!r}")
             problem = reference_problem(g)

@@ -28,12 +28,15 @@ import numpy as np
 
 from ..run.trajectory_files import encode_attr
 
-__all__ = ["open_results", "collect", "Table"]
+__all__ = ["open_results", "collect", "Table", "ResultsWarning", "METRICS"]
 
 # run attributes that are bookkeeping, not metrics (indices, process ids, flags)
 _SKIP = {"method_index", "ic_index", "worker_pid", "complete", "has_trajectory", "has_Hmod", "beta", "h",
          "T_requested", "committed_at"}
 _STRINGS = ("status", "message", "l2_note", "run_id")
+# the metrics every table has (the module docstring's list), whatever the file holds
+METRICS = ("l2_error", "wall_time", "wall_time_call", "n_steps", "n_impacts", "n_partial_steps", "newton_iters_total",
+           "H0", "max_abs_dH", "H_range", "Ed_range", "Hmod_range", "fail_step", "fail_time", "t_end")
 _RENAME = {"T": "t_end"}
 _ATTRS = {
     "l2_error": {"long_name": "L2 trajectory error sqrt(h sum_k |q_k - q_ref(t_k)|^2)"},
@@ -150,6 +153,8 @@ def collect(results) -> Table:
         strings["run_id"][idx] = r.run_id
     dims3 = ("method", "h", ic_dim)
     variables = {}
+    for name in METRICS:   # every documented metric, NaN where no run holds it (a file with no complete run)
+        numeric.setdefault(name, (np.full(shape, np.nan), [False]))
     complete = len(cells) == math.prod(shape)
     for name in sorted(numeric):
         arr, is_int = numeric[name]
@@ -197,13 +202,36 @@ def collect(results) -> Table:
         coord_attrs[ic_dim] = {"long_name": "initial-condition key (results group name)"}
     else:
         coord_attrs[ic_dim] = {"long_name": "initial-condition parameter beta of the scene's map"}
-    attrs = {"name": res.name, "system": str(a.get("system", "")), "T": float(a.get("T", np.nan)),
+    attrs = {"name": res.name, "system": str(a.get("system", "")), "T": _float(a.get("T")),
              "reference": reference_note(res), "source": str(res.path),
-             "n_runs": len(res.runs), "n_runs_expected": int(a.get("n_runs_expected", math.prod(shape)) or 0)}
+             "n_runs": len(res.runs), "n_runs_expected": _count(a.get("n_runs_expected"), math.prod(shape)),
+             "n_damaged": len(res.damaged)}
+    if res.damaged:   # stored items that fail their checks (checksums, shapes): missing here, recomputed by a resume
+        attrs["damaged"] = "; ".join(f"{p}: {why}" for p, why in res.damaged.items())
+    if getattr(res, "notes", None):
+        attrs["notes"] = "; ".join(res.notes)
     for k in ("vcirun_version", "git_commit", "created", "updated", "config_sha256"):
         if a.get(k) not in (None, ""):
             attrs[k] = str(a[k])
     return Table(dims, variables, attrs, coord_attrs)
+
+
+def _float(v) -> float:
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def _count(v, default: int) -> int:
+    try:
+        return int(v) if v is not None else int(default)
+    except (TypeError, ValueError, OverflowError):
+        return int(default)
+
+
+class ResultsWarning(UserWarning):
+    """Stored runs that fail their checks, or journal records skipped as damaged: not in the table."""
 
 
 def open_results(path):
@@ -229,6 +257,14 @@ def open_results(path):
     except StorageError as e:
         raise ValueError(str(e)) from None
     tab = collect(res)
+    if res.damaged or getattr(res, "notes", None):
+        import warnings
+
+        what = [f"{len(res.damaged)} stored item(s) fail their checks ({next(iter(res.damaged.items()))[0]}: "
+                f"{next(iter(res.damaged.items()))[1]})" if res.damaged else "", *getattr(res, "notes", [])]
+        warnings.warn(f"{path}: " + "; ".join(w for w in what if w) + "; they are missing from the table (status "
+                      "'missing'; attrs['damaged'] lists them); `vcirun sweep` of the same config recomputes them",
+                      ResultsWarning, stacklevel=2)
     coords = {k: (k, v if v.dtype != object else v.astype(str), tab.coord_attrs.get(k, {}))
               for k, v in tab.dims.items()}
     data = {}

@@ -21,6 +21,7 @@ Safety model: bounded loss at a constant commit cost.
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import threading
 import time
@@ -70,8 +71,16 @@ class ResultsWriter:
         self.config_key = config_key
         self.force = force
         if commit_interval is None:
-            commit_interval = float(os.environ.get("VCIRUN_COMMIT_INTERVAL", DEFAULT_COMMIT_INTERVAL))
-        self.commit_interval = max(0.0, float(commit_interval))
+            commit_interval = os.environ.get("VCIRUN_COMMIT_INTERVAL", DEFAULT_COMMIT_INTERVAL)
+            field = "VCIRUN_COMMIT_INTERVAL"
+        else:
+            field = "commit_interval"
+        try:
+            self.commit_interval = float(commit_interval)
+        except (TypeError, ValueError):
+            self.commit_interval = math.nan
+        if not (math.isfinite(self.commit_interval) and self.commit_interval >= 0):
+            raise StorageError(f"{field}: must be a number of seconds >= 0, e.g. 1 (got {commit_interval!r})")
         self.isolate = isolate  # HDF5 rewrites in a forked child (durable.run_isolated); False: in this process
         self.session = dict(session or {})
         self.session.setdefault("started", now_iso())
@@ -81,6 +90,7 @@ class ResultsWriter:
         self.references: dict[str, dict] = {}
         self.incomplete: list[str] = []
         self.damaged: dict[str, str] = {}   # group path -> why it is not trusted
+        self.notes: list[str] = []           # what a resume found damaged beyond groups (journal records)
         self.prior_history: list = []
         self.final_hooks: list = []          # callables f(h5py.File) run inside the session's last rewrite
         self._pending: list[Pending] = []
@@ -178,6 +188,7 @@ class ResultsWriter:
         e = read_existing(self.path, self.config_key)
         self.prior_history, self.complete_runs, self.references = e.history, e.runs, e.references
         self.incomplete, self.damaged, self._old_journal = e.incomplete, e.damaged, e.journal
+        self.notes = [e.journal.skipped_text()] if e.journal is not None and e.journal.skipped else []
         self._deletions.extend(self.incomplete)
 
     def forget_runs(self, run_ids) -> None:
@@ -230,18 +241,19 @@ class ResultsWriter:
                        "updated": now_iso()}
             pieces, total = [], 0
             stamp = now_iso()
+            tok = {"token": self._token}   # (each record names its session: see vcirun.io.journal)
             for path in self._deletions:
-                pc, n = record_pieces("delete", path)
+                pc, n = record_pieces("delete", path, extra=tok)
                 pieces += pc
                 total += n
             for kind in ("reference", "run"):   # the commit's items: one record per batch
                 items = [p.item(stamp) for p in self._pending if p.kind == kind]
                 for b in pack(items):
-                    pc, n = batch_pieces(kind, b)
+                    pc, n = batch_pieces(kind, b, self._token)
                     pieces += pc
                     total += n
             pc, n = record_pieces("session", "", extra={"history": list(self.prior_history) + [session],
-                                                        "updated": stamp})
+                                                        "updated": stamp, **tok})
             pieces += pc
             total += n
             try:

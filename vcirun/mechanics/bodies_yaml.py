@@ -20,15 +20,22 @@
 
 `repeat: [first, last]` on any item of bodies, joints, contacts, springs and dampers declares it once
 per integer i in first..last, with {i}, {i+K} and {i-K} in its texts replaced by the integers.
+
+The caps of vcirun.core.limits hold for the totals after every `repeat` is expanded, as for a
+hand-written system: coordinates (what the joints declare; each body has a joint, so bodies and
+joints are at most that many too), contacts, parameters, springs and dampers together. A section is
+counted while it is expanded, so a file that asks for millions of items is refused before they exist.
 """
 from __future__ import annotations
 
 import re
 
+from ..core.limits import CAPS, check_count, refuse
 from ..core.names import check_description, check_identifier, check_system_name
 from ..core.values import describe
 from .bodies import (
     GROUND,
+    JOINT_KINDS,
     Body,
     CircleContact,
     Damper,
@@ -48,7 +55,13 @@ _ITEM_KEYS = {
     "springs": {"a", "b", "k", "length", "point_a", "point_b", "repeat"},
     "dampers": {"a", "b", "c", "point_a", "point_b", "repeat"},
 }
-MAX_REPEAT = 1000  # items one `repeat` may declare
+MAX_REPEAT = CAPS["repeat"].limit  # items one `repeat` may declare
+# the cap each section's total is held to while it is expanded (springs and dampers share one)
+_SECTION_CAP = {"bodies": "coordinates", "joints": "coordinates", "contacts": "contacts",
+                "springs": "force_elements", "dampers": "force_elements"}
+_SECTION_WHAT = {"bodies": "bodies (each has a joint of at least one coordinate)",
+                 "joints": "joints (each declares at least one coordinate)", "contacts": None,
+                 "springs": "springs", "dampers": "dampers"}
 _INDEX = re.compile(r"\{i(?:\s*([+-])\s*(\d+))?\}")
 
 
@@ -65,11 +78,13 @@ def load_bodies(data: dict, field_prefix: str = "system"):
     params = data.get("parameters") or {}
     if not isinstance(params, dict):
         raise ValueError(f"{P}.parameters: must be a mapping name -> value")
+    check_count("parameters", f"{P}.parameters", len(params))
     for k, v in params.items():
         check_identifier(str(k), f"{P}.parameters.{k}")
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             raise ValueError(f"{P}.parameters.{k}: must be a finite number (got {describe(v)})")
     items = {sec: _expand(data.get(sec) or [], sec, P) for sec in _ITEM_KEYS}
+    _check_totals(items, P)
     bodies = [Body(it["name"], it.get("mass"), it.get("inertia", 0), it.get("com", (0, 0)), it.get("radius"), field=f)
               for f, it in _required(items["bodies"], ("name", "mass"))]
     joints = [Joint(it["type"], it["body"], it.get("parent", GROUND), it.get("at", (0, 0)), it.get("coordinate"),
@@ -119,10 +134,26 @@ def _required(items, keys):
         yield f, it
 
 
+def _check_totals(items: dict, P: str) -> None:
+    """The caps on the expanded declaration: coordinates (what the joints name), contacts, springs and
+    dampers together."""
+    n = 0
+    for _, it in items["joints"]:
+        names = it.get("coordinates")
+        n += len(names) if isinstance(names, list) else JOINT_KINDS.get(it.get("type"), 1)
+    check_count("coordinates", f"{P}.joints", n, "declare fewer joints (coordinates), counted after every repeat")
+    check_count("contacts", f"{P}.contacts", len(items["contacts"]),
+                "declare fewer contacts, counted after every repeat")
+    check_count("force_elements", f"{P}.springs", len(items["springs"]) + len(items["dampers"]),
+                "declare fewer springs and dampers, counted after every repeat")
+
+
 def _expand(items, sec: str, P: str) -> list:
-    """[(field, item)] with every `repeat: [first, last]` item declared once per i."""
+    """[(field, item)] with every `repeat: [first, last]` item declared once per i; the section's
+    total is held to its cap (_SECTION_CAP) while it grows."""
     if not isinstance(items, list):
         raise ValueError(f"{P}.{sec}: must be a list of mappings")
+    limit = CAPS[_SECTION_CAP[sec]].limit
     out = []
     for j, it in enumerate(items):
         f = f"{P}.{sec}[{j}]"
@@ -138,11 +169,16 @@ def _expand(items, sec: str, P: str) -> list:
         if (not isinstance(rep, list) or len(rep) != 2 or not all(isinstance(x, int) and not isinstance(x, bool)
                                                                    for x in rep) or rep[1] < rep[0]):
             raise ValueError(f"{f}.repeat: must be [first, last], two integers with first <= last (got {rep!r})")
-        if rep[1] - rep[0] + 1 > MAX_REPEAT:
-            raise ValueError(f"{f}.repeat: {rep[1] - rep[0] + 1} items; the limit is {MAX_REPEAT}")
+        check_count("repeat", f"{f}.repeat", rep[1] - rep[0] + 1)
+        if len(out) + rep[1] - rep[0] + 1 > limit:
+            raise refuse(_SECTION_CAP[sec], f"{P}.{sec}", len(out) + rep[1] - rep[0] + 1,
+                         f"declare fewer {sec}, counted after every repeat", _SECTION_WHAT[sec])
         body = {k: v for k, v in it.items() if k != "repeat"}
         for i in range(rep[0], rep[1] + 1):
             out.append((f"{f} (i={i})", _substitute(body, i)))
+    if len(out) > limit:
+        raise refuse(_SECTION_CAP[sec], f"{P}.{sec}", len(out), f"declare fewer {sec}, counted after every repeat",
+                     _SECTION_WHAT[sec])
     return out
 
 

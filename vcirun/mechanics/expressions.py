@@ -23,6 +23,8 @@ import unicodedata
 
 import sympy
 
+from ..core.limits import cap
+
 __all__ = [
     "ALLOWED_CONSTANTS",
     "ALLOWED_FUNCTIONS",
@@ -34,9 +36,11 @@ __all__ = [
     "parse_matrix",
 ]
 
-MAX_LENGTH = 10_000  # characters; bounds parse time and memory
-MAX_DEPTH = 100  # nesting levels of the syntax tree; keeps the walker's recursion shallow
-MAX_NODES = 5_000  # numbers, names and operations of one expression (the generated kernels grow with it)
+# characters, nesting levels of the syntax tree, and numbers, names and operations of one expression
+# (the caps table, vcirun.core.limits, says why)
+MAX_LENGTH = cap("expression_characters")
+MAX_DEPTH = cap("expression_depth")
+MAX_NODES = cap("expression_nodes")
 # Exact integers/rationals are capped so "9**9**9" (or sympy's root extraction on huge
 # integers) cannot eat the machine; 1024 bits (~308 digits) is far beyond physical needs.
 _MAX_INT_BITS = 1024

@@ -27,9 +27,8 @@ import numpy as np
 import sympy as sp
 import yaml
 
+from ..core.limits import check_count
 from ..core.names import (
-    MAX_COORDINATES,
-    MAX_PARAMETERS,
     check_description,
     check_distinct_names,
     check_identifier,
@@ -113,8 +112,7 @@ def _constraints(data: dict, sym: dict, params: dict, field_prefix: str, qd: lis
     if not isinstance(items, list) or not items:
         raise ValueError(f"{field_prefix}.constraints: must be a non-empty list of expressions or "
                          "{name, phi, restitution} mappings")
-    if len(items) > MAX_COORDINATES:
-        raise ValueError(f"{field_prefix}.constraints: {len(items)} constraints; the limit is {MAX_COORDINATES}")
+    check_count("contacts", f"{field_prefix}.constraints", len(items))
     out, names = [], {}
     q = [sym[s.name[:-len("_dot")]] for s in qd]   # the coordinates (velocities are <coordinate>_dot)
     for i, item in enumerate(items):
@@ -209,15 +207,11 @@ def _declared_names(data: dict, field_prefix: str) -> tuple[list, dict]:
     coords = data["coordinates"]
     if not (isinstance(coords, list) and coords):
         raise ValueError(f"{field_prefix}.coordinates: must be a non-empty list of names")
-    if len(coords) > MAX_COORDINATES:
-        raise ValueError(f"{field_prefix}.coordinates: {len(coords)} coordinates; the limit is "
-                         f"{MAX_COORDINATES}")
+    check_count("coordinates", f"{field_prefix}.coordinates", len(coords))
     params = data.get("parameters") or {}
     if not isinstance(params, dict):
         raise ValueError(f"{field_prefix}.parameters: must be a mapping name -> value")
-    if len(params) > MAX_PARAMETERS:
-        raise ValueError(f"{field_prefix}.parameters: {len(params)} parameters; the limit is "
-                         f"{MAX_PARAMETERS}")
+    check_count("parameters", f"{field_prefix}.parameters", len(params))
     names = {f"coordinates[{i}]": c for i, c in enumerate(coords)}
     for i, c in enumerate(coords):
         if not isinstance(c, str):

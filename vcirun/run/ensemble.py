@@ -31,6 +31,8 @@ import numpy as np
 
 from ..core import record
 from ..core.bounds import check_one_start, check_start_args, nonfinite_start
+from ..core.limits import check_count
+from ..core.progress import Progress, check_report
 from ..core.sizes import check_run_memory, format_bytes, memory_limit
 from ..core.system_data import start_beta
 from ..core.values import check_number, describe
@@ -188,20 +190,23 @@ def _one(ctx: _Context, mod, i: int, j: int, res: dict) -> None:
         res["H"][j, : steps + 1] = H
 
 
-def _compute(ctx: _Context, lo: int, hi: int, workers: int) -> dict:
-    """Runs lo..hi-1 on `workers` threads, as result arrays of hi - lo rows."""
+def _compute(ctx: _Context, lo: int, hi: int, workers: int, progress: Progress | None = None) -> dict:
+    """Runs lo..hi-1 on `workers` threads, as result arrays of hi - lo rows; `progress` counts the runs
+    done (chunks of at most 256 runs, so a long ensemble reports within seconds)."""
     from ..codegen.shared import exclusive
 
     res = _allocate(ctx, hi - lo)
     mod = ctx.plan.module()
     size = max(1, min(256, math.ceil((hi - lo) / (8 * workers))))
-    chunks = [(a, min(hi, a + size)) for a in range(lo, hi, size)]
+    chunks = (range(a, min(hi, a + size)) for a in range(lo, hi, size))
     with exclusive(mod) as fast:
         def work(chunk):
-            for i in range(*chunk):
+            for i in chunk:
                 _one(ctx, fast, i, i - lo, res)
+            if progress is not None:
+                progress.update(len(chunk))
 
-        if workers == 1 or len(chunks) == 1:
+        if workers == 1 or hi - lo <= size:
             for ch in chunks:
                 work(ch)
         else:
@@ -248,8 +253,28 @@ def _dataset(ctx: _Context, res: dict, lo: int, wall: float):
     return xr.Dataset(data, coords=coords, attrs=attrs)
 
 
+def results_bytes(k: int, n: int, N: int, outputs: str) -> int:
+    """Bytes of the result arrays of k runs (`_allocate`; "trajectory" adds q, p and H per grid point)
+    with the per-run inputs kept beside them."""
+    per_run = 8 * (2 * n) + 4 * max(map(len, STATUS_NAMES)) + 8 * 5 + 8 * (2 * n + 1)
+    if outputs == "trajectory":
+        per_run += 8 * (N + 1) * (2 * n + 1)
+    return int(k) * per_run
+
+
+def check_results_memory(k: int, n: int, N: int, outputs: str) -> None:
+    """Refuse k runs whose result arrays would exceed the memory limit (vcirun.core.sizes), before any
+    is allocated."""
+    need, lim = results_bytes(k, n, N, outputs), memory_limit()
+    if need > lim:
+        fix = ("use outputs='final', or vcirun.run.ensemble.iter_ensemble for one batch of runs at a time"
+               if outputs == "trajectory" else "use vcirun.run.ensemble.iter_ensemble for one batch of runs at a time")
+        raise ValueError(f"{'outputs' if outputs == 'trajectory' else 'runs'}: the results of {k:,} runs need about "
+                         f"{format_bytes(need)} (limit {format_bytes(lim)}); {fix}")
+
+
 def _prepare(system, method, h, T, beta, q0, p0, params, outputs, constrained, t0, energies, resting_contact,
-             workers, options, tier=None):
+             workers, options, tier=None, batch=None):
     if outputs not in OUTPUTS:
         raise ValueError(f"outputs: must be one of {', '.join(OUTPUTS)} (got {describe(outputs)})")
     k, per = _inputs(beta, q0, p0, params)
@@ -268,6 +293,7 @@ def _prepare(system, method, h, T, beta, q0, p0, params, outputs, constrained, t
             workers = os.cpu_count() or 1
     workers = int(check_number("workers", workers, ge=1, le=1024, integer=True))
     check_run_memory(p.N, n, copies=workers, field="h")
+    check_results_memory(k if batch is None else min(k, batch), n, p.N, outputs)
     p.module()
     if p.tier_used in ("compiled", "interpreted"):   # one tier for the whole ensemble (a copy: p may be kept)
         p = dataclasses.replace(p, tier=p.tier_used)
@@ -287,7 +313,8 @@ def _prepare(system, method, h, T, beta, q0, p0, params, outputs, constrained, t
 
 
 def ensemble(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, outputs="final",
-             constrained=None, t0=0.0, energies=True, resting_contact=True, workers=None, tier=None, **options):
+             constrained=None, t0=0.0, energies=True, resting_contact=True, workers=None, tier=None, progress=None,
+             **options):
     """Run k initial conditions or parameter sets of `system` with `method` on the grid of h and T;
     an xarray Dataset over `run` (and `coordinate`).
 
@@ -298,35 +325,41 @@ def ensemble(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     fail_step, n_steps, n_impacts, H0, energy_error = max |H - H(0)|) or "trajectory" (also q, p
     over (run, t, coordinate) and H over (run, t), NaN after a run's last state). workers: threads
     (default: every core). tier: simulate's, one for the whole ensemble (attrs["tier"] says which).
+    progress: None (a line on stderr every 10 s with the runs done and an
+    estimate of the time left, once the ensemble is estimated to take over 10 s), False (silent) or
+    a callable f(done, total, elapsed seconds, remaining seconds or None) called as runs finish.
+    At most 1e12 member steps (runs x T / h) per call (vcirun.core.limits), and the result arrays
+    within the memory limit (vcirun.core.sizes), both checked before any run starts.
 
     Each run equals `vcirun.simulate` with the same arguments, bit for bit; a failed run is its
     status, a refused start `invalid_input` (message in attrs["messages"]). Bad arguments of the
     whole ensemble (shapes, lengths, names, h, T, tolerances) raise ValueError naming the field.
     """
+    report = check_report(progress)
     ctx, workers = _prepare(system, method, h, T, beta, q0, p0, params, outputs, constrained, t0, energies,
                             resting_contact, workers, options, tier)
-    if outputs == "trajectory":
-        need = ctx.k * (ctx.plan.N + 1) * (2 * ctx.plan.sysd.n + 1) * 8
-        if need > memory_limit():
-            raise ValueError(f"outputs: the trajectories of {ctx.k} runs need about {format_bytes(need)} "
-                             f"(limit {format_bytes(memory_limit())}); use outputs='final', "
-                             "or vcirun.run.ensemble.iter_ensemble for one batch of runs at a time")
+    check_count("ensemble_steps", "runs", ctx.k * ctx.plan.N,
+                fix="split the ensemble (vcirun.run.ensemble.iter_ensemble runs it in batches), raise h or lower T")
     t = time.perf_counter()
-    res = _compute(ctx, 0, ctx.k, workers)
+    res = _compute(ctx, 0, ctx.k, workers, Progress(ctx.k, f"ensemble of {ctx.k:,} runs", report))
     return _dataset(ctx, res, 0, time.perf_counter() - t)
 
 
 def iter_ensemble(system, method, *, h, T, batch=4096, beta=None, q0=None, p0=None, params=None,
                   outputs="final", constrained=None, t0=0.0, energies=True, resting_contact=True, workers=None,
-                  tier=None, **options):
+                  tier=None, progress=None, **options):
     """`ensemble` one batch of runs at a time: yields a Dataset per `batch` runs (its `run` coordinate
     the runs' indices), so that any k, with full trajectories too, needs the memory of one batch.
-    The module's lock is held while a batch computes, not between batches."""
+    The module's lock is held while a batch computes, not between batches. The caps hold per batch;
+    `progress` counts the runs of every batch (see `ensemble`)."""
     batch = int(check_number("batch", batch, ge=1, integer=True))
+    report = check_report(progress)
     ctx, workers = _prepare(system, method, h, T, beta, q0, p0, params, outputs, constrained, t0, energies,
-                            resting_contact, workers, options, tier)
+                            resting_contact, workers, options, tier, batch=batch)
+    check_count("ensemble_steps", "batch", min(batch, ctx.k) * ctx.plan.N, fix="use a smaller batch, raise h or lower T")
+    prog = Progress(ctx.k, f"ensemble of {ctx.k:,} runs", report)
     for lo in range(0, ctx.k, batch):
         t = time.perf_counter()
         hi = min(ctx.k, lo + batch)
-        res = _compute(ctx, lo, hi, workers)
+        res = _compute(ctx, lo, hi, workers, prog)
         yield _dataset(ctx, res, lo, time.perf_counter() - t)

@@ -119,7 +119,7 @@ BUILTIN_INFO |= {
         "the default state with its velocities scaled by beta",
         "the period-one gait at gamma = 3 deg just after heel strike"),
 }
-_SIZED_INFO = ("n_pendulum", "newton_cradle", "link_chain", "cradle")  # listed as <name>_3 (any K)
+_SIZED_INFO = ("n_pendulum", "newton_cradle", "link_chain", "cradle")  # listed as <name>_3 (K: FAMILY_SIZES)
 
 
 def _sized_info(base: str, n: int) -> SceneInfo:
@@ -162,7 +162,8 @@ def listed_scenes() -> list[str]:
 
 def scene_info(name: str) -> SceneInfo | None:
     """The description of a built-in scene (`n_pendulum_K`, `newton_cradle_K`, `link_chain_K`,
-    `cradle_K` for any K; the bare sized name is its default size), or None."""
+    `cradle_K` for K in the family's range, vcirun.core.limits.FAMILY_SIZES; the bare sized name is its
+    default size), or None."""
     if name in BUILTIN_INFO:
         return BUILTIN_INFO[name]
     from .data import scene_args
@@ -179,16 +180,18 @@ def scene_info(name: str) -> SceneInfo | None:
 
 def describe(name: str) -> list[str]:
     """The lines `vcirun systems NAME` prints for a built-in scene (ValueError naming the choices)."""
+    from ..core.limits import FAMILY_SIZES
     from .data import scene_data
 
     info = scene_info(name)
     if info is None:
         raise ValueError(f"system: unknown built-in system {name!r} (choose one of {', '.join(listed_scenes())}; "
-                         "the sized ones with any K, e.g. cradle_20)")
+                         "the sized ones with K in their range, e.g. cradle_20)")
     d = scene_data(name)
     sized = next((b for b in _SIZED_INFO if name.startswith(b)), None)
     coords = ", ".join(f"{c} [{u}] {m}" for c, u, m in info.coordinates)
-    lines = [f"{name}  {d.description}" + (f"  ({sized}_K: any K)" if sized else ""),
+    lines = [f"{name}  {d.description}" + (f"  ({sized}_K: K from {FAMILY_SIZES[sized][0]} to "
+                                           f"{FAMILY_SIZES[sized][1]})" if sized else ""),
              f"  coordinates  {coords}; momenta p = M(q) qdot in "
              + ", ".join(momentum_unit(u) for _, u, _ in info.coordinates),
              "  parameters   " + "; ".join(f"{k} = {v:g} {info.params.get(k, ('', ''))[0]} "

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..core.limits import sized_family
 from ..core.system_data import SystemData, merge_params
 
 def _cart_ic(beta):
@@ -192,17 +193,15 @@ BUILTIN_SCENE_DATA = {
     "rimless_wheel": rimless_wheel,
     "compass_gait": compass_gait,
 }
-_SIZED = ("n_pendulum", "newton_cradle", "link_chain", "cradle")  # scenes named <name>_K with K the size
-
-
 def scene_args(name: str):
     """(factory name, positional args) of a built-in scene name (`n_pendulum_K` -> ('n_pendulum', (K,))),
-    or None if `name` is not a built-in scene."""
+    or None if `name` is not a built-in scene. A family's K outside its range (the caps table,
+    vcirun.core.limits.FAMILY_SIZES) is a ValueError naming the system, before anything is built."""
     if not isinstance(name, str):
         return None
-    for base in _SIZED:
-        if name.startswith(base + "_") and name[len(base) + 1:].isdigit():
-            return base, (int(name[len(base) + 1:]),)
+    sized = sized_family(name)
+    if sized is not None:
+        return sized[0], (sized[1],)
     if name in BUILTIN_SCENE_DATA:
         return name, ()
     return None

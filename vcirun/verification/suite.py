@@ -167,6 +167,7 @@ class _Session:
     def __init__(self, system, methods, q0, p0, beta, T, h, params, progress, tier="compiled"):
         from ..run.resolve import resolve_system
         from ..codegen.build import load_module
+        from ..core.sizes import check_ladder_memory
         from ..methods.table import METHODS
 
         self.say = progress or (lambda msg: None)
@@ -181,6 +182,7 @@ class _Session:
         self.prm = prm = sysm.param_values(params)
         self.q0, self.p0 = sysm.initial_state(beta=beta, q0=q0, p0=p0, params=prm)
         self.n = sysm.n
+        check_ladder_memory(self.hs, T, self.n, len(sysm.constraints))   # before anything is compiled or run
         phi0 = sysm.phi_value(self.q0, prm)
         if not phi0 >= 0:   # checked before anything is compiled
             raise ValueError(f"q0: the start state is inside the constraint: phi(q0) = {phi0:.6g} < 0 for constraint "
