@@ -4,8 +4,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import List, Optional
 
+import numpy as np
 import typer
 
+from ..run.accounts import FORCING, LAW
 from ..run.energy import energy_drift
 from .app import CliError, _announce_compiles, _console, _fail, app
 
@@ -68,6 +70,32 @@ def simulate_once(system: str, method: str, *, h: float, T: float, beta: float |
     return traj, time.perf_counter() - t0
 
 
+def energy_rows(traj) -> list[tuple[str, str]]:
+    """The energy account of a run as summary rows: the impact law's loss and the forcing work (where
+    the run has them) and the rest, the integration error, as the energy error."""
+    try:
+        acc = traj.energy_account()
+    except ValueError:   # no dynamics: the drift of H alone
+        drift = energy_drift(traj)
+        return [] if drift.dH is None else [("max |H - H0|", f"{drift.dH:.3e}")]
+    if not np.isfinite(acc.error):
+        return []
+    rows = []
+    short = {LAW: f"restitution and plastic losses of {len(acc.events)} impacts", FORCING: "work of the force f"}
+    terms = [x for x in acc.terms if x.total != 0.0 or x.name != LAW]
+    label = "max |H - H0|" if not terms else "max |H - H0 - terms|"
+    if terms:
+        rows.append(("energy change", f"{acc.change:.4e}  (H0 = {acc.H0:.6g}, H(T) = {acc.H0 + acc.change:.6g})"))
+        rows += [(x.name, f"{x.total:.4e}  ({short.get(x.name, x.doc)})") for x in terms]
+    rel = (f" (relative {acc.relative_error:.2e} to the energy scale {acc.scale:.4g} = max(|H0|, max kinetic "
+           "energy))" if np.isfinite(acc.relative_error) else "")
+    rows.append(("energy error", f"{label} {acc.error:.3e}{rel}"))
+    drift = energy_drift(traj)
+    if drift.dHmod is not None and not terms:
+        rows.append(("max |Hmod - Hmod0|", f"{drift.dHmod:.3e}"))
+    return rows
+
+
 def summary_lines(traj, total_seconds: float) -> list[tuple[str, str]]:
     """The facts `vcirun simulate` prints about a run."""
     rows = [("run", f"{traj.system}  {traj.method}  h = {traj.h:g}  T = {traj.T:g}"
@@ -76,13 +104,7 @@ def summary_lines(traj, total_seconds: float) -> list[tuple[str, str]]:
     imp = ", ".join(f"{t:.4g}" for t in traj.impacts[:8]) + (" ..." if len(traj.impacts) > 8 else "")
     rows.append(("impacts", f"{len(traj.impacts)}" + (f" at t = {imp}" if len(traj.impacts) else "")))
     rows.append(("status", traj.status + (f" ({traj.message})" if traj.message else "")))
-    drift = energy_drift(traj)
-    if drift.dH is not None:
-        rel = (f" (relative {drift.dH / drift.scale:.2e} to the energy scale {drift.scale:.4g} = max(|H0|, max "
-               "kinetic energy))" if drift.relative else "")
-        rows.append(("max |H - H0|", f"{drift.dH:.3e}{rel}"))
-    if drift.dHmod is not None:
-        rows.append(("max |Hmod - Hmod0|", f"{drift.dHmod:.3e}"))
+    rows += energy_rows(traj)
     setup = max(0.0, total_seconds - traj.wall_time)
     what = ("compiling kernels (first time; cached for the next runs)" if getattr(traj, "compiled_now", False)
             else "loading kernels and setting up")

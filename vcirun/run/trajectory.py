@@ -70,6 +70,7 @@ class Trajectory:
         state = dict(self.__dict__)
         state["dynamics"] = None
         state.pop("_dense", None)
+        state.pop("_account", None)
         return state
 
     # --- dense output -----------------------------------------------------------------------------
@@ -90,6 +91,7 @@ class Trajectory:
         prm = sysd.param_values(params if params is not None else (self.options or {}).get("params"))
         self.dynamics = _dynamics(load(), prm)
         self.__dict__.pop("_dense", None)
+        self.__dict__.pop("_account", None)
         return self
 
     def _dense_output(self) -> "DenseOutput":
@@ -225,6 +227,18 @@ class Trajectory:
 
         return trajectory_figure(self, dense=dense, samples_per_step=samples_per_step)
 
+    def energy_account(self):
+        """Where the energy went: H(t) - H(t0) split into the impact law's loss (restitution, plastic
+        holds), the forcing work and the rest, the integration error (`account.error`: its largest
+        magnitude). A `vcirun.run.accounts.EnergyAccount`; `print(account)` shows the table. Needs the
+        dynamics (attached for built-in scenes; else `attach_dynamics(system)` first)."""
+        from .accounts import trajectory_account
+
+        acc = self.__dict__.get("_account")
+        if acc is None:
+            acc = self.__dict__["_account"] = trajectory_account(self)
+        return acc
+
     @property
     def n_steps(self) -> int:
         return len(self.t) - 1
@@ -299,6 +313,7 @@ def _dynamics(mod, prm):
         rhs(float(t), np.ascontiguousarray(y, dtype=float), prm, out)
         return out
 
+    f.module, f.prm = mod, prm   # for the energy account (vcirun.run.accounts)
     return f
 
 
