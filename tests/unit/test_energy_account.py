@@ -98,12 +98,20 @@ def test_forced_two_link_arm_floor_and_wall():
 
 def test_declared_map_loss_and_dense_output_of_a_walker():
     """A declared reset (the compass gait's heel strike and leg exchange): the law's loss is the map's
-    H(q-, p-) - H(q+, p+) (the relabelled potential included), the CVA jump equals it."""
+    H(q-, p-) - H(q+, p+) (the relabelled potential included), the CVA jump equals it; the dense
+    output jumps to the map's q+ at each impact."""
     tr = vcirun.simulate("compass_gait", "CVA", h=1e-3, T=2)
     acc = tr.energy_account()
     assert len(acc.events) >= 2
     for ev in acc.events:
         assert abs(ev.jump - ev.loss) <= 1e-12 * acc.scale
+    # dense output after a heel strike starts from the map's q+ (the legs exchanged), not from q-
+    for k, tau in enumerate(tr.impacts):
+        np.testing.assert_allclose(tr(tau), tr.impact_q[k][::-1], atol=1e-12)
+        np.testing.assert_allclose(tr(tau - 1e-9), tr.impact_q[k], atol=1e-6)
+    tt = np.linspace(0, tr.t[-1], 4001)
+    steps = np.max(np.abs(np.diff(tr(tt), axis=0)), axis=1)
+    assert np.sum(steps > 0.05) == len(tr.impacts)   # jumps at the impacts only
     ref = vcirun.reference("compass_gait", T=2)
     assert ref.energy_balance <= 1e-12 * ref.energy_account().scale
 

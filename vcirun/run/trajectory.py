@@ -5,7 +5,8 @@ Dense output. Between grid points (and between the impacts inside a step) the st
 cubic Hermite interpolation of q and p, with the slopes (qdot, pdot) of the continuous dynamics at
 the recorded states (`_dynamics`: the compiled, forced, Hamilton equations of the run's module). An impact
 step k -> k+1 is split at its recorded impact states: [t_k, tau_1] ends in (q(tau_1), p-),
-[tau_1, ...] starts from (q(tau_1), p+), so no piece ever interpolates across a velocity jump; the
+[tau_1, ...] starts from (q(tau_1), p+) (q+ of a declared reset map that moves q: a walker's leg
+exchange), so no piece ever interpolates across a jump; the
 interpolant is right-continuous at an impact (p+ at t = tau) and equals the grid state at every
 grid time. Its own error is O(h^4) per piece, so between grid points it keeps the method's order
 for methods of order <= 4 (every method of the paper: order 2; CVA4); for CVA6/CVA8 it is limited to
@@ -317,6 +318,28 @@ def _dynamics(mod, prm):
     return f
 
 
+def _post_impact_q(traj, rhs, iq, ipm):
+    """The configuration after each impact: q itself, except where the system declares a reset map
+    that moves q (a walker's leg exchange): the map's q+ from the recorded (q, p-), as the loop computes
+    it (the impact law's direction first, then vcirun.collision.declared's map)."""
+    mod = getattr(rhs, "module", None)
+    if mod is None or not bool(getattr(mod, "RESET_MAP", False)) or len(iq) == 0:
+        return iq
+    n, m = iq.shape[1], int(mod.NCON)
+    prm = rhs.prm
+    event_tol = float((traj.tolerances or {}).get("event_tol", 1e-13))
+    out = iq.copy()
+    d, lam, active = np.empty(n), np.empty(m), np.empty(m, np.int64)
+    qn, pmap = np.empty(n), np.empty(n)
+    for k in range(len(iq)):
+        q, pm = np.ascontiguousarray(iq[k]), np.ascontiguousarray(ipm[k])
+        c, s0, _ = mod.impact_direction(q, pm, float(traj.h), event_tol, prm, d, lam, active)
+        if c > 0:
+            mod.declared_reset(q, pm, d, s0, prm, qn, pmap)
+            out[k] = qn
+    return out
+
+
 class DenseOutput:
     """Piecewise cubic Hermite interpolant of a Trajectory's states (see the module docstring).
 
@@ -337,6 +360,7 @@ class DenseOutput:
         imp = imp[keep]
         iq, ipm, ipp = (np.asarray(a, float).reshape(-1, traj.q.shape[1])[keep]
                         for a in (traj.impact_q, traj.impact_p_minus, traj.impact_p_plus))
+        iq_plus = _post_impact_q(traj, rhs, iq, ipm)
         # step of each impact: (t_k, t_k+1] -> k (an impact exactly at t_k closes step k-1)
         step = np.clip(np.searchsorted(t, imp, side="left") - 1, 0, max(len(t) - 2, 0))
         # order: grid node k, then the impacts of step k by time
@@ -346,7 +370,7 @@ class DenseOutput:
         order = np.lexsort((times, key_kind, key_step))
         self.times = times[order]
         left = np.vstack([Y, np.hstack([iq, ipm])])[order]
-        right = np.vstack([Y, np.hstack([iq, ipp])])[order]
+        right = np.vstack([Y, np.hstack([iq_plus, ipp])])[order]
         self.left, self.right = left, right
         self.is_grid = (key_kind[order] == 0)
         self.FL = np.full_like(left, np.nan)
