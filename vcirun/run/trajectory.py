@@ -55,6 +55,9 @@ class Trajectory:
     # (t, y) -> ydot of the continuous dynamics, for dense output; attached by simulate, dropped when
     # pickled (resolved again from a built-in scene's name, see `attach_dynamics`)
     dynamics: object = field(default=None, repr=False, compare=False)
+    # what simulate was given as the system (a scene name, a YAML path or a MechanicalSystem): where
+    # `animate` finds the drawing; pickled only as a name or path
+    source: object = field(default=None, repr=False, compare=False)
 
     def __post_init__(self):
         n = self.q.shape[1] if isinstance(self.q, np.ndarray) and self.q.ndim == 2 else 0
@@ -70,6 +73,8 @@ class Trajectory:
     def __getstate__(self):
         state = dict(self.__dict__)
         state["dynamics"] = None
+        if not isinstance(state.get("source"), (str, type(None))):
+            state["source"] = str(state["source"]) if hasattr(state["source"], "__fspath__") else None
         state.pop("_dense", None)
         state.pop("_account", None)
         return state
@@ -88,6 +93,8 @@ class Trajectory:
         from ..codegen.kernel_set import SYSTEM_KERNELS
         from .resolve import resolve_numeric
 
+        if system is not None:
+            self.source = system
         sysd, load, _ = resolve_numeric(self.system if system is None else system, SYSTEM_KERNELS)
         prm = sysd.param_values(params if params is not None else (self.options or {}).get("params"))
         self.dynamics = _dynamics(load(), prm)
@@ -227,6 +234,17 @@ class Trajectory:
         from .plotting import trajectory_figure
 
         return trajectory_figure(self, dense=dense, samples_per_step=samples_per_step)
+
+    def animate(self, path=None, *, system=None, fps=30, speed=None, max_frames=600, energy=True, dpi=100):
+        """An animation of the run (vcirun.viz.animate.Animation): the mechanism drawn from the scene's
+        geometry (bodies-form scenes, built-in scenes, a YAML `draw:` section; else configuration space),
+        impacts marked, the energy beside it, a time bar. path: write .mp4 (ffmpeg) or .gif (Pillow);
+        in a notebook the returned object displays itself. system: the scene (default: the run's, for
+        built-in scenes; a YAML path for others); speed: motion seconds per second (default 1, raised to
+        fit max_frames)."""
+        from ..viz.animate import animate
+
+        return animate(self, path, system=system, fps=fps, speed=speed, max_frames=max_frames, energy=energy, dpi=dpi)
 
     def energy_account(self):
         """Where the energy went: H(t) - H(t0) split into the impact law's loss (restitution, plastic

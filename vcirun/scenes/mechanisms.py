@@ -20,7 +20,8 @@ def rocking_block(**overrides) -> MechanicalSystem:
     joint (x, y, theta of its centre), dropped tilted on the floor y = 0; its two lower corners are
     the contacts, restitution e. beta = the drop height of the centre."""
     d = sd.rocking_block(**overrides)
-    return _build(d, [Body("block", "m", "m*(a**2 + b**2)/12")],
+    corners = (("-b/2", "-a/2"), ("b/2", "-a/2"), ("b/2", "a/2"), ("-b/2", "a/2"))
+    return _build(d, [Body("block", "m", "m*(a**2 + b**2)/12", outline=corners)],
                   [Joint("free", "block", coordinates=("x", "y", "theta"))],
                   [PointContact("left", "block", ("-b/2", "-a/2"), restitution="e"),
                    PointContact("right", "block", ("b/2", "-a/2"), restitution="e")])
