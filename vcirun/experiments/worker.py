@@ -266,7 +266,7 @@ def _execute_run(st: _WorkerState, spec: RunSpec, ref) -> dict:
             break  # a failure is not worth timing again
     traj.wall_time = min(walls)  # identical runs: the spread is timing noise, the minimum the cost
     call = min(calls)
-    attrs, arrays = trajectory_payload(traj, store_arrays=st.cfg.store_trajectories)
+    attrs, arrays = trajectory_payload(traj, store_arrays=st.cfg.store_every)
     attrs["wall_time_repeats"] = walls
     l2, note = None, ""
     if isinstance(st.cfg.reference, NoReference):
