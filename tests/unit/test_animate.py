@@ -1,4 +1,4 @@
-"""Animations (vcirun.viz): real frames rendered headless (Agg, no pyplot). The frame count follows fps,
+"""Animations (vcirun.run.animate): real frames rendered headless (Agg, no pyplot). The frame count follows fps,
 speed and max_frames; frames differ where the state differs and not where it does not; the first frame
 shows the geometry where it is (pixels at the drawn points against their data coordinates); walkers
 advance at each heel strike; GIF files hold every frame; the `draw:` section and the fallback."""

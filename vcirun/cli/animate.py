@@ -1,4 +1,4 @@
-"""`vcirun animate`: the animation of one run (vcirun.viz.animate), from a results file of a sweep, a
+"""`vcirun animate`: the animation of one run (vcirun.run.animate), from a results file of a sweep, a
 file of one run (`vcirun simulate --output run.h5`), or a run made here (--system, --method)."""
 from __future__ import annotations
 

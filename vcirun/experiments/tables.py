@@ -171,7 +171,7 @@ def summary_table(results: Results) -> Table:
     rows, csv_rows = [], []
     for (label, h), runs in sorted(groups.items(), key=lambda kv: (rank.get(kv[0][0], len(rank)), kv[0][0], -kv[0][1])):
         ok = [a for a in runs if a.get("status") == "ok"]
-        imp = [int(a.get("n_impacts", 0)) for a in runs]
+        imp = [int(a["n_impacts"]) if isinstance(a.get("n_impacts"), (int, float)) else 0 for a in runs]
         l2 = np.array([a["l2_error"] for a in ok if isinstance(a.get("l2_error"), float)
                        and math.isfinite(a["l2_error"])])
         wt = np.array([a["wall_time"] for a in ok if isinstance(a.get("wall_time"), float)

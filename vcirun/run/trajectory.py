@@ -236,13 +236,13 @@ class Trajectory:
         return trajectory_figure(self, dense=dense, samples_per_step=samples_per_step)
 
     def animate(self, path=None, *, system=None, fps=30, speed=None, max_frames=600, energy=True, dpi=100):
-        """An animation of the run (vcirun.viz.animate.Animation): the mechanism drawn from the scene's
+        """An animation of the run (vcirun.run.animate.Animation): the mechanism drawn from the scene's
         geometry (bodies-form scenes, built-in scenes, a YAML `draw:` section; else configuration space),
         impacts marked, the energy beside it, a time bar. path: write .mp4 (ffmpeg) or .gif (Pillow);
         in a notebook the returned object displays itself. system: the scene (default: the run's, for
         built-in scenes; a YAML path for others); speed: motion seconds per second (default 1, raised to
         fit max_frames)."""
-        from ..viz.animate import animate
+        from .animate import animate
 
         return animate(self, path, system=system, fps=fps, speed=speed, max_frames=max_frames, energy=energy, dpi=dpi)
 

@@ -20,12 +20,12 @@ from ..mechanics.system import Constraint, MechanicalSystem
 
 def _system(d: sd.SystemData, q, M, V, phi, draw=None, **kw) -> MechanicalSystem:
     """The MechanicalSystem of scene data `d`; draw: the keyword arguments of its Drawing (what
-    `vcirun animate` draws: vcirun.viz.drawing; points as (x, y) expressions in q and the parameters)."""
+    `vcirun animate` draws: vcirun.mechanics.drawing; points as (x, y) expressions in q and the parameters)."""
     s = MechanicalSystem(name=d.name, q=q, params=d.params, M=M, V=V, phi=phi, ic_map=d.ic_map,
                          default_q0=d.default_q0, default_p0=d.default_p0, default_beta=d.default_beta,
                          description=d.description, **kw)
     if draw is not None:
-        from ..viz.drawing import Drawing
+        from ..mechanics.drawing import Drawing
 
         pts = {k: (sp.sympify(x), sp.sympify(y)) for k, (x, y) in draw.pop("points").items()}
         s.drawing = Drawing(q=list(q), points=pts, **draw).check(f"scene {d.name} drawing")

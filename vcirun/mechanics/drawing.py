@@ -208,15 +208,15 @@ def _list(data, key, P):
 
 # --- planar mechanisms ---------------------------------------------------------------------------------
 
-def from_bodies(q, frames, bodies, joint_of, contacts, springs, dampers, scope, field_prefix="system") -> Drawing:
+def from_bodies(q, locate, ground, bodies, joint_of, contacts, springs, dampers, scope, field_prefix="system") -> Drawing:
     """The Drawing of a planar mechanism (vcirun.mechanics.bodies; `frames` its body frames): each body
     as segments from its joint to its other points (child joints, contact points, spring ends; the
     centre of mass where there is no other), its `outline` polygon where it declares one, a circle
     where it has a radius and a dot for a point mass; pivots where a joint holds a body to the ground;
     every contact line; springs and dampers between their ends; impacts marked at the contact point
-    (two circles: between their centres)."""
-    from ..mechanics.bodies import GROUND, CircleContact, PointContact, _point, _xy
-
+    (two circles: between their centres). locate(body, (x, y), field) -> (X, Y): a point of a body
+    (or of the ground, named `ground`) in the plane, as expressions in q."""
+    GROUND = ground
     P = field_prefix
     d = Drawing(q=list(q))
 
@@ -224,10 +224,7 @@ def from_bodies(q, frames, bodies, joint_of, contacts, springs, dampers, scope, 
         lx, ly = scope.vector(local, fld)
         name = f"{body}@({sp.sstr(lx)}, {sp.sstr(ly)})"
         if name not in d.points:
-            if body == GROUND:
-                d.point(name, lx, ly)
-            else:
-                d.point(name, *_xy(_point(frames, body, (lx, ly), scope, fld)))
+            d.point(name, *((lx, ly) if body == GROUND else locate(body, (lx, ly), fld)))
         return name, (lx, ly)
 
     keys = {b.name: [] for b in bodies}
@@ -242,7 +239,7 @@ def from_bodies(q, frames, bodies, joint_of, contacts, springs, dampers, scope, 
     lines = []
     for k, c in enumerate(contacts):
         fld = c.field or f"{P}.contacts[{k}]"
-        if isinstance(c, PointContact):
+        if hasattr(c, "line_point"):    # a point against a line
             name, _ = place(c.body, c.point, fld)
             keys[c.body].append(name)
             r = scope.scalar(c.radius, f"{fld}.radius")
@@ -252,7 +249,7 @@ def from_bodies(q, frames, bodies, joint_of, contacts, springs, dampers, scope, 
             if line not in lines:
                 lines.append(line)
             d.contacts.append(name)
-        elif isinstance(c, CircleContact):
+        elif hasattr(c, "bodies"):      # two circles
             ends = []
             for s, bn in enumerate(c.bodies):
                 center = c.centers[s] if c.centers is not None else next(b.com for b in bodies if b.name == bn)

@@ -1,6 +1,6 @@
 """The animation of one run: `Trajectory.animate`, `vcirun animate`.
 
-Each frame shows the mechanism at time t (drawn from the scene's geometry, vcirun.viz.drawing; without
+Each frame shows the mechanism at time t (drawn from the scene's geometry, vcirun.mechanics.drawing; without
 one, the configuration itself: the point q in the plane of its two coordinates with the constraint
 boundaries phi_i = 0, a point on a line for one coordinate, one bar per coordinate for more), a star
 where an impact happened in the last 0.1 s of motion time, the energy beside it (H on the grid, and
@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..run.plotting import COLORS, fmt_h, style
+from .plotting import COLORS, fmt_h, style
 
 __all__ = ["Animation", "animate", "MAX_FRAMES", "FPS"]
 
@@ -42,7 +42,7 @@ def animate(traj, path=None, *, system=None, fps=FPS, speed=None, max_frames=MAX
 
 def _resolve(traj, system):
     """(MechanicalSystem or None, note): the scene a run is drawn from."""
-    from ..run.resolve import resolve_system
+    from .resolve import resolve_system
 
     target = system if system is not None else (traj.source if traj.source is not None else traj.system)
     try:
@@ -262,7 +262,7 @@ class _BodyScene:
         from matplotlib.collections import LineCollection
         from matplotlib.patches import Circle, Polygon
 
-        from .drawing import numeric
+        from ..mechanics.drawing import numeric
 
         self.anim = anim
         sysm = anim.system
