@@ -118,7 +118,7 @@ def summary_lines(traj, total_seconds: float) -> list[tuple[str, str]]:
              "  vcirun simulate --system cart_pendulum --method MCVAA --h 0.01 --T 5 --beta 3.2\n\n"
              "  vcirun simulate --method MCVA --ld SVC --mh-order 3 --flow-order 4\n\n"
              "  vcirun simulate --system double_pendulum --method CVA --unconstrained\n\n"
-             "  vcirun simulate --system double_pendulum --q0 1.2,-1.0 --p0 0,0 --output run.h5")
+             "  vcirun simulate --system double_pendulum --q0 -1.2,-1.0 --p0 0,0 --output run.h5")
 def simulate(
     system: str = typer.Option("cart_pendulum", "--system", "-s",
                                help="Built-in scene (cart_pendulum, double_pendulum, oscillator_wall, ...) "
