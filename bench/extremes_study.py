@@ -2,9 +2,10 @@
 
     .venv/bin/python bench/extremes_study.py [configs/extremes.yaml] [--only SECTION ...]
 
-The same as `vcirun study configs/extremes.yaml [--only SECTION,...]` (vcirun.experiments.studies.runner):
-every section of the config to results/extremes.json, and docs/extremes.md rendered from it through
-docs/templates/extremes.md. With --only, the other sections are taken from the existing JSON.
+`vcirun study configs/extremes.yaml [--only SECTION,...]` (vcirun.experiments.studies.runner) with the
+report written to the documentation page: every section of the config to results/extremes.json, and
+docs/extremes.md rendered from it through docs/templates/extremes.md. With --only, the other sections
+are taken from the existing JSON.
 Paths in the config are taken from the repository root.
 """
 from __future__ import annotations
@@ -30,7 +31,8 @@ def main(argv=None):
     os.chdir(ROOT)   # the config's output paths are relative to the working directory
     cmd = "python bench/extremes_study.py" + ("" if Path(config).name == "extremes.yaml" else f" {config}")
     try:
-        out = run_file(config, only=args.only or None, log=lambda m: print(m, flush=True), command=cmd)
+        out = run_file(config, only=args.only or None, log=lambda m: print(m, flush=True), command=cmd,
+                       report_output="docs/extremes.md")
     except ConfigError as e:
         raise SystemExit(f"error: {e}")
     print(f"wrote {out.report} and {out.results}")

@@ -105,7 +105,9 @@ def test_sweep_info_plot_resume_force(runner, tiny, count_runs):
 
     r = invoke(runner, "info", out)
     assert r.exit_code == 0, r.output
-    assert "8 of 8 runs stored" in r.stdout and "tiny: 8 runs" in r.stdout
+    assert "8 of 8 runs stored" in r.stdout and "tiny: 8 runs, by method and h" in r.stdout
+    r = invoke(runner, "info", out, "--runs")
+    assert r.exit_code == 0 and "tiny: 8 runs" in r.stdout
     assert all(rid in r.stdout for rid in stamps)
 
     r = invoke(runner, "plot")  # no argument: every results file under results/ (here one)

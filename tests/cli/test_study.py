@@ -130,3 +130,26 @@ def test_bad_study_input_is_one_line(runner, tmp_path, monkeypatch):
 def test_study_help_has_examples(runner):
     r = invoke(runner, "study", "--help")
     assert r.exit_code == 0 and "vcirun study configs/extremes.yaml" in r.stdout and "--only" in r.stdout
+
+
+def test_a_study_never_writes_over_a_tracked_file_and_says_warnings_as_notes(runner, tmp_path, monkeypatch):
+    """A report (or results) path that is a file tracked by git is refused before anything runs (the
+    shipped extremes config writes under results/; `make extremes` names docs/extremes.md itself); the
+    runs' Python warnings (a grid note) are single `note:` lines, not warnings with source lines."""
+    import subprocess
+
+    monkeypatch.chdir(tmp_path)
+    subprocess.run(["git", "init", "-q"], check=True)
+    Path("docs").mkdir()
+    Path("docs/page.md").write_text("tracked\n")
+    subprocess.run(["git", "add", "docs/page.md"], check=True)
+    cfg = tmp_path / "tracked.yaml"
+    cfg.write_text(EXTREMES.replace("docs/tiny_extremes.md", "docs/page.md"))
+    assert_one_line_error(invoke(runner, "study", cfg), "report.output", "docs/page.md", "tracked by git")
+    assert Path("docs/page.md").read_text() == "tracked\n" and not Path("results").exists()
+    cfg.write_text(EXTREMES.replace("h: 0.02, T: 1}", "h: 0.03, T: 1}"))   # T not a multiple of h: a grid note
+    r = invoke(runner, "study", cfg)
+    assert r.exit_code == 0, r.output
+    notes = [line for line in r.stderr.splitlines() if "is not a multiple of h" in line]
+    assert len(notes) == 1 and notes[0].startswith("note: T = 1 is not a multiple of h = 0.03"), r.stderr
+    assert "GridWarning" not in r.stderr and ".py:" not in r.stderr

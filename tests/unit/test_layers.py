@@ -136,9 +136,9 @@ def test_numeric_layers_load_no_sympy_and_compile_nothing(module):
 
 
 # Imports of other distributions vcirun may make: its declared dependencies (pyproject.toml), what
-# they install with them (llvmlite with numba, pandas with xarray), and the optional extras that
+# they install with them (llvmlite with numba, pandas with xarray, Pillow with matplotlib), and the optional extras that
 # say so when missing (dask: `vcirun sweep --scheduler`). `make run` installs only the dependencies.
-PROVIDED_BY = {"yaml": "pyyaml", "llvmlite": "numba", "pandas": "xarray"}
+PROVIDED_BY = {"yaml": "pyyaml", "llvmlite": "numba", "pandas": "xarray", "PIL": "matplotlib"}
 OPTIONAL = {"dask": "dask", "distributed": "dask", "h5netcdf": "netcdf"}
 
 

@@ -21,7 +21,7 @@ TEMPLATE = ROOT / "docs" / "templates" / "extremes.md"
 def test_shipped_study_configs_pick_their_models():
     ex = load_study(ROOT / "configs" / "extremes.yaml")
     assert isinstance(ex, ExtremesStudy) and len(ex.sections()) == 11
-    assert Path(ex.report.template).resolve() == TEMPLATE.resolve() and ex.report.output == "docs/extremes.md"
+    assert Path(ex.report.template).resolve() == TEMPLATE.resolve() and ex.report.output == "results/extremes.md"
     wp = load_study(ROOT / "configs" / "work_precision.yaml")
     assert isinstance(wp, WorkPrecisionStudy) and len(wp.betas()) == 5 and wp.betas()[0] == 3.2
     assert [m.display for m in wp.method_specs()][:4] == ["CVA", "VCI", "MCVAA", "MCVAC"]

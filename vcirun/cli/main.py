@@ -3,6 +3,7 @@ Python API and vcirun.experiments, one module per command group.
 
 - vcirun.cli.app: the Typer app, the one-line error rule, the console;
 - vcirun.cli.simulate: `simulate`;
+- vcirun.cli.animate: `animate`;
 - vcirun.cli.results: `sweep`, `plot`, `validate`, `study`, `info`;
 - vcirun.cli.verify: `verify`;
 - vcirun.cli.systems: `systems`;
@@ -19,13 +20,14 @@ from .app import app
 
 # each module registers its commands on `app` when imported, in the order `vcirun --help` lists them
 from . import simulate
+from . import animate
 from . import results
 from . import verify
 from . import systems
 from . import periodic
 from . import cache
 
-COMMAND_MODULES = (simulate, results, verify, systems, periodic, cache)
+COMMAND_MODULES = (simulate, animate, results, verify, systems, periodic, cache)
 
 
 def main() -> None:  # pragma: no cover - console entry point alternative

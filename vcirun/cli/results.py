@@ -97,8 +97,9 @@ def sweep(
              "  vcirun plot results/fig4.h5 --out paper-figures/")
 @_reads_results
 def plot(
-    results: Optional[Path] = typer.Argument(None, help="Results file or work-precision study JSON (default: every "
-                                                        "*.h5 under results/, each into results/figures/<name>/).",
+    results: Optional[Path] = typer.Argument(None, help="Results file, a file of one run (vcirun simulate --output), or "
+                                                        "a work-precision study JSON (default: every *.h5 under "
+                                                        "results/, each into results/figures/<name>/).",
                                              show_default=False),
     out: Optional[Path] = typer.Option(None, "--out", help="Output folder (default: <results dir>/figures/<name>)."),
 ):
@@ -108,6 +109,19 @@ def plot(
     from vcirun.experiments.tables import print_table
     from vcirun.experiments.wp_figures import is_study_file, plot_study, print_study_tables
 
+    from vcirun.io.single import is_trajectory_file
+
+    if results is not None and is_trajectory_file(results):
+        from vcirun.experiments.figures import plot_single
+
+        try:
+            paths = plot_single(results, out)
+        except _expected_errors() as e:
+            _fail(str(e))
+        typer.echo(f"figures for {results}:")
+        for p in paths:
+            typer.echo(f"  {p}")
+        return
     if results is not None and is_study_file(results):
         # a work-precision or long-horizon study (results/work_precision*.json, long_horizon.json)
         print_study_tables(results)
@@ -229,7 +243,16 @@ def validate(config: Path = typer.Argument(..., help="YAML sweep or study config
     typer.echo(f"  reference {ref.kind}" + (f" (rtol {ref.rtol:g})" if ref.kind == "exact" else
                                             f" ({ref.method} at h = {ref.h:g})" if ref.kind == "method" else ""))
     typer.echo(f"  runs      {len(expand(cfg))}")
+    from vcirun.experiments.store_size import store_estimate_of
+
+    try:
+        size = store_estimate_of(cfg)
+    except (ValueError, OSError) as e:   # (the semantic checks of load_any built this system already)
+        _fail(str(e))
+    typer.echo(f"  size      {size.line()}")
     typer.echo(f"  output    {cfg.output_path()}")
+    if size.warn:
+        typer.echo(f"warning: {cfg.output_path()} would hold {size.advice()}", err=True)
 
 
 # --- study ----------------------------------------------------------------------------------------------
@@ -265,19 +288,27 @@ def study(
 
 
 # --- info ---------------------------------------------------------------------------------------------
-@app.command(epilog="Examples:\n\n  vcirun info results/quick.h5\n\n  vcirun info results/fig4.h5 --failed")
+@app.command(epilog="Examples:\n\n  vcirun info results/quick.h5\n\n  vcirun info results/fig4.h5 --runs\n\n"
+             "  vcirun info results/fig4.h5 --failed\n\n  vcirun info run.h5          (a file of vcirun simulate --output)")
 @_reads_results
 def info(
-    results: Path = typer.Argument(..., help="Results file.", show_default=False),
-    failed: bool = typer.Option(False, "--failed", help="Only runs whose status is not ok."),
+    results: Path = typer.Argument(..., help="Results file of a sweep, or a file of one run.", show_default=False),
+    failed: bool = typer.Option(False, "--failed", help="Only runs whose status is not ok (one row each)."),
+    runs: bool = typer.Option(False, "--runs", help="One row per run instead of one per method and h."),
 ):
-    """Summarize a results file: provenance, then a table of runs (method, h, beta, status, impacts,
-    L2 error, wall time) and the messages of failed runs."""
+    """Summarize a results file: provenance, then one row per method and h (runs, ok, impacts, L2 error
+    median and largest, wall time; --runs: one row per run) and the messages of failed runs. A file of
+    one run: its summary and energy account."""
     from rich.markup import escape
 
     from vcirun.io.reader import read_results
-    from vcirun.experiments.tables import print_table, runs_table
+    from vcirun.io.single import is_trajectory_file
+    from vcirun.experiments.tables import print_table, runs_table, summary_table
 
+    if is_trajectory_file(results):
+        if failed or runs:
+            _fail(f"{results} holds one run: --failed and --runs list the runs of a sweep's results file")
+        return _info_single(results)
     try:
         res = read_results(results)
     except _expected_errors() as e:
@@ -314,11 +345,43 @@ def info(
         last = hist[-1]
         say(f"  sessions: {len(hist)}; last {last.get('status', '?')} at {last.get('updated', '?')} "
                       f"({last.get('computed', 0)} runs computed)")
-    table = runs_table(res, only_failed=failed)
-    print_table(table, console)
+    if runs or failed:
+        print_table(runs_table(res, only_failed=failed), console, compact=True)
+    elif res.runs:
+        print_table(summary_table(res), console, compact=True)
     bad = [r for r in res.runs if r.attrs.get("status") != "ok"]
     for r in bad[:50]:
         typer.echo(f"  {r.run_id} {r.attrs.get('label')} h={r.attrs.get('h'):g}: {r.attrs.get('status')}: "
                    f"{r.attrs.get('message', '')}")
     if len(bad) > 50:
         typer.echo(f"  ... and {len(bad) - 50} more failed runs")
+
+
+def _info_single(path: Path) -> None:
+    """`vcirun info run.h5`: the facts `vcirun simulate` printed about the run (its energy account too)."""
+    from rich.table import Table
+
+    from vcirun.io.single import read_single
+    from .simulate import energy_rows
+
+    try:
+        traj = read_single(path)
+    except _expected_errors() as e:
+        _fail(str(e))
+    imp = ", ".join(f"{t:.4g}" for t in traj.impacts[:8]) + (" ..." if len(traj.impacts) > 8 else "")
+    rows = [("run", f"{traj.system}  {traj.method}  h = {traj.h:g}  T = {traj.T:g}"
+             + (f"  beta = {traj.beta:g}" if traj.beta is not None else "")),
+            ("steps", f"{traj.n_steps}"),
+            ("impacts", f"{len(traj.impacts)}" + (f" at t = {imp}" if len(traj.impacts) else "")),
+            ("status", traj.status + (f" ({traj.message})" if traj.message else ""))]
+    try:
+        rows += energy_rows(traj)
+    except (ValueError, OSError, RuntimeError) as e:   # a YAML system the file does not carry
+        rows.append(("energy", f"no account ({' '.join(str(e).split())[:120]})"))
+    rows.append(("wall time", f"{traj.wall_time:.4g} s integrating"))
+    t = Table(show_header=False, box=None, pad_edge=False, title=str(path), title_justify="left")
+    t.add_column(style="bold")
+    t.add_column()
+    for k, v in rows:
+        t.add_row(k, v)
+    _console().print(t)

@@ -4,8 +4,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import List, Optional
 
+import numpy as np
 import typer
 
+from ..run.accounts import FORCING, LAW
 from ..run.energy import energy_drift
 from .app import CliError, _announce_compiles, _console, _fail, app, check_output
 
@@ -67,6 +69,32 @@ def simulate_once(system: str, method: str, *, h: float, T: float, beta: float |
     return traj, time.perf_counter() - t0
 
 
+def energy_rows(traj) -> list[tuple[str, str]]:
+    """The energy account of a run as summary rows: the impact law's loss and the forcing work (where
+    the run has them) and the rest, the integration error, as the energy error."""
+    try:
+        acc = traj.energy_account()
+    except ValueError:   # no dynamics: the drift of H alone
+        drift = energy_drift(traj)
+        return [] if drift.dH is None else [("max |H - H0|", f"{drift.dH:.3e}")]
+    if not np.isfinite(acc.error):
+        return []
+    rows = []
+    short = {LAW: f"restitution and plastic losses of {len(acc.events)} impacts", FORCING: "work of the force f"}
+    terms = [x for x in acc.terms if x.total != 0.0 or x.name != LAW]
+    label = "max |H - H0|" if not terms else "max |H - H0 - terms|"
+    if terms:
+        rows.append(("energy change", f"{acc.change:.4e}  (H0 = {acc.H0:.6g}, H(T) = {acc.H0 + acc.change:.6g})"))
+        rows += [(x.name, f"{x.total:.4e}  ({short.get(x.name, x.doc)})") for x in terms]
+    rel = (f" (relative {acc.relative_error:.2e} to the energy scale {acc.scale:.4g} = max(|H0|, max kinetic "
+           "energy))" if np.isfinite(acc.relative_error) else "")
+    rows.append(("energy error", f"{label} {acc.error:.3e}{rel}"))
+    drift = energy_drift(traj)
+    if drift.dHmod is not None and not terms:
+        rows.append(("max |Hmod - Hmod0|", f"{drift.dHmod:.3e}"))
+    return rows
+
+
 def summary_lines(traj, total_seconds: float) -> list[tuple[str, str]]:
     """The facts `vcirun simulate` prints about a run."""
     rows = [("run", f"{traj.system}  {traj.method}  h = {traj.h:g}  T = {traj.T:g}"
@@ -75,13 +103,7 @@ def summary_lines(traj, total_seconds: float) -> list[tuple[str, str]]:
     imp = ", ".join(f"{t:.4g}" for t in traj.impacts[:8]) + (" ..." if len(traj.impacts) > 8 else "")
     rows.append(("impacts", f"{len(traj.impacts)}" + (f" at t = {imp}" if len(traj.impacts) else "")))
     rows.append(("status", traj.status + (f" ({traj.message})" if traj.message else "")))
-    drift = energy_drift(traj)
-    if drift.dH is not None:
-        rel = (f" (relative {drift.dH / drift.scale:.2e} to the energy scale {drift.scale:.4g} = max(|H0|, max "
-               "kinetic energy))" if drift.relative else "")
-        rows.append(("max |H - H0|", f"{drift.dH:.3e}{rel}"))
-    if drift.dHmod is not None:
-        rows.append(("max |Hmod - Hmod0|", f"{drift.dHmod:.3e}"))
+    rows += energy_rows(traj)
     setup = max(0.0, total_seconds - traj.wall_time)
     rows.append(("wall time", f"{traj.wall_time:.4g} s integrating{_on_tier(traj)}; {total_seconds:.3g} s in "
                               f"total, of which {setup:.3g} s {_setup_words(traj)}"))
@@ -110,7 +132,7 @@ def _setup_words(traj) -> str:
              "  vcirun simulate --system cart_pendulum --method MCVAA --h 0.01 --T 5 --beta 3.2\n\n"
              "  vcirun simulate --method MCVA --ld SVC --mh-order 3 --flow-order 4\n\n"
              "  vcirun simulate --system double_pendulum --method CVA --unconstrained\n\n"
-             "  vcirun simulate --system double_pendulum --q0 1.2,-1.0 --p0 0,0 --output run.h5")
+             "  vcirun simulate --system double_pendulum --q0 -1.2,-1.0 --p0 0,0 --output run.h5")
 def simulate(
     system: str = typer.Option("cart_pendulum", "--system", "-s",
                                help="Built-in scene (cart_pendulum, double_pendulum, oscillator_wall, ...) "

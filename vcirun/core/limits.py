@@ -55,13 +55,14 @@ CAPS: dict[str, Cap] = {
                           "split the ensemble (vcirun.iter_ensemble runs batches), raise h or lower T"),
 }
 
-# The built-in families named <family>_K: K's range and the coordinates and contacts K gives. Every
+# The built-in families named <family>_K (a name that extends another first: cradle_gap_K, cradle_K): K's range and the coordinates and contacts K gives. Every
 # family stays within the coordinate cap except newton_cradle, whose model is linear in K (M = m I,
 # V = 0, each phi_i the difference of two coordinates): its kernels grow like K, not K**2 to K**4.
 FAMILY_SIZES = {
     #               (smallest K, largest K, coordinates(K), contacts(K))
     "n_pendulum": (1, 32, lambda k: k, lambda k: 1),
     "link_chain": (1, 30, lambda k: k + 2, lambda k: k + 1),
+    "cradle_gap": (2, 32, lambda k: k, lambda k: k - 1),
     "cradle": (2, 32, lambda k: k, lambda k: k - 1),
     "newton_cradle": (1, 128, lambda k: k, lambda k: k - 1),
 }

@@ -39,19 +39,24 @@ def run_bytes(N: int, n: int, m: int = 1) -> int:
 
 
 def stored_bytes(N: int, n: int, m: int = 1, *, store_trajectories: bool = True, impacts: int = 0,
-                 partial_steps: int | None = None, releases: int = 0, mode_changes: int = 0) -> int:
+                 partial_steps: int | None = None, releases: int = 0, mode_changes: int = 0,
+                 every: int | None = None) -> int:
     """Bytes of one run's datasets in the results file (and of its result message to the client):
     every stored row of the run record ("impacts" rows always, "trajectory" rows and the times t with
     `store_trajectories`), with `impacts` impact entries, `partial_steps` partial steps (default two
-    per impact), `releases` releases and `mode_changes` friction mode changes, plus the run's attributes."""
+    per impact), `releases` releases and `mode_changes` friction mode changes, plus the run's
+    attributes. every: a sweep's `store` (1 every grid state, k every k-th and the last without the
+    per-step rows, 0 none; default from store_trajectories)."""
     N, n, m = int(N), int(n), int(m)
     impacts = int(impacts)
-    rows = {"grid": N + 1, "step": N, "impact": impacts,
+    every = (1 if store_trajectories else 0) if every is None else int(every)
+    grid = N + 1 if every <= 1 else N // every + 1 + (1 if N % every else 0)
+    rows = {"grid": grid, "step": N if every == 1 else 0, "impact": impacts,
             "partial": 2 * impacts if partial_steps is None else int(partial_steps), "release": int(releases),
             "mode": int(mode_changes)}
-    b = STORED_OVERHEAD + (8 * (N + 1) if store_trajectories else 0)
+    b = STORED_OVERHEAD + (8 * grid if every else 0)
     for f in record.FIELDS:
-        if f.stored == "impacts" or (f.stored == "trajectory" and store_trajectories):
+        if f.stored == "impacts" or (f.stored == "trajectory" and every):
             b += math.prod(f.shape(rows[f.axis], n, m)) * f.itemsize
     return b
 

@@ -426,3 +426,37 @@ def plot_results(results=None, outdir=None, results_dir="results") -> PlotReport
     paths += tables.write_table(t2, outdir, "table2_timing")
     made.append(t2)
     return PlotReport(path, outdir, paths, skipped, made)
+
+
+def plot_single(path, outdir=None) -> list:
+    """`vcirun plot run.h5` (a file of one run): the run's figure (`Trajectory.plot`, PNG and PDF) and
+    its energy account along the grid (CSV: t, H, each term, the rest) into <file's folder>/figures/<stem>/
+    unless `outdir` is given. Returns the paths written."""
+    import csv
+
+    from ..io.single import read_single
+
+    path = Path(path)
+    traj = read_single(path)
+    outdir = Path(outdir) if outdir is not None else path.parent / "figures" / path.stem
+    outdir.mkdir(parents=True, exist_ok=True)
+    fig = traj.plot()
+    written = []
+    for ext in ("png", "pdf"):
+        p = outdir / f"trajectory.{ext}"
+        fig.savefig(p, dpi=150)
+        written.append(p)
+    try:
+        acc = traj.energy_account()
+    except (ValueError, OSError, RuntimeError):   # a YAML system the file does not carry: no account
+        return written
+    p = outdir / "energy_account.csv"
+    with open(p, "w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(["t", "H"] + [x.name.replace(" ", "_") for x in acc.terms] + ["rest"])
+        rest = acc.rest_series
+        for k in range(len(acc.t)):
+            w.writerow([repr(float(acc.t[k])), repr(float(acc.H[k]))] + [repr(float(x.series[k])) for x in acc.terms]
+                       + [repr(float(rest[k]))])
+    written.append(p)
+    return written

@@ -49,6 +49,7 @@ from ..io.errors import StorageError
 from ..io.provenance import environment_attrs
 from ..io.writer import ResultsWriter
 from .config import InitialCondition, MethodReference, MethodSpec, NoReference, SweepConfig, build_system
+from .store_size import estimate_store
 from .worker import RunSpec, SweepError, _one_line
 
 __all__ = ["SweepSummary", "expand", "run_sweep", "sweep_file", "default_workers"]
@@ -236,7 +237,7 @@ def _check_resources(cfg: SweepConfig, pending: list[RunSpec], n: int, m: int, w
         return
     steps = {h: grid_steps(h, cfg.T)[2] for h in {s.h for s in pending}}
     N = max(steps.values())
-    stored = stored_bytes(N, n, m, store_trajectories=cfg.store_trajectories)
+    stored = stored_bytes(N, n, m, every=cfg.store_every)
     try:  # each worker holds a run's buffers and its result message; the client the message and its record
         check_run_memory(N, n, m=m, copies=min(workers, len(pending)), extra=2 * stored, limit=cfg.max_memory,
                          field="h", hint=", or raise max_memory in the config (e.g. max_memory: 32GB) or "
@@ -244,7 +245,7 @@ def _check_resources(cfg: SweepConfig, pending: list[RunSpec], n: int, m: int, w
     except ValueError as e:
         raise SweepError(f"{_one_line(e)} (with {min(workers, len(pending))} worker(s); fewer --workers need less)") \
             from None
-    per_h = {h: stored_bytes(N_h, n, m, store_trajectories=cfg.store_trajectories) for h, N_h in steps.items()}
+    per_h = {h: stored_bytes(N_h, n, m, every=cfg.store_every) for h, N_h in steps.items()}
     need = sum(per_h[s.h] for s in pending)
     size = path.stat().st_size if path.exists() and not writer.force else 0
     total = size + 2 * need
@@ -257,7 +258,7 @@ def _check_resources(cfg: SweepConfig, pending: list[RunSpec], n: int, m: int, w
         raise SweepError(f"{path}: the {len(pending)} pending runs need about {format_bytes(total)} on disk "
                          f"(their journal and the final copy of the file), {format_bytes(free)} free in "
                          f"{where}; free space, choose another --output"
-                         + (" or set store_trajectories: false" if cfg.store_trajectories else ""))
+                         + (" or set store: {every: k} or store: metrics" if cfg.store_every else ""))
 
 
 def _final_hooks(writer: ResultsWriter) -> list:
@@ -279,7 +280,8 @@ def _root_attrs(cfg: SweepConfig, config_text: str, config_path, specs: list[Run
         "system": cfg.system_label(), "system_spec": cfg.canonical()["system"], "T": cfg.T,
         "h_values": list(cfg.h), "methods": [{"label": m.display, **m.identity()} for m in cfg.methods],
         "ic_keys": [ic.key for ic in cfg.initial_conditions()], "n_runs_expected": len(specs),
-        "reference_kind": cfg.reference.kind, "tolerances": tol, "store_trajectories": cfg.store_trajectories,
+        "reference_kind": cfg.reference.kind, "tolerances": tol, "store_trajectories": cfg.store_every > 0,
+        "store_every": cfg.store_every,
         "timing_repeats": cfg.timing_repeats,
         # the unilateral constraints in declaration order (impact_contact indexes them)
         "constraints": [{"name": c.name, "phi": str(c.phi), "restitution": str(c.restitution)}
@@ -374,6 +376,9 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
         for h in cfg.h:
             if grid_note(h, cfg.T):
                 reporter.log(f"note: {grid_note(h, cfg.T)}")
+        size = estimate_store(cfg, n, m, pending)
+        reporter.log(f"note: the pending runs store {size.line()}"
+                     + (f"\nwarning: {size.advice()}" if size.warn else ""))
         if summary.skipped or summary.deleted_incomplete:
             reporter.log(f"resuming {path}: {summary.skipped} of {len(specs)} runs already stored"
                          + (f", {summary.deleted_incomplete} incomplete or damaged groups discarded"

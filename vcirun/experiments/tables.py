@@ -10,7 +10,7 @@ from pathlib import Path
 from . import metrics
 from ..io.reader import Results
 
-__all__ = ["Table", "table1", "table2", "runs_table", "write_table", "print_table", "to_markdown"]
+__all__ = ["Table", "table1", "table2", "runs_table", "summary_table", "write_table", "print_table", "to_markdown"]
 
 PAPER_METHODS = ("CVA", "VCI", "MCVAA", "MCVAC")
 PROPERTY_COLUMNS = (("conserves_mh", "Conserves associated MH"),
@@ -134,17 +134,59 @@ def write_table(table: Table, outdir: Path, stem: str) -> list[Path]:
     return [csv_path, md_path]
 
 
-def print_table(table: Table, console) -> None:
+def print_table(table: Table, console, compact: bool = False) -> None:
+    """The table on a rich console; compact: no outer box, one space between columns, no cell ever
+    wrapped or cut (for tables sized to fit 80 columns)."""
+    from rich import box
     from rich.markup import escape
     from rich.table import Table as RichTable
 
     t = RichTable(title=escape(table.title), caption=escape(table.caption) if table.caption else None,
-                  title_justify="left", caption_justify="left")
+                  title_justify="left", caption_justify="left",
+                  **(dict(box=box.SIMPLE_HEAD, pad_edge=False, padding=(0, 1), collapse_padding=True)
+                     if compact else {}))
     for i, c in enumerate(table.columns):
-        t.add_column(escape(c), justify="left" if i < table.left_columns else "right", no_wrap=i == 0)
+        t.add_column(escape(c), justify="left" if i < table.left_columns else "right", no_wrap=i == 0 or compact,
+                     overflow="ignore" if compact else "ellipsis")
     for r in table.rows:
         t.add_row(*(escape(str(c)) for c in r))
     console.print(t)
+
+
+def _g(x, fmt) -> str:
+    return format(x, fmt) if x is not None and math.isfinite(x) else "-"
+
+
+def summary_table(results: Results) -> Table:
+    """One row per (method, h): runs, how many ok, the impact counts (range), the L2 error (median and
+    largest over the initial conditions) and the median wall time; sized to fit 80 columns."""
+    import numpy as np
+
+    groups: dict = {}
+    for r in results.runs:
+        a = r.attrs
+        groups.setdefault((str(a.get("label", "")), float(a.get("h", float("nan")))), []).append(a)
+    order = [m.get("label") for m in (results.attrs.get("methods") or []) if isinstance(m, dict)]
+    rank = {lab: i for i, lab in enumerate(order)}
+    rows, csv_rows = [], []
+    for (label, h), runs in sorted(groups.items(), key=lambda kv: (rank.get(kv[0][0], len(rank)), kv[0][0], -kv[0][1])):
+        ok = [a for a in runs if a.get("status") == "ok"]
+        imp = [int(a["n_impacts"]) if isinstance(a.get("n_impacts"), (int, float)) else 0 for a in runs]
+        l2 = np.array([a["l2_error"] for a in ok if isinstance(a.get("l2_error"), float)
+                       and math.isfinite(a["l2_error"])])
+        wt = np.array([a["wall_time"] for a in ok if isinstance(a.get("wall_time"), float)
+                       and math.isfinite(a["wall_time"])])
+        med, top = (float(np.median(l2)), float(np.max(l2))) if l2.size else (None, None)
+        wmed = float(np.median(wt)) if wt.size else None
+        rows.append([label, f"{h:g}", str(len(runs)), str(len(ok)),
+                     f"{min(imp)}" if min(imp) == max(imp) else f"{min(imp)}-{max(imp)}",
+                     _g(med, ".2e"), _g(top, ".2e"), _g(None if wmed is None else 1e3 * wmed, ".3g")])
+        csv_rows.append([label, h, len(runs), len(ok), min(imp), max(imp), med, top, wmed])
+    return Table(f"{results.name}: {len(results.runs)} runs, by method and h",
+                 ["method", "h", "runs", "ok", "impacts", "L2 median", "L2 max", "ms"], rows,
+                 ["label", "h", "runs", "ok", "impacts_min", "impacts_max", "l2_median", "l2_max", "wall_time_median_s"],
+                 csv_rows, caption="L2 over the ok runs' initial conditions; ms: median wall time of the "
+                                   "integration; every run: --runs", left_columns=1)
 
 
 def runs_table(results: Results, only_failed: bool = False) -> Table:
@@ -162,9 +204,11 @@ def runs_table(results: Results, only_failed: bool = False) -> Table:
                      str(a.get("status", "")), str(a.get("n_impacts", "")),
                      f"{l2:.3e}" if l2 is not None and math.isfinite(l2) else "-",
                      f"{1e3 * wt:.3g}" if wt is not None and math.isfinite(wt) else "-"])
+        if len(rows[-1][3]) > 12:   # an initial-condition key (state=...): its index fits the column
+            rows[-1][3] = rows[-1][3][:12]
         csv_rows.append([r.run_id, a.get("label"), a.get("h"), beta, a.get("ic_key"), a.get("status"),
                          a.get("n_impacts"), l2, wt])
     title = f"{results.name}: {len(rows)} run{'s' * (len(rows) != 1)}" + (" not ok" if only_failed else "")
-    return Table(title, ["run", "method", "h", "beta", "status", "impacts", "L2 error", "wall time [ms]"], rows,
+    return Table(title, ["run", "method", "h", "beta", "status", "impacts", "L2 error", "ms"], rows,
                  ["run_id", "label", "h", "beta", "ic_key", "status", "n_impacts", "l2_error", "wall_time_s"],
                  csv_rows, left_columns=2)

@@ -266,7 +266,7 @@ def _execute_run(st: _WorkerState, spec: RunSpec, ref) -> dict:
             break  # a failure is not worth timing again; an interpreted run is not timed (below)
     traj.wall_time = min(walls)  # identical runs: the spread is timing noise, the minimum the cost
     call = min(calls)
-    attrs, arrays = trajectory_payload(traj, store_arrays=st.cfg.store_trajectories)
+    attrs, arrays = trajectory_payload(traj, store_arrays=st.cfg.store_every)
     attrs["wall_time_repeats"] = walls
     attrs["tier"] = str(getattr(traj, "tier", "compiled"))
     if attrs["tier"] == "interpreted":

@@ -102,8 +102,11 @@ def run_problem(g, attrs: dict | None = None) -> str | None:
     # without them those rows are not checked
     size = {"grid": N + 1, "step": N, "impact": m, "partial": k, "release": _int_attr(a, "n_releases"),
             "mode": _int_attr(a, "n_mode_changes")}
+    every = _int_attr(a, "store_every")
+    if every is not None and every > 1:   # store: {every: k}: every k-th grid state and the last, no step rows
+        size["grid"], size["step"] = N // every + 1 + (1 if N % every else 0), None
     mc = _int_attr(a, "n_contacts")
-    want = {"t": ((N + 1,), True)} if a.get("has_trajectory") is True else {}
+    want = {"t": ((size["grid"],), True)} if a.get("has_trajectory") is True else {}
     for f in record.FIELDS:  # each stored row of the run record, at its declared length
         if f.stored == "no" or (f.stored == "trajectory" and a.get("has_trajectory") is not True) \
                 or (f.only == "modified" and a.get("has_Hmod") is not True) or size[f.axis] is None \

@@ -1,7 +1,8 @@
 """Planar mechanisms declared by bodies, joints and contact geometry; the result is an ordinary
 `MechanicalSystem` (docs/bodies.md).
 
-    Body(name, mass, inertia=0, com=(0, 0), radius=None)       rigid body, frame attached to its joint
+    Body(name, mass, inertia=0, com=(0, 0), radius=None, outline=None)   rigid body, frame attached to
+        its joint; outline: corners in its frame, drawn by animations (vcirun.mechanics.drawing)
     Joint(kind, body, parent="ground", at=(0, 0), coordinate=, coordinates=, axis=, absolute=False)
         revolute : one angle; the body's frame origin sits at `at` (parent frame); its angle is the
                    parent's plus the coordinate, or the coordinate itself with absolute=True
@@ -60,6 +61,7 @@ class Body:
     com: tuple = (0, 0)
     radius: object = None
     field: str = ""  # where it was declared (error messages); set by the YAML reader
+    outline: tuple | None = None   # corners in the body frame, for animations (vcirun.mechanics.drawing)
 
 
 @dataclass
@@ -304,6 +306,10 @@ def planar_system(name: str, bodies, joints, contacts, *, params=None, gravity=0
     cons = [_contact(c, k, frames, byname, scope, params, start, P) for k, c in enumerate(contacts)]
     system = MechanicalSystem(name=name, q=q, qd=qd, params=params, M=M, V=V, constraints=cons, forcing=forcing,
                               description=description, ic_map=ic_map)
+    from .drawing import from_bodies   # the geometry, kept for animations
+
+    system.drawing = from_bodies(q, lambda body, local, fld: _xy(_point(frames, body, local, scope, fld)), GROUND,
+                                 bodies, joint_of, contacts, springs, dampers, scope, field_prefix)
     if start is not None:
         _check_start(system, cons, start, contacts, P)
         system.check_hyperregular(start)

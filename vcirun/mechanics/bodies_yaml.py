@@ -5,7 +5,7 @@
     parameters: {m1: 1.0, m2: 0.2, L: 2.0, g: 10.0}
     gravity: g                                   # along -y; or [gx, gy]
     bodies:
-      - {name: cart, mass: m1}                   # inertia (default 0), com (default [0, 0]), radius
+      - {name: cart, mass: m1}                   # inertia (default 0), com (default [0, 0]), radius, outline
       - {name: bob, mass: m2, com: [0, -L]}
     joints:                                      # one per body; coordinates named here, in this order
       - {type: prismatic, body: cart, coordinate: y, axis: [0, 1]}
@@ -48,7 +48,7 @@ from .bodies import (
 KEYS = {"name", "description", "parameters", "gravity", "bodies", "joints", "contacts", "springs", "dampers",
         "q0", "qdot0", "p0"}
 _ITEM_KEYS = {
-    "bodies": {"name", "mass", "inertia", "com", "radius", "repeat"},
+    "bodies": {"name", "mass", "inertia", "com", "radius", "outline", "repeat"},
     "joints": {"type", "body", "parent", "at", "coordinate", "coordinates", "axis", "absolute", "repeat"},
     "contacts": {"name", "body", "point", "radius", "line", "circles", "centers", "radii", "restitution", "friction",
                  "static_friction", "repeat"},
@@ -85,7 +85,8 @@ def load_bodies(data: dict, field_prefix: str = "system"):
             raise ValueError(f"{P}.parameters.{k}: must be a finite number (got {describe(v)})")
     items = {sec: _expand(data.get(sec) or [], sec, P) for sec in _ITEM_KEYS}
     _check_totals(items, P)
-    bodies = [Body(it["name"], it.get("mass"), it.get("inertia", 0), it.get("com", (0, 0)), it.get("radius"), field=f)
+    bodies = [Body(it["name"], it.get("mass"), it.get("inertia", 0), it.get("com", (0, 0)), it.get("radius"), field=f,
+                   outline=_outline(it.get("outline"), f))
               for f, it in _required(items["bodies"], ("name", "mass"))]
     joints = [Joint(it["type"], it["body"], it.get("parent", GROUND), it.get("at", (0, 0)), it.get("coordinate"),
                     it.get("coordinates"), it.get("axis", (1, 0)), _flag(it.get("absolute", False), f"{f}.absolute"),
@@ -118,6 +119,15 @@ def _contact(f: str, it: dict, k: int):
                          "is where the normal points)")
     return PointContact(name, it["body"], it.get("point", (0, 0)), it.get("radius", 0), line.get("point", (0, 0)),
                         line.get("normal", (0, 1)), e, it.get("friction", 0), it.get("static_friction"), field=f)
+
+
+def _outline(v, fld):
+    """A body's outline: None or a list of at least 3 corners [x, y] in its frame (drawn by animations)."""
+    if v is None:
+        return None
+    if not isinstance(v, list) or len(v) < 3 or not all(isinstance(p, list) and len(p) == 2 for p in v):
+        raise ValueError(f"{fld}.outline: must be a list of at least 3 corners [x, y] in the body frame")
+    return tuple(tuple(p) for p in v)
 
 
 def _flag(v, fld):

@@ -14,6 +14,7 @@
     forcing: ["-0.1*x_dot", "0"]        # optional f(q, qdot, t); velocities are <coord>_dot
     q0: [0.5, 0.0]                       # optional default initial state (with p0 or qdot0)
     qdot0: [0.0, 1.0]
+    draw: {points: {mass: [x, 0]}, dots: [mass]}   # optional, what `vcirun animate` draws (vcirun.mechanics.drawing)
 
 Every expression goes through the whitelist parser (never eval/sympify of user text). Files are
 parsed like sweep configs (`vcirun.core.yaml_loader.yaml_load`: YAML 1.2 numbers such as 1e-3, duplicate
@@ -42,7 +43,7 @@ from .hybrid import HYBRID_KEYS, check_constraint_hybrid, parse_hybrid
 from .system import Constraint, MechanicalSystem
 
 _KEYS = {"name", "coordinates", "parameters", "mass_matrix", "potential", "constraint", "constraints", "forcing",
-         "q0", "p0", "qdot0", "description"}
+         "q0", "p0", "qdot0", "description", "draw"}
 _CONSTRAINT_KEYS = {"name", "phi", "restitution", *HYBRID_KEYS, *FRICTION_KEYS}
 
 
@@ -89,6 +90,10 @@ def load_system_yaml(source, field_prefix: str = "system") -> MechanicalSystem:
     system = MechanicalSystem(name=check_system_name(data.get("name", "user_system"), field_prefix), q=q, qd=qd,
                               params=params, M=M, V=V, constraints=constraints, forcing=forcing,
                               description=check_description(data.get("description", ""), field_prefix))
+    if data.get("draw") is not None:   # what animations draw (vcirun.mechanics.drawing), not part of the dynamics
+        from .drawing import from_yaml
+
+        system.drawing = from_yaml(data["draw"], sym, q, len(constraints), f"{field_prefix}.draw")
     if q0 is not None:
         if p0 is None:
             qdot0 = _vector(data.get("qdot0", [0.0] * n), n, f"{field_prefix}.qdot0")

@@ -80,6 +80,7 @@ class MechanicalSystem:
     description: str = ""
     constraints: list | None = None
     default_beta: float | None = None
+    drawing: object = field(default=None, repr=False, compare=False)   # vcirun.mechanics.drawing.Drawing, for animations
 
     def __post_init__(self):
         self.q = list(self.q)

@@ -18,8 +18,10 @@ solve: Taylor at a looser tolerance (another order and step sequence: an upper e
 trajectory q differs by more than SUB_RESOLUTION (relative) is refined (DOP853: tighter, denser,
 shorter steps; Taylor: a second check tolerance) and, if it still differs, is an error: a returned
 reference has a finite accuracy. A forced system also carries the work
-W(t) = int_0^t f . qdot as an extra state, and `energy_balance` = max |H(t) - H(0) - W(t)| on a dense
-grid: a check of the solve that does not rest on a second solve of the same equations.
+W(t) = int_0^t f . qdot as an extra state. `energy_account()` splits H(t) - H(0) into the impact
+law's losses (the jumps of H at the events), the work W and the rest; `energy_balance` = max |rest| on
+a dense grid and at every event: a check of the solve that does not rest on a second solve of the
+same equations.
 
 Held contacts (resting_contact=True): a contact that starts at rest on its surface, is left at rest by
 a plastic impact, or whose impacts accumulate (the Zeno time extrapolated from its flights; several
@@ -83,7 +85,10 @@ class Reference:
         self.accuracy = accuracy
         self.kind = kind          # "taylor", "dop853" or "<method>@h=<h>"
         self.kind_reason = ""     # dop853: why the Taylor path could not express the system
-        self.energy_balance = np.nan  # forced exact solves: max |H(t) - H(0) - int f . qdot|
+        # exact solves: the largest rest of the energy account, |H(t) - H(0) - int f . qdot + the impact
+        # law's losses so far| (vcirun.run.accounts): the solve's own energy error
+        self.energy_balance = np.nan
+        self._account = None
         # held contacts: release times and contacts, held phases (t0, t1, held set)
         self.releases = np.zeros(0)
         self.release_contact = np.zeros(0, np.int64)
@@ -122,6 +127,15 @@ class Reference:
 
     def __call__(self, t) -> np.ndarray:
         return self.state(t)[..., : self.n]
+
+    def energy_account(self):
+        """H(t) - H(0) split into the impact law's losses (restitution, plastic holds, declared maps:
+        the jumps of H at the solve's events), the forcing work and the rest, the solve's own energy
+        error (`energy_balance` is its largest magnitude); a vcirun.run.accounts.EnergyAccount. Exact
+        solves only (a method reference: the run's `energy_account`)."""
+        if self._account is None:
+            raise ValueError(f"energy account: a {self.kind} reference has none (exact solves only)")
+        return self._account
 
     def p(self, t) -> np.ndarray:
         return self.state(t)[..., self.n:]
@@ -378,9 +392,11 @@ def solve_exact(sysm, q0, p0, prm, T, *, rtol=1e-13, check_accuracy=True, restin
         if check_accuracy and not np.isfinite(acc):
             raise RuntimeError(f"reference: the accuracy check of {sysm.name} is not finite ({acc}): the solve "
                                "cannot be trusted")
-        if mod.FORCED:
-            whole = Reference(sol.pieces, n, [], H0, T, width=2 * n + 1)
-            ref.energy_balance = _energy_balance(sysm, ref, lambda tt: whole.state(tt)[:, 2 * n], prm, T, tier)
+        from ..run.accounts import reference_account
+
+        ref._account = reference_account(sol.pieces, n, ref.impacts, mod, prm, T, bool(mod.FORCED),
+                                         impact_contact=ref.impact_contact)
+        ref.energy_balance = ref._account.error
     except ReferenceCostError:
         raise
     except (ArithmeticError, ValueError, IndexError, np.linalg.LinAlgError) as e:
@@ -388,16 +404,6 @@ def solve_exact(sysm, q0, p0, prm, T, *, rtol=1e-13, check_accuracy=True, restin
         # say nothing about the run: name the solve and the cause instead
         raise RuntimeError(f"reference: the exact solve of {sysm.name} failed ({type(e).__name__}: {e})") from None
     return ref
-
-
-def _energy_balance(system, ref, work, prm, T, tier="compiled") -> float:
-    """max over a dense grid of |H(t) - H(0) - W(t)|, W the work integral carried by the solve."""
-    mod = load_module(system, SYSTEM_KERNELS, tier)
-    tt = np.linspace(0.0, T, 2001)
-    y = ref.state(tt)
-    n = system.n
-    H = np.array([mod.hamiltonian(y[k, :n].copy(), y[k, n:].copy(), prm) for k in range(len(tt))])
-    return float(np.max(np.abs(H - ref.H0 - work(tt))))
 
 
 class _Hermite:

@@ -105,4 +105,4 @@ def trajectory_of(p, mod, out, counters, q0, p0, prm, beta, wall) -> tr.Trajecto
         status=status, message=message, fail_step=fail, fail_time=(t0 + fail * h) if fail >= 0 else float("nan"),
         beta=beta, wall_time=wall, tolerances={k: tol[k] for k in DEFAULT_TOLERANCES},
         options={"params": dict(zip(sysd.params, prm.tolist())), "constrained": p.constrained, **p.mopts},
-        coordinates=getattr(sysd, "coordinates", None), dynamics=tr._dynamics(mod, prm))
+        coordinates=getattr(sysd, "coordinates", None), dynamics=tr._dynamics(mod, prm), source=p.system)

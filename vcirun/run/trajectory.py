@@ -5,7 +5,8 @@ Dense output. Between grid points (and between the impacts inside a step) the st
 cubic Hermite interpolation of q and p, with the slopes (qdot, pdot) of the continuous dynamics at
 the recorded states (`_dynamics`: the compiled, forced, Hamilton equations of the run's module). An impact
 step k -> k+1 is split at its recorded impact states: [t_k, tau_1] ends in (q(tau_1), p-),
-[tau_1, ...] starts from (q(tau_1), p+), so no piece ever interpolates across a velocity jump; the
+[tau_1, ...] starts from (q(tau_1), p+) (q+ of a declared reset map that moves q: a walker's leg
+exchange), so no piece ever interpolates across a jump; the
 interpolant is right-continuous at an impact (p+ at t = tau) and equals the grid state at every
 grid time. Its own error is O(h^4) per piece, so between grid points it keeps the method's order
 for methods of order <= 4 (every method of the paper: order 2; CVA4); for CVA6/CVA8 it is limited to
@@ -54,6 +55,9 @@ class Trajectory:
     # (t, y) -> ydot of the continuous dynamics, for dense output; attached by simulate, dropped when
     # pickled (resolved again from a built-in scene's name, see `attach_dynamics`)
     dynamics: object = field(default=None, repr=False, compare=False)
+    # what simulate was given as the system (a scene name, a YAML path or a MechanicalSystem): where
+    # `animate` finds the drawing; pickled only as a name or path
+    source: object = field(default=None, repr=False, compare=False)
 
     def __post_init__(self):
         n = self.q.shape[1] if isinstance(self.q, np.ndarray) and self.q.ndim == 2 else 0
@@ -69,7 +73,10 @@ class Trajectory:
     def __getstate__(self):
         state = dict(self.__dict__)
         state["dynamics"] = None
+        if not isinstance(state.get("source"), (str, type(None))):
+            state["source"] = str(state["source"]) if hasattr(state["source"], "__fspath__") else None
         state.pop("_dense", None)
+        state.pop("_account", None)
         return state
 
     # --- dense output -----------------------------------------------------------------------------
@@ -86,10 +93,13 @@ class Trajectory:
         from ..codegen.kernel_set import SYSTEM_KERNELS
         from .resolve import resolve_numeric
 
+        if system is not None:
+            self.source = system
         sysd, load, _ = resolve_numeric(self.system if system is None else system, SYSTEM_KERNELS)
         prm = sysd.param_values(params if params is not None else (self.options or {}).get("params"))
         self.dynamics = _dynamics(load(), prm)
         self.__dict__.pop("_dense", None)
+        self.__dict__.pop("_account", None)
         return self
 
     def _dense_output(self) -> "DenseOutput":
@@ -225,6 +235,29 @@ class Trajectory:
 
         return trajectory_figure(self, dense=dense, samples_per_step=samples_per_step)
 
+    def animate(self, path=None, *, system=None, fps=30, speed=None, max_frames=600, energy=True, dpi=100):
+        """An animation of the run (vcirun.run.animate.Animation): the mechanism drawn from the scene's
+        geometry (bodies-form scenes, built-in scenes, a YAML `draw:` section; else configuration space),
+        impacts marked, the energy beside it, a time bar. path: write .mp4 (ffmpeg) or .gif (Pillow);
+        in a notebook the returned object displays itself. system: the scene (default: the run's, for
+        built-in scenes; a YAML path for others); speed: motion seconds per second (default 1, raised to
+        fit max_frames)."""
+        from .animate import animate
+
+        return animate(self, path, system=system, fps=fps, speed=speed, max_frames=max_frames, energy=energy, dpi=dpi)
+
+    def energy_account(self):
+        """Where the energy went: H(t) - H(t0) split into the impact law's loss (restitution, plastic
+        holds), the forcing work and the rest, the integration error (`account.error`: its largest
+        magnitude). A `vcirun.run.accounts.EnergyAccount`; `print(account)` shows the table. Needs the
+        dynamics (attached for built-in scenes; else `attach_dynamics(system)` first)."""
+        from .accounts import trajectory_account
+
+        acc = self.__dict__.get("_account")
+        if acc is None:
+            acc = self.__dict__["_account"] = trajectory_account(self)
+        return acc
+
     @property
     def n_steps(self) -> int:
         return len(self.t) - 1
@@ -299,7 +332,30 @@ def _dynamics(mod, prm):
         rhs(float(t), np.ascontiguousarray(y, dtype=float), prm, out)
         return out
 
+    f.module, f.prm = mod, prm   # for the energy account (vcirun.run.accounts)
     return f
+
+
+def _post_impact_q(traj, rhs, iq, ipm):
+    """The configuration after each impact: q itself, except where the system declares a reset map
+    that moves q (a walker's leg exchange): the map's q+ from the recorded (q, p-), as the loop computes
+    it (the impact law's direction first, then vcirun.collision.declared's map)."""
+    mod = getattr(rhs, "module", None)
+    if mod is None or not bool(getattr(mod, "RESET_MAP", False)) or len(iq) == 0:
+        return iq
+    n, m = iq.shape[1], int(mod.NCON)
+    prm = rhs.prm
+    event_tol = float((traj.tolerances or {}).get("event_tol", 1e-13))
+    out = iq.copy()
+    d, lam, active = np.empty(n), np.empty(m), np.empty(m, np.int64)
+    qn, pmap = np.empty(n), np.empty(n)
+    for k in range(len(iq)):
+        q, pm = np.ascontiguousarray(iq[k]), np.ascontiguousarray(ipm[k])
+        c, s0, _ = mod.impact_direction(q, pm, float(traj.h), event_tol, prm, d, lam, active)
+        if c > 0:
+            mod.declared_reset(q, pm, d, s0, prm, qn, pmap)
+            out[k] = qn
+    return out
 
 
 class DenseOutput:
@@ -322,6 +378,7 @@ class DenseOutput:
         imp = imp[keep]
         iq, ipm, ipp = (np.asarray(a, float).reshape(-1, traj.q.shape[1])[keep]
                         for a in (traj.impact_q, traj.impact_p_minus, traj.impact_p_plus))
+        iq_plus = _post_impact_q(traj, rhs, iq, ipm)
         # step of each impact: (t_k, t_k+1] -> k (an impact exactly at t_k closes step k-1)
         step = np.clip(np.searchsorted(t, imp, side="left") - 1, 0, max(len(t) - 2, 0))
         # order: grid node k, then the impacts of step k by time
@@ -331,7 +388,7 @@ class DenseOutput:
         order = np.lexsort((times, key_kind, key_step))
         self.times = times[order]
         left = np.vstack([Y, np.hstack([iq, ipm])])[order]
-        right = np.vstack([Y, np.hstack([iq, ipp])])[order]
+        right = np.vstack([Y, np.hstack([iq_plus, ipp])])[order]
         self.left, self.right = left, right
         self.is_grid = (key_kind[order] == 0)
         self.FL = np.full_like(left, np.nan)

@@ -99,8 +99,17 @@ def _n_contacts(traj) -> int:
     return int(np.shape(ca)[1]) if ca is not None and np.ndim(ca) == 2 else 1
 
 
-def trajectory_payload(traj, *, store_arrays: bool = True) -> tuple[dict, dict]:
-    """(attrs, arrays) of a `vcirun.run.trajectory.Trajectory` for one run group."""
+def thinned_rows(n_grid: int, every: int) -> np.ndarray:
+    """The grid rows a run stores with `store: {every: k}`: 0, k, 2k, ... and the last."""
+    rows = np.arange(0, n_grid, max(1, int(every)))
+    return rows if n_grid == 0 or rows[-1] == n_grid - 1 else np.append(rows, n_grid - 1)
+
+
+def trajectory_payload(traj, *, store_arrays: bool | int = True) -> tuple[dict, dict]:
+    """(attrs, arrays) of a `vcirun.run.trajectory.Trajectory` for one run group. store_arrays: True
+    (every grid state), False or 0 (the impact record and summaries only), or k >= 2: every k-th grid
+    state and the last (the per-step rows, impact_step and newton_iters, are then left out)."""
+    every = int(store_arrays) if not isinstance(store_arrays, bool) else int(store_arrays)
     attrs = {
         "core_method": traj.method, "system": traj.system, "h": float(traj.h), "T": float(traj.T),
         "status": traj.status, "message": " ".join(str(traj.message).split()),
@@ -111,16 +120,21 @@ def trajectory_payload(traj, *, store_arrays: bool = True) -> tuple[dict, dict]:
         "n_mode_changes": int(len(traj.mode_changes)),
         "n_contacts": _n_contacts(traj),
         "newton_iters_total": int(np.sum(traj.newton_iters)) if len(traj.newton_iters) else 0,
-        "has_Hmod": traj.Hmod is not None, "has_trajectory": bool(store_arrays),
+        "has_Hmod": traj.Hmod is not None, "has_trajectory": every > 0, "store_every": every,
         "tolerances": dict(traj.tolerances), "options": dict(traj.options),
     }
     attrs.update(energy_summary(traj))
     arrays = {name: getattr(traj, name) for name in IMPACT_ARRAYS}
-    if store_arrays:
+    rows = thinned_rows(len(traj.t), every) if every > 1 else None
+    if every:
         for name in TRAJECTORY_ARRAYS:
             value = getattr(traj, name)
             if value is None:
                 continue
+            if rows is not None:
+                if name in record.FIELD and record.FIELD[name].axis == "step":
+                    continue
+                value = np.asarray(value)[rows]
             if name in record.FIELD and record.FIELD[name].dtype == "bool":
                 value = np.asarray(value, dtype=np.uint8)  # 0/1: portable, unlike HDF5's bool enum
             arrays[name] = value

@@ -9,7 +9,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["SceneInfo", "scene_info", "describe", "listed_scenes", "coordinate_names", "units_for", "momentum_unit", "BUILTIN_INFO"]
+__all__ = ["SceneInfo", "scene_info", "describe", "listed_scenes", "coordinate_names", "units_for", "momentum_unit",
+           "example_command", "BUILTIN_INFO"]
 
 
 @dataclass(frozen=True)
@@ -119,7 +120,7 @@ BUILTIN_INFO |= {
         "the default state with its velocities scaled by beta",
         "the period-one gait at gamma = 3 deg just after heel strike"),
 }
-_SIZED_INFO = ("n_pendulum", "newton_cradle", "link_chain", "cradle")  # listed as <name>_3 (K: FAMILY_SIZES)
+_SIZED_INFO = ("n_pendulum", "newton_cradle", "link_chain", "cradle_gap", "cradle")  # listed as <name>_3 (K: FAMILY_SIZES)
 
 
 def _sized_info(base: str, n: int) -> SceneInfo:
@@ -144,12 +145,16 @@ def _sized_info(base: str, n: int) -> SceneInfo:
                          f"{n + 1} contacts end0..end{n}: the link ends above the floor y = 0 (declared by bodies)",
                          "height of the first end y = beta, tilted zigzag, at rest",
                          "y = 0.5, theta_k = 0.3 (-1)^k + 0.05, at rest")
+    gap = base == "cradle_gap"
     return SceneInfo(name, tuple((f"theta{i}", "rad", f"angle of string {i} from the downward vertical")
                                  for i in range(1, n + 1)),
-                     {"m": ("kg", "mass of each ball"), "r": ("m", "ball radius (pivots 2r apart)"),
+                     {"m": ("kg", "mass of each ball"),
+                      "r": ("m", "ball radius" + (" (pivots 2r + gap apart)" if gap else " (pivots 2r apart)")),
+                      **({"gap": ("m", "distance between neighbouring balls at rest")} if gap else {}),
                       "L": ("m", "string length"), "g": ("m/s^2", "gravitational acceleration"), "e": _E},
                      f"{n - 1} circle contacts c1..c{n - 1}: |C_i - C_(i+1)| - 2 r >= 0 (declared by bodies)",
-                     "ball 1 released from theta1 = -beta, the others hanging, touching, at rest",
+                     "ball 1 released from theta1 = -beta, the others hanging at rest, "
+                     + ("gap apart" if gap else "touching"),
                      "theta1 = -0.3, the others 0, at rest")
 
 
@@ -188,7 +193,7 @@ def describe(name: str) -> list[str]:
         raise ValueError(f"system: unknown built-in system {name!r} (choose one of {', '.join(listed_scenes())}; "
                          "the sized ones with K in their range, e.g. cradle_20)")
     d = scene_data(name)
-    sized = next((b for b in _SIZED_INFO if name.startswith(b)), None)
+    sized = next((b for b in _SIZED_INFO if name.startswith(b + "_") and name[len(b) + 1:].isdigit()), None)
     coords = ", ".join(f"{c} [{u}] {m}" for c, u, m in info.coordinates)
     lines = [f"{name}  {d.description}" + (f"  ({sized}_K: K from {FAMILY_SIZES[sized][0]} to "
                                            f"{FAMILY_SIZES[sized][1]})" if sized else ""),
@@ -201,15 +206,39 @@ def describe(name: str) -> list[str]:
         lines.append(f"  --beta       {info.ic_map}")
     if info.default_state:
         lines.append(f"  default      {info.default_state}")
-    example = ",".join("0" for _ in info.coordinates)
-    if name == "cart_pendulum":
-        lines.append("  example      vcirun simulate --system cart_pendulum --beta 3.2")
-    elif name in ("rocking_block", "rimless_wheel", "compass_gait") or sized in ("link_chain", "cradle"):
-        # q = 0 is not admissible or not a useful start: the default state is
-        lines.append(f"  example      vcirun simulate --system {name} --h 0.001 --T 1   (the default state)")
-    else:
-        lines.append(f"  example      vcirun simulate --system {name} --q0 {example} --p0 {example}")
+    lines.append(f"  example      {example_command(name)}")
     return lines
+
+
+# What each scene's example adds to `vcirun simulate --system NAME` so that it shows the impacts it is
+# there for (tests/cli/test_examples.py runs every example and counts them); the default state otherwise.
+_EXAMPLE_ARGS = {
+    "cart_pendulum": ("--beta 3.2", "3 impacts of the cart on the floor"),
+    "double_pendulum": ("", "the second tip hits the wall twice in 5 s"),
+    "oscillator_wall": ("", "the mass hits the wall once in 5 s"),
+    "damped_oscillator": ("--param d=0.5", "the wall moved from 100 m to 0.5 m: one impact, then damping"),
+    "bouncing_ball": ("", "elastic bounces on the floor"),
+    "ball_in_box": ("", "bounces off floor, walls and ceiling"),
+    "double_pendulum_walls": ("", "the tip bounces between the walls"),
+    "rocking_block": ("--h 0.001 --T 3", "23 corner impacts, then at rest"),
+    "rimless_wheel": ("--h 0.001 --T 3", "a spoke impact every 0.4 s"),
+    "compass_gait": ("--h 0.001 --T 3", "a heel strike every 0.73 s"),
+}
+_SIZED_EXAMPLE_ARGS = {"link_chain": ("--h 0.001 --T 2", "the link ends hit the floor, then rest"),
+                       "cradle": ("--h 0.001 --T 2", "ball 1 hits the touching row: Moreau's simultaneous law, "
+                                                     "balls 2..N move on together"),
+                       "cradle_gap": ("--h 0.001 --T 2", "pairwise impacts down the row, the last ball swings out"),
+                       "newton_cradle": ("", "ball 1 hits the touching row"),
+                       "n_pendulum": ("", "the tip hits the wall")}
+
+
+def example_command(name: str) -> str:
+    """The `vcirun simulate` line `vcirun systems` shows for a built-in scene, with what it shows."""
+    sized = next((b for b in _SIZED_INFO if (name.startswith(b + "_") and name[len(b) + 1:].isdigit()) or name == b),
+                 None)
+    args, what = _EXAMPLE_ARGS.get(name) or (_SIZED_EXAMPLE_ARGS.get(sized) if sized else None) or ("", "")
+    cmd = f"vcirun simulate --system {name}" + (f" {args}" if args else "")
+    return cmd + (f"   ({what})" if what else "   (the default state)")
 
 
 def coordinate_names(system: str, n: int, declared=None) -> list[str]:

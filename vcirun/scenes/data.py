@@ -128,9 +128,23 @@ def cradle(n: int = 5, **overrides) -> SystemData:
     return SystemData(
         name=f"cradle_{n}", n=n, params=prm, default_q0=q0, default_p0=np.zeros(n),
         ic_map=lambda beta: (np.array([-beta] + [0.0] * (n - 1)), np.zeros(n)),
-        description=f"Newton's cradle of {n} balls of radius r hanging on strings of length L from pivots 2r "
-                    "apart, circle contacts between neighbours, restitution e; ball 1 released from "
-                    "theta1 = -0.3, the others touching at rest (declared by bodies)")
+        description=f"Newton's cradle of {n} touching balls (radius r, strings of length L, pivots 2r apart), "
+                    "circle contacts between neighbours, restitution e; ball 1 released from theta1 = -0.3: "
+                    "Moreau's simultaneous impact law on the touching row (balls 2..N move on together; the "
+                    f"swing-out of a real cradle: cradle_gap_{n}) (declared by bodies)")
+
+
+def cradle_gap(n: int = 5, **overrides) -> SystemData:
+    n = int(n)
+    prm = merge_params({"m": 0.1, "r": 0.05, "gap": 0.001, "L": 1.0, "g": 9.81, "e": 1.0}, overrides)
+    q0 = np.zeros(n)
+    q0[0] = -0.3
+    return SystemData(
+        name=f"cradle_gap_{n}", n=n, params=prm, default_q0=q0, default_p0=np.zeros(n),
+        ic_map=lambda beta: (np.array([-beta] + [0.0] * (n - 1)), np.zeros(n)),
+        description=f"Newton's cradle of {n} balls hung with small gaps (pivots 2r + gap apart), restitution e; "
+                    "ball 1 released from theta1 = -0.3: the impacts run down the row one pair at a time and "
+                    "the last ball swings out (declared by bodies)")
 
 
 def rimless_wheel(**overrides) -> SystemData:
@@ -190,6 +204,7 @@ BUILTIN_SCENE_DATA = {
     "rocking_block": rocking_block,
     "link_chain": link_chain,
     "cradle": cradle,
+    "cradle_gap": cradle_gap,
     "rimless_wheel": rimless_wheel,
     "compass_gait": compass_gait,
 }

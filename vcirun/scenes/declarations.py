@@ -18,10 +18,32 @@ from . import mechanisms
 from ..mechanics.system import Constraint, MechanicalSystem
 
 
-def _system(d: sd.SystemData, q, M, V, phi, **kw) -> MechanicalSystem:
-    return MechanicalSystem(name=d.name, q=q, params=d.params, M=M, V=V, phi=phi, ic_map=d.ic_map,
-                            default_q0=d.default_q0, default_p0=d.default_p0, default_beta=d.default_beta,
-                            description=d.description, **kw)
+def _system(d: sd.SystemData, q, M, V, phi, draw=None, **kw) -> MechanicalSystem:
+    """The MechanicalSystem of scene data `d`; draw: the keyword arguments of its Drawing (what
+    `vcirun animate` draws: vcirun.mechanics.drawing; points as (x, y) expressions in q and the parameters)."""
+    s = MechanicalSystem(name=d.name, q=q, params=d.params, M=M, V=V, phi=phi, ic_map=d.ic_map,
+                         default_q0=d.default_q0, default_p0=d.default_p0, default_beta=d.default_beta,
+                         description=d.description, **kw)
+    if draw is not None:
+        from ..mechanics.drawing import Drawing
+
+        pts = {k: (sp.sympify(x), sp.sympify(y)) for k, (x, y) in draw.pop("points").items()}
+        s.drawing = Drawing(q=list(q), points=pts, **draw).check(f"scene {d.name} drawing")
+    return s
+
+
+def _slope(u, v, gam):
+    """World (x, y) of the point u along a slope descending to the right at angle gam, v along its normal."""
+    return u * sp.cos(gam) + v * sp.sin(gam), -u * sp.sin(gam) + v * sp.cos(gam)
+
+
+def _chain(angles, lengths, origin=(0, 0)):
+    """Points of a chain of links at absolute angles from the downward vertical: [(x, y)] after each."""
+    pts, (x, y) = [], origin
+    for th, ell in zip(angles, lengths):
+        x, y = x + ell * sp.sin(th), y - ell * sp.cos(th)
+        pts.append((x, y))
+    return pts
 
 
 def cart_pendulum(**overrides) -> MechanicalSystem:
@@ -32,7 +54,12 @@ def cart_pendulum(**overrides) -> MechanicalSystem:
     m1, m2, L, g = sp.symbols("m1 m2 L g")
     M = sp.Matrix([[m1 + m2, m2 * L * sp.sin(th)], [m2 * L * sp.sin(th), m2 * L**2]])
     V = (m1 + m2) * g * y - m2 * g * L * sp.cos(th)
-    return _system(d, [y, th], M, V, y)
+    w = L / 10
+    draw = dict(points={"cart": (0, y), "bob": (L * sp.sin(th), y - L * sp.cos(th)), "c1": (-w, y), "c2": (w, y),
+                        "c3": (w, y + 2 * w), "c4": (-w, y + 2 * w)},
+                polygons=[("c1", "c2", "c3", "c4")], segments=[("cart", "bob")], dots=["bob"],
+                lines=[((0, 0), (0, 1))], contacts=["cart"])
+    return _system(d, [y, th], M, V, y, draw=draw)
 
 
 def double_pendulum(**overrides) -> MechanicalSystem:
@@ -48,7 +75,10 @@ def double_pendulum(**overrides) -> MechanicalSystem:
     M = sp.Matrix([[(m1 + m2) * l1**2, m2 * l1 * l2 * c], [m2 * l1 * l2 * c, m2 * l2**2]])
     V = -(m1 + m2) * g * l1 * sp.cos(t1) - m2 * g * l2 * sp.cos(t2)
     phi = w - (l1 * sp.sin(t1) + l2 * sp.sin(t2))
-    return _system(d, [t1, t2], M, V, phi)
+    p1, p2 = _chain([t1, t2], [l1, l2])
+    draw = dict(points={"pivot": (0, 0), "tip1": p1, "tip2": p2}, segments=[("pivot", "tip1"), ("tip1", "tip2")],
+                dots=["tip1", "tip2"], pivots=["pivot"], lines=[((w, 0), (-1, 0))], contacts=["tip2"])
+    return _system(d, [t1, t2], M, V, phi, draw=draw)
 
 
 def oscillator_wall(**overrides) -> MechanicalSystem:
@@ -57,7 +87,10 @@ def oscillator_wall(**overrides) -> MechanicalSystem:
     d = sd.oscillator_wall(**overrides)
     x = sp.Symbol("x")
     m, k, dd = sp.symbols("m k d")
-    return _system(d, [x], sp.Matrix([[m]]), k * x**2 / 2, x + dd)
+    draw = dict(points={"mass": (x, 0), "anchor": (2 * dd + 1, 0), "low": (-dd, -0.2), "high": (-dd, 0.2)},
+                springs=[("anchor", "mass")], dots=["mass"], pivots=["anchor"], lines=[((-dd, 0), (1, 0))],
+                contacts=["mass"])
+    return _system(d, [x], sp.Matrix([[m]]), k * x**2 / 2, x + dd, draw=draw)
 
 
 def damped_oscillator(**overrides) -> MechanicalSystem:
@@ -66,7 +99,9 @@ def damped_oscillator(**overrides) -> MechanicalSystem:
     d = sd.damped_oscillator(**overrides)
     x, xd = sp.Symbol("x"), sp.Symbol("x_dot")
     m, k, c, dd = sp.symbols("m k c d")
-    return _system(d, [x], sp.Matrix([[m]]), k * x**2 / 2, x + dd, qd=[xd], forcing=sp.Matrix([-c * xd]))
+    draw = dict(points={"mass": (x, 0), "anchor": (2, 0), "low": (-1.5, -0.2)}, springs=[("anchor", "mass")],
+                dots=["mass"], pivots=["anchor"], lines=[((-dd, 0), (1, 0))], contacts=["mass"])
+    return _system(d, [x], sp.Matrix([[m]]), k * x**2 / 2, x + dd, qd=[xd], forcing=sp.Matrix([-c * xd]), draw=draw)
 
 
 def bouncing_ball(**overrides) -> MechanicalSystem:
@@ -77,7 +112,9 @@ def bouncing_ball(**overrides) -> MechanicalSystem:
     d = sd.bouncing_ball(**overrides)
     y, yd = sp.Symbol("y"), sp.Symbol("y_dot")
     m, g, c = sp.symbols("m g c")
-    return _system(d, [y], sp.Matrix([[m]]), m * g * y, y, qd=[yd], forcing=sp.Matrix([-c * yd]))
+    draw = dict(points={"ball": (0, y), "low": (-0.5, 0), "high": (0.5, 0)}, dots=["ball"],
+                lines=[((0, 0), (0, 1))], contacts=["ball"])
+    return _system(d, [y], sp.Matrix([[m]]), m * g * y, y, qd=[yd], forcing=sp.Matrix([-c * yd]), draw=draw)
 
 
 def n_pendulum(n: int = 2, **overrides) -> MechanicalSystem:
@@ -93,7 +130,12 @@ def n_pendulum(n: int = 2, **overrides) -> MechanicalSystem:
     M = sp.Matrix(n, n, lambda i, j: tail[max(i, j)] * ls[i] * ls[j] * sp.cos(th[i] - th[j]))
     V = -g * sum(tail[i] * ls[i] * sp.cos(th[i]) for i in range(n))
     phi = w - sum(ls[i] * sp.sin(th[i]) for i in range(n))
-    return _system(d, list(th), M, V, phi)
+    pts = _chain(th, ls)
+    names = ["pivot"] + [f"joint{i + 1}" for i in range(n)]
+    draw = dict(points={"pivot": (0, 0), **{names[i + 1]: pts[i] for i in range(n)}},
+                segments=list(zip(names[:-1], names[1:])), dots=names[1:], pivots=["pivot"],
+                lines=[((w, 0), (-1, 0))], contacts=[names[-1]])
+    return _system(d, list(th), M, V, phi, draw=draw)
 
 
 def ball_in_box(**overrides) -> MechanicalSystem:
@@ -105,7 +147,10 @@ def ball_in_box(**overrides) -> MechanicalSystem:
     m, g, W, Hh, e = sp.symbols("m g width height e")
     cons = [Constraint("floor", y, e), Constraint("ceiling", Hh - y, e), Constraint("left", x, e),
             Constraint("right", W - x, e)]
-    return _system(d, [x, y], sp.diag(m, m), m * g * y, None, constraints=cons)
+    draw = dict(points={"ball": (x, y), "corner0": (0, 0), "corner1": (W, Hh)}, dots=["ball"],
+                lines=[((0, 0), (0, 1)), ((0, Hh), (0, -1)), ((0, 0), (1, 0)), ((W, 0), (-1, 0))],
+                contacts=["ball"] * 4)
+    return _system(d, [x, y], sp.diag(m, m), m * g * y, None, constraints=cons, draw=draw)
 
 
 def newton_cradle(n: int = 3, **overrides) -> MechanicalSystem:
@@ -116,7 +161,11 @@ def newton_cradle(n: int = 3, **overrides) -> MechanicalSystem:
     xs = sp.symbols(f"x1:{n + 1}")
     m, dd, e = sp.symbols("m d e")
     cons = [Constraint(f"c{i + 1}{i + 2}", xs[i + 1] - xs[i] - dd, e) for i in range(n - 1)]
-    return _system(d, list(xs), m * sp.eye(n), sp.Integer(0), None, constraints=cons)
+    pts = {f"ball{i + 1}": (xs[i], 0) for i in range(n)}
+    pts.update({f"touch{i + 1}": ((xs[i] + xs[i + 1]) / 2, 0) for i in range(n - 1)})
+    draw = dict(points=pts, circles=[(f"ball{i + 1}", dd / 2) for i in range(n)],
+                contacts=[f"touch{i + 1}" for i in range(n - 1)])
+    return _system(d, list(xs), m * sp.eye(n), sp.Integer(0), None, constraints=cons, draw=draw)
 
 
 def double_pendulum_walls(**overrides) -> MechanicalSystem:
@@ -129,7 +178,12 @@ def double_pendulum_walls(**overrides) -> MechanicalSystem:
     M = sp.Matrix([[(m1 + m2) * l1**2, m2 * l1 * l2 * c], [m2 * l1 * l2 * c, m2 * l2**2]])
     V = -(m1 + m2) * g * l1 * sp.cos(t1) - m2 * g * l2 * sp.cos(t2)
     xt = l1 * sp.sin(t1) + l2 * sp.sin(t2)
-    return _system(d, [t1, t2], M, V, None, constraints=[Constraint("right", w - xt, e), Constraint("left", xt + w, e)])
+    p1, p2 = _chain([t1, t2], [l1, l2])
+    draw = dict(points={"pivot": (0, 0), "tip1": p1, "tip2": p2}, segments=[("pivot", "tip1"), ("tip1", "tip2")],
+                dots=["tip1", "tip2"], pivots=["pivot"], lines=[((w, 0), (-1, 0)), ((-w, 0), (1, 0))],
+                contacts=["tip2", "tip2"])
+    return _system(d, [t1, t2], M, V, None, constraints=[Constraint("right", w - xt, e), Constraint("left", xt + w, e)],
+                   draw=draw)
 
 
 def rimless_wheel(**overrides) -> MechanicalSystem:
@@ -141,7 +195,18 @@ def rimless_wheel(**overrides) -> MechanicalSystem:
     th, thd = sp.symbols("theta theta_dot")
     m, l, a, gam, g = sp.symbols("m l alpha gamma g")
     c = Constraint("spoke", a - th, reset_q=(th - 2 * a,), reset_qd=(sp.cos(2 * a) * thd,))
-    return _system(d, [th], sp.Matrix([[m * l**2]]), m * g * l * sp.cos(th + gam), None, qd=[thd], constraints=[c])
+    # the drawing: the hub over the stance foot (the origin), every spoke, the slope; at each impact
+    # the landing spoke's foot becomes the origin (advance)
+    spokes = max(3, round(float(sp.pi) / float(d.params["alpha"])))
+    hub = (l * sp.sin(th), l * sp.cos(th))
+    pts = {"hub": _slope(*hub, gam)}
+    for k in range(spokes):
+        pts[f"foot{k}"] = _slope(hub[0] - l * sp.sin(th + 2 * a * k), hub[1] - l * sp.cos(th + 2 * a * k), gam)
+    landing = _slope(hub[0] - l * sp.sin(th - 2 * a), hub[1] - l * sp.cos(th - 2 * a), gam)
+    draw = dict(points=pts, segments=[("hub", f"foot{k}") for k in range(spokes)], dots=["hub"],
+                lines=[((0, 0), (sp.sin(gam), sp.cos(gam)))], contacts=["foot0"], advance=landing)
+    return _system(d, [th], sp.Matrix([[m * l**2]]), m * g * l * sp.cos(th + gam), None, qd=[thd], constraints=[c],
+                   draw=draw)
 
 
 def compass_gait_heel_strike(q, qd, m, mH, a, b):
@@ -178,7 +243,16 @@ def compass_gait(**overrides) -> MechanicalSystem:
     V = g * ((m * a + mH * l + m * l) * sp.cos(ts + gam) - m * b * sp.cos(tn + gam))
     q_plus, qd_plus = compass_gait_heel_strike((ts, tn), (tsd, tnd), m, mH, a, b)
     heel = Constraint("heel_strike", l * (sp.cos(ts) - sp.cos(tn)), when=ts, reset_q=q_plus, reset_qd=qd_plus)
-    return _system(d, [ts, tn], M, V, None, qd=[tsd, tnd], constraints=[heel])
+    # the drawing: stance foot at the origin, hip, swing foot, the three masses, the slope; at each heel
+    # strike the swing foot becomes the stance foot (advance)
+    hip = (l * sp.sin(ts), l * sp.cos(ts))
+    swing = (hip[0] - l * sp.sin(tn), hip[1] - l * sp.cos(tn))
+    pts = {"stance": (0, 0), "hip": _slope(*hip, gam), "swing": _slope(*swing, gam),
+           "m_stance": _slope(a * sp.sin(ts), a * sp.cos(ts), gam),
+           "m_swing": _slope(hip[0] - b * sp.sin(tn), hip[1] - b * sp.cos(tn), gam)}
+    draw = dict(points=pts, segments=[("stance", "hip"), ("hip", "swing")], dots=["hip", "m_stance", "m_swing"],
+                lines=[((0, 0), (sp.sin(gam), sp.cos(gam)))], contacts=["swing"], advance=pts["swing"])
+    return _system(d, [ts, tn], M, V, None, qd=[tsd, tnd], constraints=[heel], draw=draw)
 
 
 # One registry of built-in scenes: the names (and numeric parts) are vcirun.scenes.data's; each has its

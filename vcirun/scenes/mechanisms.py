@@ -1,5 +1,6 @@
 """Built-in scenes declared by bodies, joints and contact geometry (vcirun.mechanics.bodies): the
-rocking block, a chain of N links falling on a floor and a cradle of N hanging balls. Their numeric
+rocking block, a chain of N links falling on a floor and a cradle of N hanging balls (touching, or
+hung with small gaps). Their numeric
 parts (defaults, initial states, descriptions) are vcirun.scenes.data's, under the same names."""
 from __future__ import annotations
 
@@ -20,7 +21,8 @@ def rocking_block(**overrides) -> MechanicalSystem:
     joint (x, y, theta of its centre), dropped tilted on the floor y = 0; its two lower corners are
     the contacts, restitution e. beta = the drop height of the centre."""
     d = sd.rocking_block(**overrides)
-    return _build(d, [Body("block", "m", "m*(a**2 + b**2)/12")],
+    corners = (("-b/2", "-a/2"), ("b/2", "-a/2"), ("b/2", "a/2"), ("-b/2", "a/2"))
+    return _build(d, [Body("block", "m", "m*(a**2 + b**2)/12", outline=corners)],
                   [Joint("free", "block", coordinates=("x", "y", "theta"))],
                   [PointContact("left", "block", ("-b/2", "-a/2"), restitution="e"),
                    PointContact("right", "block", ("b/2", "-a/2"), restitution="e")])
@@ -45,10 +47,22 @@ def cradle(n: int = 5, **overrides) -> MechanicalSystem:
     """Newton's cradle: N balls (mass m, radius r) hanging on massless strings of length L from
     pivots 2r apart (revolute joints to the ground, angles theta_i from the downward vertical);
     neighbours are circle contacts, restitution e. Ball 1 released from theta1 = -beta, the others
-    hanging at rest, touching."""
+    hanging at rest, touching: Moreau's law treats the touching row as one simultaneous impact
+    (docs/derivations/contacts.md 1.6); `cradle_gap` hangs them apart."""
     n = int(n)
-    d = sd.cradle(n, **overrides)
+    return _cradle(sd.cradle(n, **overrides), n, "2*r*{i}")
+
+
+def cradle_gap(n: int = 5, **overrides) -> MechanicalSystem:
+    """Newton's cradle with the balls hung `gap` apart (pivots 2r + gap apart): each impact is one pair,
+    in sequence down the row, and the last ball swings out (the cradle of the desk toy)."""
+    n = int(n)
+    return _cradle(sd.cradle_gap(n, **overrides), n, "(2*r + gap)*{i}")
+
+
+def _cradle(d, n, pivot) -> MechanicalSystem:
     bodies = [Body(f"ball{i}", "m", 0, (0, "-L"), radius="r") for i in range(1, n + 1)]
-    joints = [Joint("revolute", f"ball{i}", at=(f"2*r*{i}", 0), coordinate=f"theta{i}") for i in range(1, n + 1)]
+    joints = [Joint("revolute", f"ball{i}", at=(pivot.format(i=i), 0), coordinate=f"theta{i}")
+              for i in range(1, n + 1)]
     contacts = [CircleContact(f"c{i}", (f"ball{i}", f"ball{i + 1}"), restitution="e") for i in range(1, n)]
     return _build(d, bodies, joints, contacts)

@@ -6,7 +6,7 @@ import hashlib
 import json
 import re
 from pathlib import Path
-from typing import Union
+from typing import Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
@@ -44,6 +44,11 @@ class InitialCondition(BaseModel):
         return {"beta": self.beta, "q0": self.q0, "p0": self.p0}
 
 
+class StoreEvery(ConfigModel):
+    """`store: {every: k}`: every k-th grid state of each run (and the last one)."""
+    every: int = Field(ge=2, le=10_000_000)
+
+
 class SweepConfig(ConfigModel):
     """A sweep: every method at every h from every initial condition, on [0, T]."""
     name: str = Field(min_length=1, max_length=80)
@@ -60,6 +65,9 @@ class SweepConfig(ConfigModel):
     workers: int | None = Field(default=None, ge=1, le=4096)
     executor: Union[ExecutorSpec, None] = None  # typing.Union: the unknown-key hint unwraps it
     store_trajectories: bool = True
+    # what a run stores: "full" (every grid state), {every: k} (every k-th grid state and the last, with
+    # the whole impact record), "metrics" (the impact record and the summaries: store_trajectories: false)
+    store: Union[Literal["full", "metrics"], StoreEvery, None] = None
     # Each run is integrated this many times (the integrator is deterministic, so the results are
     # identical) and its wall_time is the fastest: other processes preempting a worker would
     # otherwise add outliers of a scheduler time slice to sub-millisecond runs. 1 for long runs.
@@ -67,6 +75,17 @@ class SweepConfig(ConfigModel):
     # Memory a sweep may use for its runs in flight (text like 16GB, or bytes); default: the
     # VCIRUN_MAX_MEMORY environment variable, else half the physical memory. Not part of the results.
     max_memory: Union[str, float, None] = None
+
+    @field_validator("store", mode="before")
+    @classmethod
+    def _store(cls, v):
+        """One message for the three forms (rather than one per alternative of the union)."""
+        if v is None or v in ("full", "metrics"):
+            return v
+        every = v.get("every") if isinstance(v, dict) and set(v) == {"every"} else None
+        if isinstance(every, int) and not isinstance(every, bool) and 2 <= every <= 10_000_000:
+            return v
+        raise ValueError(f"must be full, metrics or {{every: k}} with an integer k >= 2 (got {v!r})")
 
     @field_validator("max_memory")
     @classmethod
@@ -134,6 +153,10 @@ class SweepConfig(ConfigModel):
                 raise FieldError(("methods", i), f"same method and options as methods[{idents[ident]}]")
             seen[m.display] = i
             idents[ident] = i
+        if self.store is not None and (self.store == "metrics") == self.store_trajectories \
+                and "store_trajectories" in self.model_fields_set:
+            raise FieldError(("store",), f"conflicts with store_trajectories: {str(self.store_trajectories).lower()}; "
+                                         "give one of them (store: full, metrics or {every: k})")
         if self.beta is not None and self.initial_states is not None:
             raise FieldError(("initial_states",), "give either beta or initial_states, not both")
         if self.beta is not None:
@@ -158,14 +181,25 @@ class SweepConfig(ConfigModel):
                     for i, s in enumerate(self.initial_states)]
         return [InitialCondition(key="default")]
 
+    @property
+    def store_every(self) -> int:
+        """Grid states each run stores: 1 every one, k every k-th (and the last), 0 none (metrics only)."""
+        if self.store is None:
+            return 1 if self.store_trajectories else 0
+        if isinstance(self.store, StoreEvery):
+            return self.store.every
+        return 1 if self.store == "full" else 0
+
     def output_path(self) -> Path:
         return Path(self.output) if self.output else Path("results") / f"{self.name}.h5"
 
     def canonical(self) -> dict:
         """Everything that determines the results (not where they go, nor how many processes or which
         executor compute them)."""
+        # (store: only when given, so configs without it keep their key)
         return self.model_dump(mode="json", by_alias=True, exclude={"output", "workers", "executor", "description",
-                                                                      "max_memory"})
+                                                                      "max_memory"} | ({"store"} if self.store is None
+                                                                                       else set()))
 
     def canonical_sha256(self) -> str:
         return hashlib.sha256(json.dumps(self.canonical(), sort_keys=True).encode()).hexdigest()

@@ -48,13 +48,55 @@ def _check_options(cfg, source: str, *, quick: bool, only) -> None:
 
 
 def run_config(cfg, *, source: str = "<study>", output=None, quick: bool = False, only=None, plot: bool = False,
-               log=print, tables="stdout", command: str | None = None) -> StudyRun:
+               log=print, tables="stdout", command: str | None = None, report_output=None) -> StudyRun:
     """Run a validated study config (see the module docstring); `tables`: a file where the work-precision
-    tables are printed ("stdout": sys.stdout at the time of the call; None: not printed)."""
+    tables are printed ("stdout": sys.stdout at the time of the call; None: not printed). The study's
+    files go where the config says (results/ in the shipped configs) and never over a file the git
+    repository tracks, unless named here: `output` (the JSON) or `report_output` (an extremes study's
+    Markdown; `make extremes` regenerates docs/extremes.md this way). Python warnings of the runs
+    (a grid note, ...) are logged once each as `note: ...` lines, not printed with their source lines."""
+    import warnings
+
     _check_options(cfg, source, quick=quick, only=only)
+    _not_tracked(cfg.output if output is None else None, "output", source)
+    if isinstance(cfg, ExtremesStudy) and cfg.report is not None and report_output is None:
+        _not_tracked(cfg.report.output, "report.output", source)
     t0 = time.perf_counter()
+    seen = set()
+
+    def note(message, category, filename, lineno, file=None, line=None):
+        text = f"note: {' '.join(str(message).split())}"
+        if text not in seen:
+            seen.add(text)
+            log(text)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        warnings.showwarning = note
+        return _run(cfg, source, output, quick, only, plot, log, tables, command, report_output, t0)
+
+
+def _not_tracked(path, field: str, source: str) -> None:
+    """A ConfigError if `path` is a file the git repository around it tracks (the study would rewrite it)."""
+    import subprocess
+
+    if path is None or not Path(path).is_file():
+        return
+    p = Path(path).resolve()
+    try:
+        tracked = subprocess.run(["git", "-C", str(p.parent), "ls-files", "--error-unmatch", p.name],
+                                 capture_output=True, timeout=10).returncode == 0
+    except (OSError, subprocess.SubprocessError):   # no git: nothing is tracked
+        return
+    if tracked:
+        raise ConfigError(f"{path} is a file of the repository (tracked by git); a study writes under results/: "
+                          "set it to a path there", source=source, field=field)
+
+
+def _run(cfg, source, output, quick, only, plot, log, tables, command, report_output, t0) -> StudyRun:
     if isinstance(cfg, ExtremesStudy):
-        return _run_extremes(cfg, source, output=output, only=only, log=log, command=command, t0=t0)
+        return _run_extremes(cfg, source, output=output, only=only, log=log, command=command, t0=t0,
+                             report_output=report_output)
     from .. import workprecision as wp
 
     res = wp.run_study(cfg, quick=quick, log=log)
@@ -69,7 +111,7 @@ def run_config(cfg, *, source: str = "<study>", output=None, quick: bool = False
     return StudyRun(cfg.study, res["name"], path, figures=figures, seconds=time.perf_counter() - t0)
 
 
-def _run_extremes(cfg: ExtremesStudy, source, *, output, only, log, command, t0) -> StudyRun:
+def _run_extremes(cfg: ExtremesStudy, source, *, output, only, log, command, t0, report_output=None) -> StudyRun:
     from .extremes import run_extremes
     from .report import render_extremes
 
@@ -83,7 +125,7 @@ def _run_extremes(cfg: ExtremesStudy, source, *, output, only, log, command, t0)
     save_json(res, out_json)
     report = None
     if cfg.report is not None:
-        report = Path(cfg.report.output)
+        report = Path(report_output or cfg.report.output)
         report.parent.mkdir(parents=True, exist_ok=True)
         cmd = command or f"vcirun study {source}"
         report.write_text(render_extremes(nan_for_null(to_json(res)), cfg.report.template, command=cmd,

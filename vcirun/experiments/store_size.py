@@ -1,0 +1,59 @@
+"""How much a sweep will store: the size of its results file before it runs (`vcirun validate`, and a
+note at the start of `vcirun sweep`), from the run record's stored rows (vcirun.core.sizes.stored_bytes)
+at the config's `store` setting, with the impact record counted empty (a lower bound where runs have
+many impacts; the trajectories dominate otherwise). Above STORE_WARN_BYTES the note is a warning that
+names `store: {every: k}` and `store: metrics`."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ..core.grid import grid_steps
+from ..core.sizes import format_bytes, stored_bytes
+
+__all__ = ["STORE_WARN_BYTES", "StoreEstimate", "estimate_store", "store_estimate_of"]
+
+STORE_WARN_BYTES = 2 * 2**30
+
+
+@dataclass(frozen=True)
+class StoreEstimate:
+    total: float          # bytes of every run of the config
+    runs: int
+    every: int            # the config's store: 1 full, k every k-th, 0 metrics
+    largest: float        # bytes of the largest run (the finest h)
+    h_largest: float
+
+    @property
+    def warn(self) -> bool:
+        return self.total > STORE_WARN_BYTES
+
+    def line(self) -> str:
+        what = {0: "impact records and summaries only (store: metrics)", 1: "every grid state"}.get(
+            self.every, f"every {self.every}th grid state")
+        return (f"about {format_bytes(self.total)} for {self.runs} runs ({what}; the largest run, h = "
+                f"{self.h_largest:g}, {format_bytes(self.largest)})")
+
+    def advice(self) -> str:
+        """Above STORE_WARN_BYTES: the config keys that make it smaller."""
+        k = max(2, int(round(4 * self.total / STORE_WARN_BYTES)) * max(self.every, 1))
+        return (f"more than {format_bytes(STORE_WARN_BYTES)}; store: {{every: {k}}} keeps every {k}th grid state "
+                f"(about {format_bytes(self.total * max(self.every, 1) / k)}), store: metrics none")
+
+
+def estimate_store(cfg, n: int, m: int, pending=None) -> StoreEstimate:
+    """The stored size of `pending` runs (default: every run of the config) of a system with n
+    coordinates and m constraints."""
+    hs = [s.h for s in pending] if pending is not None else [
+        h for h in cfg.h for _ in range(len(cfg.methods) * len(cfg.initial_conditions()))]
+    every = cfg.store_every
+    per_h = {h: stored_bytes(grid_steps(h, cfg.T)[2], n, m, every=every) for h in set(hs)}
+    h_big = max(per_h, key=per_h.get) if per_h else float("nan")
+    return StoreEstimate(float(sum(per_h[h] for h in hs)), len(hs), every, float(per_h.get(h_big, 0.0)), h_big)
+
+
+def store_estimate_of(cfg) -> StoreEstimate:
+    """The estimate of a validated config (builds its system to know n and m)."""
+    from .config.semantics import build_system
+
+    _, _, sysm = build_system(cfg)
+    return estimate_store(cfg, sysm.n, sysm.m)

@@ -1,0 +1,39 @@
+"""Files of one run, written by `Trajectory.save(... .h5)` and `vcirun simulate --output run.h5`
+(format "vcirun-trajectory", group `trajectory`): recognised and read for `vcirun info`, `plot` and
+`animate`, which also take a sweep's results file."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from .errors import StorageError, one_line
+
+__all__ = ["TRAJECTORY_FORMAT", "is_trajectory_file", "read_single"]
+
+TRAJECTORY_FORMAT = "vcirun-trajectory"
+
+
+def is_trajectory_file(path) -> bool:
+    """True for an HDF5 file written by Trajectory.save (False for anything else, a sweep's file too)."""
+    path = Path(path)
+    if path.suffix.lower() not in (".h5", ".hdf5") or not path.is_file():
+        return False
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            fmt = f.attrs.get("format", "")
+            fmt = fmt.decode() if isinstance(fmt, bytes) else str(fmt)
+            return fmt == TRAJECTORY_FORMAT and "trajectory" in f
+    except Exception:  # noqa: BLE001 - not HDF5, unreadable: not a trajectory file
+        return False
+
+
+def read_single(path):
+    """The Trajectory of a one-run file (StorageError naming the file if it cannot be read)."""
+    from ..run.trajectory import read_trajectory
+
+    try:
+        return read_trajectory(path)
+    except (OSError, KeyError, ValueError, TypeError) as e:
+        raise StorageError(f"{path}: cannot read the run ({one_line(e)}); write it again with vcirun simulate "
+                           "--output") from None
