@@ -47,6 +47,7 @@ RERANK = 1.3      # a runner-up predicted within this factor of the best is pilo
 N_FIRST = 16      # the first pilot of a ladder (or T / h for a largest step h)
 MAX_STEPS = 1 << 22
 MAX_ROUNDS = 12   # refinements of the final before the choice says not_reached
+PURSUIT_BUDGET, PURSUIT_FLOOR = 20.0, 0.05   # ... or once they cost this (times the pick's predicted cost)
 PILOT_SHARE = 0.125   # with a scene model: the pilots at N*/8 and N*/4
 DEFAULT_CANDIDATES = ("CVA", "CVA4", "CVA6", "CVA8", "MCVAC", "MCVAA", "VCI")
 
@@ -236,11 +237,14 @@ class Assessment:
     N_asymptotic: int | None = None   # the coarsest N of the three runs that showed the order
 
 
-def _companion(runs: dict, N: int) -> Run | None:
-    """The largest ok run whose N divides N (the Richardson companion of run N)."""
+MAX_RATIO = 8     # a Richardson companion is at least 1/MAX_RATIO as fine as its run
+
+
+def _companion(runs: dict, N: int, max_ratio: int = MAX_RATIO) -> Run | None:
+    """The largest ok run whose N divides N at most max_ratio times (the Richardson companion of run N)."""
     best = None
     for M, r in runs.items():
-        if M < N and N % M == 0 and r.ok and (best is None or M > best.N):
+        if M < N and N % M == 0 and N <= max_ratio * M and r.ok and (best is None or M > best.N):
             best = r
     return best
 
@@ -261,11 +265,13 @@ def estimate_of(runs: dict, N: int, p: float, mod=None, prm=None, grazing=True) 
         est.status, est.message = "unresolved", f"the runs' impact sequences differ: {d.first}"
         return est
     floor = roundoff_level(run)
-    third = _companion(runs, comp.N)
-    margin = 1.0
+    third = _companion(runs, comp.N, 4)
+    # without a third run the bracket allows the pair to be up to two orders short of p (one for p <= 2)
+    margin = min(2.0, max(p - 1.0, 0.5))
     if third is not None and d.l2 > floor:
         d0 = difference(third, comp)
         if not d0.first and d0.l2 > floor:
+            margin = 1.0
             p_obs = _observed_order(third.N, comp.N, N, d0.l2, d.l2)
             est.observed_order = p_obs
             if p_obs is not None and p_obs < 1.0:
@@ -344,6 +350,15 @@ def assess(runs: dict, p: float, need_order: bool = False) -> Assessment:
 
 
 # --- the choice ----------------------------------------------------------------------------------------
+def _certifiable(c: Candidate) -> int:
+    """The smallest N whose estimate a companion can certify: the final and its companion at N/2 at or
+    above the coarsest N that showed the order on the starts piloted (2 N_asymptotic); for a method whose
+    runs agree to round-off, at or above the coarsest resolved N."""
+    if c.C == 0.0 and c.N_resolved:
+        return 2 * c.N_resolved
+    return 2 * c.N_asymptotic if c.N_asymptotic else 1
+
+
 SCAN_BUDGET = 0.05   # CPU seconds of pilots per candidate on a scene's first call
 N_CAL = 1024         # the timing run of a candidate (cost per step)
 
@@ -492,12 +507,14 @@ class _Chooser:
             c.status, c.note = ("unresolved" if a.status == "unresolved" else "failed"), a.note
             return c
         c.C, c.N_resolved, c.N_asymptotic = a.C, a.N_resolved, a.N_asymptotic
-        self._fill(c, N)
+        self._fill(c, max(N, _certifiable(c)))
         if a.observed is not None:
             c.note = f"observed order {a.observed:.2f}"
         return c
 
     def _fill(self, c: Candidate, N: int):
+        """Set N (at least what the estimate can certify: `_certifiable`), the predicted error and cost."""
+        N = max(int(N), _certifiable(c))
         c.N = int(N)
         c.predicted_error = c.C * N ** -c.order if c.C else 0.0
         c.predicted_cost = (c.a or 0.0) + c.b * N if c.b is not None else None
@@ -577,6 +594,8 @@ class _Chooser:
             return c
         C = float(max(mm.C)) if high else mm.constant()
         c.C = C
+        c.N_asymptotic = int(np.median(mm.N_asymptotic)) if mm.N_asymptotic else None
+        c.N_resolved = int(max(mm.N_resolved)) if mm.N_resolved else None
         N = max(math.ceil((C / (TARGET * self.tol)) ** (1.0 / mm.order)) if C > 0 else 1,
                 int(max(mm.N_resolved)) if mm.N_resolved else 1, self.n_min)
         self._fill(c, N)
@@ -601,14 +620,13 @@ class _Chooser:
                        default=None)
             if best is not None and c.predicted_cost > RERANK * best:
                 break
-            mm = self.method_model(c.method)
-            n_asym = int(np.median(mm.N_asymptotic)) if mm.N_asymptotic else N_FIRST
+            n_asym = c.N_asymptotic or N_FIRST
             if not piloted and c.N * PILOT_SHARE < n_asym:
                 d = self._from_model(c.method, high=True)
                 d.source = "scene model (largest error constant seen; no pilots: they would not be asymptotic)"
                 piloted[c.method] = d
                 break
-            a = self.ladder(self.names[c.method], max(int(c.N * PILOT_SHARE), 2), need_order=False)
+            a = self.ladder(self.names[c.method], max(int(c.N * PILOT_SHARE), n_asym), need_order=False)
             pc = self.predict(c.method, a, (c.a, c.b))
             pc.source = "pilots on this start, ranked by the scene model"
             piloted[c.method] = pc
@@ -638,55 +656,74 @@ class _Chooser:
         return self._pursue(pick, cands, reason)
 
     def _pursue(self, pick: Candidate, cands, reason):
-        """Run the pick at its N (nested with a pilot, its Richardson companion); accept, or refine."""
+        """Run the pick at its N with a Richardson companion and a third run for the observed order
+        (nested pilots where they fit, else companions at N/2 and N/4); accept, or refine."""
         label = pick.method
         name = self.names[label]
         runs = self.runs.setdefault(label, {})
         mod, prm = self.runner.module(name), self.runner.params_vector(name)
         N = pick.N
         last = None
+        # refining stops once it has spent PURSUIT_BUDGET times the pick's predicted cost (at least
+        # PURSUIT_FLOOR seconds): a motion no affordable step resolves is reported, not chased to MAX_STEPS
+        budget = max(PURSUIT_FLOOR, PURSUIT_BUDGET * (pick.predicted_cost or 0.0))
+        spent0 = self._spent(label)
         for _ in range(MAX_ROUNDS):
+            if self._spent(label) - spent0 > budget:
+                break
             p = self.order(label)
-            N = self._nested(runs, N)
+            N = self._final_N(name, runs, N, pick.N_asymptotic or 1)
             if N > MAX_STEPS:
                 break
             if self.max_time is not None and pick.b is not None and (pick.a or 0) + pick.b * N > self.max_time:
                 pick.status, pick.note = OVER_BUDGET, f"refining needs N = {N}, beyond max_time"
                 break
-            if _companion(runs, N) is None:
-                N += N % 2
-                self.run(name, N // 2)
             r = self.run(name, N, final=True)
             est = estimate_of(runs, N, p, mod, prm)
             last = est
-            if est.status == "ok" and est.l2 <= ACCEPT * self.tol and est.l2_bounds[1] <= BOUND * self.tol:
-                if self.method is None:
-                    self._record([Candidate(label, order=p, C=est.l2 * N ** p if est.l2 > 0 else 0.0,
-                                            N_resolved=pick.N_resolved, N_asymptotic=pick.N_asymptotic)])
-                return self._result(r, label, cands, OK, reason, est)
-            if est.status == "ok" and est.l2 > 0:
-                grow = (est.l2 / (TARGET * self.tol)) ** (1.0 / p)
-                N = max(int(math.ceil(N * max(grow, 1.1))), N + 1)
-            else:
+            if est.status == "ok":
+                if est.l2 <= ACCEPT * self.tol and est.l2_bounds[1] <= BOUND * self.tol:
+                    if self.method is None:
+                        self._record([Candidate(label, order=p, C=est.l2 * N ** p if est.l2 > 0 else 0.0,
+                                                N_resolved=pick.N_resolved, N_asymptotic=pick.N_asymptotic)])
+                    return self._result(r, label, cands, OK, reason, est)
+                if est.order is not None and est.order < p - 0.25:
+                    N = 2 * N   # the companions are not yet asymptotic: shift the three runs up
+                else:
+                    grow = (max(est.l2, est.l2_bounds[1] / BOUND) / (TARGET * self.tol)) ** (1.0 / est.order)
+                    N = max(int(math.ceil(N * max(grow, 1.1))), N + 1)
+            else:   # unresolved, failed, or no order check yet: the run becomes the companion of 2N
                 N = 2 * N
         if pick.status == "ok":
             pick.status = NOT_REACHED
             pick.note = last.message if last is not None and last.status != "ok" else "the estimate stays above tol"
         return self._fallback(cands)
 
-    def _nested(self, runs: dict, N: int) -> int:
-        """N rounded up to a multiple of a run's N (its Richardson companion): the largest with at most
-        15 % overshoot, else a multiple of the smallest."""
-        N = max(int(N), self.n_min)
-        ok = sorted((M for M, r in runs.items() if r.ok and M < N), reverse=True)
-        for M in ok:
-            Nf = M * math.ceil(N / M)
-            if Nf <= 1.15 * N:
-                return Nf
-        if ok:
-            M = ok[-1]
-            return max(M * math.ceil(N / M), 2 * M)
-        return N
+    def _spent(self, label) -> float:
+        return sum(x["cpu"] for x in self.pilot_log if x["method"] == label)
+
+    def _final_N(self, name, runs: dict, N: int, n_asym: int = 1) -> int:
+        """The final run's N >= N, the cheapest of: a run M >= N made already that has a companion (M is run
+        again with its Trajectory); k M (2 <= k <= MAX_RATIO) for a run M made already; or N rounded up to
+        an even number with its companion at N/2, run here. Companions are at or above n_asym (the
+        coarsest N that showed the order), or ratio 2 where no run is."""
+        N = max(int(N), self.n_min, 2, 2 * n_asym)
+        options = []
+        for M, r in runs.items():
+            if not r.ok or M < n_asym:
+                continue
+            comp = _companion(runs, M)
+            if M >= N and comp is not None and comp.N >= n_asym:
+                options.append((M, M))
+            k = max(2, math.ceil(N / M))
+            if k <= MAX_RATIO:
+                options.append((k * M, k * M))
+        fresh = 2 * math.ceil(N / 2)
+        options.append((1.5 * fresh, fresh))
+        cost, Nf = min(options)
+        if Nf == fresh and fresh not in runs and fresh // 2 not in runs:
+            self.run(name, fresh // 2)
+        return Nf
 
     def _fallback(self, cands):
         """No candidate reaches tol within the limits: the most accurate resolved run made, with its

@@ -21,7 +21,10 @@ Unresolved. Impacts make the error non-smooth in h: the estimate compares the im
 records of the runs, contact by contact, and is "unresolved" (no number, the first differing
 event named) when the counts or contacts differ, when an impact time moves between the runs by
 more than a quarter of the time to that contact's neighbouring impact (the events may reorder),
-or, with two companions, when the impact times do not converge at the order. A contact whose gap
+with two companions when the impact times do not converge at the order, when the runs differ by
+more than LOST of the motion's L2 norm (neither resolves it), or when a contact comes to rest
+after its impacts (a Zeno accumulation, or a bounce the run takes for resting at this h: the
+number of bounces before the hold depends on h, and two runs can agree on a wrong one). A contact whose gap
 phi dips between two grid points without an impact being recorded (a grazing contact the grid
 does not see: the parabola through phi at three grid points reaches the surface, to within the
 run's estimated error) makes the estimate unresolved too, even where both runs miss it alike.
@@ -122,6 +125,12 @@ def sequence_difference(a: Run, b: Run, label_a: str, label_b: str, names=None) 
 
     Per contact: the same number of impacts and of releases; then each impact time may move by at
     most a quarter of the time to that contact's neighbouring impact (in either run)."""
+    same = (len(a.impacts) == len(b.impacts) and np.array_equal(a.impact_contact, b.impact_contact)
+            and len(a.releases) == len(b.releases) and np.array_equal(a.release_contact, b.release_contact))
+    if same:   # the common case: one pass, no per-contact bookkeeping unless an impact moves far
+        d = np.abs(a.impacts - b.impacts)
+        if len(d) < 2 or float(np.max(d)) <= 0.25 * _min_gap(a, b):
+            return "", d
     ia, ra = _events(a)
     ib, rb = _events(b)
     firsts = []   # (time, text)
@@ -161,16 +170,44 @@ def sequence_difference(a: Run, b: Run, label_a: str, label_b: str, names=None) 
     return first, (np.concatenate(dts) if dts else np.zeros(0))
 
 
+def _min_gap(a: Run, b: Run) -> float:
+    """The shortest time between two impacts of one contact, in either run (inf if none)."""
+    g = math.inf
+    for r in (a, b):
+        if len(r.impacts) > 1:
+            for c in np.unique(r.impact_contact):
+                t = r.impacts[r.impact_contact == c]
+                if len(t) > 1:
+                    g = min(g, float(np.min(np.diff(t))))
+    return g
+
+
+LOST = 0.1   # runs that differ by more than this fraction of the motion's L2 norm do not resolve it
+
+
 def difference(coarse: Run, fine: Run, names=None) -> Difference:
-    """coarse - fine on the coarse grid (fine.N a multiple of coarse.N, same t0 and horizon)."""
+    """coarse - fine on the coarse grid (fine.N a multiple of coarse.N, same t0 and horizon). Runs that
+    differ by more than LOST of the L2 norm of q have lost the motion between them: `first` says so."""
     r = fine.N // coarse.N
     if r * coarse.N != fine.N or r < 1:
         raise ValueError(f"companion: N = {fine.N} is not a multiple of N = {coarse.N}")
-    dq = coarse.q - fine.q[::r]
+    qf = fine.q[::r]
+    dq = coarse.q - qf
     dp = coarse.p - fine.p[::r]
     l2 = float(np.sqrt(coarse.h * np.sum(dq * dq)))
     first, dt = sequence_difference(coarse, fine, f"h = {coarse.h:.6g}", f"h = {fine.h:.6g}", names)
-    return Difference(l2=l2, final_q=float(np.linalg.norm(dq[-1])), final_p=float(np.linalg.norm(dp[-1])),
+    holds = sorted(coarse.holds + fine.holds)
+    if not first and holds:
+        t, c = holds[0]
+        first = (f"{_name(names, c)} comes to rest at t = {t:.6g} (held after its impacts): where impacts "
+                 "accumulate the number of bounces before the hold depends on h")
+    if not first:
+        qn = float(np.sqrt(coarse.h * np.sum(qf * qf)))
+        if l2 > LOST * qn:
+            first = (f"the runs at h = {coarse.h:.6g} and {fine.h:.6g} differ by {l2:.3g} in L2, more than "
+                     f"{LOST:.0%} of the motion's {qn:.3g}: neither resolves it")
+    return Difference(l2=l2, final_q=float(np.sqrt(np.sum(dq[-1] * dq[-1]))),
+                      final_p=float(np.sqrt(np.sum(dp[-1] * dp[-1]))),
                       sup_q=float(np.max(np.abs(dq))) if dq.size else 0.0, dt=dt, first=first)
 
 
@@ -207,14 +244,17 @@ def _near_event(run: Run, reach: int) -> np.ndarray:
 
 
 def _parabola_minima(f: np.ndarray, skip: np.ndarray):
-    """(interior grid minima k of f, the lowest value of the parabola through f[k-1], f[k], f[k+1])."""
+    """(grid points k, the lowest value of the parabola through f[k-1], f[k], f[k+1] on [t_k-1, t_k+1],
+    its curvature): every k whose parabola has its vertex on that span (so a dip in the last step is
+    seen too) or is a grid minimum, f[k] > 0, not skipped."""
     a, b, c = f[:-2], f[1:-1], f[2:]
-    cand = np.flatnonzero((b <= a) & (b <= c) & (b > 0) & ~skip[1:-1])
-    curv = (a[cand] - 2 * b[cand] + c[cand]) / 2.0
-    slope = (c[cand] - a[cand]) / 2.0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        low = np.where(curv > 0, b[cand] - slope * slope / (4 * curv), b[cand])
-    return cand + 1, low, np.abs(curv)
+    curv = (a - 2 * b + c) / 2.0
+    slope = (c - a) / 2.0
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        s = np.where(curv > 0, -slope / (2 * curv), np.inf)
+        low = np.where(curv > 0, b - slope * slope / (4 * curv), b)
+    cand = np.flatnonzero(((np.abs(s) <= 1.0) | ((b <= a) & (b <= c))) & (b > 0) & ~skip[1:-1])
+    return cand + 1, low[cand], np.abs(curv[cand])
 
 
 def near_misses(run: Run, mod, prm, margin: float = 0.0, screen: Run | None = None) -> list[tuple[float, int, float]]:
@@ -404,7 +444,7 @@ def estimate(tr, *, kind: str = "richardson", companions: int = 1, reference=Non
         return _against_reference(tr, args, reference)
     runner = args.runner(float(tr.T))
     meth = args.method
-    run = Run.of_trajectory(tr, meth)
+    run = Run.of_trajectory(tr, meth, runner.module(meth), runner.params_vector(meth))
     order, why = verified_order(meth, runner, run.held)
     if order is None:
         companions = 2

@@ -46,6 +46,7 @@ class Run:
     wall: float
     cpu: float
     trajectory: object = None
+    holds: tuple = ()    # (time, contact) where a contact not held at the start comes to rest
 
     @property
     def ok(self) -> bool:
@@ -56,13 +57,40 @@ class Run:
         return self.t0 + self.h * np.arange(self.q.shape[0])
 
     @classmethod
-    def of_trajectory(cls, tr, method) -> "Run":
-        """The Run view of a finished Trajectory (the user's run, compared with its companions)."""
+    def of_trajectory(cls, tr, method, mod=None, prm=None) -> "Run":
+        """The Run view of a finished Trajectory (the user's run, compared with its companions); with
+        its module and parameters, a hold the record starts with is checked against phi(q0)."""
         held = bool(np.any(tr.contact_active)) or len(tr.releases) > 0
-        return cls(method=method, N=tr.n_steps, h=float(tr.h), t0=float(tr.t[0]) if len(tr.t) else 0.0, q=tr.q,
+        t0 = float(tr.t[0]) if len(tr.t) else 0.0
+        return cls(method=method, N=tr.n_steps, h=float(tr.h), t0=t0, q=tr.q,
                    p=tr.p, impacts=np.asarray(tr.impacts, float), impact_contact=np.asarray(tr.impact_contact),
                    releases=np.asarray(tr.releases, float), release_contact=np.asarray(tr.release_contact),
-                   held=held, status=tr.status, wall=float(tr.wall_time), cpu=float("nan"), trajectory=tr)
+                   held=held, status=tr.status, wall=float(tr.wall_time), cpu=float("nan"), trajectory=tr,
+                   holds=hold_onsets(np.asarray(tr.contact_active), t0, float(tr.h),
+                                     start_gaps(mod, tr.q[0], prm) if mod is not None and len(tr.q) else None))
+
+
+def hold_onsets(active: np.ndarray, t0: float, h: float, start_phis=None) -> tuple:
+    """((time, contact), ...) of the grid points where a contact not held before comes to rest. A
+    contact the record holds at t0 is an onset too unless it starts on its surface (start_phis: phi_i
+    at q0 within 1e-9 of 0; without them every hold at t0 counts as a resting start)."""
+    if active.ndim != 2 or not active.any():
+        return ()
+    out = []
+    if start_phis is not None:
+        out += [(t0, int(c)) for c in np.flatnonzero(active[0]) if abs(float(start_phis[c])) > 1e-9]
+    if active.shape[0] > 1:
+        on = active[1:] & ~active[:-1]
+        ks, cs = np.nonzero(on)
+        out += [(t0 + (int(k) + 1) * h, int(c)) for k, c in zip(ks, cs)]
+    return tuple(out)
+
+
+def start_gaps(mod, q0, prm) -> np.ndarray:
+    """phi_i(q0) of every contact."""
+    out = np.empty(int(mod.NCON))
+    mod.sys_phis(np.ascontiguousarray(q0, dtype=float), prm, out)
+    return out
 
 
 class Runner:
@@ -158,7 +186,8 @@ class Runner:
                   impact_contact=field("impact_contact", k_imp).copy(), releases=field("releases", k_rel).copy(),
                   release_contact=field("release_contact", k_rel).copy(),
                   held=bool(np.any(active)) or k_rel > 0, status=status, wall=wall,
-                  cpu=time.thread_time() - c0, trajectory=tr)
+                  cpu=time.thread_time() - c0, trajectory=tr,
+                  holds=hold_onsets(active, self.t0, h, start_gaps(mod, q0, prm) if active[:1].any() else None))
         return run
 
     def run_args(self, meth) -> "RunArgs":
