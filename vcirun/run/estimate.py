@@ -521,3 +521,35 @@ def _against_reference(tr, args, ref) -> ErrorEstimate:
         note += "; the run's impact sequence differs from the reference's"
     return ErrorEstimate("reference", OK, h, l2=l2, l2_bounds=(max(0.0, l2 - pad), l2 + pad), final_q=fq, final_p=fp,
                          first_difference=first, note=note, extras={"reference": ref})
+
+
+# --- what a sweep stores -------------------------------------------------------------------------------
+def sweep_attrs(traj, h_requested: float, error_estimate: bool) -> dict:
+    """The attributes a sweep stores for a run (scalars; vcirun.experiments.worker): for a run of
+    `simulate(tol=...)` the choice (h stays the grid's h of the config, the largest step allowed; the
+    step chosen is h_chosen, the method core_method) and its estimate; with error_estimate, the
+    estimate of any ok run (one companion at h / 2). est_status: ok / unresolved / failed; est_l2 etc.
+    NaN unless ok."""
+    out = {}
+    est = None
+    choice = getattr(traj, "choice", None)
+    if choice is not None:
+        out.update(h=float(h_requested), h_chosen=float(traj.h), tol=float(choice.tol), tol_status=choice.status,
+                   tol_reason=choice.reason[:500], n_pilots=len(choice.pilots),
+                   tol_cpu=float(choice.seconds.get("total_cpu", float("nan"))))
+        est = choice.estimate
+    elif error_estimate and traj.status == OK:
+        try:
+            est = traj.error_estimate()
+        except ValueError as e:   # e.g. a system the record cannot rebuild
+            est = ErrorEstimate("richardson", FAILED, float(traj.h), message=str(e))
+    if est is not None:
+        nan = float("nan")
+        out.update(est_kind=est.kind, est_status=est.status, est_message=(est.message or est.note)[:500],
+                   est_l2=est.l2 if est.l2 is not None else nan,
+                   est_l2_low=est.l2_bounds[0] if est.l2_bounds else nan,
+                   est_l2_high=est.l2_bounds[1] if est.l2_bounds else nan,
+                   est_final_q=est.final_q if est.final_q is not None else nan,
+                   est_final_p=est.final_p if est.final_p is not None else nan,
+                   est_order=float(est.order) if est.order is not None else nan)
+    return out
