@@ -49,8 +49,8 @@ class SweepConfig(ConfigModel):
     name: str = Field(min_length=1, max_length=80)
     description: str | None = Field(default=None, max_length=10_000)
     system: SystemSpec
-    methods: list[MethodSpec] = Field(default=None, min_length=1, max_length=1_000)
-    h: list[PositiveFloat] = Field(default=None, min_length=1, max_length=10_000)
+    methods: list[MethodSpec] = Field(min_length=1, max_length=1_000)
+    h: list[PositiveFloat] = Field(min_length=1, max_length=10_000)
     # tol: runs of vcirun.simulate(..., tol=t) for each t in place of methods x h (methods, if given, are
     # then the only candidate of their runs; h, if given, the largest steps allowed; default [T])
     tol: list[PositiveFloat] | None = Field(default=None, min_length=1, max_length=100)
@@ -96,10 +96,6 @@ class SweepConfig(ConfigModel):
             return data
         tols = data.get("tol")
         if tols is None:
-            missing = [k for k in ("methods", "h") if data.get(k) is None]
-            if missing:
-                raise FieldError((missing[0],), "required (or give tol: to have the method and h chosen for a "
-                                                "tolerance)")
             return data
         tols = tols if isinstance(tols, list) else [tols]
         data = dict(data, tol=tols)

@@ -147,7 +147,7 @@ class MethodSpec(ConfigModel):
     CVA and VCI accept `ld` (the discrete Lagrangian of their full and partial steps, default SVC).
     tol: the run is `vcirun.simulate(..., tol=tol)` (name "auto": the method chosen too; a method name:
     the only candidate); a sweep config's top-level `tol:` makes these entries."""
-    name: Union[MethodName, Literal["auto"]]
+    name: Literal[COLLISION_METHODS + DISCRETE_LAGRANGIANS + ("auto",)]
     ld: LdName | None = None
     mh_order: int | None = Field(default=None, ge=1, le=4)
     flow_order: Literal[4, 6] | None = None

@@ -10,8 +10,8 @@ recommend SYSTEM --tol TOL` reads them (vcirun.cli.recommend).
 Fit. Per method the points (h, median error) are taken from the coarsest h whose error shrinks at
 least at order p - 1 to the next finer h, down to the finest h above the reference's floor (three
 times its self-reported accuracy: errors there are the reference's); C_h is the median of e / h^p
-over those points. The cost per step b is the median of cost / N over the finer half of the points,
-the cost per run a what the coarsest point leaves (at least 0). Prediction for tol: h = (TARGET tol
+over those points. The cost a + b N of an N-step run is the least-squares line through the points
+(a at least 0). Prediction for tol: h = (TARGET tol
 / C_h)^(1/p) (TARGET of vcirun.run.choose), at most the coarsest h fitted; flagged "extrapolated"
 where h lies outside the fitted range and "below the measurements" where tol is below the smallest
 error measured.
@@ -47,10 +47,17 @@ def fit_points(points: list, order: int, T: float, floor: float = 0.0) -> dict:
            "err_min": min((p["err"] for p in pts), default=None), "note": ""}
     costs = [p for p in points if p.get("cost") is not None and math.isfinite(p["cost"]) and p.get("N")]
     if costs:
-        costs.sort(key=lambda p: p["N"])
-        fine = costs[len(costs) // 2:]
-        b = statistics.median([p["cost"] / p["N"] for p in fine])
-        a = max(0.0, costs[0]["cost"] - b * costs[0]["N"])
+        # least squares cost = a + b N (the large runs set b; a at least 0)
+        Ns = [float(p["N"]) for p in costs]
+        cs = [float(p["cost"]) for p in costs]
+        if len(costs) >= 2 and max(Ns) > min(Ns):
+            mN, mc = statistics.fmean(Ns), statistics.fmean(cs)
+            b = sum((n - mN) * (c - mc) for n, c in zip(Ns, cs)) / sum((n - mN) ** 2 for n in Ns)
+            if not b > 0:
+                b = max(cs) / max(Ns)
+            a = max(0.0, mc - b * mN)
+        else:
+            a, b = 0.0, cs[0] / Ns[0]
         out["a"], out["b"] = a, b
     if len(pts) < 2 or not order:
         out["note"] = "fewer than two points" if order else "order unknown"
@@ -161,6 +168,8 @@ def from_results(path) -> dict:
     floor = 3.0 * float(np.nanmax(acc[1])) if acc is not None and np.isfinite(acc[1]).any() else 0.0
     methods = {}
     for i, label in enumerate(labels):
+        if isinstance(specs.get(label), dict) and specs[label].get("tol") is not None:
+            continue   # runs of simulate(tol=...): their h is chosen per run, not a point of a method's curve
         pts = []
         for j, h in enumerate(hs):
             ok = status is not None and all(s == "ok" for s in status[1][i, j])
