@@ -248,9 +248,9 @@ def _parabola_minima(f: np.ndarray, skip: np.ndarray):
     its curvature): every k whose parabola has its vertex on that span (so a dip in the last step is
     seen too) or is a grid minimum, f[k] > 0, not skipped."""
     a, b, c = f[:-2], f[1:-1], f[2:]
-    curv = (a - 2 * b + c) / 2.0
-    slope = (c - a) / 2.0
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):   # inf outside a screen's windows
+        curv = (a - 2 * b + c) / 2.0
+        slope = (c - a) / 2.0
         s = np.where(curv > 0, -slope / (2 * curv), np.inf)
         low = np.where(curv > 0, b - slope * slope / (4 * curv), b)
     cand = np.flatnonzero(((np.abs(s) <= 1.0) | ((b <= a) & (b <= c))) & (b > 0) & ~skip[1:-1])
