@@ -2,31 +2,40 @@
 trajectory error `tol` in the least time, chosen by pilot runs, and the run with its error estimate.
 
 The error of a method of order p at N grid steps on [t0, t0 + T] is e(N) = C N^-p once the steps
-resolve the motion (the same impacts, contact by contact, at converging times). Pilot runs of a
-method at N and 2N from the user's start differ by d = e(N) - e(2N), so e(2N) = d / (2^p - 1)
-and C follows with the verified order p (vcirun.run.estimate.verified_order); a third run checks the
-observed order. The cost of a run is a + b N (CPU seconds: the overhead of a run and the cost of
-a step, measured on the pilots of this scene). The N that reaches TARGET * tol is
-N* = (C / (TARGET tol))^(1/p), its predicted cost a + b N*; the candidate with the least predicted
-cost is run at N* (rounded up to a multiple of a pilot's N, so the pilot is its Richardson
-companion), and its estimate decides: accepted when the estimated L2 error is at most ACCEPT * tol
-and its upper bound at most BOUND * tol, else refined (from the estimate) or, where the impact
-sequences disagree or a contact grazes, doubled until resolved.
+resolve the motion (the same impacts, contact by contact). Pilot runs of a method at N and 2N from
+the user's start differ by d = e(N) - e(2N), so e(2N) = d / (2^p - 1) and C follows with the
+verified order p (vcirun.run.estimate.verified_order); a third run shows the observed order. The
+cost of a run is a + b N CPU seconds (measured on this scene: a timing run of N_CAL steps with the
+energies the final run computes). The N that reaches TARGET tol is N* = (C / (TARGET tol))^(1/p).
 
-Candidates. CVA, CVA4, CVA6, CVA8, MCVAC, MCVAA, and VCI where the scene has one contact, no
-generalized force and no declared reset map (R^VCI balances a short pre-impact step against the
-rest of the step: with impacts denser than the grid it fails or loses bounces, see docs/extremes.md);
-under a generalized force CVA6 and CVA8 (order not verified) and MCVAA and MCVAC (refused) are left
-out. A method the user names is the only candidate; `h` is then the largest step allowed and
-`max_time` (seconds) bounds the predicted cost of the final run.
+Candidates (`_candidates`). CVA, CVA4, CVA6, CVA8, MCVAC, MCVAA, and VCI where the scene has one
+contact, no generalized force and no declared reset map (R^VCI balances a short pre-impact step
+against the rest of the step: with impacts denser than the grid it fails or loses bounces,
+docs/extremes.md); under a generalized force CVA6 and CVA8 (order not verified) and MCVAA and MCVAC
+(refused) are left out. A method the user names is the only candidate; `h` is then the largest step
+allowed and `max_time` (seconds) bounds the predicted cost of the final run.
 
-The scene model. The first call on a scene (system, parameters, horizon, options) runs pilot ladders
-for every candidate (N = N0, 2 N0, ... until the method is resolved at its order, or its pilots cost
-more than the best candidate's predicted run); it records each candidate's error constant and cost
-per step in a per-process model (`scene_model`). Later calls on the same scene rank the candidates
-by the model, scaled to this start by the pilots of the best one (a start whose motion needs k times
-the steps for one method is taken to need k times the steps for every method), and pilot only the
-best (and a runner-up predicted within RERANK of it). docs/tolerance.md says where this fails.
+The scene model (`SceneModel`, per process, keyed by system, parameters, horizon and options). The
+first call on a scene runs a ladder N = N_FIRST, 2 N_FIRST, ... for every candidate until two pairs
+agree in their impacts and show the order (at least p - 1), or its pilots cost SCAN_BUDGET, and
+one timing run per candidate; it records each candidate's error constant on this start, the
+coarsest N that resolved the impacts and the coarsest N that showed the order. Later calls rank the
+candidates by the model's median constant, pilot the best at N*/8 and N*/4 (and a runner-up
+predicted within RERANK of it), and scale the others by what the pilots say about this start (a
+start that needs k times the steps for one method is taken to need k times the steps for every
+method). Where N*/8 is coarser than the order was ever seen, the best is run without pilots at the
+N the largest constant seen predicts.
+
+The final run (`_pursue`). The pick runs at the least N that reaches TARGET tol and that a companion
+can certify (at least twice the coarsest N that showed the order: `_certifiable`), nested with a
+run made already where that is cheaper than new companions at N/2 and N/4 (`_final_N`). Its
+Richardson estimate (`estimate_of`: the companion, the third run's observed order, the grazing
+check) decides: accepted when the third run showed the order, the estimate is at most ACCEPT tol
+and its bracket's upper end at most BOUND tol; otherwise N grows by the estimate, or doubles where the impacts disagree, a
+contact grazes or the observed order is short of p, until accepted or the refinement has cost
+PURSUIT_BUDGET times the pick's predicted run. No candidate reaching tol gives the status
+not_reached (below_floor, over_budget) and the most accurate resolved run made (`_fallback`).
+docs/tolerance.md says where this fails.
 """
 from __future__ import annotations
 
@@ -266,12 +275,15 @@ def estimate_of(runs: dict, N: int, p: float, mod=None, prm=None, grazing=True) 
         return est
     floor = roundoff_level(run)
     third = _companion(runs, comp.N, 4)
-    # without a third run the bracket allows the pair to be up to two orders short of p (one for p <= 2)
+    # checked: a third run showed the order (or the pair agrees to round-off); without it the bracket
+    # allows the pair to be two orders short of p (one for p <= 2), and _pursue does not accept it
     margin = min(2.0, max(p - 1.0, 0.5))
+    est.extras["checked"] = d.l2 <= floor
     if third is not None and d.l2 > floor:
         d0 = difference(third, comp)
         if not d0.first and d0.l2 > floor:
             margin = 1.0
+            est.extras["checked"] = True
             p_obs = _observed_order(third.N, comp.N, N, d0.l2, d.l2)
             est.observed_order = p_obs
             if p_obs is not None and p_obs < 1.0:
@@ -356,7 +368,7 @@ def _certifiable(c: Candidate) -> int:
     runs agree to round-off, at or above the coarsest resolved N."""
     if c.C == 0.0 and c.N_resolved:
         return 2 * c.N_resolved
-    return 2 * c.N_asymptotic if c.N_asymptotic else 1
+    return 2 * c.N_asymptotic if c.N_asymptotic else 1   # (the third run at N/4 may be coarser: it checks)
 
 
 SCAN_BUDGET = 0.05   # CPU seconds of pilots per candidate on a scene's first call
@@ -681,7 +693,7 @@ class _Chooser:
             r = self.run(name, N, final=True)
             est = estimate_of(runs, N, p, mod, prm)
             last = est
-            if est.status == "ok":
+            if est.status == "ok" and est.extras.get("checked"):
                 if est.l2 <= ACCEPT * self.tol and est.l2_bounds[1] <= BOUND * self.tol:
                     if self.method is None:
                         self._record([Candidate(label, order=p, C=est.l2 * N ** p if est.l2 > 0 else 0.0,
@@ -703,26 +715,30 @@ class _Chooser:
         return sum(x["cpu"] for x in self.pilot_log if x["method"] == label)
 
     def _final_N(self, name, runs: dict, N: int, n_asym: int = 1) -> int:
-        """The final run's N >= N, the cheapest of: a run M >= N made already that has a companion (M is run
-        again with its Trajectory); k M (2 <= k <= MAX_RATIO) for a run M made already; or N rounded up to
-        an even number with its companion at N/2, run here. Companions are at or above n_asym (the
-        coarsest N that showed the order), or ratio 2 where no run is."""
-        N = max(int(N), self.n_min, 2, 2 * n_asym)
+        """The final run's N >= N, with a companion at or above n_asym (the coarsest N that showed the
+        order) and a third run below it for the observed order; the cheapest of: a run M >= N made
+        already that has both (M is run again with its Trajectory); k M (2 <= k <= MAX_RATIO) for a run
+        M >= n_asym made already that has a third run below it; or N rounded up to a multiple of 4 with
+        companions at N/2 and N/4, run here."""
+        N = max(int(N), self.n_min, 4, 2 * n_asym)
         options = []
         for M, r in runs.items():
             if not r.ok or M < n_asym:
                 continue
             comp = _companion(runs, M)
-            if M >= N and comp is not None and comp.N >= n_asym:
+            if (M >= N and comp is not None and comp.N >= n_asym
+                    and _companion(runs, comp.N, 4) is not None):
                 options.append((M, M))
             k = max(2, math.ceil(N / M))
-            if k <= MAX_RATIO:
+            if k <= MAX_RATIO and _companion(runs, M, 4) is not None:
                 options.append((k * M, k * M))
-        fresh = 2 * math.ceil(N / 2)
-        options.append((1.5 * fresh, fresh))
+        fresh = 4 * math.ceil(N / 4)
+        options.append((1.75 * fresh, fresh))
         cost, Nf = min(options)
-        if Nf == fresh and fresh not in runs and fresh // 2 not in runs:
-            self.run(name, fresh // 2)
+        if Nf == fresh:
+            for M in (fresh // 2, fresh // 4):
+                if M not in runs:
+                    self.run(name, M)
         return Nf
 
     def _fallback(self, cands):

@@ -500,6 +500,9 @@ def _against_reference(tr, args, ref) -> ErrorEstimate:
 
     h = float(tr.h)
     if ref is None:
+        if float(tr.t[0]) != 0.0:
+            raise ValueError(f"reference: the exact reference starts at t = 0 and this run at t0 = {tr.t[0]:g}; "
+                             "pass reference= one computed for it, or use kind='richardson'")
         ref = vcirun.reference(args.system, T=float(tr.t[-1]), q0=np.asarray(tr.q[0], float),
                                p0=np.asarray(tr.p[0], float), params=args.params,
                                resting_contact=args.resting_contact)
