@@ -620,6 +620,11 @@ class _Chooser:
         Where N*/8 is coarser, the best is run directly at the N the largest error constant seen
         predicts (its pilots would not be in the asymptotic regime; the final run's companion checks)."""
         preds = {lb: self._from_model(lb, high=False) for lb in labels}
+        if not any(c.status == "ok" for c in preds.values()):
+            # no candidate resolved on the starts seen (e.g. impacts accumulated there): this start may differ
+            cands = self._scan(labels)
+            self._record(cands, scanned=True)
+            return cands
         piloted: dict = {}
         scale = None
         for _ in range(2):
