@@ -41,6 +41,8 @@ Sections (`--only a,b,...` to pick; `--quick` for a short smoke run):
             and the DOP853 path beside one run of each method; its issue's targets in this one process
             (random box states with a wrong event sequence, the cart-pendulum reference against one MCVAA
             simulate(), its error against an independent long-double solve, fig4's references and runs)
+  tol       simulate(tol=...) and tr.error_estimate() against the exact reference (bench/tolerance.py):
+            random states of four scenes, tol = 1e-3 .. 1e-9, the issue's three targets
   wp        the work-precision studies (configs/work_precision.yaml, work_precision_double.yaml,
             long_horizon.yaml) through `vcirun study` (vcirun.experiments.studies), with their figures; the
             10x target is read on vcirun's front (best method at each accuracy) of the two T = 5 studies
@@ -713,6 +715,13 @@ def section_reference(res):
     res["reference"] = reference_bench.main(["--quick"] if QUICK else [])
 
 
+def section_tol(res):
+    """simulate(tol=...) and tr.error_estimate() against the exact reference: bench/tolerance.py."""
+    import tolerance
+
+    res["tolerance"] = tolerance.main(["--quick"] if QUICK else [])["summary"]
+
+
 def section_bodies(res):
     """Cradles of N = 3, 10, 30, 100 balls and link chains by bodies: bench/bodies_scaling.py."""
     import bodies_scaling
@@ -729,7 +738,8 @@ SECTIONS = {"steps": section_steps, "sim5": section_sim5, "impact": section_impa
              "bodies": section_bodies, "cacheverify": section_cacheverify,
              "throughput": lambda res: section_throughput(res, quick=QUICK), "reference": section_reference,
              "tiers": lambda res: section_tiers(res, quick=QUICK, log=log),
-             "friction": lambda res: section_friction(res, quick=QUICK)}
+             "friction": lambda res: section_friction(res, quick=QUICK),
+             "tol": section_tol}
 
 
 def main(argv=None):

@@ -308,7 +308,7 @@ BASE = dict(h=0.01, T=1.0, beta=3.2)
     ({"event_tol": 0}, "event_tol: must be > 0 (got 0)"),
     ({"max_impacts_step": 0}, "max_impacts_step: must be >= 1 (got 0)"),
     ({"constrained": "no"}, "constrained: must be true or false (got 'no')"),
-    ({"h": None}, "h: must be a finite number (got None)"),
+    ({"h": "fast"}, "h: must be a finite number (got 'fast')"),   # (h=None: the default step, docs/guide.md)
     ({"h": 1j}, "h: must be a finite number (got 1j)"),
     ({"h": np.array([0.01, 0.02])}, "h: must be a finite number (got array("),
     ({"h": 1e-320}, "h: must be >= 1e-50"),

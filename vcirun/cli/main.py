@@ -8,7 +8,8 @@ Python API and vcirun.experiments, one module per command group.
 - vcirun.cli.verify: `verify`;
 - vcirun.cli.systems: `systems`;
 - vcirun.cli.periodic: `periodic`;
-- vcirun.cli.cache: `cache info`, `cache clear`.
+- vcirun.cli.cache: `cache info`, `cache clear`;
+- vcirun.cli.recommend: `recommend`.
 
 Expected failures (bad config, unusable results file, bad option values) print one line
 `error: ...` on stderr and exit with status 1; an interrupted sweep exits 130 (SIGINT) or 143
@@ -26,8 +27,9 @@ from . import verify
 from . import systems
 from . import periodic
 from . import cache
+from . import recommend
 
-COMMAND_MODULES = (simulate, animate, results, verify, systems, periodic, cache)
+COMMAND_MODULES = (simulate, animate, results, verify, systems, periodic, cache, recommend)
 
 
 def main() -> None:  # pragma: no cover - console entry point alternative

@@ -35,9 +35,9 @@ def _parse_vector(text: str | None, name: str):
         raise CliError(f"{name}: expected comma-separated numbers such as 1.2,-1.0 (got {text!r})") from None
 
 
-def simulate_once(system: str, method: str, *, h: float, T: float, beta: float | None = None, ld=None,
+def simulate_once(system: str, method: str | None, *, h: float | None, T: float, beta: float | None = None, ld=None,
                   mh_order=None, flow_order=None, params: dict | None = None, constrained: bool | None = None,
-                  newton_tol=None, event_tol=None, q0=None, p0=None, tier=None):
+                  newton_tol=None, event_tol=None, q0=None, p0=None, tier=None, tol=None, max_time=None):
     """One run through `vcirun.simulate`; bad input becomes CliError. Returns (trajectory, seconds);
     `traj.built` is the kernel cache's report of the call (vcirun.codegen.kernel_cache.BuildReport)."""
     import time
@@ -48,8 +48,12 @@ def simulate_once(system: str, method: str, *, h: float, T: float, beta: float |
     from vcirun.codegen.kernel_cache import default
 
     kw = {k: v for k, v in dict(ld=ld, mh_order=mh_order, flow_order=flow_order, params=params or None,
-                                constrained=constrained, newton_tol=newton_tol, event_tol=event_tol).items()
+                                constrained=constrained, newton_tol=newton_tol, event_tol=event_tol, tol=tol,
+                                max_time=max_time).items()
           if v is not None}
+    if tol is None:   # without --tol: the command's defaults
+        method = "CVA" if method is None else method
+        h = 1e-2 if h is None else h
     if (q0 is None) != (p0 is None):
         raise CliError("initial state: give both --q0 and --p0 (or --beta)")
     if q0 is not None:
@@ -132,15 +136,18 @@ def _setup_words(traj) -> str:
              "  vcirun simulate --system cart_pendulum --method MCVAA --h 0.01 --T 5 --beta 3.2\n\n"
              "  vcirun simulate --method MCVA --ld SVC --mh-order 3 --flow-order 4\n\n"
              "  vcirun simulate --system double_pendulum --method CVA --unconstrained\n\n"
-             "  vcirun simulate --system double_pendulum --q0 -1.2,-1.0 --p0 0,0 --output run.h5")
+             "  vcirun simulate --system double_pendulum --q0 -1.2,-1.0 --p0 0,0 --output run.h5\n\n"
+             "  vcirun simulate --system cart_pendulum --beta 4.2 --tol 1e-6")
 def simulate(
     system: str = typer.Option("cart_pendulum", "--system", "-s",
                                help="Built-in scene (cart_pendulum, double_pendulum, oscillator_wall, ...) "
                                     "or a YAML system file."),
-    method: str = typer.Option("CVA", "--method", "-m",
-                               help="CVA, VCI, MCVAA, MCVAC, MCVA (with --ld, --mh-order), or a discrete "
-                                    "Lagrangian (SE1 SE2 SVA SVB SVC midpoint) ignoring the constraint."),
-    h: float = typer.Option(1e-2, "--h", help="Step size."),
+    method: Optional[str] = typer.Option(None, "--method", "-m",
+                                         help="CVA (default), VCI, MCVAA, MCVAC, MCVA (with --ld, --mh-order), "
+                                              "or a discrete Lagrangian (SE1 SE2 SVA SVB SVC midpoint) ignoring "
+                                              "the constraint; with --tol: the only candidate."),
+    h: Optional[float] = typer.Option(None, "--h", help="Step size (default 1e-2); with --tol: the largest "
+                                                        "step allowed."),
     T: float = typer.Option(5.0, "--T", "-T", help="Final time."),
     beta: Optional[float] = typer.Option(None, "--beta", "-b",
                                          help="Initial-condition parameter of the scene's map "
@@ -156,6 +163,12 @@ def simulate(
                                      help="Initial coordinates, comma-separated (with --p0; `vcirun systems` "
                                           "lists each scene's coordinates)."),
     p0: Optional[str] = typer.Option(None, "--p0", metavar="P1,P2,...", help="Initial momenta p = M(q) qdot."),
+    tol: Optional[float] = typer.Option(None, "--tol",
+                                        help="An L2 trajectory error to reach: method (unless --method) and h "
+                                             "chosen by pilot runs (docs/tolerance.md); prints the candidates "
+                                             "and the run's error estimate."),
+    max_time: Optional[float] = typer.Option(None, "--max-time", help="With --tol: a budget in seconds for the "
+                                                                       "final run."),
     output: Optional[Path] = typer.Option(None, "--output", "-o",
                                           help="Save the trajectory: .h5 (read with "
                                                "vcirun.run.trajectory.read_trajectory), .nc, .csv or .npz."),
@@ -172,7 +185,7 @@ def simulate(
                                     flow_order=flow_order, params=_parse_params(param),
                                     constrained=False if unconstrained else None, newton_tol=newton_tol,
                                     event_tol=event_tol, q0=_parse_vector(q0, "--q0"), p0=_parse_vector(p0, "--p0"),
-                                    tier=tier)
+                                    tier=tier, tol=tol, max_time=max_time)
         if output is not None:
             try:
                 traj.save(output)
@@ -188,6 +201,9 @@ def simulate(
     for k, v in summary_lines(traj, total):
         t.add_row(k, v)
     _console().print(t)
+    if traj.choice is not None:   # --tol: the candidates, the pick and the run's error estimate
+        typer.echo(traj.choice.table())
+        typer.echo(str(traj.choice.estimate))
     if output is not None:
         typer.echo(f"saved {output}")
     if traj.status != "ok":

@@ -211,8 +211,16 @@ def _preflight(cfg: SweepConfig, pending: list[RunSpec]) -> tuple[int, int, int]
     # kernel set's compiled tier is built in the background (vcirun.codegen.tiers)
     side = 0
     if requested() == "compiled":
-        side = compile_side_by_side(system, sysm, [(s.method.name, split_options(s.method.simulate_kwargs())[0], kw)
-                                                   for s, kw in first.values()], default_workers(),
+        entries = []
+        for s, kw in first.values():
+            if s.method.tol is not None:   # a tol= run may use any of its candidates: compile each
+                from ..run.choose import DEFAULT_CANDIDATES
+
+                plain = {k: v for k, v in kw.items() if k != "tol"}
+                entries += [(n, {}, plain) for n in ([s.method.name] if s.method.name != "auto" else DEFAULT_CANDIDATES)]
+            else:
+                entries.append((s.method.name, split_options(s.method.simulate_kwargs())[0], kw))
+        side = compile_side_by_side(system, sysm, entries, default_workers(),
                                     reference=None if isinstance(cfg.reference, MethodReference) else ref_kw)
     for spec, kw in first.values():
         try:

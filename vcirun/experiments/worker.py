@@ -200,6 +200,8 @@ def _resolved_method(spec: MethodSpec) -> dict:
     The config layer has already resolved every method, so a failure here is a bug and raises."""
     from vcirun.methods.table import resolve_method
 
+    if spec.tol is not None and spec.name == "auto":   # simulate(tol=...) chooses; core_method records it
+        return {"name": "auto", "tol": spec.tol}
     m = resolve_method(spec.name, **{k: v for k, v in spec.simulate_kwargs().items()
                                      if k in ("ld", "mh_order", "flow_order")})
     return {k: getattr(m, k, None) for k in ("name", "ld", "partial", "reset", "mh_order", "flow_order")}
@@ -285,6 +287,10 @@ def _execute_run(st: _WorkerState, spec: RunSpec, ref) -> dict:
     else:
         l2 = _l2_error(st, spec.ic, traj, ref)
     attrs.update(base)
+    if spec.method.tol is not None or st.cfg.error_estimate:   # the choice of tol= and the error estimate
+        from ..run.estimate import sweep_attrs
+
+        attrs.update(sweep_attrs(traj, spec.h, st.cfg.error_estimate))
     attrs.update(l2_error=l2, l2_note=note, wall_time_call=call,
                  q0=np.asarray(traj.q[0], float) if len(traj.q) else None,
                  p0=np.asarray(traj.p[0], float) if len(traj.p) else None)

@@ -19,8 +19,12 @@ from .plan import Buffers, first_call, plan, ready_start, run_loop, start_state
 _LOCAL = threading.local()   # this thread's reused loop buffers (vcirun.run.plan.Buffers)
 
 
-def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, constrained=None,
-             t0=0.0, energies=True, resting_contact=True, tier=None, loader=None, **options) -> tr.Trajectory:
+DEFAULT_H = 1e-2   # h when neither h nor tol is given (as `vcirun simulate`), at most T
+
+
+def simulate(system, method=None, *, T, h=None, tol=None, beta=None, q0=None, p0=None, params=None,
+             constrained=None, t0=0.0, energies=True, resting_contact=True, max_time=None, tier=None, loader=None,
+             **options) -> tr.Trajectory:
     """Simulate `system` with `method` on the grid t_k = t0 + k h, k = 0..N, N = floor(T / h).
 
     system : built-in name ('cart_pendulum', 'double_pendulum', 'oscillator_wall', ...), YAML path,
@@ -46,6 +50,13 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
              vcirun.codegen.kernel_cache.KernelCache, or a function (symbolic system, kernel set) ->
              module used instead of the cache, e.g. vcirun.codegen.evaluate.python_module_for to
              run the generated module as Python (no warm index, no plan kept between calls).
+    h      : the step; default min(1e-2, T) (as `vcirun simulate`).
+    tol    : an L2 trajectory error to reach (the norm of `vcirun.l2_error`, absolute, in q's units):
+             the method (unless given; None or 'auto'), its options and h are chosen by pilot runs to reach it at the
+             least cost (vcirun.run.choose; docs/tolerance.md); h is then the largest step allowed,
+             max_time a budget in seconds for the final run. The returned trajectory carries
+             `tr.choice` (candidates, predicted error and cost of each, the reason, the status) and
+             its error estimate `tr.choice.estimate`.
     Numerical failure is returned as the trajectory's status (never raised); bad input raises
     ValueError naming the field.
 
@@ -53,6 +64,16 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     symbolic work (see `resolve_numeric`); the initial state's Legendre transform uses the compiled
     mass matrix on every path, so warm and cold starts give the same bits.
     """
+    if tol is not None or max_time is not None:
+        from .choose import simulate_to_tolerance
+
+        return simulate_to_tolerance(system, None if method == "auto" else method, T=T, tol=tol, h_max=h, max_time=max_time, beta=beta, q0=q0,
+                                     p0=p0, params=params, constrained=constrained, t0=t0, energies=energies,
+                                     resting_contact=resting_contact, options=options)
+    if method is None:
+        raise ValueError("method: give a method (CVA, VCI, MCVAA, MCVAC, CVA4, ...) or tol= to have one chosen")
+    if h is None:
+        h = _default_h(T)
     p = plan(system, method, h=h, T=T, t0=t0, constrained=constrained, energies=energies,
              resting_contact=resting_contact, options=options, start=dict(beta=beta, q0=q0, p0=p0, params=params),
              kc=kernel_cache.of(loader), tier=tier)
@@ -76,7 +97,26 @@ def simulate(system, method, *, h, T, beta=None, q0=None, p0=None, params=None, 
     wall = time.perf_counter() - t_start
     traj = trajectory_of(p, mod, out, counters, q0, p0, prm, beta, wall)
     traj.tier = p.tier_used
+    traj.run_args = run_args(p, system, beta, q0, p0, params, constrained, resting_contact, options, t0)
     return traj
+
+
+def _default_h(T):
+    """DEFAULT_H, at most T (a T that is not a number is left to simulate's checks)."""
+    try:
+        return min(DEFAULT_H, float(T)) if float(T) > 0 else DEFAULT_H
+    except (TypeError, ValueError):
+        return DEFAULT_H
+
+
+def run_args(p, system, beta, q0, p0, params, constrained, resting_contact, options, t0):
+    """What `Trajectory.error_estimate` needs to run companions of this call (vcirun.run.pilot.RunArgs):
+    the start as the run took it (q0, p0 after the Legendre transform), the plan's system and method."""
+    from .pilot import RunArgs
+
+    return RunArgs(system=p.system, method=p.meth, t0=float(t0), q0=q0, p0=p0, params=params,
+                   constrained=constrained, resting_contact=resting_contact,
+                   options={k: v for k, v in options.items() if k not in ("ld", "mh_order", "flow_order")})
 
 
 def trajectory_of(p, mod, out, counters, q0, p0, prm, beta, wall) -> tr.Trajectory:

@@ -58,6 +58,11 @@ class Trajectory:
     # what simulate was given as the system (a scene name, a YAML path or a MechanicalSystem): where
     # `animate` finds the drawing; pickled only as a name or path
     source: object = field(default=None, repr=False, compare=False)
+    # the simulate call's arguments (vcirun.run.pilot.RunArgs), for the companions of error_estimate;
+    # dropped when pickled (a trajectory without them re-runs a built-in scene from its first state)
+    run_args: object = field(default=None, repr=False, compare=False)
+    # simulate(tol=...): the choice of method and h (vcirun.run.choose.Choice), else None
+    choice: object = field(default=None, repr=False, compare=False)
 
     def __post_init__(self):
         n = self.q.shape[1] if isinstance(self.q, np.ndarray) and self.q.ndim == 2 else 0
@@ -75,9 +80,28 @@ class Trajectory:
         state["dynamics"] = None
         if not isinstance(state.get("source"), (str, type(None))):
             state["source"] = str(state["source"]) if hasattr(state["source"], "__fspath__") else None
+        state["run_args"] = None
         state.pop("_dense", None)
         state.pop("_account", None)
         return state
+
+    # --- error estimate ---------------------------------------------------------------------------
+    def error_estimate(self, kind: str = "richardson", *, companions: int = 1, reference=None, system=None,
+                       grazing: bool = True):
+        """The estimated error of this run (vcirun.run.estimate.ErrorEstimate): its L2 error on the grid
+        (the norm of `vcirun.l2_error`), with bounds, and the final-state errors.
+
+        kind "richardson": companion runs of the same method from the same start at h / 2 (and h / 4
+        with companions=2, which also checks the observed order), the method's verified order;
+        kind "reference" (or reference= a `vcirun.reference`): against the exact reference.
+        status "unresolved" (no number) where the runs' impact sequences differ or a contact grazes
+        between grid points; "failed" where a run did not finish. A run of `simulate(tol=...)`
+        carries the estimate its choice made (`choice.estimate`); this computes a new one.
+        system: the YAML path or MechanicalSystem of a trajectory read from a file."""
+        from .estimate import estimate
+
+        return estimate(self, kind=kind, companions=companions, reference=reference, system=system,
+                        grazing=grazing)
 
     # --- dense output -----------------------------------------------------------------------------
     @property

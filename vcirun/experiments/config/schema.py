@@ -56,6 +56,11 @@ class SweepConfig(ConfigModel):
     system: SystemSpec
     methods: list[MethodSpec] = Field(min_length=1, max_length=1_000)
     h: list[PositiveFloat] = Field(min_length=1, max_length=10_000)
+    # tol: runs of vcirun.simulate(..., tol=t) for each t in place of methods x h (methods, if given, are
+    # then the only candidate of their runs; h, if given, the largest steps allowed; default [T])
+    tol: list[PositiveFloat] | None = Field(default=None, min_length=1, max_length=100)
+    # error_estimate: every ok run also stores its error estimate (tr.error_estimate(): est_l2, est_status, ...)
+    error_estimate: bool = False
     beta: BetaSpec | None = None
     initial_states: list[InitialState] | None = Field(default=None, min_length=1, max_length=100_000)
     T: PositiveFloat
@@ -100,6 +105,38 @@ class SweepConfig(ConfigModel):
         if not _NAME_RE.match(v):
             raise ValueError("use letters, digits, '_', '-' and '.' only (it names the figure folder)")
         return v
+
+    @model_validator(mode="before")
+    @classmethod
+    def _tolerance_runs(cls, data):
+        """`tol: [t, ...]` (or one t): the methods become one entry {name: auto or the method, tol: t} per
+        tolerance and method; h defaults to [T] (no largest step). Without tol, methods and h are required."""
+        if not isinstance(data, dict):
+            return data
+        tols = data.get("tol")
+        if tols is None:
+            return data
+        tols = tols if isinstance(tols, list) else [tols]
+        data = dict(data, tol=tols)
+        good = all(isinstance(t, (int, float)) and not isinstance(t, bool) and 0 < t < float("inf") for t in tols)
+        methods = data.get("methods") or ["auto"]
+        if good and isinstance(methods, list):
+            entries = []
+            for t in tols:
+                for m in methods:
+                    spec = {"name": m} if isinstance(m, str) else dict(m) if isinstance(m, dict) else m
+                    if isinstance(spec, dict):
+                        spec.setdefault("tol", t)
+                    entries.append(spec)
+            data["methods"] = entries
+        if data.get("h") is None and isinstance(data.get("T"), (int, float)) and not isinstance(data.get("T"), bool):
+            data["h"] = [data["T"]]
+        return data
+
+    @field_validator("tol", mode="before")
+    @classmethod
+    def _tol_shorthand(cls, v):
+        return [v] if isinstance(v, (int, float)) and not isinstance(v, bool) else v
 
     @field_validator("system", mode="before")
     @classmethod

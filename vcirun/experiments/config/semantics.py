@@ -84,6 +84,8 @@ def check_semantics_of(cfg: SweepConfig, *, source: str = "<config>") -> None:
     from vcirun.methods.table import resolve_method
 
     for i, m in enumerate(cfg.methods):
+        if m.name == "auto":   # chosen per run (simulate(tol=...))
+            continue
         try:
             resolve_method(m.name, **{k: v for k, v in m.simulate_kwargs().items()
                                       if k in ("ld", "mh_order", "flow_order")})

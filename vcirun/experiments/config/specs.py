@@ -144,16 +144,24 @@ class MethodOptions(ConfigModel):
 
 class MethodSpec(ConfigModel):
     """One method of the sweep. For the generalized MCVA give `ld` and `mh_order` (and `flow_order`);
-    CVA and VCI accept `ld` (the discrete Lagrangian of their full and partial steps, default SVC)."""
-    name: MethodName
+    CVA and VCI accept `ld` (the discrete Lagrangian of their full and partial steps, default SVC).
+    tol: the run is `vcirun.simulate(..., tol=tol)` (name "auto": the method chosen too; a method name:
+    the only candidate); a sweep config's top-level `tol:` makes these entries."""
+    name: Literal[COLLISION_METHODS + DISCRETE_LAGRANGIANS + ("auto",)]
     ld: LdName | None = None
     mh_order: int | None = Field(default=None, ge=1, le=4)
     flow_order: Literal[4, 6] | None = None
     label: str | None = Field(default=None, min_length=1, max_length=64)
     options: MethodOptions = Field(default_factory=MethodOptions)
+    tol: PositiveFloat | None = None
 
     @model_validator(mode="after")
     def _generalized_only(self):
+        if self.name == "auto" and self.tol is None:
+            raise ValueError("name: auto (the method chosen for a tolerance) needs tol (or give tol: at the top "
+                             "level of the config)")
+        if self.tol is not None and self.options.constrained is False:
+            raise ValueError("tol measures the error of the constrained motion; drop options.constrained: false")
         if self.name != "MCVA":
             for key in ("ld", "mh_order", "flow_order"):
                 if key == "ld" and self.name in ("CVA", "VCI"):
@@ -180,11 +188,13 @@ class MethodSpec(ConfigModel):
             s = self.name
         if self.options.constrained is False:
             s += " (no impacts)"
+        if self.tol is not None and not self.label:
+            s = f"tol={self.tol:g}" if self.name == "auto" else f"{s} tol={self.tol:g}"
         return s
 
     def simulate_kwargs(self) -> dict:
         """Keyword arguments for `vcirun.simulate` besides system, h, T and the initial state."""
-        kw = {k: getattr(self, k) for k in ("ld", "mh_order", "flow_order") if getattr(self, k) is not None}
+        kw = {k: getattr(self, k) for k in ("ld", "mh_order", "flow_order", "tol") if getattr(self, k) is not None}
         kw.update(self.options.model_dump(exclude_none=True))
         return kw
 

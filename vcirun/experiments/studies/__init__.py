@@ -13,6 +13,7 @@
 | `hygiene` | the whole loop uncompiled under np.errstate(all="raise") |
 | `extremes` | the extremes study: each config section through the functions above |
 | `report` | docs/extremes.md from the results and a Markdown template (prose lives in docs/templates/) |
+| `wp_model` | a scene's work-precision model (error constants, cost per step) from a study's or a sweep's results, and the method and h it predicts for a tolerance |
 
 The work-precision study's runner and analysis are `vcirun.experiments.workprecision`. Exact closed
 forms (the bouncing ball, the oscillator against a wall) are `vcirun.scenes.oracles`.

@@ -3,7 +3,8 @@
 `run_file(path, ...)` is what `vcirun study CONFIG` and the bench scripts call:
 
 - work_precision / long_horizon: `vcirun.experiments.workprecision.run_study`, results to `output`
-  (JSON), tables printed, figures with `plot=True`; `quick=True` for a smoke run.
+  (JSON, with the scene's work-precision model `model` for work_precision: `wp_model.from_study`),
+  tables printed, figures with `plot=True`; `quick=True` for a smoke run.
 - extremes: `vcirun.experiments.studies.extremes.run_extremes`, results to `output` (JSON), then
   the report (`report.output`, Markdown) rendered from them through `report.template`. With `only`,
   just those sections run and the others are kept from the existing JSON, so one section can be
@@ -100,6 +101,10 @@ def _run(cfg, source, output, quick, only, plot, log, tables, command, report_ou
     from .. import workprecision as wp
 
     res = wp.run_study(cfg, quick=quick, log=log)
+    if res.get("study") == "work_precision":   # the scene's work-precision model, for `vcirun recommend`
+        from .wp_model import from_study
+
+        res["model"] = from_study(res)
     path = wp.save(res, output or cfg.output)
     if tables is not None:
         wp.print_tables(wp.load(path), file=sys.stdout if tables == "stdout" else tables)

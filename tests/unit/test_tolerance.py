@@ -1,0 +1,219 @@
+"""Error estimates (`tr.error_estimate()`) and `simulate(tol=...)` against the exact reference, on few
+states: the estimate brackets the true error where it says ok; it is "unresolved" where the run's
+impact sequence differs from the reference's, where a contact grazes between grid points and where
+impacts accumulate; tol= returns a run whose true error meets tol, or a status that says it does not;
+bad input is named. Timings are the bench's (bench/tolerance.py), never asserted here."""
+from __future__ import annotations
+
+import json
+import math
+import pickle
+
+import numpy as np
+import pytest
+
+import vcirun
+from vcirun.experiments.config import ConfigError, parse_config
+from vcirun.experiments.studies import wp_model
+from vcirun.run.estimate import ErrorEstimate
+
+
+def _counts(impacts, contacts) -> dict:
+    out = {}
+    for c in contacts:
+        out[int(c)] = out.get(int(c), 0) + 1
+    return out
+
+
+CART = dict(q0=[1.4148849492970828, -1.4592424149659409], p0=[1.1053424109511254, 1.487263456666175])
+
+
+@pytest.mark.parametrize("method,h", [("CVA", 0.005), ("CVA4", 0.05), ("CVA8", 0.125)])
+def test_richardson_estimate_brackets_the_true_error(method, h):
+    tr = vcirun.simulate("cart_pendulum", method, h=h, T=5, beta=4.2)
+    ref = vcirun.reference("cart_pendulum", T=5, beta=4.2)
+    true = vcirun.l2_error(tr, ref)
+    est = tr.error_estimate()
+    assert est.kind == "richardson" and est.status == "ok", est
+    lo, hi = est.l2_bounds
+    assert lo <= true <= hi, (est, true)
+    assert 0.7 < est.l2 / true < 1.4, (est.l2, true)
+    fq = float(np.linalg.norm(tr.q[-1] - ref(tr.t[-1])))
+    assert 0.5 < est.final_q / fq < 2.0, (est.final_q, fq)
+    two = tr.error_estimate(companions=2)
+    assert two.status == "ok" and two.observed_order is not None
+    assert abs(two.observed_order - est.order) < 1.0, two
+
+
+def test_estimate_against_the_reference_is_the_error():
+    tr = vcirun.simulate("cart_pendulum", "CVA4", h=0.05, T=5, beta=4.2)
+    ref = vcirun.reference("cart_pendulum", T=5, beta=4.2)
+    est = tr.error_estimate(reference=ref)
+    assert est.kind == "reference" and est.status == "ok"
+    assert est.l2 == vcirun.l2_error(tr, ref) and est.first_difference == ""
+
+
+def test_unresolved_wherever_the_impact_sequence_differs_from_the_reference():
+    """Coarse runs of the cart-pendulum (several miss or misplace impacts): every estimate of a run whose
+    impacts per contact differ from the reference's is unresolved, and such runs exist in the set."""
+    ref = vcirun.reference("cart_pendulum", T=5, **CART)
+    differ = 0
+    for method in ("CVA", "VCI", "CVA4"):
+        for N in (8, 16, 32):
+            tr = vcirun.simulate("cart_pendulum", method, h=5 / N, T=5, **CART)
+            if not tr.ok:
+                continue
+            est = tr.error_estimate()
+            if _counts(tr.impacts, tr.impact_contact) != _counts(ref.impacts, ref.impact_contact):
+                differ += 1
+                assert est.status == "unresolved" and est.l2 is None, (method, N, est)
+    assert differ >= 2
+
+
+def test_a_graze_between_grid_points_is_unresolved():
+    """The ball's apex passes 1e-6 beyond the ceiling between two grid points: both runs miss the impact
+    alike (free flight is exact), the parabola of phi through the grid points sees it."""
+    g, y0, dy = 9.81, 0.5, 1e-6
+    vy = math.sqrt(2 * g * (1.0 - y0 + dy))
+    tr = vcirun.simulate("ball_in_box", "CVA", h=0.1, T=0.6, q0=[0.5, y0], p0=[0.0, vy])
+    assert tr.ok and len(tr.impacts) == 0
+    ref = vcirun.reference("ball_in_box", T=0.6, q0=[0.5, y0], p0=[0.0, vy])
+    assert len(ref.impacts) == 1
+    est = tr.error_estimate()
+    assert est.status == "unresolved" and "grazes" in est.message, est
+
+
+def test_accumulating_impacts_are_unresolved_and_tol_says_not_reached():
+    """A ball bouncing with e = 0.5 comes to rest (Zeno): the estimate says unresolved, and tol= returns
+    the run with status not_reached rather than a number."""
+    kw = dict(T=3.0, q0=[0.5, 0.5], p0=[0.0, 0.0], params={"e": 0.5})
+    tr = vcirun.simulate("ball_in_box", "CVA", h=0.01, **kw)
+    assert tr.ok and tr.contact_active.any()
+    est = tr.error_estimate()
+    assert est.status == "unresolved" and est.l2 is None, est
+    tt = vcirun.simulate("ball_in_box", "CVA", tol=1e-6, **kw)
+    assert tt.choice.status == "not_reached" and tt.choice.estimate.status != "ok", tt.choice
+
+
+def test_tol_meets_the_tolerance_with_every_candidate():
+    ref = vcirun.reference("cart_pendulum", T=5, beta=3.7)
+    for tol in (1e-5, 1e-8):
+        tr = vcirun.simulate("cart_pendulum", T=5, beta=3.7, tol=tol)
+        c = tr.choice
+        assert c.status == "ok", c
+        assert vcirun.l2_error(tr, ref) <= tol
+        assert c.estimate.status == "ok" and c.estimate.l2 <= tol
+        names = {x.method for x in c.candidates}
+        assert {"CVA", "CVA4", "CVA6", "CVA8", "MCVAA", "MCVAC", "VCI"} <= names
+        assert c.method == tr.method and c.h == tr.h and c.N == tr.n_steps
+        assert c.seconds["total_cpu"] >= c.seconds["final_cpu"] > 0
+        assert tr.H is not None and np.isfinite(tr.H).all()   # the final run keeps its energies
+
+
+def test_tol_constraints_method_and_largest_step():
+    ref = vcirun.reference("double_pendulum_walls", T=3)
+    tr = vcirun.simulate("double_pendulum_walls", "CVA4", T=3, tol=1e-6, h=0.01)
+    assert tr.method == "CVA4" and tr.h <= 0.01 and tr.choice.status == "ok"
+    assert [c.method for c in tr.choice.candidates] == ["CVA4"]
+    assert vcirun.l2_error(tr, ref) <= 1e-6
+
+
+def test_tol_below_round_off_is_not_a_number():
+    tr = vcirun.simulate("cart_pendulum", "CVA8", T=5, beta=3.7, tol=1e-15)
+    assert tr.choice.status in ("below_floor", "not_reached"), tr.choice
+    assert "tol" in tr.choice.reason
+
+
+def test_bad_input_names_the_field():
+    with pytest.raises(ValueError, match="^tol:"):
+        vcirun.simulate("cart_pendulum", T=5, tol=-1.0)
+    with pytest.raises(ValueError, match="^max_time:"):
+        vcirun.simulate("cart_pendulum", "CVA", T=5, h=0.01, max_time=1.0)
+    with pytest.raises(ValueError, match="^constrained:"):
+        vcirun.simulate("cart_pendulum", T=5, tol=1e-6, constrained=False)
+    with pytest.raises(ValueError, match="^h:"):
+        vcirun.simulate("cart_pendulum", T=5, tol=1e-6, h=10.0)
+    with pytest.raises(ValueError, match="^method:"):
+        vcirun.simulate("cart_pendulum", T=5)
+    with pytest.raises(ValueError, match="^kind:"):
+        vcirun.simulate("cart_pendulum", "CVA", T=1).error_estimate(kind="guess")
+
+
+def test_default_step():
+    tr = vcirun.simulate("cart_pendulum", "CVA", T=1, beta=3.2)
+    assert tr.h == 0.01 and tr.n_steps == 100
+    assert vcirun.simulate("cart_pendulum", "CVA", T=0.005, beta=3.2).n_steps == 1
+
+
+def test_estimate_of_a_trajectory_read_back():
+    """A pickled trajectory drops its call's arguments; a built-in scene's estimate reruns from its record."""
+    tr = vcirun.simulate("cart_pendulum", "CVA4", h=0.05, T=5, beta=4.2)
+    back = pickle.loads(pickle.dumps(tr))
+    assert back.run_args is None
+    a, b = tr.error_estimate(), back.error_estimate()
+    assert a.status == b.status == "ok" and a.l2 == b.l2
+
+
+def test_sweep_config_tol_and_error_estimate():
+    cfg = parse_config({"name": "t", "system": "cart_pendulum", "tol": [1e-4, 1e-7], "beta": [3.2], "T": 5})
+    assert [m.display for m in cfg.methods] == ["tol=0.0001", "tol=1e-07"]
+    assert cfg.h == [5.0] and all(m.name == "auto" for m in cfg.methods)
+    cfg = parse_config({"name": "t", "system": "cart_pendulum", "tol": 1e-6, "methods": ["CVA4"], "h": [0.01],
+                        "beta": [3.2], "T": 5})
+    assert [(m.name, m.tol) for m in cfg.methods] == [("CVA4", 1e-6)] and cfg.methods[0].display == "CVA4 tol=1e-06"
+    cfg = parse_config({"name": "t", "system": "cart_pendulum", "methods": ["CVA"], "h": [0.01], "beta": [3.2],
+                        "T": 5, "error_estimate": True})
+    assert cfg.error_estimate is True
+    with pytest.raises(ConfigError, match="tol"):
+        parse_config({"name": "t", "system": "cart_pendulum", "tol": -1.0, "beta": [3.2], "T": 5})
+    with pytest.raises(ConfigError, match="methods"):
+        parse_config({"name": "t", "system": "cart_pendulum", "h": [0.01], "beta": [3.2], "T": 5})
+
+
+def test_model_fit_recovers_the_constant():
+    """Points e = C h^p above a floor, with a pre-asymptotic coarse point and the floor below: C back."""
+    C, p, T = 3.0e2, 4, 5.0
+    pts = [{"h": 0.4, "err": 2.0, "cost": 1e-4, "N": 12}]
+    pts += [{"h": h, "err": C * h ** p, "cost": 1e-4 + 2e-6 * T / h, "N": round(T / h)} for h in (0.1, 0.05, 0.025)]
+    pts += [{"h": 0.001, "err": 1e-10, "cost": 1e-2, "N": 5000}]
+    m = wp_model.fit_points(pts, p, T, floor=3e-10)
+    assert m["C_h"] == pytest.approx(C, rel=1e-12) and m["b"] == pytest.approx(2e-6, rel=0.2)
+    rows = wp_model.predict({"methods": {"X": m}}, 1e-6, T)
+    assert rows[0]["predicted_error"] <= 0.5e-6 * 1.0001 and rows[0]["N"] >= 1
+
+
+def test_recommend_reads_a_stored_study(tmp_path):
+    from typer.testing import CliRunner
+
+    from vcirun.cli.main import app
+
+    summary = []
+    for label, p, C in (("CVA", 2, 6e2), ("CVA8", 8, 3.5e2)):
+        for h in (0.2, 0.1, 0.05, 0.025):
+            summary.append({"T": 5.0, "kind": "vcirun", "label": label, "h": h, "rtol": None, "all_ok": True,
+                            "err": C * h ** p, "cpu": 1e-4 + (1 if p == 2 else 8) * 1e-6 * 5 / h})
+    res = {"study": "work_precision", "name": "s", "config": {"system": "cart_pendulum", "methods": ["CVA", "CVA8"]},
+           "references": [{"accuracy": 1e-13}], "summary": summary}
+    (tmp_path / "s.json").write_text(json.dumps(res))
+    out = CliRunner().invoke(app, ["recommend", "cart_pendulum", "--tol", "1e-6", "--results", str(tmp_path)])
+    assert out.exit_code == 0, out.output
+    assert "pick: CVA8" in out.output and "work-precision study s" in out.output
+    bad = CliRunner().invoke(app, ["recommend", "cart_pendulum", "--tol", "-1"])
+    assert bad.exit_code == 1 and "--tol" in bad.output
+
+
+def test_simulate_cli_tol(tmp_path):
+    from typer.testing import CliRunner
+
+    from vcirun.cli.main import app
+
+    out = CliRunner().invoke(app, ["simulate", "--system", "cart_pendulum", "--beta", "4.2", "--method", "CVA4",
+                                   "--tol", "1e-6"])
+    assert out.exit_code == 0, out.output
+    assert "error estimate (richardson" in out.output and "*CVA4" in out.output
+
+
+def test_estimate_is_data():
+    e = ErrorEstimate("richardson", "unresolved", 0.1, message="x")
+    d = e.as_dict()
+    assert d["status"] == "unresolved" and d["l2"] is None and "unresolved" in str(e)

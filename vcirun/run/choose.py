@@ -1,0 +1,805 @@
+"""`vcirun.simulate(system, T=..., tol=...)`: the method, its options and h predicted to reach an L2
+trajectory error `tol` in the least time, chosen by pilot runs, and the run with its error estimate.
+
+The error of a method of order p at N grid steps on [t0, t0 + T] is e(N) = C N^-p once the steps
+resolve the motion (the same impacts, contact by contact). Pilot runs of a method at N and 2N from
+the user's start differ by d = e(N) - e(2N), so e(2N) = d / (2^p - 1) and C follows with the
+verified order p (vcirun.run.estimate.verified_order); a third run shows the observed order. The
+cost of a run is a + b N CPU seconds (measured on this scene: a timing run of N_CAL steps with the
+energies the final run computes). The N that reaches TARGET tol is N* = (C / (TARGET tol))^(1/p).
+
+Candidates (`_candidates`). CVA, CVA4, CVA6, CVA8, MCVAC, MCVAA, and VCI where the scene has one
+contact, no generalized force and no declared reset map (R^VCI balances a short pre-impact step
+against the rest of the step: with impacts denser than the grid it fails or loses bounces,
+docs/extremes.md); under a generalized force CVA6 and CVA8 (order not verified) and MCVAA and MCVAC
+(refused) are left out. A method the user names is the only candidate; `h` is then the largest step
+allowed and `max_time` (seconds) bounds the predicted cost of the final run.
+
+The scene model (`SceneModel`, per process, keyed by system, parameters, horizon and options). The
+first call on a scene runs a ladder N = N_FIRST, 2 N_FIRST, ... for every candidate until two pairs
+agree in their impacts and show the order (at least p - 1), or its pilots cost SCAN_BUDGET, and
+one timing run per candidate; it records each candidate's error constant on this start, the
+coarsest N that resolved the impacts and the coarsest N that showed the order. Later calls rank the
+candidates by the model's median constant, pilot the best at N*/8 and N*/4 (and a runner-up
+predicted within RERANK of it), and scale the others by what the pilots say about this start (a
+start that needs k times the steps for one method is taken to need k times the steps for every
+method). Where N*/8 is coarser than the order was ever seen, the best is run without pilots at the
+N the largest constant seen predicts.
+
+The final run (`_pursue`). The pick runs at the least N that reaches TARGET tol and that a companion
+can certify (at least twice the coarsest N that showed the order: `_certifiable`), nested with a
+run made already where that is cheaper than new companions at N/2 and N/4 (`_final_N`). Its
+Richardson estimate (`estimate_of`: the companion, the third run's observed order, the grazing
+check) decides: accepted when the third run showed the order, the estimate is at most ACCEPT tol
+and its bracket's upper end at most BOUND tol; otherwise N grows by the estimate, or doubles where the impacts disagree, a
+contact grazes or the observed order is short of p, until accepted or the refinement has cost
+PURSUIT_BUDGET times the pick's predicted run. No candidate reaching tol gives the status
+not_reached (below_floor, over_budget) and the most accurate resolved run made (`_fallback`).
+docs/tolerance.md says where this fails.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..core.values import check_number
+from .estimate import ErrorEstimate, difference, near_misses, roundoff_level, verified_order
+from .pilot import Run, Runner
+
+TARGET = 0.5      # the final run aims at an estimated error of TARGET * tol
+ACCEPT = 1.0      # ... and is accepted when its estimate is at most ACCEPT * tol
+BOUND = 3.0       # ... and the upper end of its bracket at most BOUND * tol
+RERANK = 1.3      # a runner-up predicted within this factor of the best is piloted too
+N_FIRST = 16      # the first pilot of a ladder (or T / h for a largest step h)
+MAX_STEPS = 1 << 22
+MAX_ROUNDS = 12   # refinements of the final before the choice says not_reached
+PURSUIT_BUDGET, PURSUIT_FLOOR = 20.0, 0.05   # ... or once they cost this (times the pick's predicted cost)
+PILOT_SHARE = 0.125   # with a scene model: the pilots at N*/8 and N*/4
+DEFAULT_CANDIDATES = ("CVA", "CVA4", "CVA6", "CVA8", "MCVAC", "MCVAA", "VCI")
+
+# statuses of a choice
+OK, NOT_REACHED, BELOW_FLOOR, OVER_BUDGET = "ok", "not_reached", "below_floor", "over_budget"
+
+
+@dataclass
+class Candidate:
+    """One candidate method on this start: its order, error constant C (e = C N^-p at N steps on
+    the horizon; h-form: e = C_h h^p with C_h = C T^-p), cost model (a + b N CPU seconds), the N
+    predicted to reach TARGET * tol, the predicted error and cost there, status and a note."""
+
+    method: str
+    order: float | None = None
+    C: float | None = None
+    a: float | None = None
+    b: float | None = None
+    N: int | None = None
+    predicted_error: float | None = None
+    predicted_cost: float | None = None
+    source: str = ""
+    status: str = "pending"
+    note: str = ""
+    N_resolved: int | None = None     # the coarsest N from which its pilots agree in their impacts
+    N_asymptotic: int | None = None   # the coarsest N at which its pilots showed the order
+    h: float | None = None            # T / N
+    C_h: float | None = None          # C T^-p: e = C_h h^p
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+@dataclass
+class Choice:
+    """What `simulate(tol=...)` chose: the method and h, the status ("ok"; "not_reached": no step
+    within the limits reaches tol, the run returned is the best one made; "below_floor": tol is below
+    the round-off level of this scene's runs; "over_budget": max_time does not allow it), the reason,
+    every candidate (predicted error and cost), the pilot runs, the CPU seconds spent, and the
+    final run's error estimate."""
+
+    tol: float
+    method: str
+    h: float
+    N: int
+    status: str
+    reason: str
+    candidates: list
+    estimate: ErrorEstimate | None = None
+    pilots: list = field(default_factory=list)
+    seconds: dict = field(default_factory=dict)
+    model: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return self.status == OK
+
+    def as_dict(self) -> dict:
+        return {"tol": self.tol, "method": self.method, "h": self.h, "N": self.N, "status": self.status,
+                "reason": self.reason, "candidates": [c.as_dict() for c in self.candidates],
+                "estimate": self.estimate.as_dict() if self.estimate is not None else None,
+                "pilots": list(self.pilots), "seconds": dict(self.seconds), "model": self.model}
+
+    def table(self) -> str:
+        """The candidates as a text table, the pick marked."""
+        return candidate_table(self.candidates, self.method, self.tol) + f"\n{self.reason}"
+
+    def __str__(self) -> str:
+        return (f"Choice(tol={self.tol:g}: {self.method} h={self.h:.6g} (N={self.N}), status={self.status}; "
+                f"{self.reason})")
+
+
+def candidate_table(cands, pick: str, tol: float) -> str:
+    g = lambda x, f=".3g": "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, f)  # noqa: E731
+    lines = [f"{'method':8s} {'order':>5s} {'C_h (e = C_h h^p)':>18s} {'us/step':>8s} {'h for tol':>10s} "
+             f"{'steps':>8s} {'pred. error':>11s} {'pred. ms':>9s}  status"]
+    for c in cands:
+        ch, h = c.C_h, c.h
+        mark = "*" if c.method == pick else " "
+        lines.append(f"{mark}{c.method:7s} {g(c.order, 'g'):>5s} {g(ch, '.3e'):>18s} "
+                     f"{g(None if c.b is None else c.b * 1e6, '.3g'):>8s} {g(h, '.4g'):>10s} "
+                     f"{g(c.N, 'd'):>8s} {g(c.predicted_error, '.2e'):>11s} "
+                     f"{g(None if c.predicted_cost is None else c.predicted_cost * 1e3, '.3g'):>9s}  "
+                     f"{c.status}{(': ' + c.note) if c.note else ''}")
+    return f"tol = {tol:g}\n" + "\n".join(lines)
+
+
+# --- the per-process scene model -------------------------------------------------------------------
+@dataclass
+class MethodModel:
+    """One method on one scene: its order, error constants (one per start piloted), the coarsest
+    resolved N of each, the CPU cost b per step (energies as the final run computes them) and a per
+    run, and why it is not resolved (if it never was)."""
+
+    order: float
+    C: list = field(default_factory=list)
+    N_resolved: list = field(default_factory=list)
+    N_asymptotic: list = field(default_factory=list)
+    b: float | None = None
+    a: float | None = None
+    unresolved: str = ""
+
+    def constant(self) -> float | None:
+        """The median error constant (cached: the model is consulted on every call)."""
+        if not self.C:
+            return None
+        memo = self.__dict__.get("_median")
+        if memo is None or memo[0] != len(self.C):
+            memo = self.__dict__["_median"] = (len(self.C), float(np.median(self.C)))
+        return memo[1]
+
+
+@dataclass
+class SceneModel:
+    """The work-precision model of one scene (system, parameters, horizon, options) in this process:
+    the scene's features (contacts, generalized force, declared reset map) and a MethodModel per
+    candidate; `starts`: the starts piloted."""
+
+    key: tuple
+    T: float
+    n_contacts: int = 1
+    forced: bool = False
+    mapped: bool = False
+    methods: dict = field(default_factory=dict)
+    starts: int = 0
+
+
+_MODELS: dict = {}
+
+
+def scene_model(key) -> SceneModel | None:
+    return _MODELS.get(key)
+
+
+def _scene_key(system, params, T, t0, constrained, resting_contact, options, energies):
+    """The key of a scene model: a built-in name or file path (with its modification time), or the
+    identity of a MechanicalSystem instance; the parameters, the horizon and the options."""
+    import os
+
+    if isinstance(system, str):
+        ident = (system, os.path.getmtime(system)) if os.path.isfile(system) else (system,)
+    else:
+        ident = ("object", id(system))
+    prm = tuple(sorted((params or {}).items()))
+    return ident + (prm, float(T), float(t0), constrained, bool(resting_contact), tuple(sorted(options.items())),
+                    bool(energies))
+
+
+# --- assessing the runs of one method ---------------------------------------------------------------
+def _observed_order(Na, Nb, Nc, dab, dbc) -> float | None:
+    """p with dab / dbc = (Nb/Na)^p (1 - (Na/Nb)^p) / (1 - (Nb/Nc)^p) (nested runs a < b < c), by bisection."""
+    if not (dab > 0 and dbc > 0):
+        return None
+    target = math.log(dab / dbc)
+
+    def f(p):
+        return p * math.log(Nb / Na) + math.log1p(-(Na / Nb) ** p) - math.log1p(-(Nb / Nc) ** p) - target
+
+    lo, hi = 0.05, 30.0
+    flo, fhi = f(lo), f(hi)
+    if flo > 0:
+        return 0.0
+    if fhi < 0:
+        return hi
+    for _ in range(50):
+        mid = 0.5 * (lo + hi)
+        if f(mid) > 0:
+            hi = mid
+        else:
+            lo = mid
+    return 0.5 * (lo + hi)
+
+
+@dataclass
+class Assessment:
+    """What the runs of one method say: status "resolved" (C, the coarsest resolved N, the observed
+    order where three nested runs exist), "saturated" (differences at round-off: any resolved N
+    reaches tol down to `floor`), "unresolved" (the last two runs differ in their impacts or the
+    order is not seen) or "failed" (no two ok runs)."""
+
+    status: str
+    C: float | None = None
+    N_resolved: int | None = None
+    observed: float | None = None
+    floor: float = 0.0
+    note: str = ""
+    N_asymptotic: int | None = None   # the coarsest N of the three runs that showed the order
+
+
+MAX_RATIO = 8     # a Richardson companion is at least 1/MAX_RATIO as fine as its run
+
+
+def _companion(runs: dict, N: int, max_ratio: int = MAX_RATIO) -> Run | None:
+    """The largest ok run whose N divides N at most max_ratio times (the Richardson companion of run N)."""
+    best = None
+    for M, r in runs.items():
+        if M < N and N % M == 0 and N <= max_ratio * M and r.ok and (best is None or M > best.N):
+            best = r
+    return best
+
+
+def estimate_of(runs: dict, N: int, p: float, mod=None, prm=None, grazing=True) -> ErrorEstimate:
+    """The Richardson estimate of run N from its companion among `runs` (ratio r = N / N_companion),
+    with the observed order from a third nested run where there is one."""
+    run = runs[N]
+    comp = _companion(runs, N)
+    if not run.ok:
+        return ErrorEstimate("richardson", "failed", run.h, order=p, message=f"the run ended with status {run.status}")
+    if comp is None:
+        return ErrorEstimate("richardson", "failed", run.h, order=p, message="no companion run")
+    r = N // comp.N
+    d = difference(comp, run)
+    est = ErrorEstimate("richardson", "ok", run.h, order=p, companion_h=(comp.h,), first_difference=d.first)
+    if d.first:
+        est.status, est.message = "unresolved", f"the runs' impact sequences differ: {d.first}"
+        return est
+    floor = roundoff_level(run)
+    third = _companion(runs, comp.N, 4)
+    # checked: a third run showed the order (or the pair agrees to round-off); without it the bracket
+    # allows the pair to be two orders short of p (one for p <= 2), and _pursue does not accept it
+    margin = min(2.0, max(p - 1.0, 0.5))
+    est.extras["checked"] = d.l2 <= floor
+    if third is not None and d.l2 > floor:
+        d0 = difference(third, comp)
+        if not d0.first and d0.l2 > floor:
+            margin = 1.0
+            est.extras["checked"] = True
+            p_obs = _observed_order(third.N, comp.N, N, d0.l2, d.l2)
+            est.observed_order = p_obs
+            if p_obs is not None and p_obs < 1.0:
+                est.status = "unresolved"
+                est.message = f"the differences do not shrink with h (observed order {p_obs:.2f})"
+                return est
+            if p_obs is not None and p_obs < p - 0.5:
+                # the coarser runs are not yet asymptotic: the order they show, the smaller (safer) one
+                est.note = f"observed order {p_obs:.2f} used (verified order {p:g})"
+                p = p_obs
+            margin = 0.5 if p_obs is not None and abs(p_obs - p) <= 0.5 else 1.0
+    R = r ** p
+    est.l2 = d.l2 / (R - 1.0)
+    lo_R, hi_R = r ** (p + margin), r ** max(p - margin, 0.0)
+    est.l2_bounds = (d.l2 / (lo_R + 1.0), d.l2 / (hi_R - 1.0) if hi_R > 1.0 else math.inf)
+    est.final_q = d.final_q / (R - 1.0)
+    est.final_p = d.final_p / (R - 1.0)
+    if d.l2 <= floor:
+        est.l2_bounds = (est.l2_bounds[0], max(est.l2_bounds[1], floor))
+        est.note = f"differences at round-off level (<= {floor:.1e})"
+    if grazing and mod is not None:
+        from .estimate import slope_scale
+
+        margin_phi = 2.0 * d.sup_q / (R - 1.0) * slope_scale(run, mod, prm)
+        miss = near_misses(run, mod, prm, margin_phi, screen=comp)
+        if miss:
+            t, c, low = miss[0]
+            est.status = "unresolved"
+            est.first_difference = (f"contact {c} grazes near t = {t:.6g} (phi between the grid points down to "
+                                    f"{low:.3g}, within the run's error of the surface) without an impact")
+            est.message = "a grazing contact the grid does not resolve: " + est.first_difference
+            est.l2 = est.l2_bounds = est.final_q = est.final_p = None
+    return est
+
+
+def assess(runs: dict, p: float, need_order: bool = False) -> Assessment:
+    """Read C (e = C N^-p) from the finest resolved pair of nested runs; need_order: only once a third
+    nested run shows the order (at least p - 1)."""
+    ok = sorted(N for N, r in runs.items() if r.ok)
+    if len(ok) < 2:
+        return Assessment("failed", note="fewer than two runs finished")
+    pairs = []
+    for N in ok:
+        c = _companion(runs, N)
+        if c is not None:
+            pairs.append((c.N, N, difference(c, runs[N])))
+    if not pairs:
+        return Assessment("failed", note="no nested pair of runs")
+    # the coarsest N from which every finer pair agrees in its impacts
+    N_res = None
+    for a, b, d in reversed(pairs):
+        if d.first:
+            break
+        N_res = a
+    a, b, d = pairs[-1]
+    if d.first:
+        return Assessment("unresolved", note=d.first)
+    floor = roundoff_level(runs[b])
+    r = b // a
+    if d.l2 <= floor:
+        return Assessment("saturated", C=0.0, N_resolved=N_res, floor=floor, N_asymptotic=N_res,
+                          note=f"differences at round-off level ({d.l2:.1e} <= {floor:.1e})")
+    observed = a0 = None
+    if len(pairs) >= 2:
+        a0, b0, d0 = pairs[-2]
+        if b0 == a and not d0.first and d0.l2 > floor:
+            observed = _observed_order(a0, a, b, d0.l2, d.l2)
+            if observed is not None and observed < p - 1.0:
+                return Assessment("unresolved", observed=observed,
+                                  note=f"differences shrink at order {observed:.2f}, not {p:g}")
+    if need_order and observed is None:
+        return Assessment("unresolved", note="the order is not yet seen (two runs)")
+    e_b = d.l2 / (r ** p - 1.0)
+    return Assessment("resolved", C=e_b * b ** p, N_resolved=N_res, observed=observed, floor=floor,
+                      N_asymptotic=a0 if observed is not None else None)
+
+
+# --- the choice ----------------------------------------------------------------------------------------
+def _certifiable(c: Candidate) -> int:
+    """The smallest N whose estimate a companion can certify: the final and its companion at N/2 at or
+    above the coarsest N that showed the order on the starts piloted (2 N_asymptotic); for a method whose
+    runs agree to round-off, at or above the coarsest resolved N."""
+    if c.C == 0.0 and c.N_resolved:
+        return 2 * c.N_resolved
+    return 2 * c.N_asymptotic if c.N_asymptotic else 1   # (the third run at N/4 may be coarser: it checks)
+
+
+SCAN_BUDGET = 0.05   # CPU seconds of pilots per candidate on a scene's first call
+N_CAL = 1024         # the timing run of a candidate (cost per step)
+
+
+def _candidates(method, n_contacts: int, forced: bool, mapped: bool) -> tuple[list, dict]:
+    """(candidate names, {name: reason left out})."""
+    if method is not None:
+        return [method], {}
+    out, left = [], {}
+    for name in DEFAULT_CANDIDATES:
+        if name == "VCI" and (n_contacts > 1 or forced or mapped):
+            left[name] = ("a candidate only with one contact, no generalized force and no declared reset map "
+                          "(R^VCI fails or loses bounces with impacts denser than the grid)")
+            continue
+        if forced and name in ("MCVAA", "MCVAC"):
+            left[name] = "the MCVA family refuses a generalized force"
+            continue
+        if forced and name in ("CVA6", "CVA8"):
+            left[name] = "its order under a generalized force is not verified"
+            continue
+        out.append(name)
+    return out, left
+
+
+def simulate_to_tolerance(system, method=None, *, T, tol, h_max=None, max_time=None, beta=None, q0=None, p0=None,
+                          params=None, constrained=None, t0=0.0, energies=True, resting_contact=True,
+                          options=None):
+    """`vcirun.simulate(..., tol=...)`; see the module docstring."""
+    options = dict(options or {})
+    if tol is None:
+        raise ValueError("max_time: only with tol= (a time budget constrains the choice of method and h)")
+    tol = check_number("tol", tol, gt=0)
+    T = check_number("T", T, gt=0)
+    if h_max is not None:
+        h_max = check_number("h", h_max, gt=0)
+        if h_max > T:
+            raise ValueError(f"h: the largest step allowed must be <= T = {T:g} (got {h_max:g})")
+    if max_time is not None:
+        max_time = check_number("max_time", max_time, gt=0)
+    if constrained is False:
+        raise ValueError("constrained: tol= measures the error of the constrained motion; drop constrained=False")
+    mopts = {k: options.pop(k) for k in ("ld", "mh_order", "flow_order") if k in options}
+    if mopts:
+        if method is None:
+            raise ValueError(f"{sorted(mopts)[0]}: a method option needs method= (e.g. method='MCVA')")
+        from ..methods.table import resolve_method
+
+        method = resolve_method(method, **mopts)
+    elif method is not None:
+        from ..methods.table import resolve_method
+
+        resolve_method(method)   # an unknown name raises here, naming the field
+    runner = Runner(system, T=T, t0=t0, beta=beta, q0=q0, p0=p0, params=params, constrained=constrained,
+                    resting_contact=resting_contact, options=options)
+    key = _scene_key(system, params, T, t0, constrained, resting_contact, options, energies)
+    chooser = _Chooser(runner, method, T=T, tol=tol, h_max=h_max, max_time=max_time, energies=energies, key=key)
+    return chooser.choose()
+
+
+def _label(name) -> str:
+    return name if isinstance(name, str) else getattr(name, "name", str(name))
+
+
+class _Chooser:
+    def __init__(self, runner: Runner, method, *, T, tol, h_max, max_time, energies, key):
+        self.runner, self.method, self.T, self.tol = runner, method, T, tol
+        self.h_max, self.max_time, self.energies, self.key = h_max, max_time, energies, key
+        self.runs: dict = {}        # label -> {N: Run}
+        self.names: dict = {}       # label -> what runner.run takes (a name or a Method)
+        self.pilot_log: list = []
+        self.cpu0 = time.thread_time()
+        self.n_min = max(1, math.ceil(T / h_max * (1 - 1e-12))) if h_max else 1
+        self.model = _MODELS.get(key)
+
+    # --- runs ----------------------------------------------------------------------------------------
+    def run(self, name, N, final=False, timing=False) -> Run:
+        N = int(N)
+        label = _label(name)
+        self.names[label] = name
+        have = self.runs.setdefault(label, {})
+        if N in have and (not final or have[N].trajectory is not None):
+            return have[N]
+        r = self.runner.run(name, N, trajectory=final, energies=self.energies if (final or timing) else False)
+        if not timing:
+            have[N] = r
+        self.pilot_log.append({"method": label, "N": N, "h": r.h, "status": r.status, "cpu": r.cpu,
+                               "role": "final" if final else "timing" if timing else "pilot"})
+        return r
+
+    def order(self, label) -> float | None:
+        meth = self.runner.method(self.names.get(label, label))
+        held = any(r.held for r in self.runs.get(label, {}).values())
+        return verified_order(meth, self.runner, held)[0]
+
+    def method_model(self, label) -> MethodModel | None:
+        return self.model.methods.get(label) if self.model is not None else None
+
+    # --- one method's ladder ---------------------------------------------------------------------------
+    def ladder(self, name, N0, budget=math.inf, need_order=True) -> Assessment:
+        """Runs at N0, 2 N0, ... until assessed resolved (with the order observed, if need_order) or
+        saturated, failed beyond MAX_STEPS, or the pilots' CPU exceeds `budget`."""
+        label = _label(name)
+        spent = 0.0
+        N = max(int(N0), self.n_min, 1)
+        while True:
+            r = self.run(name, N)
+            spent += r.cpu
+            p = self.order(label)
+            if p is None:
+                return Assessment("failed", note="order not verified on this scene")
+            a = assess(self.runs[label], p, need_order)
+            if a.status in ("resolved", "saturated"):
+                return a
+            if 2 * N > MAX_STEPS or spent > budget:
+                a.note = (a.note + "; " if a.note else "") + (
+                    f"pilots stopped at N = {N} ({spent * 1e3:.3g} ms spent)" if spent > budget
+                    else f"no resolution up to N = {N}")
+                return a
+            N *= 2
+
+    def timing(self, name) -> tuple[float, float]:
+        """(a, b): CPU seconds per run and per step of `name` (energies as the final run's), from a run
+        of N_CAL steps and the method's smallest pilot."""
+        label = _label(name)
+        runs = self.runs.get(label, {})
+        big = self.run(name, max(N_CAL, self.n_min), timing=True)
+        small = min(runs.values(), key=lambda r: r.N) if runs else None
+        if small is None or small.N >= big.N:
+            return 0.0, big.cpu / big.N
+        b = max((big.cpu - small.cpu) / (big.N - small.N), big.cpu / big.N / 4)
+        return max(small.cpu - b * small.N, 0.0), b
+
+    def predict(self, label, a: Assessment, cost) -> Candidate:
+        p = self.order(label)
+        c = Candidate(label, order=p, source="pilots on this start")
+        c.a, c.b = cost
+        if a.status == "resolved":
+            N = max(math.ceil((a.C / (TARGET * self.tol)) ** (1.0 / p)), a.N_resolved or 1, self.n_min)
+        elif a.status == "saturated":
+            c.C, c.N_resolved = 0.0, a.N_resolved
+            if a.floor > ACCEPT * self.tol:
+                c.status, c.note = BELOW_FLOOR, f"tol is below the round-off level {a.floor:.1e} of these runs"
+                return c
+            N = max(a.N_resolved or 1, self.n_min)
+        else:
+            c.status, c.note = ("unresolved" if a.status == "unresolved" else "failed"), a.note
+            return c
+        c.C, c.N_resolved, c.N_asymptotic = a.C, a.N_resolved, a.N_asymptotic
+        self._fill(c, max(N, _certifiable(c)))
+        if a.observed is not None:
+            c.note = f"observed order {a.observed:.2f}"
+        return c
+
+    def _fill(self, c: Candidate, N: int):
+        """Set N (at least what the estimate can certify: `_certifiable`), the predicted error and cost."""
+        N = max(int(N), _certifiable(c))
+        c.N = int(N)
+        c.predicted_error = c.C * N ** -c.order if c.C else 0.0
+        c.predicted_cost = (c.a or 0.0) + c.b * N if c.b is not None else None
+        c.status = "ok"
+        if N > MAX_STEPS:
+            c.status, c.note = NOT_REACHED, f"needs {N:.3g} steps (more than {MAX_STEPS})"
+        elif self.max_time is not None and c.predicted_cost is not None and c.predicted_cost > self.max_time:
+            c.status, c.note = OVER_BUDGET, f"predicted {c.predicted_cost:.3g} s > max_time {self.max_time:g} s"
+
+    # --- the choice ------------------------------------------------------------------------------------
+    def choose(self):
+        if self.model is None:
+            mod = self.runner.module(self.method if self.method is not None else "CVA")
+            feats = dict(n_contacts=int(mod.NCON), forced=bool(getattr(mod, "FORCED", False)),
+                         mapped=bool(getattr(mod, "RESET_MAP", False)))
+        else:
+            feats = dict(n_contacts=self.model.n_contacts, forced=self.model.forced, mapped=self.model.mapped)
+        names, left = _candidates(self.method, **feats)
+        labels = [_label(n) for n in names]
+        for n in names:
+            self.names[_label(n)] = n
+        if self.model is not None and all(self.method_model(lb) is not None for lb in labels):
+            cands = self._with_model(labels)
+            how = f"ranked by the scene model ({self.model.starts} start{'s' if self.model.starts != 1 else ''} " \
+                  "piloted in this process), scaled to this start by its pilots"
+        else:
+            cands = self._scan(labels)
+            self._record(cands, feats, scanned=True)
+            how = "pilots of every candidate on this start"
+        for n, why in left.items():
+            cands.append(Candidate(n, status="excluded", note=why))
+        return self._finish(cands, how)
+
+    def _scan(self, labels) -> list:
+        """A ladder and a timing run for every candidate, each ladder bounded by SCAN_BUDGET CPU seconds
+        (or twice the best predicted final run, if that is more)."""
+        cands = []
+        best = 0.0
+        for label in labels:
+            a = self.ladder(self.names[label], N_FIRST, budget=max(SCAN_BUDGET, 2 * best))
+            cost = self.timing(self.names[label])
+            c = self.predict(label, a, cost)
+            cands.append(c)
+            if c.status == "ok" and c.predicted_cost is not None:
+                best = min(best, c.predicted_cost) if best else c.predicted_cost
+        return cands
+
+    def _record(self, cands, feats=None, scanned=False):
+        """Add this start's error constants (and, from a scan, the costs) to the scene model."""
+        if self.key is None:
+            return
+        if self.model is None:
+            self.model = _MODELS.setdefault(self.key, SceneModel(self.key, self.T, **(feats or {})))
+        self.model.starts += 1
+        for c in cands:
+            if c.status == "excluded" or c.order is None:
+                continue
+            m = self.model.methods.setdefault(c.method, MethodModel(order=c.order))
+            if c.C is not None:
+                m.C.append(c.C)
+                if c.N_resolved:
+                    m.N_resolved.append(c.N_resolved)
+                if c.N_asymptotic:
+                    m.N_asymptotic.append(c.N_asymptotic)
+            if scanned and c.b is not None:
+                m.a, m.b = c.a, c.b
+            if c.C is None and not m.C:
+                m.unresolved = c.note
+
+    def _from_model(self, label, high: bool) -> Candidate:
+        """The model's prediction for `label`; high: from the largest error constant seen (a run made
+        without pilots), else the median."""
+        mm = self.method_model(label)
+        c = Candidate(label, order=mm.order, a=mm.a, b=mm.b, source="scene model")
+        if not mm.C or mm.b is None:
+            c.status, c.note = "unresolved", mm.unresolved or "not resolved on the starts piloted"
+            return c
+        C = float(max(mm.C)) if high else mm.constant()
+        c.C = C
+        c.N_asymptotic = int(np.median(mm.N_asymptotic)) if mm.N_asymptotic else None
+        c.N_resolved = int(max(mm.N_resolved)) if mm.N_resolved else None
+        N = max(math.ceil((C / (TARGET * self.tol)) ** (1.0 / mm.order)) if C > 0 else 1,
+                int(max(mm.N_resolved)) if mm.N_resolved else 1, self.n_min)
+        self._fill(c, N)
+        return c
+
+    def _with_model(self, labels) -> list:
+        """Rank by the model. The best is piloted at N*/8 and N*/4 when that is as fine as the coarsest
+        N at which its pilots showed the order on the starts seen; the others are then scaled by what the
+        pilots say about this start, and a runner-up predicted within RERANK of the best is piloted too.
+        Where N*/8 is coarser, the best is run directly at the N the largest error constant seen
+        predicts (its pilots would not be in the asymptotic regime; the final run's companion checks)."""
+        preds = {lb: self._from_model(lb, high=False) for lb in labels}
+        if not any(c.status == "ok" for c in preds.values()):
+            # no candidate resolved on the starts seen (e.g. impacts accumulated there): this start may differ
+            cands = self._scan(labels)
+            self._record(cands, scanned=True)
+            return cands
+        piloted: dict = {}
+        scale = None
+        for _ in range(2):
+            ranked = sorted([c for lb, c in preds.items() if lb not in piloted and c.status == "ok"],
+                            key=lambda c: c.predicted_cost)
+            if not ranked:
+                break
+            c = ranked[0]
+            best = min((x.predicted_cost for x in piloted.values() if x.status == "ok" and x.predicted_cost),
+                       default=None)
+            if best is not None and c.predicted_cost > RERANK * best:
+                break
+            n_asym = c.N_asymptotic or N_FIRST
+            if not piloted and c.N * PILOT_SHARE < n_asym:
+                d = self._from_model(c.method, high=True)
+                d.source = "scene model (largest error constant seen; no pilots: they would not be asymptotic)"
+                piloted[c.method] = d
+                break
+            a = self.ladder(self.names[c.method], max(int(c.N * PILOT_SHARE), n_asym), need_order=False)
+            pc = self.predict(c.method, a, (c.a, c.b))
+            pc.source = "pilots on this start, ranked by the scene model"
+            piloted[c.method] = pc
+            if pc.status == "ok" and scale is None and c.N:
+                scale = pc.N / c.N
+                for lb, x in preds.items():
+                    if lb not in piloted and x.status == "ok":
+                        self._fill(x, max(int(math.ceil(x.N * scale)), self.n_min))
+                        x.source = f"scene model, scaled by this start's pilots (x{scale:.2g} steps)"
+            if pc.status == "ok":
+                break
+        return list(piloted.values()) + [c for lb, c in preds.items() if lb not in piloted]
+
+    def _finish(self, cands, how):
+        usable = sorted([c for c in cands if c.status == "ok" and c.predicted_cost is not None
+                         and not c.source.startswith("scene model,")], key=lambda c: c.predicted_cost)
+        if not usable:
+            return self._fallback(cands)
+        pick = usable[0]
+        reason = (f"{pick.method} is predicted to reach {TARGET:g} tol at h = {self.T / pick.N:.4g} ({pick.N} steps) "
+                  f"in {pick.predicted_cost * 1e3:.3g} ms CPU")
+        others = sorted([c for c in cands if c is not pick and c.status == "ok" and c.predicted_cost is not None],
+                        key=lambda c: c.predicted_cost)
+        if others:
+            reason += f", the least of the candidates (next: {others[0].method}, {others[0].predicted_cost * 1e3:.3g} ms)"
+        reason += f"; {how}"
+        return self._pursue(pick, cands, reason)
+
+    def _pursue(self, pick: Candidate, cands, reason):
+        """Run the pick at its N with a Richardson companion and a third run for the observed order
+        (nested pilots where they fit, else companions at N/2 and N/4); accept, or refine."""
+        label = pick.method
+        name = self.names[label]
+        runs = self.runs.setdefault(label, {})
+        mod, prm = self.runner.module(name), self.runner.params_vector(name)
+        N = pick.N
+        last = None
+        # refining stops once it has spent PURSUIT_BUDGET times the pick's predicted cost (at least
+        # PURSUIT_FLOOR seconds): a motion no affordable step resolves is reported, not chased to MAX_STEPS
+        budget = max(PURSUIT_FLOOR, PURSUIT_BUDGET * (pick.predicted_cost or 0.0))
+        spent0 = self._spent(label)
+        for _ in range(MAX_ROUNDS):
+            if self._spent(label) - spent0 > budget:
+                break
+            p = self.order(label)
+            N = self._final_N(name, runs, N, pick.N_asymptotic or 1)
+            if N > MAX_STEPS:
+                break
+            if self.max_time is not None and pick.b is not None and (pick.a or 0) + pick.b * N > self.max_time:
+                pick.status, pick.note = OVER_BUDGET, f"refining needs N = {N}, beyond max_time"
+                break
+            r = self.run(name, N, final=True)
+            est = estimate_of(runs, N, p, mod, prm)
+            last = est
+            if est.status == "ok" and est.extras.get("checked"):
+                if est.l2 <= ACCEPT * self.tol and est.l2_bounds[1] <= BOUND * self.tol:
+                    if self.method is None:
+                        self._record([Candidate(label, order=p, C=est.l2 * N ** p if est.l2 > 0 else 0.0,
+                                                N_resolved=pick.N_resolved, N_asymptotic=pick.N_asymptotic)])
+                    return self._result(r, label, cands, OK, reason, est)
+                if est.order is not None and est.order < p - 0.25:
+                    N = 2 * N   # the companions are not yet asymptotic: shift the three runs up
+                else:
+                    grow = (max(est.l2, est.l2_bounds[1] / BOUND) / (TARGET * self.tol)) ** (1.0 / est.order)
+                    N = max(int(math.ceil(N * max(grow, 1.1))), N + 1)
+            else:   # unresolved, failed, or no order check yet: the run becomes the companion of 2N
+                N = 2 * N
+        if pick.status == "ok":
+            pick.status = NOT_REACHED
+            pick.note = last.message if last is not None and last.status != "ok" else "the estimate stays above tol"
+        return self._fallback(cands)
+
+    def _spent(self, label) -> float:
+        return sum(x["cpu"] for x in self.pilot_log if x["method"] == label)
+
+    def _final_N(self, name, runs: dict, N: int, n_asym: int = 1) -> int:
+        """The final run's N >= N, with a companion at or above n_asym (the coarsest N that showed the
+        order) and a third run below it for the observed order; the cheapest of: a run M >= N made
+        already that has both (M is run again with its Trajectory); k M (2 <= k <= MAX_RATIO) for a run
+        M >= n_asym made already that has a third run below it; or N rounded up to a multiple of 4 with
+        companions at N/2 and N/4, run here."""
+        N = max(int(N), self.n_min, 4, 2 * n_asym)
+        options = []
+        for M, r in runs.items():
+            if not r.ok or M < n_asym:
+                continue
+            comp = _companion(runs, M)
+            if (M >= N and comp is not None and comp.N >= n_asym
+                    and _companion(runs, comp.N, 4) is not None):
+                options.append((M, M))
+            k = max(2, math.ceil(N / M))
+            if k <= MAX_RATIO and _companion(runs, M, 4) is not None:
+                options.append((k * M, k * M))
+        fresh = 4 * math.ceil(N / 4)
+        options.append((1.75 * fresh, fresh))
+        cost, Nf = min(options)
+        if Nf == fresh:
+            for M in (fresh // 2, fresh // 4):
+                if M not in runs:
+                    self.run(name, M)
+        return Nf
+
+    def _fallback(self, cands):
+        """No candidate reaches tol within the limits: the most accurate resolved run made, with its
+        estimate, and the status that says why."""
+        status = NOT_REACHED
+        if any(c.status == BELOW_FLOOR for c in cands):
+            status = BELOW_FLOOR
+        elif self.max_time is not None and any(c.status == OVER_BUDGET for c in cands):
+            status = OVER_BUDGET
+        best = None
+        for label, runs in self.runs.items():
+            p = self.order(label)
+            if p is None:
+                continue
+            name = self.names[label]
+            for N in sorted(runs, reverse=True):
+                if not runs[N].ok or _companion(runs, N) is None:
+                    continue
+                est = estimate_of(runs, N, p, self.runner.module(name), self.runner.params_vector(name))
+                if est.status == "ok":
+                    if best is None or est.l2 < best[2].l2:
+                        best = (label, N, est)
+                    break
+        notes = "; ".join(f"{c.method}: {c.status}{' (' + c.note + ')' if c.note else ''}" for c in cands
+                          if c.status != "excluded")
+        if best is not None:
+            label, N, est = best
+        else:
+            fin = sorted((N, label) for label, runs in self.runs.items() for N, r in runs.items() if r.ok)
+            if fin:
+                N, label = fin[-1]
+                est = ErrorEstimate("richardson", "unresolved", self.T / N,
+                                    message=f"no candidate resolved the motion: {notes}")
+            else:
+                label = cands[0].method
+                N = max(N_FIRST, self.n_min)
+                est = ErrorEstimate("richardson", "failed", self.T / N, message=f"every pilot failed; {notes}")
+        r = self.run(self.names.get(label, label), N, final=True)
+        reason = {NOT_REACHED: f"no step within the limits reaches tol = {self.tol:g}",
+                  BELOW_FLOOR: f"tol = {self.tol:g} is below the round-off level of this scene's runs",
+                  OVER_BUDGET: f"max_time = {self.max_time} s does not allow a run that reaches tol"}[status]
+        reason += f"; the run returned is the most accurate one made ({label}, N = {r.N}); {notes}"
+        return self._result(r, label, cands, status, reason, est)
+
+    def _result(self, r: Run, label, cands, status, reason, est):
+        tr = r.trajectory
+        total = time.thread_time() - self.cpu0
+        for c in cands:
+            if c.N is not None:
+                c.h = self.T / c.N
+            if c.C is not None and c.order:
+                c.C_h = c.C * self.T ** (-c.order)
+        choice = Choice(tol=self.tol, method=label, h=r.h, N=r.N, status=status, reason=reason, candidates=cands,
+                        estimate=est, pilots=self.pilot_log,
+                        seconds={"total_cpu": total, "final_cpu": r.cpu,
+                                 "pilots_cpu": sum(x["cpu"] for x in self.pilot_log if x["role"] != "final")})
+        tr.choice = choice
+        return tr

@@ -1,0 +1,558 @@
+"""The error estimate of a run: `tr.error_estimate()`.
+
+Richardson (kind "richardson"). A companion run of the same method from the same start at h / 2
+(the grid points of the run are every second grid point of the companion) differs from the run
+by d = e(h) - e(h / 2) on the run's grid. Where the error is C(t) h^p (the method's verified
+order p through impacts: `Method.impact_order`; 2 for every method while a contact is held), the
+companion's error is 2^-p that of the run, so the run's error is d / (1 - 2^-p): its L2 norm
+sqrt(h sum_k |e_k|^2) (the norm of `vcirun.l2_error`), the final-state errors |q_N - q(t_N)| and
+|p_N - p(t_N)|. The stated bracket assumes only that the companion's error is at most 2^-(p-1)
+of the run's (one order of margin below the asymptotic ratio): e in [d / (1 + 2^(1-p)),
+d / (1 - 2^(1-p))]. With companions=2 (h / 2 and h / 4) the observed order of the two differences
+is checked against p: a ratio more than one order short says the runs are not in the asymptotic
+regime, and the estimate is then "unresolved", not a number. A method whose order is not verified
+on the scene (CVA6 and CVA8 under a generalized force) always takes two companions and uses the
+observed order.
+
+Against the exact reference (kind "reference"): `vcirun.reference` from the run's start (or a
+Reference passed in): the error itself, to the reference's accuracy.
+
+Unresolved. Impacts make the error non-smooth in h: the estimate compares the impact and release
+records of the runs, contact by contact, and is "unresolved" (no number, the first differing
+event named) when the counts or contacts differ, when an impact time moves between the runs by
+more than a quarter of the time to that contact's neighbouring impact (the events may reorder),
+with two companions when the impact times do not converge at the order, when the runs differ by
+more than LOST of the motion's L2 norm (neither resolves it), or when a contact comes to rest
+after its impacts (a Zeno accumulation, or a bounce the run takes for resting at this h: the
+number of bounces before the hold depends on h, and two runs can agree on a wrong one). A contact whose gap
+phi dips between two grid points without an impact being recorded (a grazing contact the grid
+does not see: the parabola through phi at three grid points reaches the surface, to within the
+run's estimated error) makes the estimate unresolved too, even where both runs miss it alike.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from .pilot import Run, Runner
+
+OK, UNRESOLVED, FAILED = "ok", "unresolved", "failed"
+_EPS = float(np.finfo(float).eps)
+# differences below ROUNDOFF * eps * (1 + max|q|) * sqrt(T) are round-off (accumulated over the grid
+# and the impact-time solves, event_tol 1e-13): no order can be read from them
+ROUNDOFF = 2e4
+
+
+@dataclass
+class ErrorEstimate:
+    """kind: "richardson" or "reference"; status: "ok", "unresolved" (no number: the runs disagree in
+    their impact sequence, a contact grazes, or the differences do not shrink at the order) or
+    "failed" (a companion run or the run itself did not finish: `message`).
+
+    l2: the estimated L2 error of the run's q on its grid (the norm of `vcirun.l2_error`), with
+    l2_bounds (low, high); final_q, final_p: the error of the final state |q_N - q(t_N)|,
+    |p_N - p(t_N)|; order: the order used (observed_order: measured from two companions);
+    companion_h: the steps of the companions; first_difference: where the impact sequences part
+    ("" if they agree); note: what the number rests on."""
+
+    kind: str
+    status: str
+    h: float
+    l2: float | None = None
+    l2_bounds: tuple | None = None
+    final_q: float | None = None
+    final_p: float | None = None
+    order: float | None = None
+    observed_order: float | None = None
+    companion_h: tuple = ()
+    first_difference: str = ""
+    note: str = ""
+    message: str = ""
+    extras: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def ok(self) -> bool:
+        return self.status == OK
+
+    def as_dict(self) -> dict:
+        d = asdict(self)
+        d.pop("extras")
+        d["l2_bounds"] = list(self.l2_bounds) if self.l2_bounds is not None else None
+        d["companion_h"] = list(self.companion_h)
+        return d
+
+    def __str__(self) -> str:
+        if self.status != OK:
+            return f"error estimate ({self.kind}): {self.status}: {self.message}"
+        lo, hi = self.l2_bounds if self.l2_bounds else (math.nan, math.nan)
+        return (f"error estimate ({self.kind}, order {self.order:g}): L2 {self.l2:.3e} (in [{lo:.3e}, {hi:.3e}]), "
+                f"final |dq| {self.final_q:.3e}, |dp| {self.final_p:.3e}" + (f"; {self.note}" if self.note else ""))
+
+
+# --- comparing two runs --------------------------------------------------------------------------------
+@dataclass
+class Difference:
+    """coarse - fine on the coarse grid: L2 norm, final |dq| and |dp|, sup |dq|; the impact-time
+    differences (per matched impact); first: where the event sequences part ('' if they agree)."""
+
+    l2: float
+    final_q: float
+    final_p: float
+    sup_q: float
+    dt: np.ndarray
+    first: str
+
+
+def _events(run: Run):
+    """{contact: sorted impact times}, {contact: sorted release times}."""
+    imp: dict = {}
+    for t, c in zip(run.impacts, run.impact_contact):
+        imp.setdefault(int(c), []).append(float(t))
+    rel: dict = {}
+    for t, c in zip(run.releases, run.release_contact):
+        rel.setdefault(int(c), []).append(float(t))
+    return {c: np.sort(v) for c, v in imp.items()}, {c: np.sort(v) for c, v in rel.items()}
+
+
+def _name(names, c) -> str:
+    return f"contact {names[c]}" if names and 0 <= c < len(names) else f"contact {c}"
+
+
+def sequence_difference(a: Run, b: Run, label_a: str, label_b: str, names=None) -> tuple[str, np.ndarray]:
+    """('' or where the event records of runs a and b part, impact-time differences of matched impacts).
+
+    Per contact: the same number of impacts and of releases; then each impact time may move by at
+    most a quarter of the time to that contact's neighbouring impact (in either run)."""
+    same = (len(a.impacts) == len(b.impacts) and np.array_equal(a.impact_contact, b.impact_contact)
+            and len(a.releases) == len(b.releases) and np.array_equal(a.release_contact, b.release_contact))
+    if same:   # the common case: one pass, no per-contact bookkeeping unless an impact moves far
+        d = np.abs(a.impacts - b.impacts)
+        if len(d) < 2 or float(np.max(d)) <= 0.25 * _min_gap(a, b):
+            return "", d
+    ia, ra = _events(a)
+    ib, rb = _events(b)
+    firsts = []   # (time, text)
+    dts = []
+    for c in sorted(set(ia) | set(ib)):
+        ta, tb = ia.get(c, np.zeros(0)), ib.get(c, np.zeros(0))
+        k = min(len(ta), len(tb))
+        if len(ta) != len(tb):
+            extra, who = (ta[k:], label_a) if len(ta) > len(tb) else (tb[k:], label_b)
+            firsts.append((float(extra[0]) if k == 0 else min(float(extra[0]), float(ta[k - 1])),
+                           f"{_name(names, c)}: {len(ta)} impacts at {label_a} against {len(tb)} at {label_b} "
+                           f"(the first unmatched one at t = {extra[0]:.6g}, {who})"))
+        if k:
+            d = np.abs(ta[:k] - tb[:k])
+            dts.append(d)
+            gaps = np.full(k, np.inf)
+            for t in (ta[:k], tb[:k]):
+                if k > 1:
+                    g = np.diff(t)
+                    gaps[:-1] = np.minimum(gaps[:-1], g)
+                    gaps[1:] = np.minimum(gaps[1:], g)
+            bad = np.flatnonzero(d > 0.25 * gaps)
+            if bad.size:
+                j = int(bad[0])
+                firsts.append((float(min(ta[j], tb[j])),
+                               f"{_name(names, c)}: impact {j + 1} at t = {ta[j]:.9g} ({label_a}) and {tb[j]:.9g} "
+                               f"({label_b}) moves by more than a quarter of the time to its neighbouring impact "
+                               f"({gaps[j]:.3g}): the impacts may reorder"))
+    for c in sorted(set(ra) | set(rb)):
+        ta, tb = ra.get(c, np.zeros(0)), rb.get(c, np.zeros(0))
+        if len(ta) != len(tb):
+            k = min(len(ta), len(tb))
+            extra = ta[k:] if len(ta) > len(tb) else tb[k:]
+            firsts.append((float(extra[0]), f"{_name(names, c)}: {len(ta)} releases from rest at {label_a} against "
+                                            f"{len(tb)} at {label_b} (the first unmatched one at t = {extra[0]:.6g})"))
+    first = min(firsts)[1] if firsts else ""
+    return first, (np.concatenate(dts) if dts else np.zeros(0))
+
+
+def _min_gap(a: Run, b: Run) -> float:
+    """The shortest time between two impacts of one contact, in either run (inf if none)."""
+    g = math.inf
+    for r in (a, b):
+        if len(r.impacts) > 1:
+            for c in np.unique(r.impact_contact):
+                t = r.impacts[r.impact_contact == c]
+                if len(t) > 1:
+                    g = min(g, float(np.min(np.diff(t))))
+    return g
+
+
+LOST = 0.1   # runs that differ by more than this fraction of the motion's L2 norm do not resolve it
+
+
+def difference(coarse: Run, fine: Run, names=None) -> Difference:
+    """coarse - fine on the coarse grid (fine.N a multiple of coarse.N, same t0 and horizon). Runs that
+    differ by more than LOST of the L2 norm of q have lost the motion between them: `first` says so."""
+    r = fine.N // coarse.N
+    if r * coarse.N != fine.N or r < 1:
+        raise ValueError(f"companion: N = {fine.N} is not a multiple of N = {coarse.N}")
+    qf = fine.q[::r]
+    dq = coarse.q - qf
+    dp = coarse.p - fine.p[::r]
+    l2 = float(np.sqrt(coarse.h * np.sum(dq * dq)))
+    first, dt = sequence_difference(coarse, fine, f"h = {coarse.h:.6g}", f"h = {fine.h:.6g}", names)
+    holds = sorted(coarse.holds + fine.holds)
+    if not first and holds:
+        t, c = holds[0]
+        first = (f"{_name(names, c)} comes to rest at t = {t:.6g} (held after its impacts): where impacts "
+                 "accumulate the number of bounces before the hold depends on h")
+    if not first:
+        qn = float(np.sqrt(coarse.h * np.sum(qf * qf)))
+        if l2 > LOST * qn:
+            first = (f"the runs at h = {coarse.h:.6g} and {fine.h:.6g} differ by {l2:.3g} in L2, more than "
+                     f"{LOST:.0%} of the motion's {qn:.3g}: neither resolves it")
+    return Difference(l2=l2, final_q=float(np.sqrt(np.sum(dq[-1] * dq[-1]))),
+                      final_p=float(np.sqrt(np.sum(dp[-1] * dp[-1]))),
+                      sup_q=float(np.max(np.abs(dq))) if dq.size else 0.0, dt=dt, first=first)
+
+
+def roundoff_level(run: Run) -> float:
+    """The L2 difference two runs of this size can show from round-off alone."""
+    span = run.h * run.N
+    return ROUNDOFF * _EPS * (1.0 + float(np.max(np.abs(run.q)))) * math.sqrt(max(span, 1e-300))
+
+
+# --- grazing contacts ----------------------------------------------------------------------------------
+def _phis(run: Run, mod, prm, ks=None) -> np.ndarray:
+    """phi_i at the grid states ks (default: all) of a run, (len(ks), m)."""
+    m = int(mod.NCON)
+    ks = range(run.q.shape[0]) if ks is None else ks
+    out = np.empty((len(ks), m))
+    row = np.empty(m)
+    sys_phis = mod.sys_phis
+    for j, k in enumerate(ks):
+        sys_phis(run.q[k], prm, row)
+        out[j] = row
+    return out
+
+
+def _near_event(run: Run, reach: int) -> np.ndarray:
+    """Grid points within `reach` steps of a recorded impact or release (their minima are explained)."""
+    N = run.q.shape[0] - 1
+    near = np.zeros(N + 1, bool)
+    events = np.concatenate([run.impacts, run.releases])
+    if len(events):
+        k_ev = np.clip(np.floor((events - run.t0) / run.h).astype(np.int64), 0, N)
+        for d in range(-reach, reach + 2):
+            near[np.clip(k_ev + d, 0, N)] = True
+    return near
+
+
+def _parabola_minima(f: np.ndarray, skip: np.ndarray):
+    """(grid points k, the lowest value of the parabola through f[k-1], f[k], f[k+1] on [t_k-1, t_k+1],
+    its curvature): every k whose parabola has its vertex on that span (so a dip in the last step is
+    seen too) or is a grid minimum, f[k] > 0, not skipped."""
+    a, b, c = f[:-2], f[1:-1], f[2:]
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):   # inf outside a screen's windows
+        curv = (a - 2 * b + c) / 2.0
+        slope = (c - a) / 2.0
+        s = np.where(curv > 0, -slope / (2 * curv), np.inf)
+        low = np.where(curv > 0, b - slope * slope / (4 * curv), b)
+    cand = np.flatnonzero(((np.abs(s) <= 1.0) | ((b <= a) & (b <= c))) & (b > 0) & ~skip[1:-1])
+    return cand + 1, low[cand], np.abs(curv[cand])
+
+
+def near_misses(run: Run, mod, prm, margin: float = 0.0, screen: Run | None = None) -> list[tuple[float, int, float]]:
+    """Grid minima of each gap phi_i that no impact explains and whose parabola through three grid
+    points reaches within `margin` of the surface: [(t, contact, lowest phi of the parabola)]. Points
+    next to a recorded impact or release are skipped; a held contact sits at phi = 0 and is skipped
+    by the same rule (its hold starts at an impact).
+
+    screen: a coarser nested run of the same motion (a companion): phi is evaluated on its grid, and
+    on the run's own grid only around the screen's minima that come within margin plus one
+    curvature step of the surface (the parabola of a grid r times coarser errs by less than that)."""
+    N, m = run.q.shape[0] - 1, int(mod.NCON)
+    if N < 2:
+        return []
+    if screen is None:
+        phis = _phis(run, mod, prm)
+        near = _near_event(run, 1)
+        out = []
+        for i in range(m):
+            ks, low, _ = _parabola_minima(phis[:, i], near)
+            for k, v in zip(ks, low):
+                if v <= margin:
+                    out.append((run.t0 + int(k) * run.h, i, float(v)))
+        return sorted(out)
+    r = N // (screen.q.shape[0] - 1)
+    if r < 1 or (screen.q.shape[0] - 1) * r != N or screen.q.shape[0] < 3:
+        return near_misses(run, mod, prm, margin)
+    sphis = _phis(screen, mod, prm)
+    snear = _near_event(screen, 1)
+    windows = set()
+    for i in range(m):
+        ks, low, curv = _parabola_minima(sphis[:, i], snear)
+        for k, v, cv in zip(ks, low, curv):
+            if v <= margin + 2.0 * cv:
+                windows.update(range(max(0, (int(k) - 1) * r - 1), min(N, (int(k) + 1) * r + 1) + 1))
+    if not windows:
+        return []
+    ks = np.array(sorted(windows))
+    phis = _phis(run, mod, prm, ks)
+    near = _near_event(run, 1)
+    out = []
+    for i in range(m):
+        f = np.full(N + 1, np.inf)
+        f[ks] = phis[:, i]
+        skip = near | ~np.isfinite(f)
+        kk, low, _ = _parabola_minima(np.where(np.isfinite(f), f, np.inf), skip)
+        for k, v in zip(kk, low):
+            if np.isfinite(v) and v <= margin:
+                out.append((run.t0 + int(k) * run.h, i, float(v)))
+    return sorted(out)
+
+
+# --- the estimate --------------------------------------------------------------------------------------
+def verified_order(meth, runner: Runner | None, held: bool) -> tuple[int | None, str]:
+    """(order, why) the estimate may assume: the method's order through impacts; 2 while contacts are
+    held (the constrained steps and releases are second order); None where it is not verified (CVA6
+    and CVA8 under a generalized force: their forced order has not been measured)."""
+    p = int(meth.impact_order)
+    if runner is not None and meth.constrained is not False and runner.forced(meth):
+        forcing = (meth.properties or {}).get("forcing")
+        if not forcing:
+            return None, f"{meth.name}'s order under a generalized force is not verified"
+        p = min(p, int(str(forcing).split()[-1]))
+    if held and p > 2:
+        return 2, "contacts held: the constrained steps and releases are second order"
+    return p, ""
+
+
+def richardson(runs: list[Run], order: int | None, names=None, mod=None, prm=None, grazing=True) -> ErrorEstimate:
+    """The estimate of runs[0] from its companions runs[1:] (each N twice the previous)."""
+    run = runs[0]
+    h = run.h
+    comp = tuple(r.h for r in runs[1:])
+    bad = [r for r in runs if not r.ok]
+    if bad:
+        r = bad[0]
+        who = "the run" if r is run else f"the companion at h = {r.h:.6g}"
+        return ErrorEstimate("richardson", FAILED, h, order=order, companion_h=comp,
+                             message=f"{who} ended with status {r.status}")
+    diffs = [difference(a, b, names) for a, b in zip(runs[:-1], runs[1:])]
+    first = next((d.first for d in diffs if d.first), "")
+    est = ErrorEstimate("richardson", OK, h, order=order, companion_h=comp, first_difference=first)
+    if first:
+        est.status = UNRESOLVED
+        est.message = f"the runs' impact sequences differ: {first}"
+        return est
+    d0 = diffs[0]
+    floor = roundoff_level(run)
+    p_obs = None
+    if len(diffs) > 1:
+        d1 = diffs[1]
+        if d0.l2 > floor and d1.l2 > 0:
+            p_obs = math.log2(d0.l2 / d1.l2)
+            est.observed_order = p_obs
+    if order is None:
+        if p_obs is None:
+            if d0.l2 <= floor:
+                order = 1
+                est.note = "differences at round-off level"
+            else:
+                est.status = UNRESOLVED
+                est.message = "the method's order is not verified here and two companions are needed to observe it"
+                return est
+        else:
+            order = max(p_obs, 0.0)
+            est.note = f"observed order {p_obs:.2f} (the method's order is not verified on this scene)"
+            if p_obs < 0.5:
+                est.status = UNRESOLVED
+                est.message = f"the differences do not shrink with h (observed order {p_obs:.2f})"
+                return est
+        est.order = order
+    elif p_obs is not None and p_obs < order - 1.0 and d0.l2 > floor:
+        est.status = UNRESOLVED
+        est.message = (f"the differences shrink at order {p_obs:.2f}, not {order}: the runs are not in the "
+                       "asymptotic regime")
+        return est
+    if p_obs is not None and len(d0.dt) and len(diffs[1].dt):
+        # impact times: the coarser difference must not be smaller by more than round-off than the finer
+        dt0, dt1 = d0.dt, diffs[1].dt
+        tfloor = 1e3 * _EPS * max(1.0, abs(run.t0) + h * run.N)
+        slow = np.flatnonzero((dt0 > tfloor) & (dt0 < dt1 * 2.0 ** (max(order, 1) - 1.5)))
+        if slow.size:
+            j = int(slow[0])
+            est.status = UNRESOLVED
+            est.message = (f"impact {j + 1}'s time does not converge at order {order:g} (differences {dt0[j]:.3g}, "
+                           f"{dt1[j]:.3g}): an ill-conditioned (grazing) impact")
+            return est
+    ratio = float(runs[1].N // run.N)
+    rho = ratio ** (-(order - 1.0)) if order > 1 else 0.5
+    factor = 1.0 / (1.0 - ratio ** -order)
+    est.l2 = d0.l2 * factor
+    est.l2_bounds = (d0.l2 / (1.0 + rho), d0.l2 / (1.0 - rho))
+    est.final_q = d0.final_q * factor
+    est.final_p = d0.final_p * factor
+    if d0.l2 <= floor:
+        est.note = (est.note + "; " if est.note else "") + f"differences at round-off level (<= {floor:.1e})"
+    if grazing and mod is not None:
+        margin = 2.0 * d0.sup_q * factor * slope_scale(run, mod, prm)
+        miss = near_misses(run, mod, prm, margin)
+        if miss:
+            t, c, low = miss[0]
+            est.status = UNRESOLVED
+            est.first_difference = (f"{_name(names, c)} grazes near t = {t:.6g} (phi between the grid points down to "
+                                    f"{low:.3g}, within the run's error of the surface) without an impact")
+            est.message = "a grazing contact the grid does not resolve: " + est.first_difference
+            est.l2 = est.l2_bounds = est.final_q = est.final_p = None
+    return est
+
+
+_SLOPES: dict = {}
+
+
+def slope_scale(run: Run, mod, prm) -> float:
+    """|grad phi| at the start (the largest over the contacts): converts a q error into a gap error
+    (kept per module, parameters and start)."""
+    key = (id(mod), prm.tobytes(), run.q[0].tobytes())
+    s = _SLOPES.get(key)
+    if s is None:
+        m, n = int(mod.NCON), run.q.shape[1]
+        G = np.empty((m, n))
+        mod.sys_dphis(np.ascontiguousarray(run.q[0]), prm, G)
+        s = float(np.max(np.sqrt(np.sum(G * G, axis=1)))) if m else 1.0
+        s = s if math.isfinite(s) else 1.0
+        if len(_SLOPES) > 256:
+            _SLOPES.clear()
+        _SLOPES[key] = s
+    return s
+
+
+def estimate(tr, *, kind: str = "richardson", companions: int = 1, reference=None, system=None,
+             grazing: bool = True) -> ErrorEstimate:
+    """`Trajectory.error_estimate` (see there)."""
+    if kind not in ("richardson", "reference"):
+        raise ValueError(f"kind: 'richardson' or 'reference' (got {kind!r})")
+    if companions not in (1, 2):
+        raise ValueError(f"companions: 1 or 2 (got {companions!r})")
+    if reference is not None:
+        kind = "reference"
+    if tr.status != OK:
+        return ErrorEstimate(kind, FAILED, float(tr.h), message=f"the run ended with status {tr.status}: {tr.message}")
+    args = getattr(tr, "run_args", None)
+    if args is None:
+        args = _args_from_record(tr, system)
+    elif system is not None:
+        args.system = system
+    if kind == "reference":
+        return _against_reference(tr, args, reference)
+    runner = args.runner(float(tr.T))
+    meth = args.method
+    run = Run.of_trajectory(tr, meth, runner.module(meth), runner.params_vector(meth))
+    order, why = verified_order(meth, runner, run.held)
+    if order is None:
+        companions = 2
+    runs = [run]
+    for j in range(companions):
+        runs.append(runner.run(meth, run.N * 2 ** (j + 1)))
+    for r in runs[1:]:
+        run.held = run.held or r.held
+    order2, why2 = verified_order(meth, runner, run.held)
+    order, why = (order2, why2) if order2 != order else (order, why)
+    est = richardson(runs, order, _contact_names(tr, args), runner.module(meth), runner.params_vector(meth),
+                     grazing=grazing)
+    if why and est.status == OK:
+        est.note = (why + "; " + est.note) if est.note else why
+    return est
+
+
+def _contact_names(tr, args):
+    """Contact names where the system object is at hand (a MechanicalSystem), else None ("contact i"):
+    naming them must not build a symbolic system."""
+    cons = getattr(args.system, "constraints", None)
+    try:
+        return [str(c.name) for c in cons] if cons else None
+    except (AttributeError, TypeError):
+        return None
+
+
+def _args_from_record(tr, system):
+    """RunArgs of a trajectory without them (read from a file, unpickled): a built-in scene by its name,
+    else `system` must be given; the start is the run's first grid state."""
+    from ..methods.table import resolve_method
+    from ..scenes.catalog import scene_info
+    from .pilot import RunArgs
+
+    if system is None and scene_info(tr.system) is None:
+        raise ValueError(f"system: the trajectory of {tr.system!r} does not carry its system; pass "
+                         "error_estimate(system=...) with its YAML path or MechanicalSystem")
+    opts = dict(tr.options or {})
+    params = opts.pop("params", None)
+    constrained = opts.pop("constrained", None)
+    meth = resolve_method(tr.method, **{k: v for k, v in opts.items() if k in ("ld", "mh_order", "flow_order")})
+    tol = {k: v for k, v in (tr.tolerances or {}).items() if k in ("newton_tol", "event_tol", "max_iter",
+                                                                     "max_impacts_step")}
+    return RunArgs(system=tr.system if system is None else system, method=meth, t0=float(tr.t[0]),
+                   q0=np.asarray(tr.q[0], float), p0=np.asarray(tr.p[0], float), params=params,
+                   constrained=constrained, options=tol)
+
+
+def _against_reference(tr, args, ref) -> ErrorEstimate:
+    import vcirun
+
+    from .pilot import Run
+
+    h = float(tr.h)
+    if ref is None:
+        if float(tr.t[0]) != 0.0:
+            raise ValueError(f"reference: the exact reference starts at t = 0 and this run at t0 = {tr.t[0]:g}; "
+                             "pass reference= one computed for it, or use kind='richardson'")
+        ref = vcirun.reference(args.system, T=float(tr.t[-1]), q0=np.asarray(tr.q[0], float),
+                               p0=np.asarray(tr.p[0], float), params=args.params,
+                               resting_contact=args.resting_contact)
+    l2 = float(vcirun.l2_error(tr, ref))
+    t_end = float(tr.t[-1])
+    fq = float(np.linalg.norm(tr.q[-1] - ref(t_end)))
+    fp = float(np.linalg.norm(tr.p[-1] - ref.p(t_end)))
+    acc = float(getattr(ref, "accuracy", math.nan))
+    pad = acc * math.sqrt(max(t_end - float(tr.t[0]), 0.0)) if math.isfinite(acc) else 0.0
+    ref_run = Run(method=None, N=0, h=h, t0=float(tr.t[0]), q=np.zeros((0, tr.q.shape[1])), p=np.zeros((0, 0)),
+                  impacts=np.asarray(ref.impacts, float), impact_contact=np.asarray(ref.impact_contact),
+                  releases=np.asarray(getattr(ref, "releases", np.zeros(0)), float),
+                  release_contact=np.asarray(getattr(ref, "release_contact", np.zeros(0, np.int64))), held=False,
+                  status=OK, wall=0.0, cpu=0.0)
+    first, _ = sequence_difference(Run.of_trajectory(tr, None), ref_run, "the run", "the reference",
+                                   _contact_names(tr, args))
+    note = f"exact reference ({ref.kind}, accuracy {acc:.1e})"
+    if first:
+        note += "; the run's impact sequence differs from the reference's"
+    return ErrorEstimate("reference", OK, h, l2=l2, l2_bounds=(max(0.0, l2 - pad), l2 + pad), final_q=fq, final_p=fp,
+                         first_difference=first, note=note, extras={"reference": ref})
+
+
+# --- what a sweep stores -------------------------------------------------------------------------------
+def sweep_attrs(traj, h_requested: float, error_estimate: bool) -> dict:
+    """The attributes a sweep stores for a run (scalars; vcirun.experiments.worker): for a run of
+    `simulate(tol=...)` the choice (h stays the grid's h of the config, the largest step allowed; the
+    step chosen is h_chosen, the method core_method) and its estimate; with error_estimate, the
+    estimate of any ok run (one companion at h / 2). est_status: ok / unresolved / failed; est_l2 etc.
+    NaN unless ok."""
+    out = {}
+    est = None
+    choice = getattr(traj, "choice", None)
+    if choice is not None:
+        out.update(h=float(h_requested), h_chosen=float(traj.h), tol=float(choice.tol), tol_status=choice.status,
+                   tol_reason=choice.reason[:500], n_pilots=len(choice.pilots),
+                   tol_cpu=float(choice.seconds.get("total_cpu", float("nan"))))
+        est = choice.estimate
+    elif error_estimate and traj.status == OK:
+        try:
+            est = traj.error_estimate()
+        except ValueError as e:   # e.g. a system the record cannot rebuild
+            est = ErrorEstimate("richardson", FAILED, float(traj.h), message=str(e))
+    if est is not None:
+        nan = float("nan")
+        out.update(est_kind=est.kind, est_status=est.status, est_message=(est.message or est.note)[:500],
+                   est_l2=est.l2 if est.l2 is not None else nan,
+                   est_l2_low=est.l2_bounds[0] if est.l2_bounds else nan,
+                   est_l2_high=est.l2_bounds[1] if est.l2_bounds else nan,
+                   est_final_q=est.final_q if est.final_q is not None else nan,
+                   est_final_p=est.final_p if est.final_p is not None else nan,
+                   est_order=float(est.order) if est.order is not None else nan)
+    return out

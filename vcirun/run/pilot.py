@@ -1,0 +1,219 @@
+"""Runs of one scene from one start at chosen (method, N), cheaply: what the error estimate's
+companion runs and the tolerance-driven choice's pilot runs are.
+
+A `Runner` holds a (system, start, parameters, horizon, options) and runs any method on the grid
+t_k = t0 + k T / N. It resolves each method's plan once (`vcirun.run.plan.plan`, the checks and
+messages of `vcirun.simulate`) and runs the compiled loop directly for every other N, without
+building a Trajectory unless asked: a pilot keeps its grid q and p, its impact and release
+record and its status, and costs the loop and little else. Every run is the run `vcirun.simulate`
+makes with the same arguments (same plan, same start, same loop): bit for bit, so a pilot can be
+returned as the final trajectory and a companion compares with the user's run exactly.
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..core import record
+from ..core.sizes import run_bytes
+from ..core.system_data import start_beta
+
+_STATUS = record.STATUS_CODES
+_INDEX = {f.name: k for k, f in enumerate(record.FIELDS)}
+
+
+@dataclass
+class Run:
+    """What a pilot or companion run keeps: method (the Method), N, h, t0, grid q and p (N+1, n),
+    impacts (time, contact) and releases (time, contact), contact_active (grid x m) held contacts,
+    status, the loop's wall time, the CPU time of the whole run, and the Trajectory if one was built."""
+
+    method: object
+    N: int
+    h: float
+    t0: float
+    q: np.ndarray
+    p: np.ndarray
+    impacts: np.ndarray
+    impact_contact: np.ndarray
+    releases: np.ndarray
+    release_contact: np.ndarray
+    held: bool
+    status: str
+    wall: float
+    cpu: float
+    trajectory: object = None
+    holds: tuple = ()    # (time, contact) where a contact not held at the start comes to rest
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+    @property
+    def t(self) -> np.ndarray:
+        return self.t0 + self.h * np.arange(self.q.shape[0])
+
+    @classmethod
+    def of_trajectory(cls, tr, method, mod=None, prm=None) -> "Run":
+        """The Run view of a finished Trajectory (the user's run, compared with its companions); with
+        its module and parameters, a hold the record starts with is checked against phi(q0)."""
+        held = bool(np.any(tr.contact_active)) or len(tr.releases) > 0
+        t0 = float(tr.t[0]) if len(tr.t) else 0.0
+        return cls(method=method, N=tr.n_steps, h=float(tr.h), t0=t0, q=tr.q,
+                   p=tr.p, impacts=np.asarray(tr.impacts, float), impact_contact=np.asarray(tr.impact_contact),
+                   releases=np.asarray(tr.releases, float), release_contact=np.asarray(tr.release_contact),
+                   held=held, status=tr.status, wall=float(tr.wall_time), cpu=float("nan"), trajectory=tr,
+                   holds=hold_onsets(np.asarray(tr.contact_active), t0, float(tr.h),
+                                     start_gaps(mod, tr.q[0], prm) if mod is not None and len(tr.q) else None))
+
+
+def hold_onsets(active: np.ndarray, t0: float, h: float, start_phis=None) -> tuple:
+    """((time, contact), ...) of the grid points where a contact not held before comes to rest. A
+    contact the record holds at t0 is an onset too unless it starts on its surface (start_phis: phi_i
+    at q0 within 1e-9 of 0; without them every hold at t0 counts as a resting start)."""
+    if active.ndim != 2 or not active.any():
+        return ()
+    out = []
+    if start_phis is not None:
+        out += [(t0, int(c)) for c in np.flatnonzero(active[0]) if abs(float(start_phis[c])) > 1e-9]
+    if active.shape[0] > 1:
+        on = active[1:] & ~active[:-1]
+        ks, cs = np.nonzero(on)
+        out += [(t0 + (int(k) + 1) * h, int(c)) for k, c in zip(ks, cs)]
+    return tuple(out)
+
+
+def start_gaps(mod, q0, prm) -> np.ndarray:
+    """phi_i(q0) of every contact."""
+    out = np.empty(int(mod.NCON))
+    mod.sys_phis(np.ascontiguousarray(q0, dtype=float), prm, out)
+    return out
+
+
+class Runner:
+    """Runs of `system` from one start on [t0, t0 + T] (T the horizon of every run: h = T / N).
+
+    system, beta, q0, p0, params, t0, constrained, resting_contact, options: as `vcirun.simulate`'s
+    (options: newton_tol, event_tol, max_iter, max_impacts_step). Method options (ld, mh_order,
+    flow_order) go with the method: pass a `vcirun.methods.table.Method` or a name."""
+
+    def __init__(self, system, *, T, t0=0.0, beta=None, q0=None, p0=None, params=None, constrained=None,
+                 resting_contact=True, options=None):
+        self.system, self.T, self.t0 = system, float(T), float(t0)
+        self.start = dict(beta=beta, q0=q0, p0=p0, params=params)
+        self.params = params
+        self.constrained, self.resting_contact = constrained, resting_contact
+        self.options = dict(options or {})
+        self._plans: dict = {}
+
+    # --- plans --------------------------------------------------------------------------------------
+    def _base(self, method, energies: bool):
+        """(plan, module, q0, p0, prm, beta) of `method` (resolved once per method and energies flag)."""
+        from ..methods.table import resolve_method
+        from .plan import first_call, plan, ready_start, start_state
+
+        meth = resolve_method(method)
+        key = (meth, energies)
+        hit = self._plans.get(key)
+        if hit is None:
+            # a name (not the Method) lets plan() keep the plan of a built-in scene across Runners
+            p = plan(self.system, method if isinstance(method, str) else meth, h=self.T, T=self.T, t0=self.t0, constrained=self.constrained,
+                     energies=energies, resting_contact=self.resting_contact, options=self.options,
+                     start=self.start)
+            sysd = p.sysd
+            prm = sysd.param_values(self.params)
+            beta = start_beta(sysd, self.start["beta"], self.start["q0"], self.start["p0"])
+            start = start_state(sysd, beta, self.start["q0"], self.start["p0"], prm, p.sysm)
+            mod = p.module()
+            q0, p0 = ready_start(p, mod, start, prm)
+            first_call(mod, p, q0, p0, prm)
+            hit = self._plans[key] = (p, mod, q0, p0, prm, beta)
+        return hit
+
+    def method(self, method):
+        from ..methods.table import resolve_method
+
+        return resolve_method(method)
+
+    def module(self, method):
+        return self._base(method, False)[1]
+
+    def params_vector(self, method) -> np.ndarray:
+        return self._base(method, False)[4]
+
+    def forced(self, method) -> bool:
+        if not hasattr(self, "_forced"):
+            self._forced = bool(getattr(self.module(method), "FORCED", False))
+        return self._forced
+
+    def n_contacts(self, method) -> int:
+        return int(self.module(method).NCON)
+
+    # --- runs ---------------------------------------------------------------------------------------
+    def run(self, method, N: int, *, trajectory: bool = False, energies: bool | None = None) -> Run:
+        """The run of `method` on N steps of h = T / N. trajectory=True also builds the Trajectory
+        `vcirun.simulate` returns (energies along the grid unless energies=False)."""
+        from .api import trajectory_of
+        from .plan import run_loop
+
+        energies = trajectory if energies is None else energies
+        base, mod, q0, p0, prm, beta = self._base(method, energies)
+        N = int(N)
+        h = self.T / N
+        p = dataclasses.replace(base, h=h, N=N, need=run_bytes(N, base.sysd.n), note="", _mod=mod)
+        p.check_memory()
+        c0 = time.thread_time()
+        t_start = time.perf_counter()
+        out, counters = run_loop(mod, q0, p0, self.t0, h, N, prm, p.settings, base.sysd.n, p.max_impacts_step)
+        wall = time.perf_counter() - t_start
+        steps = counters["steps"]
+        Q = out[_INDEX["q"]][: steps + 1]
+        P = out[_INDEX["p"]][: steps + 1]
+        k_imp, k_rel = counters["n_impacts"], counters["n_releases"]
+        field = lambda name, k: out[_INDEX[name]][:k]  # noqa: E731
+        active = field("contact_active", steps + 1)
+        tr = None
+        if trajectory:
+            tr = trajectory_of(p, mod, out, counters, q0, p0, prm, beta, wall)
+            tr.run_args = self.run_args(p.meth)
+            status = tr.status
+        else:
+            status = _STATUS[counters["status"]]
+        run = Run(method=p.meth, N=N, h=h, t0=self.t0, q=Q, p=P, impacts=field("impacts", k_imp).copy(),
+                  impact_contact=field("impact_contact", k_imp).copy(), releases=field("releases", k_rel).copy(),
+                  release_contact=field("release_contact", k_rel).copy(),
+                  held=bool(np.any(active)) or k_rel > 0, status=status, wall=wall,
+                  cpu=time.thread_time() - c0, trajectory=tr,
+                  holds=hold_onsets(active, self.t0, h, start_gaps(mod, q0, prm) if active[:1].any() else None))
+        return run
+
+    def run_args(self, meth) -> "RunArgs":
+        return RunArgs(system=self.system, method=meth, t0=self.t0, beta=self.start["beta"], q0=self.start["q0"],
+                       p0=self.start["p0"], params=self.params, constrained=self.constrained,
+                       resting_contact=self.resting_contact, options=dict(self.options))
+
+
+@dataclass
+class RunArgs:
+    """The arguments of a `vcirun.simulate` call, kept on its Trajectory (`tr.run_args`) so that
+    `tr.error_estimate()` can run companions of the same run: the system as given (a name, a file
+    or a MechanicalSystem), the resolved Method, the start as given, params, constrained,
+    resting_contact and the solver options."""
+
+    system: object
+    method: object
+    t0: float = 0.0
+    beta: float | None = None
+    q0: object = None
+    p0: object = None
+    params: dict | None = None
+    constrained: bool | None = None
+    resting_contact: bool = True
+    options: dict = dataclasses.field(default_factory=dict)
+
+    def runner(self, T: float) -> Runner:
+        return Runner(self.system, T=T, t0=self.t0, beta=self.beta, q0=self.q0, p0=self.p0, params=self.params,
+                      constrained=self.constrained, resting_contact=self.resting_contact, options=self.options)
