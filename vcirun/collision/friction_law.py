@@ -357,15 +357,16 @@ def _fr_lemke(T, basis, m, x):
     """Lemke's complementary pivoting on the tableau T[:m] = [I | -M | -d | q] (d the covering vector).
     Ratio test: the least ratio rhs / column entry (right-hand sides below FRIC_RHS_TOL max |q| count
     as 0), ties within FRIC_TIE_TOL; among ties z0 leaves if it can (the solution), else the
-    lexicographic rule on the w columns (B^-1), which excludes cycling. Returns 0 with x the solution,
-    1 on a secondary ray, 2 if the pivots did not end."""
-    for i in range(m):
-        x[i] = 0.0
-        basis[i] = i
+    lexicographic rule on the w columns (B^-1), which excludes cycling. An entering column without a
+    positive entry while z0 is basic at level 0 is no ray: the point reached solves the LCP (a
+    degenerate vertex). Returns 0 with x the solution, 1 on a secondary ray, 2 if the pivots did not
+    end."""
     rhs = 2 * m + 1
     r = 0
     qs = 0.0
     for i in range(m):
+        x[i] = 0.0
+        basis[i] = i
         qs = max(qs, abs(T[i, rhs]))
         if T[i, rhs] < T[r, rhs]:
             r = i
@@ -387,6 +388,10 @@ def _fr_lemke(T, basis, m, x):
                 b = T[i, rhs] if T[i, rhs] > rtol else 0.0
                 theta = min(theta, b / c)
         if theta == np.inf:
+            for i in range(m):
+                if basis[i] == 2 * m and T[i, rhs] <= rtol:
+                    _fr_basic_x(T, basis, m, x)
+                    return 0
             return 1
         row = -1
         for i in range(m):
@@ -402,12 +407,21 @@ def _fr_lemke(T, basis, m, x):
         leaving = basis[row]
         _fr_pivot(T, basis, row, entering, m, nz)
         if leaving == 2 * m:
-            for i in range(m):
-                if basis[i] >= m and basis[i] < 2 * m:
-                    x[basis[i] - m] = T[i, rhs]
+            _fr_basic_x(T, basis, m, x)
             return 0
         entering = leaving + m if leaving < m else leaving - m
     return 2
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _fr_basic_x(T, basis, m, x):
+    """x of the tableau's basic solution (the basic x variables at their right-hand sides, >= 0)."""
+    for i in range(m):
+        x[i] = 0.0
+    for i in range(m):
+        if basis[i] >= m and basis[i] < 2 * m:
+            b = T[i, 2 * m + 1]
+            x[basis[i] - m] = b if b > 0.0 else 0.0
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
