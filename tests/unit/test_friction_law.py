@@ -637,3 +637,28 @@ def test_reference_wrapper():
     code, lam = friction.friction_impact(W, u, [0.0], [-1.0])
     assert friction.code_name(code) == "LCP_BAD_INPUT" and np.all(lam == 0.0)
     assert {n for n in friction.CODES} <= set(dir(mod))
+
+
+@pytest.mark.parametrize("k", [20, 50])
+def test_coupled_groups_of_many_contacts(k):
+    """A random mechanism of 2k + 3 degrees of freedom with k contacts, every row coupled (one Lemke
+    problem of up to 6k unknowns), mixed restitution: a solution of the law that loses energy."""
+    law = _compiled_unit()
+    rng = np.random.default_rng(k)
+    n = 2 * k + 3
+    G = rng.normal(size=(2 * k, n))
+    B = rng.normal(size=(n, n))
+    Minv = np.linalg.inv(B @ B.T + n * np.eye(n))
+    W = G @ Minv @ G.T
+    W = 0.5 * (W + W.T)
+    qdot = rng.normal(size=n)
+    u = G @ qdot
+    keep = [i for i in range(k) if u[i] <= 0]
+    rows = keep + [k + i for i in keep]
+    W, u = W[np.ix_(rows, rows)], u[rows]
+    kk = len(keep)
+    e, mu = rng.uniform(0, 1, kk), rng.uniform(0, 1.5, kk)
+    code, lam = _solve(law, W, u, e, mu)
+    assert code >= 0
+    assert _energy_change(W, u, lam) < 0
+    _check_law(law, W, u, e, mu, lam)
