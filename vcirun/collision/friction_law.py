@@ -272,7 +272,8 @@ def _fr_groups(A, fric, k):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _fr_tableau(A, u, mu, lam1, r, k, ctc, nc, ia, ib, iz, ip, im, ig, T, m, attempt, qs):
-    """Lemke's tableau [I | -M | -1 | q] of one group's stage-2 LCP w = q + M x >= 0, x >= 0, x . w = 0.
+    """Lemke's tableau [I | -M | -d | q] (d the covering vector) of one group's stage-2 LCP
+    w = q + M x >= 0, x >= 0, x . w = 0.
 
     Unknowns per contact i: a (ia; the normal impulse P if the contact has no rebound graph), b (ib;
     P = a + b, b <= lam1 the part of stage 1's impulse kept), z (iz; the slack of b <= lam1),
@@ -486,8 +487,8 @@ def _fr_extract(x, ctc, nc, ia, ib, ip, im, mu, P, lt):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _fr_check(A, u, mu, lam1, r, P, lt, fric, k, ctc, nc, qs, wmax):
-    """The law's conditions on (P, lt) at the group's contacts, to LCP_FEAS_TOL qs in velocity units
-    (impulses times max W_ii): u+_n >= 0, the rebound graph between P_i and u+_n,i, and friction
+    """The law's conditions on (P, lt) at the group's contacts, in velocity units (impulses times
+    max W_ii): u+_n >= 0, the rebound graph between P_i and u+_n,i, and friction
     opposing a slip, lt_i = -mu_i P_i sign(u+_t,i) where |u+_t,i| is above the tolerance (the cone
     |lt_i| <= mu_i P_i holds exactly, _fr_extract). The tolerance is LCP_FEAS_TOL times the larger of qs
     and max W_ii times the largest impulse (the round-off of u+ = u- + W lam grows with lam: with
