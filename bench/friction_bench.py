@@ -31,6 +31,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+
 def log(msg=""):
     print(msg, flush=True)
 
@@ -153,6 +154,7 @@ def coupled(k, rng):
 
 
 def balls(k, rng):
+    """k spinning balls landing on a floor: W diagonal, k groups of one contact."""
     R, m = 0.05, 0.2
     Iz = 0.4 * m * R * R
     W = np.diag(np.concatenate([np.full(k, 1 / m), np.full(k, 1 / m + R * R / Iz)]))
