@@ -19,8 +19,6 @@ Run alone: python bench/friction_bench.py [--quick] [--out results/friction_benc
 from __future__ import annotations
 
 import argparse
-import hashlib
-import importlib.util
 import json
 import os
 import statistics
@@ -33,32 +31,16 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-UNIT = "collision/friction_law.py"
-
 
 def log(msg=""):
     print(msg, flush=True)
 
 
 def compiled_unit():
-    """The unit's standalone source compiled once (the kernel cache directory, numba's own cache)."""
-    from vcirun.codegen import units
-    from vcirun.codegen.build import cache_dir
+    """The compiled unit, as the exact reference loads it (vcirun.reference.friction)."""
+    from vcirun.reference.friction import friction_law_module
 
-    text = units.standalone_source([UNIT])
-    key = hashlib.sha256(text.encode()).hexdigest()[:16]
-    path = cache_dir() / f"unit_friction_law_{key}.py"
-    if not path.exists():
-        tmp = path.with_suffix(f".{os.getpid()}.tmp")
-        tmp.write_text(text)
-        tmp.replace(path)
-    name = f"vcirun_unit_friction_law_{key}"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, path)
-        mod = importlib.util.module_from_spec(spec)
-        sys.modules[name] = mod
-        spec.loader.exec_module(mod)
-    return sys.modules[name]
+    return friction_law_module()
 
 
 # --- random impacts ------------------------------------------------------------------------------------
@@ -172,6 +154,7 @@ def coupled(k, rng):
 
 
 def balls(k, rng):
+    """k spinning balls landing on a floor: W diagonal, k groups of one contact."""
     R, m = 0.05, 0.2
     Iz = 0.4 * m * R * R
     W = np.diag(np.concatenate([np.full(k, 1 / m), np.full(k, 1 / m + R * R / Iz)]))

@@ -272,7 +272,8 @@ def _fr_groups(A, fric, k):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _fr_tableau(A, u, mu, lam1, r, k, ctc, nc, ia, ib, iz, ip, im, ig, T, m, attempt, qs):
-    """Lemke's tableau [I | -M | -1 | q] of one group's stage-2 LCP w = q + M x >= 0, x >= 0, x . w = 0.
+    """Lemke's tableau [I | -M | -d | q] (d the covering vector) of one group's stage-2 LCP
+    w = q + M x >= 0, x >= 0, x . w = 0.
 
     Unknowns per contact i: a (ia; the normal impulse P if the contact has no rebound graph), b (ib;
     P = a + b, b <= lam1 the part of stage 1's impulse kept), z (iz; the slack of b <= lam1),
@@ -357,15 +358,16 @@ def _fr_lemke(T, basis, m, x):
     """Lemke's complementary pivoting on the tableau T[:m] = [I | -M | -d | q] (d the covering vector).
     Ratio test: the least ratio rhs / column entry (right-hand sides below FRIC_RHS_TOL max |q| count
     as 0), ties within FRIC_TIE_TOL; among ties z0 leaves if it can (the solution), else the
-    lexicographic rule on the w columns (B^-1), which excludes cycling. Returns 0 with x the solution,
-    1 on a secondary ray, 2 if the pivots did not end."""
-    for i in range(m):
-        x[i] = 0.0
-        basis[i] = i
+    lexicographic rule on the w columns (B^-1), which excludes cycling. An entering column without a
+    positive entry while z0 is basic at level 0 is no ray: the point reached solves the LCP (a
+    degenerate vertex). Returns 0 with x the solution, 1 on a secondary ray, 2 if the pivots did not
+    end."""
     rhs = 2 * m + 1
     r = 0
     qs = 0.0
     for i in range(m):
+        x[i] = 0.0
+        basis[i] = i
         qs = max(qs, abs(T[i, rhs]))
         if T[i, rhs] < T[r, rhs]:
             r = i
@@ -387,6 +389,10 @@ def _fr_lemke(T, basis, m, x):
                 b = T[i, rhs] if T[i, rhs] > rtol else 0.0
                 theta = min(theta, b / c)
         if theta == np.inf:
+            for i in range(m):
+                if basis[i] == 2 * m and T[i, rhs] <= rtol:
+                    _fr_basic_x(T, basis, m, x)
+                    return 0
             return 1
         row = -1
         for i in range(m):
@@ -402,12 +408,21 @@ def _fr_lemke(T, basis, m, x):
         leaving = basis[row]
         _fr_pivot(T, basis, row, entering, m, nz)
         if leaving == 2 * m:
-            for i in range(m):
-                if basis[i] >= m and basis[i] < 2 * m:
-                    x[basis[i] - m] = T[i, rhs]
+            _fr_basic_x(T, basis, m, x)
             return 0
         entering = leaving + m if leaving < m else leaving - m
     return 2
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _fr_basic_x(T, basis, m, x):
+    """x of the tableau's basic solution (the basic x variables at their right-hand sides, >= 0)."""
+    for i in range(m):
+        x[i] = 0.0
+    for i in range(m):
+        if basis[i] >= m and basis[i] < 2 * m:
+            b = T[i, 2 * m + 1]
+            x[basis[i] - m] = b if b > 0.0 else 0.0
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -472,8 +487,8 @@ def _fr_extract(x, ctc, nc, ia, ib, ip, im, mu, P, lt):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _fr_check(A, u, mu, lam1, r, P, lt, fric, k, ctc, nc, qs, wmax):
-    """The law's conditions on (P, lt) at the group's contacts, to LCP_FEAS_TOL qs in velocity units
-    (impulses times max W_ii): u+_n >= 0, the rebound graph between P_i and u+_n,i, and friction
+    """The law's conditions on (P, lt) at the group's contacts, in velocity units (impulses times
+    max W_ii): u+_n >= 0, the rebound graph between P_i and u+_n,i, and friction
     opposing a slip, lt_i = -mu_i P_i sign(u+_t,i) where |u+_t,i| is above the tolerance (the cone
     |lt_i| <= mu_i P_i holds exactly, _fr_extract). The tolerance is LCP_FEAS_TOL times the larger of qs
     and max W_ii times the largest impulse (the round-off of u+ = u- + W lam grows with lam: with
