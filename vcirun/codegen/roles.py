@@ -576,7 +576,7 @@ ENTRY = {
                "mass_matrix_ok", "impact_direction", "gap", "gap_slope", "touching_mask",
                "sys_M", "sys_V", "sys_phi", "sys_dphi", "sys_phis", "sys_dphis", "sys_ddphis", "sys_Mdotv",
                "sys_restitution", "sys_dHq", "sys_node", "sys_force", "sys_force_jac", "sys_reset_map",
-               "declared_reset", "sys_slips", "sys_dslips", "sys_friction"),
+               "declared_reset", "sys_slips", "sys_dslips", "sys_friction", "friction_impact_direction"),
     # a method's module: the loop, the collision-time search, its full map
     "steps": ("integrate", "collision_time", "ld_step", "full"),
     # the MCVA family's module: the modified Hamiltonian and its Gauss flow

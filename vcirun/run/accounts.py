@@ -17,7 +17,12 @@ one row per term (docs/derivations/energy_account.md derives each):
 - the rest: what no term explains -- the integration error (for the exact reference: the accuracy of
   the solve).
 
-A term is one `EnergyTerm`: a friction work term is one more row. Each term's `series` is its
+- "friction work" (systems with friction): the work of the held contacts' friction forces while they
+  slide, which the loop sums per step (the friction impulses of each stage against its mean slip
+  velocity: docs/derivations/friction.md, "Held contacts with friction"). The frictional impact law's
+  own loss (friction at impacts) is in "impact law".
+
+A term is one `EnergyTerm`. Each term's `series` is its
 cumulative contribution on the account's time grid; `rest_series` is H - H(t0) minus all of them,
 `error` its largest magnitude, the figure `vcirun simulate` prints as the energy error.
 """
@@ -28,12 +33,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 __all__ = ["EnergyTerm", "EnergyEvent", "EnergyAccount", "trajectory_account", "reference_account",
-           "LAW", "FORCING"]
+           "LAW", "FORCING", "FRICTION"]
 
 LAW = "impact law"
 FORCING = "forcing work"
-_DOC = {LAW: "restitution and plastic losses of the impacts (and what a declared reset removes)",
-        FORCING: "work of the generalized force f along the motion"}
+FRICTION = "friction work"
+_DOC = {LAW: "restitution, friction and plastic losses of the impacts (and what a declared reset removes)",
+        FORCING: "work of the generalized force f along the motion",
+        FRICTION: "work of the held contacts' friction forces (sliding), summed by the loop over each step"}
 # Gauss-Legendre nodes and weights on [0, 1] (3 points: exact for polynomials of degree 5)
 _GL_X = 0.5 + 0.5 * np.array([-np.sqrt(0.6), 0.0, np.sqrt(0.6)])
 _GL_W = np.array([5.0, 8.0, 5.0]) / 18.0
@@ -204,7 +211,11 @@ def _law_loss(K, q, pm, pp, h, event_tol):
     mod, n, m = K.mod, K.n, K.m
     d, lam, active = np.empty(n), np.empty(m), np.empty(m, np.int64)
     q, pm = np.ascontiguousarray(q, float), np.ascontiguousarray(pm, float)
-    k, s0, dE = mod.impact_direction(q, pm, float(h), float(event_tol), K.prm, d, lam, active)
+    if bool(getattr(mod, "FRICTION", False)):   # the frictional law: its dE is restitution, friction and plastic loss
+        k, s0, dE = mod.friction_impact_direction(q, pm, float(h), float(event_tol), K.prm, d, lam, np.empty(m),
+                                                  active)
+    else:
+        k, s0, dE = mod.impact_direction(q, pm, float(h), float(event_tol), K.prm, d, lam, active)
     if k > 0 and bool(getattr(mod, "RESET_MAP", False)):
         qn, pmap = np.empty(n), np.empty(n)
         dE = mod.declared_reset(q, pm, d, s0, K.prm, qn, pmap)
@@ -295,6 +306,10 @@ def trajectory_account(traj) -> EnergyAccount:
         events.append(EnergyEvent(tau, tuple(int(c) for c in contact[a:b]), loss, jump))
         law[np.searchsorted(t, tau, side="left"):] -= loss
     terms = [EnergyTerm(LAW, float(law[-1]), law, _DOC[LAW])]
+    fw = getattr(traj, "friction_work", None)
+    if bool(getattr(mod, "FRICTION", False)) and fw is not None and len(fw) == len(t) - 1:
+        W = np.concatenate([[0.0], np.cumsum(np.asarray(fw, float))])
+        terms.append(EnergyTerm(FRICTION, float(W[-1]), W, _DOC[FRICTION]))
     quad = ""
     if bool(getattr(mod, "FORCED", False)):
         grid_nodes, cum = _power_integrals(traj, K)

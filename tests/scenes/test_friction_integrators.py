@@ -1,0 +1,143 @@
+"""Coulomb friction in the integrators (vcirun/maps/friction.py, the mode events and frictional impacts of
+vcirun/collision/algorithm1.py; docs/derivations/friction.md) against the closed forms of
+vcirun.scenes.friction_oracles, each derived there and checked against an independent solver in
+tests/unit/test_friction_oracles.py.
+
+The incline and the spinning ball move with constant accelerations between their events, which every
+variational integrator here follows exactly: their checks are at round-off, and the event times at the
+event tolerance. The Coulomb oscillator is harmonic between its turns: its turning times and stop
+converge at the method's order. CVA and VCI share a core (the default suite); MCVAA and CVA4 on the
+friction scenes are the `slow` twins."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import vcirun
+from vcirun.scenes import friction as scenes
+from vcirun.scenes import friction_oracles as oracles
+
+FAST = ("CVA", "VCI")
+SLOW = ("MCVAA", "CVA4")
+
+
+def _incline_case(method, h, mu_s):
+    th, mu, v0, g = 0.3, 0.2, 2.0, 9.81
+    tr = vcirun.simulate(scenes.incline(th, mu=mu, mu_s=mu_s, v0=v0), method, h=h, T=1.0)
+    ex = oracles.incline(th, mu=mu, mu_s=mu_s, v0=v0, g=g)
+    return tr, ex
+
+
+@pytest.mark.parametrize("method", FAST)
+@pytest.mark.parametrize("mu_s", [0.25, 0.35])
+def test_incline_stop_is_located_and_then_sticks_or_slides_back(method, mu_s):
+    """Launched up a slope of 0.3 rad (tan = 0.309) with mu = 0.2: it stops at v0 / (g (sin + mu cos)); with
+    mu_s = 0.35 it sticks there (mode change 1), with mu_s = 0.25 it slides back (3: slip reversed) with
+    a = g (sin - mu cos). The stop is an event located to event_tol h, the positions exact to round-off."""
+    for h in (1e-2, 3e-3):
+        tr, ex = _incline_case(method, h, mu_s)
+        assert tr.status == "ok", tr.message
+        assert list(tr.mode_change_kind) == [1 if mu_s > math.tan(0.3) else 3]
+        assert abs(tr.mode_changes[0] - ex.t_stop) <= 1e-10
+        s = np.cos(0.3) * tr.q[:, 0] + np.sin(0.3) * tr.q[:, 1]   # distance up the slope
+        want = np.array([ex.state(t)[0] for t in tr.t])
+        assert np.max(np.abs(s - want)) <= 1e-12
+        assert np.max(np.abs(-np.sin(0.3) * tr.q[:, 0] + np.cos(0.3) * tr.q[:, 1])) <= 1e-14   # on the slope
+        assert set(np.unique(tr.contact_mode[:, 0])) <= {1, -1, 2}
+        # the friction work is the energy the motion lost: H(T) - H(0) to round-off
+        assert abs(tr.friction_work.sum() - (tr.H[-1] - tr.H[0])) <= 1e-12
+
+
+@pytest.mark.parametrize("method", FAST)
+def test_box_held_on_a_ramp_does_not_creep(method):
+    """A block resting on a slope whose static friction is 1.05 times what holds it (mu_s = 1.05 tan theta):
+    it sticks from the start and does not move in 10 s (MuJoCo's regularised friction creeps here)."""
+    th = 0.3
+    sysm = scenes.incline(th, mu=0.2, mu_s=1.05 * math.tan(th), v0=0.0)
+    tr = vcirun.simulate(sysm, method, h=1e-3, T=10.0)
+    assert tr.status == "ok", tr.message
+    assert np.all(tr.contact_mode[:, 0] == 2)
+    assert np.max(np.abs(tr.q - tr.q[0])) <= 1e-14
+    assert len(tr.mode_changes) == 0 and np.all(tr.friction_work == 0.0)
+
+
+@pytest.mark.parametrize("method", FAST)
+@pytest.mark.parametrize("w0", [10.0, 50.0])
+def test_spinning_ball_against_capobianco(method, w0):
+    """Capobianco et al. 2021, 10.1: dropped from centre height 1 with spin w0 onto a floor with mu = 0.2,
+    e = 0. w0 = 10 sticks at the impact (xdot+ = -(2/7) R w0) and rolls; w0 = 50 slides through the
+    impact (xdot+ = -0.840428, phidot+ = 28.989288), and rolling starts 0.299767 s later at xdot =
+    -(2/7) R w0: the impact time, the impulses, the mode at the impact and the rolling start against the
+    closed form."""
+    ex = oracles.spinning_ball(w0)
+    tr = vcirun.simulate(scenes.spinning_ball(w0), method, h=1e-3, T=1.2)
+    assert tr.status == "ok", tr.message
+    assert len(tr.impacts) == 1 and abs(tr.impacts[0] - ex.t1) <= 1e-11
+    xdot_plus = tr.impact_p_plus[0][0] / 1.0   # m = 1
+    assert abs(xdot_plus - ex.xdot_plus) <= 1e-12
+    assert abs(tr.impact_impulse[0] - ex.P_n) <= 1e-12 and abs(abs(tr.impact_impulse_t[0]) - abs(ex.P_t)) <= 1e-12
+    k_imp = int(np.searchsorted(tr.t, ex.t1))
+    if ex.sticks:
+        assert len(tr.mode_changes) == 0 and np.all(tr.contact_mode[k_imp + 1:, 0] == 2)
+    else:
+        assert list(tr.mode_change_kind) == [1]                      # slip -> stick: rolling starts
+        assert abs(tr.mode_changes[0] - ex.t_roll) <= 1e-10
+        assert np.all(np.abs(tr.contact_mode[k_imp + 1: int(ex.t_roll / 1e-3) - 1, 0]) == 1)
+    xdot_end = tr.p[-1, 0]
+    assert abs(xdot_end - ex.xdot_roll) <= 1e-12
+    # the energy went to the plastic impact and to friction, nothing to the integration
+    acc = tr.energy_account()
+    assert abs(acc.error) <= 1e-10 * abs(tr.H[0])
+
+
+def _oscillator_turns(method, h):
+    x0, m, k, mu = 1.0, 1.0, 10.0, 0.1
+    tr = vcirun.simulate(scenes.coulomb_oscillator(x0, m=m, k=k, mu=mu), method, h=h, T=6.0)
+    ex = oracles.coulomb_oscillator(x0, m=m, k=k, mu=mu)
+    return tr, ex
+
+
+@pytest.mark.parametrize("method", FAST)
+def test_coulomb_oscillator_turns_and_stop_converge_at_order_two(method):
+    """m x'' + k x = -mu m g sign x': each turn (slip stops, then reverses or sticks) is a located event;
+    the turning times and the stop converge at order 2 (k = 10, mu = 0.1, x0 = 1: it stops at its 5th turn)."""
+    errs = []
+    for h in (4e-3, 2e-3, 1e-3):
+        tr, ex = _oscillator_turns(method, h)
+        assert tr.status == "ok", tr.message
+        assert len(tr.mode_changes) == len(ex.turns)
+        assert list(tr.mode_change_kind) == [3] * (len(ex.turns) - 1) + [1]
+        errs.append(max(abs(a - b) for a, b in zip(tr.mode_changes, [t for t, _ in ex.turns])))
+        assert abs(tr.q[-1, 0] - ex.x_stop) <= 5.0 * h * h
+    orders = [math.log2(errs[i] / errs[i + 1]) for i in range(len(errs) - 1)]
+    assert all(1.8 <= o <= 2.3 for o in orders), (errs, orders)
+
+
+@pytest.mark.parametrize("method", FAST)
+def test_painleve_rod_ends_with_the_status(method):
+    """A uniform rod sliding on one end with mu = 1.5 > 4/3 at a tilt where B < 0: the run ends with status
+    painleve at the start, its message names the contact and B; never a hang or NaN."""
+    th0, mu = 0.5, 1.5
+    assert oracles.painleve_B(th0, mu, -1.0) < 0.0
+    tr = vcirun.simulate(scenes.painleve_rod(th0, xdot0=-1.0, mu=mu), method, h=1e-3, T=0.5)
+    assert tr.status == "painleve", (tr.status, tr.message)
+    assert "B = " in tr.message and "contact 0" in tr.message
+    assert np.all(np.isfinite(tr.q))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("method", SLOW)
+def test_friction_scenes_every_method(method):
+    """The incline (both outcomes), the box on the ramp and the spinning ball with the MCVA family and CVA4."""
+    for mu_s in (0.25, 0.35):
+        tr, ex = _incline_case(method, 1e-2, mu_s)
+        assert tr.status == "ok" and abs(tr.mode_changes[0] - ex.t_stop) <= 1e-10
+    th = 0.3
+    tr = vcirun.simulate(scenes.incline(th, mu=0.2, mu_s=1.05 * math.tan(th)), method, h=1e-3, T=10.0)
+    assert tr.status == "ok" and np.max(np.abs(tr.q - tr.q[0])) <= 1e-14
+    for w0 in (10.0, 50.0):
+        ex = oracles.spinning_ball(w0)
+        tr = vcirun.simulate(scenes.spinning_ball(w0), method, h=1e-3, T=1.2)
+        assert tr.status == "ok" and abs(tr.p[-1, 0] - ex.xdot_roll) <= 1e-10
