@@ -582,7 +582,14 @@ def _method_reset(st, ti, dtau, tau_rem, E_pre, s0, dE):
     direction, one contact or several. An energy-based reset (R^VCI, R^MCVA) has no reflecting root
     at a slow or grazing impact: where its energy balance cannot matter (_law_suffices), the impact
     law's p+ is taken (as during a hold; docs/derivations/contacts.md 7.4), else the run fails.
+    With friction, a plastic impact (every contact that takes an impulse has e = 0) takes the impact
+    law's p+: the energy-based resets have a double root there and an O(h^(p/2)) multiplier
+    (docs/derivations/contacts.md 2.4), which the tangential impulse would carry into the slip.
     Returns (status, iterations, the multiplier s of p+ = pt + s d)."""
+    if FRICTION and _plastic(st.prm, st.active, st.lam):
+        for j in range(NDOF):
+            st.pp[j] = st.pt[j] + s0 * st.d[j]
+        return ST_OK, 0, s0
     itr, s = reset(st.qt, st.pt, st.d, s0, dE, E_pre, st.vt, dtau, tau_rem, st.h, ti, st.prm, st.ntol, st.maxit,
                    st.pp)
     if itr >= 0:
@@ -685,6 +692,20 @@ def _dissipative(q, p, t, prm, active):
     if FORCED and force_power(q, v, t, prm) < 0.0:
         return True
     return _inelastic(prm, active)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _plastic(prm, active, lam):
+    """Every contact of the impact that takes an impulse (lam_i > 0) has restitution 0."""
+    e = scratch(NCON)
+    sys_restitution(prm, e)
+    hit = False
+    for j in range(NCON):
+        if active[j] != 0 and lam[j] > 0.0:
+            hit = True
+            if e[j] != 0.0:
+                return False
+    return hit
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
