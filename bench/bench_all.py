@@ -56,6 +56,11 @@ Sections (`--only a,b,...` to pick; `--quick` for a short smoke run):
             frictional impacts (target: no gain) and microseconds per impact against impact_law for
             k = 1, 2, 8, 50 contacts, coupled and uncoupled
 
+  friction_scenes  friction in the integrators against the closed forms (bench/friction_scenes.py): a
+            block held on a ramp for 10 s (with MuJoCo's creep where mujoco imports), Capobianco's
+            spinning ball, the incline, the Coulomb oscillator's order, the cost of a held step with
+            friction against one without
+
   throughput the target table of sweeps at the speed of the compiled loop (bench/throughput.py):
             simulate() against its loop, an ensemble of 10^5 runs against the loop time per core, the
             fig4 sweep against today's tree (/work/base) and a first simulate against the tree before
@@ -84,6 +89,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import vcirun  # noqa: E402
 from friction_bench import section_friction  # noqa: E402 (bench/friction_bench.py: the section's rows)
+from friction_scenes import section_friction_scenes  # noqa: E402 (bench/friction_scenes.py)
 from throughput import section_throughput  # noqa: E402 (bench/throughput.py: the section's rows)
 from tiers import section_tiers  # noqa: E402 (bench/tiers.py: first results in seconds)
 
@@ -739,6 +745,7 @@ SECTIONS = {"steps": section_steps, "sim5": section_sim5, "impact": section_impa
              "throughput": lambda res: section_throughput(res, quick=QUICK), "reference": section_reference,
              "tiers": lambda res: section_tiers(res, quick=QUICK, log=log),
              "friction": lambda res: section_friction(res, quick=QUICK),
+             "friction_scenes": lambda res: section_friction_scenes(res, quick=QUICK, log=log),
              "tol": section_tol}
 
 
