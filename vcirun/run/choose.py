@@ -284,6 +284,7 @@ def estimate_of(runs: dict, N: int, p: float, mod=None, prm=None, grazing=True) 
         if not d0.first and d0.l2 > floor:
             margin = 1.0
             est.extras["checked"] = True
+            est.extras["third"] = third.N
             p_obs = _observed_order(third.N, comp.N, N, d0.l2, d.l2)
             est.observed_order = p_obs
             if p_obs is not None and p_obs < 1.0:
@@ -301,9 +302,11 @@ def estimate_of(runs: dict, N: int, p: float, mod=None, prm=None, grazing=True) 
     est.l2_bounds = (d.l2 / (lo_R + 1.0), d.l2 / (hi_R - 1.0) if hi_R > 1.0 else math.inf)
     est.final_q = d.final_q / (R - 1.0)
     est.final_p = d.final_p / (R - 1.0)
-    if d.l2 <= floor:
-        est.l2_bounds = (est.l2_bounds[0], max(est.l2_bounds[1], floor))
-        est.note = f"differences at round-off level (<= {floor:.1e})"
+    # round-off: the run's own share of it is not in d; the bracket's upper end is at least its level
+    est.l2_bounds = (est.l2_bounds[0], max(est.l2_bounds[1], floor))
+    est.extras["floor"] = floor
+    if d.l2 <= floor or est.l2 < floor:
+        est.note = f"at the round-off level of these runs (<= {floor:.1e})"
     if grazing and mod is not None:
         from .estimate import slope_scale
 
@@ -607,9 +610,9 @@ class _Chooser:
         C = float(max(mm.C)) if high else mm.constant()
         c.C = C
         c.N_asymptotic = int(np.median(mm.N_asymptotic)) if mm.N_asymptotic else None
-        c.N_resolved = int(max(mm.N_resolved)) if mm.N_resolved else None
+        c.N_resolved = int(np.median(mm.N_resolved)) if mm.N_resolved else None
         N = max(math.ceil((C / (TARGET * self.tol)) ** (1.0 / mm.order)) if C > 0 else 1,
-                int(max(mm.N_resolved)) if mm.N_resolved else 1, self.n_min)
+                c.N_resolved or 1, self.n_min)
         self._fill(c, N)
         return c
 
@@ -639,8 +642,8 @@ class _Chooser:
                 break
             n_asym = c.N_asymptotic or N_FIRST
             if not piloted and c.N * PILOT_SHARE < n_asym:
-                d = self._from_model(c.method, high=True)
-                d.source = "scene model (largest error constant seen; no pilots: they would not be asymptotic)"
+                d = self._from_model(c.method, high=False)
+                d.source = "scene model (no pilots: they would be coarser than the order was seen)"
                 piloted[c.method] = d
                 break
             a = self.ladder(self.names[c.method], max(int(c.N * PILOT_SHARE), n_asym), need_order=False)
@@ -698,11 +701,18 @@ class _Chooser:
             r = self.run(name, N, final=True)
             est = estimate_of(runs, N, p, mod, prm)
             last = est
+            if est.status == "ok" and est.extras.get("floor", 0.0) > BOUND * self.tol:
+                pick.status, pick.note = BELOW_FLOOR, (f"tol is below the round-off level {est.extras['floor']:.1e} "
+                                                       "of these runs")
+                break
             if est.status == "ok" and est.extras.get("checked"):
                 if est.l2 <= ACCEPT * self.tol and est.l2_bounds[1] <= BOUND * self.tol:
-                    if self.method is None:
+                    if self.method is None:   # what this start showed: its constant, and where the order showed
+                        third = est.extras.get("third")
+                        shown = third if third is not None and est.observed_order is not None and \
+                            abs(est.observed_order - p) <= 0.5 else None
                         self._record([Candidate(label, order=p, C=est.l2 * N ** p if est.l2 > 0 else 0.0,
-                                                N_resolved=pick.N_resolved, N_asymptotic=pick.N_asymptotic)])
+                                                N_resolved=shown, N_asymptotic=shown)])
                     return self._result(r, label, cands, OK, reason, est)
                 if est.order is not None and est.order < p - 0.25:
                     N = 2 * N   # the companions are not yet asymptotic: shift the three runs up
@@ -714,7 +724,7 @@ class _Chooser:
         if pick.status == "ok":
             pick.status = NOT_REACHED
             pick.note = last.message if last is not None and last.status != "ok" else "the estimate stays above tol"
-        return self._fallback(cands)
+        return self._fallback(cands)   # (BELOW_FLOOR and OVER_BUDGET picks set the status there)
 
     def _spent(self, label) -> float:
         return sum(x["cpu"] for x in self.pilot_log if x["method"] == label)

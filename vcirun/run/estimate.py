@@ -386,7 +386,7 @@ def richardson(runs: list[Run], order: int | None, names=None, mod=None, prm=Non
     rho = ratio ** (-(order - 1.0)) if order > 1 else 0.5
     factor = 1.0 / (1.0 - ratio ** -order)
     est.l2 = d0.l2 * factor
-    est.l2_bounds = (d0.l2 / (1.0 + rho), d0.l2 / (1.0 - rho))
+    est.l2_bounds = (d0.l2 / (1.0 + rho), max(d0.l2 / (1.0 - rho), floor))   # (round-off: not in d)
     est.final_q = d0.final_q * factor
     est.final_p = d0.final_p * factor
     if d0.l2 <= floor:
