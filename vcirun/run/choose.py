@@ -46,8 +46,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.values import check_number
-from .estimate import ErrorEstimate, difference, near_misses, roundoff_level, verified_order
+from .estimate import ErrorEstimate, verified_order
+from .ladder import Assessment, _companion, assess, estimate_of
 from .pilot import Run, Runner
+from .scene_model import _MODELS, MethodModel, SceneModel, scene_key, scene_model  # noqa: F401 (public here too)
 
 TARGET = 0.5      # the final run aims at an estimated error of TARGET * tol
 ACCEPT = 1.0      # ... and is accepted when its estimate is at most ACCEPT * tol
@@ -144,226 +146,6 @@ def candidate_table(cands, pick: str, tol: float) -> str:
     return f"tol = {tol:g}\n" + "\n".join(lines)
 
 
-# --- the per-process scene model -------------------------------------------------------------------
-@dataclass
-class MethodModel:
-    """One method on one scene: its order, error constants (one per start piloted), the coarsest
-    resolved N of each, the CPU cost b per step (energies as the final run computes them) and a per
-    run, and why it is not resolved (if it never was)."""
-
-    order: float
-    C: list = field(default_factory=list)
-    N_resolved: list = field(default_factory=list)
-    N_asymptotic: list = field(default_factory=list)
-    b: float | None = None
-    a: float | None = None
-    unresolved: str = ""
-
-    def constant(self) -> float | None:
-        """The median error constant (cached: the model is consulted on every call)."""
-        if not self.C:
-            return None
-        memo = self.__dict__.get("_median")
-        if memo is None or memo[0] != len(self.C):
-            memo = self.__dict__["_median"] = (len(self.C), float(np.median(self.C)))
-        return memo[1]
-
-
-@dataclass
-class SceneModel:
-    """The work-precision model of one scene (system, parameters, horizon, options) in this process:
-    the scene's features (contacts, generalized force, declared reset map) and a MethodModel per
-    candidate; `starts`: the starts piloted."""
-
-    key: tuple
-    T: float
-    n_contacts: int = 1
-    forced: bool = False
-    mapped: bool = False
-    methods: dict = field(default_factory=dict)
-    starts: int = 0
-
-
-_MODELS: dict = {}
-
-
-def scene_model(key) -> SceneModel | None:
-    return _MODELS.get(key)
-
-
-def _scene_key(system, params, T, t0, constrained, resting_contact, options, energies):
-    """The key of a scene model: a built-in name or file path (with its modification time), or the
-    identity of a MechanicalSystem instance; the parameters, the horizon and the options."""
-    import os
-
-    if isinstance(system, str):
-        ident = (system, os.path.getmtime(system)) if os.path.isfile(system) else (system,)
-    else:
-        ident = ("object", id(system))
-    prm = tuple(sorted((params or {}).items()))
-    return ident + (prm, float(T), float(t0), constrained, bool(resting_contact), tuple(sorted(options.items())),
-                    bool(energies))
-
-
-# --- assessing the runs of one method ---------------------------------------------------------------
-def _observed_order(Na, Nb, Nc, dab, dbc) -> float | None:
-    """p with dab / dbc = (Nb/Na)^p (1 - (Na/Nb)^p) / (1 - (Nb/Nc)^p) (nested runs a < b < c), by bisection."""
-    if not (dab > 0 and dbc > 0):
-        return None
-    target = math.log(dab / dbc)
-
-    def f(p):
-        return p * math.log(Nb / Na) + math.log1p(-(Na / Nb) ** p) - math.log1p(-(Nb / Nc) ** p) - target
-
-    lo, hi = 0.05, 30.0
-    flo, fhi = f(lo), f(hi)
-    if flo > 0:
-        return 0.0
-    if fhi < 0:
-        return hi
-    for _ in range(50):
-        mid = 0.5 * (lo + hi)
-        if f(mid) > 0:
-            hi = mid
-        else:
-            lo = mid
-    return 0.5 * (lo + hi)
-
-
-@dataclass
-class Assessment:
-    """What the runs of one method say: status "resolved" (C, the coarsest resolved N, the observed
-    order where three nested runs exist), "saturated" (differences at round-off: any resolved N
-    reaches tol down to `floor`), "unresolved" (the last two runs differ in their impacts or the
-    order is not seen) or "failed" (no two ok runs)."""
-
-    status: str
-    C: float | None = None
-    N_resolved: int | None = None
-    observed: float | None = None
-    floor: float = 0.0
-    note: str = ""
-    N_asymptotic: int | None = None   # the coarsest N of the three runs that showed the order
-
-
-MAX_RATIO = 8     # a Richardson companion is at least 1/MAX_RATIO as fine as its run
-
-
-def _companion(runs: dict, N: int, max_ratio: int = MAX_RATIO) -> Run | None:
-    """The largest ok run whose N divides N at most max_ratio times (the Richardson companion of run N)."""
-    best = None
-    for M, r in runs.items():
-        if M < N and N % M == 0 and N <= max_ratio * M and r.ok and (best is None or M > best.N):
-            best = r
-    return best
-
-
-def estimate_of(runs: dict, N: int, p: float, mod=None, prm=None, grazing=True) -> ErrorEstimate:
-    """The Richardson estimate of run N from its companion among `runs` (ratio r = N / N_companion),
-    with the observed order from a third nested run where there is one."""
-    run = runs[N]
-    comp = _companion(runs, N)
-    if not run.ok:
-        return ErrorEstimate("richardson", "failed", run.h, order=p, message=f"the run ended with status {run.status}")
-    if comp is None:
-        return ErrorEstimate("richardson", "failed", run.h, order=p, message="no companion run")
-    r = N // comp.N
-    d = difference(comp, run)
-    est = ErrorEstimate("richardson", "ok", run.h, order=p, companion_h=(comp.h,), first_difference=d.first)
-    if d.first:
-        est.status, est.message = "unresolved", f"the runs' impact sequences differ: {d.first}"
-        return est
-    floor = roundoff_level(run)
-    third = _companion(runs, comp.N, 4)
-    # checked: a third run showed the order (or the pair agrees to round-off); without it the bracket
-    # allows the pair to be two orders short of p (one for p <= 2), and _pursue does not accept it
-    margin = min(2.0, max(p - 1.0, 0.5))
-    est.extras["checked"] = d.l2 <= floor
-    if third is not None and d.l2 > floor:
-        d0 = difference(third, comp)
-        if not d0.first and d0.l2 > floor:
-            margin = 1.0
-            est.extras["checked"] = True
-            est.extras["third"] = third.N
-            p_obs = _observed_order(third.N, comp.N, N, d0.l2, d.l2)
-            est.observed_order = p_obs
-            if p_obs is not None and p_obs < 1.0:
-                est.status = "unresolved"
-                est.message = f"the differences do not shrink with h (observed order {p_obs:.2f})"
-                return est
-            if p_obs is not None and p_obs < p - 0.5:
-                # the coarser runs are not yet asymptotic: the order they show, the smaller (safer) one
-                est.note = f"observed order {p_obs:.2f} used (verified order {p:g})"
-                p = p_obs
-            margin = 0.5 if p_obs is not None and abs(p_obs - p) <= 0.5 else 1.0
-    R = r ** p
-    est.l2 = d.l2 / (R - 1.0)
-    lo_R, hi_R = r ** (p + margin), r ** max(p - margin, 0.0)
-    est.l2_bounds = (d.l2 / (lo_R + 1.0), d.l2 / (hi_R - 1.0) if hi_R > 1.0 else math.inf)
-    est.final_q = d.final_q / (R - 1.0)
-    est.final_p = d.final_p / (R - 1.0)
-    # round-off: the run's own share of it is not in d; the bracket's upper end is at least its level
-    est.l2_bounds = (est.l2_bounds[0], max(est.l2_bounds[1], floor))
-    est.extras["floor"] = floor
-    if d.l2 <= floor or est.l2 < floor:
-        est.note = f"at the round-off level of these runs (<= {floor:.1e})"
-    if grazing and mod is not None:
-        from .estimate import slope_scale
-
-        margin_phi = 2.0 * d.sup_q / (R - 1.0) * slope_scale(run, mod, prm)
-        miss = near_misses(run, mod, prm, margin_phi, screen=comp)
-        if miss:
-            t, c, low = miss[0]
-            est.status = "unresolved"
-            est.first_difference = (f"contact {c} grazes near t = {t:.6g} (phi between the grid points down to "
-                                    f"{low:.3g}, within the run's error of the surface) without an impact")
-            est.message = "a grazing contact the grid does not resolve: " + est.first_difference
-            est.l2 = est.l2_bounds = est.final_q = est.final_p = None
-    return est
-
-
-def assess(runs: dict, p: float, need_order: bool = False) -> Assessment:
-    """Read C (e = C N^-p) from the finest resolved pair of nested runs; need_order: only once a third
-    nested run shows the order (at least p - 1)."""
-    ok = sorted(N for N, r in runs.items() if r.ok)
-    if len(ok) < 2:
-        return Assessment("failed", note="fewer than two runs finished")
-    pairs = []
-    for N in ok:
-        c = _companion(runs, N)
-        if c is not None:
-            pairs.append((c.N, N, difference(c, runs[N])))
-    if not pairs:
-        return Assessment("failed", note="no nested pair of runs")
-    # the coarsest N from which every finer pair agrees in its impacts
-    N_res = None
-    for a, b, d in reversed(pairs):
-        if d.first:
-            break
-        N_res = a
-    a, b, d = pairs[-1]
-    if d.first:
-        return Assessment("unresolved", note=d.first)
-    floor = roundoff_level(runs[b])
-    r = b // a
-    if d.l2 <= floor:
-        return Assessment("saturated", C=0.0, N_resolved=N_res, floor=floor, N_asymptotic=N_res,
-                          note=f"differences at round-off level ({d.l2:.1e} <= {floor:.1e})")
-    observed = a0 = None
-    if len(pairs) >= 2:
-        a0, b0, d0 = pairs[-2]
-        if b0 == a and not d0.first and d0.l2 > floor:
-            observed = _observed_order(a0, a, b, d0.l2, d.l2)
-            if observed is not None and observed < p - 1.0:
-                return Assessment("unresolved", observed=observed,
-                                  note=f"differences shrink at order {observed:.2f}, not {p:g}")
-    if need_order and observed is None:
-        return Assessment("unresolved", note="the order is not yet seen (two runs)")
-    e_b = d.l2 / (r ** p - 1.0)
-    return Assessment("resolved", C=e_b * b ** p, N_resolved=N_res, observed=observed, floor=floor,
-                      N_asymptotic=a0 if observed is not None else None)
-
-
 # --- the choice ----------------------------------------------------------------------------------------
 def _certifiable(c: Candidate) -> int:
     """The smallest N whose estimate a companion can certify: the final and its companion at N/2 at or
@@ -428,7 +210,7 @@ def simulate_to_tolerance(system, method=None, *, T, tol, h_max=None, max_time=N
         resolve_method(method)   # an unknown name raises here, naming the field
     runner = Runner(system, T=T, t0=t0, beta=beta, q0=q0, p0=p0, params=params, constrained=constrained,
                     resting_contact=resting_contact, options=options)
-    key = _scene_key(system, params, T, t0, constrained, resting_contact, options, energies)
+    key = scene_key(system, params, T, t0, constrained, resting_contact, options, energies)
     chooser = _Chooser(runner, method, T=T, tol=tol, h_max=h_max, max_time=max_time, energies=energies, key=key)
     return chooser.choose()
 
