@@ -346,17 +346,18 @@ def main(argv=None) -> dict:
     res = {"machine": {"cpus": len(os.sched_getaffinity(0)), "loadavg_start": list(os.getloadavg())},
            "states_per_scene": n, "tols": TOLS, "repeats": REPEATS, "scenes": []}
     t0 = time.perf_counter()
-    for k, label in enumerate(a.scenes.split(",")):
-        log(f"== {label}: {n} random states")
-        res["scenes"].append(run_scene(label.strip(), n, a.seed + k))
-    res["summary"] = summarize(res["scenes"])
-    res["machine"]["loadavg_end"] = list(os.getloadavg())
-    res["seconds"] = time.perf_counter() - t0
-    report(res["summary"])
     out = Path(a.out or ("results/tolerance_quick.json" if a.quick else "results/tolerance.json"))
     out.parent.mkdir(exist_ok=True)
     from vcirun.experiments.studies.jsonio import to_json
 
+    for k, label in enumerate(a.scenes.split(",")):
+        log(f"== {label}: {n} random states")
+        res["scenes"].append(run_scene(label.strip(), n, a.seed + k))
+        out.write_text(json.dumps(to_json(res), indent=1))   # each scene kept as it finishes
+    res["summary"] = summarize(res["scenes"])
+    res["machine"]["loadavg_end"] = list(os.getloadavg())
+    res["seconds"] = time.perf_counter() - t0
+    report(res["summary"])
     out.write_text(json.dumps(to_json(res), indent=1))
     log(f"saved {out} ({res['seconds']:.0f} s)")
     return res

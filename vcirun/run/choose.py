@@ -47,7 +47,7 @@ import numpy as np
 
 from ..core.values import check_number
 from .estimate import ErrorEstimate, verified_order
-from .ladder import Assessment, _companion, assess, estimate_of
+from .ladder import MAX_RATIO, Assessment, _companion, assess, estimate_of
 from .pilot import Run, Runner
 from .scene_model import _MODELS, MethodModel, SceneModel, scene_key, scene_model  # noqa: F401 (public here too)
 
