@@ -489,12 +489,13 @@ class _Chooser:
                 break
             if est.status == "ok" and est.extras.get("checked"):
                 if est.l2 <= ACCEPT * self.tol and est.l2_bounds[1] <= BOUND * self.tol:
-                    if self.method is None:   # what this start showed: its constant, and where the order showed
-                        third = est.extras.get("third")
-                        shown = third if third is not None and est.observed_order is not None and \
-                            abs(est.observed_order - p) <= 0.5 else None
-                        self._record([Candidate(label, order=p, C=est.l2 * N ** p if est.l2 > 0 else 0.0,
-                                                N_resolved=shown, N_asymptotic=shown)])
+                    third = est.extras.get("third")
+                    if self.method is None and third is not None and est.observed_order is not None \
+                            and abs(est.observed_order - p) <= 0.5 and est.l2 > 10 * est.extras.get("floor", 0.0):
+                        # what this start showed: its constant and where the order showed (an estimate
+                        # near round-off does not scale as N^-p: it says nothing about the constant)
+                        self._record([Candidate(label, order=p, C=est.l2 * N ** p, N_resolved=third,
+                                                N_asymptotic=third)])
                     return self._result(r, label, cands, OK, reason, est)
                 if est.order is not None and est.order < p - 0.25:
                     N = 2 * N   # the companions are not yet asymptotic: shift the three runs up
