@@ -24,16 +24,16 @@ candidates by the model's median constant, pilot the best at N*/8 and N*/4 (and 
 predicted within RERANK of it), and scale the others by what the pilots say about this start (a
 start that needs k times the steps for one method is taken to need k times the steps for every
 method). Where N*/8 is coarser than the order was ever seen, the best is run without pilots at the
-N the largest constant seen predicts.
+N the model's median constant predicts (its companions check it).
 
 The final run (`_pursue`). The pick runs at the least N that reaches TARGET tol and that a companion
-can certify (at least twice the coarsest N that showed the order: `_certifiable`), nested with a
-run made already where that is cheaper than new companions at N/2 and N/4 (`_final_N`). Its
-Richardson estimate (`estimate_of`: the companion, the third run's observed order, the grazing
-check) decides: accepted when the third run showed the order, the estimate is at most ACCEPT tol
-and its bracket's upper end at most BOUND tol; otherwise N grows by the estimate, or doubles where the impacts disagree, a
-contact grazes or the observed order is short of p, until accepted or the refinement has cost
-PURSUIT_BUDGET times the pick's predicted run. No candidate reaching tol gives the status
+can certify (at least twice the coarsest N that showed the order: `_certifiable`), nested with a run
+made already where that is cheaper than new companions at N/2 and N/4 (`_final_N`). Its Richardson
+estimate (`estimate_of`: the companion, the third run's observed order, the grazing check) decides:
+accepted when the third run showed the order, the estimate is at most ACCEPT tol and its bracket's
+upper end at most BOUND tol; otherwise N grows by the estimate, or doubles where the impacts
+disagree, a contact grazes or the observed order is short of p, until accepted or the refinement has
+cost PURSUIT_BUDGET times the pick's predicted run. No candidate reaching tol gives the status
 not_reached (below_floor, over_budget) and the most accurate resolved run made (`_fallback`).
 docs/tolerance.md says where this fails.
 """
@@ -132,7 +132,9 @@ class Choice:
 
 
 def candidate_table(cands, pick: str, tol: float) -> str:
-    g = lambda x, f=".3g": "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, f)  # noqa: E731
+    def g(x, f=".3g"):
+        return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, f)
+
     lines = [f"{'method':8s} {'order':>5s} {'C_h (e = C_h h^p)':>18s} {'us/step':>8s} {'h for tol':>10s} "
              f"{'steps':>8s} {'pred. error':>11s} {'pred. ms':>9s}  status"]
     for c in cands:
@@ -453,7 +455,8 @@ class _Chooser:
         others = sorted([c for c in cands if c is not pick and c.status == "ok" and c.predicted_cost is not None],
                         key=lambda c: c.predicted_cost)
         if others:
-            reason += f", the least of the candidates (next: {others[0].method}, {others[0].predicted_cost * 1e3:.3g} ms)"
+            reason += (f", the least of the candidates (next: {others[0].method}, "
+                       f"{others[0].predicted_cost * 1e3:.3g} ms)")
         reason += f"; {how}"
         return self._pursue(pick, cands, reason)
 

@@ -120,7 +120,8 @@ class Runner:
         hit = self._plans.get(key)
         if hit is None:
             # a name (not the Method) lets plan() keep the plan of a built-in scene across Runners
-            p = plan(self.system, method if isinstance(method, str) else meth, h=self.T, T=self.T, t0=self.t0, constrained=self.constrained,
+            p = plan(self.system, method if isinstance(method, str) else meth, h=self.T, T=self.T, t0=self.t0,
+                     constrained=self.constrained,
                      energies=energies, resting_contact=self.resting_contact, options=self.options,
                      start=self.start)
             sysd = p.sysd
