@@ -50,6 +50,14 @@ class Assessment:
     N_asymptotic: int | None = None   # the coarsest N of the three runs that showed the order
 
 
+def _difference(coarse: Run, fine: Run):
+    """difference(coarse, fine), kept on the fine run (a ladder compares the same pairs again)."""
+    d = fine.diffs.get(coarse.N)
+    if d is None:
+        d = fine.diffs[coarse.N] = difference(coarse, fine)
+    return d
+
+
 MAX_RATIO = 8     # a Richardson companion is at least 1/MAX_RATIO as fine as its run
 
 
@@ -72,7 +80,7 @@ def estimate_of(runs: dict, N: int, p: float, mod=None, prm=None, grazing=True) 
     if comp is None:
         return ErrorEstimate("richardson", "failed", run.h, order=p, message="no companion run")
     r = N // comp.N
-    d = difference(comp, run)
+    d = _difference(comp, run)
     est = ErrorEstimate("richardson", "ok", run.h, order=p, companion_h=(comp.h,), first_difference=d.first)
     if d.first:
         est.status, est.message = "unresolved", f"the runs' impact sequences differ: {d.first}"
@@ -84,7 +92,7 @@ def estimate_of(runs: dict, N: int, p: float, mod=None, prm=None, grazing=True) 
     margin = min(2.0, max(p - 1.0, 0.5))
     est.extras["checked"] = d.l2 <= floor
     if third is not None and d.l2 > floor:
-        d0 = difference(third, comp)
+        d0 = _difference(third, comp)
         if not d0.first and d0.l2 > floor:
             margin = 1.0
             est.extras["checked"] = True
@@ -134,7 +142,7 @@ def assess(runs: dict, p: float, need_order: bool = False) -> Assessment:
     for N in ok:
         c = _companion(runs, N)
         if c is not None:
-            pairs.append((c.N, N, difference(c, runs[N])))
+            pairs.append((c.N, N, _difference(c, runs[N])))
     if not pairs:
         return Assessment("failed", note="no nested pair of runs")
     # the coarsest N from which every finer pair agrees in its impacts

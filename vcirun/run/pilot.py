@@ -47,6 +47,7 @@ class Run:
     cpu: float
     trajectory: object = None
     holds: tuple = ()    # (time, contact) where a contact not held at the start comes to rest
+    diffs: dict = dataclasses.field(default_factory=dict, repr=False)   # coarser N -> its Difference (ladder)
 
     @property
     def ok(self) -> bool:
