@@ -110,7 +110,6 @@ class Choice:
     estimate: ErrorEstimate | None = None
     pilots: list = field(default_factory=list)
     seconds: dict = field(default_factory=dict)
-    model: str = ""
 
     @property
     def ok(self) -> bool:
@@ -120,7 +119,7 @@ class Choice:
         return {"tol": self.tol, "method": self.method, "h": self.h, "N": self.N, "status": self.status,
                 "reason": self.reason, "candidates": [c.as_dict() for c in self.candidates],
                 "estimate": self.estimate.as_dict() if self.estimate is not None else None,
-                "pilots": list(self.pilots), "seconds": dict(self.seconds), "model": self.model}
+                "pilots": list(self.pilots), "seconds": dict(self.seconds)}
 
     def table(self) -> str:
         """The candidates as a text table, the pick marked."""
@@ -383,15 +382,14 @@ class _Chooser:
             if c.C is None and not m.C:
                 m.unresolved = c.note
 
-    def _from_model(self, label, high: bool) -> Candidate:
-        """The model's prediction for `label`; high: from the largest error constant seen (a run made
-        without pilots), else the median."""
+    def _from_model(self, label) -> Candidate:
+        """The model's prediction for `label`, from its median error constant."""
         mm = self.method_model(label)
         c = Candidate(label, order=mm.order, a=mm.a, b=mm.b, source="scene model")
         if not mm.C or mm.b is None:
             c.status, c.note = "unresolved", mm.unresolved or "not resolved on the starts piloted"
             return c
-        C = float(max(mm.C)) if high else mm.constant()
+        C = mm.constant()
         c.C = C
         c.N_asymptotic = int(np.median(mm.N_asymptotic)) if mm.N_asymptotic else None
         c.N_resolved = int(np.median(mm.N_resolved)) if mm.N_resolved else None
@@ -404,9 +402,9 @@ class _Chooser:
         """Rank by the model. The best is piloted at N*/8 and N*/4 when that is as fine as the coarsest
         N at which its pilots showed the order on the starts seen; the others are then scaled by what the
         pilots say about this start, and a runner-up predicted within RERANK of the best is piloted too.
-        Where N*/8 is coarser, the best is run directly at the N the largest error constant seen
-        predicts (its pilots would not be in the asymptotic regime; the final run's companion checks)."""
-        preds = {lb: self._from_model(lb, high=False) for lb in labels}
+        Where N*/8 is coarser, the best is run directly at the N the model predicts (its pilots would
+        not be in the asymptotic regime; the final run's companions check it)."""
+        preds = {lb: self._from_model(lb) for lb in labels}
         if not any(c.status == "ok" for c in preds.values()):
             # no candidate resolved on the starts seen (e.g. impacts accumulated there): this start may differ
             cands = self._scan(labels)
@@ -426,7 +424,7 @@ class _Chooser:
                 break
             n_asym = c.N_asymptotic or N_FIRST
             if not piloted and c.N * PILOT_SHARE < n_asym:
-                d = self._from_model(c.method, high=False)
+                d = self._from_model(c.method)
                 d.source = "scene model (no pilots: they would be coarser than the order was seen)"
                 piloted[c.method] = d
                 break
