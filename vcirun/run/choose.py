@@ -183,8 +183,9 @@ def _candidates(method, n_contacts: int, forced: bool, mapped: bool) -> tuple[li
 
 def simulate_to_tolerance(system, method=None, *, T, tol, h_max=None, max_time=None, beta=None, q0=None, p0=None,
                           params=None, constrained=None, t0=0.0, energies=True, resting_contact=True,
-                          options=None):
-    """`vcirun.simulate(..., tol=...)`; see the module docstring."""
+                          options=None, build=None):
+    """`vcirun.simulate(..., tol=...)`; see the module docstring. build: vcirun.run.api.trajectory_of
+    (the API hands it in: this module does not import the API)."""
     options = dict(options or {})
     if tol is None:
         raise ValueError("max_time: only with tol= (a time budget constrains the choice of method and h)")
@@ -210,7 +211,7 @@ def simulate_to_tolerance(system, method=None, *, T, tol, h_max=None, max_time=N
 
         resolve_method(method)   # an unknown name raises here, naming the field
     runner = Runner(system, T=T, t0=t0, beta=beta, q0=q0, p0=p0, params=params, constrained=constrained,
-                    resting_contact=resting_contact, options=options)
+                    resting_contact=resting_contact, options=options, build=build)
     key = scene_key(system, params, T, t0, constrained, resting_contact, options, energies)
     chooser = _Chooser(runner, method, T=T, tol=tol, h_max=h_max, max_time=max_time, energies=energies, key=key)
     return chooser.choose()
