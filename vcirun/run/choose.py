@@ -20,8 +20,8 @@ first call on a scene runs a ladder N = N_FIRST, 2 N_FIRST, ... for every candid
 agree in their impacts and show the order (at least p - 1), or its pilots cost SCAN_BUDGET, and
 one timing run per candidate; it records each candidate's error constant on this start, the
 coarsest N that resolved the impacts and the coarsest N that showed the order. Later calls rank the
-candidates by the model's median constant, pilot the best at N*/8 and N*/4 (and a runner-up
-predicted within RERANK of it), and scale the others by what the pilots say about this start (a
+candidates by the model's median constant, pilot the best at N*/8 and N*/4 (the next where those
+pilots do not resolve the motion), and scale the others by what the pilots say about this start (a
 start that needs k times the steps for one method is taken to need k times the steps for every
 method). Where N*/8 is coarser than the order was ever seen, the best is run without pilots at the
 N the model's median constant predicts (its companions check it).
@@ -54,7 +54,6 @@ from .scene_model import _MODELS, MethodModel, SceneModel, scene_key, scene_mode
 TARGET = 0.5      # the final run aims at an estimated error of TARGET * tol
 ACCEPT = 1.0      # ... and is accepted when its estimate is at most ACCEPT * tol
 BOUND = 3.0       # ... and the upper end of its bracket at most BOUND * tol
-RERANK = 1.3      # a runner-up predicted within this factor of the best is piloted too
 N_FIRST = 16      # the first pilot of a ladder (or T / h for a largest step h)
 MAX_STEPS = 1 << 22
 MAX_ROUNDS = 12   # refinements of the final before the choice says not_reached
@@ -401,8 +400,8 @@ class _Chooser:
 
     def _with_model(self, labels) -> list:
         """Rank by the model. The best is piloted at N*/8 and N*/4 when that is as fine as the coarsest
-        N at which its pilots showed the order on the starts seen; the others are then scaled by what the
-        pilots say about this start, and a runner-up predicted within RERANK of the best is piloted too.
+        N at which its pilots showed the order on the starts seen (the next is piloted where its pilots do
+        not resolve the motion); the others are then scaled by what the pilots say about this start.
         Where N*/8 is coarser, the best is run directly at the N the model predicts (its pilots would
         not be in the asymptotic regime; the final run's companions check it)."""
         preds = {lb: self._from_model(lb) for lb in labels}
@@ -419,10 +418,6 @@ class _Chooser:
             if not ranked:
                 break
             c = ranked[0]
-            best = min((x.predicted_cost for x in piloted.values() if x.status == "ok" and x.predicted_cost),
-                       default=None)
-            if best is not None and c.predicted_cost > RERANK * best:
-                break
             n_asym = c.N_asymptotic or N_FIRST
             if not piloted and c.N * PILOT_SHARE < n_asym:
                 d = self._from_model(c.method)
