@@ -592,6 +592,18 @@ def print_targets(res):
     if "independent" in ref:
         e = ref["independent"]["cart_taylor_max"]
         rows.append(("reference error against an independent solve (cart-pendulum)", f"{e:.1e}", "<= 1e-12", e <= 1e-12))
+    tl = res.get("tolerance")
+    if tl:
+        rows.append(("tol=: runs said ok whose true L2 error exceeds tol",
+                     f"{tl['over_tol']} of {tl['ok_runs']} ({100 * tl['over_tol_fraction']:.1f} %), worst "
+                     f"{tl['worst_over']:.2f}x", "<= 5 %, none > 3x",
+                     tl["over_tol_fraction"] <= 0.05 and not tl["worst_over"] > 3))
+        rows.append(("tol=: CPU of the call / cheapest (method, h) meeting tol",
+                     f"median {tl['cost_ratio_median']:.2f}, p90 {tl['cost_ratio_p90']:.2f}", "<= 2x",
+                     tl["cost_ratio_p90"] <= 2))
+        rows.append(("estimates unresolved where the impacts differ from the reference's",
+                     f"{tl['flagged_unresolved']} of {tl['sequence_differs']}", "100 %",
+                     tl["flagged_unresolved"] == tl["sequence_differs"]))
     for name, val, tgt, ok in rows:
         log(f"  {name:58s} {val:48s} target {tgt:24s} {'MET' if ok else 'not met'}")
     res["targets"] = [{"what": a, "measured": b_, "target": c, "met": bool(d)} for a, b_, c, d in rows]

@@ -14,7 +14,8 @@ then `simulate(T=T, q0=..., p0=..., tol=tol)` for tol = 1e-3 .. 1e-9.
 The issue's targets:
 1. runs of `simulate(tol=...)` whose choice says "ok" and whose true L2 error exceeds tol: <= 5 %,
    and none by more than 3x (choices that say not_reached / below_floor are counted apart: they
-   return a run and say it does not meet tol);
+   return a run and say it does not meet tol; a tol below three times the reference's own L2
+   accuracy, accuracy sqrt(T), is not judged);
 2. CPU time of the tol= call (pilot runs included) against the cheapest (method, h) of the
    exhaustive search whose true error meets tol, both the median of REPEATS calls: <= 2x. The first
    call on each scene pilots every candidate (the scene model): listed apart;
@@ -202,7 +203,8 @@ def run_scene(label, n_states, seed, tols=TOLS):
                 "matches": sequence_matches(tr, ref), "cpu": cpu, "first_call": first,
                 "cheapest": None if ch_best is None else {"cpu": ch_best[0], "method": ch_best[1], "N": ch_best[2],
                                                           "true": ch_best[3]},
-                "pilots": len(ch.pilots), "reason": ch.reason[:300]})
+                "pilots": len(ch.pilots), "reason": ch.reason[:300],
+                "ref_l2_accuracy": float(ref.accuracy) * math.sqrt(T)})
             first = False
         res["states"].append(st)
         done = time.perf_counter() - t_scene
@@ -215,8 +217,15 @@ def run_scene(label, n_states, seed, tols=TOLS):
     return res
 
 
+def judged(r) -> bool:
+    """The reference can judge this run's tol: its L2 accuracy (accuracy sqrt(T)) is below tol / 3."""
+    return r["ref_l2_accuracy"] <= r["tol"] / 3
+
+
 def summarize(scenes: list) -> dict:
     rows = [dict(x, scene=s["label"]) for s in scenes for st in s["states"] for x in st["tol"]]
+    unjudged = [r for r in rows if not judged(r)]
+    rows = [r for r in rows if judged(r)]
     ok = [r for r in rows if r["status"] == "ok" and r["true"] is not None]
     over = [r for r in ok if r["true"] > r["tol"]]
     worst = max((r["true"] / r["tol"] for r in ok), default=math.nan)
@@ -230,7 +239,7 @@ def summarize(scenes: list) -> dict:
     bracket = [e for e in okest if e["bounds"] and e["bounds"][0] <= e["true"] <= e["bounds"][1]]
     ratio_est = [e["l2"] / e["true"] for e in okest if e["true"] > 0]
     out = {
-        "runs": len(rows), "ok_runs": len(ok), "not_ok": {s: sum(r["status"] == s for r in rows)
+        "runs": len(rows), "ok_runs": len(ok), "not_judged": len(unjudged), "not_ok": {s: sum(r["status"] == s for r in rows)
                                                           for s in sorted({r["status"] for r in rows})},
         "over_tol": len(over), "over_tol_fraction": len(over) / max(1, len(ok)), "worst_over": worst,
         "cost_ratio_median": statistics.median(ratios) if ratios else math.nan,
@@ -255,7 +264,7 @@ def summarize(scenes: list) -> dict:
 
 
 def summarize_scene(s) -> dict:
-    rows = [x for st in s["states"] for x in st["tol"]]
+    rows = [x for st in s["states"] for x in st["tol"] if judged(x)]
     ok = [r for r in rows if r["status"] == "ok" and r["true"] is not None]
     ratios = [r["cpu"] / r["cheapest"]["cpu"] for r in rows if r["cheapest"] is not None and not r["first_call"]
               and r["status"] == "ok"]
@@ -306,7 +315,8 @@ def report(summary):
     log("-- targets")
     log(f"   runs whose choice says ok and whose true L2 error exceeds tol: {summary['over_tol']} of "
         f"{summary['ok_runs']} ({100 * summary['over_tol_fraction']:.1f} %, target <= 5 %); worst "
-        f"{g(summary['worst_over'], '.2f')}x tol (target <= 3x); not ok: {summary['not_ok']}")
+        f"{g(summary['worst_over'], '.2f')}x tol (target <= 3x); not ok: {summary['not_ok']}; not judged (the "
+        f"reference's L2 accuracy above tol / 3): {summary['not_judged']}")
     log(f"   CPU of the tol= call / cheapest (method, h) meeting tol (later calls on a scene): median "
         f"{g(summary['cost_ratio_median'], '.2f')}, p90 {g(summary['cost_ratio_p90'], '.2f')}, max "
         f"{g(summary['cost_ratio_max'], '.2f')}; <= 2x in {100 * summary['cost_ratio_le2']:.0f} % (target <= 2x); "
@@ -336,17 +346,18 @@ def main(argv=None) -> dict:
     res = {"machine": {"cpus": len(os.sched_getaffinity(0)), "loadavg_start": list(os.getloadavg())},
            "states_per_scene": n, "tols": TOLS, "repeats": REPEATS, "scenes": []}
     t0 = time.perf_counter()
-    for k, label in enumerate(a.scenes.split(",")):
-        log(f"== {label}: {n} random states")
-        res["scenes"].append(run_scene(label.strip(), n, a.seed + k))
-    res["summary"] = summarize(res["scenes"])
-    res["machine"]["loadavg_end"] = list(os.getloadavg())
-    res["seconds"] = time.perf_counter() - t0
-    report(res["summary"])
     out = Path(a.out or ("results/tolerance_quick.json" if a.quick else "results/tolerance.json"))
     out.parent.mkdir(exist_ok=True)
     from vcirun.experiments.studies.jsonio import to_json
 
+    for k, label in enumerate(a.scenes.split(",")):
+        log(f"== {label}: {n} random states")
+        res["scenes"].append(run_scene(label.strip(), n, a.seed + k))
+        out.write_text(json.dumps(to_json(res), indent=1))   # each scene kept as it finishes
+    res["summary"] = summarize(res["scenes"])
+    res["machine"]["loadavg_end"] = list(os.getloadavg())
+    res["seconds"] = time.perf_counter() - t0
+    report(res["summary"])
     out.write_text(json.dumps(to_json(res), indent=1))
     log(f"saved {out} ({res['seconds']:.0f} s)")
     return res

@@ -217,3 +217,31 @@ def test_estimate_is_data():
     e = ErrorEstimate("richardson", "unresolved", 0.1, message="x")
     d = e.as_dict()
     assert d["status"] == "unresolved" and d["l2"] is None and "unresolved" in str(e)
+
+
+REF = {"kind": "method", "method": "CVA8", "h": 0.002}   # a fine CVA8 run: no Taylor integrator to compile
+
+
+@pytest.mark.slow   # two sweeps: preflight and worker start, ~45 s each on a loaded machine
+def test_sweeps_store_the_choice_and_the_estimate(tmp_path):
+    """A tol: sweep stores per run the step and method chosen, the status and the estimate (the table
+    keeps the config's h, the largest step allowed); error_estimate: true stores every run's estimate."""
+    from vcirun.experiments.sweep import run_sweep
+    from vcirun.io.reader import read_results
+
+    cfg = parse_config({"name": "t", "system": "cart_pendulum", "tol": [1e-5], "methods": ["CVA4"], "beta": [3.7],
+                        "T": 1, "timing_repeats": 1, "reference": REF})
+    s = run_sweep(cfg, output=tmp_path / "tol.h5", workers=1, progress=False)
+    assert s.computed == 1 and s.failed == 0
+    run = read_results(tmp_path / "tol.h5").runs[0].attrs
+    assert run["h"] == 1.0 and run["h_chosen"] < 1.0 and run["core_method"] == "CVA4"
+    assert run["tol_status"] == "ok" and run["est_status"] == "ok" and run["l2_error"] <= 1e-5
+    assert run["est_l2_low"] <= run["l2_error"] <= run["est_l2_high"]
+    ds = vcirun.open_results(tmp_path / "tol.h5")
+    assert float(ds.h_chosen.squeeze()) == run["h_chosen"]
+    cfg = parse_config({"name": "e", "system": "cart_pendulum", "methods": ["CVA4"], "h": [0.02], "beta": [3.7],
+                        "T": 1, "timing_repeats": 1, "error_estimate": True, "reference": REF})
+    run_sweep(cfg, output=tmp_path / "est.h5", workers=1, progress=False)
+    run = read_results(tmp_path / "est.h5").runs[0].attrs
+    assert run["est_status"] == "ok" and run["est_kind"] == "richardson"
+    assert 0.5 < run["est_l2"] / run["l2_error"] < 2.0

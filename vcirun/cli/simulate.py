@@ -208,3 +208,5 @@ def simulate(
         typer.echo(f"saved {output}")
     if traj.status != "ok":
         _fail(f"run ended with status {traj.status}: {traj.message}")
+    if traj.choice is not None and traj.choice.status != "ok":
+        _fail(f"--tol {tol:g} not reached ({traj.choice.status}): {traj.choice.reason}")

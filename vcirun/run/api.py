@@ -52,8 +52,9 @@ def simulate(system, method=None, *, T, h=None, tol=None, beta=None, q0=None, p0
              run the generated module as Python (no warm index, no plan kept between calls).
     h      : the step; default min(1e-2, T) (as `vcirun simulate`).
     tol    : an L2 trajectory error to reach (the norm of `vcirun.l2_error`, absolute, in q's units):
-             the method (unless given; None or 'auto'), its options and h are chosen by pilot runs to reach it at the
-             least cost (vcirun.run.choose; docs/tolerance.md); h is then the largest step allowed,
+             the method (unless given; None or 'auto'), its options and h are chosen by pilot runs to
+             reach it at the least cost (vcirun.run.choose; docs/tolerance.md); h is then the largest
+             step allowed,
              max_time a budget in seconds for the final run. The returned trajectory carries
              `tr.choice` (candidates, predicted error and cost of each, the reason, the status) and
              its error estimate `tr.choice.estimate`.
@@ -67,9 +68,10 @@ def simulate(system, method=None, *, T, h=None, tol=None, beta=None, q0=None, p0
     if tol is not None or max_time is not None:
         from .choose import simulate_to_tolerance
 
-        return simulate_to_tolerance(system, None if method == "auto" else method, T=T, tol=tol, h_max=h, max_time=max_time, beta=beta, q0=q0,
-                                     p0=p0, params=params, constrained=constrained, t0=t0, energies=energies,
-                                     resting_contact=resting_contact, options=options)
+        return simulate_to_tolerance(system, None if method == "auto" else method, T=T, tol=tol, h_max=h,
+                                     max_time=max_time, beta=beta, q0=q0, p0=p0, params=params,
+                                     constrained=constrained, t0=t0, energies=energies,
+                                     resting_contact=resting_contact, options=options, build=trajectory_of)
     if method is None:
         raise ValueError("method: give a method (CVA, VCI, MCVAA, MCVAC, CVA4, ...) or tol= to have one chosen")
     if h is None:

@@ -20,20 +20,20 @@ first call on a scene runs a ladder N = N_FIRST, 2 N_FIRST, ... for every candid
 agree in their impacts and show the order (at least p - 1), or its pilots cost SCAN_BUDGET, and
 one timing run per candidate; it records each candidate's error constant on this start, the
 coarsest N that resolved the impacts and the coarsest N that showed the order. Later calls rank the
-candidates by the model's median constant, pilot the best at N*/8 and N*/4 (and a runner-up
-predicted within RERANK of it), and scale the others by what the pilots say about this start (a
+candidates by the model's median constant, pilot the best at N*/8 and N*/4 (the next where those
+pilots do not resolve the motion), and scale the others by what the pilots say about this start (a
 start that needs k times the steps for one method is taken to need k times the steps for every
 method). Where N*/8 is coarser than the order was ever seen, the best is run without pilots at the
-N the largest constant seen predicts.
+N the model's median constant predicts (its companions check it).
 
 The final run (`_pursue`). The pick runs at the least N that reaches TARGET tol and that a companion
-can certify (at least twice the coarsest N that showed the order: `_certifiable`), nested with a
-run made already where that is cheaper than new companions at N/2 and N/4 (`_final_N`). Its
-Richardson estimate (`estimate_of`: the companion, the third run's observed order, the grazing
-check) decides: accepted when the third run showed the order, the estimate is at most ACCEPT tol
-and its bracket's upper end at most BOUND tol; otherwise N grows by the estimate, or doubles where the impacts disagree, a
-contact grazes or the observed order is short of p, until accepted or the refinement has cost
-PURSUIT_BUDGET times the pick's predicted run. No candidate reaching tol gives the status
+can certify (at least twice the coarsest N that showed the order: `_certifiable`), nested with a run
+made already where that is cheaper than new companions at N/2 and N/4 (`_final_N`). Its Richardson
+estimate (`estimate_of`: the companion, the third run's observed order, the grazing check) decides:
+accepted when the third run showed the order, the estimate is at most ACCEPT tol and its bracket's
+upper end at most BOUND tol; otherwise N grows by the estimate, or doubles where the impacts
+disagree, a contact grazes or the observed order is short of p, until accepted or the refinement has
+cost PURSUIT_BUDGET times the pick's predicted run. No candidate reaching tol gives the status
 not_reached (below_floor, over_budget) and the most accurate resolved run made (`_fallback`).
 docs/tolerance.md says where this fails.
 """
@@ -46,13 +46,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.values import check_number
-from .estimate import ErrorEstimate, difference, near_misses, roundoff_level, verified_order
+from .estimate import ErrorEstimate, verified_order
+from .ladder import MAX_RATIO, Assessment, _companion, assess, estimate_of
 from .pilot import Run, Runner
+from .scene_model import _MODELS, MethodModel, SceneModel, scene_key, scene_model  # noqa: F401 (public here too)
 
 TARGET = 0.5      # the final run aims at an estimated error of TARGET * tol
 ACCEPT = 1.0      # ... and is accepted when its estimate is at most ACCEPT * tol
 BOUND = 3.0       # ... and the upper end of its bracket at most BOUND * tol
-RERANK = 1.3      # a runner-up predicted within this factor of the best is piloted too
 N_FIRST = 16      # the first pilot of a ladder (or T / h for a largest step h)
 MAX_STEPS = 1 << 22
 MAX_ROUNDS = 12   # refinements of the final before the choice says not_reached
@@ -108,7 +109,6 @@ class Choice:
     estimate: ErrorEstimate | None = None
     pilots: list = field(default_factory=list)
     seconds: dict = field(default_factory=dict)
-    model: str = ""
 
     @property
     def ok(self) -> bool:
@@ -118,7 +118,7 @@ class Choice:
         return {"tol": self.tol, "method": self.method, "h": self.h, "N": self.N, "status": self.status,
                 "reason": self.reason, "candidates": [c.as_dict() for c in self.candidates],
                 "estimate": self.estimate.as_dict() if self.estimate is not None else None,
-                "pilots": list(self.pilots), "seconds": dict(self.seconds), "model": self.model}
+                "pilots": list(self.pilots), "seconds": dict(self.seconds)}
 
     def table(self) -> str:
         """The candidates as a text table, the pick marked."""
@@ -130,7 +130,9 @@ class Choice:
 
 
 def candidate_table(cands, pick: str, tol: float) -> str:
-    g = lambda x, f=".3g": "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, f)  # noqa: E731
+    def g(x, f=".3g"):
+        return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, f)
+
     lines = [f"{'method':8s} {'order':>5s} {'C_h (e = C_h h^p)':>18s} {'us/step':>8s} {'h for tol':>10s} "
              f"{'steps':>8s} {'pred. error':>11s} {'pred. ms':>9s}  status"]
     for c in cands:
@@ -142,223 +144,6 @@ def candidate_table(cands, pick: str, tol: float) -> str:
                      f"{g(None if c.predicted_cost is None else c.predicted_cost * 1e3, '.3g'):>9s}  "
                      f"{c.status}{(': ' + c.note) if c.note else ''}")
     return f"tol = {tol:g}\n" + "\n".join(lines)
-
-
-# --- the per-process scene model -------------------------------------------------------------------
-@dataclass
-class MethodModel:
-    """One method on one scene: its order, error constants (one per start piloted), the coarsest
-    resolved N of each, the CPU cost b per step (energies as the final run computes them) and a per
-    run, and why it is not resolved (if it never was)."""
-
-    order: float
-    C: list = field(default_factory=list)
-    N_resolved: list = field(default_factory=list)
-    N_asymptotic: list = field(default_factory=list)
-    b: float | None = None
-    a: float | None = None
-    unresolved: str = ""
-
-    def constant(self) -> float | None:
-        """The median error constant (cached: the model is consulted on every call)."""
-        if not self.C:
-            return None
-        memo = self.__dict__.get("_median")
-        if memo is None or memo[0] != len(self.C):
-            memo = self.__dict__["_median"] = (len(self.C), float(np.median(self.C)))
-        return memo[1]
-
-
-@dataclass
-class SceneModel:
-    """The work-precision model of one scene (system, parameters, horizon, options) in this process:
-    the scene's features (contacts, generalized force, declared reset map) and a MethodModel per
-    candidate; `starts`: the starts piloted."""
-
-    key: tuple
-    T: float
-    n_contacts: int = 1
-    forced: bool = False
-    mapped: bool = False
-    methods: dict = field(default_factory=dict)
-    starts: int = 0
-
-
-_MODELS: dict = {}
-
-
-def scene_model(key) -> SceneModel | None:
-    return _MODELS.get(key)
-
-
-def _scene_key(system, params, T, t0, constrained, resting_contact, options, energies):
-    """The key of a scene model: a built-in name or file path (with its modification time), or the
-    identity of a MechanicalSystem instance; the parameters, the horizon and the options."""
-    import os
-
-    if isinstance(system, str):
-        ident = (system, os.path.getmtime(system)) if os.path.isfile(system) else (system,)
-    else:
-        ident = ("object", id(system))
-    prm = tuple(sorted((params or {}).items()))
-    return ident + (prm, float(T), float(t0), constrained, bool(resting_contact), tuple(sorted(options.items())),
-                    bool(energies))
-
-
-# --- assessing the runs of one method ---------------------------------------------------------------
-def _observed_order(Na, Nb, Nc, dab, dbc) -> float | None:
-    """p with dab / dbc = (Nb/Na)^p (1 - (Na/Nb)^p) / (1 - (Nb/Nc)^p) (nested runs a < b < c), by bisection."""
-    if not (dab > 0 and dbc > 0):
-        return None
-    target = math.log(dab / dbc)
-
-    def f(p):
-        return p * math.log(Nb / Na) + math.log1p(-(Na / Nb) ** p) - math.log1p(-(Nb / Nc) ** p) - target
-
-    lo, hi = 0.05, 30.0
-    flo, fhi = f(lo), f(hi)
-    if flo > 0:
-        return 0.0
-    if fhi < 0:
-        return hi
-    for _ in range(50):
-        mid = 0.5 * (lo + hi)
-        if f(mid) > 0:
-            hi = mid
-        else:
-            lo = mid
-    return 0.5 * (lo + hi)
-
-
-@dataclass
-class Assessment:
-    """What the runs of one method say: status "resolved" (C, the coarsest resolved N, the observed
-    order where three nested runs exist), "saturated" (differences at round-off: any resolved N
-    reaches tol down to `floor`), "unresolved" (the last two runs differ in their impacts or the
-    order is not seen) or "failed" (no two ok runs)."""
-
-    status: str
-    C: float | None = None
-    N_resolved: int | None = None
-    observed: float | None = None
-    floor: float = 0.0
-    note: str = ""
-    N_asymptotic: int | None = None   # the coarsest N of the three runs that showed the order
-
-
-MAX_RATIO = 8     # a Richardson companion is at least 1/MAX_RATIO as fine as its run
-
-
-def _companion(runs: dict, N: int, max_ratio: int = MAX_RATIO) -> Run | None:
-    """The largest ok run whose N divides N at most max_ratio times (the Richardson companion of run N)."""
-    best = None
-    for M, r in runs.items():
-        if M < N and N % M == 0 and N <= max_ratio * M and r.ok and (best is None or M > best.N):
-            best = r
-    return best
-
-
-def estimate_of(runs: dict, N: int, p: float, mod=None, prm=None, grazing=True) -> ErrorEstimate:
-    """The Richardson estimate of run N from its companion among `runs` (ratio r = N / N_companion),
-    with the observed order from a third nested run where there is one."""
-    run = runs[N]
-    comp = _companion(runs, N)
-    if not run.ok:
-        return ErrorEstimate("richardson", "failed", run.h, order=p, message=f"the run ended with status {run.status}")
-    if comp is None:
-        return ErrorEstimate("richardson", "failed", run.h, order=p, message="no companion run")
-    r = N // comp.N
-    d = difference(comp, run)
-    est = ErrorEstimate("richardson", "ok", run.h, order=p, companion_h=(comp.h,), first_difference=d.first)
-    if d.first:
-        est.status, est.message = "unresolved", f"the runs' impact sequences differ: {d.first}"
-        return est
-    floor = roundoff_level(run)
-    third = _companion(runs, comp.N, 4)
-    # checked: a third run showed the order (or the pair agrees to round-off); without it the bracket
-    # allows the pair to be two orders short of p (one for p <= 2), and _pursue does not accept it
-    margin = min(2.0, max(p - 1.0, 0.5))
-    est.extras["checked"] = d.l2 <= floor
-    if third is not None and d.l2 > floor:
-        d0 = difference(third, comp)
-        if not d0.first and d0.l2 > floor:
-            margin = 1.0
-            est.extras["checked"] = True
-            p_obs = _observed_order(third.N, comp.N, N, d0.l2, d.l2)
-            est.observed_order = p_obs
-            if p_obs is not None and p_obs < 1.0:
-                est.status = "unresolved"
-                est.message = f"the differences do not shrink with h (observed order {p_obs:.2f})"
-                return est
-            if p_obs is not None and p_obs < p - 0.5:
-                # the coarser runs are not yet asymptotic: the order they show, the smaller (safer) one
-                est.note = f"observed order {p_obs:.2f} used (verified order {p:g})"
-                p = p_obs
-            margin = 0.5 if p_obs is not None and abs(p_obs - p) <= 0.5 else 1.0
-    R = r ** p
-    est.l2 = d.l2 / (R - 1.0)
-    lo_R, hi_R = r ** (p + margin), r ** max(p - margin, 0.0)
-    est.l2_bounds = (d.l2 / (lo_R + 1.0), d.l2 / (hi_R - 1.0) if hi_R > 1.0 else math.inf)
-    est.final_q = d.final_q / (R - 1.0)
-    est.final_p = d.final_p / (R - 1.0)
-    if d.l2 <= floor:
-        est.l2_bounds = (est.l2_bounds[0], max(est.l2_bounds[1], floor))
-        est.note = f"differences at round-off level (<= {floor:.1e})"
-    if grazing and mod is not None:
-        from .estimate import slope_scale
-
-        margin_phi = 2.0 * d.sup_q / (R - 1.0) * slope_scale(run, mod, prm)
-        miss = near_misses(run, mod, prm, margin_phi, screen=comp)
-        if miss:
-            t, c, low = miss[0]
-            est.status = "unresolved"
-            est.first_difference = (f"contact {c} grazes near t = {t:.6g} (phi between the grid points down to "
-                                    f"{low:.3g}, within the run's error of the surface) without an impact")
-            est.message = "a grazing contact the grid does not resolve: " + est.first_difference
-            est.l2 = est.l2_bounds = est.final_q = est.final_p = None
-    return est
-
-
-def assess(runs: dict, p: float, need_order: bool = False) -> Assessment:
-    """Read C (e = C N^-p) from the finest resolved pair of nested runs; need_order: only once a third
-    nested run shows the order (at least p - 1)."""
-    ok = sorted(N for N, r in runs.items() if r.ok)
-    if len(ok) < 2:
-        return Assessment("failed", note="fewer than two runs finished")
-    pairs = []
-    for N in ok:
-        c = _companion(runs, N)
-        if c is not None:
-            pairs.append((c.N, N, difference(c, runs[N])))
-    if not pairs:
-        return Assessment("failed", note="no nested pair of runs")
-    # the coarsest N from which every finer pair agrees in its impacts
-    N_res = None
-    for a, b, d in reversed(pairs):
-        if d.first:
-            break
-        N_res = a
-    a, b, d = pairs[-1]
-    if d.first:
-        return Assessment("unresolved", note=d.first)
-    floor = roundoff_level(runs[b])
-    r = b // a
-    if d.l2 <= floor:
-        return Assessment("saturated", C=0.0, N_resolved=N_res, floor=floor, N_asymptotic=N_res,
-                          note=f"differences at round-off level ({d.l2:.1e} <= {floor:.1e})")
-    observed = a0 = None
-    if len(pairs) >= 2:
-        a0, b0, d0 = pairs[-2]
-        if b0 == a and not d0.first and d0.l2 > floor:
-            observed = _observed_order(a0, a, b, d0.l2, d.l2)
-            if observed is not None and observed < p - 1.0:
-                return Assessment("unresolved", observed=observed,
-                                  note=f"differences shrink at order {observed:.2f}, not {p:g}")
-    if need_order and observed is None:
-        return Assessment("unresolved", note="the order is not yet seen (two runs)")
-    e_b = d.l2 / (r ** p - 1.0)
-    return Assessment("resolved", C=e_b * b ** p, N_resolved=N_res, observed=observed, floor=floor,
-                      N_asymptotic=a0 if observed is not None else None)
 
 
 # --- the choice ----------------------------------------------------------------------------------------
@@ -397,8 +182,9 @@ def _candidates(method, n_contacts: int, forced: bool, mapped: bool) -> tuple[li
 
 def simulate_to_tolerance(system, method=None, *, T, tol, h_max=None, max_time=None, beta=None, q0=None, p0=None,
                           params=None, constrained=None, t0=0.0, energies=True, resting_contact=True,
-                          options=None):
-    """`vcirun.simulate(..., tol=...)`; see the module docstring."""
+                          options=None, build=None):
+    """`vcirun.simulate(..., tol=...)`; see the module docstring. build: vcirun.run.api.trajectory_of
+    (the API hands it in: this module does not import the API)."""
     options = dict(options or {})
     if tol is None:
         raise ValueError("max_time: only with tol= (a time budget constrains the choice of method and h)")
@@ -424,8 +210,8 @@ def simulate_to_tolerance(system, method=None, *, T, tol, h_max=None, max_time=N
 
         resolve_method(method)   # an unknown name raises here, naming the field
     runner = Runner(system, T=T, t0=t0, beta=beta, q0=q0, p0=p0, params=params, constrained=constrained,
-                    resting_contact=resting_contact, options=options)
-    key = _scene_key(system, params, T, t0, constrained, resting_contact, options, energies)
+                    resting_contact=resting_contact, options=options, build=build)
+    key = scene_key(system, params, T, t0, constrained, resting_contact, options, energies)
     chooser = _Chooser(runner, method, T=T, tol=tol, h_max=h_max, max_time=max_time, energies=energies, key=key)
     return chooser.choose()
 
@@ -596,30 +382,29 @@ class _Chooser:
             if c.C is None and not m.C:
                 m.unresolved = c.note
 
-    def _from_model(self, label, high: bool) -> Candidate:
-        """The model's prediction for `label`; high: from the largest error constant seen (a run made
-        without pilots), else the median."""
+    def _from_model(self, label) -> Candidate:
+        """The model's prediction for `label`, from its median error constant."""
         mm = self.method_model(label)
         c = Candidate(label, order=mm.order, a=mm.a, b=mm.b, source="scene model")
         if not mm.C or mm.b is None:
             c.status, c.note = "unresolved", mm.unresolved or "not resolved on the starts piloted"
             return c
-        C = float(max(mm.C)) if high else mm.constant()
+        C = mm.constant()
         c.C = C
         c.N_asymptotic = int(np.median(mm.N_asymptotic)) if mm.N_asymptotic else None
-        c.N_resolved = int(max(mm.N_resolved)) if mm.N_resolved else None
+        c.N_resolved = int(np.median(mm.N_resolved)) if mm.N_resolved else None
         N = max(math.ceil((C / (TARGET * self.tol)) ** (1.0 / mm.order)) if C > 0 else 1,
-                int(max(mm.N_resolved)) if mm.N_resolved else 1, self.n_min)
+                c.N_resolved or 1, self.n_min)
         self._fill(c, N)
         return c
 
     def _with_model(self, labels) -> list:
         """Rank by the model. The best is piloted at N*/8 and N*/4 when that is as fine as the coarsest
-        N at which its pilots showed the order on the starts seen; the others are then scaled by what the
-        pilots say about this start, and a runner-up predicted within RERANK of the best is piloted too.
-        Where N*/8 is coarser, the best is run directly at the N the largest error constant seen
-        predicts (its pilots would not be in the asymptotic regime; the final run's companion checks)."""
-        preds = {lb: self._from_model(lb, high=False) for lb in labels}
+        N at which its pilots showed the order on the starts seen (the next is piloted where its pilots do
+        not resolve the motion); the others are then scaled by what the pilots say about this start.
+        Where N*/8 is coarser, the best is run directly at the N the model predicts (its pilots would
+        not be in the asymptotic regime; the final run's companions check it)."""
+        preds = {lb: self._from_model(lb) for lb in labels}
         if not any(c.status == "ok" for c in preds.values()):
             # no candidate resolved on the starts seen (e.g. impacts accumulated there): this start may differ
             cands = self._scan(labels)
@@ -633,14 +418,10 @@ class _Chooser:
             if not ranked:
                 break
             c = ranked[0]
-            best = min((x.predicted_cost for x in piloted.values() if x.status == "ok" and x.predicted_cost),
-                       default=None)
-            if best is not None and c.predicted_cost > RERANK * best:
-                break
             n_asym = c.N_asymptotic or N_FIRST
             if not piloted and c.N * PILOT_SHARE < n_asym:
-                d = self._from_model(c.method, high=True)
-                d.source = "scene model (largest error constant seen; no pilots: they would not be asymptotic)"
+                d = self._from_model(c.method)
+                d.source = "scene model (no pilots: they would be coarser than the order was seen)"
                 piloted[c.method] = d
                 break
             a = self.ladder(self.names[c.method], max(int(c.N * PILOT_SHARE), n_asym), need_order=False)
@@ -668,7 +449,8 @@ class _Chooser:
         others = sorted([c for c in cands if c is not pick and c.status == "ok" and c.predicted_cost is not None],
                         key=lambda c: c.predicted_cost)
         if others:
-            reason += f", the least of the candidates (next: {others[0].method}, {others[0].predicted_cost * 1e3:.3g} ms)"
+            reason += (f", the least of the candidates (next: {others[0].method}, "
+                       f"{others[0].predicted_cost * 1e3:.3g} ms)")
         reason += f"; {how}"
         return self._pursue(pick, cands, reason)
 
@@ -698,11 +480,19 @@ class _Chooser:
             r = self.run(name, N, final=True)
             est = estimate_of(runs, N, p, mod, prm)
             last = est
+            if est.status == "ok" and est.extras.get("floor", 0.0) > BOUND * self.tol:
+                pick.status, pick.note = BELOW_FLOOR, (f"tol is below the round-off level {est.extras['floor']:.1e} "
+                                                       "of these runs")
+                break
             if est.status == "ok" and est.extras.get("checked"):
                 if est.l2 <= ACCEPT * self.tol and est.l2_bounds[1] <= BOUND * self.tol:
-                    if self.method is None:
-                        self._record([Candidate(label, order=p, C=est.l2 * N ** p if est.l2 > 0 else 0.0,
-                                                N_resolved=pick.N_resolved, N_asymptotic=pick.N_asymptotic)])
+                    third = est.extras.get("third")
+                    if self.method is None and third is not None and est.observed_order is not None \
+                            and abs(est.observed_order - p) <= 0.5 and est.l2 > 10 * est.extras.get("floor", 0.0):
+                        # what this start showed: its constant and where the order showed (an estimate
+                        # near round-off does not scale as N^-p: it says nothing about the constant)
+                        self._record([Candidate(label, order=p, C=est.l2 * N ** p, N_resolved=third,
+                                                N_asymptotic=third)])
                     return self._result(r, label, cands, OK, reason, est)
                 if est.order is not None and est.order < p - 0.25:
                     N = 2 * N   # the companions are not yet asymptotic: shift the three runs up
@@ -714,7 +504,7 @@ class _Chooser:
         if pick.status == "ok":
             pick.status = NOT_REACHED
             pick.note = last.message if last is not None and last.status != "ok" else "the estimate stays above tol"
-        return self._fallback(cands)
+        return self._fallback(cands)   # (BELOW_FLOOR and OVER_BUDGET picks set the status there)
 
     def _spent(self, label) -> float:
         return sum(x["cpu"] for x in self.pilot_log if x["method"] == label)

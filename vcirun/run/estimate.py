@@ -22,7 +22,7 @@ records of the runs, contact by contact, and is "unresolved" (no number, the fir
 event named) when the counts or contacts differ, when an impact time moves between the runs by
 more than a quarter of the time to that contact's neighbouring impact (the events may reorder),
 with two companions when the impact times do not converge at the order, when the runs differ by
-more than LOST of the motion's L2 norm (neither resolves it), or when a contact comes to rest
+more than LOST (1 %) of the motion's L2 norm (neither resolves it), or when a contact comes to rest
 after its impacts (a Zeno accumulation, or a bounce the run takes for resting at this h: the
 number of bounces before the hold depends on h, and two runs can agree on a wrong one). A contact whose gap
 phi dips between two grid points without an impact being recorded (a grazing contact the grid
@@ -182,7 +182,9 @@ def _min_gap(a: Run, b: Run) -> float:
     return g
 
 
-LOST = 0.1   # runs that differ by more than this fraction of the motion's L2 norm do not resolve it
+# runs that differ by more than this fraction of the motion's L2 norm do not resolve it: errors that large
+# move impacts by amounts that are not small, and two runs can agree on a motion the reference does not have
+LOST = 0.01
 
 
 def difference(coarse: Run, fine: Run, names=None) -> Difference:
@@ -386,7 +388,7 @@ def richardson(runs: list[Run], order: int | None, names=None, mod=None, prm=Non
     rho = ratio ** (-(order - 1.0)) if order > 1 else 0.5
     factor = 1.0 / (1.0 - ratio ** -order)
     est.l2 = d0.l2 * factor
-    est.l2_bounds = (d0.l2 / (1.0 + rho), d0.l2 / (1.0 - rho))
+    est.l2_bounds = (d0.l2 / (1.0 + rho), max(d0.l2 / (1.0 - rho), floor))   # (round-off: not in d)
     est.final_q = d0.final_q * factor
     est.final_p = d0.final_p * factor
     if d0.l2 <= floor:

@@ -47,6 +47,7 @@ class Run:
     cpu: float
     trajectory: object = None
     holds: tuple = ()    # (time, contact) where a contact not held at the start comes to rest
+    diffs: dict = dataclasses.field(default_factory=dict, repr=False)   # coarser N -> its Difference (ladder)
 
     @property
     def ok(self) -> bool:
@@ -101,8 +102,9 @@ class Runner:
     flow_order) go with the method: pass a `vcirun.methods.table.Method` or a name."""
 
     def __init__(self, system, *, T, t0=0.0, beta=None, q0=None, p0=None, params=None, constrained=None,
-                 resting_contact=True, options=None):
+                 resting_contact=True, options=None, build=None):
         self.system, self.T, self.t0 = system, float(T), float(t0)
+        self.build = build   # vcirun.run.api.trajectory_of, for runs that return their Trajectory
         self.start = dict(beta=beta, q0=q0, p0=p0, params=params)
         self.params = params
         self.constrained, self.resting_contact = constrained, resting_contact
@@ -120,7 +122,8 @@ class Runner:
         hit = self._plans.get(key)
         if hit is None:
             # a name (not the Method) lets plan() keep the plan of a built-in scene across Runners
-            p = plan(self.system, method if isinstance(method, str) else meth, h=self.T, T=self.T, t0=self.t0, constrained=self.constrained,
+            p = plan(self.system, method if isinstance(method, str) else meth, h=self.T, T=self.T, t0=self.t0,
+                     constrained=self.constrained,
                      energies=energies, resting_contact=self.resting_contact, options=self.options,
                      start=self.start)
             sysd = p.sysd
@@ -155,9 +158,12 @@ class Runner:
     # --- runs ---------------------------------------------------------------------------------------
     def run(self, method, N: int, *, trajectory: bool = False, energies: bool | None = None) -> Run:
         """The run of `method` on N steps of h = T / N. trajectory=True also builds the Trajectory
-        `vcirun.simulate` returns (energies along the grid unless energies=False)."""
-        from .api import trajectory_of
+        `vcirun.simulate` returns (energies along the grid unless energies=False), with the Runner's
+        `build` (vcirun.run.api.trajectory_of, handed in by the caller: this module does not import the API)."""
         from .plan import run_loop
+
+        if trajectory and self.build is None:
+            raise ValueError("trajectory: this Runner was made without build= (vcirun.run.api.trajectory_of)")
 
         energies = trajectory if energies is None else energies
         base, mod, q0, p0, prm, beta = self._base(method, energies)
@@ -177,7 +183,7 @@ class Runner:
         active = field("contact_active", steps + 1)
         tr = None
         if trajectory:
-            tr = trajectory_of(p, mod, out, counters, q0, p0, prm, beta, wall)
+            tr = self.build(p, mod, out, counters, q0, p0, prm, beta, wall)
             tr.run_args = self.run_args(p.meth)
             status = tr.status
         else:

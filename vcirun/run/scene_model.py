@@ -1,0 +1,69 @@
+"""The work-precision model of a scene in this process (`SceneModel`): per candidate method, the error
+constants, the coarsest resolved and asymptotic N of each start piloted, and the cost a + b N of a run;
+keyed by system, parameters, horizon and options (`scene_key`). vcirun.run.choose fills and reads it;
+stored measurements (a study's or a sweep's results) have their own model:
+vcirun.experiments.studies.wp_model."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+@dataclass
+class MethodModel:
+    """One method on one scene: its order, error constants (one per start piloted), the coarsest
+    resolved N of each, the CPU cost b per step (energies as the final run computes them) and a per
+    run, and why it is not resolved (if it never was)."""
+
+    order: float
+    C: list = field(default_factory=list)
+    N_resolved: list = field(default_factory=list)
+    N_asymptotic: list = field(default_factory=list)
+    b: float | None = None
+    a: float | None = None
+    unresolved: str = ""
+
+    def constant(self) -> float | None:
+        """The median error constant (cached: the model is consulted on every call)."""
+        if not self.C:
+            return None
+        memo = self.__dict__.get("_median")
+        if memo is None or memo[0] != len(self.C):
+            memo = self.__dict__["_median"] = (len(self.C), float(np.median(self.C)))
+        return memo[1]
+
+
+@dataclass
+class SceneModel:
+    """The work-precision model of one scene (system, parameters, horizon, options) in this process:
+    the scene's features (contacts, generalized force, declared reset map) and a MethodModel per
+    candidate; `starts`: the starts piloted."""
+
+    key: tuple
+    T: float
+    n_contacts: int = 1
+    forced: bool = False
+    mapped: bool = False
+    methods: dict = field(default_factory=dict)
+    starts: int = 0
+
+
+_MODELS: dict = {}
+
+
+def scene_model(key) -> SceneModel | None:
+    return _MODELS.get(key)
+
+
+def scene_key(system, params, T, t0, constrained, resting_contact, options, energies):
+    """The key of a scene model: a built-in name or file path (with its modification time), or the
+    identity of a MechanicalSystem instance; the parameters, the horizon and the options."""
+    import os
+
+    if isinstance(system, str):
+        ident = (system, os.path.getmtime(system)) if os.path.isfile(system) else (system,)
+    else:
+        ident = ("object", id(system))
+    prm = tuple(sorted((params or {}).items()))
+    return ident + (prm, float(T), float(t0), constrained, bool(resting_contact), tuple(sorted(options.items())),
+                    bool(energies))
