@@ -112,27 +112,9 @@ def _guess(system, params, q0, p0):
         raise ValueError("--q0/--p0: give both or neither")
     if q0 is not None:
         return (np.array(q0), np.array(p0))
-    from vcirun.run.resolve import resolve_system
+    from vcirun.experiments.periodic import default_guess
 
-    s = resolve_system(system)
-    if s.default_q0 is None:
-        raise ValueError(f"--q0/--p0: system {s.name} has no default state; give a guess")
-    q = np.asarray(s.default_q0, float)
-    if params:
-        v = np.linalg.solve(s.mass_matrix(q), s.default_p0)
-        return (q, s.mass_matrix(q, s.param_values(params)) @ v)
-    return (q, np.asarray(s.default_p0, float))
-
-
-def _sweep(text: str):
-    name, sep, rng = text.partition("=")
-    parts = rng.split(":")
     try:
-        if not sep or len(parts) != 3:
-            raise ValueError
-        a, b, n = float(parts[0]), float(parts[1]), int(parts[2])
-    except ValueError:
-        raise ValueError(f"--sweep: expected NAME=START:STOP:COUNT (got {text!r})") from None
-    if n < 2:
-        raise ValueError(f"--sweep: COUNT must be at least 2 (got {n})")
-    return name.strip(), np.linspace(a, b, n)
+        return default_guess(system, params)
+    except ValueError as e:
+        raise ValueError(f"--q0/--p0: {str(e).partition(': ')[2]}") from None

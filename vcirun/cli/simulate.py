@@ -37,7 +37,7 @@ def _parse_vector(text: str | None, name: str):
 
 def simulate_once(system: str, method: str, *, h: float, T: float, beta: float | None = None, ld=None,
                   mh_order=None, flow_order=None, params: dict | None = None, constrained: bool | None = None,
-                  newton_tol=None, event_tol=None, q0=None, p0=None):
+                  newton_tol=None, event_tol=None, q0=None, p0=None, qdot0=None):
     """One run through `vcirun.simulate`; bad input becomes CliError. Returns (trajectory, seconds);
     `traj.compiled_now` says whether kernels were generated during the call."""
     import time
@@ -50,8 +50,14 @@ def simulate_once(system: str, method: str, *, h: float, T: float, beta: float |
     kw = {k: v for k, v in dict(ld=ld, mh_order=mh_order, flow_order=flow_order, params=params or None,
                                 constrained=constrained, newton_tol=newton_tol, event_tol=event_tol).items()
           if v is not None}
+    if p0 is not None and qdot0 is not None:
+        raise CliError("initial state: give --p0 or --qdot0, not both")
+    if qdot0 is not None:
+        if q0 is None:
+            raise CliError("initial state: --qdot0 needs --q0")
+        p0 = _momenta(system, q0, qdot0, params)
     if (q0 is None) != (p0 is None):
-        raise CliError("initial state: give both --q0 and --p0 (or --beta)")
+        raise CliError("initial state: give both --q0 and --p0 (or --qdot0, or --beta)")
     if q0 is not None:
         if beta is not None:
             raise CliError("initial state: give either --beta or --q0/--p0, not both")
@@ -66,6 +72,11 @@ def simulate_once(system: str, method: str, *, h: float, T: float, beta: float |
         raise CliError(str(e)) from None
     for w in notes:
         typer.echo(f"note: {w.message}", err=True)
+    from vcirun.scenes.data import scene_args
+
+    args = scene_args(system) if isinstance(system, str) else None
+    if args is not None and args[1] == () and traj.system != system:
+        typer.echo(f"note: {system} is {traj.system} (its default size; {args[0]}_K for K of your choice)", err=True)
     traj.compiled_now = any(not e["cached"] for e in build.BUILD_LOG[n_log:])
     return traj, time.perf_counter() - t0
 
@@ -94,6 +105,24 @@ def energy_rows(traj) -> list[tuple[str, str]]:
     if drift.dHmod is not None and not terms:
         rows.append(("max |Hmod - Hmod0|", f"{drift.dHmod:.3e}"))
     return rows
+
+
+def _momenta(system, q0, qdot0, params):
+    """p0 = M(q0) qdot0 from the system's compiled mass matrix (the same M the run uses)."""
+    from vcirun.codegen.kernel_set import SYSTEM_KERNELS
+    from vcirun.run.resolve import resolve_numeric
+
+    try:
+        sysd, load, _ = resolve_numeric(system, SYSTEM_KERNELS)
+        prm = np.ascontiguousarray(sysd.param_values(params or None), float)
+    except ValueError as e:
+        raise CliError(str(e)) from None
+    for name, v in (("--q0", q0), ("--qdot0", qdot0)):
+        if len(v) != sysd.n:
+            raise CliError(f"{name}: {sysd.n} numbers for system {sysd.name} (got {len(v)})")
+    A = np.empty((sysd.n, sysd.n))
+    load().sys_M(np.ascontiguousarray(q0, float), prm, A)
+    return (A @ np.asarray(qdot0, float)).tolist()
 
 
 def summary_lines(traj, total_seconds: float) -> list[tuple[str, str]]:
@@ -142,6 +171,8 @@ def simulate(
                                      help="Initial coordinates, comma-separated (with --p0; `vcirun systems` "
                                           "lists each scene's coordinates)."),
     p0: Optional[str] = typer.Option(None, "--p0", metavar="P1,P2,...", help="Initial momenta p = M(q) qdot."),
+    qdot0: Optional[str] = typer.Option(None, "--qdot0", metavar="V1,V2,...",
+                                        help="Initial velocities (with --q0, instead of --p0)."),
     output: Optional[Path] = typer.Option(None, "--output", "-o",
                                           help="Save the trajectory: .h5 (read with "
                                                "vcirun.run.trajectory.read_trajectory), .nc, .csv or .npz."),
@@ -152,7 +183,8 @@ def simulate(
         traj, total = simulate_once(system, method, h=h, T=T, beta=beta, ld=ld, mh_order=mh_order,
                                     flow_order=flow_order, params=_parse_params(param),
                                     constrained=False if unconstrained else None, newton_tol=newton_tol,
-                                    event_tol=event_tol, q0=_parse_vector(q0, "--q0"), p0=_parse_vector(p0, "--p0"))
+                                    event_tol=event_tol, q0=_parse_vector(q0, "--q0"), p0=_parse_vector(p0, "--p0"),
+                                    qdot0=_parse_vector(qdot0, "--qdot0"))
         if output is not None:
             try:
                 traj.save(output)

@@ -77,6 +77,7 @@ class Trajectory:
             state["source"] = str(state["source"]) if hasattr(state["source"], "__fspath__") else None
         state.pop("_dense", None)
         state.pop("_account", None)
+        state.pop("_qdot", None)
         return state
 
     # --- dense output -----------------------------------------------------------------------------
@@ -131,6 +132,27 @@ class Trajectory:
     def state(self, t) -> np.ndarray:
         """(q(t), p(t)) concatenated: shape (2n,) or (len(t), 2n)."""
         return self._dense_output().state(t)
+
+    def velocity(self, t) -> np.ndarray:
+        """qdot(t) = M(q(t))^-1 p(t) by dense output (right-continuous at impacts); shapes as `tr(t)`."""
+        y = np.atleast_2d(self.state(t))
+        out = self._velocities(y)
+        return out[0] if np.ndim(t) == 0 else out
+
+    @property
+    def qdot(self) -> np.ndarray:
+        """Velocities qdot_k = M(q_k)^-1 p_k at the grid states, (N+1, n) (needs the dynamics, as dense
+        output; computed on first use)."""
+        v = self.__dict__.get("_qdot")
+        if v is None:
+            v = self.__dict__["_qdot"] = self._velocities(np.hstack([self.q, self.p]))
+        return v
+
+    def _velocities(self, Y) -> np.ndarray:
+        if self.dynamics is None:
+            self._dense_output()   # attaches the dynamics of a built-in scene, or says how
+        n = self.q.shape[1]
+        return np.array([self.dynamics(0.0, y)[:n] for y in Y]).reshape(len(Y), n)
 
     # --- conversions ------------------------------------------------------------------------------
     def _units(self) -> tuple[list, list, str]:
