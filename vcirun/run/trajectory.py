@@ -6,9 +6,8 @@ cubic Hermite interpolation of q and p, with the slopes (qdot, pdot) of the cont
 the recorded states (`_dynamics`: the compiled, forced, Hamilton equations of the run's module). An impact
 step k -> k+1 is split at its recorded impact states: [t_k, tau_1] ends in (q(tau_1), p-),
 [tau_1, ...] starts from (q(tau_1), p+) (q+ of a declared reset map that moves q: a walker's leg
-exchange), so no piece ever interpolates across a jump; the
-interpolant is right-continuous at an impact (p+ at t = tau) and equals the grid state at every
-grid time. Its own error is O(h^4) per piece, so between grid points it keeps the method's order
+exchange), so no piece ever interpolates across a jump; the interpolant is right-continuous at an
+impact (p+ at t = tau) and equals the grid state at every grid time. Its own error is O(h^4) per piece, so between grid points it keeps the method's order
 for methods of order <= 4 (every method of the paper: order 2; CVA4); for CVA6/CVA8 it is limited to
 order 4 between grid points (exact at them).
 """
