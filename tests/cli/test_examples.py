@@ -58,3 +58,35 @@ def test_every_scene_has_an_example_and_the_docs_have_commands():
     assert len(_catalog_commands()) == len(listed_scenes()) >= 15
     assert any("cradle_gap" in c for _, c in _catalog_commands())
     assert len(_doc_commands()) >= 4
+
+
+def _doc_animations():
+    out = []
+    for path in DOCS:
+        fenced = False
+        for line in path.read_text().splitlines():
+            if line.startswith("```"):
+                fenced = not fenced
+                continue
+            if fenced and line.strip().startswith("vcirun animate --system"):
+                out.append((path.name, line.split("#")[0].strip()))
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("where, command", _doc_animations(), ids=[c[15:70] for _, c in _doc_animations()])
+def test_documented_animations_run(where, command, tmp_path, monkeypatch):
+    """Every `vcirun animate --system ...` line of the docs writes its GIF (here into a scratch folder)."""
+    from PIL import Image
+
+    monkeypatch.chdir(ROOT)
+    args = shlex.split(command)[2:]
+    out = tmp_path / "a.gif"
+    if "--output" in args:
+        args[args.index("--output") + 1] = str(out)
+    else:
+        args += ["--output", str(out)]
+    r = CliRunner().invoke(app, ["animate", *args], catch_exceptions=False)
+    assert r.exit_code == 0, (where, command, r.output)
+    with Image.open(out) as im:
+        assert im.n_frames >= 30

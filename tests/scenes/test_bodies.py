@@ -89,7 +89,7 @@ def test_trajectories_by_bodies_reproduce_the_builtins(scene, source):
     assert np.max(np.abs(np.asarray(a.impacts) - np.asarray(b.impacts))) <= 1e-12
 
 
-EXAMPLES = {"rocking_block.yaml": (3, 2), "chain5.yaml": (7, 6), "cradle20.yaml": (20, 19)}
+EXAMPLES = {"rocking_block.yaml": (3, 2), "chain5.yaml": (7, 6), "cradle20.yaml": (20, 19), "cradle20_gaps.yaml": (20, 19)}
 
 
 @pytest.mark.parametrize("name", sorted(EXAMPLES))

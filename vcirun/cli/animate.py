@@ -86,6 +86,7 @@ def animate(
                                                "--max-frames)."),
     max_frames: int = typer.Option(600, "--max-frames", help="Most frames to write."),
     no_energy: bool = typer.Option(False, "--no-energy", help="Leave out the energy panel."),
+    dpi: float = typer.Option(100.0, "--dpi", help="Pixels per inch (the figure is 8 x 4 inches)."),
 ):
     """Animate one run: the mechanism drawn from its scene's geometry (bodies-form scenes, built-in scenes, a
     YAML draw: section; else its configuration), impacts marked, the energy and a time bar beside it."""
@@ -120,7 +121,7 @@ def animate(
             raise CliError(f"--output {out}: an animation is .gif or .mp4")
         try:
             anim = traj.animate(system=system if results is not None else None, fps=fps, speed=speed,
-                                max_frames=max_frames, energy=not no_energy)
+                                max_frames=max_frames, energy=not no_energy, dpi=dpi)
             typer.echo(f"animating {what}: {anim.n_frames} frames at {fps:g} fps, {anim.speed:.3g}x speed"
                        + (f" ({anim.note})" if anim.note else ""), err=True)
             anim.save(out)

@@ -118,16 +118,12 @@ def _guess(system, params, q0, p0):
         raise ValueError("--q0/--p0: give both or neither")
     if q0 is not None:
         return (np.array(q0), np.array(p0))
-    from vcirun.run.resolve import resolve_system
+    from vcirun.experiments.periodic import default_guess
 
-    s = resolve_system(system)
-    if s.default_q0 is None:
-        raise ValueError(f"--q0/--p0: system {s.name} has no default state; give a guess")
-    q = np.asarray(s.default_q0, float)
-    if params:
-        v = np.linalg.solve(s.mass_matrix(q), s.default_p0)
-        return (q, s.mass_matrix(q, s.param_values(params)) @ v)
-    return (q, np.asarray(s.default_p0, float))
+    try:
+        return default_guess(system, params)
+    except ValueError as e:
+        raise ValueError(f"--q0/--p0: {str(e).partition(': ')[2]}") from None
 
 
 def _sweep(text: str):

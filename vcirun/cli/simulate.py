@@ -37,7 +37,8 @@ def _parse_vector(text: str | None, name: str):
 
 def simulate_once(system: str, method: str | None, *, h: float | None, T: float, beta: float | None = None, ld=None,
                   mh_order=None, flow_order=None, params: dict | None = None, constrained: bool | None = None,
-                  newton_tol=None, event_tol=None, q0=None, p0=None, tier=None, tol=None, max_time=None):
+                  newton_tol=None, event_tol=None, q0=None, p0=None, qdot0=None, tier=None, tol=None,
+                  max_time=None):
     """One run through `vcirun.simulate`; bad input becomes CliError. Returns (trajectory, seconds);
     `traj.built` is the kernel cache's report of the call (vcirun.codegen.kernel_cache.BuildReport)."""
     import time
@@ -54,8 +55,14 @@ def simulate_once(system: str, method: str | None, *, h: float | None, T: float,
     if tol is None:   # without --tol: the command's defaults
         method = "CVA" if method is None else method
         h = 1e-2 if h is None else h
+    if p0 is not None and qdot0 is not None:
+        raise CliError("initial state: give --p0 or --qdot0, not both")
+    if qdot0 is not None:
+        if q0 is None:
+            raise CliError("initial state: --qdot0 needs --q0")
+        p0 = _momenta(system, q0, qdot0, params)
     if (q0 is None) != (p0 is None):
-        raise CliError("initial state: give both --q0 and --p0 (or --beta)")
+        raise CliError("initial state: give both --q0 and --p0 (or --qdot0, or --beta)")
     if q0 is not None:
         if beta is not None:
             raise CliError("initial state: give either --beta or --q0/--p0, not both")
@@ -69,6 +76,11 @@ def simulate_once(system: str, method: str | None, *, h: float | None, T: float,
         raise CliError(str(e)) from None
     for w in notes:
         typer.echo(f"note: {w.message}", err=True)
+    from vcirun.scenes.data import scene_args
+
+    args = scene_args(system) if isinstance(system, str) else None
+    if args is not None and args[1] == () and traj.system != system:
+        typer.echo(f"note: {system} is {traj.system} (its default size; {args[0]}_K for K of your choice)", err=True)
     traj.built = built
     return traj, time.perf_counter() - t0
 
@@ -97,6 +109,24 @@ def energy_rows(traj) -> list[tuple[str, str]]:
     if drift.dHmod is not None and not terms:
         rows.append(("max |Hmod - Hmod0|", f"{drift.dHmod:.3e}"))
     return rows
+
+
+def _momenta(system, q0, qdot0, params):
+    """p0 = M(q0) qdot0 from the system's compiled mass matrix (the same M the run uses)."""
+    from vcirun.codegen.kernel_set import SYSTEM_KERNELS
+    from vcirun.run.resolve import resolve_numeric
+
+    try:
+        sysd, load, _ = resolve_numeric(system, SYSTEM_KERNELS)
+        prm = np.ascontiguousarray(sysd.param_values(params or None), float)
+    except ValueError as e:
+        raise CliError(str(e)) from None
+    for name, v in (("--q0", q0), ("--qdot0", qdot0)):
+        if len(v) != sysd.n:
+            raise CliError(f"{name}: {sysd.n} numbers for system {sysd.name} (got {len(v)})")
+    A = np.empty((sysd.n, sysd.n))
+    load().sys_M(np.ascontiguousarray(q0, float), prm, A)
+    return (A @ np.asarray(qdot0, float)).tolist()
 
 
 def summary_lines(traj, total_seconds: float) -> list[tuple[str, str]]:
@@ -169,6 +199,8 @@ def simulate(
                                              "and the run's error estimate."),
     max_time: Optional[float] = typer.Option(None, "--max-time", help="With --tol: a budget in seconds for the "
                                                                        "final run."),
+    qdot0: Optional[str] = typer.Option(None, "--qdot0", metavar="V1,V2,...",
+                                        help="Initial velocities (with --q0, instead of --p0)."),
     output: Optional[Path] = typer.Option(None, "--output", "-o",
                                           help="Save the trajectory: .h5 (read with "
                                                "vcirun.run.trajectory.read_trajectory), .nc, .csv or .npz."),
@@ -185,7 +217,7 @@ def simulate(
                                     flow_order=flow_order, params=_parse_params(param),
                                     constrained=False if unconstrained else None, newton_tol=newton_tol,
                                     event_tol=event_tol, q0=_parse_vector(q0, "--q0"), p0=_parse_vector(p0, "--p0"),
-                                    tier=tier, tol=tol, max_time=max_time)
+                                    qdot0=_parse_vector(qdot0, "--qdot0"), tier=tier, tol=tol, max_time=max_time)
         if output is not None:
             try:
                 traj.save(output)

@@ -85,6 +85,8 @@ def verify_command(
         if c.verdict in ("warn", "fail", "skip"):
             console.print(f"[{style[c.verdict]}]{c.verdict}[/]  {c.name}" + (f" [{c.method}]" if c.method else "")
                           + f": {c.note}", soft_wrap=True)
+    for n in res.notes:   # what the verification did (e.g. the window of a motion that comes to rest)
+        console.print(f"note  {n}", soft_wrap=True, markup=False)
     for p in written:
         typer.echo(f"wrote {p}")
     if not res.ok:

@@ -358,13 +358,33 @@ def contacts_energy(results) -> "Figure":
                 handles.append(hd)
                 labels.append(lb)
     axes[0][-1].legend(handles, labels, frameon=False, fontsize=7)
-    spec = results.attrs.get("system_spec")
-    prm = (spec.get("params") or {}) if isinstance(spec, dict) else {}
-    rest = [str(prm.get(str(c.get("restitution")), c.get("restitution"))) for c in cons]  # parameter -> value
+    prm = _parameter_values(results.attrs.get("system_spec"))
+    rest = [f"{prm[r]:g}" if (r := str(c.get("restitution"))) in prm else r for c in cons]  # parameter -> value
     e = ("e = " + rest[0]) if len(set(rest)) == 1 else ", ".join(f"{n}: e = {v}" for n, v in zip(names, rest))
     fig.suptitle(f"{results.attrs.get('system', '')}, {len(cons)} contacts, {e}; {ic}, h = {fmt_h(h)}", fontsize=8)
     return fig
 
+
+
+def _parameter_values(spec) -> dict:
+    """{name: value} of a results file's system: the scene's (or file's) defaults with the config's
+    overrides ({} where the system cannot be read back)."""
+    if not isinstance(spec, dict):
+        return {}
+    out = {}
+    try:
+        if spec.get("name") and not spec.get("file"):
+            from ..scenes.data import scene_data
+
+            out = dict(scene_data(spec["name"]).params)
+        elif spec.get("file"):
+            from ..mechanics.loader import load_system_yaml
+
+            out = dict(load_system_yaml(spec["file"]).params)
+    except (ValueError, OSError):
+        out = {}
+    out.update({str(k): float(v) for k, v in (spec.get("params") or {}).items()})
+    return out
 
 
 FIGURES = {"fig4": figure4, "fig3": figure3, "fig1": figure1, "work_precision": work_precision,

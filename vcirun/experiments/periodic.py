@@ -67,6 +67,17 @@ class PeriodicOrbit:
                 "jacobian_kind": self.jacobian_kind}
 
 
+def _why_no_return(tr, hits, k) -> str:
+    """What the last run did instead of returning: its impacts, and the range each coordinate covered
+    (a walker that rocks back and forth, or one that fell, never reaches its next strike)."""
+    span = ", ".join(f"{name} in [{lo:.4g}, {hi:.4g}]" for name, lo, hi in
+                     zip(tr.coordinate_names, tr.q.min(axis=0), tr.q.max(axis=0)))
+    other = len(tr.impacts) - len(hits)
+    return (f"the run made {len(hits)} of the {k} impact(s) on the section" + (f" and {other} on other contacts"
+            if other else "") + f"; over [0, {tr.t[-1]:g}] {span} (the motion turns back, stops or falls before "
+            "it reaches the section: start nearer the orbit, or choose parameters that have one)")
+
+
 class ReturnMap:
     """P(x) of (system, method, h) on the section of constraint `section` (an index or name; default:
     the constraint with a declared reset, else the first), after k impacts there."""
@@ -130,7 +141,8 @@ class ReturnMap:
             if (self.T_max is not None and T >= self.T_max) or not np.isfinite(2.0 * T):
                 break
             T *= 2.0
-        raise RuntimeError(f"return map: no return to the section within T = {T:g} from {x.tolist()}")
+        raise RuntimeError(f"return map: no return to the section within T = {tr.t[-1]:g} from {x.tolist()}: "
+                           + _why_no_return(tr, hits, self.k))
 
     def jacobian(self, x, fd_step=METHOD_FD_STEP):
         """DP(x) by the fourth-order central difference (see the module docstring)."""
@@ -292,10 +304,24 @@ def _section_index(section, sysm, names) -> int:
     return names.index(section)
 
 
-def periodic_orbit(system, method, *, h=None, guess, section=None, k=1, params=None, tol=1e-12, maxit=None,
+def default_guess(system, params=None):
+    """(q, p) of a scene's default state (its velocities kept under parameter overrides), the guess of
+    periodic_orbit without one; ValueError naming `guess` if the system has none."""
+    s = resolve_system(system) if isinstance(system, str) else system
+    if getattr(s, "default_q0", None) is None:
+        raise ValueError(f"guess: system {s.name} has no default state; give guess=(q, p)")
+    q = np.asarray(s.default_q0, float)
+    if params:
+        v = np.linalg.solve(s.mass_matrix(q), s.default_p0)
+        return q, s.mass_matrix(q, s.param_values(params)) @ v
+    return q, np.asarray(s.default_p0, float)
+
+
+def periodic_orbit(system, method, *, h=None, guess=None, section=None, k=1, params=None, tol=1e-12, maxit=None,
                    fd_step=None, solver="newton", jacobian=None, **options) -> PeriodicOrbit:
     """A fixed point of the return map of `method` at step h on `section` (a constraint's impact, just
-    after its reset), from guess = (q, p) or the flat state. k: impacts per return (2: a period-two
+    after its reset), from guess = (q, p) or the flat state (default: the scene's default state, e.g.
+    the built-in walkers' gaits). k: impacts per return (2: a period-two
     orbit). method "reference": the exact return map (vcirun.reference.stride.ReferenceReturnMap; no h;
     its options path, rtol, T_max), the orbit every method's converges to.
 
@@ -339,6 +365,8 @@ def periodic_orbit(system, method, *, h=None, guess, section=None, k=1, params=N
         raise ValueError(f"jacobian: {jacobian!r} is not 'fd' or 'envelope'")
     if jacobian == "envelope" and (solver != "iterate" or method == "reference"):
         raise ValueError("jacobian: 'envelope' needs solver 'iterate' and a method with a step h")
+    if guess is None:
+        guess = default_guess(system, params)
     try:
         if isinstance(guess, (tuple, list)) and len(guess) == 2 and np.ndim(guess[0]) == 1:
             x = np.concatenate([np.asarray(guess[0], float), np.asarray(guess[1], float)])

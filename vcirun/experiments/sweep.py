@@ -169,7 +169,11 @@ class _Reporter:
         if self._progress is not None:
             self._progress.update(self._task, advance=n, failed=f"{self.failed} failed" if self.failed else "")
         elif self.enabled:
-            self.console.print(f"[{self.done}/{self.total}] {note}; {saved} saved"
+            # (saved: committed to the file so far; runs finished since are committed by the next batch,
+            # the last ones when the sweep finishes)
+            self.console.print(f"[{self.done}/{self.total}] {note}; {saved} saved to the file"
+                               + (" (the rest as the sweep finishes)" if self.done == self.total and saved < self.done
+                                  else "")
                                + (f"; {self.failed} failed" if self.failed else ""), highlight=False, markup=False)
 
     def stop(self) -> None:

@@ -239,11 +239,19 @@ def planar_system(name: str, bodies, joints, contacts, *, params=None, gravity=0
         if jt.kind not in JOINT_KINDS:
             raise ValueError(f"{f}.type: {jt.kind!r} is not a joint type (choose {', '.join(JOINT_KINDS)})")
         if jt.body not in byname:
-            raise ValueError(f"{f}.body: {jt.body!r} is not a declared body ({', '.join(byname)})")
+            import difflib
+
+            near = difflib.get_close_matches(str(jt.body), list(byname), n=1)
+            raise ValueError(f"{f}.body: {jt.body!r} is not a declared body"
+                             + (f"; did you mean {near[0]!r}?" if near else f" ({', '.join(byname)})"))
         if jt.body in joint_of:
             raise ValueError(f"{f}.body: body {jt.body!r} already has a joint ({joint_of[jt.body].field or 'above'})")
         if jt.parent != GROUND and jt.parent not in byname:
-            raise ValueError(f"{f}.parent: {jt.parent!r} is neither {GROUND!r} nor a declared body")
+            import difflib
+
+            near = difflib.get_close_matches(str(jt.parent), list(byname) + [GROUND], n=1)
+            raise ValueError(f"{f}.parent: {jt.parent!r} is neither {GROUND!r} nor a declared body"
+                             + (f"; did you mean {near[0]!r}?" if near else f" ({', '.join(byname)})"))
         names = (list(jt.coordinates) if jt.coordinates is not None else
                  [jt.coordinate] if jt.coordinate is not None else [])
         if len(names) != JOINT_KINDS[jt.kind]:
@@ -312,7 +320,7 @@ def planar_system(name: str, bodies, joints, contacts, *, params=None, gravity=0
                                  bodies, joint_of, contacts, springs, dampers, scope, field_prefix)
     if start is not None:
         _check_start(system, cons, start, contacts, P)
-        system.check_hyperregular(start)
+        _check_masses(system, start, coords, joint_of, P)
         if p0 is not None:
             pv = _start(p0, coords, f"{P}p0")
         else:
@@ -480,6 +488,27 @@ def _start(v, coords: list, fld: str):
     if a.shape != (n,) or not np.all(np.isfinite(a)):
         raise ValueError(f"{fld}: must be {n} finite numbers ({', '.join(coords)})")
     return a
+
+
+def _check_masses(system: MechanicalSystem, q0, coords: list, joint_of: dict, P: str) -> None:
+    """M(q0) positive definite, else the coordinates that carry no mass or inertia are named with their
+    bodies (a body of zero mass on a free joint: its x, y; of zero inertia: its angle)."""
+    try:
+        system.check_hyperregular(q0)
+    except ValueError:
+        M = system.mass_matrix(q0)
+        w, V = np.linalg.eigh(0.5 * (M + M.T))
+        null = V[:, w <= max(w[0], 0.0) + 1e-12 * max(abs(w[-1]), 1.0)]   # every direction without inertia
+        v = np.sqrt(np.sum(null * null, axis=1))
+        weak = [coords[i] for i in np.flatnonzero(v >= 0.3 * v.max())]
+        owner = {c: b for b, jt in joint_of.items()
+                 for c in (jt.coordinates if jt.coordinates is not None else [jt.coordinate])}
+        bodies = list(dict.fromkeys(owner[c] for c in weak))
+        raise ValueError(f"{P}bodies: M(q) is not positive definite at q0 = {np.asarray(q0).tolist()} (smallest "
+                         f"eigenvalue {w[0]:.3g}): the coordinate{'s' * (len(weak) > 1)} {', '.join(weak)} carr"
+                         f"{'y' if len(weak) > 1 else 'ies'} no mass or inertia; give body "
+                         f"{' or '.join(repr(b) for b in bodies)} a mass (and an inertia for its angle), or "
+                         "attach it to a body that has them") from None
 
 
 def _check_start(system: MechanicalSystem, cons: list, q0, contacts, P: str) -> None:

@@ -16,7 +16,8 @@ Three sources: planar mechanisms (`from_bodies`, called by vcirun.mechanics.bodi
 from each joint to the body's other points, circles for bodies with a radius, dots for point masses,
 an `outline` polygon where a body declares one, the contact lines), the optional `draw:` section of a
 hand-written system file (`from_yaml`), and the built-in hand-written scenes (vcirun.scenes.declarations).
-`numeric(drawing, params)` compiles it (sympy.lambdify) to arrays for many configurations at once.
+`numeric(drawing, names, values)` compiles it at the parameter values (sympy.lambdify) to arrays for many
+configurations at once; vcirun.run.animate draws them.
 """
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import sympy as sp
 
-__all__ = ["Drawing", "NumericDrawing", "numeric", "from_yaml", "DRAW_KEYS"]
+__all__ = ["Drawing", "NumericDrawing", "numeric", "from_yaml", "from_bodies", "DRAW_KEYS"]
 
 DRAW_KEYS = {"points", "segments", "polygons", "circles", "dots", "pivots", "springs", "dampers", "lines", "contacts",
              "advance"}

@@ -112,8 +112,14 @@ def resolve_method(method, **options) -> Method:
                       properties=properties(symplectic="exact", explicit_ld=LIBRARY[method].explicit))
     if method == "MCVA":
         return generalized_mcva(**options)
-    known = ", ".join(list(METHODS) + ["MCVA"] + list(LIBRARY))
-    raise ValueError(f"method: unknown method {method!r} (choose one of {known})")
+    names = list(METHODS) + ["MCVA"] + list(LIBRARY)
+    upper = {n.upper(): n for n in names}
+    import difflib
+
+    near = ([upper[method.upper()]] if method.upper() in upper
+            else [upper[m] for m in difflib.get_close_matches(method.upper(), list(upper), n=1)])
+    raise ValueError(f"method: unknown method {method!r}" + (f"; did you mean {near[0]!r}?" if near else "")
+                     + f" (choose one of {', '.join(names)})")
 
 
 def generalized_mcva(ld: str = "SVC", mh_order: int = 3, flow_order: int = 4, **unknown) -> Method:

@@ -221,15 +221,14 @@ def _law_loss(K, q, pm, pp, h, event_tol):
         dE = mod.declared_reset(q, pm, d, s0, K.prm, qn, pmap)
         return float(dE), qn
     plaw = pm + (s0 * d if k > 0 else 0.0)
-    M, G = K.M(q), K.G(q)
-    X = np.linalg.solve(M, G.T)              # columns M^-1 grad phi_i
-    u_law, u_pp, u_pm = G @ np.linalg.solve(M, plaw), X.T @ pp, X.T @ pm
+    X = np.linalg.solve(K.M(q), K.G(q).T)      # columns M^-1 grad phi_i (M symmetric)
+    u_law, u_pp, u_pm = X.T @ plaw, X.T @ pp, X.T @ pm   # normal velocities
     scale = max(float(np.max(np.abs(u_pm))), float(np.max(np.abs(u_law))), 1e-300)
     tol = 1e-9 * scale
     A = np.flatnonzero((np.abs(u_pp) <= tol) & (np.abs(u_law) > tol))
     loss = float(dE) if k > 0 else 0.0
     if A.size:   # 1/2 u_A^T W_AA^+ u_A: what zeroing u_A along M^-1 G_A^T removes
-        W = G[A] @ X[:, A]
+        W = K.G(q)[A] @ X[:, A]
         loss += 0.5 * float(u_law[A] @ np.linalg.lstsq(W, u_law[A], rcond=None)[0])
     return loss, q
 

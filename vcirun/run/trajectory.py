@@ -6,9 +6,8 @@ cubic Hermite interpolation of q and p, with the slopes (qdot, pdot) of the cont
 the recorded states (`_dynamics`: the compiled, forced, Hamilton equations of the run's module). An impact
 step k -> k+1 is split at its recorded impact states: [t_k, tau_1] ends in (q(tau_1), p-),
 [tau_1, ...] starts from (q(tau_1), p+) (q+ of a declared reset map that moves q: a walker's leg
-exchange), so no piece ever interpolates across a jump; the
-interpolant is right-continuous at an impact (p+ at t = tau) and equals the grid state at every
-grid time. Its own error is O(h^4) per piece, so between grid points it keeps the method's order
+exchange), so no piece ever interpolates across a jump; the interpolant is right-continuous at an
+impact (p+ at t = tau) and equals the grid state at every grid time. Its own error is O(h^4) per piece, so between grid points it keeps the method's order
 for methods of order <= 4 (every method of the paper: order 2; CVA4); for CVA6/CVA8 it is limited to
 order 4 between grid points (exact at them).
 """
@@ -83,6 +82,7 @@ class Trajectory:
         state["run_args"] = None
         state.pop("_dense", None)
         state.pop("_account", None)
+        state.pop("_qdot", None)
         return state
 
     # --- error estimate ---------------------------------------------------------------------------
@@ -155,6 +155,27 @@ class Trajectory:
     def state(self, t) -> np.ndarray:
         """(q(t), p(t)) concatenated: shape (2n,) or (len(t), 2n)."""
         return self._dense_output().state(t)
+
+    def velocity(self, t) -> np.ndarray:
+        """qdot(t) = M(q(t))^-1 p(t) by dense output (right-continuous at impacts); shapes as `tr(t)`."""
+        y = np.atleast_2d(self.state(t))
+        out = self._velocities(y)
+        return out[0] if np.ndim(t) == 0 else out
+
+    @property
+    def qdot(self) -> np.ndarray:
+        """Velocities qdot_k = M(q_k)^-1 p_k at the grid states, (N+1, n) (needs the dynamics, as dense
+        output; computed on first use)."""
+        v = self.__dict__.get("_qdot")
+        if v is None:
+            v = self.__dict__["_qdot"] = self._velocities(np.hstack([self.q, self.p]))
+        return v
+
+    def _velocities(self, Y) -> np.ndarray:
+        if self.dynamics is None:
+            self._dense_output()   # attaches the dynamics of a built-in scene, or says how
+        n = self.q.shape[1]
+        return np.array([self.dynamics(0.0, y)[:n] for y in Y]).reshape(len(Y), n)
 
     # --- conversions ------------------------------------------------------------------------------
     def _units(self) -> tuple[list, list, str]:

@@ -558,7 +558,8 @@ def rimless_wheel_fixed_point(*, alpha, gamma, g, l, **_) -> RimlessGait:
     w2 = c2 * 4 * g / l * math.sin(alpha) * math.sin(gamma) / (1 - c2)
     if w2 + 2 * g / l * (math.cos(gamma - alpha) - 1.0) <= 0.0:
         raise ValueError(f"rimless wheel: no gait for alpha={alpha}, gamma={gamma}: the wheel does not pass "
-                         "the vertical at the fixed point's speed (increase gamma or alpha)")
+                         "the vertical at the fixed point's speed (increase gamma or decrease alpha: the speed at the "
+                         "vertical grows with the slope and falls with the spoke angle)")
     rate = lambda th: math.sqrt(w2 + 2 * g / l * (math.cos(gamma - alpha) - math.cos(th + gamma)))
     T, _ = quad(lambda th: 1.0 / rate(th), -alpha, alpha, epsabs=1e-14, epsrel=1e-13, limit=200)
     return RimlessGait(math.sqrt(w2), c2, T)

@@ -273,7 +273,7 @@ def _gap_branch(c, q):
     several, the constraint sys_dphi selects (the first smallest phi_i). The gap min_i phi_i has a kink
     where two phi_i are equal (a block resting on both corners, balls touching in a row): a difference
     stencil across the kink mixes two gradients, so the kernels are checked against the selected
-    branch (and the selection against the gap's argmin)."""
+    branch (a kernel that selected another constraint than the gap's argmin fails it)."""
     mod, prm = c.mod, c.prm
     if _ncon(mod) == 1 or not hasattr(mod, "sys_phis"):
         return lambda x: float(mod.sys_phi(np.ascontiguousarray(x, float), prm)), None

@@ -141,12 +141,14 @@ def verify(system, methods=None, *, q0=None, p0=None, beta=None, T=5.0, h=None, 
     M(q) along the motion; smooth observed orders (constraint ignored) against the exact smooth
     solution; the symplecticity defect of each one-step map; the MCVA family's modified-Hamiltonian
     conservation order; through impacts, the L2 order and the impact-time error against the exact
-    reference (vcirun.reference) and the energy change across impact steps.
+    reference (vcirun.reference) and the energy change across impact steps less the impact law's loss
+    (the energy account: restitution, plastic holds). A motion that comes to rest is checked through
+    impacts on a window before it settles (vcirun.verification.window; the notes say so).
 
     Forced systems: the exact smooth solution adds the declared force to Hamilton's equations;
     vcirun.reference is compared with it before the first impact (if they disagree, the impact checks
-    are skipped with that reason); the energy check balances the forces'
-    work; symplecticity and H~ conservation are reported, not judged.
+    are skipped with that reason); the energy check balances the forces' work too; symplecticity and
+    H~ conservation are reported, not judged.
 
     Returns a VerifyResult (`.ok`, `.checks`, `.save(path)` writes the Markdown report and figure).
     Bad input raises ValueError naming the field."""

@@ -104,9 +104,9 @@ def _pydantic_message(err: dict, root=None) -> tuple[tuple, str]:
         allowed = _allowed_keys(model) if model else []
         hint = difflib.get_close_matches(str(key), allowed, n=1)
         msg = "unknown key"
-        if hint:
+        if hint:   # the closest key says enough; the whole list only where none is close
             msg += f"; did you mean {hint[0]!r}?"
-        if allowed:
+        elif allowed:
             msg += f" (allowed: {', '.join(allowed)})"
         return loc, msg
     if typ == "missing":
@@ -160,8 +160,8 @@ def from_validation_error(e: ValidationError, source: str, root=None) -> ConfigE
         m = re.search(r"did you mean '([^']+)'", msg)
         if m and loc[:-1] + (m.group(1),) in missing:
             folded.add(loc[:-1] + (m.group(1),))
-    out = [(loc, msg + (" (that key is required)" if loc[:-1] + (_hint(msg),) in folded else ""))
-           for loc, msg in unknown]
+    out = [(loc, msg.replace("?", f"? ({_hint(msg)!r} is required and missing)", 1)
+            if loc[:-1] + (_hint(msg),) in folded else msg) for loc, msg in unknown]
     out += [(loc, msg) for typ, (loc, msg) in items if typ != "extra_forbidden" and not (typ == "missing" and loc in folded)]
     seen, uniq, lists = set(), [], set()
     for loc, msg in out:
