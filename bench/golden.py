@@ -1,7 +1,7 @@
 """Golden trajectories: capture a set of runs through the public API, or compare against a capture.
 
     python bench/golden.py capture OUT.npz [--build shared|specialized]
-    python bench/golden.py compare OUT.npz [--build shared|specialized] [--tol 1e-10]
+    python bench/golden.py compare OUT.npz [--build shared|specialized] [--tol 1e-10] [--tier interpreted]
 
 The cases cover every collision integrator on the paper's two scenes at two steps, forcing, several
 contacts and held contacts. `compare` prints the largest difference of q, p, H, impact times and
@@ -41,13 +41,13 @@ def key(case) -> str:
     return f"{s}|{m}|{h}|{T}|{sorted(kw.items())}"
 
 
-def run(case):
+def run(case, tier="compiled"):
     import vcirun
 
     s, m, h, T, kw = case
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        tr = vcirun.simulate(s, m, h=h, T=T, **kw)
+        tr = vcirun.simulate(s, m, h=h, T=T, tier=tier, **kw)
     out = {f: np.asarray(getattr(tr, f, np.zeros(0)), dtype=float) for f in FIELDS}
     out["status"] = np.array(tr.status)
     return out
@@ -59,13 +59,15 @@ def main(argv=None) -> int:
     ap.add_argument("path")
     ap.add_argument("--build", choices=("shared", "specialized"), default="shared")
     ap.add_argument("--tol", type=float, default=1e-10)
+    ap.add_argument("--tier", choices=("compiled", "interpreted"), default="compiled",
+                    help="the kernels' tier (vcirun.codegen.tiers): golden trajectories are the compiled tier's")
     a = ap.parse_args(argv)
     if a.build == "specialized":
         os.environ["VCIRUN_BUILD"] = "specialized"
     if a.mode == "capture":
         data = {}
         for c in CASES:
-            r = run(c)
+            r = run(c, a.tier)
             for f, v in r.items():
                 data[f"{key(c)}::{f}"] = v
             print(f"captured {key(c)}: {r['status']}", flush=True)
@@ -74,7 +76,7 @@ def main(argv=None) -> int:
     gold = np.load(a.path)
     worst, bad = 0.0, []
     for c in CASES:
-        r = run(c)
+        r = run(c, a.tier)
         k = key(c)
         if str(gold[f"{k}::status"]) != str(r["status"]):
             bad.append(f"{k}: status {gold[f'{k}::status']} -> {r['status']}")

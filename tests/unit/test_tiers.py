@@ -110,9 +110,17 @@ CHILD = r"""
 import json, sys, time
 import numpy as np
 import vcirun
+from vcirun.codegen import background
+from vcirun.codegen.kernel_cache import default
 out = []
-for i, wait in enumerate(json.loads(sys.argv[1])):
-    time.sleep(wait)
+waits = json.loads(sys.argv[1])
+for i, wait in enumerate(waits):
+    time.sleep(wait if wait >= 0 else 0)
+    if wait < 0:   # until the background compile of the module has failed (at most -wait seconds)
+        kc, t0 = default(), time.monotonic()
+        key = next(iter(kc._generated))
+        while background.state(kc.cache_dir(), key) != "failed" and time.monotonic() - t0 < -wait:
+            time.sleep(1.0)
     tr = vcirun.simulate("cart_pendulum", "VCI", h=1e-2, T=2.0, beta=3.2)
     out.append({"tier": tr.tier, "q": tr.q.tobytes().hex(), "status": tr.status})
 print(json.dumps(out))
@@ -120,8 +128,9 @@ print(json.dumps(out))
 
 
 def _env(cache, **extra):
-    env = dict(os.environ, VCIRUN_CACHE_DIR=str(cache), PYTHONPATH=str(ROOT), **extra)
-    env.pop(tiers.ENV, None)
+    env = dict(os.environ, VCIRUN_CACHE_DIR=str(cache), PYTHONPATH=str(ROOT))
+    env.pop(tiers.ENV, None)   # (the suite's VCIRUN_TIER=compiled: these children choose their own)
+    env.update(extra)
     return env
 
 
@@ -175,20 +184,39 @@ def test_first_run_is_interpreted_then_every_process_switches(tmp_path):
     assert "interpreted" not in err2 and "compiling" not in err2, err2
 
 
+def _tamper(cache) -> tuple:
+    """Give the cached generated text of the module a statement numba cannot type (valid Python, no effect
+    on the numbers) in sys_M, sealed as the cache seals it: the compiled tier fails, the interpreted one
+    runs. Returns (path, original bytes)."""
+    from vcirun.codegen import cache_store
+
+    path = next((cache / "kernels").glob("vg_*.py"))
+    data = path.read_bytes()
+    key = path.name[3:-3]
+    body, meta = cache_store.unseal_text(data, key)
+    body = body.replace("def sys_M(q, prm, out):\n", "def sys_M(q, prm, out):\n    _untypable = object()\n", 1)
+    meta.pop("sha256")
+    path.write_text(cache_store.seal_text(body, meta))
+    return path, data
+
+
 @pytest.mark.slow
 def test_a_failed_background_compile_leaves_the_interpreted_tier_and_says_so_once(tmp_path):
-    """A directory where the compiled module's file should be: the background compile cannot write it."""
     cache = tmp_path / "cache"
     first, _ = _child(cache, [0.0], VCIRUN_TIER="interpreted")   # the kernels derived, nothing compiled
-    key = next(p.name[3:-3] for p in (cache / "kernels").glob("vg_*.py"))
-    (cache / "kernels" / f"vk_{key}.py").mkdir()
-    runs, err = _child(cache, [0.0, 4.0, 4.0, 4.0])
+    path, original = _tamper(cache)
+    runs, err = _child(cache, [0.0, -900.0, 1.0, 1.0])   # the second run once the compile has failed
     assert [r["tier"] for r in runs] == ["interpreted"] * 4 and all(r["q"] == first[0]["q"] for r in runs)
     assert err.count("the background compile of cart_pendulum/VCI[SVC] failed") == 1, err
-    assert "background compile failed: cart_pendulum" in _info(cache)
-    (cache / "kernels" / f"vk_{key}.py").rmdir()
-    runs, err = _child(cache, [0.0], VCIRUN_TIER="compiled")   # asked for: compiled here, the failure forgotten
-    assert runs[0]["tier"] == "compiled" and runs[0]["q"] == first[0]["q"]
+    assert "TypingError" in err, err
+    assert "background compile failed: cart_pendulum/VCI[SVC]" in _info(cache)
+    again, err = _child(cache, [0.0])   # a failed compile is not started again by the next process
+    assert again[0]["tier"] == "interpreted" and "failed" in err
+    path.write_bytes(original)
+    (cache / "kernels" / f"vk_{path.name[3:-3]}.py").unlink()
+    runs, err = _child(cache, [0.0], VCIRUN_TIER="compiled")   # asked for: compiled here
+    assert runs[0]["tier"] == "compiled" and runs[0]["q"] == first[0]["q"], err
+    assert "background compile failed" not in _info(cache)
 
 
 @pytest.mark.slow

@@ -36,7 +36,7 @@ import time
 import traceback
 from pathlib import Path
 
-from . import build, cache_lock, cache_store
+from . import cache_lock, cache_store   # (light: numba is imported once a compile slot is ours)
 
 __all__ = ["start", "state", "marker", "failure", "in_progress", "Job"]
 
@@ -93,6 +93,15 @@ def failure(d: Path, key: str) -> dict | None:
     return f if f is not None and f.get("key") == key else None
 
 
+def forget_failure(d: Path, key: str) -> None:
+    """The compiled tier of `key` is there: its failure record and compile log go."""
+    for p in (failure_path(d, key), log_path(d, key)):
+        try:
+            p.unlink()
+        except OSError:
+            pass
+
+
 def in_progress(d: Path, key: str) -> dict | None:
     """The holder of the compile lock of `key` ({pid, host, what, since, ...}), or None when no process
     holds it."""
@@ -112,17 +121,23 @@ class Job:
     """What the background process builds: the module key, its kernel set, the system's name, its
     number of parameters and the cache it writes (the caller's: VCIRUN_CACHE_DIR is passed on resolved)."""
 
-    def __init__(self, key: str, ks, system: str, nprm: int, root: Path):
+    def __init__(self, key: str, ks, system: str, nprm: int, root: Path, family: str = ""):
         self.key, self.ks, self.system, self.nprm, self.root = key, ks, system, int(nprm), Path(root)
+        self.family = family
+
+    @property
+    def label(self) -> str:
+        return f"{self.system}/{self.family}"
 
     def encode(self) -> str:
         return base64.b64encode(pickle.dumps({"key": self.key, "ks": self.ks, "system": self.system,
-                                              "nprm": self.nprm, "root": str(self.root)})).decode()
+                                              "nprm": self.nprm, "root": str(self.root),
+                                              "family": self.family})).decode()
 
     @classmethod
     def decode(cls, text: str) -> "Job":
         d = pickle.loads(base64.b64decode(text.encode()))   # noqa: S301 - written by our own caller
-        return cls(d["key"], d["ks"], d["system"], d["nprm"], Path(d["root"]))
+        return cls(d["key"], d["ks"], d["system"], d["nprm"], Path(d["root"]), d.get("family", ""))
 
 
 def start(job: Job, d: Path):
@@ -180,16 +195,16 @@ def exercise(mod, ks, nprm: int) -> None:
 def run(job: Job) -> int:
     """The background process: 0 when the compiled tier is there (built now or by another process), 1
     when the compile failed (recorded)."""
-    from .kernel_cache import KernelCache
-
-    kc = KernelCache(background=True)
-    d = kc.cache_dir()
-    with cache_lock.try_held(lock_path(d, job.key), f"the compiled tier of {job.system}/{build.family(job.ks)}") \
+    d = cache_store.kernels_dir()
+    with cache_lock.try_held(lock_path(d, job.key), f"the compiled tier of {job.label}") \
             as mine, contextlib.ExitStack() as slot:
         if not mine or marker(d, job.key) is not None:
             return 0
         slot.enter_context(_slot(d))
         try:
+            from .kernel_cache import KernelCache
+
+            kc = KernelCache(background=True)
             mod = kc.compiled(job.key, job.system, job.ks)
             kc.finish(mod, job.key, job.system, job.ks, job.nprm)   # numba's first calls, then the marker
         except BaseException as e:   # noqa: BLE001 - recorded for the callers, who stay interpreted
@@ -198,16 +213,11 @@ def run(job: Job) -> int:
             sys.stderr.flush()
             try:
                 cache_store.write_atomic(failure_path(d, job.key), cache_store.seal_json(
-                    {"key": job.key, "system": job.system, "reason": reason, "time": time.time(),
+                    {"key": job.key, "system": job.label, "reason": reason, "time": time.time(),
                      "log": str(log_path(d, job.key))}))
             except cache_store.CacheError:
                 pass
             return 1
-        for p in (failure_path(d, job.key), log_path(d, job.key)):
-            try:
-                p.unlink()
-            except OSError:
-                pass
     return 0
 
 

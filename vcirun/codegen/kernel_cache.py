@@ -1,7 +1,8 @@
-"""The kernel cache of a process as one object: `KernelCache` builds, loads and remembers the compiled
-modules of (system, kernel set) pairs, their shared cores and the warm index, and keeps what a
+"""The kernel cache of a process as one object: `KernelCache` builds, loads and remembers the modules of
+(system, kernel set) pairs on both tiers (vcirun.codegen.tiers: the generated text each is made from,
+the compiled modules, their shared cores, the interpreted modules), the warm index, and keeps what a
 process learns about them (modules loaded, files set aside, builds announced, first calls made,
-plans resolved). `default()` is the instance the public API uses; a caller that wants its own
+plans resolved, background compiles started). `default()` is the instance the public API uses; a caller that wants its own
 memory (a test that starts "a new process", a substitute loader) makes another.
 
 What a call built is returned to it, not kept in a log to be sliced: `with kc.report() as rep:` collects
@@ -87,7 +88,7 @@ class KernelCache:
         self._generated: dict = {}    # module key -> (generated text, number of parameters)
         self._interpreted: dict = {}  # module key -> the interpreted tier's module
         self.started: dict = {}       # module key -> background compile process started by this cache
-        self.told: set = set()        # module keys whose tier notice or compile failure this cache said
+        self.told: set = set()        # ("tier" | "failed", module key) notices this cache said
 
     @property
     def warm(self) -> bool:
@@ -247,6 +248,7 @@ class KernelCache:
         background.write_marker(self.cache_dir(), key, {
             "system": system_name, "family": build.family(ks), "kernels": ks.key_text(),
             "seconds": round(time.perf_counter() - t0, 2), "time": time.time()})
+        background.forget_failure(self.cache_dir(), key)
 
     def _compiled_module(self, key: str, system_name: str, ks: KernelSet, system=None):
         if key in self.loaded:
@@ -299,9 +301,6 @@ class KernelCache:
         from . import background
 
         return key in self.loaded or background.marker(self.cache_dir(), key) is not None
-
-    def is_loaded(self, key: str) -> bool:
-        return key in self.loaded
 
     def _import(self, name: str, path: Path, body: str, owner: numba_cache.Owner):
         """Execute `body` (the verified text of the module file at `path`) as module `name`: compiled from

@@ -79,6 +79,15 @@ class Kernels:
         """Is the compiled tier there (loaded by this cache, or marked compiled in the cache)?"""
         return self.kc.loader is None and self.kc.ready(self.key)
 
+    def poll(self) -> bool:
+        """`ready`, asked by a caller running on the interpreted tier before each run; when it is not, the
+        background compile is started again if no process holds it (it was killed), and a failed one is
+        said once."""
+        if self.ready():
+            return True
+        self._background()
+        return self.ready()
+
     def __call__(self, tier=None):
         kc = self.kc
         if kc.loader is not None:
@@ -114,12 +123,11 @@ class Kernels:
         return self.kc.interpreted(self.key, self.name, self.ks, sysm)
 
     def _background(self) -> bool:
-        """The compiled tier is being built (here or by another process), or a build was started now;
-        False when no background build can run (a read-only cache, no generated text to hand over).
-        A failed build is said once and not started again (its record stays until the cache is
-        cleared or the compiled tier is asked for)."""
+        """The compiled tier is being built (here or by another process), or a build was started now (also
+        again, after a kill); False when no background build can run (a read-only cache, no generated text
+        to hand over). A failed build is said once and not started again (its record stays until the
+        cache is cleared or the compiled tier is asked for and builds)."""
         from . import background
-        from .cache import tell
         from .cache_store import CacheError, writable
 
         kc, key = self.kc, self.key
@@ -138,25 +146,33 @@ class Kernels:
         if state == "compiling":
             self._say_tier(d)
             return True
-        if state == "failed" or (proc is not None and proc.poll()):
-            if ("failed", key) not in kc.told:
-                kc.told.add(("failed", key))
-                f = background.failure(d, key) or {}
-                tell(f"vcirun: the background compile of {self.label} failed ({f.get('reason', 'it stopped')}); "
-                     f"its runs stay on the interpreted tier (same numbers, slower). tier='compiled' (or "
-                     f"VCIRUN_TIER=compiled) compiles here and shows the error; log: "
-                     f"{f.get('log', background.log_path(d, key))}")
+        if state == "failed":
+            self._say_failure(d)
             return True
+        # never started, or stopped without a record (killed): started (again) now
         if kc.generated(key, self.ks) is None:
             kc.generated(key, self.ks, self.system())   # derived now (sympy), written for the build
         if not (d / f"vg_{key}.py").is_file():
             return False   # (the text could not be written: nothing to hand over)
         try:
-            kc.started[key] = background.start(background.Job(key, self.ks, self.name, self.nprm, d.parent), d)
+            kc.started[key] = background.start(background.Job(key, self.ks, self.name, self.nprm, d.parent,
+                                                              build.family(self.ks)), d)
         except OSError:
             return False
         self._say_tier(d)
         return True
+
+    def _say_failure(self, d) -> None:
+        from . import background
+        from .cache import tell
+
+        if ("failed", self.key) in self.kc.told:
+            return
+        self.kc.told.add(("failed", self.key))
+        f = background.failure(d, self.key) or {}
+        tell(f"vcirun: the background compile of {self.label} failed ({f.get('reason', 'it stopped')}); its runs "
+             f"stay on the interpreted tier (same numbers, slower). tier='compiled' (or VCIRUN_TIER=compiled) "
+             f"compiles here and shows the error; log: {f.get('log', background.log_path(d, self.key))}")
 
     def _say_tier(self, d) -> None:
         from .cache import tell

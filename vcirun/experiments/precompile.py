@@ -74,12 +74,14 @@ def compile_side_by_side(system, sysm, methods: list[tuple[str, dict, dict]], co
     if workers < 2:
         return 0
     jobs.sort(key=lambda j: -j[0])   # longest first: the pool hands the next one to the first free process
-    covered = set()
+    covered, said = set(), 0
     for *_, kss in jobs:
         for ks in kss:
-            announce_if_cold(sysm, ks, covered)
+            said += announce_if_cold(sysm, ks, covered)
             covered.add(core_key_for(sysm, ks))
-    tell(f"(the {len(jobs)} builds above run side by side in {workers} processes)")
+    if said:   # (names what was just said: a count of lines, not of process jobs)
+        tell(f"(the {'compile' if said == 1 else f'{said} compiles'} above run{'s' * (said == 1)} in {workers} "
+             f"processes side by side, one per core)")
     # spawn: a fresh interpreter per worker (numba's compiler state is not forked)
     with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
         futures = [pool.submit(_compile, system, g, ref) for _, g, ref, _ in jobs]

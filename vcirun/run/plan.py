@@ -79,7 +79,7 @@ class Plan:
         return int(self.tol["max_impacts_step"])
 
     def module(self):
-        if self._mod is None or (self.tier_used == "interpreted" and self.tier == "auto" and self.load.ready()):
+        if self._mod is None or (self.tier_used == "interpreted" and self.tier == "auto" and self.load.poll()):
             self._mod = self.load(self.tier)
             self.tier_used = self.load.tier
         return self._mod
