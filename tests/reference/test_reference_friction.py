@@ -297,3 +297,42 @@ def test_dop853_path_on_the_closed_forms():
     assert [m for _, _, m in ref.transitions] == [-1] and abs(ref.transitions[0][0] - cf.t_stop) <= 1e-10
     t_dir = np.array([math.cos(0.4), math.sin(0.4)])
     assert abs(ref(1.0) @ t_dir - cf.state(1.0)[0]) <= 1e-10
+    # stick, then slip at the static cone with mu_s = mu (a slip that starts with zero acceleration)
+    s = F.pushed_block(c=2.0, mu=0.3, mu_s=0.3)
+    cf = fo.pushed_block(c=2.0, mu=0.3, mu_s=0.3)
+    ref = solve_exact(s, s.default_q0, s.default_p0, s.param_values(), cf.t_slip + 1.0, path="dop853",
+                      check_accuracy=False)
+    assert [m for _, _, m in ref.transitions] == [1] and abs(ref.transitions[0][0] - cf.t_slip) <= 1e-10
+    assert abs(ref(cf.t_slip + 1.0)[0] - cf.state(cf.t_slip + 1.0)[0]) <= 1e-10
+
+
+# --- the pushed block: stick, then slip where the tangential force reaches the static cone -------------------
+
+def _pushed_checks(ref, cf, T):
+    assert ref.status == "ok"
+    assert len(ref.transitions) == 1 and ref.transitions[0][1:] == (0, 1)
+    assert abs(ref.transitions[0][0] - cf.t_slip) <= TOL * (1 + cf.t_slip)
+    m = cf.params["m"]
+    for t in np.linspace(0.0, T, 41):
+        x, v = cf.state(t)
+        y = ref.state(t)
+        assert abs(y[0] - x) <= TOL * (1 + abs(x)) and abs(y[2] / m - v) <= TOL * (1 + abs(v)), t
+
+
+def test_pushed_block_published():
+    s = F.pushed_block(c=2.0, mu=0.3, mu_s=0.5)
+    cf = fo.pushed_block(c=2.0, mu=0.3, mu_s=0.5)
+    ref = _ref(s, cf.t_slip + 1.0)
+    _pushed_checks(ref, cf, cf.t_slip + 1.0)
+    assert ref.accuracy <= TOL
+
+
+@_both(10, c=_num(0.5, 10), mu=_num(0.0, 1.0), dmu=_num(0.0, 0.5), m=_num(0.2, 5))
+def _pushed_random(c, mu, dmu, m):
+    cf = fo.pushed_block(c=c, mu=mu, mu_s=mu + dmu, m=m)
+    assume(cf.t_slip < 20 and mu + dmu > 1e-3)   # (mu = mu_s = 0: frictionless, no transition)
+    s = F.pushed_block(c=c, mu=mu, mu_s=mu + dmu, m=m)
+    _pushed_checks(_ref(s, cf.t_slip + 0.5, check_accuracy=False), cf, cf.t_slip + 0.5)
+
+
+test_pushed_random, test_pushed_random_slow = _pushed_random

@@ -43,7 +43,8 @@ import numpy as np
 from . import held as rh
 from .held import SMOOTH, STICK
 
-__all__ = ["SMOOTH", "STICK", "Forces", "PainleveError", "coefficients", "held_forces", "settle", "contact_modes",
+__all__ = ["SMOOTH", "STICK", "Forces", "PainleveError", "coefficients", "held_forces", "settle", "stick_offsets",
+           "contact_modes",
            "held_set", "response", "impact", "impact_law", "mode_name"]
 
 _EPS = float(np.finfo(float).eps)
@@ -130,6 +131,22 @@ def _slip_tol(g, i, tol) -> float:
     """|v_t,i| below this is at rest tangentially (as held_set's |u_i| test)."""
     w = max(map(abs, g.Wt[i].tolist()), default=0.0)
     return tol * w * (1.0 + max(map(abs, g.v.tolist()), default=0.0))
+
+
+def stick_offsets(g, A, S) -> dict:
+    """{contact: offset} for the sliding contacts of (A, S) whose slip velocity is round-off at the state
+    of g: a slip that starts from rest (at the static cone, or reversing) with a slip acceleration that
+    may be round-off itself (mu_s = mu: the force balance at the cone is exact). Its stick event then
+    fires only past s v_t = -offset, 1e3 eps (1 + |W_t,i| |v|) times 4, and the root s v_t = 0 before it
+    is refined on the dense output: a round-off crossing at the slip's start is no event."""
+    out = {}
+    vn = max(map(abs, g.v.tolist()), default=0.0)
+    for i, s in zip(A, S):
+        if s in (1, -1):
+            level = 1e3 * _EPS * (1.0 + max(map(abs, g.Wt[i].tolist()), default=0.0) * vn)
+            if abs(g.wt[i]) <= level:
+                out[int(i)] = 4.0 * level
+    return out
 
 
 def contact_modes(g, A, tol) -> tuple:

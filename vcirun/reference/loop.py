@@ -291,8 +291,10 @@ def solve(backend, mod, q0, p0, prm, T, *, names, resting_contact=True, max_impa
                 y = rh._project_y(mod, y, prm, A, S)   # (the released contact too: it leaves from rest)
                 A, S = hold(t, y, [j for j in A if j != i])
             elif fl.reason in ("stick", "slip"):
+                S0 = S
                 A, S = _mode_change(mod, t, y, prm, A, S, i, fl.reason, names)
-                sol.transitions.append((t, i, S[A.index(i)]))
+                if S != S0:
+                    sol.transitions.append((t, i, S[A.index(i)]))
             elif fl.reason == "painleve":
                 g = _geometry(mod, t, y, prm)
                 rf.check_painleve(g, A, S, names)   # (raises; B at the located root is 0 to round-off)
@@ -380,6 +382,18 @@ def solve(backend, mod, q0, p0, prm, T, *, names, resting_contact=True, max_impa
     return sol
 
 
+def _turning_back(g, A, S, a) -> bool:
+    """Whether held contact A[a], sliding with sign s, has no slip acceleration against s at the state
+    of g (s d(v_t)/dt >= 0 to round-off of its terms): its slip velocity crossed 0 by round-off only (a
+    slip that starts from rest with a zero acceleration, as at the static cone with mu_s = mu), not at
+    the end of a slip, which decelerates through 0."""
+    i, s = A[a], S[a]
+    pdot = g.forces(A, S).pdot
+    acc = g.Wt[i] @ np.linalg.solve(g.M, pdot - g.Mdv) + g.dslip[i]
+    terms = np.abs(g.Wt[i]) @ np.abs(np.linalg.solve(g.M, np.abs(g.F) + np.abs(pdot - g.F) + np.abs(g.Mdv)))
+    return s * acc >= -1e3 * _EPS * (terms + abs(g.dslip[i]))
+
+
 def _modes_for(g, A, tol):
     """The modes of the held set A at the state of g (the accumulation hold adds contacts to A)."""
     return rf.settle(g, tuple(A), rf.contact_modes(g, tuple(A), tol))
@@ -391,6 +405,8 @@ def _mode_change(mod, t, y, prm, A, S, i, reason, names):
     else its slip reverses; a sticking contact at the static cone slides against its force."""
     g = _geometry(mod, t, y, prm)
     a = A.index(i)
+    if reason == "stick" and _turning_back(g, A, S, a):
+        return A, S   # a crossing by round-off at a slip's start: the slip goes on the same way
     S = list(S)
     if reason == "stick":
         S[a] = rf.STICK

@@ -4,6 +4,7 @@ vcirun.scenes.friction_oracles (derivations: docs/derivations/friction.md, "Clos
 - `spinning_ball`: a ball dropped with spin on a floor (Capobianco et al. 2021, section 10.1);
 - `incline`: a block (a point mass) on an incline, launched uphill or released at rest;
 - `coulomb_oscillator`: a block on a floor attached to a spring, Coulomb-damped;
+- `pushed_block`: a block on a floor pushed by a growing force c t (sticks, then slides);
 - `rocking_block_friction`: a block rocking on its corners without sliding (Housner), released at
   rest on one corner;
 - `painleve_rod`: a uniform rod sliding on one end (Painleve's paradox for mu > 4/3);
@@ -22,7 +23,7 @@ import sympy as sp
 from ..mechanics.bodies import Body, Joint, PointContact, planar_system
 from ..mechanics.system import Constraint, MechanicalSystem
 
-__all__ = ["spinning_ball", "incline", "coulomb_oscillator", "rocking_block_friction", "painleve_rod",
+__all__ = ["spinning_ball", "incline", "coulomb_oscillator", "pushed_block", "rocking_block_friction", "painleve_rod",
            "link_chain_friction", "block_corner"]
 
 
@@ -74,6 +75,20 @@ def coulomb_oscillator(x0=1.0, *, v0=0.0, m=1.0, k=10.0, mu=0.1, mu_s=None, g=9.
                          description="a block on a floor attached to a spring, Coulomb friction mu, mu_s")
     s.default_q0 = np.array([float(x0), 0.0])
     s.default_p0 = np.array([m * v0, 0.0])
+    return s
+
+
+def pushed_block(*, c=2.0, mu=0.3, mu_s=0.5, m=1.0, g=9.81) -> MechanicalSystem:
+    """A block (x, y) at rest on the floor y = 0, pushed along it by the generalized force (c t, 0):
+    restitution 0, friction mu, static friction mu_s; the slip row (1, 0)."""
+    x, y, t = sp.symbols("x y t")
+    M_, g_, c_ = sp.symbols("m g c")
+    cons = Constraint("floor", y, sp.Integer(0), friction=sp.Symbol("mu"), static_friction=sp.Symbol("mu_s"),
+                      slip=(sp.Integer(1), sp.Integer(0)))
+    s = MechanicalSystem(name="pushed_block", q=[x, y], params={"m": m, "g": g, "c": c, "mu": mu, "mu_s": mu_s},
+                         M=sp.eye(2) * M_, V=M_ * g_ * y, constraints=[cons], forcing=sp.Matrix([c_ * t, 0]), t=t,
+                         description="a block on a floor pushed by a growing force c t, Coulomb friction mu, mu_s")
+    s.default_q0, s.default_p0 = np.zeros(2), np.zeros(2)
     return s
 
 
