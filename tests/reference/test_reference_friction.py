@@ -336,3 +336,33 @@ def _pushed_random(c, mu, dmu, m):
 
 
 test_pushed_random, test_pushed_random_slow = _pushed_random
+
+
+# --- a chain of links with friction at its ends -------------------------------------------------------------
+
+@needs_law
+@pytest.mark.slow
+def test_link_chain_with_friction_comes_to_rest_without_gaining_energy():
+    """Three links dropped in a zigzag (DOP853: M is 5x5 and depends on q): every frictional impact loses
+    kinetic energy, the chain ends flat on its four ends, sticking (their slip rows depend on each
+    other: one kept, the tangential force shared), at rest -- where the frictionless floor lets it
+    skate on."""
+    s = F.link_chain_friction(3)
+    ref = _ref(s, 0.7, check_accuracy=False)
+    assert ref.status == "ok" and ref.kind == "dop853" and len(ref.impacts) > 10
+    from vcirun.codegen.build import load_module
+    from vcirun.codegen.kernel_set import SYSTEM_KERNELS
+
+    mod, prm = load_module(s, SYSTEM_KERNELS), s.param_values()
+    n = s.n
+    for t in sorted(set(ref.impacts)):
+        before, after = ref.state(t - 1e-13 * max(1.0, t)), ref.state(t)
+        Mq = np.empty((n, n))
+        mod.sys_M(np.ascontiguousarray(after[:n]), prm, Mq)
+        T_b = 0.5 * before[n:] @ np.linalg.solve(Mq, before[n:])
+        T_a = 0.5 * after[n:] @ np.linalg.solve(Mq, after[n:])
+        assert T_a <= T_b * (1 + 1e-9) + 1e-14, (t, T_b, T_a)
+    last = ref.mode_intervals[-1]
+    assert last[1] == 0.7 and last[2] == (0, 1, 2, 3) and last[3] == (0, 0, 0, 0)
+    assert float(np.max(np.abs(ref.p(0.7)))) <= 1e-12
+    assert float(np.max(np.abs(s.phi_values(ref(0.7))))) <= 1e-12

@@ -95,9 +95,30 @@ class Forces(NamedTuple):
     K: np.ndarray
 
 
+RANK_TOL = 1e-10   # relative: a sticking row within this of the span of the rows before it is dependent
+
+
+def independent_sticks(C, k) -> list:
+    """The rows k.. of C (slip rows of sticking contacts) that are independent of rows 0..k-1 and of
+    the ones kept before them (relative tolerance RANK_TOL): several sticking contacts of one rigid body
+    (a link with both ends on the floor) constrain the same tangential motion, and their tangential
+    forces are statically indeterminate."""
+    keep = list(range(k))
+    for r in range(k, len(C)):
+        trial = C[keep + [r]]
+        if len(trial) > C.shape[1]:
+            continue   # (more rows than coordinates: dependent)
+        sv = np.linalg.svd(trial, compute_uv=False)
+        if sv[-1] > RANK_TOL * sv[0]:
+            keep.append(r)
+    return keep[k:]
+
+
 def held_forces(g, A, S) -> Forces:
     """The forces of the held set A in the modes S at the state of the vcirun.reference.held._Geometry g
-    (see the module docstring)."""
+    (see the module docstring). Sticking rows that depend on the others are dropped from the dynamics
+    (they constrain nothing more); the tangential force the kept ones carry is shared among all the
+    sticking contacts as the least-norm distribution (lstsq of W_t^T lam_t = the kept rows' force)."""
     mu, _ = coefficients(g._mod, g._prm)
     A = list(A)
     k = len(A)
@@ -109,16 +130,23 @@ def held_forces(g, A, S) -> Forces:
             D[a] = Gn[a] - mu[A[a]] * S[a] * g.Wt[A[a]]
     kappa = g.c[A]
     C = Gn
+    kept = []
     if stick:
         Ws = g.Wt[[A[a] for a in stick]]
-        C, D = np.vstack([Gn, Ws]), np.vstack([D, Ws])
-        kappa = np.concatenate([kappa, g.dslip[[A[a] for a in stick]]])
+        kept = [r - k for r in independent_sticks(np.vstack([Gn, Ws]), k)]
+        C, D = np.vstack([Gn, Ws[kept]]), np.vstack([D, Ws[kept]])
+        kappa = np.concatenate([kappa, g.dslip[[A[stick[r]] for r in kept]]])
     X = np.linalg.solve(g.M, D.T)
     K = C @ X
     b = C @ np.linalg.solve(g.M, g.F - g.Mdv) + kappa
     lam = np.linalg.solve(K, -b) if k else np.zeros(0)
     lam_t = np.zeros(k)
-    lam_t[stick] = lam[k:]
+    if stick:
+        if len(kept) == len(stick):
+            lam_t[stick] = lam[k:]
+        else:   # the tangential force of the kept rows, shared among every sticking contact (least norm)
+            f_t = Ws[kept].T @ lam[k:]
+            lam_t[stick] = np.linalg.lstsq(Ws.T, f_t, rcond=None)[0]
     return Forces(lam[:k], lam_t, g.F + D.T @ lam, K)
 
 

@@ -258,9 +258,12 @@ def project(mod, q, p, prm, A, iters=8, stick=()):
     mod.sys_dphis(q, prm, G)
     Ga = G[A]
     if stick:
+        from .friction import independent_sticks
+
         Wt = np.empty((m, n))
         mod.sys_slips(q, prm, Wt)
         Ga = np.vstack([Ga, Wt[list(stick)]])
+        Ga = Ga[list(range(len(A))) + independent_sticks(Ga, len(A))]   # (dependent sticking rows add nothing)
     X = np.linalg.solve(M, Ga.T)
     p = p - Ga.T @ np.linalg.solve(Ga @ X, X.T @ p)
     return q, p

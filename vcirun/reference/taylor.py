@@ -477,6 +477,9 @@ class TaylorBackend:
         if rh._frictional(S):
             from .friction import stick_offsets
 
+            if len(g.forces(A, S).K) < len(A) + sum(1 for s in S if s == rh.STICK):
+                raise NotExpressible("sticking contacts whose slip rows depend on each other (statically "
+                                     "indeterminate friction): no explicit held dynamics on the Taylor path")
             stick_off = stick_offsets(g, A, S)
             if stick_off:
                 stick = np.full(m, TINY)
