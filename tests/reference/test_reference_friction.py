@@ -366,3 +366,107 @@ def test_link_chain_with_friction_comes_to_rest_without_gaining_energy():
     assert last[1] == 0.7 and last[2] == (0, 1, 2, 3) and last[3] == (0, 0, 0, 0)
     assert float(np.max(np.abs(ref.p(0.7)))) <= 1e-12
     assert float(np.max(np.abs(s.phi_values(ref(0.7))))) <= 1e-12
+
+
+# --- the compass gait with a frictional stance foot ---------------------------------------------------------
+
+def _pinned_gait():
+    import vcirun
+    from vcirun.scenes.data import _compass_M, compass_gait
+
+    D = compass_gait()
+    pin = vcirun.reference("compass_gait", T=1.0)
+    return D, pin, pin.impacts[0], (lambda q, p: np.linalg.solve(_compass_M(q, D.params), p))
+
+
+def _stance_forces(s, ref, tt):
+    from vcirun.codegen.build import load_module
+    from vcirun.codegen.kernel_set import SYSTEM_KERNELS
+    from vcirun.reference import held as rh
+
+    mod, prm, n = load_module(s, SYSTEM_KERNELS), s.param_values(), s.n
+    out = []
+    for t in tt:
+        y = ref.state(t)
+        f = rh._Geometry(mod, t, y[:n], y[n:], prm).forces((0,), (0,))
+        out.append((f.lam_n[0], f.lam_t[0]))
+    return np.array(out)
+
+
+@pytest.mark.slow
+def test_compass_gait_stance_foot_sticks_along_the_gait():
+    """The built-in gait's stance phase (from heel strike to heel strike), with the stance foot a
+    frictional contact of a floating base: (1) where it sticks it is the pinned gait (q to 1e-10, on
+    DOP853: M is 4x4); (2) its held forces are the ground reaction sum_i m_i (a_i - g) of the pinned
+    motion (accelerations by central differences of the pinned reference's velocities); (3) the stick
+    test along the gait needs mu_s >= max |lam_t| / lam_n (0.274 at heel strike): with mu_s 1 % above
+    the foot sticks all stride long, 1 % below it slides from the start; (4) the heel strike's impulse
+    ratio |P_t| / P_n (Goswami's reset: angular momentum about the new foot and the old leg's about
+    the hip kept, checked here with the same kinematics) is below it."""
+    D, pin, ths, qdot = _pinned_gait()
+    gam = D.params["gamma"]
+    q0, p0 = pin.state(0.0)[:2], pin.state(0.0)[2:]
+    v0 = qdot(q0, p0)
+    s = F.compass_gait_stance(*q0, *v0, mu=1.0)
+    ref = _ref(s, ths, check_accuracy=False)
+    assert ref.status == "ok" and ref.mode_intervals == [(0.0, ths, (0,), (0,))]
+    tt = np.linspace(0.0, ths, 201)
+    before = tt[:-1]   # (the pinned reference is right-continuous: at ths it holds the relabelled legs)
+    assert float(np.max(np.abs(ref(before)[:, 2:] - gam - pin(before)))) <= 1e-10
+    assert float(np.max(np.abs(ref(tt)[:, :2]))) <= 1e-10                      # the foot stays put
+    lam = _stance_forces(s, ref, tt)
+    # Newton: the ground reaction of the pinned motion, masses m (stance, at a), mH (hip), m (swing, b below)
+    m, mH, a, b, g = (D.params[k] for k in ("m", "mH", "a", "b", "g"))
+    l = a + b
+
+    def masses(q):
+        ps, pn = q[0] + gam, q[1] + gam
+        leg, hip = np.array([-math.sin(ps), math.cos(ps)]), l * np.array([-math.sin(ps), math.cos(ps)])
+        return [(m, a * leg), (mH, hip), (m, hip + b * np.array([math.sin(pn), -math.cos(pn)]))]
+
+    n_dir, t_dir = np.array([-math.sin(gam), math.cos(gam)]), np.array([math.cos(gam), math.sin(gam)])
+    dt = 1e-4
+    for k in range(5, 196, 19):
+        t = tt[k]
+        pos = [masses(pin(t + j * dt)) for j in (-1, 0, 1)]
+        R = sum(mi * ((pos[2][i][1] - 2 * pos[1][i][1] + pos[0][i][1]) / dt ** 2 - np.array([0.0, -g]))
+                for i, (mi, _) in enumerate(pos[1]))
+        assert abs(R @ n_dir - lam[k, 0]) <= 1e-5 * lam[k, 0] and abs(R @ t_dir - lam[k, 1]) <= 1e-5 * lam[k, 0]
+    need = float(np.max(np.abs(lam[:, 1]) / lam[:, 0]))
+    assert np.all(lam[:, 0] > 0) and 0.2 < need < 0.3
+    sticks = _ref(F.compass_gait_stance(*q0, *v0, mu=0.9 * need, mu_s=1.01 * need), ths, check_accuracy=False)
+    assert sticks.status == "ok" and not sticks.transitions and sticks.mode_intervals[0][3] == (0,)
+    slides = _ref(F.compass_gait_stance(*q0, *v0, mu=0.9 * need, mu_s=0.99 * need), 0.05, check_accuracy=False)
+    assert slides.mode_intervals[0][3] in ((1,), (-1,))
+    # the heel strike: Goswami's reset keeps the angular momenta; the impulse it takes at the new foot
+    ym, yp = pin.state(ths - 1e-13), pin.state(ths)
+    qm, qdm, qdp = ym[:2], qdot(ym[:2], ym[2:]), qdot(yp[:2], yp[2:])
+    Pn, Pt = fo.compass_gait_heel_impulse(qm, qdm, qdp, **D.params)
+    assert Pn > 0 and abs(Pt) / Pn < need
+    ps, pn = qm[0] + gam, qm[1] + gam
+    foot_new = l * np.array([-math.sin(ps), math.cos(ps)]) + l * np.array([math.sin(pn), -math.cos(pn)])
+    hip = l * np.array([-math.sin(ps), math.cos(ps)])
+
+    def momenta(qd_s, qd_n, before):
+        # (angular momentum about the new foot, the old stance leg's about the hip), by the same kinematics
+        # as fo.compass_gait_heel_impulse: before, the old foot is the pivot; after, the new one
+        if before:
+            vh = l * qd_s * np.array([-math.cos(ps), -math.sin(ps)])
+            pts = [(m, a / l * hip, a * qd_s * np.array([-math.cos(ps), -math.sin(ps)])), (mH, hip, vh),
+                   (m, hip + b * np.array([math.sin(pn), -math.cos(pn)]), vh + b * qd_n * np.array([math.cos(pn), math.sin(pn)]))]
+            old_leg = pts[0]
+        else:
+            vh = l * qd_s * np.array([-math.cos(pn), -math.sin(pn)])
+            pts = [(m, foot_new + a / l * (hip - foot_new), a * qd_s * np.array([-math.cos(pn), -math.sin(pn)])),
+                   (mH, hip, vh),
+                   (m, hip + b * np.array([math.sin(ps), -math.cos(ps)]), vh + b * qd_n * np.array([math.cos(ps), math.sin(ps)]))]
+            old_leg = pts[2]
+
+        def L(mi, r, v, o):
+            d = r - o
+            return mi * (d[0] * v[1] - d[1] * v[0])
+        return sum(L(*p_, foot_new) for p_ in pts), L(*old_leg, hip)
+
+    Hm, hm = momenta(*qdm, True)
+    Hp, hp = momenta(*qdp, False)
+    assert abs(Hp - Hm) <= 1e-9 * abs(Hm) and abs(hp - hm) <= 1e-9 * max(abs(hm), 1.0)

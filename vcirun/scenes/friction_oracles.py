@@ -32,7 +32,7 @@ import numpy as np
 __all__ = ["SpinningBall", "spinning_ball", "InclineMotion", "incline", "CoulombOscillator", "coulomb_oscillator",
            "PushedBlock", "pushed_block",
            "housner_ratio", "housner_stick_mu", "HousnerRocking", "housner_rocking", "painleve_B",
-           "painleve_normal_force", "painleve_min_mu"]
+           "painleve_normal_force", "painleve_min_mu", "compass_gait_heel_impulse"]
 
 
 def _positive(name, v):
@@ -366,6 +366,38 @@ def housner_rocking(theta0, *, a, b, g=9.81, impacts=3) -> HousnerRocking:
         amps.append(A)
         t += 2.0 * quarter(A)
     return HousnerRocking(times, wm, wp, amps)
+
+
+# --- the compass gait's heel strike --------------------------------------------------------------------
+
+def compass_gait_heel_impulse(q_minus, qd_minus, qd_plus, *, m, mH, a, b, gamma, **_):
+    """(P_n, P_t) of the compass gait's heel strike (the built-in `compass_gait`: q = (theta_s,
+    theta_ns) from the slope normal, point masses m at a from each foot, mH at the hip; the reset
+    exchanges the legs): the impulse on the walker at the new stance foot, P = sum_i m_i (v_i+ - v_i-)
+    (Goswami's model: the old stance foot leaves without impulse), along the slope's normal
+    n = (-sin gamma, cos gamma) and tangent t = (cos gamma, sin gamma). A point at r along a leg of
+    absolute angle phi = theta + gamma from the vertical moves at r phidot (-cos phi, -sin phi) about
+    its foot; the swing leg's mass at b below the hip at the hip's velocity + b phidot (cos phi, sin phi).
+    The stance foot sticks through the impact iff |P_t| <= mu P_n."""
+    l = a + b
+    ps, pn = q_minus[0] + gamma, q_minus[1] + gamma
+    ws, wn = qd_minus
+    # after: the old swing leg stands (angle pn, rate qd_plus[0]), the old stance leg swings (ps, qd_plus[1])
+    ws2, wn2 = qd_plus
+
+    def rot(phi):
+        return np.array([-math.cos(phi), -math.sin(phi)])
+
+    def swing(phi):
+        return np.array([math.cos(phi), math.sin(phi)])
+
+    hip_m, hip_p = l * ws * rot(ps), l * ws2 * rot(pn)
+    old_stance_mass = (a * ws * rot(ps), hip_p + b * wn2 * swing(ps))   # (before, after: now the swing leg's)
+    old_swing_mass = (hip_m + b * wn * swing(pn), a * ws2 * rot(pn))   # (before, after: now the stance leg's)
+    P = m * (old_stance_mass[1] - old_stance_mass[0]) + mH * (hip_p - hip_m) + m * (old_swing_mass[1] - old_swing_mass[0])
+    n = np.array([-math.sin(gamma), math.cos(gamma)])
+    t = np.array([math.cos(gamma), math.sin(gamma)])
+    return float(P @ n), float(P @ t)
 
 
 # --- Painleve's rod ----------------------------------------------------------------------------------
