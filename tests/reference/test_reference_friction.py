@@ -1,4 +1,4 @@
-"""The exact reference with Coulomb friction (vcirun/reference/friction.py and the event loop) against
+"""The exact reference with Coulomb friction (vcirun/reference/coulomb.py and the event loop) against
 the closed forms of vcirun/scenes/friction_oracles.py, over random parameters (hypothesis; derandomized
 in the default suite, ten times as many fresh ones under -m slow):
 
@@ -11,7 +11,8 @@ in the default suite, ten times as many fresh ones under -m slow):
     naming the contact, the time and B (= the closed form's B); B > 0 runs on;
   * frictionless limits: mu = mu_s = 0 given as parameters is the frictionless reference;
   * the DOP853 path on the same closed forms (its rtol's accuracy).
-A frictional impact needs vcirun/collision/friction_law.py (the impact law).
+A frictional impact needs the frictional impact law (vcirun/collision/friction_law.py, called through
+vcirun/reference/friction.py).
 """
 from __future__ import annotations
 
@@ -27,9 +28,10 @@ from vcirun.reference.exact import solve_exact
 from vcirun.scenes import friction as F
 from vcirun.scenes import friction_oracles as fo
 
-LAW = Path(__file__).resolve().parents[2] / "vcirun" / "collision" / "friction_law.py"
-needs_law = pytest.mark.skipif(not LAW.is_file(), reason="the frictional impact law (collision/friction_law.py) "
-                                                           "is not installed")
+PKG = Path(__file__).resolve().parents[2] / "vcirun"
+needs_law = pytest.mark.skipif(
+    not ((PKG / "collision" / "friction_law.py").is_file() and (PKG / "reference" / "friction.py").is_file()),
+    reason="the frictional impact law (collision/friction_law.py, reference/friction.py) is not installed")
 TOL = 1e-12
 
 

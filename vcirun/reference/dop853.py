@@ -10,7 +10,7 @@ every watched function separately, at `samples` + 1 points:
 - each held contact: its force mu_i crossing 0 downwards (a release);
 - each resting contact: its normal acceleration crossing 0 downwards (pushed in), and its phi_i below
   minus its round-off offset (it left and came back, by less than the offset; the root is refined);
-- with friction (modes S of the held contacts, vcirun.reference.friction): a sliding contact's slip
+- with friction (modes S of the held contacts, vcirun.reference.coulomb): a sliding contact's slip
   velocity reaching 0 (stick), a sticking contact's tangential force reaching the static cone (slip),
   and det K of a held set with sliding contacts reaching 0 (painleve).
 
@@ -119,7 +119,7 @@ class Dop853Backend:
         drift_tol = 1e3 * self.atol
         stick_off = {}
         if rh._frictional(S):   # a slip that starts from rest: its stick event past round-off only
-            from .friction import stick_offsets
+            from .coulomb import stick_offsets
 
             stick_off = stick_offsets(rh._Geometry(self.mod, t0, y0[:n], y0[n:2 * n], self.prm), A, S)
         solver = DOP853(self._rhs(A, S), float(t0), np.array(y0, float), float(T), rtol=self.rtol, atol=self.atol)
@@ -259,10 +259,10 @@ class Dop853Backend:
 
     def _friction_candidates(self, dense, ss, geo, A, S, cands, stick_off):
         """The friction events of the held set A in the modes S on the samples ss (geometries geo): a
-        sliding contact's s v_t (+ its stick offset, vcirun.reference.friction.stick_offsets) crossing 0
+        sliding contact's s v_t (+ its stick offset, vcirun.reference.coulomb.stick_offsets) crossing 0
         downwards (stick), a sticking contact's mu_s lam_n -+ lam_t crossing 0 downwards (slip), det K
         crossing 0 downwards with sliding contacts (painleve)."""
-        from .friction import coefficients, response
+        from .coulomb import coefficients, response
 
         _, mus = coefficients(self.mod, self.prm)
         K = len(ss) - 1

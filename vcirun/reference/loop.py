@@ -15,7 +15,7 @@ here each event is resolved the way the integrators resolve it:
   of them (the plastic limit of the remaining bounces, whose heights are below |a| ZENO_FLIGHT^2 / 8);
 - a release (a held contact's force turns tensile), a resting contact pushed in (it is held), a
   resting contact that lifts off (watched as a free contact from then on);
-- with Coulomb friction (vcirun.reference.friction): each held contact has a mode (sliding either way,
+- with Coulomb friction (vcirun.reference.coulomb): each held contact has a mode (sliding either way,
   sticking); a sliding contact whose slip velocity reaches 0 sticks if the stick test holds, else its
   slip reverses; a sticking contact whose tangential force reaches the static cone slides; impacts
   take the frictional impact law (normal and tangential impulses); a held problem with sliding
@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import friction as rf
+from . import coulomb as rf
 from . import held as rh
 from .flight import Constant, Flight
 
@@ -54,7 +54,7 @@ class Solution:
     """The exact solve: dense pieces [(t0, t1, dense)], impacts [(t, contact, impulse)] (one entry per
     contact), releases [(t, contact)], held intervals [(t0, t1, held set)]; with friction also the
     tangential impulse of each impact entry (`tangential`), the mode changes [(t, contact, mode after)]
-    (`transitions`, vcirun.reference.friction's mode codes), the held intervals with their modes
+    (`transitions`, vcirun.reference.coulomb's mode codes), the held intervals with their modes
     [(t0, t1, held set, modes)] (`mode_intervals`); status "ok" or "painleve" (message: why)."""
 
     pieces: list = field(default_factory=list)
@@ -401,7 +401,7 @@ def _modes_for(g, A, tol):
 
 def _mode_change(mod, t, y, prm, A, S, i, reason, names):
     """(A, S) after a stick or slip event of held contact i at (t, y): a sliding contact that came to
-    rest sticks if the stick test holds (the modes with it sticking, vcirun.reference.friction.settle),
+    rest sticks if the stick test holds (the modes with it sticking, vcirun.reference.coulomb.settle),
     else its slip reverses; a sticking contact at the static cone slides against its force."""
     g = _geometry(mod, t, y, prm)
     a = A.index(i)

@@ -28,7 +28,7 @@ not held), all terminal:
               round-off, as between identical pendulums swinging in unison, is no event);
     lift_i    (i in R): phi_i - par[lift_i] crosses 0 upwards (it has left: the next segment watches
               it with offset 0).
-With Coulomb friction the held set carries its modes S (vcirun.reference.friction): the held
+With Coulomb friction the held set carries its modes S (vcirun.reference.coulomb): the held
 dynamics take the rows and force directions of the modes (sliding: G_i - mu_i s W_t,i; sticking: the
 slip row W_t,i as a further held row, kappa from d(W_t,i v)/dq . v), and the events
     stick_i   (i sliding with sign s): its slip velocity W_t,i v crosses 0 against s;
@@ -194,7 +194,7 @@ class TaylorModel:
         resting contact's round-off offset), the lift-off levels and the pressed-event offsets (TINY,
         or a resting contact's round-off level of its normal acceleration), the M^-1 entries of a
         constant dense M, and with friction the stick-event offsets (TINY, or the round-off level of the
-        slip velocity of a slip that starts from rest: vcirun.reference.friction.stick_offsets)."""
+        slip velocity of a slip that starts from rest: vcirun.reference.coulomb.stick_offsets)."""
         out = np.zeros(self.stick0 + (self.m if self.system.has_friction else 0))
         out[: self.np] = prm
         out[self.off0: self.lift0] = TINY if off is None else off
@@ -276,7 +276,7 @@ class TaylorModel:
         self.MinvF = [hy.sum([Minv[i][j] * F[j] for j in range(n)]) for i in range(n)]
         self._kappa = {}
         self._wkappa = {}
-        if s.has_friction:   # the slip rows, slip velocities and coefficients (vcirun.reference.friction)
+        if s.has_friction:   # the slip rows, slip velocities and coefficients (vcirun.reference.coulomb)
             Wt = s.slip_matrix
             self.Wt = [[conv(Wt[i, j]) for j in range(n)] for i in range(m)]
             self.w = [hy.sum([self.Wt[i][j] * v[j] for j in range(n)]) for i in range(m)]
@@ -475,7 +475,7 @@ class TaylorBackend:
                 press[i] = press_level
             key = (tuple(off), tuple(lift), tuple(press))
         if rh._frictional(S):
-            from .friction import stick_offsets
+            from .coulomb import stick_offsets
 
             if len(g.forces(A, S).K) < len(A) + sum(1 for s in S if s == rh.STICK):
                 raise NotExpressible("sticking contacts whose slip rows depend on each other (statically "

@@ -28,13 +28,10 @@ The events of a held phase (located on both paths of the reference):
     slip     a sticking contact's lam_t,i reaches +-mu_s,i lam_n,i: it slides, s = -sign(lam_t,i);
     painleve det Kmat reaches 0 with a sliding contact (PainleveError ends the solve).
 At an impact the touching contacts take the frictional impact law of vcirun/collision/friction_law.py
-(normal and tangential impulses, kinetic mu).
+(through vcirun.reference.friction.friction_impact; normal and tangential impulses, kinetic mu).
 """
 from __future__ import annotations
 
-import hashlib
-import importlib.util
-import sys
 from itertools import combinations
 from typing import NamedTuple
 
@@ -44,8 +41,7 @@ from . import held as rh
 from .held import SMOOTH, STICK
 
 __all__ = ["SMOOTH", "STICK", "Forces", "PainleveError", "coefficients", "held_forces", "settle", "stick_offsets",
-           "contact_modes",
-           "held_set", "response", "impact", "impact_law", "mode_name"]
+           "contact_modes", "held_set", "response", "impact", "mode_name"]
 
 _EPS = float(np.finfo(float).eps)
 CONE_TOL = 64 * _EPS   # relative: |lam_t| <= mu_s lam_n (1 + CONE_TOL) is inside the static cone
@@ -279,42 +275,9 @@ def check_painleve(g, A, S, names) -> None:
 
 # --- the frictional impact law -------------------------------------------------------------------------
 
-LAW_UNIT = "collision/friction_law.py"
-_LAW: list = []
-
-
-def impact_law():
-    """friction_impact_law(W, u, e, mu, lam) of vcirun/collision/friction_law.py (rows [normal_1..k,
-    tangent_1..k], returns its case code), compiled once (its standalone source, cached with the kernels)."""
-    if _LAW:
-        return _LAW[0]
-    from pathlib import Path
-
-    from ..codegen import units
-    from ..codegen.build import cache_dir
-
-    if not (Path(units.PKG) / LAW_UNIT).is_file():
-        raise RuntimeError(f"reference: the frictional impact law ({LAW_UNIT}) is not installed: a frictional "
-                           "impact cannot be resolved")
-    text = units.standalone_source([LAW_UNIT])
-    key = hashlib.sha256(text.encode()).hexdigest()[:16]
-    path = cache_dir() / f"unit_friction_law_{key}.py"
-    if not path.exists():
-        tmp = path.with_suffix(f".{key}.tmp")
-        tmp.write_text(text)
-        tmp.replace(path)
-    name = f"vcirun_unit_friction_law_{key}"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, path)
-        mod = importlib.util.module_from_spec(spec)
-        sys.modules[name] = mod
-        spec.loader.exec_module(mod)
-    _LAW.append(sys.modules[name].friction_impact_law)
-    return _LAW[0]
-
-
 def impact(mod, t, q, p, prm, contacts, e_of):
-    """The frictional impact law at (q, p-) for the touching `contacts` (an index list, as
+    """The frictional impact law (vcirun.reference.friction.friction_impact: the unit
+    vcirun/collision/friction_law.py) at (q, p-) for the touching `contacts` (an index list, as
     impact_direction's `active`): (case, lam_n (m), lam_t (m), dp) with p+ = p- + dp. A contact
     separating (u_n > 0) takes no restitution, as collision/impact.py's law."""
     g = rh._Geometry(mod, t, q, p, prm)
@@ -326,9 +289,11 @@ def impact(mod, t, q, p, prm, contacts, e_of):
     W = 0.5 * (W + W.T)   # symmetric to round-off: made exactly so
     u = rows @ g.v
     e = np.array([e_of[i] if u[a] <= 0.0 else 0.0 for a, i in enumerate(idx)])
-    lam = np.zeros(2 * k)
-    case = int(impact_law()(np.ascontiguousarray(W), np.ascontiguousarray(u), e,
-                            np.ascontiguousarray(mu[idx], float), lam))
+    from .friction import (
+        friction_impact,  # (the law's compiled unit, vcirun/collision/friction_law.py)
+    )
+
+    case, lam = friction_impact(W, u, e, mu[idx])
     lam_n, lam_t = np.zeros(g.m), np.zeros(g.m)
     lam_n[idx], lam_t[idx] = lam[:k], lam[k:]
     return case, lam_n, lam_t, rows.T @ lam
