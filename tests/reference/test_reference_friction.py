@@ -1,4 +1,4 @@
-"""The exact reference with Coulomb friction (vcirun/reference/friction.py and the event loop) against
+"""The exact reference with Coulomb friction (vcirun/reference/coulomb.py and the event loop) against
 the closed forms of vcirun/scenes/friction_oracles.py, over random parameters (hypothesis; derandomized
 in the default suite, ten times as many fresh ones under -m slow):
 
@@ -11,7 +11,8 @@ in the default suite, ten times as many fresh ones under -m slow):
     naming the contact, the time and B (= the closed form's B); B > 0 runs on;
   * frictionless limits: mu = mu_s = 0 given as parameters is the frictionless reference;
   * the DOP853 path on the same closed forms (its rtol's accuracy).
-A frictional impact needs vcirun/collision/friction_law.py (the impact law).
+A frictional impact needs the frictional impact law (vcirun/collision/friction_law.py, called through
+vcirun/reference/friction.py).
 """
 from __future__ import annotations
 
@@ -27,9 +28,10 @@ from vcirun.reference.exact import solve_exact
 from vcirun.scenes import friction as F
 from vcirun.scenes import friction_oracles as fo
 
-LAW = Path(__file__).resolve().parents[2] / "vcirun" / "collision" / "friction_law.py"
-needs_law = pytest.mark.skipif(not LAW.is_file(), reason="the frictional impact law (collision/friction_law.py) "
-                                                           "is not installed")
+PKG = Path(__file__).resolve().parents[2] / "vcirun"
+needs_law = pytest.mark.skipif(
+    not ((PKG / "collision" / "friction_law.py").is_file() and (PKG / "reference" / "friction.py").is_file()),
+    reason="the frictional impact law (collision/friction_law.py, reference/friction.py) is not installed")
 TOL = 1e-12
 
 
@@ -297,3 +299,176 @@ def test_dop853_path_on_the_closed_forms():
     assert [m for _, _, m in ref.transitions] == [-1] and abs(ref.transitions[0][0] - cf.t_stop) <= 1e-10
     t_dir = np.array([math.cos(0.4), math.sin(0.4)])
     assert abs(ref(1.0) @ t_dir - cf.state(1.0)[0]) <= 1e-10
+    # stick, then slip at the static cone with mu_s = mu (a slip that starts with zero acceleration)
+    s = F.pushed_block(c=2.0, mu=0.3, mu_s=0.3)
+    cf = fo.pushed_block(c=2.0, mu=0.3, mu_s=0.3)
+    ref = solve_exact(s, s.default_q0, s.default_p0, s.param_values(), cf.t_slip + 1.0, path="dop853",
+                      check_accuracy=False)
+    assert [m for _, _, m in ref.transitions] == [1] and abs(ref.transitions[0][0] - cf.t_slip) <= 1e-10
+    assert abs(ref(cf.t_slip + 1.0)[0] - cf.state(cf.t_slip + 1.0)[0]) <= 1e-10
+
+
+# --- the pushed block: stick, then slip where the tangential force reaches the static cone -------------------
+
+def _pushed_checks(ref, cf, T):
+    assert ref.status == "ok"
+    assert len(ref.transitions) == 1 and ref.transitions[0][1:] == (0, 1)
+    assert abs(ref.transitions[0][0] - cf.t_slip) <= TOL * (1 + cf.t_slip)
+    m = cf.params["m"]
+    for t in np.linspace(0.0, T, 41):
+        x, v = cf.state(t)
+        y = ref.state(t)
+        assert abs(y[0] - x) <= TOL * (1 + abs(x)) and abs(y[2] / m - v) <= TOL * (1 + abs(v)), t
+
+
+def test_pushed_block_published():
+    s = F.pushed_block(c=2.0, mu=0.3, mu_s=0.5)
+    cf = fo.pushed_block(c=2.0, mu=0.3, mu_s=0.5)
+    ref = _ref(s, cf.t_slip + 1.0)
+    _pushed_checks(ref, cf, cf.t_slip + 1.0)
+    assert ref.accuracy <= TOL
+
+
+@_both(10, c=_num(0.5, 10), mu=_num(0.0, 1.0), dmu=_num(0.0, 0.5), m=_num(0.2, 5))
+def _pushed_random(c, mu, dmu, m):
+    cf = fo.pushed_block(c=c, mu=mu, mu_s=mu + dmu, m=m)
+    assume(cf.t_slip < 20 and mu + dmu > 1e-3)   # (mu = mu_s = 0: frictionless, no transition)
+    s = F.pushed_block(c=c, mu=mu, mu_s=mu + dmu, m=m)
+    _pushed_checks(_ref(s, cf.t_slip + 0.5, check_accuracy=False), cf, cf.t_slip + 0.5)
+
+
+test_pushed_random, test_pushed_random_slow = _pushed_random
+
+
+# --- a chain of links with friction at its ends -------------------------------------------------------------
+
+@needs_law
+@pytest.mark.slow
+def test_link_chain_with_friction_comes_to_rest_without_gaining_energy():
+    """Three links dropped in a zigzag (DOP853: M is 5x5 and depends on q): every frictional impact loses
+    kinetic energy, the chain ends flat on its four ends, sticking (their slip rows depend on each
+    other: one kept, the tangential force shared), at rest -- where the frictionless floor lets it
+    skate on."""
+    s = F.link_chain_friction(3)
+    ref = _ref(s, 0.7, check_accuracy=False)
+    assert ref.status == "ok" and ref.kind == "dop853" and len(ref.impacts) > 10
+    from vcirun.codegen.build import load_module
+    from vcirun.codegen.kernel_set import SYSTEM_KERNELS
+
+    mod, prm = load_module(s, SYSTEM_KERNELS), s.param_values()
+    n = s.n
+    for t in sorted(set(ref.impacts)):
+        before, after = ref.state(t - 1e-13 * max(1.0, t)), ref.state(t)
+        Mq = np.empty((n, n))
+        mod.sys_M(np.ascontiguousarray(after[:n]), prm, Mq)
+        T_b = 0.5 * before[n:] @ np.linalg.solve(Mq, before[n:])
+        T_a = 0.5 * after[n:] @ np.linalg.solve(Mq, after[n:])
+        assert T_a <= T_b * (1 + 1e-9) + 1e-14, (t, T_b, T_a)
+    last = ref.mode_intervals[-1]
+    assert last[1] == 0.7 and last[2] == (0, 1, 2, 3) and last[3] == (0, 0, 0, 0)
+    assert float(np.max(np.abs(ref.p(0.7)))) <= 1e-12
+    assert float(np.max(np.abs(s.phi_values(ref(0.7))))) <= 1e-12
+
+
+# --- the compass gait with a frictional stance foot ---------------------------------------------------------
+
+def _pinned_gait():
+    import vcirun
+    from vcirun.scenes.data import _compass_M, compass_gait
+
+    D = compass_gait()
+    pin = vcirun.reference("compass_gait", T=1.0)
+    return D, pin, pin.impacts[0], (lambda q, p: np.linalg.solve(_compass_M(q, D.params), p))
+
+
+def _stance_forces(s, ref, tt):
+    from vcirun.codegen.build import load_module
+    from vcirun.codegen.kernel_set import SYSTEM_KERNELS
+    from vcirun.reference import held as rh
+
+    mod, prm, n = load_module(s, SYSTEM_KERNELS), s.param_values(), s.n
+    out = []
+    for t in tt:
+        y = ref.state(t)
+        f = rh._Geometry(mod, t, y[:n], y[n:], prm).forces((0,), (0,))
+        out.append((f.lam_n[0], f.lam_t[0]))
+    return np.array(out)
+
+
+@pytest.mark.slow
+def test_compass_gait_stance_foot_sticks_along_the_gait():
+    """The built-in gait's stance phase (from heel strike to heel strike), with the stance foot a
+    frictional contact of a floating base: (1) where it sticks it is the pinned gait (q to 1e-10, on
+    DOP853: M is 4x4); (2) its held forces are the ground reaction sum_i m_i (a_i - g) of the pinned
+    motion (accelerations by central differences of the pinned reference's velocities); (3) the stick
+    test along the gait needs mu_s >= max |lam_t| / lam_n (0.274 at heel strike): with mu_s 1 % above
+    the foot sticks all stride long, 1 % below it slides from the start; (4) the heel strike's impulse
+    ratio |P_t| / P_n (Goswami's reset: angular momentum about the new foot and the old leg's about
+    the hip kept, checked here with the same kinematics) is below it."""
+    D, pin, ths, qdot = _pinned_gait()
+    gam = D.params["gamma"]
+    q0, p0 = pin.state(0.0)[:2], pin.state(0.0)[2:]
+    v0 = qdot(q0, p0)
+    s = F.compass_gait_stance(*q0, *v0, mu=1.0)
+    ref = _ref(s, ths, check_accuracy=False)
+    assert ref.status == "ok" and ref.mode_intervals == [(0.0, ths, (0,), (0,))]
+    tt = np.linspace(0.0, ths, 201)
+    before = tt[:-1]   # (the pinned reference is right-continuous: at ths it holds the relabelled legs)
+    assert float(np.max(np.abs(ref(before)[:, 2:] - gam - pin(before)))) <= 1e-10
+    assert float(np.max(np.abs(ref(tt)[:, :2]))) <= 1e-10                      # the foot stays put
+    lam = _stance_forces(s, ref, tt)
+    # Newton: the ground reaction of the pinned motion, masses m (stance, at a), mH (hip), m (swing, b below)
+    m, mH, a, b, g = (D.params[k] for k in ("m", "mH", "a", "b", "g"))
+    l = a + b
+
+    def masses(q):
+        ps, pn = q[0] + gam, q[1] + gam
+        leg, hip = np.array([-math.sin(ps), math.cos(ps)]), l * np.array([-math.sin(ps), math.cos(ps)])
+        return [(m, a * leg), (mH, hip), (m, hip + b * np.array([math.sin(pn), -math.cos(pn)]))]
+
+    n_dir, t_dir = np.array([-math.sin(gam), math.cos(gam)]), np.array([math.cos(gam), math.sin(gam)])
+    dt = 1e-4
+    for k in range(5, 196, 19):
+        t = tt[k]
+        pos = [masses(pin(t + j * dt)) for j in (-1, 0, 1)]
+        R = sum(mi * ((pos[2][i][1] - 2 * pos[1][i][1] + pos[0][i][1]) / dt ** 2 - np.array([0.0, -g]))
+                for i, (mi, _) in enumerate(pos[1]))
+        assert abs(R @ n_dir - lam[k, 0]) <= 1e-5 * lam[k, 0] and abs(R @ t_dir - lam[k, 1]) <= 1e-5 * lam[k, 0]
+    need = float(np.max(np.abs(lam[:, 1]) / lam[:, 0]))
+    assert np.all(lam[:, 0] > 0) and 0.2 < need < 0.3
+    sticks = _ref(F.compass_gait_stance(*q0, *v0, mu=0.9 * need, mu_s=1.01 * need), ths, check_accuracy=False)
+    assert sticks.status == "ok" and not sticks.transitions and sticks.mode_intervals[0][3] == (0,)
+    slides = _ref(F.compass_gait_stance(*q0, *v0, mu=0.9 * need, mu_s=0.99 * need), 0.05, check_accuracy=False)
+    assert slides.mode_intervals[0][3] in ((1,), (-1,))
+    # the heel strike: Goswami's reset keeps the angular momenta; the impulse it takes at the new foot
+    ym, yp = pin.state(ths - 1e-13), pin.state(ths)
+    qm, qdm, qdp = ym[:2], qdot(ym[:2], ym[2:]), qdot(yp[:2], yp[2:])
+    Pn, Pt = fo.compass_gait_heel_impulse(qm, qdm, qdp, **D.params)
+    assert Pn > 0 and abs(Pt) / Pn < need
+    ps, pn = qm[0] + gam, qm[1] + gam
+    foot_new = l * np.array([-math.sin(ps), math.cos(ps)]) + l * np.array([math.sin(pn), -math.cos(pn)])
+    hip = l * np.array([-math.sin(ps), math.cos(ps)])
+
+    def momenta(qd_s, qd_n, before):
+        # (angular momentum about the new foot, the old stance leg's about the hip), by the same kinematics
+        # as fo.compass_gait_heel_impulse: before, the old foot is the pivot; after, the new one
+        if before:
+            vh = l * qd_s * np.array([-math.cos(ps), -math.sin(ps)])
+            pts = [(m, a / l * hip, a * qd_s * np.array([-math.cos(ps), -math.sin(ps)])), (mH, hip, vh),
+                   (m, hip + b * np.array([math.sin(pn), -math.cos(pn)]), vh + b * qd_n * np.array([math.cos(pn), math.sin(pn)]))]
+            old_leg = pts[0]
+        else:
+            vh = l * qd_s * np.array([-math.cos(pn), -math.sin(pn)])
+            pts = [(m, foot_new + a / l * (hip - foot_new), a * qd_s * np.array([-math.cos(pn), -math.sin(pn)])),
+                   (mH, hip, vh),
+                   (m, hip + b * np.array([math.sin(ps), -math.cos(ps)]), vh + b * qd_n * np.array([math.cos(ps), math.sin(ps)]))]
+            old_leg = pts[2]
+
+        def L(mi, r, v, o):
+            d = r - o
+            return mi * (d[0] * v[1] - d[1] * v[0])
+        return sum(L(*p_, foot_new) for p_ in pts), L(*old_leg, hip)
+
+    Hm, hm = momenta(*qdm, True)
+    Hp, hp = momenta(*qdp, False)
+    assert abs(Hp - Hm) <= 1e-9 * abs(Hm) and abs(hp - hm) <= 1e-9 * max(abs(hm), 1.0)

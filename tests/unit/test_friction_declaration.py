@@ -202,11 +202,10 @@ def test_two_spinning_discs_slide_at_the_relative_velocity_of_their_contact_poin
         t = np.array([n[1], -n[0]])
         PA, PB = CA - rA * n, CB + rB * n
         vPA = vA + _cross(qd[2], PA - CA)
-        vPB = qd[3:5] + _cross(qd[5], PB - q[3:5])
+        vPB = vB + _cross(qd[5], PB - CB)
         W = s.slip_matrix_value(q)
         assert abs(float(W[0] @ qd) - float((vPA - vPB) @ t)) <= 1e-12 * (1 + np.abs(qd).max())
-        # the normal velocity is grad phi . qdot; the slip row is orthogonal to it in velocity space?
-        # no: but v_t along n never enters, so a motion along n alone does not slide
+        # a translation of A along the normal does not slide
         along_n = np.zeros(6)
         along_n[:2] = n
         assert abs(float(W[0] @ along_n)) <= 1e-13
@@ -245,3 +244,39 @@ def test_bodies_yaml_friction_keys():
         load_system_yaml({"bodies": [{"name": "d", "mass": 1}], "joints": [{"type": "free", "body": "d",
                           "coordinates": ["x", "y", "phi"]}],
                           "contacts": [{"body": "d", "friction": float("nan")}], "q0": {"y": 1.0}})
+
+
+# --- the friction examples of docs/examples are the scenes of vcirun.scenes.friction ------------------------
+
+def _examples():
+    from pathlib import Path
+
+    from vcirun.scenes import friction as F
+
+    ex = Path(__file__).resolve().parents[2] / "docs" / "examples"
+    return [(ex / "spinning_ball.yaml", F.spinning_ball(50.0)), (ex / "incline.yaml", F.incline(0.4, mu=0.3, mu_s=0.35,
+                                                                                              v0=2.0)),
+            (ex / "coulomb_oscillator.yaml", F.coulomb_oscillator(1.0)), (ex / "painleve_rod.yaml",
+                                                                        F.painleve_rod(0.9, xdot0=-1.0, mu=1.5)),
+            (ex / "chain5_friction.yaml", None)]
+
+
+@pytest.mark.parametrize("k", range(5))
+def test_friction_examples_declare_the_scenes(k):
+    path, built = _examples()[k]
+    assert len(path.read_text().splitlines()) < 30
+    s = load_system_yaml(path)
+    assert s.has_friction and np.min(s.phi_values(s.default_q0)) >= -1e-15
+    if built is None:   # the chain: friction at every link end
+        assert all(c.friction == sp.Symbol("mu") for c in s.constraints) and s.m == 6
+        return
+    assert [str(x) for x in s.q] == [str(x) for x in built.q]
+    assert all(built.params[k] == v for k, v in s.params.items())   # (the builders also name mu_s)
+    assert sp.simplify(s.M - built.M) == sp.zeros(s.n, s.n) and sp.simplify(s.V - built.V) == 0
+    for a, b in zip(s.constraints, built.constraints):
+        assert sp.simplify(a.phi - b.phi) == 0 and float(a.restitution) == float(b.restitution)
+        _same_row(a.slip, [sp.sympify(e) for e in b.slip])
+    for x, y in zip(s.friction_values(), built.friction_values()):
+        assert np.array_equal(x, y)
+    assert np.allclose(s.default_q0, built.default_q0, rtol=0, atol=1e-15)
+    assert np.allclose(s.default_p0, built.default_p0, rtol=0, atol=1e-15)

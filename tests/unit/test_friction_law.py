@@ -46,8 +46,8 @@ def _python_unit():
 
 
 def _compiled_unit():
-    """The compiled unit, as the exact reference loads it (vcirun.reference.friction)."""
-    from vcirun.reference.friction import friction_law_module
+    """The compiled unit, as the exact reference loads it (vcirun.reference.friction_law)."""
+    from vcirun.reference.friction_law import friction_law_module
 
     return friction_law_module()
 

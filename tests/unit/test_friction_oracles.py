@@ -229,6 +229,27 @@ def test_coulomb_oscillator_loses_2c_per_half_period():
     assert abs(cf.x_stop) <= c < abs(xs[-2])
 
 
+# --- the pushed block -----------------------------------------------------------------------------------
+
+@SETTINGS
+@given(c=st.floats(0.1, 20), mu=st.floats(0.0, 1.5), dmu=st.floats(0.0, 1.0), m=st.floats(0.1, 10),
+       g=st.floats(1, 20))
+def test_pushed_block_against_the_mode_equations(c, mu, dmu, m, g):
+    """Stick while |c t| <= mu_s m g (the event of the tangential force reaching the cone), then
+    solve_ivp of m x'' = c t - mu m g."""
+    mu_s = mu + dmu
+    cf = fo.pushed_block(c=c, mu=mu, mu_s=mu_s, m=m, g=g)
+    st_ = _ivp(lambda t, y: [0.0], 0.0, [0.0], 1e4, [_event(lambda t, y: mu_s * m * g - c * t, -1)])
+    ts = st_.t_events[0][0]
+    assert abs(ts - cf.t_slip) <= 1e-10 * (1 + ts)
+    T = ts + 2.0
+    sol = _ivp(lambda t, y: [y[1], (c * t - mu * m * g) / m], ts, [0.0, 0.0], T)
+    for k in (len(sol.t) // 2, -1):
+        x, v = cf.state(sol.t[k])
+        assert abs(x - sol.y[0, k]) <= 1e-9 * (1 + abs(x)) and abs(v - sol.y[1, k]) <= 1e-9 * (1 + abs(v))
+    assert cf.state(0.5 * ts) == (0.0, 0.0)
+
+
 # --- Housner's rocking block -------------------------------------------------------------------------
 
 def _block_rows(theta, a, b, side):

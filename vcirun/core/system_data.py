@@ -118,12 +118,13 @@ def friction_at(mod, prm, name: str, contacts=None) -> tuple:
         mod.sys_friction(np.ascontiguousarray(prm, dtype=float), mu, mu_s)
     for i in range(m):
         who = f"contact {contacts[i]!r}" if contacts is not None else f"contact {i}"
-        if not (np.isfinite(mu[i]) and np.isfinite(mu_s[i])) or mu[i] < 0.0:
-            raise ValueError(f"params: system {name}: {who} has friction mu = {mu[i]!r} at these parameters; "
-                             "give its friction parameter a finite value >= 0")
-        if mu_s[i] < mu[i]:
-            raise ValueError(f"params: system {name}: {who} has static friction mu_s = {mu_s[i]!r} < mu = "
-                             f"{mu[i]!r} at these parameters; the static coefficient is at least the kinetic one")
+        a, b = float(mu[i]), float(mu_s[i])
+        if not (np.isfinite(a) and np.isfinite(b)) or a < 0.0 or b < 0.0:
+            raise ValueError(f"params: system {name}: {who} has friction mu = {a!r}, mu_s = {b!r} at these "
+                             "parameters; give its friction parameters finite values >= 0")
+        if b < a:
+            raise ValueError(f"params: system {name}: {who} has static friction mu_s = {b!r} < mu = {a!r} at these "
+                             "parameters; the static coefficient is at least the kinetic one")
     return mu, mu_s
 
 

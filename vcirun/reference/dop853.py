@@ -10,7 +10,7 @@ every watched function separately, at `samples` + 1 points:
 - each held contact: its force mu_i crossing 0 downwards (a release);
 - each resting contact: its normal acceleration crossing 0 downwards (pushed in), and its phi_i below
   minus its round-off offset (it left and came back, by less than the offset; the root is refined);
-- with friction (modes S of the held contacts, vcirun.reference.friction): a sliding contact's slip
+- with friction (modes S of the held contacts, vcirun.reference.coulomb): a sliding contact's slip
   velocity reaching 0 (stick), a sticking contact's tangential force reaching the static cone (slip),
   and det K of a held set with sliding contacts reaching 0 (painleve).
 
@@ -117,6 +117,11 @@ class Dop853Backend:
         # above the resting contact's own |phi| (within the rest tolerance) and its round-off
         off = {i: 4.0 * (abs(phi0[i]) + self.rest_offset(y0[:n], i)) for i in R}
         drift_tol = 1e3 * self.atol
+        stick_off = {}
+        if rh._frictional(S):   # a slip that starts from rest: its stick event past round-off only
+            from .coulomb import stick_offsets
+
+            stick_off = stick_offsets(rh._Geometry(self.mod, t0, y0[:n], y0[n:2 * n], self.prm), A, S)
         solver = DOP853(self._rhs(A, S), float(t0), np.array(y0, float), float(T), rtol=self.rtol, atol=self.atol)
         ts, interps = [float(t0)], []
         while solver.status == "running":
@@ -132,13 +137,17 @@ class Dop853Backend:
             dense = solver.dense_output()
             ts.append(float(solver.t))
             interps.append(dense)
-            hit = self._check(dense, solver.t_old, solver.t, A, R, off, free, S)
+            hit = self._check(dense, solver.t_old, solver.t, A, R, off, free, S, stick_off)
             if hit is not None:
                 te, kind, i = hit
                 piece = OdeSolution(ts, interps)
                 y1 = np.asarray(dense(te), float)
                 if kind == "impact" and i in R:   # the offset check fired: the root phi_i = 0 before it
                     te = last_crossing(lambda s: self._phis_u(piece(s))[0][i], t0, te)
+                    y1 = np.asarray(piece(te), float)
+                if kind == "stick" and i in stick_off:   # likewise: the root s v_t = 0 before s v_t = -off
+                    sgn = S[A.index(i)]
+                    te = last_crossing(lambda s: sgn * self._geo(s, piece(s)).wt[i], t0, te)
                     y1 = np.asarray(piece(te), float)
                 return Flight(float(t0), float(te), y1, kind, int(i), piece)
             for i in list(R):  # a resting contact that rose past twice its offset is watched as free
@@ -153,7 +162,10 @@ class Dop853Backend:
             return Flight(float(t0), float(t0), np.array(y0, float), "end", -1, Constant(y0))
         return Flight(float(t0), float(solver.t), np.array(solver.y, float), "end", -1, OdeSolution(ts, interps))
 
-    def _check(self, dense, ta, tb, A, R, off, free, S=None):
+    def _geo(self, t, y):
+        return rh._Geometry(self.mod, t, y[:self.n], y[self.n:2 * self.n], self.prm)
+
+    def _check(self, dense, ta, tb, A, R, off, free, S=None, stick_off=None):
         """The earliest event inside the step [ta, tb]: (time, kind, contact) or None."""
         from scipy.optimize import brentq
 
@@ -216,7 +228,7 @@ class Dop853Backend:
                     if k is not None:
                         cands.append(((ss[k], ss[k + 1]), self._mu_of(dense, A, a, S), "release", i))
                 if rh._frictional(S):
-                    self._friction_candidates(dense, ss, geo, A, S, cands)
+                    self._friction_candidates(dense, ss, geo, A, S, cands, stick_off or {})
         if not cands:
             return None
         best = None
@@ -245,11 +257,12 @@ class Dop853Backend:
             return rh._Geometry(self.mod, s, y[:n], y[n:2 * n], self.prm).mu(A, S)[a]
         return f
 
-    def _friction_candidates(self, dense, ss, geo, A, S, cands):
+    def _friction_candidates(self, dense, ss, geo, A, S, cands, stick_off):
         """The friction events of the held set A in the modes S on the samples ss (geometries geo): a
-        sliding contact's s v_t crossing 0 downwards (stick), a sticking contact's mu_s lam_n -+ lam_t
-        crossing 0 downwards (slip), det K crossing 0 downwards with sliding contacts (painleve)."""
-        from .friction import coefficients, response
+        sliding contact's s v_t (+ its stick offset, vcirun.reference.coulomb.stick_offsets) crossing 0
+        downwards (stick), a sticking contact's mu_s lam_n -+ lam_t crossing 0 downwards (slip), det K
+        crossing 0 downwards with sliding contacts (painleve)."""
+        from .coulomb import coefficients, response
 
         _, mus = coefficients(self.mod, self.prm)
         K = len(ss) - 1
@@ -268,7 +281,7 @@ class Dop853Backend:
 
         for a, (i, s) in enumerate(zip(A, S)):
             if s in (1, -1):
-                fn = (lambda g, i=i, s=s: s * g.wt[i])
+                fn = (lambda g, i=i, s=s, o=stick_off.get(i, 0.0): s * g.wt[i] + o)
                 watch([fn(g) for g in geo], fn, "stick", i)
             elif s == rh.STICK:
                 for sign in (1.0, -1.0):

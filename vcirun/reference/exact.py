@@ -28,7 +28,7 @@ a plastic impact, or whose impacts accumulate (the Zeno time extrapolated from i
 contacts accumulating together are held together) is held on the index-reduced constrained dynamics
 (vcirun/reference/held.py) and released where its contact force turns tensile; docs/derivations/contacts.md 6.
 
-Coulomb friction (vcirun.reference.friction): held contacts slide or stick, every mode change a
+Coulomb friction (vcirun.reference.coulomb): held contacts slide or stick, every mode change a
 located event (ref.transitions), impacts take the frictional impact law (ref.impact_tangential); a
 held problem with sliding contacts that has no solution or several (Painleve's paradox) ends the
 reference there with ref.status "painleve" and ref.message naming the contact, the time and B.
@@ -95,7 +95,7 @@ class Reference:
         self.held_intervals = []
         # friction: the tangential impulse of each impact entry, the mode changes of held contacts
         # [(t, contact, mode after)] and the held intervals with their modes [(t0, t1, held, modes)]
-        # (mode codes: vcirun.reference.friction, +1 / -1 sliding, 0 sticking, 2 smooth)
+        # (mode codes: vcirun.reference.coulomb, +1 / -1 sliding, 0 sticking, 2 smooth)
         self.impact_tangential = np.zeros(len(self.impacts))
         self.transitions = []
         self.mode_intervals = []

@@ -18,7 +18,7 @@ c_i = v^T Hess(phi_i) v, Mdot v = sys_Mdotv(q, v); mu_i >= 0 is the compressive 
 (it pushes along +grad phi_i). Release: mu_i crosses 0 downwards.
 
 With Coulomb friction a held contact also has a mode (sliding with the sign of its slip velocity, or
-sticking), given as a tuple S aligned with A; the forces of (A, S) are vcirun.reference.friction's.
+sticking), given as a tuple S aligned with A; the forces of (A, S) are vcirun.reference.coulomb's.
 S None (or every contact SMOOTH) is the frictionless dynamics above, computed as above.
 """
 from __future__ import annotations
@@ -105,9 +105,9 @@ class _Geometry:
         return self._dslip
 
     def forces(self, A, S):
-        """The held forces of the held set A in the friction modes S (vcirun.reference.friction.Forces),
+        """The held forces of the held set A in the friction modes S (vcirun.reference.coulomb.Forces),
         kept per (A, S)."""
-        from .friction import held_forces
+        from .coulomb import held_forces
 
         key = (tuple(A), tuple(S))
         if key not in self._forces:
@@ -143,7 +143,7 @@ class _Geometry:
         return self.G[idx] @ np.linalg.solve(self.M, self.F - self.Mdv) + self.c[idx]
 
     def mu(self, A, S=None):
-        """The normal forces of the held set A (in the friction modes S: vcirun.reference.friction)."""
+        """The normal forces of the held set A (in the friction modes S: vcirun.reference.coulomb)."""
         if _frictional(S):
             return self.forces(A, S).lam_n
         W, _ = self.W(A)
@@ -152,7 +152,7 @@ class _Geometry:
     def held_acc(self, A, S=None):
         """d^2/dt^2 phi_i of every contact along the held flow of A (0 for i in A, up to round-off):
         G M^-1 (F + G_A^T mu - Mdot v) + c (kept per A; in the friction modes S: with the forces of
-        vcirun.reference.friction)."""
+        vcirun.reference.coulomb)."""
         A = tuple(A)
         if _frictional(S):
             key = (A, tuple(S))
@@ -176,7 +176,7 @@ def _frictional(S) -> bool:
     return S is not None and any(s != SMOOTH for s in S)
 
 
-# the friction modes of a held contact (vcirun.reference.friction): sliding is +1 / -1 (the sign of its
+# the friction modes of a held contact (vcirun.reference.coulomb): sliding is +1 / -1 (the sign of its
 # slip velocity), sticking STICK, no friction at these parameters SMOOTH
 STICK, SMOOTH = 0, 2
 
@@ -199,7 +199,7 @@ def free_normal_accelerations(mod, t, q, p, prm) -> np.ndarray:
 
 def held_rhs(mod, prm, A, S=None):
     """f(t, y) for solve_ivp: the held dynamics qdot = v, pdot = F + G_A^T mu (with friction modes S:
-    the forces of vcirun.reference.friction; and W' = f . v when y carries the work as a last
+    the forces of vcirun.reference.coulomb; and W' = f . v when y carries the work as a last
     component, len(y) = 2n + 1)."""
     A = tuple(int(i) for i in A)
     n = int(mod.NDOF)
@@ -258,9 +258,12 @@ def project(mod, q, p, prm, A, iters=8, stick=()):
     mod.sys_dphis(q, prm, G)
     Ga = G[A]
     if stick:
+        from .coulomb import independent_sticks
+
         Wt = np.empty((m, n))
         mod.sys_slips(q, prm, Wt)
         Ga = np.vstack([Ga, Wt[list(stick)]])
+        Ga = Ga[list(range(len(A))) + independent_sticks(Ga, len(A))]   # (dependent sticking rows add nothing)
     X = np.linalg.solve(M, Ga.T)
     p = p - Ga.T @ np.linalg.solve(Ga @ X, X.T @ p)
     return q, p

@@ -15,7 +15,7 @@ here each event is resolved the way the integrators resolve it:
   of them (the plastic limit of the remaining bounces, whose heights are below |a| ZENO_FLIGHT^2 / 8);
 - a release (a held contact's force turns tensile), a resting contact pushed in (it is held), a
   resting contact that lifts off (watched as a free contact from then on);
-- with Coulomb friction (vcirun.reference.friction): each held contact has a mode (sliding either way,
+- with Coulomb friction (vcirun.reference.coulomb): each held contact has a mode (sliding either way,
   sticking); a sliding contact whose slip velocity reaches 0 sticks if the stick test holds, else its
   slip reverses; a sticking contact whose tangential force reaches the static cone slides; impacts
   take the frictional impact law (normal and tangential impulses); a held problem with sliding
@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import friction as rf
+from . import coulomb as rf
 from . import held as rh
 from .flight import Constant, Flight
 
@@ -54,7 +54,7 @@ class Solution:
     """The exact solve: dense pieces [(t0, t1, dense)], impacts [(t, contact, impulse)] (one entry per
     contact), releases [(t, contact)], held intervals [(t0, t1, held set)]; with friction also the
     tangential impulse of each impact entry (`tangential`), the mode changes [(t, contact, mode after)]
-    (`transitions`, vcirun.reference.friction's mode codes), the held intervals with their modes
+    (`transitions`, vcirun.reference.coulomb's mode codes), the held intervals with their modes
     [(t0, t1, held set, modes)] (`mode_intervals`); status "ok" or "painleve" (message: why)."""
 
     pieces: list = field(default_factory=list)
@@ -291,8 +291,10 @@ def solve(backend, mod, q0, p0, prm, T, *, names, resting_contact=True, max_impa
                 y = rh._project_y(mod, y, prm, A, S)   # (the released contact too: it leaves from rest)
                 A, S = hold(t, y, [j for j in A if j != i])
             elif fl.reason in ("stick", "slip"):
+                S0 = S
                 A, S = _mode_change(mod, t, y, prm, A, S, i, fl.reason, names)
-                sol.transitions.append((t, i, S[A.index(i)]))
+                if S != S0:
+                    sol.transitions.append((t, i, S[A.index(i)]))
             elif fl.reason == "painleve":
                 g = _geometry(mod, t, y, prm)
                 rf.check_painleve(g, A, S, names)   # (raises; B at the located root is 0 to round-off)
@@ -380,6 +382,18 @@ def solve(backend, mod, q0, p0, prm, T, *, names, resting_contact=True, max_impa
     return sol
 
 
+def _turning_back(g, A, S, a) -> bool:
+    """Whether held contact A[a], sliding with sign s, has no slip acceleration against s at the state
+    of g (s d(v_t)/dt >= 0 to round-off of its terms): its slip velocity crossed 0 by round-off only (a
+    slip that starts from rest with a zero acceleration, as at the static cone with mu_s = mu), not at
+    the end of a slip, which decelerates through 0."""
+    i, s = A[a], S[a]
+    pdot = g.forces(A, S).pdot
+    acc = g.Wt[i] @ np.linalg.solve(g.M, pdot - g.Mdv) + g.dslip[i]
+    terms = np.abs(g.Wt[i]) @ np.abs(np.linalg.solve(g.M, np.abs(g.F) + np.abs(pdot - g.F) + np.abs(g.Mdv)))
+    return s * acc >= -1e3 * _EPS * (terms + abs(g.dslip[i]))
+
+
 def _modes_for(g, A, tol):
     """The modes of the held set A at the state of g (the accumulation hold adds contacts to A)."""
     return rf.settle(g, tuple(A), rf.contact_modes(g, tuple(A), tol))
@@ -387,10 +401,12 @@ def _modes_for(g, A, tol):
 
 def _mode_change(mod, t, y, prm, A, S, i, reason, names):
     """(A, S) after a stick or slip event of held contact i at (t, y): a sliding contact that came to
-    rest sticks if the stick test holds (the modes with it sticking, vcirun.reference.friction.settle),
+    rest sticks if the stick test holds (the modes with it sticking, vcirun.reference.coulomb.settle),
     else its slip reverses; a sticking contact at the static cone slides against its force."""
     g = _geometry(mod, t, y, prm)
     a = A.index(i)
+    if reason == "stick" and _turning_back(g, A, S, a):
+        return A, S   # a crossing by round-off at a slip's start: the slip goes on the same way
     S = list(S)
     if reason == "stick":
         S[a] = rf.STICK

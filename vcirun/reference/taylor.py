@@ -28,7 +28,7 @@ not held), all terminal:
               round-off, as between identical pendulums swinging in unison, is no event);
     lift_i    (i in R): phi_i - par[lift_i] crosses 0 upwards (it has left: the next segment watches
               it with offset 0).
-With Coulomb friction the held set carries its modes S (vcirun.reference.friction): the held
+With Coulomb friction the held set carries its modes S (vcirun.reference.coulomb): the held
 dynamics take the rows and force directions of the modes (sliding: G_i - mu_i s W_t,i; sticking: the
 slip row W_t,i as a further held row, kappa from d(W_t,i v)/dq . v), and the events
     stick_i   (i sliding with sign s): its slip velocity W_t,i v crosses 0 against s;
@@ -185,17 +185,25 @@ class TaylorModel:
     def minv0(self) -> int:
         return self.np + 3 * self.m
 
-    def pars(self, prm, off=None, lift=None, press=None):
+    @property
+    def stick0(self) -> int:
+        return self.minv0 + (self.n * self.n if self.minv_par else 0)
+
+    def pars(self, prm, off=None, lift=None, press=None, stick=None):
         """The integrators' parameter vector: the system's parameters, the impact offsets (TINY, or a
         resting contact's round-off offset), the lift-off levels and the pressed-event offsets (TINY,
-        or a resting contact's round-off level of its normal acceleration)."""
-        out = np.zeros(self.minv0 + (self.n * self.n if self.minv_par else 0))
+        or a resting contact's round-off level of its normal acceleration), the M^-1 entries of a
+        constant dense M, and with friction the stick-event offsets (TINY, or the round-off level of the
+        slip velocity of a slip that starts from rest: vcirun.reference.coulomb.stick_offsets)."""
+        out = np.zeros(self.stick0 + (self.m if self.system.has_friction else 0))
         out[: self.np] = prm
         out[self.off0: self.lift0] = TINY if off is None else off
         out[self.lift0: self.press0] = 1e300 if lift is None else lift
         out[self.press0: self.minv0] = TINY if press is None else press
         if self.minv_par:
-            out[self.minv0:] = np.linalg.inv(self.system.mass_matrix(np.zeros(self.n), prm)).ravel()
+            out[self.minv0:self.stick0] = np.linalg.inv(self.system.mass_matrix(np.zeros(self.n), prm)).ravel()
+        if self.system.has_friction:
+            out[self.stick0:] = TINY if stick is None else stick
         return out
 
     def _build(self):
@@ -268,7 +276,7 @@ class TaylorModel:
         self.MinvF = [hy.sum([Minv[i][j] * F[j] for j in range(n)]) for i in range(n)]
         self._kappa = {}
         self._wkappa = {}
-        if s.has_friction:   # the slip rows, slip velocities and coefficients (vcirun.reference.friction)
+        if s.has_friction:   # the slip rows, slip velocities and coefficients (vcirun.reference.coulomb)
             Wt = s.slip_matrix
             self.Wt = [[conv(Wt[i, j]) for j in range(n)] for i in range(m)]
             self.w = [hy.sum([self.Wt[i][j] * v[j] for j in range(n)]) for i in range(m)]
@@ -393,7 +401,7 @@ class TaylorModel:
             rows = len(A)
             for a, (i, s) in enumerate(zip(A, S)):
                 if s in (1, -1):
-                    add(self.w[i], neg if s > 0 else pos, ("stick", i))
+                    add(float(s) * self.w[i] + hy.par[self.stick0 + i], neg, ("stick", i))
                 elif s == rh.STICK:
                     add(self.mus[i] * mu[a] - mu[rows], neg, ("slip", i))
                     add(self.mus[i] * mu[a] + mu[rows], neg, ("slip", i))
@@ -456,6 +464,7 @@ class TaylorBackend:
         hmax = max(REACH * rh.approach_time(g, A, free), 1e3 * _EPS * max(1.0, abs(t0)))
         floor = [-scale[i] for i in range(m)]   # penetration beyond round-off
         key = ("base",)
+        off = lift = press = stick = None
         if R:   # offsets above the resting contacts' own |phi| (within the rest tolerance) and round-off
             off, lift, press = np.full(m, TINY), np.full(m, 1e300), np.full(m, TINY)
             press_level = rh.press_level(g, self.rest_tol)
@@ -465,8 +474,20 @@ class TaylorBackend:
                 floor[i] = -floor[i]
                 press[i] = press_level
             key = (tuple(off), tuple(lift), tuple(press))
+        if rh._frictional(S):
+            from .coulomb import stick_offsets
+
+            if len(g.forces(A, S).K) < len(A) + sum(1 for s in S if s == rh.STICK):
+                raise NotExpressible("sticking contacts whose slip rows depend on each other (statically "
+                                     "indeterminate friction): no explicit held dynamics on the Taylor path")
+            stick_off = stick_offsets(g, A, S)
+            if stick_off:
+                stick = np.full(m, TINY)
+                for i, v in stick_off.items():
+                    stick[i] = v
+                key = key + (tuple(stick),)
         if self._pars_of.get(id(ta)) != key:   # (parameters set by the last segment on ta are kept)
-            pars = model.pars(self.prm, off, lift, press) if R else self._base
+            pars = model.pars(self.prm, off, lift, press, stick) if key != ("base",) else self._base
             ta.pars[:] = pars[:len(ta.pars)]
             self._pars_of[id(ta)] = key
         ta.time = float(t0)
@@ -555,7 +576,17 @@ class TaylorBackend:
             t1 = last_crossing(lambda s: self._phi(piece(s)[:n], i), t0, t1)
             y1 = piece(t1)
             piece.t_end = t1
+        if kind == "stick" and stick is not None and stick[i] > TINY:
+            # the offset event fired at s v_t = -off: the slip ends at the root s v_t = 0 before it
+            sgn = S[A.index(i)]
+            t1 = last_crossing(lambda s: sgn * self._slip(piece(s), i), t0, t1)
+            y1 = piece(t1)
+            piece.t_end = t1
         return Flight(t0, t1, y1, kind, i, piece)
+
+    def _slip(self, y, i):
+        n = self.model.n
+        return float(rh._Geometry(self.mod, 0.0, y[:n], y[n:2 * n], self.prm).wt[i])
 
     def _scales(self, g):
         """Per contact: 1e3 eps (1 + |q| |grad phi_i|), well above the round-off of phi_i at the state

@@ -4,10 +4,13 @@ vcirun.scenes.friction_oracles (derivations: docs/derivations/friction.md, "Clos
 - `spinning_ball`: a ball dropped with spin on a floor (Capobianco et al. 2021, section 10.1);
 - `incline`: a block (a point mass) on an incline, launched uphill or released at rest;
 - `coulomb_oscillator`: a block on a floor attached to a spring, Coulomb-damped;
+- `pushed_block`: a block on a floor pushed by a growing force c t (sticks, then slides);
 - `rocking_block_friction`: a block rocking on its corners without sliding (Housner), released at
   rest on one corner;
 - `painleve_rod`: a uniform rod sliding on one end (Painleve's paradox for mu > 4/3);
-- `link_chain_friction`: a chain of links falling on a floor with friction at every link end.
+- `link_chain_friction`: a chain of links falling on a floor with friction at every link end;
+- `compass_gait_stance`: the compass gait's stance phase with the stance foot a frictional contact
+  (a floating base) instead of a pin: where it sticks it is the gait of the built-in `compass_gait`.
 
 Each returns a MechanicalSystem whose parameters are symbols (mu, mu_s, ... overridable at run time
 through params=); the start state is built from the arguments (exactly on the contact surface where
@@ -22,8 +25,8 @@ import sympy as sp
 from ..mechanics.bodies import Body, Joint, PointContact, planar_system
 from ..mechanics.system import Constraint, MechanicalSystem
 
-__all__ = ["spinning_ball", "incline", "coulomb_oscillator", "rocking_block_friction", "painleve_rod",
-           "link_chain_friction", "block_corner"]
+__all__ = ["spinning_ball", "incline", "coulomb_oscillator", "pushed_block", "rocking_block_friction", "painleve_rod",
+           "link_chain_friction", "compass_gait_stance", "block_corner"]
 
 
 def spinning_ball(w0=50.0, *, m=1.0, R=0.1, mu=0.2, g=9.81, h=1.0, v0=0.0) -> MechanicalSystem:
@@ -74,6 +77,20 @@ def coulomb_oscillator(x0=1.0, *, v0=0.0, m=1.0, k=10.0, mu=0.1, mu_s=None, g=9.
                          description="a block on a floor attached to a spring, Coulomb friction mu, mu_s")
     s.default_q0 = np.array([float(x0), 0.0])
     s.default_p0 = np.array([m * v0, 0.0])
+    return s
+
+
+def pushed_block(*, c=2.0, mu=0.3, mu_s=0.5, m=1.0, g=9.81) -> MechanicalSystem:
+    """A block (x, y) at rest on the floor y = 0, pushed along it by the generalized force (c t, 0):
+    restitution 0, friction mu, static friction mu_s; the slip row (1, 0)."""
+    x, y, t = sp.symbols("x y t")
+    M_, g_, c_ = sp.symbols("m g c")
+    cons = Constraint("floor", y, sp.Integer(0), friction=sp.Symbol("mu"), static_friction=sp.Symbol("mu_s"),
+                      slip=(sp.Integer(1), sp.Integer(0)))
+    s = MechanicalSystem(name="pushed_block", q=[x, y], params={"m": m, "g": g, "c": c, "mu": mu, "mu_s": mu_s},
+                         M=sp.eye(2) * M_, V=M_ * g_ * y, constraints=[cons], forcing=sp.Matrix([c_ * t, 0]), t=t,
+                         description="a block on a floor pushed by a growing force c t, Coulomb friction mu, mu_s")
+    s.default_q0, s.default_p0 = np.zeros(2), np.zeros(2)
     return s
 
 
@@ -141,3 +158,30 @@ def link_chain_friction(n=5, *, m=0.2, l=0.3, g=9.81, e=0.3, mu=0.5, height=0.5)
                          q0=[0.0, height] + angles,
                          description=f"chain of {n} links falling on the floor y = 0 with friction mu at the link "
                                      "ends")
+
+
+def compass_gait_stance(theta_s, theta_ns, thetadot_s=0.0, thetadot_ns=0.0, *, mu=1.0, mu_s=None, m=5.0, mH=10.0,
+                        a=0.5, b=0.5, gamma=float(np.deg2rad(3.0)), g=9.81) -> MechanicalSystem:
+    """The compass gait of vcirun.scenes (Goswami et al.: point masses m at a from each foot, mH at the
+    hip, legs a + b, a slope gamma) with its stance foot a point contact on the slope (restitution 0,
+    friction mu, static friction mu_s, default mu) instead of a pin: the stance leg on a free joint (x, y
+    of its foot, its absolute angle theta_s + gamma from the vertical; the stance and hip masses are one
+    body), the swing leg on a revolute joint at the hip (its absolute angle theta_ns + gamma). The swing
+    foot is no contact (the stance phase only). Starts with the foot at the origin, at rest on the slope,
+    the legs at (theta_s, theta_ns) with rates (thetadot_s, thetadot_ns): while the foot sticks this is
+    the pinned gait's stance phase, and the held forces at the foot are its ground reaction."""
+    mu_s = mu if mu_s is None else mu_s
+    l = a + b
+    c = (m * a + mH * l) / (m + mH)                       # the stance body's centre of mass on the leg
+    inertia = m * (a - c) ** 2 + mH * (l - c) ** 2
+    params = {"m": m, "mH": mH, "a": a, "b": b, "g": g, "gamma": gamma, "mu": mu, "mu_s": mu_s}
+    return planar_system(
+        "compass_gait_stance",
+        [Body("stance", m + mH, inertia, (0.0, c)), Body("swing", "m", 0, (0, "-b"))],
+        [Joint("free", "stance", coordinates=("x", "y", "phi_s")),
+         Joint("revolute", "swing", "stance", (0, "a + b"), "phi_ns", absolute=True)],
+        [PointContact("foot", "stance", normal=("-sin(gamma)", "cos(gamma)"), restitution=0, friction="mu",
+                      static_friction="mu_s")],
+        params=params, gravity="g", q0=[0.0, 0.0, theta_s + gamma, theta_ns + gamma],
+        qdot0=[0.0, 0.0, thetadot_s, thetadot_ns],
+        description="the compass gait's stance phase with a frictional stance foot (a floating base)")

@@ -14,6 +14,8 @@ along t, and the friction force opposes it; mu is the kinetic, mu_s the static c
 - `coulomb_oscillator`: m x'' + k x = -mu m g sign(x'): half swings about the shifted centres
   -+ mu m g / k, each losing 2 mu m g / k of amplitude, stopping at the first turning point with
   k |x| <= mu_s m g.
+- `pushed_block`: a block on a floor pushed by a growing force c t: it sticks until c t = mu_s m g,
+  then slides with m x'' = c t - mu m g.
 - `housner_ratio`, `housner_stick_mu`, `housner_rocking`: a rectangular block rocking on its corners
   without sliding, omega+ / omega- = 1 - 3/2 sin^2 alpha at each plastic corner impact.
 - `painleve_B`: a uniform rod sliding on one end, its normal force N = m (g - l sin(phi) phidot^2) / B
@@ -28,8 +30,9 @@ from typing import NamedTuple
 import numpy as np
 
 __all__ = ["SpinningBall", "spinning_ball", "InclineMotion", "incline", "CoulombOscillator", "coulomb_oscillator",
+           "PushedBlock", "pushed_block",
            "housner_ratio", "housner_stick_mu", "HousnerRocking", "housner_rocking", "painleve_B",
-           "painleve_normal_force", "painleve_min_mu"]
+           "painleve_normal_force", "painleve_min_mu", "compass_gait_heel_impulse"]
 
 
 def _positive(name, v):
@@ -255,6 +258,37 @@ def coulomb_oscillator(x0, v0=0.0, *, m=1.0, k=1.0, mu=0.1, mu_s=None, g=9.81, m
     raise ValueError(f"max_turns: more than {max_turns} half swings (mu = {mu} too small for this amplitude?)")
 
 
+# --- a block pushed by a growing force ------------------------------------------------------------------
+
+class PushedBlock(NamedTuple):
+    """t_slip: when the block starts to slide; state(t) = (x, xdot)."""
+
+    t_slip: float
+    params: dict
+
+    def state(self, t):
+        p = self.params
+        t, ts, c, m, mu, g = float(t), self.t_slip, p["c"], p["m"], p["mu"], p["g"]
+        if t <= ts:
+            return 0.0, 0.0
+        d = t - ts
+        x = c / (6 * m) * (t ** 3 - ts ** 3) - c * ts * ts / (2 * m) * d - mu * g * d * d / 2
+        return x, c / (2 * m) * (t * t - ts * ts) - mu * g * d
+
+
+def pushed_block(*, c, mu, mu_s=None, m=1.0, g=9.81) -> PushedBlock:
+    """A block of mass m at rest on a floor, pushed along it by the force c t (c > 0): the tangential
+    force that holds it is c t, inside the static cone until t_slip = mu_s m g / c; from then on it
+    slides, m x'' = c t - mu m g (x''(t_slip) = (mu_s - mu) g >= 0, so the slip never ends):
+    x = c (t^3 - t_s^3) / (6 m) - c t_s^2 (t - t_s) / (2 m) - mu g (t - t_s)^2 / 2."""
+    c, m, g = _positive("c", c), _positive("m", m), _positive("g", g)
+    mu = _nonneg("mu", mu)
+    mu_s = mu if mu_s is None else _nonneg("mu_s", mu_s)
+    if mu_s < mu:
+        raise ValueError(f"mu_s: the static coefficient must be >= mu = {mu} (got {mu_s})")
+    return PushedBlock(mu_s * m * g / c, {"c": c, "m": m, "g": g, "mu": mu, "mu_s": mu_s})
+
+
 # --- Housner's rocking block -------------------------------------------------------------------------
 
 def _alpha(a, b) -> float:
@@ -332,6 +366,38 @@ def housner_rocking(theta0, *, a, b, g=9.81, impacts=3) -> HousnerRocking:
         amps.append(A)
         t += 2.0 * quarter(A)
     return HousnerRocking(times, wm, wp, amps)
+
+
+# --- the compass gait's heel strike --------------------------------------------------------------------
+
+def compass_gait_heel_impulse(q_minus, qd_minus, qd_plus, *, m, mH, a, b, gamma, **_):
+    """(P_n, P_t) of the compass gait's heel strike (the built-in `compass_gait`: q = (theta_s,
+    theta_ns) from the slope normal, point masses m at a from each foot, mH at the hip; the reset
+    exchanges the legs): the impulse on the walker at the new stance foot, P = sum_i m_i (v_i+ - v_i-)
+    (Goswami's model: the old stance foot leaves without impulse), along the slope's normal
+    n = (-sin gamma, cos gamma) and tangent t = (cos gamma, sin gamma). A point at r along a leg of
+    absolute angle phi = theta + gamma from the vertical moves at r phidot (-cos phi, -sin phi) about
+    its foot; the swing leg's mass at b below the hip at the hip's velocity + b phidot (cos phi, sin phi).
+    The stance foot sticks through the impact iff |P_t| <= mu P_n."""
+    l = a + b
+    ps, pn = q_minus[0] + gamma, q_minus[1] + gamma
+    ws, wn = qd_minus
+    # after: the old swing leg stands (angle pn, rate qd_plus[0]), the old stance leg swings (ps, qd_plus[1])
+    ws2, wn2 = qd_plus
+
+    def rot(phi):
+        return np.array([-math.cos(phi), -math.sin(phi)])
+
+    def swing(phi):
+        return np.array([math.cos(phi), math.sin(phi)])
+
+    hip_m, hip_p = l * ws * rot(ps), l * ws2 * rot(pn)
+    old_stance_mass = (a * ws * rot(ps), hip_p + b * wn2 * swing(ps))   # (before, after: now the swing leg's)
+    old_swing_mass = (hip_m + b * wn * swing(pn), a * ws2 * rot(pn))   # (before, after: now the stance leg's)
+    P = m * (old_stance_mass[1] - old_stance_mass[0]) + mH * (hip_p - hip_m) + m * (old_swing_mass[1] - old_swing_mass[0])
+    n = np.array([-math.sin(gamma), math.cos(gamma)])
+    t = np.array([math.cos(gamma), math.sin(gamma)])
+    return float(P @ n), float(P @ t)
 
 
 # --- Painleve's rod ----------------------------------------------------------------------------------

@@ -28,7 +28,7 @@ The events of a held phase (located on both paths of the reference):
     slip     a sticking contact's lam_t,i reaches +-mu_s,i lam_n,i: it slides, s = -sign(lam_t,i);
     painleve det Kmat reaches 0 with a sliding contact (PainleveError ends the solve).
 At an impact the touching contacts take the frictional impact law of vcirun/collision/friction_law.py
-(normal and tangential impulses, kinetic mu).
+(through vcirun.reference.friction_law.friction_impact; normal and tangential impulses, kinetic mu).
 """
 from __future__ import annotations
 
@@ -40,8 +40,8 @@ import numpy as np
 from . import held as rh
 from .held import SMOOTH, STICK
 
-__all__ = ["SMOOTH", "STICK", "Forces", "PainleveError", "coefficients", "held_forces", "settle", "contact_modes",
-           "held_set", "response", "impact", "impact_law", "mode_name"]
+__all__ = ["SMOOTH", "STICK", "Forces", "PainleveError", "coefficients", "held_forces", "settle", "stick_offsets",
+           "contact_modes", "held_set", "response", "impact", "mode_name"]
 
 _EPS = float(np.finfo(float).eps)
 CONE_TOL = 64 * _EPS   # relative: |lam_t| <= mu_s lam_n (1 + CONE_TOL) is inside the static cone
@@ -91,9 +91,30 @@ class Forces(NamedTuple):
     K: np.ndarray
 
 
+RANK_TOL = 1e-10   # relative: a sticking row within this of the span of the rows before it is dependent
+
+
+def independent_sticks(C, k) -> list:
+    """The rows k.. of C (slip rows of sticking contacts) that are independent of rows 0..k-1 and of
+    the ones kept before them (relative tolerance RANK_TOL): several sticking contacts of one rigid body
+    (a link with both ends on the floor) constrain the same tangential motion, and their tangential
+    forces are statically indeterminate."""
+    keep = list(range(k))
+    for r in range(k, len(C)):
+        trial = C[keep + [r]]
+        if len(trial) > C.shape[1]:
+            continue   # (more rows than coordinates: dependent)
+        sv = np.linalg.svd(trial, compute_uv=False)
+        if sv[-1] > RANK_TOL * sv[0]:
+            keep.append(r)
+    return keep[k:]
+
+
 def held_forces(g, A, S) -> Forces:
     """The forces of the held set A in the modes S at the state of the vcirun.reference.held._Geometry g
-    (see the module docstring)."""
+    (see the module docstring). Sticking rows that depend on the others are dropped from the dynamics
+    (they constrain nothing more); the tangential force the kept ones carry is shared among all the
+    sticking contacts as the least-norm distribution (lstsq of W_t^T lam_t = the kept rows' force)."""
     mu, _ = coefficients(g._mod, g._prm)
     A = list(A)
     k = len(A)
@@ -105,16 +126,23 @@ def held_forces(g, A, S) -> Forces:
             D[a] = Gn[a] - mu[A[a]] * S[a] * g.Wt[A[a]]
     kappa = g.c[A]
     C = Gn
+    kept = []
     if stick:
         Ws = g.Wt[[A[a] for a in stick]]
-        C, D = np.vstack([Gn, Ws]), np.vstack([D, Ws])
-        kappa = np.concatenate([kappa, g.dslip[[A[a] for a in stick]]])
+        kept = [r - k for r in independent_sticks(np.vstack([Gn, Ws]), k)]
+        C, D = np.vstack([Gn, Ws[kept]]), np.vstack([D, Ws[kept]])
+        kappa = np.concatenate([kappa, g.dslip[[A[stick[r]] for r in kept]]])
     X = np.linalg.solve(g.M, D.T)
     K = C @ X
     b = C @ np.linalg.solve(g.M, g.F - g.Mdv) + kappa
     lam = np.linalg.solve(K, -b) if k else np.zeros(0)
     lam_t = np.zeros(k)
-    lam_t[stick] = lam[k:]
+    if stick:
+        if len(kept) == len(stick):
+            lam_t[stick] = lam[k:]
+        else:   # the tangential force of the kept rows, shared among every sticking contact (least norm)
+            f_t = Ws[kept].T @ lam[k:]
+            lam_t[stick] = np.linalg.lstsq(Ws.T, f_t, rcond=None)[0]
     return Forces(lam[:k], lam_t, g.F + D.T @ lam, K)
 
 
@@ -127,6 +155,22 @@ def _slip_tol(g, i, tol) -> float:
     """|v_t,i| below this is at rest tangentially (as held_set's |u_i| test)."""
     w = max(map(abs, g.Wt[i].tolist()), default=0.0)
     return tol * w * (1.0 + max(map(abs, g.v.tolist()), default=0.0))
+
+
+def stick_offsets(g, A, S) -> dict:
+    """{contact: offset} for the sliding contacts of (A, S) whose slip velocity is round-off at the state
+    of g: a slip that starts from rest (at the static cone, or reversing) with a slip acceleration that
+    may be round-off itself (mu_s = mu: the force balance at the cone is exact). Its stick event then
+    fires only past s v_t = -offset, 1e3 eps (1 + |W_t,i| |v|) times 4, and the root s v_t = 0 before it
+    is refined on the dense output: a round-off crossing at the slip's start is no event."""
+    out = {}
+    vn = max(map(abs, g.v.tolist()), default=0.0)
+    for i, s in zip(A, S):
+        if s in (1, -1):
+            level = 1e3 * _EPS * (1.0 + max(map(abs, g.Wt[i].tolist()), default=0.0) * vn)
+            if abs(g.wt[i]) <= level:
+                out[int(i)] = 4.0 * level
+    return out
 
 
 def contact_modes(g, A, tol) -> tuple:
@@ -231,18 +275,9 @@ def check_painleve(g, A, S, names) -> None:
 
 # --- the frictional impact law -------------------------------------------------------------------------
 
-
-
-def impact_law():
-    """friction_impact_law(W, u, e, mu, lam) of vcirun/collision/friction_law.py (rows [normal_1..k,
-    tangent_1..k], returns its case code), compiled once (vcirun.reference.friction_law)."""
-    from .friction_law import friction_law_module
-
-    return friction_law_module().friction_impact_law
-
-
 def impact(mod, t, q, p, prm, contacts, e_of):
-    """The frictional impact law at (q, p-) for the touching `contacts` (an index list, as
+    """The frictional impact law (vcirun.reference.friction_law.friction_impact: the unit
+    vcirun/collision/friction_law.py) at (q, p-) for the touching `contacts` (an index list, as
     impact_direction's `active`): (case, lam_n (m), lam_t (m), dp) with p+ = p- + dp. A contact
     separating (u_n > 0) takes no restitution, as collision/impact.py's law."""
     g = rh._Geometry(mod, t, q, p, prm)
@@ -254,9 +289,9 @@ def impact(mod, t, q, p, prm, contacts, e_of):
     W = 0.5 * (W + W.T)   # symmetric to round-off: made exactly so
     u = rows @ g.v
     e = np.array([e_of[i] if u[a] <= 0.0 else 0.0 for a, i in enumerate(idx)])
-    lam = np.zeros(2 * k)
-    case = int(impact_law()(np.ascontiguousarray(W), np.ascontiguousarray(u), e,
-                            np.ascontiguousarray(mu[idx], float), lam))
+    from .friction_law import friction_impact  # the law's compiled unit, vcirun/collision/friction_law.py
+
+    case, lam = friction_impact(W, u, e, mu[idx])
     lam_n, lam_t = np.zeros(g.m), np.zeros(g.m)
     lam_n[idx], lam_t[idx] = lam[:k], lam[k:]
     return case, lam_n, lam_t, rows.T @ lam
