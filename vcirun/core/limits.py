@@ -112,6 +112,6 @@ def family_size_problem(family: str, k: int) -> str | None:
     if k < lo:
         return f"{family}_{k}: {family}_K takes K from {lo} to {hi}"
     m = contacts(k)
-    return (f"{family}_{k} has {coords(k):,} coordinates and {m:,} contact{'s' * (m != 1)}; {family}_K takes K from {lo} "
-            f"to {hi}" + ("" if family == "newton_cradle" else
+    return (f"{family}_{k} has {coords(k):,} coordinates and {m:,} contact{'s' * (m != 1)}; {family}_K takes K "
+            f"from {lo} to {hi}" + ("" if family == "newton_cradle" else
                           f" (the limit is {cap('coordinates')} coordinates: {CAPS['coordinates'].why})"))
