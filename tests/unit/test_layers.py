@@ -25,7 +25,7 @@ LAYERS = (
     ("numba units", ("maps", "collision")),
     ("methods", ("methods",)),
     ("run", ("run",)),
-    ("reference", ("reference",)),
+    ("reference", ("reference_solution",)),
     ("files", ("io",)),
     ("experiments", ("experiments",)),
     ("verification", ("verification",)),
@@ -123,7 +123,7 @@ def test_no_import_cycle():
     assert not cycles, "import cycles:\n" + "\n".join(cycles)
 
 
-@pytest.mark.parametrize("module", ["vcirun.maps", "vcirun.collision", "vcirun.experiments", "vcirun.reference",
+@pytest.mark.parametrize("module", ["vcirun.maps", "vcirun.collision", "vcirun.experiments", "vcirun.reference_solution",
                                     "vcirun.experiments.sweep", "vcirun.io.writer", "vcirun.io.reader",
                                     "vcirun.experiments.config", "vcirun.run.api", "vcirun.core.record"])
 def test_numeric_layers_load_no_sympy_and_compile_nothing(module):

@@ -53,7 +53,7 @@ def double_pendulum(**overrides) -> MechanicalSystem:
 
 def oscillator_wall(**overrides) -> MechanicalSystem:
     """1-DOF harmonic oscillator m xdd = -k x against a wall at x = -d: phi = x + d.
-    Closed-form solution with elastic impacts (see vcirun.reference.oscillator_wall_exact)."""
+    Closed-form solution with elastic impacts (see vcirun.reference_solution.oscillator_wall_exact)."""
     d = sd.oscillator_wall(**overrides)
     x = sp.Symbol("x")
     m, k, dd = sp.symbols("m k d")

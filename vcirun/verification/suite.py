@@ -242,7 +242,7 @@ class _Session:
     # --- the exact solutions ------------------------------------------------------------------------
     def references(self):
         """The exact smooth solution on the coarsest grid (constraint ignored) and vcirun.reference."""
-        from ..reference.exact import reference
+        from ..reference_solution.exact import reference
 
         T, hs = self.T, self.hs
         self.say("exact smooth solution (DOP853, constraint ignored)")
@@ -402,7 +402,7 @@ class _Session:
                 elif nimp != nref:
                     excl.append((x, f"{nimp} impacts, reference {nref}"))
                 else:
-                    from ..reference.exact import l2_error
+                    from ..reference_solution.exact import l2_error
 
                     l2_h.append(x)
                     l2.append(l2_error(tr, ref))

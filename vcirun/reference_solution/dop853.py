@@ -1,4 +1,4 @@
-"""The exact reference's DOP853 path, for systems the Taylor path cannot express (vcirun.reference.taylor).
+"""The exact reference's DOP853 path, for systems the Taylor path cannot express (vcirun.reference_solution.taylor).
 
 scipy's DOP853 is stepped here one step at a time, and each step is checked on its dense output for
 every watched function separately, at `samples` + 1 points:
@@ -16,7 +16,7 @@ not held could need to reach its surface, (u + sqrt(u^2 + 2 |a| max(phi, 0))) / 
 a_i its gap, normal velocity and normal acceleration, a_i taken towards the surface), so a free flight
 whose polynomial motion DOP853's error estimate cannot see still steps onto each surface. Roots are
 refined by brentq on the dense output. Held phases integrate the index-reduced dynamics
-(vcirun.reference.held.held_rhs) and stop for a projection when the constraints drift past drift_tol.
+(vcirun.reference_solution.held.held_rhs) and stop for a projection when the constraints drift past drift_tol.
 """
 from __future__ import annotations
 

@@ -1,12 +1,12 @@
 """The event loop of the exact reference, shared by its Taylor and DOP853 paths.
 
-Between events a backend integrates one segment (vcirun.reference.flight: `segment(t0, y0, T, A, R)`);
+Between events a backend integrates one segment (vcirun.reference_solution.flight: `segment(t0, y0, T, A, R)`);
 here each event is resolved the way the integrators resolve it:
 
 - an impact: the impact law of the integrators (collision/impact.py `impact_direction`: Newton's law
   for one contact, Moreau's LCP over every contact touching within SIMULTANEOUS seconds, held ones
   included with u- = 0), one impact entry per contact with a positive impulse that is not held;
-  then the held set at the new state (vcirun.reference.held.held_set: the contacts left on their
+  then the held set at the new state (vcirun.reference_solution.held.held_set: the contacts left on their
   surface at rest whose contact force is compressive, a plastic impact among them);
 - accumulation: a contact whose impacts accumulate (its flights shrink below ZENO_FLIGHT, at the ratio
   e for a single contact, at a steady ratio when several contacts exchange impulses, or its next
@@ -203,7 +203,7 @@ _LAW_COMPILED: set = set()   # system modules whose impact law this process has 
 def solve(backend, mod, q0, p0, prm, T, *, names, resting_contact=True, max_impacts=MAX_IMPACTS,
           max_events=MAX_EVENTS, resets=None, stop_after=None) -> Solution:
     """The exact nonsmooth solution on [0, T] from (q0, p0) on `backend`'s segments (see the module).
-    resets: the system's DeclaredResets (vcirun.reference.resets; None: Newton's law alone);
+    resets: the system's DeclaredResets (vcirun.reference_solution.resets; None: Newton's law alone);
     stop_after = (contact, k): end at the k-th impact of that contact, its state after the impact law
     (and the declared map) in sol.after."""
     n, m = int(mod.NDOF), int(mod.NCON)

@@ -4,11 +4,11 @@ Exact reference: Hamilton's equations with the generalized force, qdot = M^-1 p,
 pdot = -dH/dq + f(q, qdot, t), one event per contact (phi_i(q) = 0, entering), the impact law of the
 integrators at each event (Newton's law per contact, Moreau's LCP for simultaneous contacts:
 collision/impact.py), restarted after each impact; dense output on any grid. The event loop
-(vcirun.reference.loop) is shared by two integration paths:
+(vcirun.reference_solution.loop) is shared by two integration paths:
 
-- Taylor (ref.kind "taylor", vcirun.reference.taylor): heyoka at machine precision; every root of
+- Taylor (ref.kind "taylor", vcirun.reference_solution.taylor): heyoka at machine precision; every root of
   every phi_i inside a step is isolated from its Taylor polynomial, so no event is stepped over;
-- DOP853 (ref.kind "dop853", vcirun.reference.dop853) for a system the Taylor path cannot express
+- DOP853 (ref.kind "dop853", vcirun.reference_solution.dop853) for a system the Taylor path cannot express
   (ref.kind_reason says why): per-contact sign and minimum checks on the dense output of every step,
   steps bounded by the flight's own scales, at rtol.
 
@@ -24,11 +24,11 @@ grid: a check of the solve that does not rest on a second solve of the same equa
 Held contacts (resting_contact=True): a contact that starts at rest on its surface, is left at rest by
 a plastic impact, or whose impacts accumulate (the Zeno time extrapolated from its flights; several
 contacts accumulating together are held together) is held on the index-reduced constrained dynamics
-(vcirun/reference/held.py) and released where its contact force turns tensile; docs/derivations/contacts.md 6.
+(vcirun/reference_solution/held.py) and released where its contact force turns tensile; docs/derivations/contacts.md 6.
 
 Declared resets and guards (vcirun.mechanics.hybrid): the declared map at each impact of its
 constraint, guards honoured on both paths, the state after the map checked admissible
-(vcirun.reference.resets); the exact return map on a section: vcirun.reference.stride.
+(vcirun.reference_solution.resets); the exact return map on a section: vcirun.reference_solution.stride.
 
 Also: a fine-step method reference (the paper's choice: CVA at a small h). Closed forms (the
 oscillator against a wall, the bouncing ball, the ball in a box ...) are in vcirun.scenes.oracles.

@@ -1,8 +1,8 @@
 """Held (resting) contacts in the exact reference: the index-reduced constrained dynamics, the
 projection onto the held manifold, which contacts are held (the contact-force LCP), the contacts at
 rest, and accumulation (the Zeno time extrapolated from a contact's flights). The held phases
-themselves are segments of the backends (vcirun.reference.taylor, vcirun.reference.dop853) driven by
-the event loop (vcirun.reference.loop).
+themselves are segments of the backends (vcirun.reference_solution.taylor, vcirun.reference_solution.dop853) driven by
+the event loop (vcirun.reference_solution.loop).
 Derivations: docs/derivations/contacts.md, "Held contacts in the reference".
 
 `mod` is the system-only compiled module (vcirun.codegen.build.load_module(system, SYSTEM_KERNELS)),
@@ -28,7 +28,7 @@ __all__ = ["HELD_TOL", "ZENO_FLIGHT", "held_multipliers", "free_normal_accelerat
            "held_set", "initially_held", "plastic_entry", "at_rest", "zeno_extrapolation", "accumulating"]
 
 HELD_TOL = 1e-10    # relative: |phi_i|, |u_i| below this count as on the surface at rest (DOP853's precision;
-#                     the Taylor path uses its own, vcirun.reference.taylor.REST_TOL)
+#                     the Taylor path uses its own, vcirun.reference_solution.taylor.REST_TOL)
 # s: a contact's flight shorter than this ends bounce resolution (accumulation). The held state at
 # t_inf is then exact to O(d^3) ~ 1e-18 and t_inf to O(d^2) (0 for a constant normal force), and
 # the bounces left are well above the touch tolerances
