@@ -52,7 +52,7 @@ CAPS: dict[str, Cap] = {
     "steps": Cap(1e12, "steps", "T / h steps of one run", "raise h or lower T"),
     # ensemble members x steps: the work of one vcirun.ensemble call (1e12 steps take days on one core)
     "ensemble_steps": Cap(1e12, "member steps (members x T / h)", "the work of one call",
-                          "split the ensemble (vcirun.iter_ensemble runs batches), raise h or lower T"),
+                          "split the ensemble (vcirun.run.ensemble.iter_ensemble runs batches), raise h or lower T"),
 }
 
 # The built-in families named <family>_K: K's range and the coordinates and contacts K gives. Every

@@ -58,7 +58,8 @@ def explicit_step(sid, q0, p0, h, t, prm, newton_tol, max_iter, v, q1, p1, c, cn
         # Newton). Once it is below newton_tol the next iteration could only confirm it: stopping
         # saves it (a third of a smooth step). The step then honours newton_tol, not round-off: the
         # map carries noise up to ~newton_tol relative (measured: symplecticity defect and orders
-        # unchanged; a grid point exactly on phi = 0 needs a wider search, see stress.boundary_start).
+        # unchanged; a grid point exactly on phi = 0 needs a wider search, see
+        # vcirun.experiments.studies.contact.boundary_start).
         theta = dn / dprev  # (dprev = inf on the first iteration: no rate known, theta = 0 ignored)
         if it >= 2 and theta < 0.1 and theta / (1.0 - theta) * dn <= newton_tol * (1.0 + vn):
             converged = True
