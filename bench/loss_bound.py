@@ -110,7 +110,8 @@ def main(argv=None) -> dict:
         lost = max(0, have - committed)
         t_c = next((t for t, n in s.points if n >= committed), s.points[-1][0]) if committed else s.points[0][0]
         window = [p for p in s.points if p[0] >= t_kill - 5.0]
-        rate = (window[-1][1] - window[0][1]) / max(1e-9, window[-1][0] - window[0][0]) if len(window) > 1 else float("nan")
+        rate = ((window[-1][1] - window[0][1]) / max(1e-9, window[-1][0] - window[0][0]) if len(window) > 1
+                else float("nan"))
         lost_s = t_kill - t_c if lost else 0.0
         row = {"t_kill": round(t_kill, 2), "had": have, "committed": committed, "lost": lost,
                "seconds_lost": round(lost_s, 3), "rate": round(rate, 1)}

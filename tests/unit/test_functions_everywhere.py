@@ -1,9 +1,10 @@
 """Every function a user expression may call (vcirun.mechanics.expressions.ALLOWED_FUNCTIONS) in every
 place a declaration takes an expression: the mass matrix, the potential, a constraint, the forcing, a
 declared reset (positions and velocities) and a spring of the bodies form. Each is derived and printed
-into the kernels of a method without and with modified energies (CVA, MCVAC: their second and third
-derivatives: one set of kernels holds both); abs() once failed there (sympy's d|x|/dx of a symbol not declared real is written with
-re and im). One slow test compiles and runs a system with every function in every place."""
+into the kernels of MCVAC (the system's kernels and the modified energy's higher derivatives). abs()
+is the case that needs care: sympy's d|x|/dx of a symbol not declared real is written with re and
+im, which no kernel prints. One slow test compiles and runs a system with every function in every
+place."""
 from __future__ import annotations
 
 import re

@@ -231,7 +231,7 @@ def test_a_long_sum_prints_as_code_python_compiles():
     v = np.arange(len(xs), dtype=float) / len(xs)
     assert ns["f"](*v) == pytest.approx(float(np.sum((np.arange(len(xs)) + 1) * v)), rel=1e-12)
     short = sp.Add(*xs[:10])
-    assert pycode(short) == " + ".join(map(str, xs[:10]))   # short sums print as before
+    assert pycode(short) == " + ".join(map(str, xs[:10]))   # short sums print as sympy prints them
 
 
 def test_a_kernel_nested_past_the_translator_limit_stays_in_numba():

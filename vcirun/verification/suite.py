@@ -197,6 +197,9 @@ class _Session:
         if self.force is not None:
             self.res.notes.append("forced system: the exact smooth solution adds the declared generalized force to "
                                   "Hamilton's equations (sympy.lambdify of the declaration)")
+        # the runs' work in steps (a smooth and an impact run per step size and method), for the estimate
+        self.steps_total = 2 * len(self.meths) * sum(grid_count(x, T) for x in self.hs)
+        self.steps_done, self.run_seconds, self.said_at, self.runs = 0, 0.0, 0.0, 0
         self.base = load_module(sysm, METHODS["CVA"].kernel_set())   # system kernels + Hamilton's equations
         self.H0 = float(self.base.hamiltonian(self.q0, self.p0, prm))
         Mq0 = self.M(self.q0)
@@ -235,9 +238,23 @@ class _Session:
         from ..core.grid import GridWarning
         from ..run.api import simulate
 
+        from ..core.grid import grid_count
+        from ..core.progress import format_seconds
+
+        t = time.perf_counter()
         with warnings.catch_warnings():   # said once, in the report's notes (see __init__)
             warnings.simplefilter("ignore", GridWarning)
-            return simulate(self.sysm, meth, h=h, T=self.T, q0=self.q0, p0=self.p0, params=self.params, **kw)
+            tr = simulate(self.sysm, meth, h=h, T=self.T, q0=self.q0, p0=self.p0, params=self.params, **kw)
+        self.run_seconds += time.perf_counter() - t
+        self.steps_done += grid_count(h, self.T)
+        self.runs += 1
+        left = self.run_seconds / self.steps_done * max(0, self.steps_total - self.steps_done)
+        now = time.perf_counter()
+        quiet = now - self.said_at < max(10.0, 0.1 * (now - self.t_start))
+        if self.runs > 1 and self.run_seconds + left > 10.0 and not quiet:
+            self.said_at = now   # a long ladder says how far its runs are, and what is left
+            self.say(f"runs: {self.steps_done:,} of {self.steps_total:,} steps, about {format_seconds(left)} left")
+        return tr
 
     # --- the exact solutions ------------------------------------------------------------------------
     def references(self):
