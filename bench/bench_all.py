@@ -18,8 +18,6 @@ Sections (`--only a,b,...` to pick; `--quick` for a short smoke run):
             the degrees of freedom (n-link pendulum, n = 1, 2, 4, 8: symbolic, numba build, us/step),
             with fitted exponents (CVA, MCVAC, MCVAA)
   dof       only the degrees-of-freedom part of `scaling`
-  tensor    the per-slot tensor prototype of the step (bench/tensor_prototype.py): symbolic and numba
-            time and us per step against vcirun's generated step, n-link pendulum n = 1, 2, 4, 8
   coldbuild cold builds: the first simulation of a scene with a FRESH kernel cache, one
             fresh process at a time, per stage (sympy, emission, C compiler, numba frontend / typing /
             lowering, LLVM, cache write) and per compiled function (bench/coldbuild.py), cart-pendulum
@@ -641,21 +639,6 @@ def section_coldbuild(res):
     res["coldbuild"] = {"rows": rows, "targets": table}
 
 
-def section_tensor(res):
-    log("== per-slot tensor prototype (bench/tensor_prototype.py): symbolic, numba and us per SVC step")
-    path = ROOT / "results" / ("tensor_prototype_quick.json" if QUICK else "tensor_prototype.json")
-    r = subprocess.run([sys.executable, str(ROOT / "bench" / "tensor_prototype.py"), f"--output={path}"]
-                       + (["cart_pendulum", "1", "2", "4"] if QUICK else []),
-                       cwd=ROOT, text=True, capture_output=True, timeout=7200)
-    log(r.stdout.rstrip())
-    if r.returncode:
-        log(r.stderr.strip()[-2000:])
-    try:
-        res["tensor_prototype"] = json.loads(path.read_text())
-    except (OSError, ValueError):
-        pass
-
-
 # --- contacts -----------------------------------------------------------------------------------------
 _CART_YAML = {"coordinates": ["y", "theta"], "parameters": {"m1": 1.0, "m2": 0.2, "L": 2.0, "g": 10.0},
               "mass_matrix": [["m1 + m2", "m2*L*sin(theta)"], ["m2*L*sin(theta)", "m2*L**2"]],
@@ -752,7 +735,7 @@ def section_bodies(res):
 
 SECTIONS = {"steps": section_steps, "sim5": section_sim5, "impact": section_impact, "build": section_build,
             "sweep": section_sweep, "yardstick": section_yardstick, "scaling": section_scaling, "dof": section_dof,
-            "tensor": section_tensor, "wp": section_wp, "coldbuild": section_coldbuild, "contacts": section_contacts,
+            "wp": section_wp, "coldbuild": section_coldbuild, "contacts": section_contacts,
              "bodies": section_bodies, "cacheverify": section_cacheverify,
              "throughput": lambda res: section_throughput(res, quick=QUICK), "reference": section_reference,
              "tiers": lambda res: section_tiers(res, quick=QUICK, log=log),

@@ -37,8 +37,8 @@ def log(msg=""):
 
 
 def compiled_unit():
-    """The compiled unit, as the exact reference loads it (vcirun.reference.friction_law)."""
-    from vcirun.reference.friction_law import friction_law_module
+    """The compiled unit, as the exact reference loads it (vcirun.reference_solution.friction_law)."""
+    from vcirun.reference_solution.friction_law import friction_law_module
 
     return friction_law_module()
 

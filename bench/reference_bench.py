@@ -28,7 +28,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import vcirun  # noqa: E402
-from vcirun.reference.exact import solve_exact  # noqa: E402
+from vcirun.reference_solution.exact import solve_exact  # noqa: E402
 from vcirun.run.resolve import resolve_system  # noqa: E402
 
 METHODS = ["CVA", "VCI", "MCVAA", "MCVAC"]

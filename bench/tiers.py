@@ -66,7 +66,7 @@ def _env(cache: Path, tree: Path = ROOT, **extra) -> dict:
 def _warm_bytecode(log) -> None:
     """Import everything a first simulation and a sweep import, once (bytecode, not kernels)."""
     code = ("import vcirun, vcirun.run.api, vcirun.cli.main, vcirun.experiments.sweep, vcirun.codegen.derive, "
-            "vcirun.codegen.mh_kernels, vcirun.reference.exact, vcirun.codegen.background, sympy, scipy.integrate")
+            "vcirun.codegen.mh_kernels, vcirun.reference_solution.exact, vcirun.codegen.background, sympy, scipy.integrate")
     with tempfile.TemporaryDirectory() as d:
         r = _run([sys.executable, "-c", code], _env(Path(d)), ROOT)
     log(f"  (bytecode of the imported modules written under {PYCACHE}: {r['wall_s']:.1f} s)")

@@ -96,7 +96,7 @@ def _zeno_tail(ref, it, ic):
 def _box(x0, y0, vx, vy, e, T=5.0, width=1.0, height=1.0, g=9.81, m=1.0):
     params = {"e": e, "width": width, "height": height, "g": g, "m": m}
     # on a wall, a normal velocity within the rest tolerance (1e-12 relative) is zero to the reference
-    # (vcirun.reference.held: at rest), not an impact of impulse 1e-278 as the closed form would have it
+    # (vcirun.reference_solution.held: at rest), not an impact of impulse 1e-278 as the closed form would have it
     if x0 in (0.0, width) and abs(vx) <= 1e-12:
         vx = 0.0
     if y0 in (0.0, height) and abs(vy) <= 1e-12:

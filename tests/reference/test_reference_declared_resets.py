@@ -1,4 +1,4 @@
-"""The exact reference through declared resets (vcirun.reference.resets, vcirun.reference.stride).
+"""The exact reference through declared resets (vcirun.reference_solution.resets, vcirun.reference_solution.stride).
 
 Measured (Taylor path; `vcirun.periodic_orbit("compass_gait", "reference", guess=..., fd_step=5e-5)`):
 compass gait at 3 degrees, fixed point q = (-0.27102868, 0.27102868), p = (16.9430407, -1.86775612),
@@ -22,9 +22,9 @@ import sympy as sp
 import vcirun
 from vcirun.experiments.periodic import periodic_orbit
 from vcirun.mechanics.system import Constraint, MechanicalSystem
-from vcirun.reference.exact import solve_exact
-from vcirun.reference.resets import declared_resets
-from vcirun.reference.stride import ReferenceReturnMap
+from vcirun.reference_solution.exact import solve_exact
+from vcirun.reference_solution.resets import declared_resets
+from vcirun.reference_solution.stride import ReferenceReturnMap
 from vcirun.run.resolve import resolve_system
 from vcirun.scenes.oracles import rimless_wheel_fixed_point, rimless_wheel_stride
 

@@ -1,4 +1,4 @@
-"""The exact reference with Coulomb friction (vcirun/reference/coulomb.py and the event loop) against
+"""The exact reference with Coulomb friction (vcirun/reference_solution/coulomb.py and the event loop) against
 the closed forms of vcirun/scenes/friction_oracles.py, over random parameters (hypothesis; derandomized
 in the default suite, ten times as many fresh ones under -m slow):
 
@@ -12,7 +12,7 @@ in the default suite, ten times as many fresh ones under -m slow):
   * frictionless limits: mu = mu_s = 0 given as parameters is the frictionless reference;
   * the DOP853 path on the same closed forms (its rtol's accuracy).
 A frictional impact needs the frictional impact law (vcirun/collision/friction_law.py, called through
-vcirun/reference/friction.py).
+vcirun/reference_solution/friction_law.py).
 """
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from vcirun.reference.exact import solve_exact
+from vcirun.reference_solution.exact import solve_exact
 from vcirun.scenes import friction as F
 from vcirun.scenes import friction_oracles as fo
 
@@ -384,7 +384,7 @@ def _pinned_gait():
 def _stance_forces(s, ref, tt):
     from vcirun.codegen.build import load_module
     from vcirun.codegen.kernel_set import SYSTEM_KERNELS
-    from vcirun.reference import held as rh
+    from vcirun.reference_solution import held as rh
 
     mod, prm, n = load_module(s, SYSTEM_KERNELS), s.param_values(), s.n
     out = []

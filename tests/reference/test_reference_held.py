@@ -1,4 +1,4 @@
-"""The held-contact machinery of the exact reference (vcirun.reference.held; docs/derivations/contacts.md,
+"""The held-contact machinery of the exact reference (vcirun.reference_solution.held; docs/derivations/contacts.md,
 "Held contacts in the reference"), against closed forms (vcirun.scenes.oracles) and independent solves
 written here from the equations of motion (never vcirun kernels):
 
@@ -31,10 +31,10 @@ from scipy.optimize import brentq
 
 from vcirun.codegen.build import load_module
 from vcirun.codegen.kernel_set import SYSTEM_KERNELS
-from vcirun.reference import held as rh
-from vcirun.reference.dop853 import Dop853Backend
-from vcirun.reference.loop import _geometry, _immediate
-from vcirun.reference.taylor import TaylorBackend, taylor_model
+from vcirun.reference_solution import held as rh
+from vcirun.reference_solution.dop853 import Dop853Backend
+from vcirun.reference_solution.loop import _geometry, _immediate
+from vcirun.reference_solution.taylor import TaylorBackend, taylor_model
 from vcirun.scenes.declarations import get_scene
 from vcirun.mechanics.loader import load_system_yaml
 from vcirun.scenes.oracles import ball_in_box_exact, bead_release, zeno_ball
@@ -563,7 +563,7 @@ def test_bead_settles_on_the_circle_by_accumulation_then_releases(bead, path):
 def test_ball_slides_on_the_floor_and_meets_the_walls(box, path):
     """Held on the floor from the start (case (c)), sliding into the right wall, then the left: the floor
     stays held through both wall impacts; impacts, impulses, states and mu = m g against the closed form."""
-    from vcirun.reference.exact import solve_exact
+    from vcirun.reference_solution.exact import solve_exact
 
     system, mod = box
     m, e, W = 1.7, 0.5, 2.0

@@ -1,4 +1,4 @@
-"""The exact reference's two integration paths and its event loop (vcirun.reference.taylor, dop853, loop):
+"""The exact reference's two integration paths and its event loop (vcirun.reference_solution.taylor, dop853, loop):
 
 - cross-validation: the Taylor path and the DOP853 path (at scipy's tightest rtol) see the same events
   and agree to 1e-11 on every built-in scene both express;
@@ -24,12 +24,12 @@ import vcirun
 from vcirun.codegen.build import load_module
 from vcirun.codegen.kernel_set import SYSTEM_KERNELS
 from vcirun.mechanics.loader import load_system_yaml
-from vcirun.reference import exact as rx
-from vcirun.reference import held as rh
-from vcirun.reference import loop
-from vcirun.reference.exact import RTOL_FLOOR, solve_exact
-from vcirun.reference.flight import Constant, Flight
-from vcirun.reference.taylor import NotExpressible, TaylorBackend
+from vcirun.reference_solution import exact as rx
+from vcirun.reference_solution import held as rh
+from vcirun.reference_solution import loop
+from vcirun.reference_solution.exact import RTOL_FLOOR, solve_exact
+from vcirun.reference_solution.flight import Constant, Flight
+from vcirun.reference_solution.taylor import NotExpressible, TaylorBackend
 from vcirun.run.resolve import resolve_system
 from vcirun.scenes.oracles import ball_in_box_exact
 

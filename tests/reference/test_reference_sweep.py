@@ -11,7 +11,7 @@ import pytest
 import vcirun
 from vcirun.experiments.config import load_config
 from vcirun.experiments.sweep import run_sweep
-from vcirun.reference import exact as rx
+from vcirun.reference_solution import exact as rx
 
 CONFIG = """\
 name: refs

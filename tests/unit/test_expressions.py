@@ -9,6 +9,7 @@ import sympy
 from vcirun.mechanics.expressions import (
     ALLOWED_CONSTANTS,
     ALLOWED_FUNCTIONS,
+    Abs,
     ExpressionError,
     parse_expression,
     parse_matrix,
@@ -36,7 +37,7 @@ def parse(text):
         ("E**x", sympy.exp(x)),
         ("+x - (y)", x - y),
         ("1/2*m1*x**2", sympy.Rational(1, 2) * m1 * x**2),
-        ("abs(x) + sqrt(y) + log(k)", sympy.Abs(x) + sympy.sqrt(y) + sympy.log(k)),
+        ("abs(x) + sqrt(y) + log(k)", Abs(x) + sympy.sqrt(y) + sympy.log(k)),   # |x| of a real x
         ("  cos(theta)**2 + tanh(x)\n", sympy.cos(theta) ** 2 + sympy.tanh(x)),
         ("(x\n + y)", x + y),
         ("+".join(["x"] * 300), 300 * x),  # a long flat sum is not "deep nesting"

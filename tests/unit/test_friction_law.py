@@ -46,8 +46,8 @@ def _python_unit():
 
 
 def _compiled_unit():
-    """The compiled unit, as the exact reference loads it (vcirun.reference.friction_law)."""
-    from vcirun.reference.friction_law import friction_law_module
+    """The compiled unit, as the exact reference loads it (vcirun.reference_solution.friction_law)."""
+    from vcirun.reference_solution.friction_law import friction_law_module
 
     return friction_law_module()
 
@@ -604,8 +604,8 @@ def test_unit_needs_no_generated_name():
 
 
 def test_reference_wrapper():
-    """vcirun.reference.friction_law: the same compiled unit, compiled once per process, Python-callable."""
-    from vcirun.reference import friction_law as friction
+    """vcirun.reference_solution.friction_law: the same compiled unit, compiled once per process, Python-callable."""
+    from vcirun.reference_solution import friction_law as friction
 
     mod = friction.friction_law_module()
     assert friction.friction_law_module() is mod

@@ -360,7 +360,7 @@ def test_an_exact_reference_beyond_its_budget_is_refused(monkeypatch, kw):
     of 20,000 and 200,000, to keep the test short)."""
     import importlib
 
-    ref_mod = importlib.import_module("vcirun.reference.exact")
+    ref_mod = importlib.import_module("vcirun.reference_solution.exact")
     monkeypatch.setattr(ref_mod, "MIN_RHS_EVALS_FOR_PROJECTION", 2_000)
     monkeypatch.setattr(ref_mod, "MIN_TAYLOR_STEPS_FOR_PROJECTION", 2_000)
     with pytest.raises(ValueError, match=r"^T: the exact reference would need about .* (right-hand-side evaluations|Taylor "

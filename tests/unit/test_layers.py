@@ -25,7 +25,7 @@ LAYERS = (
     ("numba units", ("maps", "collision")),
     ("methods", ("methods",)),
     ("run", ("run",)),
-    ("reference", ("reference",)),
+    ("reference", ("reference_solution",)),
     ("files", ("io",)),
     ("experiments", ("experiments",)),
     ("verification", ("verification",)),
@@ -123,7 +123,7 @@ def test_no_import_cycle():
     assert not cycles, "import cycles:\n" + "\n".join(cycles)
 
 
-@pytest.mark.parametrize("module", ["vcirun.maps", "vcirun.collision", "vcirun.experiments", "vcirun.reference",
+@pytest.mark.parametrize("module", ["vcirun.maps", "vcirun.collision", "vcirun.experiments", "vcirun.reference_solution",
                                     "vcirun.experiments.sweep", "vcirun.io.writer", "vcirun.io.reader",
                                     "vcirun.experiments.config", "vcirun.run.api", "vcirun.core.record"])
 def test_numeric_layers_load_no_sympy_and_compile_nothing(module):
@@ -166,3 +166,19 @@ def test_every_third_party_import_is_a_declared_dependency():
                         and OPTIONAL.get(n) not in extras)
     assert not undeclared, f"imported but installed by no dependency of vcirun: {undeclared}"
     assert {"numpy", "numba", "h5py", "typer"} <= third   # (the scan sees the imports)
+
+
+def test_the_installed_numba_is_within_the_pinned_range():
+    """numba is pinned to the versions the suite ran on (vcirun.codegen.kcall uses its internals): the
+    environment the tests run in must be one of them, else the pin says nothing."""
+    import re
+
+    import numba
+
+    tomllib = pytest.importorskip("tomllib")
+    root = Path(__file__).resolve().parents[2]
+    spec = next(d for d in tomllib.loads((root / "pyproject.toml").read_text())["project"]["dependencies"]
+                if d.startswith("numba"))
+    lo, hi = re.fullmatch(r"numba>=([\d.]+),<([\d.]+)", spec).groups()
+    as_tuple = lambda v: tuple(int(x) for x in re.findall(r"\d+", v)[:2])  # noqa: E731
+    assert as_tuple(lo) <= as_tuple(numba.__version__) < as_tuple(hi), (numba.__version__, spec)

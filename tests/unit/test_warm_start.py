@@ -233,12 +233,12 @@ def test_a_substitute_loader_disables_the_warm_index():
 
 def test_import_vcirun_is_light_and_names_resolve():
     code = ("import sys, vcirun; light = 'vcirun.run.api' not in sys.modules and 'numpy' not in sys.modules; "
-            "from vcirun.reference.exact import l2_error as _l2; "  # binds the subpackage's name in the package...
-            "import vcirun.run.api, vcirun.run.trajectory, vcirun.reference as R; "
+            "from vcirun.reference_solution.exact import l2_error as _l2; "  # the package has a name of its own...
+            "import vcirun.run.api, vcirun.run.trajectory, vcirun.reference_solution as R; "
             "from vcirun import simulate, reference, l2_error, Trajectory; "
-            "ok = (simulate is vcirun.run.api.simulate and reference is vcirun.reference is R and callable(reference) "
-            "and l2_error is sys.modules['vcirun.reference'].l2_error and Trajectory is vcirun.run.trajectory.Trajectory "
-            "and reference is sys.modules['vcirun.reference'].reference); "  # ...but vcirun.reference is the function
+            "ok = (simulate is vcirun.run.api.simulate and reference is vcirun.reference is R.reference "
+            "and callable(reference) and l2_error is R.l2_error is _l2 and Trajectory is vcirun.run.trajectory.Trajectory "
+            "and 'vcirun.reference' not in sys.modules and type(vcirun) is type(sys)); "  # ...no module class of its own
             "print(light, ok, sorted(vcirun.__all__), 'scipy.integrate' in sys.modules, 'sympy' in sys.modules)")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr

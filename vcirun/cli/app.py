@@ -187,6 +187,8 @@ def check_output(path, option: str = "--output", suffixes=None, also=(), example
     if "\x00" in text or not text.strip():
         raise CliError(f"{option}: {text!r} is not a file path")
     p = Path(text)
+    if p.is_dir():
+        raise CliError(f"{option} {p}: is a directory; give a file path such as {p / example}")
     if suffixes is not None and p.suffix.lower() not in suffixes:
         raise CliError(f"{option} {p}: unknown format {p.suffix or '(no suffix)'!r}; use "
                        f"{', '.join(suffixes)}")

@@ -176,13 +176,12 @@ def exercise(mod, ks, nprm: int) -> None:
     mod.sys_phis(q, prm, np.empty(m))
     mod.sys_dphis(q, prm, np.empty((m, n)))
     if ks.reset is not None:
-        from ..run.plan import run_loop
-
         from ..core.tolerances import DEFAULT_TOLERANCES
 
         settings = record.settings_vector(constrained=True, energies=True, resting_contact=True,
                                           **DEFAULT_TOLERANCES)
-        run_loop(mod, q, p, 0.0, 1e-2, 1, prm, settings, n, int(DEFAULT_TOLERANCES["max_impacts_step"]))
+        out = record.allocate(1, n, m=m, cap_impacts=record.impact_capacity(1))
+        mod.integrate(q, p, 0.0, 1e-2, 1, prm, settings, out, np.zeros(len(record.COUNTERS), dtype=np.int64))
         return
     mod.hamiltonian(q, p, prm)
     mod.dynamics_rhs(0.0, np.zeros(2 * n), prm, np.empty(2 * n))

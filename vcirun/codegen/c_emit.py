@@ -111,6 +111,9 @@ def translate_module(text: str, salt: str = "", min_stmts: int = 0) -> Translati
         except Unsupported as e:
             skipped[st.name] = str(e)
             continue
+        except RecursionError:   # a sum of ~1000 terms nests as deep: the translator walks it recursively
+            skipped[st.name] = "expressions nested deeper than the translator's recursion limit"
+            continue
         if k.weight < min_stmts:
             skipped[st.name] = (f"{k.statements} statements + {k.stores_2d} 2-D stores (below {min_stmts}: "
                                 "numba inlines it)")

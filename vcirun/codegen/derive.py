@@ -19,7 +19,7 @@ which, and the system kernels sys_dHq, sys_node, sys_node_M:
 Select with the environment variable VCIRUN_KERNEL_PATH=tensor|expanded (read when a module is
 generated) or the argument `kernel_path` of module_source (`path` of ld_kernels_source and
 system_kernels_source); the default is the module constant DEFAULT_KERNEL_PATH. The kernel cache
-key (vcirun.codegen.build) does not record the path: use a separate VCIRUN_CACHE_DIR per path.
+key (vcirun.codegen.build) records the path, so modules of the two paths never share an entry.
 """
 from __future__ import annotations
 

@@ -33,6 +33,20 @@ class KernelPrinter(PythonCodePrinter):
     def _print_Abs(self, expr):
         return f"abs({self._print(expr.args[0])})"
 
+    def _print_Add(self, expr, order=None):
+        # Python's compiler recurses once per operator of a chain a + b + c + ... and gives up near
+        # 3000: a longer sum is printed as parenthesized sums of at most MAX_CHAIN terms each (shorter
+        # ones exactly as sympy prints them)
+        if len(expr.args) <= MAX_CHAIN:
+            return super()._print_Add(expr, order=order)
+        terms = self._as_ordered_terms(expr, order=order)
+        groups = [terms[i:i + MAX_CHAIN // 2] for i in range(0, len(terms), MAX_CHAIN // 2)]
+        return " + ".join(f"({self._print(sp.Add(*g, evaluate=False))})" for g in groups)
+
+
+# the longest sum printed as one chain (Python compiles chains of about 3000 operators)
+MAX_CHAIN = 2000
+
 
 _printer = KernelPrinter({"fully_qualified_modules": True, "standard": "python3"})
 

@@ -52,7 +52,7 @@ CAPS: dict[str, Cap] = {
     "steps": Cap(1e12, "steps", "T / h steps of one run", "raise h or lower T"),
     # ensemble members x steps: the work of one vcirun.ensemble call (1e12 steps take days on one core)
     "ensemble_steps": Cap(1e12, "member steps (members x T / h)", "the work of one call",
-                          "split the ensemble (vcirun.iter_ensemble runs batches), raise h or lower T"),
+                          "split the ensemble (vcirun.run.ensemble.iter_ensemble runs batches), raise h or lower T"),
 }
 
 # The built-in families named <family>_K (a name that extends another first: cradle_gap_K, cradle_K): K's range and the coordinates and contacts K gives. Every
@@ -113,6 +113,6 @@ def family_size_problem(family: str, k: int) -> str | None:
     if k < lo:
         return f"{family}_{k}: {family}_K takes K from {lo} to {hi}"
     m = contacts(k)
-    return (f"{family}_{k} has {coords(k):,} coordinates and {m:,} contact{'s' * (m != 1)}; {family}_K takes K from {lo} "
-            f"to {hi}" + ("" if family == "newton_cradle" else
+    return (f"{family}_{k} has {coords(k):,} coordinates and {m:,} contact{'s' * (m != 1)}; {family}_K takes K "
+            f"from {lo} to {hi}" + ("" if family == "newton_cradle" else
                           f" (the limit is {cap('coordinates')} coordinates: {CAPS['coordinates'].why})"))

@@ -16,7 +16,8 @@ import unicodedata
 from .limits import cap
 from .values import describe
 
-__all__ = ["MAX_COORDINATES", "MAX_CONTACTS", "MAX_PARAMETERS", "MAX_NAME_CHARS", "ascii_name_problem", "reserved_name_problem",
+__all__ = ["MAX_COORDINATES", "MAX_CONTACTS", "MAX_PARAMETERS", "MAX_NAME_CHARS", "ascii_name_problem",
+           "reserved_name_problem",
            "check_identifier", "check_distinct_names", "check_system_name", "check_description"]
 
 # Declarations of user systems (vcirun.core.limits.CAPS says why each cap is where it is).

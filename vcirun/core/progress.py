@@ -3,9 +3,9 @@ done, how long it has taken, and an estimate of what is left.
 
 `Progress(total, what, report)`: `report` is None (the default: one line on stderr every
 `interval` seconds or a tenth of the time elapsed, whichever is longer, once the estimated total
-exceeds `quiet_below` seconds, so short calls print nothing), False (silent), or a callable `report(done, total, elapsed, remaining)` called after every
-`update` (remaining in seconds, None before the first unit is done). Thread-safe: workers of one
-call may update it.
+exceeds `quiet_below` seconds, so short calls print nothing), False (silent), or a callable
+`report(done, total, elapsed, remaining)` called after every `update` (remaining in seconds, None
+before the first unit is done). Thread-safe: workers of one call may update it.
 
 No sympy and no numba here.
 """

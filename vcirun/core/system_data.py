@@ -29,27 +29,48 @@ class SystemData:
     description: str = ""
     coordinates: list | None = None   # coordinate names (None: vcirun.scenes.catalog's for built-in scenes)
     default_beta: float | None = None
+    restitution: dict | None = None   # parameter name -> the constraints it is the restitution coefficient of
 
     def param_values(self, overrides: dict | None = None) -> np.ndarray:
-        """Parameter vector in declaration order, with overrides applied (unknown names rejected)."""
-        return param_vector(self.name, self.params, overrides)
+        """Parameter vector in declaration order, with overrides applied (unknown names rejected, a
+        restitution coefficient outside [0, 1] refused)."""
+        return param_vector(self.name, self.params, overrides, self.restitution)
 
     @classmethod
     def of(cls, system) -> "SystemData":
         """The numeric view of a `MechanicalSystem` (or of anything with the same attributes)."""
         return cls(name=system.name, n=system.n, params=dict(system.params), ic_map=system.ic_map,
                    default_q0=system.default_q0, default_p0=system.default_p0, description=system.description,
-                   coordinates=[str(c) for c in system.q], default_beta=getattr(system, "default_beta", None))
+                   coordinates=[str(c) for c in system.q], default_beta=getattr(system, "default_beta", None),
+                   restitution=restitution_parameters(system))
 
 
-def param_vector(name: str, params: dict, overrides: dict | None = None) -> np.ndarray:
+def restitution_parameters(system) -> dict:
+    """{parameter name: ["constraint <name>", ...]} of the constraints whose restitution is a parameter."""
+    out: dict = {}
+    for c in getattr(system, "constraints", None) or ():
+        e = getattr(c, "restitution", None)
+        if getattr(e, "is_Symbol", False) and str(e) in system.params:
+            out.setdefault(str(e), []).append(f"constraint {c.name}")
+    return out
+
+
+def param_vector(name: str, params: dict, overrides: dict | None = None, restitution: dict | None = None) -> np.ndarray:
     """Parameter vector in declaration order, with overrides applied (unknown names rejected);
-    shared by SystemData and MechanicalSystem."""
+    shared by SystemData and MechanicalSystem. `restitution` ({parameter: constraints}): parameters
+    that are restitution coefficients, refused outside [0, 1] (above 1 every impact adds energy, and
+    the impact law finds no post-impact state)."""
     vals = dict(params)
     for k, v in (overrides or {}).items():
         if k not in vals:
             raise ValueError(f"params.{k}: unknown parameter of system {name} (known: {', '.join(vals)})")
         vals[k] = float(v)
+    for k, cons in (restitution or {}).items():
+        v = float(vals.get(k, 0.0))
+        if not 0.0 <= v <= 1.0:
+            where = "default value" if k not in (overrides or {}) else "value"
+            raise ValueError(f"params.{k}: {where} {v:g} is the restitution coefficient of {', '.join(cons)} of "
+                             f"system {name}; it must be in [0, 1] (0: plastic, 1: elastic)")
     return np.array([float(vals[k]) for k in params], dtype=float)
 
 

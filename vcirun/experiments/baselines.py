@@ -28,7 +28,7 @@ import time
 import numpy as np
 
 from ..run import trajectory as tr
-from ..reference.dop853 import step_off_surface
+from ..reference_solution.dop853 import step_off_surface
 
 __all__ = ["BASELINES", "solve_ivp_run", "is_baseline", "hamiltonian_on_grid"]
 

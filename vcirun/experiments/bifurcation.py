@@ -77,11 +77,16 @@ def doubling_point(system, method, *, h, param, lo, hi, orbit_lo, params=None, t
     return c, o
 
 
-def continuation(system, method, *, h, param, values, guess, params=None, **kw) -> Branch:
+def continuation(system, method, *, h, param, values, guess, params=None, progress=None, **kw) -> Branch:
     """Follow the orbit from `guess` through the parameter `values` (ascending or descending); at a
-    period doubling switch to the period-two orbit (module docstring)."""
+    period doubling switch to the period-two orbit (module docstring). progress: see
+    vcirun.core.progress (default: a line on stderr with the values done and an estimate of the time
+    left, every 10 s once the continuation is estimated to take over 10 s)."""
+    from ..core.progress import Progress
+
     base = dict(params or {})
     br = Branch(param)
+    prog = Progress(len(values), f"continuation along {param}", progress)
     x = x1 = guess
     k = 1
     prev = None
@@ -110,6 +115,7 @@ def continuation(system, method, *, h, param, values, guess, params=None, **kw) 
         x = np.concatenate(o.fixed_point)
         if k == 1:
             prev, x1 = o, x
+        prog.update(1)
     return br
 
 

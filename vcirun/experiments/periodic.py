@@ -8,11 +8,11 @@ recorded impact configuration (the identity without one), p+ = the recorded mome
 reset. Its Jacobian is the fourth-order central finite difference of that discrete map (stencil
 +-delta, +-2 delta, delta = fd_step max(1, |x_j|)): the map is smooth in x to round-off (Newton
 and the event search converge far below their tolerances), so the Jacobian is accurate to about
-eps / fd_step + fd_step^4 |D^5 P| (default: FD_STEP of vcirun.reference.stride on the exact map,
+eps / fd_step + fd_step^4 |D^5 P| (default: FD_STEP of vcirun.reference_solution.stride on the exact map,
 METHOD_FD_STEP on a method's). The eigenvalues of DP are the orbit's Floquet multipliers; the image
 of P lies on the section (codimension one for an impact surface), so one multiplier is ~0.
 
-method "reference": the exact return map (vcirun.reference.stride.ReferenceReturnMap) with the same
+method "reference": the exact return map (vcirun.reference_solution.stride.ReferenceReturnMap) with the same
 Jacobian, the orbit the methods' converge to in h.
 
 `continuation` follows a fixed point along a parameter (the previous point as the next guess),
@@ -29,7 +29,7 @@ from ..core.values import check_number, describe
 from ..run.api import simulate
 from ..run.resolve import resolve_numeric, resolve_system
 from ..methods.table import resolve_method
-from ..reference.stride import FD_STEP, ReferenceReturnMap, fd_jacobian
+from ..reference_solution.stride import FD_STEP, ReferenceReturnMap, fd_jacobian
 
 # A method's map carries its Newton and event-search noise (up to ~newton_tol relative), which a
 # smaller step amplifies: at 5e-5 CVA's multipliers on the compass gait no longer converge in h.
@@ -322,7 +322,7 @@ def periodic_orbit(system, method, *, h=None, guess=None, section=None, k=1, par
     """A fixed point of the return map of `method` at step h on `section` (a constraint's impact, just
     after its reset), from guess = (q, p) or the flat state (default: the scene's default state, e.g.
     the built-in walkers' gaits). k: impacts per return (2: a period-two
-    orbit). method "reference": the exact return map (vcirun.reference.stride.ReferenceReturnMap; no h;
+    orbit). method "reference": the exact return map (vcirun.reference_solution.stride.ReferenceReturnMap; no h;
     its options path, rtol, T_max), the orbit every method's converges to.
 
     solver "newton" (default): Newton on P(x) - x = 0 with the finite-difference Jacobian (module

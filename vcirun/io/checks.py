@@ -4,8 +4,9 @@
   with HDF5 library version bounds LIBVER (layout: docs/reference/results_schema.md).
 - `run_problem` / `reference_problem`: why a group marked complete cannot be trusted (datasets
   missing, shapes other than its attributes declare), or None; an item of a batch is also held to
-  its checksums (vcirun.io.batches.data_problems: every byte of its key, attributes and arrays). Resume and the readers trust only
-  what these verify; `scan_groups` sorts a file's groups into trusted, incomplete and damaged.
+  its checksums (vcirun.io.batches.data_problems: every byte of its key, attributes and arrays).
+  Resume and the readers trust only what these verify; `scan_groups` sorts a file's groups into
+  trusted, incomplete and damaged.
 - `resolve_output`: the path a sweep writes (a symlink's target), checked for the usual mistakes.
 """
 from __future__ import annotations

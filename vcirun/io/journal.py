@@ -12,13 +12,13 @@ or a batch group) and
 Journals of schema 1 hold one "run" or "reference" record per item; they are read and applied the
 same way.
 
-A kill in the middle of an append leaves a torn tail (short, or failing its CRC): everything before
-it is committed. A record damaged in the middle (a flipped byte, a bad block) is skipped, not taken
-for the end: `read_journal` looks for the next record that starts with the magic and passes its CRC
-and reads on from there; `Journal.skipped` counts the damaged stretches and `skipped_bytes` their
-size, and the readers say so (the runs a skipped record held are missing, and a resume recomputes
-them). Only damage with no intact record after it is a torn tail. A damaged open record loses only
-the token, which the next intact record carries.
+A kill in the middle of an append leaves a torn tail (a last record shorter than its length field):
+everything before it is committed. A damaged record (a flipped byte, a bad block) is skipped, not
+taken for the end: `read_journal` looks for the next record that starts with the magic and passes its
+CRC and reads on from there; a last record whole by its length but failing its CRC is damage too.
+`Journal.skipped` counts the damaged stretches and `skipped_bytes` their size, and the readers say so
+(the runs a skipped record held are missing, and a resume recomputes them). A damaged open record
+loses only the token, which the next intact record carries.
 
 The file names the journal that extends it (root attribute `journal` = the token of its open record)
 and how much of it the file holds already (`journal_applied`, a byte offset); `file_journal` returns
@@ -250,6 +250,8 @@ def read_journal(path) -> Journal | None:
             rec = _record_at(fh, pos, size)
             if rec is None:
                 nxt = _next_record(fh, pos + 1, size)
+                if nxt is None and _whole_record(fh, pos, size):
+                    nxt = size     # a last record whole in length but failing its CRC: damage, not a kill
                 if nxt is None:
                     break          # the torn tail
                 j.skipped += 1
@@ -274,7 +276,7 @@ def read_journal(path) -> Journal | None:
             pos = end
         if not j.token:
             return None
-        j.torn = j.good_end < size
+        j.torn = pos < size
         return j
 
 
@@ -309,6 +311,17 @@ def _record_at(fh, pos: int, size: int):
     if not isinstance(header, dict):
         return None
     return header, blob_offset, pos + _REC.size + length
+
+
+def _whole_record(fh, pos: int, size: int) -> bool:
+    """Whether the bytes from `pos` to the end are one record by its length field (a kill leaves a
+    record shorter than its length: an append is one write of the whole record)."""
+    fh.seek(pos)
+    head = fh.read(_REC.size)
+    if len(head) < _REC.size:
+        return False
+    _, length, _ = _REC.unpack(head)
+    return pos + _REC.size + length == size
 
 
 def _next_record(fh, start: int, size: int) -> int | None:

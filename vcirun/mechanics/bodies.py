@@ -298,10 +298,11 @@ def planar_system(name: str, bodies, joints, contacts, *, params=None, gravity=0
             M[r, c] = M[c, r] = _collect(acc[r][c])
     qd = [sp.Symbol(f"{c}_dot") for c in coords]
     forcing = None
+    springs_V = sp.Integer(0)
     for i, s in enumerate(springs):
         f = _fld(s, f"{P}springs[{i}]")
         ell = _distance(frames, s.a, s.b, s.point_a, s.point_b, scope, f)
-        V += scope.scalar(s.k, f"{f}.k") * (ell - scope.scalar(s.length, f"{f}.length")) ** 2 / 2
+        springs_V += scope.scalar(s.k, f"{f}.k") * (ell - scope.scalar(s.length, f"{f}.length")) ** 2 / 2
     for i, dmp in enumerate(dampers):
         f = _fld(dmp, f"{P}dampers[{i}]")
         ell = _distance(frames, dmp.a, dmp.b, dmp.point_a, dmp.point_b, scope, f)
@@ -309,7 +310,10 @@ def planar_system(name: str, bodies, joints, contacts, *, params=None, gravity=0
         rate = sum((grad[k] * qd[k] for k in range(n)), sp.Integer(0))
         term = -scope.scalar(dmp.c, f"{f}.c") * rate * grad
         forcing = term if forcing is None else forcing + term
-    V = sp.collect(sp.expand(V), [sp.cos(s) for s in q] + [sp.sin(s) for s in q] + q, func=sp.factor)
+    # gravity's terms collected by the trigonometric functions; the springs' as declared (expanded,
+    # k (l - length)^2 / 2 has a term per pair of length's terms, and collecting them with factor took
+    # a minute for a 30-term length)
+    V = sp.collect(sp.expand(V), [sp.cos(s) for s in q] + [sp.sin(s) for s in q] + q, func=sp.factor) + springs_V
     start = _start(q0, coords, f"{P}q0")
     cons = [_contact(c, k, frames, byname, scope, params, start, P) for k, c in enumerate(contacts)]
     system = MechanicalSystem(name=name, q=q, qd=qd, params=params, M=M, V=V, constraints=cons, forcing=forcing,

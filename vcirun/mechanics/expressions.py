@@ -50,6 +50,30 @@ _MAX_INT_BITS = 1024
 _MAX_EXPONENT = 100
 _MAX_TOKEN_CHARS = 60  # offending tokens are shortened so messages stay one readable line
 
+class Abs(sympy.Abs):
+    """abs() of a user expression: |u| of a real argument. Coordinates are plain sympy symbols (not
+    declared real), for which sympy writes d|x|/dx with re(x) and im(x), which no kernel can print;
+    here d|u|/dx = sign(u) du/dx, as for every real u (the kernels' arguments are real). The class
+    keeps sympy's name, so every printer prints it as abs (sympy's printers dispatch on the name)."""
+
+    def fdiff(self, argindex=1):
+        return sign(self.args[0])
+
+    def _eval_derivative(self, x):
+        return sign(self.args[0]) * sympy.diff(self.args[0], x)
+
+
+class sign(sympy.sign):  # noqa: N801 - sympy's name, for its printers
+    """sign(u) of a real u, the derivative of `Abs`: its own derivative is 0 wherever it is defined
+    (u != 0), which is what the generated Jacobians and Hessians need."""
+
+    def fdiff(self, argindex=1):
+        return sympy.S.Zero
+
+    def _eval_derivative(self, x):
+        return sympy.S.Zero
+
+
 ALLOWED_FUNCTIONS: dict[str, object] = {
     "sin": sympy.sin,
     "cos": sympy.cos,
@@ -64,7 +88,7 @@ ALLOWED_FUNCTIONS: dict[str, object] = {
     "acos": sympy.acos,
     "atan": sympy.atan,
     "atan2": sympy.atan2,
-    "abs": sympy.Abs,
+    "abs": Abs,
 }
 _ARITY = {name: 1 for name in ALLOWED_FUNCTIONS} | {"atan2": 2}
 _ARITHMETIC = {"+": operator.add, "-": operator.sub, "*": operator.mul,
@@ -145,6 +169,18 @@ def _short(token: str) -> str:
     return token if len(token) <= _MAX_TOKEN_CHARS else token[: _MAX_TOKEN_CHARS - 3] + "..."
 
 
+def _sum(*terms):
+    return sympy.Add(*terms)
+
+
+def _product(*factors):
+    return sympy.Mul(*factors)
+
+
+def _reciprocal(x):
+    return sympy.Pow(x, sympy.S.NegativeOne)   # (what a / b builds for b)
+
+
 class _Builder:
     """Walks a parsed tree and builds the sympy expression; one instance per text."""
 
@@ -157,7 +193,12 @@ class _Builder:
         return ExpressionError(self.field, token, reason)
 
     def segment(self, node: ast.AST) -> str:
-        seg = ast.get_source_segment(self.text, node)
+        """The source text of `node`, shortened (a one-line text is sliced by the node's columns:
+        ast.get_source_segment splits the whole text per call, quadratic over a long sum)."""
+        if "\n" not in self.text and getattr(node, "end_col_offset", None) is not None:
+            seg = self.text.encode()[node.col_offset:node.end_col_offset].decode("utf-8", "replace")
+        else:
+            seg = ast.get_source_segment(self.text, node)
         return _short(seg if seg is not None else type(node).__name__)
 
     def walk(self, node: ast.AST, depth: int) -> sympy.Expr:
@@ -215,32 +256,57 @@ class _Builder:
 
     def binop(self, node: ast.BinOp, depth: int) -> sympy.Expr:
         # Walk the left spine iteratively: "a + b + c + ..." is a left-leaning chain, and a
-        # long sum should not count as deep nesting nor recurse once per term.
+        # long sum should not count as deep nesting nor recurse once per term. The terms of a run
+        # of + and - are added once, at its end (sympy's a + b flattens the whole sum each time:
+        # quadratic over a long sum); numbers they fold are checked at the end of parse_expression.
         spine = []
         while isinstance(node, ast.BinOp):
             spine.append(node)
             node = node.left
         acc = self.walk(node, depth + 1)
+        terms = None     # the pending terms of a run of + and -
+        factors = None   # ... and factors of a run of * and /
         for op_node in reversed(spine):  # innermost first = left-to-right source order
             op = type(op_node.op)
             sym = _BINOP_SYMBOLS.get(op, type(op_node.op).__name__)
-            tok = self.segment(op_node)
             if op is ast.BitXor:
+                tok = self.segment(op_node)
                 raise self.fail("^", f"operator '^' in {tok!r} is not allowed; "
                                      "use ** for powers, e.g. x**2")
             if sym not in ("+", "-", "*", "/", "**"):
+                tok = self.segment(op_node)
                 raise self.fail(sym, f"operator {sym!r} in {tok!r} is not allowed; "
                                      "use + - * / **")
             right = self.walk(op_node.right, depth + 1)
-            if sym == "**":
-                self.check_power(acc, right, tok)
-            acc = self.apply(_ARITHMETIC[sym], (acc, right), tok)
+            if sym in ("+", "-"):
+                if factors is not None:
+                    acc, factors = self.apply(_product, factors, op_node.left), None
+                if terms is None:
+                    terms = [acc]
+                terms.append(right if sym == "+" else self.apply(operator.neg, (right,), op_node))
+                continue
+            if terms is not None:
+                acc, terms = self.apply(_sum, terms, op_node.left), None
+            if sym in ("*", "/"):
+                if factors is None:
+                    factors = [acc]
+                factors.append(right if sym == "*" else self.apply(_reciprocal, (right,), op_node))
+                continue
+            if factors is not None:
+                acc, factors = self.apply(_product, factors, op_node.left), None
+            self.check_power(acc, right, op_node)
+            acc = self.apply(_ARITHMETIC[sym], (acc, right), op_node)
+        if terms is not None:
+            acc = self.apply(_sum, terms, spine[0])
+        if factors is not None:
+            acc = self.apply(_product, factors, spine[0])
         return acc
 
-    def check_power(self, base: sympy.Expr, exponent: sympy.Expr, tok: str) -> None:
+    def check_power(self, base: sympy.Expr, exponent: sympy.Expr, node) -> None:
         """Refuse exact powers sympy would expand into huge numbers, before computing them."""
         if not getattr(exponent, "is_Rational", False):
             return
+        tok = self.segment(node)
         # Integer powers of plain numbers (10**-6, 2**64) are bounded by the size check below.
         plain = getattr(base, "is_Rational", False) and exponent.is_Integer
         if not plain and max(abs(exponent.p), exponent.q) > _MAX_EXPONENT:
@@ -254,15 +320,17 @@ class _Builder:
                 raise self.fail(tok, f"exact power {tok!r} is too large (over {_MAX_INT_BITS} "
                                      "bits); write it as a float, e.g. 1e300")
 
-    def apply(self, fn, args, tok: str) -> sympy.Expr:
-        """Build ``fn(*args)`` with sympy, keeping numeric results within safe bounds."""
+    def apply(self, fn, args, node) -> sympy.Expr:
+        """Build ``fn(*args)`` with sympy, keeping numeric results within safe bounds (`node`: the
+        syntax node or text the messages quote)."""
         try:
             value = fn(*args)
         except Exception as exc:  # noqa: BLE001 - sympy may fail in many ways on odd input
+            tok = node if isinstance(node, str) else self.segment(node)
             raise self.fail(tok, f"cannot evaluate {tok!r} ({type(exc).__name__})") from None
-        return self.checked(value, tok)
+        return self.checked(value, node)
 
-    def checked(self, value: sympy.Expr, tok: str) -> sympy.Expr:
+    def checked(self, value: sympy.Expr, node) -> sympy.Expr:
         # Bounded numbers at every step mean no later step can blow up (10.0**10.0**10.0**10.0
         # would otherwise make mpmath build a 10**10-digit exponent). The numeric factor of a
         # product counts too: (2*x)**n puts 2**n there.
@@ -272,6 +340,7 @@ class _Builder:
         if not problem and value.is_number and not value.is_Number:
             problem = _constant_problem(value)
         if problem:
+            tok = node if isinstance(node, str) else self.segment(node)
             raise self.fail(tok, f"{problem} in {tok!r}")
         return value
 

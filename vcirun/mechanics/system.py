@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import sympy as sp
 
-from ..core.system_data import check_mass_matrix, param_vector, requested_start
+from ..core.system_data import check_mass_matrix, param_vector, requested_start, restitution_parameters
 from .friction import check_constraint_friction, coefficient, static_coefficient
 from .friction import has_friction as contact_has_friction
 from .hybrid import check_constraint_hybrid, guarded, law_first, reset_map_exprs
@@ -207,7 +207,7 @@ class MechanicalSystem:
 
     def param_values(self, overrides: dict | None = None) -> np.ndarray:
         """Parameter vector in declaration order, with overrides applied (unknown names rejected)."""
-        return param_vector(self.name, self.params, overrides)
+        return param_vector(self.name, self.params, overrides, restitution_parameters(self))
 
     # --- derived symbolic objects ------------------------------------------------------------
     def lagrangian(self, q=None, qd=None):

@@ -356,7 +356,8 @@ def iter_ensemble(system, method, *, h, T, batch=4096, beta=None, q0=None, p0=No
     report = check_report(progress)
     ctx, workers = _prepare(system, method, h, T, beta, q0, p0, params, outputs, constrained, t0, energies,
                             resting_contact, workers, options, tier, batch=batch)
-    check_count("ensemble_steps", "batch", min(batch, ctx.k) * ctx.plan.N, fix="use a smaller batch, raise h or lower T")
+    check_count("ensemble_steps", "batch", min(batch, ctx.k) * ctx.plan.N,
+                fix="use a smaller batch, raise h or lower T")
     prog = Progress(ctx.k, f"ensemble of {ctx.k:,} runs", report)
     for lo in range(0, ctx.k, batch):
         t = time.perf_counter()

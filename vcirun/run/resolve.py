@@ -13,7 +13,7 @@ import numpy as np
 from ..codegen import build
 from ..codegen.kernel_cache import KernelCache, default
 from ..codegen.tiers import Kernels
-from ..core.system_data import SystemData
+from ..core.system_data import SystemData, restitution_parameters
 from ..scenes.data import scene_args, scene_data
 
 
@@ -83,7 +83,8 @@ def _data_from_entry(ident, entry) -> SystemData | None:
         vec = lambda v: None if v is None else np.array(v, dtype=float)  # noqa: E731
         d = SystemData(name=str(entry["name"]), n=n, params={k: v for k, v in entry["params"]},
                        default_q0=vec(entry["default_q0"]), default_p0=vec(entry["default_p0"]),
-                       description=str(entry.get("description", "")), coordinates=entry.get("coordinates"))
+                       description=str(entry.get("description", "")), coordinates=entry.get("coordinates"),
+                       restitution=entry.get("restitution"))
         if (entry.get("ic_map") or (d.default_q0 is None) != (d.default_p0 is None)
                 or any(a is not None and a.shape != (n,) for a in (d.default_q0, d.default_p0))
                 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in d.params.values())):
@@ -100,7 +101,7 @@ def _entry_data(sysm) -> dict:
     return {"name": sysm.name, "n": sysm.n, "params": [[k, v] for k, v in sysm.params.items()],
             "default_q0": vec(sysm.default_q0), "default_p0": vec(sysm.default_p0),
             "description": sysm.description, "ic_map": sysm.ic_map is not None,
-            "coordinates": [str(c) for c in sysm.q]}
+            "coordinates": [str(c) for c in sysm.q], "restitution": restitution_parameters(sysm)}
 
 
 def resolve_numeric(system, ks: build.KernelSet, kc: KernelCache | None = None):

@@ -25,17 +25,7 @@ OK, NEWTON_FAILED, EVENT_FAILED, RESET_FAILED, ACCUMULATION, NONFINITE, PAINLEVE
 STATUS_CODES = record.STATUS_CODES
 
 
-def _record_fields(cls):
-    """One dataclass field per vcirun.core.record.FIELDS row, default None (`__post_init__` makes it an
-    empty array of the row's dtype, except rows defined only for some methods, e.g. Hmod)."""
-    for f in record.FIELDS:
-        cls.__annotations__[f.name] = "np.ndarray | None"
-        setattr(cls, f.name, None)
-    return cls
-
-
 @dataclass
-@_record_fields
 class Trajectory:
     method: str
     system: str
@@ -62,6 +52,33 @@ class Trajectory:
     run_args: object = field(default=None, repr=False, compare=False)
     # simulate(tol=...): the choice of method and h (vcirun.run.choose.Choice), else None
     choice: object = field(default=None, repr=False, compare=False)
+    # The run record: one field per row of vcirun.core.record.FIELDS, in its order (a test holds them
+    # equal), written out so that editors and type checkers see them. None here; `__post_init__`
+    # makes each an empty array of its row's dtype, except rows of some methods only (Hmod).
+    q: np.ndarray | None = None
+    p: np.ndarray | None = None
+    H: np.ndarray | None = None
+    Ed: np.ndarray | None = None
+    Hmod: np.ndarray | None = None
+    impacts: np.ndarray | None = None
+    impact_q: np.ndarray | None = None
+    impact_p_minus: np.ndarray | None = None
+    impact_p_plus: np.ndarray | None = None
+    impact_impulse: np.ndarray | None = None
+    impact_contact: np.ndarray | None = None
+    impact_step: np.ndarray | None = None
+    partial_steps: np.ndarray | None = None
+    newton_iters: np.ndarray | None = None
+    contact_active: np.ndarray | None = None
+    contact_force: np.ndarray | None = None
+    releases: np.ndarray | None = None
+    release_contact: np.ndarray | None = None
+    impact_impulse_t: np.ndarray | None = None
+    contact_mode: np.ndarray | None = None
+    friction_work: np.ndarray | None = None
+    mode_changes: np.ndarray | None = None
+    mode_change_contact: np.ndarray | None = None
+    mode_change_kind: np.ndarray | None = None
 
     def __post_init__(self):
         n = self.q.shape[1] if isinstance(self.q, np.ndarray) and self.q.ndim == 2 else 0

@@ -9,6 +9,9 @@ import numpy as np
 from ..core.limits import sized_family
 from ..core.system_data import SystemData, merge_params
 
+_EVERY_CONTACT = {"e": ["every contact"]}   # the scenes whose contacts share the restitution parameter e
+
+
 def _cart_ic(beta):
     return np.array([beta, 0.0]), np.array([0.0, 3.5 - 0.18 * beta])
 
@@ -70,7 +73,7 @@ def ball_in_box(**overrides) -> SystemData:
     q0, v0 = np.array([0.3, 0.6]), np.array([0.7, 0.0])
     prm = merge_params({"m": 1.0, "g": 9.81, "width": 1.0, "height": 1.0, "e": 1.0}, overrides)
     return SystemData(
-        name="ball_in_box", n=2, params=prm, default_q0=q0, default_p0=prm["m"] * v0,
+        name="ball_in_box", n=2, params=prm, restitution=_EVERY_CONTACT, default_q0=q0, default_p0=prm["m"] * v0,
         description="point mass in the box 0 <= x <= width, 0 <= y <= height under gravity; four walls "
                     "(floor, ceiling, left, right) with restitution e")
 
@@ -82,7 +85,7 @@ def newton_cradle(n: int = 3, **overrides) -> SystemData:
     p0 = np.zeros(n)
     p0[0] = prm["m"] * 1.0                                       # ... approaching at speed 1
     return SystemData(
-        name=f"newton_cradle_{n}", n=n, params=prm, default_q0=q0, default_p0=p0,
+        name=f"newton_cradle_{n}", n=n, params=prm, restitution=_EVERY_CONTACT, default_q0=q0, default_p0=p0,
         description=f"{n} equal balls of diameter d on a line, contacts between neighbours with restitution e; "
                     "balls 2..N touching, ball 1 approaching at speed 1")
 
@@ -92,7 +95,7 @@ def double_pendulum_walls(**overrides) -> SystemData:
     # x = -2, inside the left wall x = -w): Xi(beta) = (0, 0), beta (2, 1); the default beta = 3 gives
     # three impacts in [0, 3], on the right, left and right walls
     return SystemData(
-        name="double_pendulum_walls", n=2,
+        name="double_pendulum_walls", n=2, restitution=_EVERY_CONTACT,
         params=merge_params({"m1": 1.0, "m2": 1.0, "l1": 1.0, "l2": 1.0, "g": 9.81, "w": 1.2, "e": 1.0}, overrides),
         ic_map=lambda beta: (np.zeros(2), beta * np.array([2.0, 1.0])),
         default_q0=np.zeros(2), default_p0=np.array([6.0, 3.0]),
@@ -102,7 +105,8 @@ def double_pendulum_walls(**overrides) -> SystemData:
 def rocking_block(**overrides) -> SystemData:
     prm = merge_params({"m": 1.0, "a": 1.0, "b": 0.4, "g": 9.81, "e": 0.5}, overrides)
     return SystemData(
-        name="rocking_block", n=3, params=prm, default_q0=np.array([0.0, 0.7, 0.2]), default_p0=np.zeros(3),
+        name="rocking_block", n=3, params=prm, restitution=_EVERY_CONTACT, default_q0=np.array([0.0, 0.7, 0.2]),
+        default_p0=np.zeros(3),
         ic_map=lambda beta: (np.array([0.0, beta, 0.2]), np.zeros(3)),
         description="rectangular block (width b, height a) dropped tilted on the floor y = 0; its two lower "
                     "corners are the contacts, restitution e (declared by bodies)")
@@ -114,7 +118,8 @@ def link_chain(n: int = 5, **overrides) -> SystemData:
     angles = [0.3 * (-1) ** k + 0.05 for k in range(1, n + 1)]  # a tilted zigzag: the ends at different heights
     q0 = np.array([0.0, 0.5] + angles)
     return SystemData(
-        name=f"link_chain_{n}", n=n + 2, params=prm, default_q0=q0, default_p0=np.zeros(n + 2),
+        name=f"link_chain_{n}", n=n + 2, params=prm, restitution=_EVERY_CONTACT, default_q0=q0,
+        default_p0=np.zeros(n + 2),
         ic_map=lambda beta: (np.array([0.0, beta] + angles), np.zeros(n + 2)),
         description=f"chain of {n} links (revolute joints, the first on a free joint) falling on the floor "
                     "y = 0; the link ends are the contacts, restitution e (declared by bodies)")
@@ -126,7 +131,7 @@ def cradle(n: int = 5, **overrides) -> SystemData:
     q0 = np.zeros(n)
     q0[0] = -0.3
     return SystemData(
-        name=f"cradle_{n}", n=n, params=prm, default_q0=q0, default_p0=np.zeros(n),
+        name=f"cradle_{n}", n=n, params=prm, restitution=_EVERY_CONTACT, default_q0=q0, default_p0=np.zeros(n),
         ic_map=lambda beta: (np.array([-beta] + [0.0] * (n - 1)), np.zeros(n)),
         description=f"Newton's cradle of {n} touching balls (radius r, strings of length L, pivots 2r apart), "
                     "circle contacts between neighbours, restitution e; ball 1 released from theta1 = -0.3: "

@@ -83,7 +83,7 @@ def double_pendulum(**overrides) -> MechanicalSystem:
 
 def oscillator_wall(**overrides) -> MechanicalSystem:
     """1-DOF harmonic oscillator m xdd = -k x against a wall at x = -d: phi = x + d.
-    Closed-form solution with elastic impacts (see vcirun.reference.oscillator_wall_exact)."""
+    Closed-form solution with elastic impacts (see vcirun.scenes.oracles.oscillator_wall_exact)."""
     d = sd.oscillator_wall(**overrides)
     x = sp.Symbol("x")
     m, k, dd = sp.symbols("m k d")
@@ -107,8 +107,9 @@ def damped_oscillator(**overrides) -> MechanicalSystem:
 def bouncing_ball(**overrides) -> MechanicalSystem:
     """A ball of mass m above the floor y = 0 under gravity with linear air drag f = -c ydot (forced
     DEL) and elastic impacts: phi = y. With c > 0 the bounces shrink until impacts are denser than
-    any grid (the accumulation case of the stress suite, vcirun.stress); with c = 0 it bounces
-    forever to the same height (closed form, vcirun.stress.ball_exact). beta = drop height."""
+    any grid (the accumulation case of the extremes study, vcirun.experiments.studies.contact); with
+    c = 0 it bounces forever to the same height (closed form, vcirun.scenes.oracles.ball_exact).
+    beta = drop height."""
     d = sd.bouncing_ball(**overrides)
     y, yd = sp.Symbol("y"), sp.Symbol("y_dot")
     m, g, c = sp.symbols("m g c")

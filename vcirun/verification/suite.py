@@ -205,6 +205,9 @@ class _Session:
             self.res.notes.append("forced system: the exact smooth solution adds the declared generalized force to "
                                   "Hamilton's equations (sympy.lambdify of the declaration)")
         self.tier = tier
+        # the runs' work in steps (a smooth and an impact run per step size and method), for the estimate
+        self.steps_total = 2 * len(self.meths) * sum(grid_count(x, T) for x in self.hs)
+        self.steps_done, self.run_seconds, self.said_at, self.runs = 0, 0.0, 0.0, 0
         self.base = load_module(sysm, METHODS["CVA"].kernel_set(), tier)   # system kernels + Hamilton's equations
         self.H0 = float(self.base.hamiltonian(self.q0, self.p0, prm))
         Mq0 = self.M(self.q0)
@@ -243,15 +246,29 @@ class _Session:
         from ..core.grid import GridWarning
         from ..run.api import simulate
 
+        from ..core.grid import grid_count
+        from ..core.progress import format_seconds
+
+        t = time.perf_counter()
         with warnings.catch_warnings():   # said once, in the report's notes (see __init__)
             warnings.simplefilter("ignore", GridWarning)
-            return simulate(self.sysm, meth, h=h, T=self.T if T is None else T, q0=self.q0, p0=self.p0,
-                            params=self.params, tier=self.tier, **kw)
+            tr = simulate(self.sysm, meth, h=h, T=self.T if T is None else T, q0=self.q0, p0=self.p0,
+                          params=self.params, tier=self.tier, **kw)
+        self.run_seconds += time.perf_counter() - t
+        self.steps_done += grid_count(h, self.T if T is None else T)
+        self.runs += 1
+        left = self.run_seconds / self.steps_done * max(0, self.steps_total - self.steps_done)
+        now = time.perf_counter()
+        quiet = now - self.said_at < max(10.0, 0.1 * (now - self.t_start))
+        if self.runs > 1 and self.run_seconds + left > 10.0 and not quiet:
+            self.said_at = now   # a long ladder says how far its runs are, and what is left
+            self.say(f"runs: {self.steps_done:,} of {self.steps_total:,} steps, about {format_seconds(left)} left")
+        return tr
 
     # --- the exact solutions ------------------------------------------------------------------------
     def references(self):
         """The exact smooth solution on the coarsest grid (constraint ignored) and vcirun.reference."""
-        from ..reference.exact import reference
+        from ..reference_solution.exact import reference
 
         T, hs = self.T, self.hs
         self.say("exact smooth solution (DOP853, constraint ignored)")
@@ -430,7 +447,7 @@ class _Session:
                 elif nimp != nref:
                     excl.append((x, f"{nimp} impacts, reference {nref}"))
                 else:
-                    from ..reference.exact import l2_error
+                    from ..reference_solution.exact import l2_error
 
                     l2_h.append(x)
                     l2.append(l2_error(tr, ref))

@@ -19,7 +19,7 @@ from ...run.resolve import resolve_system
 from ...codegen.build import load_module
 from ...codegen.kernel_set import SYSTEM_KERNELS
 from ...scenes.oracles import ball_exact, ball_exact_onset, ball_position
-from ...reference.exact import l2_error, reference
+from ...reference_solution.exact import l2_error, reference
 from .outcome import cause, compiled, outcome, run
 
 __all__ = ["grazing_setup", "grazing_case", "boundary_start", "boundary_case", "dense_case", "surface_state",

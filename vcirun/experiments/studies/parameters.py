@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from ...run.resolve import resolve_system
-from ...reference.exact import l2_error, reference
+from ...reference_solution.exact import l2_error, reference
 from .outcome import cause, energy_error, outcome, run
 
 __all__ = ["energy_case", "mass_ratio_case", "singular_mass_case"]

@@ -1,12 +1,12 @@
 """The event loop of the exact reference, shared by its Taylor and DOP853 paths.
 
-Between events a backend integrates one segment (vcirun.reference.flight: `segment(t0, y0, T, A, R)`);
+Between events a backend integrates one segment (vcirun.reference_solution.flight: `segment(t0, y0, T, A, R)`);
 here each event is resolved the way the integrators resolve it:
 
 - an impact: the impact law of the integrators (collision/impact.py `impact_direction`: Newton's law
   for one contact, Moreau's LCP over every contact touching within SIMULTANEOUS seconds, held ones
   included with u- = 0), one impact entry per contact with a positive impulse that is not held;
-  then the held set at the new state (vcirun.reference.held.held_set: the contacts left on their
+  then the held set at the new state (vcirun.reference_solution.held.held_set: the contacts left on their
   surface at rest whose contact force is compressive, a plastic impact among them);
 - accumulation: a contact whose impacts accumulate (its flights shrink below ZENO_FLIGHT, at the ratio
   e for a single contact, at a steady ratio when several contacts exchange impulses, or its next
@@ -15,7 +15,7 @@ here each event is resolved the way the integrators resolve it:
   of them (the plastic limit of the remaining bounces, whose heights are below |a| ZENO_FLIGHT^2 / 8);
 - a release (a held contact's force turns tensile), a resting contact pushed in (it is held), a
   resting contact that lifts off (watched as a free contact from then on);
-- with Coulomb friction (vcirun.reference.coulomb): each held contact has a mode (sliding either way,
+- with Coulomb friction (vcirun.reference_solution.coulomb): each held contact has a mode (sliding either way,
   sticking); a sliding contact whose slip velocity reaches 0 sticks if the stick test holds, else its
   slip reverses; a sticking contact whose tangential force reaches the static cone slides; impacts
   take the frictional impact law (normal and tangential impulses); a held problem with sliding
@@ -54,7 +54,7 @@ class Solution:
     """The exact solve: dense pieces [(t0, t1, dense)], impacts [(t, contact, impulse)] (one entry per
     contact), releases [(t, contact)], held intervals [(t0, t1, held set)]; with friction also the
     tangential impulse of each impact entry (`tangential`), the mode changes [(t, contact, mode after)]
-    (`transitions`, vcirun.reference.coulomb's mode codes), the held intervals with their modes
+    (`transitions`, vcirun.reference_solution.coulomb's mode codes), the held intervals with their modes
     [(t0, t1, held set, modes)] (`mode_intervals`); status "ok" or "painleve" (message: why)."""
 
     pieces: list = field(default_factory=list)
@@ -227,7 +227,7 @@ _LAW_COMPILED: set = set()   # system modules whose impact law this process has 
 def solve(backend, mod, q0, p0, prm, T, *, names, resting_contact=True, max_impacts=MAX_IMPACTS,
           max_events=MAX_EVENTS, resets=None, stop_after=None) -> Solution:
     """The exact nonsmooth solution on [0, T] from (q0, p0) on `backend`'s segments (see the module).
-    resets: the system's DeclaredResets (vcirun.reference.resets; None: Newton's law alone);
+    resets: the system's DeclaredResets (vcirun.reference_solution.resets; None: Newton's law alone);
     stop_after = (contact, k): end at the k-th impact of that contact, its state after the impact law
     (and the declared map) in sol.after."""
     n, m = int(mod.NDOF), int(mod.NCON)
@@ -401,7 +401,7 @@ def _modes_for(g, A, tol):
 
 def _mode_change(mod, t, y, prm, A, S, i, reason, names):
     """(A, S) after a stick or slip event of held contact i at (t, y): a sliding contact that came to
-    rest sticks if the stick test holds (the modes with it sticking, vcirun.reference.coulomb.settle),
+    rest sticks if the stick test holds (the modes with it sticking, vcirun.reference_solution.coulomb.settle),
     else its slip reverses; a sticking contact at the static cone slides against its force."""
     g = _geometry(mod, t, y, prm)
     a = A.index(i)

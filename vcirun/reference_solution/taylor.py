@@ -6,7 +6,7 @@ surface shorter than any step, cannot be missed; its tolerance is machine precis
 
 Equations (state y = (q, p), and W = int f . qdot as a last component for a forced system), with
 v = M^-1 p, F = -dH/dq + f(q, v, t) = 1/2 v^T dM/dq v - dV/dq + f and, for a held set A (rows G_A of
-grad phi_i, i in A), the index-reduced dynamics of vcirun.reference.held:
+grad phi_i, i in A), the index-reduced dynamics of vcirun.reference_solution.held:
 
     qdot = v,   pdot = F + G_A^T mu,   W_A mu = -(G_A M^-1 F + kappa_A),   W_A = G_A M^-1 G_A^T,
 
@@ -28,7 +28,7 @@ not held), all terminal:
               round-off, as between identical pendulums swinging in unison, is no event);
     lift_i    (i in R): phi_i - par[lift_i] crosses 0 upwards (it has left: the next segment watches
               it with offset 0).
-With Coulomb friction the held set carries its modes S (vcirun.reference.coulomb): the held
+With Coulomb friction the held set carries its modes S (vcirun.reference_solution.coulomb): the held
 dynamics take the rows and force directions of the modes (sliding: G_i - mu_i s W_t,i; sticking: the
 slip row W_t,i as a further held row, kappa from d(W_t,i v)/dq . v), and the events
     stick_i   (i sliding with sign s): its slip velocity W_t,i v crosses 0 against s;
@@ -63,7 +63,7 @@ TOL = float(np.finfo(float).eps)   # the reference's tolerance: machine precisio
 # function carries at least this offset, which moves no root by a representable amount
 TINY = 1e-300
 REACH = 4.0   # the first step of a segment: at most this many times the free contacts' approach time
-REST_TOL = 1e-12   # relative: on the surface at rest (vcirun.reference.held's criterion) at this precision
+REST_TOL = 1e-12   # relative: on the surface at rest (vcirun.reference_solution.held's criterion) at this precision
 MAX_DENSE_N = 3                    # explicit adjugate inverse of a q-dependent M up to this size
 MAX_HELD = 3                       # explicit W_A^-1 up to this many held contacts
 _EPS = float(np.finfo(float).eps)
@@ -106,7 +106,7 @@ _QUIET = []
 
 
 def _hy():
-    import heyoka as hy  # here: heyoka imports sympy, and `import vcirun.reference` stays light
+    import heyoka as hy  # here: heyoka imports sympy, and `import vcirun.reference_solution` stays light
 
     if not _QUIET:
         # heyoka logs a warning when its root isolation in a step gives up or meets a domain error
@@ -194,7 +194,7 @@ class TaylorModel:
         resting contact's round-off offset), the lift-off levels and the pressed-event offsets (TINY,
         or a resting contact's round-off level of its normal acceleration), the M^-1 entries of a
         constant dense M, and with friction the stick-event offsets (TINY, or the round-off level of the
-        slip velocity of a slip that starts from rest: vcirun.reference.coulomb.stick_offsets)."""
+        slip velocity of a slip that starts from rest: vcirun.reference_solution.coulomb.stick_offsets)."""
         out = np.zeros(self.stick0 + (self.m if self.system.has_friction else 0))
         out[: self.np] = prm
         out[self.off0: self.lift0] = TINY if off is None else off
@@ -212,7 +212,7 @@ class TaylorModel:
         hy = _hy()
         s, n, m = self.system, self.n, self.m
         # a guarded constraint (when: w(q) > 0) is followed on its surface, with its guard as an event
-        # of its own (vcirun.reference.resets)
+        # of its own (vcirun.reference_solution.resets)
         surfaces = [c.surface if c.when is not None else c.phi for c in s.constraints]
         for c, phi in zip(s.constraints, surfaces):
             if phi.has(sp.Abs, sp.Min, sp.Max, sp.Piecewise, sp.sign, sp.Heaviside):
@@ -276,7 +276,7 @@ class TaylorModel:
         self.MinvF = [hy.sum([Minv[i][j] * F[j] for j in range(n)]) for i in range(n)]
         self._kappa = {}
         self._wkappa = {}
-        if s.has_friction:   # the slip rows, slip velocities and coefficients (vcirun.reference.coulomb)
+        if s.has_friction:   # the slip rows, slip velocities and coefficients (vcirun.reference_solution.coulomb)
             Wt = s.slip_matrix
             self.Wt = [[conv(Wt[i, j]) for j in range(n)] for i in range(m)]
             self.w = [hy.sum([self.Wt[i][j] * v[j] for j in range(n)]) for i in range(m)]
@@ -429,7 +429,7 @@ def taylor_model(system) -> TaylorModel:
 # --- one segment -------------------------------------------------------------------------------------
 
 class TaylorBackend:
-    """Segments of the exact solve on heyoka's integrators (see vcirun.reference.loop.solve): from (t0, y0)
+    """Segments of the exact solve on heyoka's integrators (see vcirun.reference_solution.loop.solve): from (t0, y0)
     on the dynamics of the held set A with the resting set R until the first event or T."""
 
     kind = "taylor"
@@ -444,7 +444,7 @@ class TaylorBackend:
         self.resets = declared_resets(model.system, mod, self.prm)   # guards and the declared map, or None
 
     def segment(self, t0, y0, T, A, R, geo=None, S=None):
-        """One segment (vcirun.reference.flight); geo: the _Geometry at (t0, y0) if the caller has it.
+        """One segment (vcirun.reference_solution.flight); geo: the _Geometry at (t0, y0) if the caller has it.
 
         The first step is at most REACH times the approach time of the free contacts (a hop after an
         impact, a contact about to be reached), each next bound twice the last: heyoka's root isolation

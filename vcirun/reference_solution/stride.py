@@ -1,6 +1,6 @@
 """The exact return map of a hybrid system on the section of one constraint's impact: a walker's stride
 map, from the state just after an impact (and its declared reset) to the state just after the k-th
-next impact of the same constraint, on the exact reference's event loop (vcirun.reference.loop with
+next impact of the same constraint, on the exact reference's event loop (vcirun.reference_solution.loop with
 stop_after; the Taylor path at machine precision where the system is expressible, else DOP853 at rtol).
 
 `ReferenceReturnMap` has the interface of vcirun.experiments.periodic.ReturnMap (P(x) -> (x+, return

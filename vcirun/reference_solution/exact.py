@@ -4,11 +4,11 @@ Exact reference: Hamilton's equations with the generalized force, qdot = M^-1 p,
 pdot = -dH/dq + f(q, qdot, t), one event per contact (phi_i(q) = 0, entering), the impact law of the
 integrators at each event (Newton's law per contact, Moreau's LCP for simultaneous contacts:
 collision/impact.py), restarted after each impact; dense output on any grid. The event loop
-(vcirun.reference.loop) is shared by two integration paths:
+(vcirun.reference_solution.loop) is shared by two integration paths:
 
-- Taylor (ref.kind "taylor", vcirun.reference.taylor): heyoka at machine precision; every root of
+- Taylor (ref.kind "taylor", vcirun.reference_solution.taylor): heyoka at machine precision; every root of
   every phi_i inside a step is isolated from its Taylor polynomial, so no event is stepped over;
-- DOP853 (ref.kind "dop853", vcirun.reference.dop853) for a system the Taylor path cannot express
+- DOP853 (ref.kind "dop853", vcirun.reference_solution.dop853) for a system the Taylor path cannot express
   (ref.kind_reason says why): per-contact sign and minimum checks on the dense output of every step,
   steps bounded by the flight's own scales, at rtol.
 
@@ -26,16 +26,16 @@ same equations.
 Held contacts (resting_contact=True): a contact that starts at rest on its surface, is left at rest by
 a plastic impact, or whose impacts accumulate (the Zeno time extrapolated from its flights; several
 contacts accumulating together are held together) is held on the index-reduced constrained dynamics
-(vcirun/reference/held.py) and released where its contact force turns tensile; docs/derivations/contacts.md 6.
+(vcirun/reference_solution/held.py) and released where its contact force turns tensile; docs/derivations/contacts.md 6.
 
-Coulomb friction (vcirun.reference.coulomb): held contacts slide or stick, every mode change a
+Coulomb friction (vcirun.reference_solution.coulomb): held contacts slide or stick, every mode change a
 located event (ref.transitions), impacts take the frictional impact law (ref.impact_tangential); a
 held problem with sliding contacts that has no solution or several (Painleve's paradox) ends the
 reference there with ref.status "painleve" and ref.message naming the contact, the time and B.
 
 Declared resets and guards (vcirun.mechanics.hybrid): the declared map at each impact of its
 constraint, guards honoured on both paths, the state after the map checked admissible
-(vcirun.reference.resets); the exact return map on a section: vcirun.reference.stride.
+(vcirun.reference_solution.resets); the exact return map on a section: vcirun.reference_solution.stride.
 
 Also: a fine-step method reference (the paper's choice: CVA at a small h). Closed forms (the
 oscillator against a wall, the bouncing ball, the ball in a box ...) are in vcirun.scenes.oracles.
@@ -95,7 +95,7 @@ class Reference:
         self.held_intervals = []
         # friction: the tangential impulse of each impact entry, the mode changes of held contacts
         # [(t, contact, mode after)] and the held intervals with their modes [(t0, t1, held, modes)]
-        # (mode codes: vcirun.reference.coulomb, +1 / -1 sliding, 0 sticking, 2 smooth)
+        # (mode codes: vcirun.reference_solution.coulomb, +1 / -1 sliding, 0 sticking, 2 smooth)
         self.impact_tangential = np.zeros(len(self.impacts))
         self.transitions = []
         self.mode_intervals = []

@@ -1,8 +1,8 @@
 """Held (resting) contacts in the exact reference: the index-reduced constrained dynamics, the
 projection onto the held manifold, which contacts are held (the contact-force LCP), the contacts at
 rest, and accumulation (the Zeno time extrapolated from a contact's flights). The held phases
-themselves are segments of the backends (vcirun.reference.taylor, vcirun.reference.dop853) driven by
-the event loop (vcirun.reference.loop).
+themselves are segments of the backends (vcirun.reference_solution.taylor, vcirun.reference_solution.dop853) driven by
+the event loop (vcirun.reference_solution.loop).
 Derivations: docs/derivations/contacts.md, "Held contacts in the reference".
 
 `mod` is the system-only compiled module (vcirun.codegen.build.load_module(system, SYSTEM_KERNELS)),
@@ -18,7 +18,7 @@ c_i = v^T Hess(phi_i) v, Mdot v = sys_Mdotv(q, v); mu_i >= 0 is the compressive 
 (it pushes along +grad phi_i). Release: mu_i crosses 0 downwards.
 
 With Coulomb friction a held contact also has a mode (sliding with the sign of its slip velocity, or
-sticking), given as a tuple S aligned with A; the forces of (A, S) are vcirun.reference.coulomb's.
+sticking), given as a tuple S aligned with A; the forces of (A, S) are vcirun.reference_solution.coulomb's.
 S None (or every contact SMOOTH) is the frictionless dynamics above, computed as above.
 """
 from __future__ import annotations
@@ -32,7 +32,7 @@ __all__ = ["HELD_TOL", "ZENO_FLIGHT", "held_multipliers", "free_normal_accelerat
            "held_set", "initially_held", "plastic_entry", "at_rest", "zeno_extrapolation", "accumulating"]
 
 HELD_TOL = 1e-10    # relative: |phi_i|, |u_i| below this count as on the surface at rest (DOP853's precision;
-#                     the Taylor path uses its own, vcirun.reference.taylor.REST_TOL)
+#                     the Taylor path uses its own, vcirun.reference_solution.taylor.REST_TOL)
 # s: a contact's flight shorter than this ends bounce resolution (accumulation). The held state at
 # t_inf is then exact to O(d^3) ~ 1e-18 and t_inf to O(d^2) (0 for a constant normal force), and
 # the bounces left are well above the touch tolerances
@@ -105,7 +105,7 @@ class _Geometry:
         return self._dslip
 
     def forces(self, A, S):
-        """The held forces of the held set A in the friction modes S (vcirun.reference.coulomb.Forces),
+        """The held forces of the held set A in the friction modes S (vcirun.reference_solution.coulomb.Forces),
         kept per (A, S)."""
         from .coulomb import held_forces
 
@@ -143,7 +143,7 @@ class _Geometry:
         return self.G[idx] @ np.linalg.solve(self.M, self.F - self.Mdv) + self.c[idx]
 
     def mu(self, A, S=None):
-        """The normal forces of the held set A (in the friction modes S: vcirun.reference.coulomb)."""
+        """The normal forces of the held set A (in the friction modes S: vcirun.reference_solution.coulomb)."""
         if _frictional(S):
             return self.forces(A, S).lam_n
         W, _ = self.W(A)
@@ -152,7 +152,7 @@ class _Geometry:
     def held_acc(self, A, S=None):
         """d^2/dt^2 phi_i of every contact along the held flow of A (0 for i in A, up to round-off):
         G M^-1 (F + G_A^T mu - Mdot v) + c (kept per A; in the friction modes S: with the forces of
-        vcirun.reference.coulomb)."""
+        vcirun.reference_solution.coulomb)."""
         A = tuple(A)
         if _frictional(S):
             key = (A, tuple(S))
@@ -176,7 +176,7 @@ def _frictional(S) -> bool:
     return S is not None and any(s != SMOOTH for s in S)
 
 
-# the friction modes of a held contact (vcirun.reference.coulomb): sliding is +1 / -1 (the sign of its
+# the friction modes of a held contact (vcirun.reference_solution.coulomb): sliding is +1 / -1 (the sign of its
 # slip velocity), sticking STICK, no friction at these parameters SMOOTH
 STICK, SMOOTH = 0, 2
 
@@ -199,7 +199,7 @@ def free_normal_accelerations(mod, t, q, p, prm) -> np.ndarray:
 
 def held_rhs(mod, prm, A, S=None):
     """f(t, y) for solve_ivp: the held dynamics qdot = v, pdot = F + G_A^T mu (with friction modes S:
-    the forces of vcirun.reference.coulomb; and W' = f . v when y carries the work as a last
+    the forces of vcirun.reference_solution.coulomb; and W' = f . v when y carries the work as a last
     component, len(y) = 2n + 1)."""
     A = tuple(int(i) for i in A)
     n = int(mod.NDOF)

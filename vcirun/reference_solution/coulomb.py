@@ -28,7 +28,7 @@ The events of a held phase (located on both paths of the reference):
     slip     a sticking contact's lam_t,i reaches +-mu_s,i lam_n,i: it slides, s = -sign(lam_t,i);
     painleve det Kmat reaches 0 with a sliding contact (PainleveError ends the solve).
 At an impact the touching contacts take the frictional impact law of vcirun/collision/friction_law.py
-(through vcirun.reference.friction_law.friction_impact; normal and tangential impulses, kinetic mu).
+(through vcirun.reference_solution.friction_law.friction_impact; normal and tangential impulses, kinetic mu).
 """
 from __future__ import annotations
 
@@ -111,7 +111,7 @@ def independent_sticks(C, k) -> list:
 
 
 def held_forces(g, A, S) -> Forces:
-    """The forces of the held set A in the modes S at the state of the vcirun.reference.held._Geometry g
+    """The forces of the held set A in the modes S at the state of the vcirun.reference_solution.held._Geometry g
     (see the module docstring). Sticking rows that depend on the others are dropped from the dynamics
     (they constrain nothing more); the tangential force the kept ones carry is shared among all the
     sticking contacts as the least-norm distribution (lstsq of W_t^T lam_t = the kept rows' force)."""
@@ -212,7 +212,7 @@ def settle(g, A, S) -> tuple:
 
 def held_set(mod, t, q, p, prm, candidates=None, tol=rh.HELD_TOL, geo=None, names=None) -> tuple:
     """(A, S): the contacts to hold at (t, q, p) and their modes, the frictional form of
-    vcirun.reference.held.held_set: among the candidates on their surface at rest, modes from the slip
+    vcirun.reference_solution.held.held_set: among the candidates on their surface at rest, modes from the slip
     velocities (contact_modes, then the stick test), the first active subset (smallest first) whose
     normal forces are >= 0 and leaves the other contacts' normal accelerations >= 0, then the contacts
     with a compressive force beyond the tolerance. A sliding candidate whose held problem is singular
@@ -276,7 +276,7 @@ def check_painleve(g, A, S, names) -> None:
 # --- the frictional impact law -------------------------------------------------------------------------
 
 def impact(mod, t, q, p, prm, contacts, e_of):
-    """The frictional impact law (vcirun.reference.friction_law.friction_impact: the unit
+    """The frictional impact law (vcirun.reference_solution.friction_law.friction_impact: the unit
     vcirun/collision/friction_law.py) at (q, p-) for the touching `contacts` (an index list, as
     impact_direction's `active`): (case, lam_n (m), lam_t (m), dp) with p+ = p- + dp. A contact
     separating (u_n > 0) takes no restitution, as collision/impact.py's law."""

@@ -1,4 +1,4 @@
-"""The exact reference's DOP853 path, for systems the Taylor path cannot express (vcirun.reference.taylor).
+"""The exact reference's DOP853 path, for systems the Taylor path cannot express (vcirun.reference_solution.taylor).
 
 scipy's DOP853 is stepped here one step at a time, and each step is checked on its dense output for
 every watched function separately, at `samples` + 1 points:
@@ -10,7 +10,7 @@ every watched function separately, at `samples` + 1 points:
 - each held contact: its force mu_i crossing 0 downwards (a release);
 - each resting contact: its normal acceleration crossing 0 downwards (pushed in), and its phi_i below
   minus its round-off offset (it left and came back, by less than the offset; the root is refined);
-- with friction (modes S of the held contacts, vcirun.reference.coulomb): a sliding contact's slip
+- with friction (modes S of the held contacts, vcirun.reference_solution.coulomb): a sliding contact's slip
   velocity reaching 0 (stick), a sticking contact's tangential force reaching the static cone (slip),
   and det K of a held set with sliding contacts reaching 0 (painleve).
 
@@ -19,7 +19,7 @@ not held could need to reach its surface, (u + sqrt(u^2 + 2 |a| max(phi, 0))) / 
 a_i its gap, normal velocity and normal acceleration, a_i taken towards the surface), so a free flight
 whose polynomial motion DOP853's error estimate cannot see still steps onto each surface. Roots are
 refined by brentq on the dense output. Held phases integrate the index-reduced dynamics
-(vcirun.reference.held.held_rhs) and stop for a projection when the constraints drift past drift_tol.
+(vcirun.reference_solution.held.held_rhs) and stop for a projection when the constraints drift past drift_tol.
 """
 from __future__ import annotations
 
@@ -259,7 +259,7 @@ class Dop853Backend:
 
     def _friction_candidates(self, dense, ss, geo, A, S, cands, stick_off):
         """The friction events of the held set A in the modes S on the samples ss (geometries geo): a
-        sliding contact's s v_t (+ its stick offset, vcirun.reference.coulomb.stick_offsets) crossing 0
+        sliding contact's s v_t (+ its stick offset, vcirun.reference_solution.coulomb.stick_offsets) crossing 0
         downwards (stick), a sticking contact's mu_s lam_n -+ lam_t crossing 0 downwards (slip), det K
         crossing 0 downwards with sliding contacts (painleve)."""
         from .coulomb import coefficients, response

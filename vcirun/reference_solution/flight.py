@@ -1,7 +1,7 @@
-"""What both integration paths of the exact reference hand to its event loop (vcirun.reference.loop):
+"""What both integration paths of the exact reference hand to its event loop (vcirun.reference_solution.loop):
 one segment of motion (`Flight`), its dense output, root refinement on it, and the work budget.
 
-A backend (vcirun.reference.taylor.TaylorBackend, vcirun.reference.dop853.Dop853Backend) provides
+A backend (vcirun.reference_solution.taylor.TaylorBackend, vcirun.reference_solution.dop853.Dop853Backend) provides
 `segment(t0, y0, T, A, R) -> Flight`: from (t0, y0), on the dynamics of the held set A (free flight
 for A = ()), with R the contacts resting on their surface without being held, until the first event
 or T. The event kinds:

@@ -1,5 +1,5 @@
 """The frictional impact law, Python-callable: `friction_impact(W, u, e, mu) -> (code, lam)` (the exact
-reference's impacts with friction, vcirun.reference.coulomb, and the tests).
+reference's impacts with friction, vcirun.reference_solution.coulomb, and the tests).
 
 It calls the standalone numba unit vcirun/collision/friction_law.py (docs/derivations/friction.md,
 "Frictional impacts"), so the reference applies the integrators' law, compiled from the same text.

@@ -4,7 +4,7 @@ A guarded constraint acts only where its arming function w(q) > 0. Both paths fo
 phi (unguarded) and its guard separately: a downward crossing of phi where w <= 0 is no event (the
 compass gait's swing foot crossing the slope at mid-stride, theta_s < 0); the guard arming (w
 crossing 0 upwards) where phi < 0 is an error, the state being inside the constraint from then on.
-The Taylor path has both as heyoka events (vcirun.reference.taylor); DOP853 follows the guarded gap
+The Taylor path has both as heyoka events (vcirun.reference_solution.taylor); DOP853 follows the guarded gap
 of the kernels (Piecewise((phi, w > 0), (1, True))), and the event loop checks at each of its
 impacts that the surface is at its root there (a jump of the guarded gap from 1 to phi < 0 where the
 guard arms is refused by the same error).
