@@ -96,7 +96,7 @@ def test_stored_bytes_counts_every_stored_field(monkeypatch):
         "impact_extra", "impact", False, "int64", None, "impacts", "a new impact row"),))
     assert sizes.stored_bytes(N, n, m, impacts=5, releases=2) - base == 5 * 8
     assert sizes.stored_bytes(N, n, m, store_trajectories=False, impacts=5) - \
-        sizes.stored_bytes(N, n, m, store_trajectories=False, impacts=4) == 8 * (1 + 3 * n) + 16 + 8 + 2 * 8
+        sizes.stored_bytes(N, n, m, store_trajectories=False, impacts=4) == 8 * (1 + 3 * n) + 16 + 8 + 2 * 8 + 8  # + impact_impulse_t
 
 
 @pytest.mark.parametrize("system, method, kw", [("cart_pendulum", "MCVAA", {"beta": 3.2}),

@@ -137,6 +137,8 @@ def test_warm_key_follows_the_hashed_files(tmp_path, monkeypatch):
     """The index key changes with every file the module key hashes and with the system-defining files."""
     import shutil
 
+    from vcirun.codegen import modules as build   # (where the keys are computed: the names to patch)
+
     pkg = tmp_path / "vcirun"
     shutil.copytree(build._PKG, pkg, ignore=shutil.ignore_patterns("__pycache__"))
     monkeypatch.setattr(build, "_PKG", pkg)

@@ -2,7 +2,7 @@
 
 When a call in the `auto` tier (vcirun.codegen.tiers) needs a module whose compiled code is not in the
 cache, it runs on the interpreted tier at once and `start`s this module as a separate process
-(`python -m vcirun.codegen.background JOB`) that builds the compiled tier into the cache:
+(`python -m vcirun.codegen.compile_worker JOB`) that builds the compiled tier into the cache:
 
 1. it takes the lock `kernels/bg_<key>.lock` without waiting (vcirun.codegen.cache_lock: the holder is
    named in the file and kept alive by a heartbeat); a process that finds it held leaves at once, so
@@ -33,7 +33,6 @@ import subprocess
 import sys
 import threading
 import time
-import traceback
 from pathlib import Path
 
 from . import cache_lock, cache_store   # (light: numba is imported once a compile slot is ours)
@@ -42,7 +41,7 @@ __all__ = ["start", "state", "marker", "failure", "in_progress", "Job"]
 
 # How the cores are shared: the caller computes at its own priority, a background compile at nice
 # NICE (the scheduler then gives a busy caller ~10 times its CPU share) and at most one background
-# compile per core at a time (the others wait for a slot: `_slot`), so a sweep's interpreted runs are
+# compile per core at a time (the others wait for a slot: `slot`), so a sweep's interpreted runs are
 # not slowed by the compiles it started, and the compiles use the cores as soon as the runs leave them
 # idle. Measured in docs/performance.md (tiers).
 NICE = 10
@@ -150,7 +149,7 @@ def start(job: Job, d: Path):
     env["PYTHONPATH"] = pkg_parent + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     log = open(log_path(d, job.key), "ab")   # noqa: SIM115 - handed to the child
     try:
-        proc = subprocess.Popen([sys.executable, "-m", "vcirun.codegen.background", job.encode()],
+        proc = subprocess.Popen([sys.executable, "-m", "vcirun.codegen.compile_worker", job.encode()],
                                 stdin=subprocess.DEVNULL, stdout=log, stderr=log, env=env, cwd=str(d),
                                 start_new_session=True, close_fds=True)
     finally:
@@ -175,7 +174,7 @@ def exercise(mod, ks, nprm: int) -> None:
     mod.mass_matrix_ok(q, prm, A)
     mod.sys_phis(q, prm, np.empty(m))
     mod.sys_dphis(q, prm, np.empty((m, n)))
-    if ks.reset is not None:
+    if ks.reset is not None:   # one step of the loop (vcirun.run.plan.run_loop's call)
         from ..core.tolerances import DEFAULT_TOLERANCES
 
         settings = record.settings_vector(constrained=True, energies=True, resting_contact=True,
@@ -191,37 +190,8 @@ def exercise(mod, ks, nprm: int) -> None:
     mod.sys_Mdotv(q, v, prm, np.empty(n))
 
 
-def run(job: Job) -> int:
-    """The background process: 0 when the compiled tier is there (built now or by another process), 1
-    when the compile failed (recorded)."""
-    d = cache_store.kernels_dir()
-    with cache_lock.try_held(lock_path(d, job.key), f"the compiled tier of {job.label}") \
-            as mine, contextlib.ExitStack() as slot:
-        if not mine or marker(d, job.key) is not None:
-            return 0
-        slot.enter_context(_slot(d))
-        try:
-            from .kernel_cache import KernelCache
-
-            kc = KernelCache(background=True)
-            mod = kc.compiled(job.key, job.system, job.ks)
-            kc.finish(mod, job.key, job.system, job.ks, job.nprm)   # numba's first calls, then the marker
-        except BaseException as e:   # noqa: BLE001 - recorded for the callers, who stay interpreted
-            reason = " ".join(f"{type(e).__name__}: {e}".split())[:500]
-            traceback.print_exc()
-            sys.stderr.flush()
-            try:
-                cache_store.write_atomic(failure_path(d, job.key), cache_store.seal_json(
-                    {"key": job.key, "system": job.label, "reason": reason, "time": time.time(),
-                     "log": str(log_path(d, job.key))}))
-            except cache_store.CacheError:
-                pass
-            return 1
-    return 0
-
-
 @contextlib.contextmanager
-def _slot(d: Path, poll_s: float = 0.5):
+def slot(d: Path, poll_s: float = 0.5):
     """One of the machine's background-compile slots (a lock `bg_slot<i>.lock` per core), waited for."""
     n = max(1, os.cpu_count() or 1)
     while True:
@@ -231,18 +201,3 @@ def _slot(d: Path, poll_s: float = 0.5):
                     yield i
                     return
         time.sleep(poll_s)
-
-
-def main(argv: list[str]) -> int:
-    import logging
-
-    try:
-        os.nice(NICE)
-    except OSError:
-        pass
-    logging.basicConfig(level=logging.WARNING, format="%(message)s")
-    return run(Job.decode(argv[0]))
-
-
-if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))

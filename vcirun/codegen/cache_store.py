@@ -145,6 +145,37 @@ def said(once: str) -> None:
     _said.add(once)
 
 
+QUIET_ENV = "VCIRUN_QUIET"
+
+
+def listen(callback) -> None:
+    """Show build notices and cache notices through `callback(message) -> True` (the CLI prints them on
+    stderr); once per callback. Without a listener, notices go to the logger "vcirun.build"."""
+    if callback not in LISTENERS:
+        LISTENERS.append(callback)
+
+
+def tell(msg: str) -> None:
+    """A build notice ("compiling ... about N s", which tier runs): to the listeners (`listen`: the CLI
+    prints them on stderr), else to the logger "vcirun.build" at INFO, which prints it on stderr unless
+    logging is configured otherwise: off with VCIRUN_QUIET=1, or as any logger
+    (logging.getLogger("vcirun").setLevel(logging.WARNING))."""
+    if LISTENERS:
+        for cb in list(LISTENERS):
+            cb(msg)
+        return
+    if os.environ.get(QUIET_ENV, "").strip() not in ("", "0"):
+        return
+    top = logging.getLogger("vcirun")
+    if not top.hasHandlers():   # nothing configured: the notice goes to stderr, as the CLI's do
+        handler = logging.StreamHandler()
+        handler.setFormatter(logging.Formatter("%(message)s"))
+        top.addHandler(handler)
+        if top.level == logging.NOTSET:
+            top.setLevel(logging.INFO)
+    _log.info(msg)
+
+
 TIMES_FILE = "build_times.json"
 
 

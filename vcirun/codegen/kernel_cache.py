@@ -11,7 +11,7 @@ compiled). A substitute loader (`KernelCache(loader=f)`, f(symbolic system, kern
 vcirun.codegen.evaluate.python_module_for to run uncompiled) replaces building and loading; such a
 cache has no warm index (its modules do not come from the disk cache).
 
-The file formats, keys, seals and the checks a load makes are those of vcirun.codegen.build (key
+The file formats, keys, seals and the checks a load makes are those of vcirun.codegen.modules (key
 functions, generation) and vcirun.codegen.cache_store (atomic writes, seals, quarantine)."""
 from __future__ import annotations
 
@@ -29,7 +29,8 @@ from pathlib import Path
 import llvmlite
 import numba
 
-from . import build, cache_lock, cache_store, numba_cache
+from . import cache_lock, cache_store, numba_cache
+from . import modules as build
 from .cache_store import CacheDamage
 from .kernel_set import KernelSet
 
@@ -163,15 +164,6 @@ class KernelCache:
             return self.loader(system, ks)
         return self.compiled(self.module_key(system, ks), system.name, ks, system)
 
-    def module(self, system, ks: KernelSet, tier=None):
-        """The module for (symbolic system, ks) on `tier` (vcirun.codegen.tiers: None is $VCIRUN_TIER, else
-        auto: compiled when it is there, else interpreted while it compiles in the background)."""
-        from .tiers import Kernels
-
-        if self.loader is not None:
-            return self.loader(system, ks)
-        return Kernels(self, ks, system.name, len(system.param_symbols), sysm=system)(tier)
-
     def generated(self, key: str, ks: KernelSet, system=None) -> tuple[str, int] | None:
         """(text, number of parameters) of the generated part of module `key` (vcirun.codegen.derive:
         all of its sympy work), the input of both tiers: from memory, from `vg_<key>.py` (sealed; a
@@ -239,7 +231,7 @@ class KernelCache:
         """numba's first calls of the module's entry points (under the module's first-call lock), then
         its marker: the compiled tier of `key` is there."""
         from . import background
-        from .cache import first_call_lock, note_first_call
+        from .compile_notes import first_call_lock, note_first_call
 
         t0 = time.perf_counter()
         with first_call_lock(mod, kc=self):

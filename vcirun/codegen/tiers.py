@@ -22,9 +22,9 @@ from __future__ import annotations
 
 import os
 
-from . import build
+from . import modules as build
 
-__all__ = ["TIERS", "ENV", "requested", "Kernels"]
+__all__ = ["TIERS", "ENV", "requested", "Kernels", "load_module"]
 
 TIERS = ("auto", "interpreted", "compiled")
 ENV = "VCIRUN_TIER"
@@ -107,7 +107,7 @@ class Kernels:
         from .cache_store import CacheDamage
 
         if self.sysm is not None and not self.ready():
-            from .cache import announce_if_cold
+            from .compile_notes import announce_if_cold
 
             announce_if_cold(self.sysm, self.ks, kc=self.kc)  # "compiling kernels for ... (first time, about N s)"
         try:
@@ -164,7 +164,7 @@ class Kernels:
 
     def _say_failure(self, d) -> None:
         from . import background
-        from .cache import tell
+        from .cache_store import tell
 
         if ("failed", self.key) in self.kc.told:
             return
@@ -175,14 +175,14 @@ class Kernels:
              f"compiles here and shows the error; log: {f.get('log', background.log_path(d, self.key))}")
 
     def _say_tier(self, d) -> None:
-        from .cache import tell
+        from .cache_store import tell
 
         if ("tier", self.key) in self.kc.told:
             return
         self.kc.told.add(("tier", self.key))
         about = ""
         if self.sysm is not None:
-            from .cache import estimate_compile_s
+            from .compile_notes import estimate_compile_s
 
             try:
                 est = estimate_compile_s(self.ks, self.sysm.n, build.system_core_features(self.ks, self.sysm),
@@ -192,3 +192,15 @@ class Kernels:
                 about = ""
         tell(f"vcirun: {self.label} runs on the interpreted tier now; its compiled tier is being built in the "
              f"background{about} (`vcirun cache info` shows it), and later runs use it")
+
+
+def load_module(system, ks, tier: str | None = "compiled", kc=None):
+    """The module for (symbolic system, ks) from kernel cache `kc` (default: the API's) on `tier`:
+    "compiled" (waiting for the compiler if need be), "interpreted", "auto", or None ($VCIRUN_TIER, else
+    auto)."""
+    from .kernel_cache import default
+
+    kc = default() if kc is None else kc
+    if tier == "compiled" or kc.loader is not None:
+        return kc.load_module(system, ks)
+    return Kernels(kc, ks, system.name, len(system.param_symbols), sysm=system)(tier)

@@ -37,13 +37,16 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import held as rh
-from .held import SMOOTH, STICK
 
 __all__ = ["SMOOTH", "STICK", "Forces", "PainleveError", "coefficients", "held_forces", "settle", "stick_offsets",
            "contact_modes", "held_set", "response", "impact", "mode_name"]
 
 _EPS = float(np.finfo(float).eps)
+# the friction modes of a held contact: sliding is +1 / -1 (the sign of its slip velocity), sticking 0,
+# a contact without friction 2 (vcirun.reference_solution.held reads them from here)
+STICK, SMOOTH = 0, 2
+# the held set's LCP tolerance on forces, relative to the largest free normal acceleration
+FORCE_LCP_TOL = 1e-12
 CONE_TOL = 64 * _EPS   # relative: |lam_t| <= mu_s lam_n (1 + CONE_TOL) is inside the static cone
 
 
@@ -210,14 +213,14 @@ def settle(g, A, S) -> tuple:
     return tuple(S)
 
 
-def held_set(mod, t, q, p, prm, candidates=None, tol=rh.HELD_TOL, geo=None, names=None) -> tuple:
+def held_set(mod, t, q, p, prm, candidates, tol, geo, names=None) -> tuple:
     """(A, S): the contacts to hold at (t, q, p) and their modes, the frictional form of
     vcirun.reference_solution.held.held_set: among the candidates on their surface at rest, modes from the slip
     velocities (contact_modes, then the stick test), the first active subset (smallest first) whose
     normal forces are >= 0 and leaves the other contacts' normal accelerations >= 0, then the contacts
     with a compressive force beyond the tolerance. A sliding candidate whose held problem is singular
     (B <= 0) raises PainleveError."""
-    g = rh._Geometry(mod, t, q, p, prm) if geo is None else geo
+    g = geo   # the vcirun.reference_solution.held._Geometry at (t, q, p)
     near = g.near(candidates, tol)
     if not near:
         return (), ()
@@ -226,7 +229,7 @@ def held_set(mod, t, q, p, prm, candidates=None, tol=rh.HELD_TOL, geo=None, name
         _painleve(g, tuple(near), S_near, names)
     b = g.free_acc(near)
     scale = max(float(np.max(np.abs(b))), float(np.max(np.abs(g.G[near] @ np.linalg.solve(g.M, g.F)))), _EPS)
-    lcp_tol = rh.FORCE_LCP_TOL * max(1.0, float(np.max(np.abs(b))))
+    lcp_tol = FORCE_LCP_TOL * max(1.0, float(np.max(np.abs(b))))
     chosen = None
     for size in range(len(near) + 1):
         for sub in combinations(range(len(near)), size):
@@ -275,13 +278,13 @@ def check_painleve(g, A, S, names) -> None:
 
 # --- the frictional impact law -------------------------------------------------------------------------
 
-def impact(mod, t, q, p, prm, contacts, e_of):
+def impact(g, contacts, e_of):
     """The frictional impact law (vcirun.reference_solution.friction_law.friction_impact: the unit
     vcirun/collision/friction_law.py) at (q, p-) for the touching `contacts` (an index list, as
     impact_direction's `active`): (case, lam_n (m), lam_t (m), dp) with p+ = p- + dp. A contact
-    separating (u_n > 0) takes no restitution, as collision/impact.py's law."""
-    g = rh._Geometry(mod, t, q, p, prm)
-    mu, _ = coefficients(mod, prm)
+    separating (u_n > 0) takes no restitution, as collision/impact.py's law. g: the
+    vcirun.reference_solution.held._Geometry at (t, q, p-)."""
+    mu, _ = coefficients(g._mod, g._prm)
     idx = [int(i) for i in contacts]
     k = len(idx)
     rows = np.vstack([g.G[idx], g.Wt[idx]])

@@ -28,6 +28,8 @@ from itertools import combinations
 
 import numpy as np
 
+from .coulomb import FORCE_LCP_TOL, SMOOTH, STICK, held_forces, independent_sticks
+
 __all__ = ["HELD_TOL", "ZENO_FLIGHT", "held_multipliers", "free_normal_accelerations", "held_rhs", "project",
            "held_set", "initially_held", "plastic_entry", "at_rest", "zeno_extrapolation", "accumulating"]
 
@@ -107,8 +109,6 @@ class _Geometry:
     def forces(self, A, S):
         """The held forces of the held set A in the friction modes S (vcirun.reference_solution.coulomb.Forces),
         kept per (A, S)."""
-        from .coulomb import held_forces
-
         key = (tuple(A), tuple(S))
         if key not in self._forces:
             self._forces[key] = held_forces(self, tuple(A), tuple(S))
@@ -175,10 +175,6 @@ def _frictional(S) -> bool:
     """Some held contact of the modes S has friction (a mode other than SMOOTH)."""
     return S is not None and any(s != SMOOTH for s in S)
 
-
-# the friction modes of a held contact (vcirun.reference_solution.coulomb): sliding is +1 / -1 (the sign of its
-# slip velocity), sticking STICK, no friction at these parameters SMOOTH
-STICK, SMOOTH = 0, 2
 
 
 def held_multipliers(mod, t, q, p, prm, A) -> np.ndarray:
@@ -258,8 +254,6 @@ def project(mod, q, p, prm, A, iters=8, stick=()):
     mod.sys_dphis(q, prm, G)
     Ga = G[A]
     if stick:
-        from .coulomb import independent_sticks
-
         Wt = np.empty((m, n))
         mod.sys_slips(q, prm, Wt)
         Ga = np.vstack([Ga, Wt[list(stick)]])
@@ -280,8 +274,8 @@ def _project_y(mod, y, prm, A, S=None):
 
 # --- which contacts are held -------------------------------------------------------------------
 
-# Normal accelerations within FORCE_LCP_TOL max(1, |b|) of zero are zero to the contact-force LCP.
-FORCE_LCP_TOL = 1e-12
+# Normal accelerations within FORCE_LCP_TOL max(1, |b|) of zero are zero to the contact-force LCP
+# (FORCE_LCP_TOL: vcirun.reference_solution.coulomb, beside the friction modes STICK, SMOOTH).
 
 
 def press_level(g, tol) -> float:
