@@ -47,6 +47,7 @@ import numpy as np
 from ..codegen.build import load_module
 from ..codegen.kernel_set import SYSTEM_KERNELS
 from ..core.system_data import start_tolerance
+from . import held as rh
 from .dop853 import Dop853Backend
 from .flight import Budget, Constant, ReferenceCostError
 from .loop import solve
@@ -395,7 +396,8 @@ def solve_exact(sysm, q0, p0, prm, T, *, rtol=1e-13, check_accuracy=True, restin
         from ..run.accounts import reference_account
 
         ref._account = reference_account(sol.pieces, n, ref.impacts, mod, prm, T, bool(mod.FORCED),
-                                         impact_contact=ref.impact_contact)
+                                         impact_contact=ref.impact_contact,
+                                         friction=_friction_account(mod, prm, n, ref.mode_intervals))
         ref.energy_balance = ref._account.error
     except ReferenceCostError:
         raise
@@ -442,3 +444,22 @@ def l2_error(traj, ref) -> float:
     points k = 0..N of the run (a Riemann sum of the continuous L2 norm of q - q_ref on [0, T])."""
     d = traj.q - ref(traj.t)
     return float(np.sqrt(traj.h * np.sum(d * d)))
+
+
+def _friction_account(mod, prm, n, mode_intervals):
+    """(mode intervals, power) for the energy account's friction work, or None without friction: the
+    power of the friction forces at a state, -sum over the sliding contacts of mu lam_n |v_t| (a
+    sticking contact's v_t is 0; docs/derivations/friction.md)."""
+    from .coulomb import coefficients
+
+    fric = coefficients(mod, prm)
+    if fric is None or not mode_intervals:
+        return None
+    mu = fric[0]
+
+    def power(t, y, A, S):
+        g = rh._Geometry(mod, t, y[:n], y[n:2 * n], prm)
+        lam_n, wt = g.forces(A, S).lam_n, g.wt
+        return -sum(mu[i] * lam_n[a] * abs(wt[i]) for a, (i, s) in enumerate(zip(A, S)) if s in (1, -1))
+
+    return mode_intervals, power

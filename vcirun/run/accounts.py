@@ -325,12 +325,19 @@ def trajectory_account(traj) -> EnergyAccount:
 
 # --- the exact reference ------------------------------------------------------------------------------
 
-def reference_account(pieces, n, impacts, mod, prm, T, forced, impact_contact=None, samples=2001) -> EnergyAccount:
+def reference_account(pieces, n, impacts, mod, prm, T, forced, impact_contact=None, samples=2001,
+                      friction=None) -> EnergyAccount:
     """The account of an exact solve from its dense pieces [(t0, t1, dense)] (states of width 2n, plus
     the work integral as component 2n when forced): H on `samples` points and at both sides of every
     piece boundary; the law's term is the sum of H's jumps at the boundaries (impacts, and the plastic
     projections of contacts the solve holds: between boundaries the solve is the smooth flow), the
-    forcing term the carried work. The rest is then the solve's own energy error."""
+    forcing term the carried work. The rest is then the solve's own energy error.
+
+    friction = (mode_intervals, power): the solve's [(t0, t1, held set, modes)] and power(t, y, A, S),
+    the friction forces' power at a state (sum over sliding contacts of -mu lam_n |v_t|). Its integral
+    is the friction-work term: 5-point Gauss-Legendre between consecutive account times inside every
+    interval with a sliding contact (error far below the solve's tolerance), computed from the forces
+    and slip velocities, never from H, so the rest stays a check of the solve."""
     K = _Kernels(mod, prm)
     t0 = float(pieces[0][0])
 
@@ -367,6 +374,9 @@ def reference_account(pieces, n, impacts, mod, prm, T, forced, impact_contact=No
     passed = np.clip(passed, 0, len(tb))
     law = -cum[passed]
     terms = [EnergyTerm(LAW, float(law[-1]), law, _DOC[LAW])]
+    if friction is not None:
+        W = _friction_work(friction, pieces, tt, at)
+        terms.append(EnergyTerm(FRICTION, float(W[-1]), W, _DOC_REFERENCE_FRICTION))
     if forced:
         W = YY[:, 2 * n]
         terms.append(EnergyTerm(FORCING, float(W[-1]), W - W[0], _DOC[FORCING]))
@@ -383,3 +393,27 @@ def reference_account(pieces, n, impacts, mod, prm, T, forced, impact_contact=No
             M = K.M(y[:n])
             scale = max(scale, 0.5 * float(y[n:2 * n] @ np.linalg.solve(M, y[n:2 * n])))
     return EnergyAccount(t=tt, H=H, terms=tuple(terms), events=tuple(events), scale=scale)
+
+
+_DOC_REFERENCE_FRICTION = "work of the held contacts' friction forces (sliding), integrated along the exact solve"
+_GAUSS5 = np.polynomial.legendre.leggauss(5)
+
+
+def _friction_work(friction, pieces, tt, at) -> np.ndarray:
+    """The friction work from the first account time to each of `tt` (sorted): the power integrated
+    between consecutive account times inside each interval with a sliding contact."""
+    intervals, power = friction
+    starts = np.array([p[0] for p in pieces])
+    x, w = _GAUSS5
+    inc = np.zeros(len(tt))
+    for t0, t1, A, S in intervals:
+        if t1 <= t0 or not any(s in (1, -1) for s in S):
+            continue
+        cuts = np.unique(np.concatenate([[t0, t1], tt[(tt > t0) & (tt < t1)]]))
+        for a, b in zip(cuts[:-1], cuts[1:]):
+            nodes = 0.5 * (a + b) + 0.5 * (b - a) * x
+            j = int(np.clip(np.searchsorted(starts, 0.5 * (a + b), side="right") - 1, 0, len(pieces) - 1))
+            Y = at(j, nodes)
+            val = 0.5 * (b - a) * float(sum(wk * power(tk, y, A, S) for wk, tk, y in zip(w, nodes, Y)))
+            inc[np.searchsorted(tt, b, side="left")] += val   # reached at b (and after)
+    return np.cumsum(inc)
