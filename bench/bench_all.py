@@ -59,6 +59,10 @@ Sections (`--only a,b,...` to pick; `--quick` for a short smoke run):
             spinning ball, the incline, the Coulomb oscillator's order, the cost of a held step with
             friction against one without
 
+  loop      the engine loop's targets, this tree against a base tree (VCIRUN_BENCH_BASE, default /work/main;
+            bench/loop_targets.py): compiled loop and whole simulate() against a hand-written numba CVA
+            loop (bench/handwritten_cva.py), newton_cradle_100 us per smooth step, a cold first simulation
+
   throughput the target table of sweeps at the speed of the compiled loop (bench/throughput.py):
             simulate() against its loop, an ensemble of 10^5 runs against the loop time per core, the
             fig4 sweep against today's tree (/work/base) and a first simulate against the tree before
@@ -733,6 +737,16 @@ def section_bodies(res):
     res["bodies"] = json.loads(out.read_text())
 
 
+def section_loop(res):
+    """The engine loop's targets against the base tree (bench/loop_targets.py)."""
+    import loop_targets
+
+    r = loop_targets.measure(Path(os.environ.get("VCIRUN_BENCH_BASE", "/work/main")),
+                             ["yardstick", "cradle", "coldbuild"], 41 if QUICK else 201)
+    loop_targets.report(r, log=log)
+    res["loop"] = r
+
+
 SECTIONS = {"steps": section_steps, "sim5": section_sim5, "impact": section_impact, "build": section_build,
             "sweep": section_sweep, "yardstick": section_yardstick, "scaling": section_scaling, "dof": section_dof,
             "wp": section_wp, "coldbuild": section_coldbuild, "contacts": section_contacts,
@@ -741,7 +755,8 @@ SECTIONS = {"steps": section_steps, "sim5": section_sim5, "impact": section_impa
              "tiers": lambda res: section_tiers(res, quick=QUICK, log=log),
              "friction": lambda res: section_friction(res, quick=QUICK),
              "friction_scenes": lambda res: section_friction_scenes(res, quick=QUICK, log=log),
-             "tol": section_tol}
+             "tol": section_tol,
+             "loop": section_loop}
 
 
 def main(argv=None):

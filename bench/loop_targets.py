@@ -1,0 +1,104 @@
+"""`make bench` section `loop`: the engine loop's targets, this tree against a base tree, in one run.
+
+    python bench/loop_targets.py [--base /work/main] [--rows yardstick,cradle,coldbuild] [--repeats 201]
+
+Rows (each tree in its own fresh process, its own code on PYTHONPATH, the shared kernel cache):
+  yardstick  cart-pendulum CVA, T = 5, h = 1e-2, beta = 3.2: vcirun's compiled loop (Trajectory.wall_time)
+             and whole simulate() call against a hand-written allocation-free numba CVA loop
+             (bench/handwritten_cva.py: the same trajectory, closed-form 2 x 2 mechanics), medians of
+             interleaved calls
+  cradle     newton_cradle_100 (99 contacts touching) CVA: CPU microseconds per smooth step before the
+             first impact (h = 1e-4, T = 0.19; bench/bodies_scaling.py's measure)
+  coldbuild  the first cart-pendulum CVA simulation with an empty kernel cache (VCIRUN_CACHE_DIR a fresh
+             directory): the family's lean core and the scene's module compiled, CPU seconds of the
+             process and its children (the C compiler)
+Printed as a table with the targets of the engine issue; never asserted.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+TARGETS = {"loop_ratio": 1.1, "call_ratio": 1.3, "cradle_us": 20.0}
+
+_YARDSTICK = "import json, sys; sys.path.insert(0, {bench!r}); import handwritten_cva as h; print(json.dumps(h.measure({n})))"
+_CRADLE = ("import json, sys; sys.path.insert(0, {bench!r}); import bodies_scaling as b; "
+           "r = b.one('newton_cradle_100', 'CVA'); print(json.dumps({{k: r[k] for k in ('us_per_smooth_step', "
+           "'smooth_steps', 'status_smooth')}}))")
+_COLD = ("import json, resource, time; t = time.perf_counter(); import vcirun; "
+         "tr = vcirun.simulate('cart_pendulum', 'CVA', h=1e-2, T=0.1); "
+         "u = [resource.getrusage(w) for w in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)]; "
+         "print(json.dumps({'cpu_s': sum(x.ru_utime + x.ru_stime for x in u), 'wall_s': time.perf_counter() - t, "
+         "'status': tr.status}))")
+
+
+def _run(tree: Path, code: str, env_extra: dict | None = None, timeout: float = 7200) -> dict:
+    env = dict(os.environ, PYTHONPATH=str(tree), **(env_extra or {}))
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=str(tree),
+                       timeout=timeout)
+    if r.returncode:
+        return {"error": (r.stderr.strip().splitlines() or [f"exit {r.returncode}"])[-1]}
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+def measure(base: Path, rows: list[str], repeats: int) -> dict:
+    bench = str(ROOT / "bench")
+    out = {}
+    for name, tree in (("this", ROOT), ("base", base)):
+        res = {"loadavg_before": os.getloadavg()[0]}
+        if "yardstick" in rows:
+            res["yardstick"] = _run(tree, _YARDSTICK.format(bench=bench, n=repeats))
+        if "cradle" in rows:
+            res["cradle"] = _run(tree, _CRADLE.format(bench=bench))
+        if "coldbuild" in rows:
+            with tempfile.TemporaryDirectory(prefix="vcirun_cold_") as d:
+                res["coldbuild"] = _run(tree, _COLD, {"VCIRUN_CACHE_DIR": d})
+        out[name] = res
+    return out
+
+
+def report(r: dict, log=print) -> None:
+    log("== the loop's targets: this tree against the base, one run (fresh process per tree and row)")
+    for name in ("this", "base"):
+        t = r[name]
+        y = t.get("yardstick", {})
+        if "hand_ms" in y:
+            log(f"  {name:4s} hand-written CVA {y['hand_ms']:.4f} ms | loop {y['loop_ms']:.4f} ms = x{y['loop_ratio']:.2f} "
+                f"(target <= x{TARGETS['loop_ratio']}) | simulate() {y['call_ms']:.4f} ms = x{y['call_ratio']:.2f} "
+                f"(target <= x{TARGETS['call_ratio']}) | same trajectory: impacts {y['impacts']}/{y['vcirun_impacts']}, "
+                f"|dq| {y['q_diff']:.1e}")
+        elif y:
+            log(f"  {name:4s} yardstick: {y.get('error')}")
+        c = t.get("cradle", {})
+        if "us_per_smooth_step" in c:
+            log(f"  {name:4s} newton_cradle_100 CVA {c['us_per_smooth_step']:.1f} us per smooth step "
+                f"(target <= {TARGETS['cradle_us']:g} us; {c['smooth_steps']} steps, {c['status_smooth']})")
+        elif c:
+            log(f"  {name:4s} cradle: {c.get('error')}")
+        b = t.get("coldbuild", {})
+        if "cpu_s" in b:
+            log(f"  {name:4s} cold build, first cart-pendulum CVA simulation, empty cache: {b['cpu_s']:.1f} s CPU "
+                f"({b['wall_s']:.1f} s wall at load {t['loadavg_before']:.1f})")
+        elif b:
+            log(f"  {name:4s} coldbuild: {b.get('error')}")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--base", default="/work/main")
+    ap.add_argument("--rows", default="yardstick,cradle,coldbuild")
+    ap.add_argument("--repeats", type=int, default=201)
+    a = ap.parse_args(argv)
+    r = measure(Path(a.base), a.rows.split(","), a.repeats)
+    report(r)
+    print(json.dumps(r))
+
+
+if __name__ == "__main__":
+    main()
