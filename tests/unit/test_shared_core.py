@@ -216,9 +216,13 @@ def test_a_scene_takes_the_lean_core_only_when_it_has_one_unforced_contact():
     ks = METHODS["CVA"].kernel_set()
     feats = {name: build.system_core_features(ks, get_scene(name))
              for name in ("cart_pendulum", "ball_in_box", "damped_oscillator", "rimless_wheel")}
-    assert feats == {"cart_pendulum": shared.LEAN, "ball_in_box": (), "damped_oscillator": (), "rimless_wheel": ()}
+    F = shared.FRICTIONLESS   # several contacts or a force, no friction: the general core without friction code
+    assert feats == {"cart_pendulum": shared.LEAN, "ball_in_box": F, "damped_oscillator": F, "rimless_wheel": F}
     assert build.system_core_features(SYSTEM_KERNELS, get_scene("cart_pendulum")) == shared.LEAN
-    assert build.system_core_features(SYSTEM_KERNELS, get_scene("ball_in_box")) == ()
+    assert build.system_core_features(SYSTEM_KERNELS, get_scene("ball_in_box")) == F
+    from vcirun.scenes.friction import rocking_block_friction
+
+    assert build.system_core_features(ks, rocking_block_friction()) == ()   # friction: the general core
     lean, general = shared.core_source(ks, features=shared.LEAN), shared.core_source(ks)
     assert "NCON = 1\nFORCED = False\n" in lean and "NCON = 1\n" not in general
     assert default().core_key_of(ks, 2, shared.LEAN) != default().core_key_of(ks, 2)

@@ -52,7 +52,7 @@ def make_traj(*, N=40, n=2, h=0.01, with_hmod=True, n_imp=2, status="ok", beta=3
         Hmod=10 + 1e-6 * rng.normal(size=N + 1) if with_hmod else None, beta=beta, wall_time=1.25e-3,
         tolerances={"newton_tol": 1e-12, "event_tol": 1e-13}, options={"params": {"m1": 1.0}, "constrained": True})
     # every other row of the run record at its declared length (resume verifies the lengths)
-    length = {"grid": N + 1, "step": N, "impact": n_imp, "partial": 2 * n_imp, "release": 0}
+    length = {"grid": N + 1, "step": N, "impact": n_imp, "partial": 2 * n_imp, "release": 0, "mode": 0}
     for f in record.FIELDS:
         if f.name not in kw and f.only is None:
             kw[f.name] = np.zeros(f.shape(length[f.axis], n, 1), np.dtype(bool if f.dtype == "bool" else f.dtype))

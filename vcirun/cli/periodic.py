@@ -123,6 +123,8 @@ def _guess(system, params, q0, p0):
     try:
         return default_guess(system, params)
     except ValueError as e:
+        if not str(e).startswith("guess:"):
+            raise   # (a parameter's error names its field)
         raise ValueError(f"--q0/--p0: {str(e).partition(': ')[2]}") from None
 
 

@@ -159,10 +159,10 @@ def start(job: Job, d: Path):
 
 
 def exercise(mod, ks, nprm: int) -> None:
-    """Call the module's entry points once, so numba compiles (or loads) them: the loop and the checks
-    of a run's start for a method's module; Hamilton's equations, the contacts and the energy for the
-    system-only module (the exact reference's). The values are zeros: what numba compiles depends on
-    the types only."""
+    """Call the module's entry points once, so numba compiles (or loads) them: the loop (a method's
+    module), the checks of a run's start, Hamilton's equations, the contacts and the energy (every
+    module, the system-only one of the exact reference included). The values are zeros: what numba
+    compiles depends on the types only."""
     import numpy as np
 
     from ..core import record
@@ -181,7 +181,8 @@ def exercise(mod, ks, nprm: int) -> None:
                                           **DEFAULT_TOLERANCES)
         out = record.allocate(1, n, m=m, cap_impacts=record.impact_capacity(1))
         mod.integrate(q, p, 0.0, 1e-2, 1, prm, settings, out, np.zeros(len(record.COUNTERS), dtype=np.int64))
-        return
+    # what Python calls on every module after a run (the energy account, dense output, the start's checks):
+    # compiled here too, or the first process to call them would compile them in the foreground
     mod.hamiltonian(q, p, prm)
     mod.dynamics_rhs(0.0, np.zeros(2 * n), prm, np.empty(2 * n))
     mod.force_power(q, v, 0.0, prm)

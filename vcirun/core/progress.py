@@ -67,7 +67,9 @@ class Progress:
             if self.report is not None:
                 self.report(self.done, self.total, elapsed, rem)
                 return
-            if rem is None or elapsed + rem < self.quiet_below or now - self._last < max(self.interval, 0.1 * elapsed):
+            finished = self.done >= self.total and self.lines > 0   # a call that said its progress says its end
+            if rem is None or elapsed + rem < self.quiet_below or (
+                    not finished and now - self._last < max(self.interval, 0.1 * elapsed)):
                 return
             self._last = now
             self._say(elapsed, rem)

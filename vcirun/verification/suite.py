@@ -126,7 +126,7 @@ def _forcing(sysm):
 
 
 def verify(system, methods=None, *, q0=None, p0=None, beta=None, T=5.0, h=None, params=None,
-           progress=None, tier=None) -> VerifyResult:
+           progress=None, tier=None, loader=None) -> VerifyResult:
     """Run the numerical checks of vcirun's test suite on `system` with `methods`.
 
     system : built-in name, YAML path or MechanicalSystem; methods: names (list or "CVA,MCVAC"; default
@@ -134,6 +134,7 @@ def verify(system, methods=None, *, q0=None, p0=None, beta=None, T=5.0, h=None, 
     T      : final time of every run; h: the step ladder (default 0.04 / 2^k, k = 0..6);
     params : parameter overrides; progress: callable(str) told what is being computed.
     tier   : the kernels' tier, as vcirun.simulate's (the same numbers on either).
+    loader : where the methods' kernels come from, as vcirun.simulate's (default: the kernel cache).
 
     Checks (each a verdict pass / warn / fail / skip with its number and threshold; see
     vcirun.verification.checks): derivatives of every generated kernel the methods' modules define
@@ -154,7 +155,7 @@ def verify(system, methods=None, *, q0=None, p0=None, beta=None, T=5.0, h=None, 
     Bad input raises ValueError naming the field."""
     from ..codegen.tiers import requested
 
-    s = _Session(system, methods, q0, p0, beta, T, h, params, progress, requested(tier))
+    s = _Session(system, methods, q0, p0, beta, T, h, params, progress, requested(tier), loader)
     s.references()
     s.choose_probes()
     for meth in s.meths:
@@ -168,7 +169,7 @@ def verify(system, methods=None, *, q0=None, p0=None, beta=None, T=5.0, h=None, 
 class _Session:
     """The state of one verification: the system, start state, ladder, references, and the results."""
 
-    def __init__(self, system, methods, q0, p0, beta, T, h, params, progress, tier="compiled"):
+    def __init__(self, system, methods, q0, p0, beta, T, h, params, progress, tier="compiled", loader=None):
         from ..run.resolve import resolve_system
         from ..codegen.build import load_module
         from ..core.sizes import check_ladder_memory
@@ -204,7 +205,7 @@ class _Session:
         if self.force is not None:
             self.res.notes.append("forced system: the exact smooth solution adds the declared generalized force to "
                                   "Hamilton's equations (sympy.lambdify of the declaration)")
-        self.tier = tier
+        self.tier, self.loader = tier, loader
         # the runs' work in steps (a smooth and an impact run per step size and method), for the estimate
         self.steps_total = 2 * len(self.meths) * sum(grid_count(x, T) for x in self.hs)
         self.steps_done, self.run_seconds, self.said_at, self.runs = 0, 0.0, 0.0, 0
@@ -253,7 +254,7 @@ class _Session:
         with warnings.catch_warnings():   # said once, in the report's notes (see __init__)
             warnings.simplefilter("ignore", GridWarning)
             tr = simulate(self.sysm, meth, h=h, T=self.T if T is None else T, q0=self.q0, p0=self.p0,
-                          params=self.params, tier=self.tier, **kw)
+                          params=self.params, tier=self.tier, loader=self.loader, **kw)
         self.run_seconds += time.perf_counter() - t
         self.steps_done += grid_count(h, self.T if T is None else T)
         self.runs += 1
@@ -363,7 +364,12 @@ class _Session:
         ks = meth.kernel_set()
         self.say(f"{name}: loading its compiled module")
         try:
-            mod = load_module(self.sysm, ks, self.tier)
+            if self.loader is None:
+                mod = load_module(self.sysm, ks, self.tier)
+            else:
+                from ..codegen.kernel_cache import of
+
+                mod = of(self.loader).load_module(self.sysm, ks)
         except ValueError as e:   # a method the system's declaration does not support
             self.add(ck.skip("every check", name, f"{name} does not run on this system: {' '.join(str(e).split())}"))
             return
