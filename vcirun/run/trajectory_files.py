@@ -81,9 +81,24 @@ def decode_attr(key, value):
 _PLAIN = (float, int, bool)
 
 
+def attr_items(attrs):
+    """(name, value) pairs of an HDF5 object's attributes (an h5py AttributeManager), or of a mapping.
+    The names are taken by index up to the count the object header records: h5py's own iteration
+    walks the attribute index, which a damaged file can make cyclic (it then never ends, collecting
+    names without bound)."""
+    aid = getattr(attrs, "_id", None)
+    if aid is None:
+        return list(attrs.items())
+    from h5py import h5, h5a
+
+    order = h5.INDEX_CRT_ORDER if aid.get_create_plist().get_attr_creation_order() else h5.INDEX_NAME
+    names = [h5a.open(aid, index=i, index_type=order).name.decode() for i in range(h5a.get_num_attrs(aid))]
+    return [(k, attrs[k]) for k in names]
+
+
 def decode_attrs(attrs) -> dict:
     # plain numbers are what they are (most of a run's ~45 attributes; a sweep's summary decodes all)
-    return {k: v if type(v) in _PLAIN else decode_attr(k, v) for k, v in attrs.items()}
+    return {k: v if type(v) in _PLAIN else decode_attr(k, v) for k, v in attr_items(attrs)}
 
 
 
