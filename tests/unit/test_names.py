@@ -33,6 +33,13 @@ def _texts():
 
 def _resolves(name: str) -> bool:
     parts = name.split(".")
+    obj = importlib.import_module("vcirun")   # attributes first (the package's lazy names): importing
+    for attr in parts[1:]:                    # vcirun.reference as a module would shadow the function
+        if not hasattr(obj, attr):
+            break
+        obj = getattr(obj, attr)
+    else:
+        return True
     for i in range(len(parts), 0, -1):
         mod = ".".join(parts[:i])
         try:

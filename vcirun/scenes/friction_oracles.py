@@ -268,19 +268,19 @@ class PushedBlock(NamedTuple):
 
     def state(self, t):
         p = self.params
-        t, ts, c, m, mu, g = float(t), self.t_slip, p["c"], p["m"], p["mu"], p["g"]
+        t, ts, c, m, g = float(t), self.t_slip, p["c"], p["m"], p["g"]
         if t <= ts:
             return 0.0, 0.0
-        d = t - ts
-        x = c / (6 * m) * (t ** 3 - ts ** 3) - c * ts * ts / (2 * m) * d - mu * g * d * d / 2
-        return x, c / (2 * m) * (t * t - ts * ts) - mu * g * d
+        # in d = t - t_s (c t_s = mu_s m g): no difference of the large t^3 and t_s^3 when t_s is long
+        d, a0 = t - ts, (p["mu_s"] - p["mu"]) * g
+        return a0 * d * d / 2 + c * d ** 3 / (6 * m), a0 * d + c * d * d / (2 * m)
 
 
 def pushed_block(*, c, mu, mu_s=None, m=1.0, g=9.81) -> PushedBlock:
     """A block of mass m at rest on a floor, pushed along it by the force c t (c > 0): the tangential
     force that holds it is c t, inside the static cone until t_slip = mu_s m g / c; from then on it
     slides, m x'' = c t - mu m g (x''(t_slip) = (mu_s - mu) g >= 0, so the slip never ends):
-    x = c (t^3 - t_s^3) / (6 m) - c t_s^2 (t - t_s) / (2 m) - mu g (t - t_s)^2 / 2."""
+    x = (mu_s - mu) g (t - t_s)^2 / 2 + c (t - t_s)^3 / (6 m)."""
     c, m, g = _positive("c", c), _positive("m", m), _positive("g", g)
     mu = _nonneg("mu", mu)
     mu_s = mu if mu_s is None else _nonneg("mu_s", mu_s)
