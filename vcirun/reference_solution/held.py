@@ -176,7 +176,6 @@ def _frictional(S) -> bool:
     return S is not None and any(s != SMOOTH for s in S)
 
 
-
 def held_multipliers(mod, t, q, p, prm, A) -> np.ndarray:
     """mu (len(A)) of the held contacts A at (t, q, p): the solution of
     G M^-1 (F + G^T mu - Mdot v) + (v^T Hess phi_i v)_i = 0, i.e. d^2/dt^2 phi_A = 0; mu_i > 0 is

@@ -328,7 +328,8 @@ def solve(backend, mod, q0, p0, prm, T, *, names, resting_contact=True, max_impa
                     lam_t = None
                     if fric is not None and any(fric[0][j] > 0.0 for j in touching):
                         # the frictional impact law on the same touching contacts
-                        case, lam_n, lam_t, dp = rf.impact(rh._Geometry(mod, t, y[:n], y[n:2 * n], prm), touching, e_of)
+                        g_imp = rh._Geometry(mod, t, y[:n], y[n:2 * n], prm)
+                        case, lam_n, lam_t, dp = rf.impact(g_imp, touching, e_of)
                         if case < 0:
                             raise RuntimeError(f"reference: the frictional impact law has no solution at t={t:.6g} "
                                                f"(case {case}; contact {names[i]})")
