@@ -17,8 +17,9 @@ ROOT = Path(__file__).resolve().parents[2]
 DOCS = [ROOT / "README.md"] + [ROOT / "docs" / f for f in ("guide.md", "bodies.md", "walkers.md")]
 
 
-def _doc_commands():
-    """Every `vcirun simulate ...` line inside a fenced code block of the user's documents."""
+def _fenced_lines(prefix):
+    """(document, line) for every line starting with `prefix` inside a fenced code block of the user's
+    documents, its comment cut."""
     out = []
     for path in DOCS:
         fenced = False
@@ -26,9 +27,14 @@ def _doc_commands():
             if line.startswith("```"):
                 fenced = not fenced
                 continue
-            if fenced and line.strip().startswith("vcirun simulate"):
+            if fenced and line.strip().startswith(prefix):
                 out.append((path.name, line.split("#")[0].strip()))
     return out
+
+
+def _doc_commands():
+    """Every `vcirun simulate ...` line inside a fenced code block of the user's documents."""
+    return _fenced_lines("vcirun simulate")
 
 
 def _catalog_commands():
@@ -61,16 +67,7 @@ def test_every_scene_has_an_example_and_the_docs_have_commands():
 
 
 def _doc_animations():
-    out = []
-    for path in DOCS:
-        fenced = False
-        for line in path.read_text().splitlines():
-            if line.startswith("```"):
-                fenced = not fenced
-                continue
-            if fenced and line.strip().startswith("vcirun animate --system"):
-                out.append((path.name, line.split("#")[0].strip()))
-    return out
+    return _fenced_lines("vcirun animate --system")
 
 
 @pytest.mark.slow
