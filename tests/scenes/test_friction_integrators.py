@@ -166,3 +166,59 @@ def test_rocking_block_rocks_at_housners_ratio(method):
         assert held.size > 0 and np.all(held == 2)
         errs.append(max(abs(tr.impacts[k] - ex.impact_times[k]) for k in range(3)))
     assert errs[1] < errs[0] / 3.0 and errs[0] < 1e-5, errs
+
+
+# --- mechanisms against the exact reference ---------------------------------------------------------------
+
+@pytest.mark.slow
+@pytest.mark.parametrize("method", ["CVA", "MCVAA"])
+def test_link_chain_with_friction_settles_as_the_reference(method):
+    """Three links dropped in a zigzag on a floor with friction (e = 0.3, mu = 0.5) against the exact
+    reference (DOP853): the first impacts at the reference's times to O(h^2), the chain at rest flat on
+    its four ends with every end stuck (the reference's last mode interval), the end state converging at
+    order 2. A body whose ends slide together stops on every end at once (maps/friction.py
+    assign_modes), and a slip that reversed inside the rest of an event step is taken up at the next
+    grid state (collision/algorithm1.py _modes_stale): without those the ends chatter or slide on."""
+    s = scenes.link_chain_friction(3)
+    T = 0.7
+    ref = vcirun.reference(s, T=T, check_accuracy=False)
+    assert ref.status == "ok" and ref.mode_intervals[-1][2] == (0, 1, 2, 3)
+    q_end = ref(T)[:s.n]
+    first = np.array(sorted(ref.impacts)[:6])
+    errs, terrs = [], []
+    for h in (1e-3, 5e-4):
+        tr = vcirun.simulate(s, method, h=h, T=T)
+        assert tr.status == "ok", tr.message
+        assert np.all(tr.contact_mode[-1] == 2) and np.all(tr.contact_active[-1])
+        assert float(np.max(np.abs(tr.p[-1]))) <= 1e-12
+        errs.append(float(np.max(np.abs(tr.q[-1] - q_end))))
+        terrs.append(float(np.max(np.abs(np.asarray(tr.impacts[:6]) - first))))
+    assert errs[0] < 3e-5 and errs[1] < errs[0] / 2.5, errs
+    assert terrs[0] < 5e-4 and terrs[1] < terrs[0] / 2.5, terrs
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("method", ["CVA", "MCVAA"])
+def test_compass_gait_stance_foot_sticks_in_the_methods(method):
+    """The compass gait's stance phase with a frictional foot (mu = 1, above the 0.274 the gait needs):
+    the methods keep the foot stuck all stride long (its position 0 to round-off, mode 2 at every grid
+    state, no mode change), and the legs follow the built-in pinned gait's reference at order 2."""
+    from vcirun.scenes.data import _compass_M, compass_gait
+
+    D = compass_gait()
+    gam = D.params["gamma"]
+    pin = vcirun.reference("compass_gait", T=1.0)
+    ths = float(pin.impacts[0])
+    y0 = pin.state(0.0)
+    q0, v0 = y0[:2], np.linalg.solve(_compass_M(y0[:2], D.params), y0[2:])
+    s = scenes.compass_gait_stance(*q0, *v0, mu=1.0)
+    T = 0.66                       # (a multiple of both steps, before the heel strike at 0.734)
+    assert T < ths
+    errs = []
+    for h in (2e-3, 1e-3):
+        tr = vcirun.simulate(s, method, h=h, T=T)
+        assert tr.status == "ok", tr.message
+        assert np.all(tr.contact_mode[:, 0] == 2) and len(tr.mode_changes) == 0
+        assert float(np.max(np.abs(tr.q[:, :2]))) <= 1e-12
+        errs.append(float(np.max(np.abs(tr.q[:, 2:] - gam - pin(tr.t)))))
+    assert errs[1] < errs[0] / 3.0 and errs[0] < 1e-3, errs

@@ -21,7 +21,7 @@ from vcirun.codegen.roles import (
 )
 from vcirun.collision.declared import declared_reset
 from vcirun.collision.events import search_collision, step_admissible
-from vcirun.collision.state import LoopState, N_COUNTS, N_HELD, N_STEP
+from vcirun.collision.state import LoopState, N_COUNTS, N_FRESH, N_HELD, N_STEP
 from vcirun.collision.impact import impact_direction, normal_velocities, touch_tolerance
 from vcirun.collision.impact_friction import friction_impact_direction
 from vcirun.maps.dynamics import hamiltonian, force_power, velocity_guess
@@ -116,6 +116,7 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
         mu_end[j] = 0.0
         lamt[j] = 0.0
     fw[0] = 0.0
+    n[N_FRESH] = 0
     set_row(Q, 0, q)
     set_row(P, 0, p)
     info[I_N_IMPACTS] = 0
@@ -143,6 +144,13 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
                 status = ST_PAINLEVE
                 fail = i
                 break
+            if FRICTION and _modes_stale(st):
+                if not _reassign_modes(st, np.int64(i), t):
+                    status = ST_PAINLEVE
+                    fail = i
+                    break
+                set_row(P, i, p)
+        n[N_FRESH] = 0
         if nheld == 0:
             it, E = _free_flight(st, t, energies or i == 0)
         else:
@@ -181,6 +189,7 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
             # (step_admissible's common cases first: one constraint, or every phi_i > 0 after the step)
             if FRICTION and nheld > 0:
                 out[O_FRICTION_WORK][i] += fw[0]
+                n[N_FRESH] = 1   # (mu_end, lt_end, ev_end) are the values at the new grid state
             copy_into(q, qt)
             copy_into(p, pt)
         else:
@@ -384,6 +393,11 @@ def _mode_change(st, t, tau0, c, kind):
             return ST_PAINLEVE, it
     else:
         rest = c if kind == 1 else -1
+        if kind == 1 and tau == 0.0 and not st.ev[c] > 0.0:
+            # the slip had already reversed at the step's start (inside the rest of an earlier event
+            # step, whose partial steps do not locate mode events): there is no stop here; the modes
+            # follow the slip velocities
+            rest = -1
         moving = c if kind == 2 else -1
         if kind == 2:
             # slipping where the unbalanced tangential force drives: against the stuck force at the event
@@ -402,6 +416,43 @@ def _mode_change(st, t, tau0, c, kind):
             _record_mode_change(st, te, c, 1 if st.held[c] == HELD_STICK else (2 if before == HELD_STICK else 3))
     status, itc = _event_step(st, st.h - tau, te, np.bool_(False))
     return status, it + itc
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _modes_stale(st):
+    """Does a held contact's mode contradict the grid state (st.ev from _record_contacts): a slip whose
+    velocity has turned against its direction, or a stick past Coulomb's static bound? The partial
+    held steps of an event step (the rest of a step after an impact or a mode change) do not locate
+    mode events: one that happened there is found here, at the next grid state."""
+    for j in range(NCON):
+        if st.held[j] != 0 and st.ev[j] < 0.0:
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _reassign_modes(st, k, t):
+    """The held contacts' modes decided afresh at grid state k (time t) from their slip velocities and
+    forces (maps/friction.py assign_modes), the changes recorded; a contact that sticks has its slip
+    velocity zeroed (with the held normal velocities: friction_project). The record's row k is written
+    again. Returns False in Painleve's case."""
+    before = scratch_i(NCON)
+    for j in range(NCON):
+        before[j] = st.held[j]
+    if assign_modes(st.q, st.p, t, st.prm, st.held, -1, -1, st.mu, st.lt) == FRICTION_PAINLEVE:
+        return False
+    stuck = False
+    for j in range(NCON):
+        if st.held[j] != before[j]:
+            stuck = stuck or st.held[j] == HELD_STICK
+            _record_mode_change(st, t, j, 1 if st.held[j] == HELD_STICK else (2 if before[j] == HELD_STICK else 3))
+    if stuck:
+        friction_project(st.q, st.p, st.prm, st.held, st.lam, st.lamt)
+        for j in range(NCON):
+            st.lam[j] = 0.0
+            st.lamt[j] = 0.0
+    st.n[N_FRESH] = 0
+    return _record_contacts(st, k, t)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -638,7 +689,14 @@ def _record_contacts(st, k, t):
     force = st.out[O_CONTACT_FORCE]
     ok = True
     if st.n[N_HELD] > 0:
-        if FRICTION:
+        if FRICTION and st.n[N_FRESH] == 1:
+            # the step that reached this state computed them there (at t as t_k + h, which differs
+            # from t only by rounding, seen by a time-dependent force alone): half the held step's
+            # contact-force solves
+            copy_into(st.mu, st.mu_end)
+            copy_into(st.lt, st.lt_end)
+            copy_into(st.ev, st.ev_end)
+        elif FRICTION:
             ok = mode_event_values(st.q, st.p, t, st.prm, st.held, st.ev, st.mu, st.lt) != FRICTION_PAINLEVE
         else:
             contact_forces(st.q, st.p, t, st.prm, st.held, st.mu)

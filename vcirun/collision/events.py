@@ -3,9 +3,10 @@
 # Contract: vcirun.codegen.units.
 #
 # Several constraints: a contact that is touching at the start of a search (phi_i within
-# round-off or the event tolerance of 0) and not approaching (normal velocity >= 0) is left out of
-# the gap for that search -- it would pin g at 0 (two balls at rest against each other) -- unless
-# the trial end point shows it penetrating. The impact law (collision/impact.py) still takes every
+# round-off or the event tolerance of 0) and not approaching (normal velocity >= 0, or approaching by
+# less than the round-off of phi_i within a step) is left out of the gap for that search -- it would
+# pin g at 0 (two balls at rest against each other, or moving together) -- unless the trial end
+# point shows the motion driving it into its constraint (unmask_penetrating). The impact law (collision/impact.py) still takes every
 # contact at phi = 0 into the impact. One constraint: no mask, the paper's search bit for bit.
 import math
 
@@ -88,7 +89,7 @@ def step_admissible(q, p, qt, h, event_tol, prm, held, nheld, phis):
         return True
     mask = np.empty(NCON, dtype=np.int64)
     touching_mask(q, p, h, event_tol, prm, mask, held)
-    return gap(qt, prm, mask) > 0.0 and unmask_penetrating(qt, prm, mask, held) == 0
+    return gap(qt, prm, mask) > 0.0 and unmask_penetrating(q, qt, prm, mask, held) == 0
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -148,7 +149,7 @@ def search_collision(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt,
             return -1, tau_max, E, -it
         iters += it
     if NCON > 1:
-        unmask_penetrating(qt, prm, mask, held)
+        unmask_penetrating(qh, qt, prm, mask, held)
     gb = gap(qt, prm, mask)
     if not math.isfinite(gb) and not (gb > 0.0 and masked > 0):  # (+inf: every contact masked or held)
         return -1, tau_max, E, iters

@@ -1,6 +1,7 @@
 # numba source unit: the contacts: the gap min_i phi_i over the contacts that are not touching
-# (touching = phi_i within round-off or the event tolerance of 0 and not approaching: two balls at
-# rest against each other would pin the gap at 0), and the impact law at a collision found by the
+# (touching = phi_i within round-off or the event tolerance of 0 and not approaching, or approaching
+# by less than the round-off of phi_i within a step: two balls at rest against each other, or moving
+# together, would pin the gap at 0), and the impact law at a collision found by the
 # event search: which contacts take part, their impulses, the direction of the momentum jump and
 # the energy Newton's law removes.
 # Contract: vcirun.codegen.units. Derivations: docs/derivations/contacts.md.
@@ -28,7 +29,7 @@ from vcirun.codegen.frame import scratch, scratch2, scratch_i
 from vcirun.codegen.roles import NDOF, NCON, BAND, sys_M, sys_phi, sys_phis, sys_dphis, sys_restitution
 from vcirun.collision.impact_law import impact_law
 from vcirun.maps.dynamics import cva_lambda, delassus, gdot
-from vcirun.maps.linalg import solve_band
+from vcirun.maps.linalg import solve_band, STACK_DOUBLES
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -81,8 +82,12 @@ def _impact_several(q, pm, h, event_tol, prm, e, d, lam, active):
     every = scratch_i(NCON)
     for i in range(NCON):
         every[i] = i
-    X = scratch2(NCON, NDOF)  # rows M^-1 grad phi_i
-    D = scratch2(NCON, NCON)  # the Delassus matrix of every contact
+    if NCON * NCON <= STACK_DOUBLES:
+        X = scratch2(NCON, NDOF)  # rows M^-1 grad phi_i
+        D = scratch2(NCON, NCON)  # the Delassus matrix of every contact
+    else:
+        X = np.empty((NCON, NDOF))
+        D = np.empty((NCON, NCON))
     delassus(A, G, every, NCON, X, D)
     u = scratch(NCON)
     for i in range(NCON):
@@ -90,25 +95,11 @@ def _impact_several(q, pm, h, event_tol, prm, e, d, lam, active):
         for j in range(NDOF):
             s += X[i, j] * pm[j]
         u[i] = s
-    # the contacts at this impact: the one the search located (smallest phi) and every other whose
-    # own root lies within the event tolerance of it, approaching or not (separating ones get lam = 0)
-    i0 = 0
-    for i in range(1, NCON):
-        if phis[i] < phis[i0]:
-            i0 = i
     idx = scratch_i(NCON)
-    k = 0
-    for i in range(NCON):
-        if i == i0 or phis[i] <= _touch_tolerance_row(q, G, i, u[i], h, event_tol):
-            idx[k] = i
-            k += 1
-    approaching = False
-    for a in range(k):
-        if u[idx[a]] < 0.0:
-            approaching = True
+    k, approaching = touching_set(q, phis, G, u, h, event_tol, idx)
     if not approaching:
         return 0, 0.0, 0.0
-    W = scratch2(k, k)
+    W = scratch2(k, k) if k * k <= STACK_DOUBLES else np.empty((k, k))
     um = scratch(k)
     ea = scratch(k)
     for a in range(k):
@@ -138,6 +129,29 @@ def _impact_several(q, pm, h, event_tol, prm, e, d, lam, active):
     for a in range(k):
         dE -= 0.5 * la[a] * (1.0 - ea[a]) * um[a]
     return k, 1.0, max(dE, 0.0)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def touching_set(q, phis, G, u, h, event_tol, idx):
+    """The contacts at an impact, idx[:k]: the one the search located (smallest phi) and every other
+    whose own root lies within the event tolerance of it, approaching or not (separating ones get
+    lam = 0). phis, G = grad phi and u = G M^-1 p- at q are the caller's. Returns (k, whether one of
+    them approaches). Moreau's law here and the frictional law (collision/impact_friction.py) take
+    the same set."""
+    i0 = 0
+    for i in range(1, NCON):
+        if phis[i] < phis[i0]:
+            i0 = i
+    k = 0
+    for i in range(NCON):
+        if i == i0 or phis[i] <= _touch_tolerance_row(q, G, i, u[i], h, event_tol):
+            idx[k] = i
+            k += 1
+    approaching = False
+    for a in range(k):
+        if u[idx[a]] < 0.0:
+            approaching = True
+    return k, approaching
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -239,9 +253,9 @@ def _normal_velocities_G(q, p, prm, G, u):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def touching_mask(q, p, h, event_tol, prm, mask, held):
-    """mask[i] = 1 for the contacts touching at (q, p) and not approaching (see the unit's header)
-    and for the held ones (they move on phi_i = 0); returns how many. For one constraint
-    nothing but a held contact is masked."""
+    """mask[i] = 1 for the contacts touching at (q, p) and not approaching, or approaching by less
+    than the round-off of phi_i within a step (see the unit's header), and for the held ones (they
+    move on phi_i = 0); returns how many. For one constraint nothing but a held contact is masked."""
     k = 0
     for i in range(NCON):
         mask[i] = 1 if held[i] != 0 else 0
@@ -258,22 +272,33 @@ def touching_mask(q, p, h, event_tol, prm, mask, held):
     for j in range(NDOF):
         qn = max(qn, abs(q[j]))
     for i in range(NCON):
-        # (the tolerance is >= 0: a contact at or below its surface needs no tolerance, O(n) each)
-        if mask[i] == 0 and u[i] >= 0.0 and (phis[i] <= 0.0
-                                             or phis[i] <= _touch_tolerance_qn(qn, G, i, u[i], h, event_tol)):
+        if mask[i] != 0:
+            continue
+        if u[i] >= 0.0:
+            # (the tolerance is >= 0: a contact at or below its surface needs no tolerance, O(n) each)
+            touching = phis[i] <= 0.0 or phis[i] <= _touch_tolerance_qn(qn, G, i, u[i], h, event_tol)
+        else:
+            # approaching by less than its gap's round-off within a step: the search cannot resolve
+            # that approach (docs/derivations/contacts.md 1.8): touching as well
+            r = _touch_tolerance_qn(qn, G, i, 0.0, h, 0.0)
+            touching = phis[i] <= r and -u[i] * h <= r
+        if touching:
             mask[i] = 1
             k += 1
     return k
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def unmask_penetrating(q, prm, mask, held):
-    """Unmask the masked contacts that penetrate at q (phi_i below minus its round-off), held ones
-    aside; returns how many."""
+def unmask_penetrating(q0, q1, prm, mask, held):
+    """Unmask the masked contacts (held ones aside) that the motion from q0 to q1 drives into their
+    constraint: phi_i(q1) below min(phi_i(q0), 0) by more than the round-off of phi_i at q1. A
+    contact whose gap only carries the rounding of bodies moving together stays masked however that
+    rounding has accumulated (docs/derivations/contacts.md 1.8). Returns how many."""
     if NCON == 1:
         return 0
     phis = scratch(NCON)
-    sys_phis(q, prm, phis)
+    sys_phis(q1, prm, phis)
+    phis0 = scratch(NCON)
     G = scratch2(NCON, NDOF)
     have_G = False  # built at the first candidate: only a negative phi_i can be below -tolerance
     qn = 0.0
@@ -281,11 +306,12 @@ def unmask_penetrating(q, prm, mask, held):
     for i in range(NCON):
         if mask[i] == 1 and held[i] == 0 and phis[i] < 0.0:
             if not have_G:
-                sys_dphis(q, prm, G)
+                sys_dphis(q1, prm, G)
+                sys_phis(q0, prm, phis0)
                 for j in range(NDOF):
-                    qn = max(qn, abs(q[j]))
+                    qn = max(qn, abs(q1[j]))
                 have_G = True
-            if phis[i] < -_touch_tolerance_qn(qn, G, i, 0.0, 1.0, 0.0):
+            if phis[i] < min(phis0[i], 0.0) - _touch_tolerance_qn(qn, G, i, 0.0, 1.0, 0.0):
                 mask[i] = 0
                 k += 1
     return k

@@ -1,8 +1,8 @@
 # numba source unit: the impact with Coulomb friction (docs/derivations/friction.md, "Frictional
-# impacts"): which contacts take part (as collision/impact.py decides for the frictionless law: the
-# contact the search located and every one touching), their normal and tangential impulses from the
-# frictional impact law (collision/friction_law.py) on the normal rows grad phi_i and the slip rows
-# W_t,i, the direction of the momentum jump and the energy the law removes.
+# impacts"): which contacts take part (the set collision/impact.py's touching_set gives the
+# frictionless law: the contact the search located and every one touching), their normal and
+# tangential impulses from the frictional impact law (collision/friction_law.py) on the normal rows
+# grad phi_i and the slip rows W_t,i, the direction of the momentum jump and the energy the law removes.
 # Contract: vcirun.codegen.units. The loop calls it for systems with friction (FRICTION) only.
 #
 #   friction_impact_direction(q, pm, h, event_tol, prm, d, lam, lamt, active) -> (k, s0, dE)
@@ -16,7 +16,7 @@ from numba import njit
 from vcirun.codegen.frame import scratch, scratch2, scratch_i
 from vcirun.codegen.roles import NDOF, NCON, sys_M, sys_phis, sys_dphis, sys_slips, sys_restitution, sys_friction
 from vcirun.collision.friction_law import friction_impact_law
-from vcirun.collision.impact import touch_tolerance
+from vcirun.collision.impact import touching_set
 from vcirun.maps.linalg import solve_small
 
 
@@ -53,20 +53,8 @@ def friction_impact_direction(q, pm, h, event_tol, prm, d, lam, lamt, active):
         for j in range(NDOF):
             s += G[i, j] * x[j]
         u[i] = s
-    i0 = 0
-    for i in range(1, NCON):
-        if phis[i] < phis[i0]:
-            i0 = i
     idx = scratch_i(NCON)
-    k = 0
-    for i in range(NCON):
-        if i == i0 or phis[i] <= touch_tolerance(q, prm, i, u[i], h, event_tol):
-            idx[k] = i
-            k += 1
-    approaching = False
-    for a in range(k):
-        if u[idx[a]] < 0.0:
-            approaching = True
+    k, approaching = touching_set(q, phis, G, u, h, event_tol, idx)
     if not approaching:
         return 0, 0.0, 0.0
     # rows [normal_1..normal_k, tangent_1..tangent_k] and the Delassus matrix of the k contacts (on the

@@ -12,7 +12,9 @@ from collections import namedtuple
 
 N_HELD = 0     # n[N_HELD]: how many contacts are held (mode[j] != 0)
 N_STEP = 1     # n[N_STEP]: the index k of the grid step k -> k+1 being taken
-N_COUNTS = 2   # the length of n
+N_FRESH = 2    # n[N_FRESH]: 1 when (mu_end, lt_end, ev_end) are the held contacts' values at the grid
+               # state (q, p) (a held step with friction taken whole): the record reuses them
+N_COUNTS = 3   # the length of n
 
 LoopState = namedtuple("LoopState", (
     # the grid state (q, p) at the step's start (at its end once the step is taken) and the trial

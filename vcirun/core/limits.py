@@ -31,8 +31,8 @@ CAPS: dict[str, Cap] = {
     # derivatives of M), with every entry a sum over n terms
     "coordinates": Cap(32, "coordinates", "the generated kernels grow like n**2 to n**4",
                        "model fewer coordinates"),
-    # the impact law's scratch is contacts x contacts (on the heap, sized once per run) and every
-    # event search tests each contact per step
+    # the impact law's scratch is contacts x contacts (on the stack up to 4096 doubles, on the heap
+    # beyond: vcirun.maps.linalg.STACK_DOUBLES) and every event search tests each contact per step
     "contacts": Cap(1000, "contacts (constraints)", "each step tests every contact and an impact solves a "
                     "contacts x contacts problem", "declare fewer contacts"),
     "parameters": Cap(1024, "parameters", "each is an argument of every generated kernel",

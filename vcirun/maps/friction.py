@@ -33,7 +33,7 @@ from vcirun.codegen.roles import (
     sys_slips, sys_dslips, sys_friction, ld_PmJc, ld_Ppc, ld_Ed
 )
 from vcirun.maps.dynamics import dynamics_rhs, velocity_guess
-from vcirun.maps.linalg import solve_small, copy_into
+from vcirun.maps.linalg import solve_small, copy_into, STACK_DOUBLES
 
 HELD_STICK = 2
 FRICTION_OK = 0
@@ -102,7 +102,7 @@ def contact_rows(q, prm, held, A, G, W, idx, sidx, lead):
     if not _minv_rows(A, R, r, X):
         return -1, 0
     # pivoted (in order) Cholesky of K = R M^-1 R^T: L (r x r), a row with a vanishing pivot is skipped
-    L = scratch2(2 * NCON, 2 * NCON)
+    L = scratch2(2 * NCON, 2 * NCON) if 4 * NCON * NCON <= STACK_DOUBLES else np.empty((2 * NCON, 2 * NCON))
     keep = scratch_i(2 * NCON)
     for a in range(r):
         keep[a] = 0
@@ -246,7 +246,7 @@ def friction_project(q, p, prm, held, lam, lt):
     _constraint_rows(G, W, idx, k, sidx, ks, C)
     _force_rows(G, W, held, mu, idx, k, sidx, ks, D)
     X = scratch2(2 * NCON, NDOF)
-    K = scratch2(2 * NCON, 2 * NCON)
+    K = scratch2(2 * NCON, 2 * NCON) if 4 * NCON * NCON <= STACK_DOUBLES else np.empty((2 * NCON, 2 * NCON))
     if not _contact_matrix(A, C, D, r, X, K):
         return False
     x = scratch(NDOF)
@@ -311,9 +311,22 @@ def friction_stage(sid, q0, p0, hs, t, prm, ntol, maxit, held, v, q1, p1, imp, i
     phis = scratch(NCON)
     _force_rows(G0, W0, held, mu, idx, k, sidx, ks, D0)
     F = scratch(NDOF + 2 * NCON)
-    JJ = scratch2(NDOF + 2 * NCON, NDOF + 2 * NCON)
+    if (NDOF + 2 * NCON) ** 2 <= STACK_DOUBLES:
+        JJ = scratch2(NDOF + 2 * NCON, NDOF + 2 * NCON)
+    else:
+        JJ = np.empty((NDOF + 2 * NCON, NDOF + 2 * NCON))
     qn = scratch(NDOF)
     qm = scratch(NDOF)
+    # a stage so short that hs v moves q by fewer than ~1e8 of its ulps (a partial step to an event
+    # at the step's start): phi(q0 + hs v) / hs is then phi's rounding over hs, which Newton cannot
+    # settle; the held rows take their hs -> 0 limit G(q0) v = 0 there, which moves phi by
+    # O(hs^2 |v|^2 |phi''|), below its round-off
+    vmax = 0.0
+    qmax = 0.0
+    for j in range(NDOF):
+        vmax = max(vmax, abs(v[j]))
+        qmax = max(qmax, abs(q0[j]))
+    limit = hs == 0.0 or hs * (1.0 + vmax) <= 1e8 * 2.220446049250313e-16 * (1.0 + qmax)
     it = 0
     ok = False
     dprev = np.inf
@@ -338,15 +351,16 @@ def friction_stage(sid, q0, p0, hs, t, prm, ntol, maxit, held, v, q1, p1, imp, i
                 JJ[i, NDOF + a] = -D0[a, i]
         for a in range(k):
             j = idx[a]
-            if hs != 0.0:
+            if not limit:
                 F[NDOF + a] = phis[j] / hs
+                for l in range(NDOF):
+                    JJ[NDOF + a, l] = G1[j, l]
             else:
                 s = 0.0
                 for l in range(NDOF):
                     s += G0[j, l] * x[l]
+                    JJ[NDOF + a, l] = G0[j, l]
                 F[NDOF + a] = s
-            for l in range(NDOF):
-                JJ[NDOF + a, l] = G1[j, l]
             for b in range(k + ks):
                 JJ[NDOF + a, NDOF + b] = 0.0
         for b in range(ks):
@@ -494,7 +508,7 @@ def friction_forces(q, p, t, prm, held, lam, lt):
     _constraint_rows(G, W, idx, k, sidx, ks, C)
     _force_rows(G, W, held, mu, idx, k, sidx, ks, D)
     X = scratch2(2 * NCON, NDOF)
-    K = scratch2(2 * NCON, 2 * NCON)
+    K = scratch2(2 * NCON, 2 * NCON) if 4 * NCON * NCON <= STACK_DOUBLES else np.empty((2 * NCON, 2 * NCON))
     if not _contact_matrix(A, C, D, r, X, K):
         return FRICTION_SINGULAR
     for a in range(k):
@@ -563,22 +577,27 @@ def mode_event_values(q, p, t, prm, held, ev, lam, lt):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def slip_tolerance(q, p, prm, j):
-    """How close to 0 a slip velocity counts as rest: the round-off of W_j M^-1 p (64 eps |W_j| |M^-1 p|)."""
+    """How close to 0 a slip velocity counts as rest: the round-off of W_j M^-1 p, 64 eps |W_j|_1
+    max_i |v_i| with v = M^-1 p. The velocity's largest component, not the components W_j weighs: a
+    contact point at rest on a moving mechanism (a stance foot) has W_j v = 0 from components that
+    carry the solve's rounding of the whole v."""
     v = scratch(NDOF)
     velocity_guess(q, p, prm, v)
     W = scratch2(NCON, NDOF)
     sys_slips(q, prm, W)
-    s = 0.0
+    vmax = 0.0
+    w = 0.0
     for i in range(NDOF):
-        s += abs(W[j, i]) * abs(v[i])
-    return 64.0 * 2.220446049250313e-16 * s
+        vmax = max(vmax, abs(v[i]))
+        w += abs(W[j, i])
+    return 64.0 * 2.220446049250313e-16 * w * vmax
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def assign_modes(q, p, t, prm, held, rest, moving, lam, lt):
     """The modes of the held contacts at (q, p) (they touch and are pressed in), by an active set: each
     contact with friction whose slip velocity is at rest (within slip_tolerance, or the contact
-    `rest` whose slip has just stopped) starts stuck, the others slip in the direction of their slip
+    `rest` whose slip has just stopped and every one at most 4x as fast as its residue) starts stuck, the others slip in the direction of their slip
     velocity (the contact `moving`, whose stick has just ended, in the direction held[moving] gives);
     then, while a stuck contact violates Coulomb's static bound, the one with the largest
     excess |lt_j| / (mu_s,j lam_j) slips, in the direction the unbalanced force drives
@@ -589,6 +608,9 @@ def assign_modes(q, p, t, prm, held, rest, moving, lam, lt):
     sys_friction(prm, mu, mus)
     vt = scratch(NCON)
     slip_velocities(q, p, prm, vt)
+    # at a located stop the resolution of a slip velocity is the stopped contact's own residue: the
+    # others as slow (a body whose contacts' slip rows coincide, as a chain lying flat) stop with it
+    vrest = 4.0 * abs(vt[rest]) if rest >= 0 else 0.0
     for j in range(NCON):
         if held[j] == 0:
             continue
@@ -596,7 +618,7 @@ def assign_modes(q, p, t, prm, held, rest, moving, lam, lt):
             held[j] = 1
         elif j == moving:
             continue
-        elif j == rest or abs(vt[j]) <= slip_tolerance(q, p, prm, j):
+        elif j == rest or abs(vt[j]) <= slip_tolerance(q, p, prm, j) + vrest:
             held[j] = HELD_STICK
         else:
             held[j] = 1 if vt[j] > 0.0 else -1

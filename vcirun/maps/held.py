@@ -22,7 +22,7 @@ from vcirun.codegen.roles import (
     ld_PmJc, ld_Ppc, ld_Ed
 )
 from vcirun.maps.dynamics import delassus, dynamics_rhs, velocity_guess
-from vcirun.maps.linalg import solve_small, copy_into
+from vcirun.maps.linalg import solve_small, copy_into, STACK_DOUBLES
 from vcirun.maps.newton import NEWTON_CONVERGED, NEWTON_GO_ON, newton_stop
 
 
@@ -78,8 +78,12 @@ def contact_forces(q, p, t, prm, held, mu):
     A = scratch2(NDOF, NDOF)
     rhs = scratch(NDOF)
     _free_motion(q, p, t, prm, dd, G, A, rhs)
-    X = scratch2(k, NDOF)     # rows M^-1 grad phi_i
-    W = scratch2(k, k)
+    if k * k <= STACK_DOUBLES:
+        X = scratch2(k, NDOF)     # rows M^-1 grad phi_i
+        W = scratch2(k, k)
+    else:
+        X = np.empty((k, NDOF))
+        W = np.empty((k, k))
     if not delassus(A, G, idx, k, X, W):
         return False
     B = scratch2(NDOF, NDOF)
@@ -116,8 +120,12 @@ def project_momentum(q, p, prm, held, imp):
     sys_dphis(q, prm, G)
     A = scratch2(NDOF, NDOF)
     sys_M(q, prm, A)
-    X = scratch2(k, NDOF)
-    W = scratch2(k, k)
+    if k * k <= STACK_DOUBLES:
+        X = scratch2(k, NDOF)
+        W = scratch2(k, k)
+    else:
+        X = np.empty((k, NDOF))
+        W = np.empty((k, k))
     if not delassus(A, G, idx, k, X, W):
         return False
     b = scratch(k)
@@ -159,7 +167,7 @@ def held_stage(sid, q0, p0, hs, t, prm, ntol, maxit, held, v, q1, p1, imp):
     phis = scratch(NCON)
     sys_dphis(q0, prm, G0)
     F = scratch(m)
-    JJ = scratch2(m, m)
+    JJ = scratch2(m, m) if m * m <= STACK_DOUBLES else np.empty((m, m))
     qn = scratch(NDOF)
     it = 0
     ok = False

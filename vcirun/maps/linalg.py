@@ -4,6 +4,11 @@ import math
 
 from numba import njit
 
+# An array whose size grows with the contacts squared (a Delassus matrix, the Newton matrix of many held
+# contacts) is stack scratch up to this many doubles (32 KB) and on the heap beyond: a thread's stack
+# (8 MB) would not hold 1000 contacts squared, and the heap's allocation is then small beside the work.
+STACK_DOUBLES = 4096
+
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def solve_band(A, b, n, bw, tiny=0.0):
