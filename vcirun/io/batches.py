@@ -9,6 +9,8 @@ fixed number of objects whatever its size:
         key     (k,) text     the items' keys (run ids; initial-condition keys)
         attrs   (k,) text     each item's attributes as one JSON object (the encoded attributes of a
                               v1 run group: JSON-valued ones stay JSON text inside it; NaN as NaN)
+        (text: fixed-length UTF-8 strings as long as the longest item, NUL-padded; files written
+        before that hold variable-length strings, read alike)
         rows    (k, F) i8     rows of array field j held by item i; -1 where the item lacks the field
         crc     (k, F+1) u4   CRC-32 of item i's key and attributes text (column 0) and of its rows of
                               field j (column j + 1, little-endian bytes; 0 where it lacks the field)
@@ -360,14 +362,11 @@ def next_batch_name(f, kind: str) -> str:
 def write_batch(f, kind: str, batch: Batch, name: str | None = None) -> str:
     """Write `batch` as a new group of the open file (the next sequence number unless `name` is given);
     returns its path. `complete` is written last."""
-    import h5py
-
-    from ..run.trajectory_files import write_encoded
+    from ..run.trajectory_files import fixed_texts, write_encoded
 
     group = BATCH_GROUPS[kind]
     name = name or next_batch_name(f, kind)
     path = f"{group}/{name}"
-    text = h5py.string_dtype()
     arrays = [("rows", batch.rows), ("crc", batch.checksums())] + [(n, batch.data[n]) for n in batch.fields]
     meta = {"fields": json.dumps(batch.fields), "scalar_fields": json.dumps(batch.scalar),
             "n_items": len(batch.keys), "kind": kind}
@@ -376,9 +375,8 @@ def write_batch(f, kind: str, batch: Batch, name: str | None = None) -> str:
     if path in f:
         del f[path]
     g = f.create_group(path)
-    g.create_dataset("key", data=np.array(batch.keys, dtype=object), dtype=text)
-    g.create_dataset("attrs", data=np.array([batch.text(i) for i in range(len(batch.keys))], dtype=object),
-                     dtype=text)
+    g.create_dataset("key", data=fixed_texts(batch.keys))
+    g.create_dataset("attrs", data=fixed_texts([batch.text(i) for i in range(len(batch.keys))]))
     write_encoded(f, path, meta, arrays, group=g)
     return path
 

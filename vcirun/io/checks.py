@@ -31,7 +31,8 @@ LIBVER = "latest"
 NUMERIC_KINDS = "biuf"  # the only array dtypes a results file or its journal holds
 
 # rows every version of the schema wrote: a run without one of them is damaged; later rows (e.g.
-# impact_impulse) are checked when present
+# impact_impulse) are checked when present, the friction rows also required where the run's
+# attribute friction_rows is true (where it is false they are left out: vcirun.core.record.FRICTION_ROWS)
 _ALWAYS_WRITTEN = {"t", "q", "p", "H", "Ed", "Hmod", "impact_step", "newton_iters", "impacts", "impact_q",
                    "impact_p_minus", "impact_p_plus", "partial_steps"}
 
@@ -113,7 +114,8 @@ def run_problem(g, attrs: dict | None = None) -> str | None:
                 or (f.only == "modified" and a.get("has_Hmod") is not True) or size[f.axis] is None \
                 or (f.contacts and mc is None):
             continue
-        want[f.name] = (f.shape(size[f.axis], n, mc or 0), f.name in _ALWAYS_WRITTEN)
+        want[f.name] = (f.shape(size[f.axis], n, mc or 0), f.name in _ALWAYS_WRITTEN or (
+            f.name in record.FRICTION_ROWS and a.get("friction_rows") is True))
     for name, (shape, required) in want.items():
         got = _shape_of(g, name)
         if got is None and not required:
