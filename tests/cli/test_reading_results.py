@@ -137,7 +137,7 @@ def test_validate_estimates_the_stored_size_and_warns(tmp_path):
                    .replace("num: 2", "num: 20").replace("[CVA, VCI]", "[CVA, VCI, MCVAA, MCVAC]"))
     r = invoke("validate", big)
     assert r.exit_code == 0, r.output
-    assert "about 5.09 GiB for 160 runs" in r.stdout        # 43.4 MiB the largest run (h = 1e-4, T = 50)
+    assert "about 4.58 GiB for 160 runs" in r.stdout        # 39.1 MiB the largest run (h = 1e-4, T = 50)
     assert r.stderr.startswith("warning:") and "store: {every:" in r.stderr and "store: metrics" in r.stderr
     thin = tmp_path / "thin.yaml"
     thin.write_text(big.read_text() + "store: {every: 10}\n")

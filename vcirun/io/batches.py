@@ -389,13 +389,30 @@ def read_batch(g, data: bool = False) -> Batch:
     fields = json.loads(fields) if isinstance(fields, str) else list(fields)
     scalar = decode_attr("scalar_fields", g.attrs.get("scalar_fields", "[]"))
     scalar = json.loads(scalar) if isinstance(scalar, str) else list(scalar)
-    keys = [str(k) for k in g["key"].asstr()[()]]
-    texts = [str(t) for t in g["attrs"].asstr()[()]]
-    attrs = [{k: attr_from_json(v) for k, v in json.loads(t).items()} for t in texts]
+    keys = batch_keys(g)
+    texts = [str(t) for t in g["attrs"].asstr(errors="replace")[()]]
+    attrs = [_item_attrs(t) for t in texts]
     rows = np.asarray(g["rows"][()], dtype=np.int64)
     crc = np.asarray(g["crc"][()], dtype=np.uint32) if "crc" in g else None
     arrays = {n: (g[n][()] if data else g[n]) for n in fields}
     return Batch(keys, attrs, fields, scalar, rows.reshape(len(keys), len(fields)), arrays, texts, crc)
+
+
+def batch_keys(g) -> list:
+    """The keys of an open batch group, as str. Bytes that are not UTF-8 (damage) read as U+FFFD, so
+    that the damaged key alone fails its checksum, not the whole batch (a text that passes it is the
+    text written, whatever the decoding did)."""
+    return [str(k) for k in g["key"].asstr(errors="replace")[()]]
+
+
+def _item_attrs(text: str) -> dict:
+    """An item's attributes from its JSON text; {} where the text is not a JSON object (damage: the item
+    then fails its checksum and its check, and the batch's other items stay readable)."""
+    try:
+        d = json.loads(text)
+        return {k: attr_from_json(v) for k, v in d.items()} if type(d) is dict else {}
+    except (ValueError, TypeError, AttributeError):
+        return {}
 
 
 def checked_batch(g):
@@ -448,7 +465,7 @@ def delete_items(f, paths) -> None:
                 continue
             g = f[path]
             try:
-                keys = [str(k) for k in g["key"].asstr()[()]]
+                keys = batch_keys(g)
             except Exception:  # noqa: BLE001 - a damaged batch: the readers ignore it already
                 continue
             if not drop.intersection(keys):
@@ -467,5 +484,5 @@ def count_items(f, kind: str) -> int:
     for name in batch_names(f, kind):
         g = f[f"{BATCH_GROUPS[kind]}/{name}"]
         if bool(g.attrs.get("complete", False)) and "key" in g:
-            keys.update(str(k) for k in g["key"].asstr()[()])
+            keys.update(batch_keys(g))
     return len(keys)

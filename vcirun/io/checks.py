@@ -18,12 +18,12 @@ import h5py
 import numpy as np
 
 from ..core import record
-from ..run.trajectory_files import decode_attrs
+from ..run.trajectory_files import decode_attr, decode_attrs
 from .batches import BATCH_GROUPS, ITEM_GROUPS, checked_batch, data_problems
 from .errors import StorageError, os_text
 
 __all__ = ["FORMAT", "SCHEMA_VERSION", "LIBVER", "NUMERIC_KINDS", "run_problem", "reference_problem",
-           "scan_groups", "resolve_output"]
+           "scan_groups", "resolve_output", "root_format"]
 
 FORMAT = "vcirun-sweep"
 SCHEMA_VERSION = 2   # 2: runs and references in batches (vcirun.io.batches); 1: a group each
@@ -63,6 +63,17 @@ def _shape_of(g, name):
     if d.dtype.kind not in NUMERIC_KINDS:
         return "not numeric"
     return tuple(d.shape)
+
+
+def root_format(f):
+    """(the open file's root attribute `format` as str ("" if it has none), None), or (None, why) where
+    the file has one that cannot be read (damaged attribute storage: the file is damaged, not foreign)."""
+    try:
+        if not h5py.h5a.exists(f.id, b"format"):
+            return "", None
+        return decode_attr("format", f.attrs["format"]), None
+    except Exception as e:  # noqa: BLE001 - checksum failures, unreadable headers
+        return None, " ".join(str(e).split())[:160]
 
 
 def _int_attr(a: dict, key: str):
