@@ -516,3 +516,22 @@ def test_random_damage_to_a_journal_never_serves_changed_data_nor_drops_runs_sil
     if shown != set(runs):   # runs missing: the readers say so (skipped records) or the tail was torn
         assert res.notes or (j is not None and j.torn) or j is None, (sorted(shown), res.notes)
     served_equals_written(path, runs)
+
+
+def test_a_resumed_file_of_variable_length_text_is_rewritten_fixed_length(tmp_path):
+    """A session that resumes a file of an earlier vcirun rewrites its text fixed-length (the same text:
+    its checksums still hold), so the readers no longer need the child process for it."""
+    import h5py
+
+    runs = originals()
+    old = variable_length_copy(write(tmp_path / "new.h5", dict(list(runs.items())[:2])), tmp_path / "old.h5")
+    with h5py.File(old, "r") as f:
+        assert legacy_text.has_variable_text(f)
+    with ResultsWriter(old, root_attrs={"name": "t"}, config_key=KEY) as w:
+        assert sorted(w.complete_runs) == sorted(runs)[:2]
+        rid, (a, arr) = list(runs.items())[2]
+        w.add_run(rid, a, arr)
+        w.finish("complete")
+    with h5py.File(old, "r") as f:
+        assert not legacy_text.has_variable_text(f)
+    assert served_equals_written(old, runs) == sorted(runs)

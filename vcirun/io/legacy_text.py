@@ -9,7 +9,8 @@ reference groups and batches, a batch's `key` and `attrs` datasets, a one-run fi
 group) is read once first in a child process with a deadline (`check_variable_text`): if the child
 does not finish within PROBE_SECONDS, or dies, the file is reported damaged in one line and the
 readers do not touch it. Finding out costs the object headers only (types, never values); the
-child runs only for such files, once per file version per process.
+child runs only for such files, once per file version per process. A writer that resumes such a file
+rewrites its text fixed-length (`fix_variable_text`).
 """
 from __future__ import annotations
 
@@ -18,9 +19,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from .errors import StorageError
 
-__all__ = ["PROBE_SECONDS", "has_variable_text", "check_variable_text"]
+__all__ = ["PROBE_SECONDS", "has_variable_text", "check_variable_text", "fix_variable_text"]
 
 PROBE_SECONDS = 30.0   # what a child may take to read every text a reader reads (a healthy file: well under 1 s)
 _CONTAINERS = ("run_batches", "reference_batches", "runs", "references")
@@ -44,12 +47,13 @@ def _attr_ids(oid):
 
 
 def _objects(f):
-    """The groups a reader reads attributes of, and the text datasets it reads: (kind, object id)."""
+    """The groups a reader reads attributes of, and the text datasets it reads: (kind, object id,
+    the h5py group or dataset)."""
     import h5py
 
-    yield "group", f.id
+    yield "group", f.id, f
     if "trajectory" in f and isinstance(f["trajectory"], h5py.Group):
-        yield "group", f["trajectory"].id
+        yield "group", f["trajectory"].id, f["trajectory"]
     for top in _CONTAINERS:
         if top not in f or not isinstance(f[top], h5py.Group):
             continue
@@ -57,11 +61,11 @@ def _objects(f):
             g = f[top].get(name)
             if not isinstance(g, h5py.Group):
                 continue
-            yield "group", g.id
+            yield "group", g.id, g
             for d in _TEXT_DATASETS:
                 ds = g.get(d)
                 if isinstance(ds, h5py.Dataset):
-                    yield "dataset", ds.id
+                    yield "dataset", ds.id, ds
 
 
 def has_variable_text(f) -> bool:
@@ -69,7 +73,7 @@ def has_variable_text(f) -> bool:
     object headers: types, not values). True also when the headers cannot be walked (damaged): the
     child then finds out."""
     try:
-        for kind, oid in _objects(f):
+        for kind, oid, _ in _objects(f):
             if kind == "dataset":
                 if _variable(oid.get_type()):
                     return True
@@ -85,20 +89,47 @@ def _read_all(path: str) -> None:
     import h5py
 
     with h5py.File(path, "r") as f:
-        for kind, oid in _objects(f):
+        for kind, oid, obj in _objects(f):
             try:
                 if kind == "dataset":
-                    h5py.Dataset(oid)[()]
+                    obj[()]
                 else:
                     for a in _attr_ids(oid):
-                        h5py.AttributeManager(_Holder(oid))[a.name.decode("utf-8", "replace")]
+                        obj.attrs[a.name.decode("utf-8", "replace")]
             except Exception:  # noqa: BLE001 - an error is the readers' to report; only not returning matters
                 pass
 
 
-class _Holder:
-    def __init__(self, oid):
-        self.id = oid
+def fix_variable_text(f) -> int:
+    """Rewrite, in the open file `f` (a writer's copy of a file whose text was read in time), every
+    variable-length text `_objects` names as fixed-length, the same text (the checksums cover the text,
+    not its storage); returns how many objects changed. A resumed file of an earlier vcirun thus holds
+    no variable-length text after its first rewrite, and is read without the child from then on."""
+    import h5py
+
+    from ..run.trajectory_files import fixed_texts, storable, text_of
+
+    changed = 0
+    for kind, oid, obj in list(_objects(f)):
+        if kind == "dataset":
+            if _variable(oid.get_type()):
+                parent, name = obj.parent, obj.name.rpartition("/")[2]
+                texts = [text_of(v) for v in obj[()].ravel()]
+                shape = obj.shape
+                del parent[name]
+                parent.create_dataset(name, data=fixed_texts(texts).reshape(shape))
+                changed += 1
+            continue
+        names = [a.name.decode("utf-8", "replace") for a in _attr_ids(oid) if _variable(a.get_type())
+                 and a.get_type().get_class() == h5py.h5t.STRING]
+        for name in names:
+            v = obj.attrs[name]
+            value = storable(text_of(v)) if np.ndim(v) == 0 else \
+                fixed_texts([text_of(x) for x in np.ravel(v)]).reshape(np.shape(v))
+            del obj.attrs[name]
+            obj.attrs[name] = value
+            changed += 1
+    return changed
 
 
 def _stamp(path: Path):
