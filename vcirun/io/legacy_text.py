@@ -8,9 +8,10 @@ holds variable-length text where vcirun's readers look (root attributes, the att
 reference groups and batches, a batch's `key` and `attrs` datasets, a one-run file's `trajectory`
 group) is read once first in a child process with a deadline (`check_variable_text`): if the child
 does not finish within PROBE_SECONDS, or dies, the file is reported damaged in one line and the
-readers do not touch it. Finding out costs the object headers only (types, never values); the
-child runs only for such files, once per file version per process. A writer that resumes such a file
-rewrites its text fixed-length (`fix_variable_text`).
+readers do not touch it. Finding out costs the object headers only (types, never values; for a sweep
+file marked by its writer, the root attributes only); the child runs only for such files, once per
+file version per process. A writer that resumes such a file rewrites its text fixed-length
+(`fix_variable_text`) and marks it.
 """
 from __future__ import annotations
 
@@ -23,11 +24,14 @@ import numpy as np
 
 from .errors import StorageError
 
-__all__ = ["PROBE_SECONDS", "has_variable_text", "check_variable_text", "fix_variable_text"]
+__all__ = ["PROBE_SECONDS", "MARK", "MARK_VALUE", "has_variable_text", "check_variable_text", "fix_variable_text"]
 
 PROBE_SECONDS = 30.0   # what a child may take to read every text a reader reads (a healthy file: well under 1 s)
 _CONTAINERS = ("run_batches", "reference_batches", "runs", "references")
 _TEXT_DATASETS = ("key", "attrs")
+# the root attribute a sweep file's writer sets on every rewrite, after `fix_variable_text`: every text
+# of the file is fixed-length (a resumed file of an earlier vcirun included)
+MARK, MARK_VALUE = "text_storage", "fixed-length"
 _SEEN: dict = {}       # (path, device, inode, size, mtime) -> None (read in time) or the StorageError text
 
 
@@ -70,9 +74,14 @@ def _objects(f):
 
 def has_variable_text(f) -> bool:
     """Whether the open file holds variable-length text where vcirun's readers look (read from the
-    object headers: types, not values). True also when the headers cannot be walked (damaged): the
-    child then finds out."""
+    object headers: types, not values). A sweep file whose root attribute MARK says its writer stored
+    every text fixed-length costs its root attributes only; others are walked. True also when the
+    headers cannot be walked (damaged): the child then finds out."""
     try:
+        if any(_variable(a.get_type()) for a in _attr_ids(f.id)):
+            return True
+        if _marked(f):
+            return False
         for kind, oid, _ in _objects(f):
             if kind == "dataset":
                 if _variable(oid.get_type()):
@@ -82,6 +91,15 @@ def has_variable_text(f) -> bool:
     except Exception:  # noqa: BLE001 - damaged headers: cannot tell
         return True
     return False
+
+
+def _marked(f) -> bool:
+    from h5py import h5a
+
+    if not h5a.exists(f.id, MARK.encode()):
+        return False
+    v = f.attrs[MARK]
+    return isinstance(v, bytes) and v.decode("utf-8", "replace") == MARK_VALUE
 
 
 def _read_all(path: str) -> None:

@@ -19,7 +19,7 @@ from .batches import count_items, delete_items, pack, stamped, write_batch
 from .checks import FORMAT, LIBVER, SCHEMA_VERSION
 from .errors import StorageError, one_line
 from .journal import apply_journal
-from .legacy_text import fix_variable_text, has_variable_text
+from .legacy_text import MARK, MARK_VALUE, fix_variable_text, has_variable_text
 from .provenance import now_iso
 
 __all__ = ["Pending", "Rewrite", "free_space_error", "failure"]
@@ -63,6 +63,7 @@ class Rewrite:
                 f.attrs["config_key"] = storable(self.config_key)
             elif has_variable_text(f):   # a file of an earlier vcirun (its text was read in time at the start)
                 fix_variable_text(f)
+            f.attrs[MARK] = storable(MARK_VALUE)   # every text of the file is fixed-length
             f.attrs["schema_version"] = SCHEMA_VERSION  # what this writer adds is in batches
             for key, value in self.root_attrs.items():
                 f.attrs[key] = storable(encode_attr(key, value))
