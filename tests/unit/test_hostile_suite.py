@@ -452,9 +452,9 @@ for what, call in (("sweep", lambda: read_results(sys.argv[1])), ("again", lambd
 
 
 def test_files_of_variable_length_text_are_read_and_a_damaged_heap_is_reported_in_time(tmp_path, monkeypatch):
-    """Files written before text was fixed-length are read as before; where their global heap is
-    damaged, the readers' child process (vcirun.io.legacy_text) meets its deadline and the file is
-    reported damaged in one line instead of hanging the reader."""
+    """Files written before text was fixed-length are read, their values unchanged; where their global
+    heap is damaged, the readers' child process (vcirun.io.legacy_text) meets its deadline and the file
+    is reported damaged in one line instead of hanging the reader."""
     import os
     import subprocess
 
