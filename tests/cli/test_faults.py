@@ -130,11 +130,11 @@ def test_commits_append_to_the_journal_and_never_touch_the_file(tmp_path):
     back = load_trajectory(path, "r0003")
     np.testing.assert_array_equal(back.q, make_traj(seed=3).q)
     with h5py.File(path, "r") as f:  # plain h5py: the file is valid, its runs come at compaction
-        assert len(file_runs(f)) == 0 and f.attrs["journal"] == w._token
+        assert len(file_runs(f)) == 0 and f.attrs["journal"].decode() == w._token
     w.finish("complete")
     w.close()
     with h5py.File(path, "r") as f:
-        assert len(file_runs(f)) == 6 and f.attrs["journal"] == ""
+        assert len(file_runs(f)) == 6 and f.attrs["journal"].decode() == ""
     assert not w.journal_path.exists() and not w.tmp_path.exists()
 
 
@@ -239,7 +239,7 @@ os.kill(os.getpid(), signal.SIGKILL)
         os.environ, PYTHONPATH=str(ROOT)))
     assert p.returncode == -signal.SIGKILL and "saved 5" in p.stdout, p.stderr
     with h5py.File(path, "r") as f:
-        assert f.attrs["format"] == "vcirun-sweep" and not file_runs(f)
+        assert f.attrs["format"].decode() == "vcirun-sweep" and not file_runs(f)
     r = cli("info", path)
     assert r.exit_code == 0 and "5 of" in r.output and "5 of them in the journal" in r.output
     with ResultsWriter(path, root_attrs={"name": "t"}, config_key=KEY) as w:
@@ -265,7 +265,7 @@ def test_background_compaction_folds_the_journal_in_while_the_sweep_runs(tmp_pat
     while time.monotonic() < deadline:  # a round replaces the file with one holding the four runs
         with h5py.File(path, "r") as f:
             if len(file_runs(f)) == 4:
-                assert f.attrs["journal_applied"] > 0 and f.attrs["journal"] == w._token
+                assert f.attrs["journal_applied"] > 0 and f.attrs["journal"].decode() == w._token
                 break
         time.sleep(0.1)
     else:

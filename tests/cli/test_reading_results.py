@@ -137,7 +137,7 @@ def test_validate_estimates_the_stored_size_and_warns(tmp_path):
                    .replace("num: 2", "num: 20").replace("[CVA, VCI]", "[CVA, VCI, MCVAA, MCVAC]"))
     r = invoke("validate", big)
     assert r.exit_code == 0, r.output
-    assert "about 5.09 GiB for 160 runs" in r.stdout        # 43.4 MiB the largest run (h = 1e-4, T = 50)
+    assert "about 4.58 GiB for 160 runs" in r.stdout        # 39.1 MiB the largest run (h = 1e-4, T = 50)
     assert r.stderr.startswith("warning:") and "store: {every:" in r.stderr and "store: metrics" in r.stderr
     thin = tmp_path / "thin.yaml"
     thin.write_text(big.read_text() + "store: {every: 10}\n")
@@ -146,3 +146,43 @@ def test_validate_estimates_the_stored_size_and_warns(tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text(TINY + "store: {every: 1}\n")
     one_line_error(invoke("validate", bad), "store: must be full, metrics or {every: k}")
+
+
+def variable_length_objects(path) -> list:
+    """Every attribute and dataset of an HDF5 file whose type is variable-length (string or sequence):
+    what lives in the file's global heap."""
+    import h5py
+
+    out = []
+
+    def variable(tid):
+        c = tid.get_class()
+        return c == h5py.h5t.VLEN or (c == h5py.h5t.STRING and tid.is_variable_str())
+
+    def visit(name, o):
+        out.extend(f"{name}@{k}" for k in o.attrs if variable(o.attrs.get_id(k).get_type()))
+        if isinstance(o, h5py.Dataset) and variable(o.id.get_type()):
+            out.append(name)
+
+    with h5py.File(path, "r") as f:
+        visit("/", f)
+        f.visititems(visit)
+    return out
+
+
+def test_files_vcirun_writes_hold_no_variable_length_text(sweep_dir, tmp_path, monkeypatch):
+    """Text is fixed-length everywhere: the only objects in a sweep file's global heap are the summary's
+    dimension-scale lists (HDF5's own DIMENSION_LIST, which vcirun's readers never open); a one-run file
+    has no global heap at all."""
+    path = sweep_dir / "results" / "tiny.h5"
+    found = variable_length_objects(path)
+    assert found and all(x.startswith("summary/") and x.endswith("@DIMENSION_LIST") for x in found), found
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        assert f.attrs["format"] == b"vcirun-sweep" and f["summary/method"].asstr()[()].tolist() == ["CVA", "VCI"]
+    monkeypatch.chdir(tmp_path)
+    r = invoke("simulate", "--system", "cart_pendulum", "--beta", "3.2", "--h", "1e-2", "--T", "1", "--output",
+               "run.h5")
+    assert r.exit_code == 0, r.output
+    assert variable_length_objects(tmp_path / "run.h5") == [] and b"GCOL" not in (tmp_path / "run.h5").read_bytes()

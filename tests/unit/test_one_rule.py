@@ -102,14 +102,24 @@ def test_stored_bytes_counts_every_stored_field(monkeypatch):
 @pytest.mark.parametrize("system, method, kw", [("cart_pendulum", "MCVAA", {"beta": 3.2}),
                                                 ("ball_in_box", "CVA", {})])
 def test_stored_bytes_is_the_size_of_a_runs_stored_arrays(system, method, kw):
+    from vcirun.run.trajectory_files import trajectory_payload
+
     tr = vcirun.simulate(system, method, h=0.01, T=1.0, **kw)
     m = tr.contact_active.shape[1]
     data = 8 * (tr.n_steps + 1)  # t
+    friction = 0
     for f in record.FIELDS:
         if f.stored != "no":
             a = getattr(tr, f.name)  # None: a row of other methods (Hmod), counted all the same
-            data += a.nbytes if a is not None else (tr.n_steps + 1) * f.itemsize
-    est = sizes.stored_bytes(tr.n_steps, len(tr.q[0]), m, impacts=len(tr.impacts),
-                             partial_steps=len(tr.partial_steps), releases=len(tr.releases))
+            b = a.nbytes if a is not None else (tr.n_steps + 1) * f.itemsize
+            if f.name in record.FRICTION_ROWS:
+                friction += b
+            else:
+                data += b
+    _, arrays = trajectory_payload(tr)   # a frictionless system: its friction rows are not stored
+    assert not set(arrays) & set(record.FRICTION_ROWS) and friction > 0
+    kw = dict(impacts=len(tr.impacts), partial_steps=len(tr.partial_steps), releases=len(tr.releases))
+    est = sizes.stored_bytes(tr.n_steps, len(tr.q[0]), m, friction=False, **kw)
     assert est - sizes.STORED_OVERHEAD == data
+    assert sizes.stored_bytes(tr.n_steps, len(tr.q[0]), m, **kw) - est == friction   # with friction: counted
     assert len(tr.impacts) > 0

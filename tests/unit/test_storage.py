@@ -114,7 +114,7 @@ def test_failed_run_and_missing_beta_round_trip(tmp_path):
 def test_without_trajectories_keeps_impacts_and_scalars(tmp_path):
     tr = make_traj()
     attrs, arrays = trajectory_payload(tr, store_arrays=False)
-    assert set(arrays) == set(IMPACT_ARRAYS)
+    assert set(arrays) == set(IMPACT_ARRAYS) - set(record.FRICTION_ROWS)   # a run without friction data
     path = write(tmp_path / "r.h5", {"x": ({**attrs, "label": "CVA", "method_index": 0}, arrays)})
     back = load_trajectory(path, "x")
     np.testing.assert_array_equal(back.impacts, tr.impacts)
@@ -148,8 +148,9 @@ def test_layout_is_readable_with_plain_h5py(tmp_path):
                  refs={"beta=3.2": ({"kind": "exact", "accuracy": 1e-11, "beta": 3.2}, ref_arrays)},
                  root={"name": "t", "tolerances": {"newton_tol": 1e-12}, "config_yaml": "name: t\n"})
     with h5py.File(path, "r") as f:
-        assert f.attrs["format"] == "vcirun-sweep" and f.attrs["schema_version"] == 2
-        assert f.attrs["config_key"] == KEY and f.attrs["config_yaml"] == "name: t\n"
+        # text is fixed-length UTF-8 (no global-heap objects): h5py reads attributes of it as bytes
+        assert f.attrs["format"].decode() == "vcirun-sweep" and f.attrs["schema_version"] == 2
+        assert f.attrs["config_key"].decode() == KEY and f.attrs["config_yaml"].decode() == "name: t\n"
         assert json.loads(f.attrs["tolerances"]) == {"newton_tol": 1e-12}
         assert f.attrs["n_runs_complete"] == 2
         hist = json.loads(f.attrs["history"])
@@ -168,8 +169,9 @@ def test_layout_is_readable_with_plain_h5py(tmp_path):
 
 def test_fast_group_writer_makes_what_h5py_high_level_calls_make(tmp_path):
     """write_encoded uses h5py's low-level calls; every dataset and attribute it writes has the type,
-    shape, value and creation properties that `create_dataset(data=...)` / `attrs[k] = v` give."""
-    from vcirun.run.trajectory_files import group_attrs, write_encoded
+    shape, value and creation properties that `create_dataset(data=...)` / `attrs[k] = storable(v)`
+    give (text as fixed-length UTF-8 strings)."""
+    from vcirun.run.trajectory_files import group_attrs, storable, write_encoded
 
     attrs, arrays = run_attrs(make_traj(), "MCVAC", 0.01, 3.2)
     attrs.update(message="niño \u2013 ok", fail_time=math.nan, q0=[0.1, -2.0], flag=np.bool_(False),
@@ -182,7 +184,7 @@ def test_fast_group_writer_makes_what_h5py_high_level_calls_make(tmp_path):
         for name, value in arrays.items():
             g.create_dataset(name, data=np.asarray(value))
         for key, value in enc.items():
-            g.attrs[key] = value
+            g.attrs[key] = storable(value)
         g.attrs["complete"] = True
         fast, slow = f["runs/fast"], f["runs/slow"]
         assert sorted(fast) == sorted(slow) and sorted(fast.attrs) == sorted(slow.attrs)

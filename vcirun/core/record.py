@@ -109,6 +109,13 @@ FIELDS = (
 )
 FIELD = {f.name: f for f in FIELDS}
 
+# The friction rows: at their fill values (zero; no entries) in every run of a frictionless system. A
+# results file stores them only for a run where some differs (its attribute `friction_rows` says
+# which; the readers give the others these values back), and the stored-size estimates count them only
+# for systems with friction (vcirun.core.sizes.stored_bytes).
+FRICTION_ROWS = ("impact_impulse_t", "contact_mode", "friction_work", "mode_changes", "mode_change_contact",
+                 "mode_change_kind")
+
 COUNTERS = ("status", "fail_step", "n_impacts", "n_partial", "steps", "n_releases", "n_mode_changes")
 
 # the constraint switch, the tolerances of vcirun.core.tolerances.TOLERANCES (each once) and two flags,
@@ -205,6 +212,7 @@ def schema_markdown() -> str:
             continue
         dims = [size[f.axis]] + (["n"] if f.dof else []) + (["m"] if f.contacts else [])
         shape = f"({', '.join(dims)})" if len(dims) > 1 else f"({dims[0]},)"
-        note = " (MCVA family only)" if f.only == "modified" else ""
+        note = " (MCVA family only)" if f.only == "modified" else \
+            " (runs with friction only: see `friction_rows`)" if f.name in FRICTION_ROWS else ""
         lines.append(f"| `{f.name}` | {shape} {hdf[f.dtype]} | {when[f.stored]} | {f.doc}{note} |")
     return "\n".join(lines)

@@ -40,13 +40,15 @@ def run_bytes(N: int, n: int, m: int = 1) -> int:
 
 def stored_bytes(N: int, n: int, m: int = 1, *, store_trajectories: bool = True, impacts: int = 0,
                  partial_steps: int | None = None, releases: int = 0, mode_changes: int = 0,
-                 every: int | None = None) -> int:
+                 every: int | None = None, friction: bool = True) -> int:
     """Bytes of one run's datasets in the results file (and of its result message to the client):
     every stored row of the run record ("impacts" rows always, "trajectory" rows and the times t with
     `store_trajectories`), with `impacts` impact entries, `partial_steps` partial steps (default two
     per impact), `releases` releases and `mode_changes` friction mode changes, plus the run's
     attributes. every: a sweep's `store` (1 every grid state, k every k-th and the last without the
-    per-step rows, 0 none; default from store_trajectories)."""
+    per-step rows, 0 none; default from store_trajectories). friction: whether the system has
+    friction; without, the friction rows (record.FRICTION_ROWS) are not counted: a file stores them
+    only for runs with friction data (with friction they are counted, an upper bound)."""
     N, n, m = int(N), int(n), int(m)
     impacts = int(impacts)
     every = (1 if store_trajectories else 0) if every is None else int(every)
@@ -56,6 +58,8 @@ def stored_bytes(N: int, n: int, m: int = 1, *, store_trajectories: bool = True,
             "mode": int(mode_changes)}
     b = STORED_OVERHEAD + (8 * grid if every else 0)
     for f in record.FIELDS:
+        if not friction and f.name in record.FRICTION_ROWS:
+            continue
         if f.stored == "impacts" or (f.stored == "trajectory" and every):
             b += math.prod(f.shape(rows[f.axis], n, m)) * f.itemsize
     return b

@@ -40,13 +40,14 @@ class StoreEstimate:
                 f"(about {format_bytes(self.total * max(self.every, 1) / k)}), store: metrics none")
 
 
-def estimate_store(cfg, n: int, m: int, pending=None) -> StoreEstimate:
+def estimate_store(cfg, n: int, m: int, pending=None, friction: bool = True) -> StoreEstimate:
     """The stored size of `pending` runs (default: every run of the config) of a system with n
-    coordinates and m constraints."""
+    coordinates and m constraints, with friction or not (the friction rows are stored only for runs
+    with friction data)."""
     hs = [s.h for s in pending] if pending is not None else [
         h for h in cfg.h for _ in range(len(cfg.methods) * len(cfg.initial_conditions()))]
     every = cfg.store_every
-    per_h = {h: stored_bytes(grid_steps(h, cfg.T)[2], n, m, every=every) for h in set(hs)}
+    per_h = {h: stored_bytes(grid_steps(h, cfg.T)[2], n, m, every=every, friction=friction) for h in set(hs)}
     h_big = max(per_h, key=per_h.get) if per_h else float("nan")
     return StoreEstimate(float(sum(per_h[h] for h in hs)), len(hs), every, float(per_h.get(h_big, 0.0)), h_big)
 
@@ -56,4 +57,4 @@ def store_estimate_of(cfg) -> StoreEstimate:
     from .config.semantics import build_system
 
     _, _, sysm = build_system(cfg)
-    return estimate_store(cfg, sysm.n, sysm.m)
+    return estimate_store(cfg, sysm.n, sysm.m, friction=bool(sysm.has_friction))

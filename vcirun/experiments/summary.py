@@ -9,8 +9,10 @@ Written once when a sweep finishes (also after an interruption: it covers the ru
 from `vcirun.io.results.collect`, the table behind `vcirun.open_results`: inside the writer's last
 rewrite of the file (`summary_hook`, no second copy of the file), or, where that did not leave one,
 by `write_summary` on its own (atomic like the sweep's commits: copy, write, fsync, rename), while the
-sweep still holds the file's lock. Strings are UTF-8 variable-length; missing runs are NaN / "missing"
-(see vcirun.io.results).
+sweep still holds the file's lock. Strings are fixed-length UTF-8 (attribute `_Encoding`, which xarray
+decodes by); missing runs are NaN / "missing" (see vcirun.io.results). The dimension scales'
+DIMENSION_LIST attributes (HDF5's own, variable-length object references) are the only objects of a
+results file in its global heap; vcirun's readers never open them.
 """
 from __future__ import annotations
 
@@ -26,6 +28,7 @@ from ..io.checks import LIBVER
 from ..core.fsync import fsync_path
 from ..io.errors import StorageError
 from ..io.reader import read_results, results_of
+from ..run.trajectory_files import fixed_text, fixed_texts, storable
 
 __all__ = ["write_summary", "summary_hook", "has_summary", "GROUP"]
 
@@ -33,9 +36,10 @@ GROUP = "summary"
 
 
 def _dataset(g, name, arr):
-    if arr.dtype == object:
-        return g.create_dataset(name, data=np.array([str(x) for x in arr.ravel()], dtype=object).reshape(arr.shape),
-                                dtype=h5py.string_dtype("utf-8"))
+    if arr.dtype == object or arr.dtype.kind == "U":
+        d = g.create_dataset(name, data=fixed_texts([str(x) for x in arr.ravel()]).reshape(arr.shape))
+        d.attrs["_Encoding"] = fixed_text("utf-8")   # (xarray decodes the bytes of fixed-length text by it)
+        return d
     return g.create_dataset(name, data=arr)
 
 
@@ -47,7 +51,7 @@ def _write_group(f: h5py.File, tab) -> None:
     for name, values in tab.dims.items():
         d = _dataset(g, name, np.asarray(values))
         for k, v in tab.coord_attrs.get(name, {}).items():
-            d.attrs[k] = v
+            d.attrs[k] = storable(v)
         d.make_scale(name)
         scales[name] = d
     for name, (dims, arr, attrs) in tab.variables.items():
@@ -55,9 +59,9 @@ def _write_group(f: h5py.File, tab) -> None:
         for i, dim in enumerate(dims):
             d.dims[i].attach_scale(scales[dim])
         for k, v in attrs.items():
-            d.attrs[k] = v
+            d.attrs[k] = storable(v)
     for k, v in tab.attrs.items():
-        g.attrs[k] = v
+        g.attrs[k] = storable(v)
 
 
 def summary_hook(path, held=None):

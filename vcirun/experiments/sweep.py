@@ -182,12 +182,13 @@ class _Reporter:
             self._progress = None
 
 
-def _preflight(cfg: SweepConfig, pending: list[RunSpec]) -> tuple[int, int, int]:
+def _preflight(cfg: SweepConfig, pending: list[RunSpec]) -> tuple[int, int, bool, int]:
     """One step of every method in this process: loads the kernels the workers use (on the tier asked
     for, VCIRUN_TIER: compiled ones, cold ones compiled side by side, vcirun.experiments.precompile; in
     the auto tier the interpreted ones while the compiled ones are built in the background), and turns
-    bad input the core rejects into an error before any file exists. Returns the numbers of coordinates and of contacts
-    and how many kernel sets were compiled in side-by-side processes, (n, m, side)."""
+    bad input the core rejects into an error before any file exists. Returns the numbers of coordinates and of contacts,
+    whether the system has friction, and how many kernel sets were compiled in side-by-side processes,
+    (n, m, friction, side)."""
     import vcirun
 
     from .precompile import compile_side_by_side
@@ -238,18 +239,18 @@ def _preflight(cfg: SweepConfig, pending: list[RunSpec]) -> tuple[int, int, int]
             raise SweepError(f"reference: {_one_line(e)}") from None
         except Exception:  # noqa: BLE001 - numerical trouble is reported per initial condition later
             pass
-    return sysm.n, sysm.m, side
+    return sysm.n, sysm.m, bool(sysm.has_friction), side
 
 
 def _check_resources(cfg: SweepConfig, pending: list[RunSpec], n: int, m: int, workers: int, path: Path,
-                     writer: ResultsWriter) -> None:
+                     writer: ResultsWriter, friction: bool = True) -> None:
     """Refuse, before the file is created, a sweep whose runs in flight exceed the memory limit or whose
     results cannot fit on the disk (their journal, then the file's final copy: about twice the data)."""
     if not pending:
         return
     steps = {h: grid_steps(h, cfg.T)[2] for h in {s.h for s in pending}}
     N = max(steps.values())
-    stored = stored_bytes(N, n, m, every=cfg.store_every)
+    stored = stored_bytes(N, n, m, every=cfg.store_every, friction=friction)
     try:  # each worker holds a run's buffers and its result message; the client the message and its record
         check_run_memory(N, n, m=m, copies=min(workers, len(pending)), extra=2 * stored, limit=cfg.max_memory,
                          field="h", hint=", or raise max_memory in the config (e.g. max_memory: 32GB) or "
@@ -257,7 +258,7 @@ def _check_resources(cfg: SweepConfig, pending: list[RunSpec], n: int, m: int, w
     except ValueError as e:
         raise SweepError(f"{_one_line(e)} (with {min(workers, len(pending))} worker(s); fewer --workers need less)") \
             from None
-    per_h = {h: stored_bytes(N_h, n, m, every=cfg.store_every) for h, N_h in steps.items()}
+    per_h = {h: stored_bytes(N_h, n, m, every=cfg.store_every, friction=friction) for h, N_h in steps.items()}
     need = sum(per_h[s.h] for s in pending)
     size = path.stat().st_size if path.exists() and not writer.force else 0
     total = size + 2 * need
@@ -368,7 +369,7 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
 
         t_pre = time.monotonic()
         with default().report() as built:
-            n, m, side = _preflight(cfg, pending or [specs[0]])
+            n, m, friction, side = _preflight(cfg, pending or [specs[0]])
         summary.prepare_time = time.monotonic() - t_pre  # kernels loaded or compiled: not run time
         # What is loaded now (numba, LLVM, the kernels) stays for the sweep: frozen out of the garbage
         # collector, whose full passes would otherwise walk it in the client and, copy-on-write, copy it
@@ -376,7 +377,7 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
         gc.freeze()
         frozen = True
         summary.compiled = side + built.generated
-        _check_resources(cfg, pending, n, m, workers, writer.path, writer)
+        _check_resources(cfg, pending, n, m, workers, writer.path, writer, friction)
         executor = executors.make_executor(ex_spec, workers=workers, start_method=start_method)
         executor.connect()  # a Dask cluster: reached (or a one-line error) before the file is created
         summary.workers = executor.workers
@@ -388,7 +389,7 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
         for h in cfg.h:
             if grid_note(h, cfg.T):
                 reporter.log(f"note: {grid_note(h, cfg.T)}")
-        size = estimate_store(cfg, n, m, pending)
+        size = estimate_store(cfg, n, m, pending, friction)
         reporter.log(f"note: the pending runs store {size.line()}"
                      + (f"\nwarning: {size.advice()}" if size.warn else ""))
         if summary.skipped or summary.deleted_incomplete:

@@ -8,6 +8,8 @@ checks        the file's identity (FORMAT, SCHEMA_VERSION, LIBVER); when a run o
               trusted (run_problem, reference_problem, scan_groups); the output path (resolve_output)
 provenance    versions, git commit, platform and time stamps stored as root attributes
 batches       many runs (or references) in one HDF5 group: pack, write, read, check, delete items
+legacy_text   variable-length text of files of earlier versions: read first in a child with a deadline,
+              rewritten fixed-length by a resume
 journal       the binary journal beside the file: record format, read_journal, applying it
 durable       fsync, space reservation, HDF5 writes in a forked child, atomic replace by a copy
 lock          the single-writer lock (an flock on a hidden sibling)

@@ -9,6 +9,8 @@ fixed number of objects whatever its size:
         key     (k,) text     the items' keys (run ids; initial-condition keys)
         attrs   (k,) text     each item's attributes as one JSON object (the encoded attributes of a
                               v1 run group: JSON-valued ones stay JSON text inside it; NaN as NaN)
+        (text: fixed-length UTF-8 strings as long as the longest item, NUL-padded; files written
+        before that hold variable-length strings, read alike)
         rows    (k, F) i8     rows of array field j held by item i; -1 where the item lacks the field
         crc     (k, F+1) u4   CRC-32 of item i's key and attributes text (column 0) and of its rows of
                               field j (column j + 1, little-endian bytes; 0 where it lacks the field)
@@ -360,14 +362,11 @@ def next_batch_name(f, kind: str) -> str:
 def write_batch(f, kind: str, batch: Batch, name: str | None = None) -> str:
     """Write `batch` as a new group of the open file (the next sequence number unless `name` is given);
     returns its path. `complete` is written last."""
-    import h5py
-
-    from ..run.trajectory_files import write_encoded
+    from ..run.trajectory_files import fixed_texts, write_encoded
 
     group = BATCH_GROUPS[kind]
     name = name or next_batch_name(f, kind)
     path = f"{group}/{name}"
-    text = h5py.string_dtype()
     arrays = [("rows", batch.rows), ("crc", batch.checksums())] + [(n, batch.data[n]) for n in batch.fields]
     meta = {"fields": json.dumps(batch.fields), "scalar_fields": json.dumps(batch.scalar),
             "n_items": len(batch.keys), "kind": kind}
@@ -376,9 +375,8 @@ def write_batch(f, kind: str, batch: Batch, name: str | None = None) -> str:
     if path in f:
         del f[path]
     g = f.create_group(path)
-    g.create_dataset("key", data=np.array(batch.keys, dtype=object), dtype=text)
-    g.create_dataset("attrs", data=np.array([batch.text(i) for i in range(len(batch.keys))], dtype=object),
-                     dtype=text)
+    g.create_dataset("key", data=fixed_texts(batch.keys))
+    g.create_dataset("attrs", data=fixed_texts([batch.text(i) for i in range(len(batch.keys))]))
     write_encoded(f, path, meta, arrays, group=g)
     return path
 
@@ -391,13 +389,30 @@ def read_batch(g, data: bool = False) -> Batch:
     fields = json.loads(fields) if isinstance(fields, str) else list(fields)
     scalar = decode_attr("scalar_fields", g.attrs.get("scalar_fields", "[]"))
     scalar = json.loads(scalar) if isinstance(scalar, str) else list(scalar)
-    keys = [str(k) for k in g["key"].asstr()[()]]
-    texts = [str(t) for t in g["attrs"].asstr()[()]]
-    attrs = [{k: attr_from_json(v) for k, v in json.loads(t).items()} for t in texts]
+    keys = batch_keys(g)
+    texts = [str(t) for t in g["attrs"].asstr(errors="replace")[()]]
+    attrs = [_item_attrs(t) for t in texts]
     rows = np.asarray(g["rows"][()], dtype=np.int64)
     crc = np.asarray(g["crc"][()], dtype=np.uint32) if "crc" in g else None
     arrays = {n: (g[n][()] if data else g[n]) for n in fields}
     return Batch(keys, attrs, fields, scalar, rows.reshape(len(keys), len(fields)), arrays, texts, crc)
+
+
+def batch_keys(g) -> list:
+    """The keys of an open batch group, as str. Bytes that are not UTF-8 (damage) read as U+FFFD, so
+    that the damaged key alone fails its checksum, not the whole batch (a text that passes it is the
+    text written, whatever the decoding did)."""
+    return [str(k) for k in g["key"].asstr(errors="replace")[()]]
+
+
+def _item_attrs(text: str) -> dict:
+    """An item's attributes from its JSON text; {} where the text is not a JSON object (damage: the item
+    then fails its checksum and its check, and the batch's other items stay readable)."""
+    try:
+        d = json.loads(text)
+        return {k: attr_from_json(v) for k, v in d.items()} if type(d) is dict else {}
+    except (ValueError, TypeError, AttributeError):
+        return {}
 
 
 def checked_batch(g):
@@ -450,7 +465,7 @@ def delete_items(f, paths) -> None:
                 continue
             g = f[path]
             try:
-                keys = [str(k) for k in g["key"].asstr()[()]]
+                keys = batch_keys(g)
             except Exception:  # noqa: BLE001 - a damaged batch: the readers ignore it already
                 continue
             if not drop.intersection(keys):
@@ -469,5 +484,5 @@ def count_items(f, kind: str) -> int:
     for name in batch_names(f, kind):
         g = f[f"{BATCH_GROUPS[kind]}/{name}"]
         if bool(g.attrs.get("complete", False)) and "key" in g:
-            keys.update(str(k) for k in g["key"].asstr()[()])
+            keys.update(batch_keys(g))
     return len(keys)

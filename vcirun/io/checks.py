@@ -18,12 +18,12 @@ import h5py
 import numpy as np
 
 from ..core import record
-from ..run.trajectory_files import decode_attrs
+from ..run.trajectory_files import decode_attr, decode_attrs
 from .batches import BATCH_GROUPS, ITEM_GROUPS, checked_batch, data_problems
 from .errors import StorageError, os_text
 
 __all__ = ["FORMAT", "SCHEMA_VERSION", "LIBVER", "NUMERIC_KINDS", "run_problem", "reference_problem",
-           "scan_groups", "resolve_output"]
+           "scan_groups", "resolve_output", "root_format"]
 
 FORMAT = "vcirun-sweep"
 SCHEMA_VERSION = 2   # 2: runs and references in batches (vcirun.io.batches); 1: a group each
@@ -31,7 +31,8 @@ LIBVER = "latest"
 NUMERIC_KINDS = "biuf"  # the only array dtypes a results file or its journal holds
 
 # rows every version of the schema wrote: a run without one of them is damaged; later rows (e.g.
-# impact_impulse) are checked when present
+# impact_impulse) are checked when present, the friction rows also required where the run's
+# attribute friction_rows is true (where it is false they are left out: vcirun.core.record.FRICTION_ROWS)
 _ALWAYS_WRITTEN = {"t", "q", "p", "H", "Ed", "Hmod", "impact_step", "newton_iters", "impacts", "impact_q",
                    "impact_p_minus", "impact_p_plus", "partial_steps"}
 
@@ -62,6 +63,17 @@ def _shape_of(g, name):
     if d.dtype.kind not in NUMERIC_KINDS:
         return "not numeric"
     return tuple(d.shape)
+
+
+def root_format(f):
+    """(the open file's root attribute `format` as str ("" if it has none), None), or (None, why) where
+    the file has one that cannot be read (damaged attribute storage: the file is damaged, not foreign)."""
+    try:
+        if not h5py.h5a.exists(f.id, b"format"):
+            return "", None
+        return decode_attr("format", f.attrs["format"]), None
+    except Exception as e:  # noqa: BLE001 - checksum failures, unreadable headers
+        return None, " ".join(str(e).split())[:160]
 
 
 def _int_attr(a: dict, key: str):
@@ -113,7 +125,8 @@ def run_problem(g, attrs: dict | None = None) -> str | None:
                 or (f.only == "modified" and a.get("has_Hmod") is not True) or size[f.axis] is None \
                 or (f.contacts and mc is None):
             continue
-        want[f.name] = (f.shape(size[f.axis], n, mc or 0), f.name in _ALWAYS_WRITTEN)
+        want[f.name] = (f.shape(size[f.axis], n, mc or 0), f.name in _ALWAYS_WRITTEN or (
+            f.name in record.FRICTION_ROWS and a.get("friction_rows") is True))
     for name, (shape, required) in want.items():
         got = _shape_of(g, name)
         if got is None and not required:

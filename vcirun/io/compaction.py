@@ -16,7 +16,7 @@ from pathlib import Path
 
 import h5py
 
-from ..run.trajectory_files import encode_attr
+from ..run.trajectory_files import encode_attr, storable
 from .batches import count_items
 from .checks import LIBVER
 from .durable import child_setup, replace_with_copy
@@ -75,8 +75,8 @@ class BackgroundCompactor:
                     apply_journal(f, new, self.path)
                     sessions = [r for r in new.records if r.kind == "session"]
                     if sessions and isinstance(sessions[-1].header.get("history"), list):
-                        f.attrs["history"] = encode_attr("history", sessions[-1].header["history"])
-                        f.attrs["updated"] = str(sessions[-1].header.get("updated", now_iso()))
+                        f.attrs["history"] = storable(encode_attr("history", sessions[-1].header["history"]))
+                        f.attrs["updated"] = storable(str(sessions[-1].header.get("updated", now_iso())))
                     f.attrs["n_runs_complete"] = count_items(f, "run")
                     f.attrs["journal_applied"] = int(new.good_end)
 

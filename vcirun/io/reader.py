@@ -16,11 +16,13 @@ import h5py
 import numpy as np
 
 from ..run.trajectory import trajectory_from_group
-from ..run.trajectory_files import decode_attr, decode_attrs
-from .batches import BATCH_GROUPS, ITEM_GROUPS, batch_names, checked_batch, data_problems, item_path, split_item_path
-from .checks import FORMAT, reference_problem, run_problem, scan_groups
+from ..run.trajectory_files import decode_attrs
+from .batches import (BATCH_GROUPS, ITEM_GROUPS, batch_keys, batch_names, checked_batch, data_problems, item_path,
+                      split_item_path)
+from .checks import FORMAT, reference_problem, root_format, run_problem, scan_groups
 from .errors import StorageError, one_line, short
 from .journal import Journal, MemGroup, file_journal, overlay
+from .legacy_text import check_variable_text
 
 __all__ = ["RunInfo", "Results", "read_results", "results_of", "load_trajectory", "load_reference", "find_newest_results"]
 
@@ -71,10 +73,16 @@ def _open_read(path) -> h5py.File:
         f = h5py.File(path, "r")
     except Exception as e:  # noqa: BLE001 - OSError, or anything a damaged superblock raises
         raise StorageError(f"{path}: not a readable HDF5 file ({one_line(e)})") from None
-    try:
-        fmt = decode_attr("format", f.attrs.get("format", ""))
-    except Exception:  # noqa: BLE001
-        fmt = "?"
+    try:   # (a file of an earlier vcirun with variable-length text: read in a child with a deadline first)
+        check_variable_text(path, f, "rerun the sweep (it recomputes what is missing) or move the file away")
+    except StorageError:
+        f.close()
+        raise
+    fmt, why = root_format(f)
+    if fmt is None:
+        f.close()
+        raise StorageError(f"{path}: damaged results file (its root attribute format cannot be read: {why}); "
+                           "rerun the sweep with --force or move the file away")
     if fmt != FORMAT:
         f.close()
         raise StorageError(f"{path}: not a vcirun sweep results file (format {short(fmt)})")
@@ -187,7 +195,7 @@ def _find_group(path, f, group: str, key: str, problems: list | None = None):
         if not isinstance(g, h5py.Group) or not bool(g.attrs.get("complete", False)) or "key" not in g:
             continue
         try:
-            keys = [str(k) for k in g["key"].asstr()[()]]
+            keys = batch_keys(g)
         except Exception:  # noqa: BLE001 - a damaged batch: not trusted
             continue
         if key not in keys:

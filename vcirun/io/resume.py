@@ -13,9 +13,10 @@ import h5py
 
 from ..run.trajectory_files import decode_attr
 from .batches import split_item_path
-from .checks import FORMAT, scan_groups
+from .checks import FORMAT, root_format, scan_groups
 from .errors import StorageError, one_line, short
 from .journal import Journal, file_journal, overlay
+from .legacy_text import check_variable_text
 
 __all__ = ["Existing", "read_existing"]
 
@@ -40,6 +41,7 @@ def read_existing(path: Path, config_key: str) -> Existing:
                            "or rerun with --force to start over") from None
     try:
         with f:
+            check_variable_text(path, f, "move it away or rerun with --force to start over")
             return _read(f, path, config_key)
     except StorageError:
         raise
@@ -49,7 +51,10 @@ def read_existing(path: Path, config_key: str) -> Existing:
 
 
 def _read(f, path: Path, config_key: str) -> Existing:
-    fmt = decode_attr("format", f.attrs.get("format", ""))
+    fmt, why = root_format(f)
+    if fmt is None:
+        raise StorageError(f"{path}: damaged results file (its root attribute format cannot be read: {why}); "
+                           "move it away or rerun with --force to start over")
     if fmt != FORMAT:
         raise StorageError(f"{path}: not a vcirun sweep file (format {short(fmt)}); choose another "
                            "--output or rerun with --force to overwrite it")

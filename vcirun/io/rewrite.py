@@ -14,11 +14,12 @@ from pathlib import Path
 import h5py
 
 from ..core.sizes import format_bytes
-from ..run.trajectory_files import encode_attr, group_attrs
+from ..run.trajectory_files import encode_attr, group_attrs, storable
 from .batches import count_items, delete_items, pack, stamped, write_batch
 from .checks import FORMAT, LIBVER, SCHEMA_VERSION
 from .errors import StorageError, one_line
 from .journal import apply_journal
+from .legacy_text import MARK, MARK_VALUE, fix_variable_text, has_variable_text
 from .provenance import now_iso
 
 __all__ = ["Pending", "Rewrite", "free_space_error", "failure"]
@@ -58,11 +59,14 @@ class Rewrite:
         """Write everything that changes into the copy `tmp`."""
         with h5py.File(tmp, "w" if self.fresh else "a", libver=LIBVER) as f:
             if self.fresh:
-                f.attrs["format"] = FORMAT
-                f.attrs["config_key"] = self.config_key
+                f.attrs["format"] = storable(FORMAT)
+                f.attrs["config_key"] = storable(self.config_key)
+            elif has_variable_text(f):   # a file of an earlier vcirun (its text was read in time at the start)
+                fix_variable_text(f)
+            f.attrs[MARK] = storable(MARK_VALUE)   # every text of the file is fixed-length
             f.attrs["schema_version"] = SCHEMA_VERSION  # what this writer adds is in batches
             for key, value in self.root_attrs.items():
-                f.attrs[key] = encode_attr(key, value)
+                f.attrs[key] = storable(encode_attr(key, value))
             delete_items(f, self.deletions)
             for j in self.journals:
                 apply_journal(f, j, self.path)
@@ -71,10 +75,10 @@ class Rewrite:
                 items = [p.item(stamp) for p in self.pending if p.kind == kind]
                 for b in pack(items):
                     write_batch(f, kind, b)
-            f.attrs["history"] = encode_attr("history", self.history)
-            f.attrs["updated"] = now_iso()
+            f.attrs["history"] = storable(encode_attr("history", self.history))
+            f.attrs["updated"] = storable(now_iso())
             f.attrs["n_runs_complete"] = count_items(f, "run")
-            f.attrs["journal"] = self.token
+            f.attrs["journal"] = storable(self.token)
             f.attrs["journal_applied"] = 0  # a new journal (or none): nothing of it is in the file yet
             for hook in self.final_hooks:
                 hook(f)

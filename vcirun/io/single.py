@@ -19,8 +19,11 @@ def is_trajectory_file(path) -> bool:
         return False
     import h5py
 
+    from .legacy_text import check_variable_text
+
     try:
         with h5py.File(path, "r") as f:
+            check_variable_text(path, f, "write it again")   # (damaged variable-length text: not one)
             fmt = f.attrs.get("format", "")
             fmt = fmt.decode() if isinstance(fmt, bytes) else str(fmt)
             return fmt == TRAJECTORY_FORMAT and "trajectory" in f
@@ -30,9 +33,15 @@ def is_trajectory_file(path) -> bool:
 
 def read_single(path):
     """The Trajectory of a one-run file (StorageError naming the file if it cannot be read)."""
+    import h5py
+
     from ..run.trajectory import read_trajectory
+    from .legacy_text import check_variable_text
 
     try:
+        # a file of an earlier vcirun holds variable-length text: read in a child with a deadline first
+        with h5py.File(path, "r") as f:
+            check_variable_text(path, f, "write it again with vcirun simulate --output")
         return read_trajectory(path)
     except (OSError, KeyError, ValueError, TypeError) as e:
         raise StorageError(f"{path}: cannot read the run ({one_line(e)}); write it again with vcirun simulate "

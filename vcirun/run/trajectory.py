@@ -273,10 +273,10 @@ class Trajectory:
 
             attrs, arrays = trajectory_files.trajectory_payload(self)
             attrs["coordinates"] = self.coordinate_names
-            with h5py.File(path, "w") as f:
-                f.attrs["format"] = "vcirun-trajectory"
+            with h5py.File(path, "w", libver=trajectory_files.LIBVER) as f:
+                f.attrs["format"] = trajectory_files.fixed_text("vcirun-trajectory")
                 trajectory_files.write_group(f, "trajectory", {k: v for k, v in attrs.items() if k != "coordinates"}, arrays)
-                f["trajectory"].attrs["coordinates"] = np.array(self.coordinate_names, dtype=h5py.string_dtype())
+                f["trajectory"].attrs["coordinates"] = trajectory_files.fixed_texts(self.coordinate_names)
         elif suffix == ".nc":
             self.to_xarray().to_netcdf(path)
         elif suffix == ".csv":
@@ -355,6 +355,10 @@ def trajectory_from_group(g):
     for f in record.FIELDS:  # one per row of the run record; a row not stored comes back empty
         if f.only is not None:
             arrays[f.name] = g[f.name][()] if f.name in g else None
+            continue
+        if f.name in record.FRICTION_ROWS and f.name not in g and a.get("friction_rows") is False:
+            # left out where the run had no friction data: its fill values, as the run had them
+            arrays[f.name] = trajectory_files.friction_fill(f.name, g, a.get("n_contacts"))
             continue
         dt = np.uint8 if f.dtype == "bool" else np.dtype(f.dtype)
         value = arr(f.name, f.shape(0, n, 0), dt)

@@ -44,8 +44,57 @@ def encode_attr(key, value):
     return value
 
 
+def fixed_text(value: str) -> np.ndarray:
+    """`value` as HDF5 stores vcirun's text: a 0-d array of h5py's fixed-length UTF-8 string type, as
+    long as its UTF-8 bytes (at least 1). Fixed-length strings live in the object that holds them (an
+    object header, or a dataset's data); variable-length ones live in the file's global heap, whose
+    damaged collections libhdf5 can loop on without returning, so no file vcirun writes has any.
+    h5py reads it back as bytes (`decode_attr`, `text_of` turn them into str)."""
+    import h5py
+
+    b = _clean_text(str(value)).encode("utf-8")
+    return np.array(b, dtype=h5py.string_dtype("utf-8", max(1, len(b))))
+
+
+def fixed_texts(values) -> np.ndarray:
+    """A sequence of str as one array of h5py's fixed-length UTF-8 string type, as long as the longest
+    (at least 1 byte; shorter ones padded with NUL, which h5py and numpy strip on reading)."""
+    import h5py
+
+    arr = np.asarray(values, dtype=object)
+    enc = [_clean_text(str(v)).encode("utf-8") for v in arr.ravel()]
+    n = max([1, *map(len, enc)])
+    return np.array(enc, dtype=h5py.string_dtype("utf-8", n)).reshape(arr.shape)
+
+
+def storable(value):
+    """An encoded attribute value as vcirun writes it: text (str, bytes, arrays of them) as fixed-length
+    strings (`fixed_text`), anything else unchanged."""
+    if isinstance(value, (str, np.str_)):
+        return fixed_text(value)
+    if isinstance(value, (bytes, np.bytes_)):
+        return np.array(bytes(value), dtype=f"S{max(1, len(value))}")
+    if isinstance(value, (list, tuple)) and value and all(isinstance(v, str) for v in value):
+        return fixed_texts(value)
+    if isinstance(value, np.ndarray) and (value.dtype.kind == "U" or (
+            value.dtype == object and all(isinstance(v, str) for v in value.ravel()))):
+        return fixed_texts(value)
+    return value
+
+
+def text_of(value) -> str:
+    """A stored text value as str: fixed-length strings come back as bytes (UTF-8), variable-length
+    ones (files written before every string was fixed-length) as str."""
+    if isinstance(value, np.ndarray) and value.ndim == 0:
+        value = value[()]
+    if isinstance(value, (bytes, np.bytes_)):
+        return bytes(value).decode("utf-8", "replace")
+    return str(value)
+
+
 def _clean_text(s: str) -> str:
-    """Text HDF5 can store: no NUL (variable-length strings end at one) and valid UTF-8 (no lone surrogates)."""
+    """Text HDF5 can store: no NUL (HDF5 strings end at one; fixed-length ones are padded with them) and
+    valid UTF-8 (no lone surrogates)."""
     if "\x00" in s:
         s = s.replace("\x00", "\ufffd")
     try:
@@ -102,6 +151,11 @@ def decode_attrs(attrs) -> dict:
 
 
 
+# HDF5 library version bounds of the files written here: object headers of HDF5 1.8 or later, whose
+# dense attribute storage holds an attribute of any size (a fixed-length text attribute is stored
+# whole in its object; the 1.6 header format refuses one over 64 KiB)
+LIBVER = ("v108", "latest")
+
 _FLOAT_ATTRS = {"beta", "l2_error", "fail_time", "H0", "max_abs_dH", "H_range", "Ed_range", "Hmod_range",
                 "accuracy", "rtol", "ref_h", "wall_time", "wall_time_call", "T", "T_requested", "h"}
 
@@ -136,15 +190,17 @@ def trajectory_payload(traj, *, store_arrays: bool | int = True) -> tuple[dict, 
         "n_contacts": _n_contacts(traj),
         "newton_iters_total": int(np.sum(traj.newton_iters)) if len(traj.newton_iters) else 0,
         "has_Hmod": traj.Hmod is not None, "has_trajectory": every > 0, "store_every": every,
+        "friction_rows": has_friction_data(traj),
         "tolerances": dict(traj.tolerances), "options": dict(traj.options),
     }
     attrs.update(energy_summary(traj))
-    arrays = {name: getattr(traj, name) for name in IMPACT_ARRAYS}
+    left_out = () if attrs["friction_rows"] else record.FRICTION_ROWS
+    arrays = {name: getattr(traj, name) for name in IMPACT_ARRAYS if name not in left_out}
     rows = thinned_rows(len(traj.t), every) if every > 1 else None
     if every:
         for name in TRAJECTORY_ARRAYS:
             value = getattr(traj, name)
-            if value is None:
+            if value is None or name in left_out:
                 continue
             if rows is not None:
                 if name in record.FIELD and record.FIELD[name].axis == "step":
@@ -154,6 +210,35 @@ def trajectory_payload(traj, *, store_arrays: bool | int = True) -> tuple[dict, 
                 value = np.asarray(value, dtype=np.uint8)  # 0/1: portable, unlike HDF5's bool enum
             arrays[name] = value
     return attrs, {k: np.asarray(v) for k, v in arrays.items()}
+
+
+def has_friction_data(traj) -> bool:
+    """Whether some friction row of a run (vcirun.core.record.FRICTION_ROWS) differs from its fill value
+    (zero, bit for bit: -0.0 differs; for the mode-change rows: any entry). Where none does, a results
+    file leaves them out and `friction_fill` gives them back exactly; never true for a frictionless
+    system."""
+    for name in record.FRICTION_ROWS:
+        a = getattr(traj, name, None)
+        if a is None or not np.size(a):
+            continue
+        if record.FIELD[name].axis == "mode" or np.any(np.ascontiguousarray(a).view(np.uint8)):
+            return True
+    return False
+
+
+def friction_fill(name: str, g, n_contacts: int | None = None) -> np.ndarray:
+    """The fill value of friction row `name` for a run stored without its friction rows (attribute
+    `friction_rows` false): zeros as long as the stored row on the same axis (contact_active for the
+    grid, newton_iters for the steps, impacts; empty where that is not stored), no mode changes."""
+    f = record.FIELD[name]
+    dt = np.dtype(f.dtype)
+    like = {"grid": "contact_active", "step": "newton_iters", "impact": "impacts"}.get(f.axis)
+    if like is None or like not in g:
+        return np.zeros(f.shape(0, 0, 0 if n_contacts is None else n_contacts), dt)
+    shape = tuple(np.shape(g[like]))
+    if f.contacts and len(shape) < 2:
+        shape = (shape[0], 0 if n_contacts is None else n_contacts)
+    return np.zeros(shape[:1] + (shape[1:2] if f.contacts else ()), dt)
 
 
 def group_attrs(attrs: dict) -> dict:
@@ -196,13 +281,14 @@ def write_encoded(f: "h5py.File", path: str, enc_attrs: dict, arrays, group=None
 def _write_attr(gid, key: str, value, h5) -> None:
     import h5py
 
-    if isinstance(value, str):
-        a, (htype, mtype) = np.array(value, dtype=h5.text), h5.text_types
+    if isinstance(value, (str, bytes)):
+        a = storable(value)
+        htype = mtype = h5py.h5t.py_create(a.dtype, logical=True)
     elif isinstance(value, (bool, int, float, np.ndarray, np.generic)) and np.asarray(value).dtype.kind in "biuf":
         a = np.asarray(value, order="C")
         htype, mtype = h5.types(a.dtype)
-    else:  # anything else (bytes, ...): h5py's own conversion
-        h5py.AttributeManager(_Parent(gid))[key] = value
+    else:  # anything else (arrays of text, ...): h5py's own conversion
+        h5py.AttributeManager(_Parent(gid))[key] = storable(value)
         return
     name = key.encode()
     if h5py.h5a.exists(gid, name):
@@ -224,15 +310,13 @@ def _H5():
 
 class _H5Types:
     """h5py's types for numpy dtypes (file type: logical, memory type: bit-level, as its high-level
-    calls make them), its variable-length UTF-8 text type, and its default dataset creation
-    properties (no filters, no modification times), made once."""
+    calls make them) and its default dataset creation properties (no filters, no modification
+    times), made once."""
 
     def __init__(self):
         import h5py
 
         self._types = {}
-        self.text = h5py.string_dtype()
-        self.text_types = (h5py.h5t.py_create(self.text, logical=True), h5py.h5t.py_create(self.text))
         self.dcpl = h5py.h5p.create(h5py.h5p.DATASET_CREATE)
         self.dcpl.set_obj_track_times(False)
 
