@@ -410,3 +410,88 @@ def impact_energy_check(method, rows, energy_name, theory, scale) -> Check:
                      "as the largest smooth step", shown, data)
     v = WARN if slope >= theory - 2 * ENERGY_TOL else FAIL
     return Check("energy across impacts", method, v, slope, thr, expected, note, shown, data)
+
+
+# --- friction -------------------------------------------------------------------------------------
+
+MODE_KIND = {1: "slip -> stick", 2: "stick -> slip", 3: "slip reversed"}
+
+
+def mode_events_check(method, rows, theory, T) -> Check:
+    """rows: dicts {h, n_changes, n_ref, time_error, status, first_difference} (time_error: max |t_i -
+    t_i,ref| when the run's mode changes are the reference's: the same count, contacts and kinds in
+    the same order; first_difference: where they part, else ""). Stick/slip transitions are located
+    events like impacts: judged as `impact_events_check` judges impact times (every h must find the
+    reference's sequence: a different one on the finer half of the ladder fails, on the coarser half
+    warns; the times converge at the method's order or faster, one-sided)."""
+    name = "mode-change times"
+    if not rows:
+        return skip(name, method, "no constrained run")
+    n_ref = rows[0]["n_ref"]
+    if n_ref == 0 and all(r["n_changes"] == 0 for r in rows if r["status"] == "ok"):
+        return skip(name, method, "neither the exact reference nor any run changes a friction mode on [0, T] "
+                    "(no stick/slip transition to time)")
+    good = [r for r in rows if r["status"] == "ok" and not r["first_difference"]]
+    bad = [r for r in rows if r not in good]
+    excluded = [(r["h"], r["first_difference"] if r["status"] == "ok" else f"status {r['status']}") for r in bad]
+    finer = sorted(r["h"] for r in rows)[: len(rows) // 2]
+    wrong = [r for r in bad if r["h"] in finer]
+    if n_ref == 0:
+        c = Check(name, method, FAIL if wrong else WARN, float("nan"), "0 mode changes at every h",
+                  "the reference's mode changes", "", [])
+    else:
+        c = order_check(name, method, [r["h"] for r in good], [r["time_error"] for r in good], theory,
+                        scale=T, one_sided=True, quantity="max |t_i - t_i,ref|", excluded=excluded)
+    c.note = f"the reference has {n_ref} mode changes; " + c.note
+    if wrong:
+        r = wrong[0]
+        c.verdict, c.value = FAIL, float(r["n_changes"])
+        c.threshold = f"the reference's {n_ref} mode changes at every h"
+        c.note = (f"at h = {r['h']:.4g} the run's mode changes differ from the exact reference's "
+                  f"({r['first_difference'] or 'status ' + r['status']}); " + c.note)
+    elif bad and c.verdict == PASS:
+        c.verdict = WARN
+        c.note = (f"the mode changes differ from the reference's at the coarse h = "
+                  f"{', '.join(f'{x[0]:.4g}' for x in excluded)} (excluded: the ladder starts too coarse); " + c.note)
+    return c
+
+
+def energy_account_check(method, rows, theory, scale) -> Check:
+    """rows: dicts {h, rest (max |rest| over the run: H - H0 less the impact law's loss, the friction
+    work and the forcing work of its energy account), law, friction (the totals of those terms)}.
+
+    The friction work and the law's losses are the model's; what the account leaves is the method's
+    integration error, which must vanish at the method's order p (one-sided: a faster fall passes).
+    Passes also where every rest is at round-off (a motion the method integrates exactly); a friction
+    work that is not what the step's forces did leaves an O(1) rest and fails."""
+    name = "energy account"
+    rows = sorted(rows, key=lambda r: -r["h"])
+    if not rows:
+        return skip(name, method, "no run finished")
+    hs = [r["h"] for r in rows]
+    rest = [r["rest"] for r in rows]
+    level = NEAR_ROUND_OFF * EPS * max(scale, 1e-300)
+    shown_note = (f"friction work {fmt(rows[-1]['friction'])}, impact law {fmt(rows[-1]['law'])} at h = "
+                  f"{rows[-1]['h']:.4g} (the model's: not error)")
+    if all(np.isfinite(x) and x <= level for x in rest):
+        c = Check(name, method, PASS, float(max(rest)), f"slope >= {theory - ORDER_TOL:g} or round-off",
+                  f"order {theory:g} or more", f"the rest is at round-off at every h (largest {max(rest):.2e}, "
+                  f"energy ~ {scale:.3g}); {shown_note}")
+    else:
+        c = order_check(name, method, hs, rest, theory, scale=scale, one_sided=True,
+                        quantity="max |rest|")
+        c.note = f"{shown_note}; " + c.note
+        if c.verdict == WARN and all(np.isfinite(x) for x in rest) and rest[-1] > ASYMPTOTIC_REL * scale \
+                and rest[-1] >= 0.5 * rest[0]:
+            # an O(1) rest that does not fall with h: the account does not balance (not a coarse ladder)
+            c.verdict = FAIL
+            c.note = (f"the rest does not fall with h ({fmt(rest[0])} at h = {hs[0]:.4g}, {fmt(rest[-1])} at "
+                      f"h = {hs[-1]:.4g}): the recorded friction work or impact losses are not what the run's "
+                      "forces did; " + c.note)
+    c.rows = [{"h": f"{r['h']:.4g}", "max |rest|": fmt(r["rest"]), "friction work": fmt(r["friction"]),
+               "impact law": fmt(r["law"])} for r in rows]
+    c.data.setdefault("h", hs)
+    c.data.setdefault("err", rest)
+    c.data.setdefault("mask", [True] * len(hs))
+    c.data.setdefault("theory", theory)
+    return c

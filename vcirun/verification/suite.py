@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..run.accounts import LAW
+from ..run.accounts import FRICTION, LAW
 from . import checks as ck
 from .fd import Probe, check_kernels, map_jacobian, symplecticity_defect
 from .harness import StepFailed, exact_smooth, smooth_until_failure, step
@@ -206,6 +206,8 @@ class _Session:
             self.res.notes.append("forced system: the exact smooth solution adds the declared generalized force to "
                                   "Hamilton's equations (sympy.lambdify of the declaration)")
         self.tier, self.loader = tier, loader
+        self.friction = bool(sysm.has_friction)   # the mode-change and energy-account checks
+        self.ref_modes = []
         # the runs' work in steps (a smooth and an impact run per step size and method), for the estimate
         self.steps_total = 2 * len(self.meths) * sum(grid_count(x, T) for x in self.hs)
         self.steps_done, self.run_seconds, self.said_at, self.runs = 0, 0.0, 0.0, 0
@@ -216,7 +218,8 @@ class _Session:
         self.hyper = []   # (source, t, q, eigenvalues of M or None, h of a run or None)
 
     def declared(self):
-        """numpy M(q), V(q), phi(q) of the declaration (sympy.lambdify, independent of code generation)."""
+        """numpy M(q), V(q), phi(q) of the declaration (sympy.lambdify, independent of code generation);
+        with friction also the slip rows W_t(q) and the coefficients (mu, mu_s) at the parameters."""
         if not hasattr(self, "_declared"):
             f, prm = self.sysm.numpy_functions(), list(self.prm)
             if "phis" in f:
@@ -225,7 +228,14 @@ class _Session:
                 phis = lambda q: np.array([f["phi"](list(q), prm)], float)  # noqa: E731
             self._declared = {"M": lambda q: np.array(f["M"](list(q), prm), float),
                               "V": lambda q: float(f["V"](list(q), prm)), "phis": phis}
+            if self.sysm.has_friction:   # the slip rows and the coefficients, for sys_slips and sys_friction
+                self._declared["slips"] = lambda q: self.sysm.slip_matrix_value(q, self.prm)
+                self._declared["friction"] = self.sysm.friction_values(self.prm)
         return self._declared
+
+    @property
+    def names(self):
+        return [c.name for c in self.sysm.constraints]
 
     def add(self, check):
         self.res.checks.append(check)
@@ -331,8 +341,31 @@ class _Session:
             if self.window.cut:
                 self.res.notes.append("impact checks on a window: " + self.window.note)
                 note += f"; impact checks on [0, {self.window.T:g}] (the motion comes to rest: see the notes)"
+            if self.friction:
+                note += self.friction_reference(ref)
         self.add(ck.Check("reference", None, v, acc, "accuracy <= 1e-8 max |q|",
                           "an exact reference far more accurate than the methods", note, rows))
+
+    def friction_reference(self, ref) -> str:
+        """The reference's mode changes on the window (self.ref_modes), a note where its motion comes to
+        rest with every contact stuck, or where it ends on Painleve's paradox; returns the reference
+        check's addition to its note."""
+        from .friction import reference_mode_changes, rest_time
+
+        Tw = self.window.T
+        self.ref_modes = reference_mode_changes(ref, Tw)
+        add = f"; {len(self.ref_modes)} friction mode changes on [0, {Tw:g}]"
+        if getattr(ref, "status", "ok") != "ok":
+            self.res.notes.append(f"the exact reference ends with status {ref.status}: {ref.message}")
+        t_rest = rest_time(ref, self.base, self.prm, self.n, self.T)
+        if t_rest is not None:
+            who = ", ".join(self.sysm.constraints[j].name for j in ref.mode_intervals[-1][2])
+            self.res.notes.append(
+                f"the exact motion comes to rest at t = {t_rest:.6g} ({who} stuck) and stays at rest to T = "
+                f"{self.T:g}: a run sticks at its own located mode change and stays at rest, so the checks run "
+                "through the rest (from there on a run's error is the error of the state it stopped in)")
+            add += f"; at rest from t = {t_rest:.6g}"
+        return add
 
     def choose_probes(self):
         """The start state and N_PROBES states along the exact motion (or a run, if there is none)."""
@@ -383,7 +416,8 @@ class _Session:
         self.add(ck.symplecticity_check(name, rows, self.force is not None))
         self.smooth_order(meth)
         if meth.reset is None:    # a bare discrete Lagrangian: smooth integration only
-            for nm in ("L2 order through impacts", "impact times", "energy across impacts"):
+            for nm in ("L2 order through impacts", "impact times", "energy across impacts") + (
+                    ("mode-change times", "energy account") if self.friction else ()):
                 self.add(ck.skip(nm, name, f"{name} integrates the smooth system (no reset): no impacts to check"))
             return
         self.impact_checks(meth)
@@ -418,17 +452,19 @@ class _Session:
         conservation order."""
         name, hs, ref = meth.name, self.hs, self.ref
         mcva = meth.has_modified_energy
+        p_imp = _impact_order(meth)
         Tw = self.window.T
         if self.ref_ok and self.window.cut and self.window.impacts == 0:
             why = ("no impact of the exact motion lies before the window in which the coarsest h resolves its "
                    f"bounces ({self.window.note}): use a smaller h ladder")
             for nm in ("L2 order through impacts", "impact times", "energy across impacts") + (
-                    ("modified Hamiltonian",) if mcva else ()):
+                    ("modified Hamiltonian",) if mcva else ()) + (
+                    ("mode-change times", "energy account") if self.friction else ()):
                 self.add(ck.skip(nm, name, why))
             return
         span = f"h = {hs[0]:g} .. {hs[-1]:g}" + (f" on [0, {Tw:g}]" if self.window.cut else "")
         self.say(f"{name}: runs through impacts over {span}")
-        l2_h, l2, excl, ev_rows, en_rows = [], [], [], [], []
+        l2_h, l2, excl, ev_rows, en_rows, mode_rows, acc_rows = [], [], [], [], [], [], []
         hm_h, hm_var, hm_scale, hm_excl = [], [], [], []
         ref_imp = np.asarray(ref.impacts)[np.asarray(ref.impacts) <= Tw] if self.ref_ok else None
         for x in hs:
@@ -438,6 +474,8 @@ class _Session:
             if mcva:
                 if tr.status == "ok" and np.all(np.isfinite(tr.Hmod)):
                     hm = tr.Hmod - acc.term(LAW).series   # H~ plus the law's losses so far
+                    if acc.term(FRICTION) is not None:
+                        hm = hm - acc.term(FRICTION).series   # ... and the friction work
                     hm_h.append(x)
                     hm_var.append(float(np.ptp(hm)))
                     hm_scale.append(float(np.mean(np.abs(tr.Hmod))))
@@ -457,6 +495,16 @@ class _Session:
 
                     l2_h.append(x)
                     l2.append(l2_error(tr, ref))
+            if self.friction and self.ref_ok:
+                from .friction import compare, run_mode_changes
+
+                terr, diff = compare(run_mode_changes(tr, Tw), self.ref_modes, self.names)
+                mode_rows.append({"h": x, "n_changes": len(run_mode_changes(tr, Tw)), "n_ref": len(self.ref_modes),
+                                  "time_error": terr, "status": tr.status, "first_difference": diff})
+            if self.friction and acc is not None:
+                rest = np.asarray(acc.rest_series, float)
+                acc_rows.append({"h": x, "rest": float(np.max(np.abs(rest))) if rest.size else 0.0,
+                                 "law": acc.total(LAW), "friction": acc.total(FRICTION)})
             if acc is not None:
                 dE = _energy_changes(tr, acc, mcva and self.force is None)
                 imp = np.asarray(tr.impact_step, bool)[: dE.size]
@@ -465,6 +513,18 @@ class _Session:
         if mcva:
             if self.force is not None:
                 self.add(ck.skip("modified Hamiltonian", name, "forced system: H~ is not conserved"))
+            elif self.friction:
+                # friction is a non-conservative force: H~ changes by the friction work, which the loop
+                # sums at the method's order (docs/derivations/friction.md, "Energy")
+                c = ck.order_check("modified Hamiltonian", name, hm_h, hm_var, p_imp,
+                                   scale=float(np.mean(hm_scale)) if hm_scale else 1.0, tol=ck.MH_TOL,
+                                   one_sided=True, quantity="max - min of H~ less the losses", excluded=hm_excl)
+                c.expected = (f"variation ~ h^{p_imp:g} or smaller (friction: H~ less the friction work and the "
+                              f"law's losses; h^{meth.mh_order} where friction does no work)")
+                c.note += (" (along the runs through impacts, with the impact law's losses and the friction work "
+                           "added back: friction is a non-conservative force, H~ changes by its work, which the "
+                           f"held steps sum at order {p_imp:g})")
+                self.add(c)
             else:
                 c = ck.order_check("modified Hamiltonian", name, hm_h, hm_var, meth.mh_order,
                                    scale=float(np.mean(hm_scale)) if hm_scale else 1.0, tol=ck.MH_TOL,
@@ -473,7 +533,6 @@ class _Session:
                 c.note += (" (along the runs through impacts, with the impact law's losses added back: R^MCVA "
                            "conserves H~ less the law's loss, the smooth steps vary it)")
                 self.add(c)
-        p_imp = _impact_order(meth)
         if self.ref_ok:
             c = ck.order_check("L2 order through impacts", name, l2_h, l2, p_imp,
                                scale=self.ref_scale * np.sqrt(Tw), quantity="L2 error", excluded=excl)
@@ -482,16 +541,22 @@ class _Session:
                 c.note = f"runs excluded: {'; '.join(f'h = {x:g}: {why}' for x, why in excl)}; " + c.note
             self.add(c)
             self.add(ck.impact_events_check(name, ev_rows, p_imp, Tw))
+            if self.friction:
+                self.add(ck.mode_events_check(name, mode_rows, p_imp, Tw))
         else:
-            for nm in ("L2 order through impacts", "impact times"):
+            for nm in ("L2 order through impacts", "impact times") + (("mode-change times",) if self.friction else ()):
                 self.add(ck.skip(nm, name, self.ref_reason))
         forced = self.force is not None
         e_scale = float(np.mean(hm_scale)) if (mcva and hm_scale and not forced) else abs(self.H0) or 1.0
         energy = "H - W" if forced else ("H~" if mcva else "H")
         c = ck.impact_energy_check(name, en_rows, energy, p_imp, e_scale)
         c.note += ("; the change is taken less the impact law's loss" + (" and the forcing work" if forced else "")
-                   + " of the step (the energy account)")
+                   + (" and the friction work" if self.friction else "") + " of the step (the energy account)"
+                   + ("; impact steps are the steps with an event: impacts and friction mode changes"
+                      if self.friction else ""))
         self.add(c)
+        if self.friction:
+            self.add(ck.energy_account_check(name, acc_rows, p_imp, abs(self.H0) or 1.0))
 
     # --- hyperregularity ---------------------------------------------------------------------------
     def hyperregularity(self):
