@@ -294,6 +294,26 @@ def order_check(name, method, hs, errs, theory, *, scale=1.0, tol=ORDER_TOL, one
                  f"{finest / scale:.2e} of the solution's size", rows, data)
 
 
+def converges_elsewhere(c, hs, errs, diffs, scale) -> None:
+    """Turn the warning `c` of an order check against an exact solution into a failure where the runs
+    converge among themselves but not to it: the errors stay large (above ASYMPTOTIC_REL of `scale`)
+    and do not fall (the finest at least half the coarsest) while the differences between successive
+    runs (`diffs`, coarse to fine, one fewer than the runs) fall by at least 4x and end below a tenth
+    of the finest error. A coarse ladder does not do that (its runs differ as much as they err): the
+    method converges to another motion than the declared system's."""
+    hs, errs, d = np.asarray(hs, float), np.asarray(errs, float), np.asarray(diffs, float)
+    if errs.size < 3 or d.size != errs.size - 1 or not (np.all(np.isfinite(errs)) and np.all(np.isfinite(d))):
+        return
+    order = np.argsort(hs)[::-1]
+    e = errs[order]
+    if not (e[-1] > ASYMPTOTIC_REL * scale and e[-1] >= 0.5 * e[0] and d[-1] <= 0.25 * d[0] and d[-1] < 0.1 * e[-1]):
+        return
+    c.verdict = FAIL
+    c.note = (f"the runs converge among themselves (successive differences {', '.join(fmt(x) for x in d)}) but not "
+              f"to the exact solution (errors {', '.join(fmt(x) for x in e)}): the method integrates another motion "
+              "than the declared system's (smaller h would not help)")
+
+
 # --- symplecticity -----------------------------------------------------------------------------------
 
 def symplecticity_check(method, rows, forced) -> Check:

@@ -464,7 +464,7 @@ class _Session:
             return
         span = f"h = {hs[0]:g} .. {hs[-1]:g}" + (f" on [0, {Tw:g}]" if self.window.cut else "")
         self.say(f"{name}: runs through impacts over {span}")
-        l2_h, l2, excl, ev_rows, en_rows, mode_rows, acc_rows = [], [], [], [], [], [], []
+        l2_h, l2, excl, ev_rows, en_rows, mode_rows, acc_rows, coarse = [], [], [], [], [], [], [], []
         hm_h, hm_var, hm_scale, hm_excl = [], [], [], []
         ref_imp = np.asarray(ref.impacts)[np.asarray(ref.impacts) <= Tw] if self.ref_ok else None
         for x in hs:
@@ -495,6 +495,7 @@ class _Session:
 
                     l2_h.append(x)
                     l2.append(l2_error(tr, ref))
+                    coarse.append(_on_coarsest(tr, x, Tw, self.hs[0]))
             if self.friction and self.ref_ok:
                 from .friction import compare, run_mode_changes
 
@@ -539,6 +540,8 @@ class _Session:
             if excl and c.verdict == ck.PASS:
                 c.verdict = ck.WARN
                 c.note = f"runs excluded: {'; '.join(f'h = {x:g}: {why}' for x, why in excl)}; " + c.note
+            if c.verdict == ck.WARN:
+                ck.converges_elsewhere(c, l2_h, l2, _successive_differences(coarse), self.ref_scale * np.sqrt(Tw))
             self.add(c)
             self.add(ck.impact_events_check(name, ev_rows, p_imp, Tw))
             if self.friction:
@@ -597,6 +600,27 @@ def _energy_changes(tr, acc, modified):
     for term in acc.terms:
         E = E - term.series
     return np.abs(np.diff(E))
+
+
+def _on_coarsest(tr, h, T, h0):
+    """The run's q at the points of the coarsest grid on [0, T] (None where its grid does not hold
+    them: a ladder that is not nested)."""
+    from ..core.grid import grid_count
+
+    N, N0 = grid_count(h, T), grid_count(h0, T)
+    if N0 == 0 or N % N0 or len(tr.q) != N + 1:
+        return None
+    return np.asarray(tr.q[:: N // N0], float)
+
+
+def _successive_differences(Q):
+    """max |q_h - q_h'| over the coarsest grid between consecutive runs of the ladder (coarse to fine;
+    nan where a run is not on that grid)."""
+    out = []
+    for a, b in zip(Q[:-1], Q[1:]):
+        ok = a is not None and b is not None and a.shape == b.shape
+        out.append(float(np.max(np.abs(a - b))) if ok else float("nan"))
+    return out
 
 
 def _thin(tr, k=400):
