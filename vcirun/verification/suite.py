@@ -146,6 +146,14 @@ def verify(system, methods=None, *, q0=None, p0=None, beta=None, T=5.0, h=None, 
     (the energy account: restitution, plastic holds). A motion that comes to rest is checked through
     impacts on a window before it settles (vcirun.verification.window; the notes say so).
 
+    Systems with Coulomb friction: the derivative table checks sys_slips and sys_friction against the
+    declaration and sys_dslips against FD of sys_slips; "mode-change times" compares each run's
+    stick/slip transitions (count, contacts, kinds, times at the method's order) with the exact
+    reference's; "energy account" judges what the run's account leaves after the friction work and
+    the impact law's loss (the integration error: order p); the MCVA family's H~ is taken less the
+    friction work too (varying at order p: friction is a non-conservative force). A motion that
+    comes to rest with every contact stuck is said to in the notes (the checks run through the rest).
+
     Forced systems: the exact smooth solution adds the declared force to Hamilton's equations;
     vcirun.reference is compared with it before the first impact (if they disagree, the impact checks
     are skipped with that reason); the energy check balances the forces' work too; symplecticity and
