@@ -103,6 +103,35 @@ def test_a_hold_at_a_plastic_impact_is_no_accumulation():
     assert w.cut and w.T == pytest.approx(0.52) and w.impacts == 2, w
 
 
+def test_mode_change_sequences():
+    """The reference's transitions take their kind from the mode they leave (slip reversed, slip ->
+    stick, stick -> slip); a run's change within round-off of t = 0 (a contact starting at rest whose
+    slip direction the run took from a round-off slip velocity) is left out unless the reference has
+    one there; sequences differing in kind name the first difference."""
+    from types import SimpleNamespace as NS
+
+    from vcirun.verification.friction import compare, reference_mode_changes, run_mode_changes
+
+    ref = NS(transitions=[(1.0, 0, 1), (2.0, 0, 0), (3.0, 0, -1)],
+             mode_intervals=[(0.0, 1.0, (0,), (-1,)), (1.0, 2.0, (0,), (1,)), (2.0, 3.0, (0,), (0,)),
+                             (3.0, 4.0, (0,), (-1,))])
+    want = reference_mode_changes(ref, 4.0)
+    assert [k for _, _, k in want] == [3, 1, 2]
+    assert reference_mode_changes(ref, 2.5) == want[:2]
+    tr = NS(mode_changes=np.array([2.4e-16, 1.0 + 1e-9, 2.0, 3.0 - 1e-9]), mode_change_contact=np.zeros(4, np.int64),
+            mode_change_kind=np.array([3, 3, 1, 2]))
+    events, left = run_mode_changes(tr, 4.0, want)
+    assert left == [(2.4e-16, 0, 3)] and len(events) == 3
+    err, diff = compare(events, want, ["floor"])
+    assert diff == "" and err == pytest.approx(1e-9)
+    tr.mode_change_kind = np.array([3, 3, 3, 2])
+    err, diff = compare(run_mode_changes(tr, 4.0, want)[0], want, ["floor"])
+    assert np.isnan(err) and "mode change 2: the run's floor slip reversed at t = 2" in diff
+    assert "the reference's floor slip -> stick" in diff
+    events, left = run_mode_changes(tr, 4.0, [(0.0, 0, 3)] + want)
+    assert not left and len(events) == 4
+
+
 # --- the verdicts -----------------------------------------------------------------------------------
 
 def test_order_near_round_off_warns_instead_of_failing():

@@ -466,9 +466,15 @@ def mode_events_check(method, rows, theory, T) -> Check:
     if not rows:
         return skip(name, method, "no constrained run")
     n_ref = rows[0]["n_ref"]
+    start = [(r["h"], e) for r in rows for e in r.get("at_start", ())]
+    if start:
+        h0, (t0, i0, k0) = start[0]
+        start = (f"not counted: {len(start)} mode changes within round-off of t = 0 (e.g. h = {h0:.4g}: contact "
+                 f"{i0} {MODE_KIND.get(k0, k0)} at t = {t0:.3g}), the start's choice of a slip direction from a "
+                 "round-off slip velocity, where the reference starts in the mode its held problem gives")
     if n_ref == 0 and all(r["n_changes"] == 0 for r in rows if r["status"] == "ok"):
         return skip(name, method, "neither the exact reference nor any run changes a friction mode on [0, T] "
-                    "(no stick/slip transition to time)")
+                    "(no stick/slip transition to time)" + (f"; {start}" if start else ""))
     good = [r for r in rows if r["status"] == "ok" and not r["first_difference"]]
     bad = [r for r in rows if r not in good]
     excluded = [(r["h"], r["first_difference"] if r["status"] == "ok" else f"status {r['status']}") for r in bad]
@@ -483,12 +489,8 @@ def mode_events_check(method, rows, theory, T) -> Check:
         c = order_check(name, method, [r["h"] for r in good], [r["time_error"] for r in good], theory,
                         scale=T, one_sided=True, quantity="max |t_i - t_i,ref|", excluded=excluded)
     c.note = f"the reference has {n_ref} mode changes; " + c.note
-    start = [(r["h"], e) for r in rows for e in r.get("at_start", ())]
     if start:
-        h0, (t0, i0, k0) = start[0]
-        c.note += (f"; not counted: {len(start)} mode changes within round-off of t = 0 (e.g. h = {h0:.4g}: contact "
-                   f"{i0} {MODE_KIND.get(k0, k0)} at t = {t0:.3g}), the start's choice of a slip direction from a "
-                   "round-off slip velocity, where the reference starts in the mode its held problem gives")
+        c.note += f"; {start}"
     if wrong:
         r = wrong[0]
         c.verdict, c.value = FAIL, float(r["n_changes"])
