@@ -83,6 +83,36 @@ def test_spinning_ball_verifies_without_a_window():
     assert res.check("energy across impacts", "CVA").verdict == ck.PASS
 
 
+def test_forced_block_with_friction_is_compared_with_its_reference():
+    """A block at rest on the floor pushed by c t (forced, friction): held from t = 0, so the check
+    that the reference follows the forced smooth solve (which ignores the floor) has no free interval
+    to compare and trusts it; the stick -> slip at c t = mu_s m g (t = 2.4525) is the reference's at
+    every h, and the energy account balances forcing work and friction work (interpreted tier: no
+    compile)."""
+    from vcirun.scenes.friction import pushed_block
+
+    res = vcirun.verify(pushed_block(), methods="CVA", T=3.0, h=LADDER, tier="interpreted")
+    assert res.ok, [c.line() for c in res.failures]
+    assert res.check("reference").verdict == ck.PASS, res.check("reference").line()
+    assert res.check("L2 order through impacts", "CVA").verdict == ck.PASS
+    mc = res.check("mode-change times", "CVA")
+    assert "the reference has 1 mode changes" in mc.note and max(mc.data["err"]) < 1e-12, mc.line()
+    assert res.check("energy account", "CVA").verdict == ck.PASS
+
+
+def test_a_reference_that_ends_on_painleves_paradox_is_reported():
+    """The Painleve rod (mu = 1.5, B < 0 at the start): the exact reference ends at t = 0 with status
+    painleve; verify says so (the reference warns, the impact checks are skipped with the message)
+    instead of failing on the shorter reference."""
+    res = vcirun.verify(str(ROOT / "docs" / "examples" / "painleve_rod.yaml"), methods="CVA", T=0.5,
+                        h=[0.02, 0.01, 0.005], tier="interpreted")
+    ref = res.check("reference")
+    assert ref.verdict == ck.WARN and "the reference ends at t = 0" in ref.note, ref.line()
+    assert any("status painleve" in n and "B = -0.03196" in n for n in res.notes), res.notes
+    c = res.check("L2 order through impacts", "CVA")
+    assert c.verdict == ck.SKIP and "painleve" in c.note
+
+
 def test_a_hold_at_a_plastic_impact_is_no_accumulation():
     """settle_window on recorded event sequences: a hold that starts at an impact (plastic) cuts no
     window unless the impacts before it come closer than 2.5 coarsest steps (a block rocking down on
