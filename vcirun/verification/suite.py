@@ -469,7 +469,8 @@ class _Session:
         """Runs through impacts over the ladder (on the settle window, vcirun.verification.window): L2
         order, impact times, the energy change across impact steps less the impact law's loss and the
         forcing work (the energy account), and (MCVA family) the truncated modified Hamiltonian's
-        conservation order."""
+        conservation order; with friction also the mode-change times against the reference's and the
+        rest of the energy account (vcirun.verification.friction)."""
         name, hs, ref = meth.name, self.hs, self.ref
         mcva = meth.has_modified_energy
         p_imp = _impact_order(meth)
@@ -528,7 +529,7 @@ class _Session:
             if self.friction and acc is not None:
                 rest = np.asarray(acc.rest_series, float)
                 acc_rows.append({"h": x, "rest": float(np.max(np.abs(rest))) if rest.size else 0.0,
-                                 "law": acc.total(LAW), "friction": acc.total(FRICTION)})
+                                 "law": acc.total(LAW), "friction": acc.total(FRICTION), "scale": float(acc.scale)})
             if acc is not None:
                 dE = _energy_changes(tr, acc, mcva and self.force is None)
                 imp = np.asarray(tr.impact_step, bool)[: dE.size]
@@ -582,7 +583,9 @@ class _Session:
                       if self.friction else ""))
         self.add(c)
         if self.friction:
-            self.add(ck.energy_account_check(name, acc_rows, p_imp, abs(self.H0) or 1.0))
+            a_scale = max([r["scale"] for r in acc_rows if np.isfinite(r["scale"])] + [abs(self.H0)]) or 1.0
+            # (each account's scale: max(|H0|, the largest kinetic energy of the run))
+            self.add(ck.energy_account_check(name, acc_rows, p_imp, a_scale))
 
     # --- hyperregularity ---------------------------------------------------------------------------
     def hyperregularity(self):
