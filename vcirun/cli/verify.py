@@ -59,7 +59,8 @@ def verify_command(
 ):
     """Run the test suite's numerical checks on SYSTEM: kernel derivatives, hyperregularity, observed
     orders (smooth and through impacts), symplecticity, modified-Hamiltonian conservation, impact times
-    and energy across impacts; one verdict per check (pass / warn / fail, the number, the threshold)."""
+    and energy across impacts (with friction also stick/slip mode-change times and the energy account);
+    one verdict per check (pass / warn / fail, the number, the threshold)."""
     try:
         check_output(output, "--output", also=() if output is None else (output.with_suffix(".png"),),
                      example="report.md")

@@ -210,8 +210,11 @@ def _check_held_contact(c, s):
 
 
 def _check_friction(c, s):
-    """Modules with friction (FRICTION): sys_dslips = v^T (dW_t,i/dq) v against FD of sys_slips along
-    v = M^-1 p, times v (d/da W_t(q + a v) v at a = 0)."""
+    """Modules with friction (FRICTION): sys_slips against the declared slip rows and sys_friction
+    against the declared coefficients (sympy: no code generation; where `declared` has them), and
+    sys_dslips = v^T (dW_t,i/dq) v against FD of sys_slips along v = M^-1 p, times v (d/da W_t(q + a
+    v) v at a = 0): the velocity term the held step and the exact reference take as the slip rows'
+    derivative."""
     mod, prm, n, m = c.mod, c.prm, c.n, _ncon(c.mod)
     if not getattr(mod, "FRICTION", False):
         return []
@@ -222,14 +225,26 @@ def _check_friction(c, s):
         mod.sys_slips(np.ascontiguousarray(q, float), prm, W)
         return W
 
+    rows = []
+    if c.declared is not None and "slips" in c.declared:
+        W = c.declared["slips"](s.q)
+        rows.append(("sys_slips", "the declared slip rows W_t(q) (zero for frictionless contacts; sympy.lambdify)",
+                     rel_err(slips(s.q), W, 1.0), IDENTITY_THRESHOLDS))
+    if c.declared is not None and "friction" in c.declared:
+        mu, mus = np.empty(m), np.empty(m)
+        mod.sys_friction(prm, mu, mus)
+        want_mu, want_mus = c.declared["friction"]
+        rows.append(("sys_friction", "the declared mu and mu_s at the parameter values",
+                     max(rel_err(mu, want_mu, 1.0), rel_err(mus, want_mus, 1.0)), IDENTITY_THRESHOLDS))
     out = np.empty(m)
     mod.sys_dslips(s.q, v, prm, out)
     # the step along v scaled like sys_ddphis' (a displacement of 1e-3 max(1, |q|) in q)
     e = FD_STEP * max(1.0, float(np.max(np.abs(s.q)))) / max(float(np.max(np.abs(v))), 1e-300)
     f = lambda a: slips(s.q + a * v) @ v  # noqa: E731
     ref = (-f(2 * e) + 8 * f(e) - 8 * f(-e) + f(-2 * e)) / (12 * e)
-    return [("sys_dslips", "FD of sys_slips along v, times v", rel_err(out, ref, _floor(float(
-        np.max(np.abs(f(0.0)))))), FD_THRESHOLDS)]
+    rows.append(("sys_dslips", "FD of sys_slips along v, times v", rel_err(out, ref, _floor(float(
+        np.max(np.abs(f(0.0)))))), FD_THRESHOLDS))
+    return rows
 
 
 def _check_force(c, s):
@@ -476,7 +491,8 @@ KERNEL_CHECKS = [
 def check_kernels(mod, prm, probes, force=None, full_stages=None, declared=None):
     """Run every applicable row of KERNEL_CHECKS at every probe. full_stages: the kernel set's
     ((explicit Ld name, fraction), ...) (the DEL residual of ld_step needs the stage's name);
-    declared: numpy callables {"M", "V", "phi"} of q from the declaration (None: that row is skipped).
+    declared: numpy callables {"M", "V", "phis"} of q from the declaration, and for systems with friction
+    "slips" (q -> W_t(q)) and "friction" (the arrays mu, mu_s) (None: those rows are skipped).
     Returns a list of dicts {kernel, against, worst (relative error over the probes), thresholds},
     one per kernel row."""
     c = _Ctx(mod, np.asarray(prm, float), force)

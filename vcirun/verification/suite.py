@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..run.accounts import LAW
+from ..run.accounts import FRICTION, LAW
 from . import checks as ck
 from .fd import Probe, check_kernels, map_jacobian, symplecticity_defect
 from .harness import StepFailed, exact_smooth, smooth_until_failure, step
@@ -146,6 +146,14 @@ def verify(system, methods=None, *, q0=None, p0=None, beta=None, T=5.0, h=None, 
     (the energy account: restitution, plastic holds). A motion that comes to rest is checked through
     impacts on a window before it settles (vcirun.verification.window; the notes say so).
 
+    Systems with Coulomb friction: the derivative table checks sys_slips and sys_friction against the
+    declaration and sys_dslips against FD of sys_slips; "mode-change times" compares each run's
+    stick/slip transitions (count, contacts, kinds, times at the method's order) with the exact
+    reference's; "energy account" judges what the run's account leaves after the friction work and
+    the impact law's loss (the integration error: order p); the MCVA family's H~ is taken less the
+    friction work too (varying at order p: friction is a non-conservative force). A motion that
+    comes to rest with every contact stuck is said to in the notes (the checks run through the rest).
+
     Forced systems: the exact smooth solution adds the declared force to Hamilton's equations;
     vcirun.reference is compared with it before the first impact (if they disagree, the impact checks
     are skipped with that reason); the energy check balances the forces' work too; symplecticity and
@@ -206,6 +214,8 @@ class _Session:
             self.res.notes.append("forced system: the exact smooth solution adds the declared generalized force to "
                                   "Hamilton's equations (sympy.lambdify of the declaration)")
         self.tier, self.loader = tier, loader
+        self.friction = bool(sysm.has_friction)   # the mode-change and energy-account checks
+        self.ref_modes = []
         # the runs' work in steps (a smooth and an impact run per step size and method), for the estimate
         self.steps_total = 2 * len(self.meths) * sum(grid_count(x, T) for x in self.hs)
         self.steps_done, self.run_seconds, self.said_at, self.runs = 0, 0.0, 0.0, 0
@@ -216,7 +226,8 @@ class _Session:
         self.hyper = []   # (source, t, q, eigenvalues of M or None, h of a run or None)
 
     def declared(self):
-        """numpy M(q), V(q), phi(q) of the declaration (sympy.lambdify, independent of code generation)."""
+        """numpy M(q), V(q), phi(q) of the declaration (sympy.lambdify, independent of code generation);
+        with friction also the slip rows W_t(q) and the coefficients (mu, mu_s) at the parameters."""
         if not hasattr(self, "_declared"):
             f, prm = self.sysm.numpy_functions(), list(self.prm)
             if "phis" in f:
@@ -225,7 +236,14 @@ class _Session:
                 phis = lambda q: np.array([f["phi"](list(q), prm)], float)  # noqa: E731
             self._declared = {"M": lambda q: np.array(f["M"](list(q), prm), float),
                               "V": lambda q: float(f["V"](list(q), prm)), "phis": phis}
+            if self.sysm.has_friction:   # the slip rows and the coefficients, for sys_slips and sys_friction
+                self._declared["slips"] = lambda q: self.sysm.slip_matrix_value(q, self.prm)
+                self._declared["friction"] = self.sysm.friction_values(self.prm)
         return self._declared
+
+    @property
+    def names(self):
+        return [c.name for c in self.sysm.constraints]
 
     def add(self, check):
         self.res.checks.append(check)
@@ -306,7 +324,9 @@ class _Session:
             return
         self.ref_ok = True
         ref = self.ref
-        tt = np.linspace(0.0, T, 2001)
+        # a reference that ends early (Painleve's paradox: ref.status "painleve") is compared where it is
+        self.ref_T = T_ref = min(T, float(ref.T))
+        tt = np.linspace(0.0, T_ref, 2001)
         qt = ref(tt)
         self.ref_scale = max(float(np.max(np.abs(qt))), 1e-300)
         acc = float(ref.accuracy)
@@ -317,7 +337,10 @@ class _Session:
         # a forced system's exact reference must follow the forced smooth solve before the first impact;
         # where it does not (a force the reference does not integrate), the impact checks are skipped
         if self.force is not None and self.smooth_ok:
-            m = self.t_smooth < 0.9 * (ref.impacts[0] if len(ref.impacts) else T)
+            # (before the first impact and the first held contact: the smooth solve ignores the constraint)
+            holds = [a for a, _, _ in getattr(ref, "held_intervals", [])]
+            free = min([T_ref] + list(ref.impacts[:1]) + holds[:1])
+            m = self.t_smooth < 0.9 * free
             dev = float(np.max(np.abs(ref(self.t_smooth[m]) - self.qs_ref[m]))) if m.sum() >= 2 else 0.0
             if dev > 1e-7 * max(1.0, self.qscale):
                 self.ref_ok = False
@@ -327,12 +350,41 @@ class _Session:
                         f"solution by {dev:.2e} before the first impact): impact checks skipped")
         if self.ref_ok:
             self.sample_M("exact reference", tt, qt)
-            self.window = settle_window(ref, T, self.hs[0], [c.name for c in self.sysm.constraints])
+            self.window = settle_window(ref, T_ref, self.hs[0], [c.name for c in self.sysm.constraints])
+            if T_ref < T:
+                Tw = float(np.floor(min(self.window.T, T_ref) / self.hs[0] + 1e-9) * self.hs[0])
+                self.window = Window(Tw, f"the exact reference ends at t = {T_ref:.6g} with status {ref.status} "
+                                     f"({' '.join(str(ref.message).split())}): the impact checks use [0, {Tw:g}]",
+                                     int(np.sum(np.asarray(ref.impacts) <= Tw)))
+                v = ck.WARN
             if self.window.cut:
                 self.res.notes.append("impact checks on a window: " + self.window.note)
-                note += f"; impact checks on [0, {self.window.T:g}] (the motion comes to rest: see the notes)"
+                note += f"; impact checks on [0, {self.window.T:g}] (" + (
+                    "the motion comes to rest" if T_ref == T else f"the reference ends at t = {T_ref:.6g}") + ": see the notes)"
+            if self.friction:
+                note += self.friction_reference(ref)
         self.add(ck.Check("reference", None, v, acc, "accuracy <= 1e-8 max |q|",
                           "an exact reference far more accurate than the methods", note, rows))
+
+    def friction_reference(self, ref) -> str:
+        """The reference's mode changes on the window (self.ref_modes), a note where its motion comes to
+        rest with every contact stuck, or where it ends on Painleve's paradox; returns the reference
+        check's addition to its note."""
+        from .friction import reference_mode_changes, rest_time
+
+        Tw = self.window.T
+        self.ref_modes = reference_mode_changes(ref, Tw)
+        add = f"; {len(self.ref_modes)} friction mode changes on [0, {Tw:g}]"
+        t_rest = rest_time(ref, self.base, self.prm, self.n, self.T) if self.ref_T == self.T else None
+        if t_rest is not None:
+            who = ", ".join(self.sysm.constraints[j].name for j in ref.mode_intervals[-1][2])
+            how = ("a run sticks at its own located mode change and stays at rest, so the checks run through the "
+                   "rest (from there on a run's error is the error of the state it stopped in)" if t_rest < Tw else
+                   f"after the window of the impact checks, [0, {Tw:g}]")
+            self.res.notes.append(f"the exact motion comes to rest at t = {t_rest:.6g} ({who} stuck) and stays at "
+                                  f"rest to T = {self.T:g}: {how}")
+            add += f"; at rest from t = {t_rest:.6g}"
+        return add
 
     def choose_probes(self):
         """The start state and N_PROBES states along the exact motion (or a run, if there is none)."""
@@ -347,6 +399,7 @@ class _Session:
         for k in range(N_PROBES):
             t = T * (k + 1) / (N_PROBES + 1)
             if self.ref_ok:
+                t = min(t, self.ref_T)
                 y = self.ref.state([t])[0]
                 self.probes.append(Probe(y[:n], y[n:], t, h0))
             elif self.smooth_ok:
@@ -383,7 +436,8 @@ class _Session:
         self.add(ck.symplecticity_check(name, rows, self.force is not None))
         self.smooth_order(meth)
         if meth.reset is None:    # a bare discrete Lagrangian: smooth integration only
-            for nm in ("L2 order through impacts", "impact times", "energy across impacts"):
+            for nm in ("L2 order through impacts", "impact times", "energy across impacts") + (
+                    ("mode-change times", "energy account") if self.friction else ()):
                 self.add(ck.skip(nm, name, f"{name} integrates the smooth system (no reset): no impacts to check"))
             return
         self.impact_checks(meth)
@@ -415,20 +469,25 @@ class _Session:
         """Runs through impacts over the ladder (on the settle window, vcirun.verification.window): L2
         order, impact times, the energy change across impact steps less the impact law's loss and the
         forcing work (the energy account), and (MCVA family) the truncated modified Hamiltonian's
-        conservation order."""
+        conservation order; with friction also the mode-change times against the reference's and the
+        rest of the energy account (vcirun.verification.friction)."""
         name, hs, ref = meth.name, self.hs, self.ref
         mcva = meth.has_modified_energy
+        p_imp = _impact_order(meth)
         Tw = self.window.T
-        if self.ref_ok and self.window.cut and self.window.impacts == 0:
-            why = ("no impact of the exact motion lies before the window in which the coarsest h resolves its "
+        short = self.ref_ok and self.window.T < self.hs[0]
+        if short or (self.ref_ok and self.window.cut and self.window.impacts == 0 and len(ref.impacts)):
+            why = (f"{self.window.note}: no step of the coarsest h = {self.hs[0]:g} fits in it" if short else
+                   "no impact of the exact motion lies before the window in which the coarsest h resolves its "
                    f"bounces ({self.window.note}): use a smaller h ladder")
             for nm in ("L2 order through impacts", "impact times", "energy across impacts") + (
-                    ("modified Hamiltonian",) if mcva else ()):
+                    ("modified Hamiltonian",) if mcva else ()) + (
+                    ("mode-change times", "energy account") if self.friction else ()):
                 self.add(ck.skip(nm, name, why))
             return
         span = f"h = {hs[0]:g} .. {hs[-1]:g}" + (f" on [0, {Tw:g}]" if self.window.cut else "")
         self.say(f"{name}: runs through impacts over {span}")
-        l2_h, l2, excl, ev_rows, en_rows = [], [], [], [], []
+        l2_h, l2, excl, ev_rows, en_rows, mode_rows, acc_rows, coarse = [], [], [], [], [], [], [], []
         hm_h, hm_var, hm_scale, hm_excl = [], [], [], []
         ref_imp = np.asarray(ref.impacts)[np.asarray(ref.impacts) <= Tw] if self.ref_ok else None
         for x in hs:
@@ -438,6 +497,8 @@ class _Session:
             if mcva:
                 if tr.status == "ok" and np.all(np.isfinite(tr.Hmod)):
                     hm = tr.Hmod - acc.term(LAW).series   # H~ plus the law's losses so far
+                    if acc.term(FRICTION) is not None:
+                        hm = hm - acc.term(FRICTION).series   # ... and the friction work
                     hm_h.append(x)
                     hm_var.append(float(np.ptp(hm)))
                     hm_scale.append(float(np.mean(np.abs(tr.Hmod))))
@@ -457,6 +518,18 @@ class _Session:
 
                     l2_h.append(x)
                     l2.append(l2_error(tr, ref))
+                    coarse.append(_on_coarsest(tr, x, Tw, self.hs[0]))
+            if self.friction and self.ref_ok:
+                from .friction import compare, run_mode_changes
+
+                events, left = run_mode_changes(tr, Tw, self.ref_modes)
+                terr, diff = compare(events, self.ref_modes, self.names)
+                mode_rows.append({"h": x, "n_changes": len(events), "n_ref": len(self.ref_modes), "time_error": terr,
+                                  "status": tr.status, "first_difference": diff, "at_start": left})
+            if self.friction and acc is not None:
+                rest = np.asarray(acc.rest_series, float)
+                acc_rows.append({"h": x, "rest": float(np.max(np.abs(rest))) if rest.size else 0.0,
+                                 "law": acc.total(LAW), "friction": acc.total(FRICTION), "scale": float(acc.scale)})
             if acc is not None:
                 dE = _energy_changes(tr, acc, mcva and self.force is None)
                 imp = np.asarray(tr.impact_step, bool)[: dE.size]
@@ -465,6 +538,18 @@ class _Session:
         if mcva:
             if self.force is not None:
                 self.add(ck.skip("modified Hamiltonian", name, "forced system: H~ is not conserved"))
+            elif self.friction:
+                # friction is a non-conservative force: H~ changes by the friction work, which the loop
+                # sums at the method's order (docs/derivations/friction.md, "Energy")
+                c = ck.order_check("modified Hamiltonian", name, hm_h, hm_var, p_imp,
+                                   scale=float(np.mean(hm_scale)) if hm_scale else 1.0, tol=ck.MH_TOL,
+                                   one_sided=True, quantity="max - min of H~ less the losses", excluded=hm_excl)
+                c.expected = (f"variation ~ h^{p_imp:g} or smaller (friction: H~ less the friction work and the "
+                              f"law's losses; h^{meth.mh_order} where friction does no work)")
+                c.note += (" (along the runs through impacts, with the impact law's losses and the friction work "
+                           "added back: friction is a non-conservative force, H~ changes by its work, which the "
+                           f"held steps sum at order {p_imp:g})")
+                self.add(c)
             else:
                 c = ck.order_check("modified Hamiltonian", name, hm_h, hm_var, meth.mh_order,
                                    scale=float(np.mean(hm_scale)) if hm_scale else 1.0, tol=ck.MH_TOL,
@@ -473,25 +558,34 @@ class _Session:
                 c.note += (" (along the runs through impacts, with the impact law's losses added back: R^MCVA "
                            "conserves H~ less the law's loss, the smooth steps vary it)")
                 self.add(c)
-        p_imp = _impact_order(meth)
         if self.ref_ok:
             c = ck.order_check("L2 order through impacts", name, l2_h, l2, p_imp,
                                scale=self.ref_scale * np.sqrt(Tw), quantity="L2 error", excluded=excl)
             if excl and c.verdict == ck.PASS:
                 c.verdict = ck.WARN
                 c.note = f"runs excluded: {'; '.join(f'h = {x:g}: {why}' for x, why in excl)}; " + c.note
+            if c.verdict == ck.WARN:
+                ck.converges_elsewhere(c, l2_h, l2, _successive_differences(coarse), self.ref_scale * np.sqrt(Tw))
             self.add(c)
             self.add(ck.impact_events_check(name, ev_rows, p_imp, Tw))
+            if self.friction:
+                self.add(ck.mode_events_check(name, mode_rows, p_imp, Tw))
         else:
-            for nm in ("L2 order through impacts", "impact times"):
+            for nm in ("L2 order through impacts", "impact times") + (("mode-change times",) if self.friction else ()):
                 self.add(ck.skip(nm, name, self.ref_reason))
         forced = self.force is not None
         e_scale = float(np.mean(hm_scale)) if (mcva and hm_scale and not forced) else abs(self.H0) or 1.0
         energy = "H - W" if forced else ("H~" if mcva else "H")
         c = ck.impact_energy_check(name, en_rows, energy, p_imp, e_scale)
         c.note += ("; the change is taken less the impact law's loss" + (" and the forcing work" if forced else "")
-                   + " of the step (the energy account)")
+                   + (" and the friction work" if self.friction else "") + " of the step (the energy account)"
+                   + ("; impact steps are the steps with an event: impacts and friction mode changes"
+                      if self.friction else ""))
         self.add(c)
+        if self.friction:
+            a_scale = max([r["scale"] for r in acc_rows if np.isfinite(r["scale"])] + [abs(self.H0)]) or 1.0
+            # (each account's scale: max(|H0|, the largest kinetic energy of the run))
+            self.add(ck.energy_account_check(name, acc_rows, p_imp, a_scale))
 
     # --- hyperregularity ---------------------------------------------------------------------------
     def hyperregularity(self):
@@ -534,6 +628,27 @@ def _energy_changes(tr, acc, modified):
     return np.abs(np.diff(E))
 
 
+def _on_coarsest(tr, h, T, h0):
+    """The run's q at the points of the coarsest grid on [0, T] (None where its grid does not hold
+    them: a ladder that is not nested)."""
+    from ..core.grid import grid_count
+
+    N, N0 = grid_count(h, T), grid_count(h0, T)
+    if N0 == 0 or N % N0 or len(tr.q) != N + 1:
+        return None
+    return np.asarray(tr.q[:: N // N0], float)
+
+
+def _successive_differences(Q):
+    """max |q_h - q_h'| over the coarsest grid between consecutive runs of the ladder (coarse to fine;
+    nan where a run is not on that grid)."""
+    out = []
+    for a, b in zip(Q[:-1], Q[1:]):
+        ok = a is not None and b is not None and a.shape == b.shape
+        out.append(float(np.max(np.abs(a - b))) if ok else float("nan"))
+    return out
+
+
 def _thin(tr, k=400):
     """(t, q) of a run at about k grid points (for sampling M along it)."""
     stride = max(1, len(tr.t) // k)
@@ -552,6 +667,17 @@ def _smooth_error(tr, h, T, N0, nested, t_smooth, qs_ref):
     return float(np.max(np.abs(tr.q - qs_ref[idx])))
 
 
+def _defect(f, y):
+    """The symplecticity defect of map f at y: J by the 4th-order stencil at step 1e-3 and, where that
+    exceeds the pass threshold, at 1e-4 too, the smaller kept. A map's own defect does not depend on
+    the step; the stencil's truncation falls as its 4th power (a 5-DOF link chain at h = 0.02: 2.6e-5
+    at 1e-3, 2.7e-9 at 1e-4, round-off at 1e-5)."""
+    d = symplecticity_defect(map_jacobian(f, y, 1e-3))
+    if d > ck.SYMPLECTIC_THRESHOLDS[0]:
+        d = min(d, symplecticity_defect(map_jacobian(f, y, 1e-4)))
+    return d
+
+
 def _symplecticity_rows(mod, prm, probes, hs, mcva, n):
     rows = []
     h_list = [hs[0], hs[len(hs) // 2]]
@@ -562,7 +688,7 @@ def _symplecticity_rows(mod, prm, probes, hs, mcva, n):
             def full(yy, x=x, t=s.t):
                 return np.concatenate(step(mod, yy[:n], yy[n:], x, t, prm, newton_tol=NEWTON_TOL))
             try:
-                rows.append({"map": "full Phi_h", "h": x, "state": label, "defect": symplecticity_defect(map_jacobian(full, y))})
+                rows.append({"map": "full Phi_h", "h": x, "state": label, "defect": _defect(full, y)})
             except StepFailed:
                 rows.append({"map": "full Phi_h", "h": x, "state": label, "defect": float("inf")})
             if mcva and hasattr(mod, "gauss_partial"):
@@ -574,7 +700,7 @@ def _symplecticity_rows(mod, prm, probes, hs, mcva, n):
                         raise StepFailed("gauss_partial did not converge")
                     return np.concatenate([q1, p1])
                 try:
-                    d = symplecticity_defect(map_jacobian(part, y))
+                    d = _defect(part, y)
                 except StepFailed:
                     d = float("inf")
                 rows.append({"map": "partial flow of H~ (tau = h/2)", "h": x, "state": label, "defect": d})

@@ -7,7 +7,7 @@ import numpy as np
 
 from .checks import FAIL, PASS, SKIP, WARN
 
-_ORDER_CHECKS = ("smooth order", "L2 order through impacts", "impact times", "modified Hamiltonian")
+_ORDER_CHECKS = ("smooth order", "L2 order through impacts", "impact times", "mode-change times", "modified Hamiltonian")
 _MARK = {PASS: "pass", WARN: "**warn**", FAIL: "**FAIL**", SKIP: "skip"}
 
 
@@ -92,12 +92,27 @@ def markdown(res, figure=None) -> str:
           "- modified Hamiltonian (MCVA family): max - min of the truncated H~ along the runs through impacts, "
           "expected ~ h^mh_order (tolerance 0.3, as tests/convergence/test_modified_conservation).",
           "- symplecticity: max |J^T Omega J - Omega| of the full map Phi_h (and of the MCVA partial flow of H~ "
-          "at tau = h/2), J by 4th-order FD, at two steps and the four states; pass below 1e-8 (the resets are "
+          "at tau = h/2), J by 4th-order FD (step 1e-3, and 1e-4 where that exceeds 1e-8: the stencil's truncation "
+          "falls as the step's 4th power, a map's own defect does not), at two steps and the four states; pass below 1e-8 (the resets are "
           "not judged; a forced map is reported, not judged).",
           "- energy across impacts: the largest change of H (H~ for the MCVA family; H minus the work of the forces "
           "for a forced system) over one impact step, against h: slope at least p - 0.3 (O(h^p) per impact keeps "
           "the global order p), or every impact step changing it at most 10x as much as the largest smooth "
-          "step, or every change at round-off; warn down to p - 0.6, fail below.", ""]
+          "step, or every change at round-off; warn down to p - 0.6, fail below. With friction the impact "
+          "steps are the steps with an event (impacts and friction mode changes) and the friction work is taken "
+          "off too.",
+          "- mode-change times (friction): the runs' stick/slip transitions against the exact reference's: the same "
+          "count, contacts and kinds (slip -> stick, stick -> slip, slip reversed) at every h (a different sequence "
+          "warns on the coarser half of the ladder, fails on the finer half), and the largest time error at the "
+          "method's order or faster (one-sided, tolerance 0.15).",
+          "- energy account (friction): the largest |rest| of each run's energy account (H - H0 less the friction "
+          "work, the impact law's loss and the forcing work: the integration error) against h: order p or more "
+          "(one-sided), or at round-off at every h; a rest that does not fall with h fails (the recorded work is "
+          "not what the forces did).",
+          "- an order checked against an exact solution whose errors stay large and flat while the runs converge "
+          "among themselves (successive differences falling 4x and ending below a tenth of the error) fails: the "
+          "method integrates another system. Points within 100x of round-off do not decide an order: where "
+          "only they bend it, it warns (the ladder is too fine).", ""]
     return "\n".join(L)
 
 
