@@ -222,3 +222,25 @@ def test_compass_gait_stance_foot_sticks_in_the_methods(method):
         assert float(np.max(np.abs(tr.q[:, :2]))) <= 1e-12
         errs.append(float(np.max(np.abs(tr.q[:, 2:] - gam - pin(tr.t)))))
     assert errs[1] < errs[0] / 3.0 and errs[0] < 1e-3, errs
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("method", ["CVA", "MCVAA"])
+def test_rocking_block_comes_to_rest_on_both_corners_as_the_reference(method):
+    """Housner's block (mu = 0.8) rocks, loses energy at each plastic corner impact and comes to rest on
+    both corners (the reference: at rest from t = 1.708, 61 impacts). The methods end at rest with
+    both corners stuck and x at the reference's to O(h^2): a slip reversed inside the rest of an event
+    step is tried stuck first at the next grid state (collision/algorithm1.py _reassign_modes); without
+    that the block kept rocking and sliding."""
+    s = scenes.rocking_block_friction(0.1, mu=0.8)
+    T = 2.0
+    ref = vcirun.reference(s, T=T, check_accuracy=False)
+    assert ref.status == "ok"
+    q_end = ref(T)[:s.n]
+    errs = []
+    for h in (1e-3, 5e-4):
+        tr = vcirun.simulate(s, method, h=h, T=T)
+        assert tr.status == "ok", tr.message
+        assert np.all(tr.contact_mode[-1] == 2) and float(np.max(np.abs(tr.p[-1]))) <= 1e-12
+        errs.append(float(np.max(np.abs(tr.q[-1] - q_end))))
+    assert errs[0] < 1e-4 and errs[1] < errs[0] / 2.5, errs

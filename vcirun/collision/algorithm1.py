@@ -26,7 +26,7 @@ from vcirun.collision.impact import impact_direction, normal_velocities, touch_t
 from vcirun.collision.impact_friction import friction_impact_direction
 from vcirun.maps.dynamics import hamiltonian, force_power, velocity_guess
 from vcirun.maps.friction import (friction_step, friction_forces, friction_project, mode_event_values, assign_modes,
-                                  slipping, HELD_STICK, FRICTION_PAINLEVE)
+                                  slipping, HELD_STICK, REST_REVERSED, FRICTION_PAINLEVE)
 from vcirun.maps.held import held_step, contact_forces, project_momentum, normal_acceleration
 from vcirun.maps.linalg import copy_into, set_row
 from vcirun.maps.steps import step_resolves_force
@@ -384,20 +384,18 @@ def _mode_change(st, t, tau0, c, kind):
         copy_into(st.q, st.qt)
         copy_into(st.p, st.pt)
     te = t + tau
-    before = st.held[c]
+    before = scratch_i(NCON)
+    for j in range(NCON):
+        before[j] = st.held[j]
     if kind == 0:
         st.held[c] = 0
         st.n[N_HELD] -= 1
         _record_release(st, te, c)
         if st.n[N_HELD] > 0 and assign_modes(st.q, st.p, te, st.prm, st.held, -1, -1, st.mu, st.lt) == FRICTION_PAINLEVE:
             return ST_PAINLEVE, it
+        _record_mode_changes(st, te, before, -1)
     else:
         rest = c if kind == 1 else -1
-        if kind == 1 and tau == 0.0 and not st.ev[c] > 0.0:
-            # the slip had already reversed at the step's start (inside the rest of an earlier event
-            # step, whose partial steps do not locate mode events): there is no stop here; the modes
-            # follow the slip velocities
-            rest = -1
         moving = c if kind == 2 else -1
         if kind == 2:
             # slipping where the unbalanced tangential force drives: against the stuck force at the event
@@ -406,16 +404,61 @@ def _mode_change(st, t, tau0, c, kind):
             st.held[c] = -1 if st.lt[c] > 0.0 else 1
         if assign_modes(st.q, st.p, te, st.prm, st.held, rest, moving, st.mu, st.lt) == FRICTION_PAINLEVE:
             return ST_PAINLEVE, it
-        if st.held[c] == HELD_STICK:
+        if _newly_stuck(st, before):
             # the slip velocity is zero to the event tolerance: zeroed (with the held normal velocities)
-            friction_project(st.q, st.p, st.prm, st.held, st.lam, st.lamt)
-            for j in range(NCON):
-                st.lam[j] = 0.0
-                st.lamt[j] = 0.0
-        if st.held[c] != before:
-            _record_mode_change(st, te, c, 1 if st.held[c] == HELD_STICK else (2 if before == HELD_STICK else 3))
+            _stick_projection(st)
+        _record_mode_changes(st, te, before, c)
     status, itc = _event_step(st, st.h - tau, te, np.bool_(False))
     return status, it + itc
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _newly_stuck(st, before):
+    for j in range(NCON):
+        if st.held[j] == HELD_STICK and before[j] != HELD_STICK:
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _stick_projection(st):
+    """The stuck contacts' slip velocities zeroed with the held normal velocities (maps/friction.py
+    friction_project); the kinetic energy it removes is friction's, booked as the current step's
+    friction work (a stop located to the event tolerance removes round-off; a stop found at a grid
+    state, _reassign_modes, the slip that friction would have removed within the step)."""
+    v = scratch(NDOF)
+    velocity_guess(st.q, st.p, st.prm, v)
+    T0 = 0.0
+    for j in range(NDOF):
+        T0 += 0.5 * st.p[j] * v[j]
+    friction_project(st.q, st.p, st.prm, st.held, st.lam, st.lamt)
+    velocity_guess(st.q, st.p, st.prm, v)
+    T1 = 0.0
+    for j in range(NDOF):
+        T1 += 0.5 * st.p[j] * v[j]
+    st.out[O_FRICTION_WORK][st.n[N_STEP]] += min(T1 - T0, 0.0)
+    for j in range(NCON):
+        st.lam[j] = 0.0
+        st.lamt[j] = 0.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _record_mode_changes(st, t, before, c):
+    """Record every held contact whose mode differs from before[] (contact c's first: the event's own),
+    kind 1 stuck, 2 a stick ended, 3 a slip reversed."""
+    order = scratch_i(NCON)
+    k = 0
+    if c >= 0:
+        order[0] = c
+        k = 1
+    for j in range(NCON):
+        if j != c:
+            order[k] = j
+            k += 1
+    for a in range(NCON):
+        j = order[a]
+        if st.held[j] != before[j] and before[j] != 0 and st.held[j] != 0:
+            _record_mode_change(st, t, j, 1 if st.held[j] == HELD_STICK else (2 if before[j] == HELD_STICK else 3))
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -432,25 +475,20 @@ def _modes_stale(st):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _reassign_modes(st, k, t):
-    """The held contacts' modes decided afresh at grid state k (time t) from their slip velocities and
-    forces (maps/friction.py assign_modes), the changes recorded; a contact that sticks has its slip
-    velocity zeroed (with the held normal velocities: friction_project). The record's row k is written
-    again. Returns False in Painleve's case."""
+    """The held contacts' modes decided afresh at grid state k (time t) by maps/friction.py
+    assign_modes, a slip whose velocity has turned against its direction tried stuck first (its slip
+    stopped inside the step: it sticks where Coulomb's static bound holds, as at a located stop), the
+    changes recorded; the contacts that stick have their slip velocities zeroed (_stick_projection,
+    its energy booked as friction work). The record's row k is written again. Returns False in
+    Painleve's case."""
     before = scratch_i(NCON)
     for j in range(NCON):
         before[j] = st.held[j]
-    if assign_modes(st.q, st.p, t, st.prm, st.held, -1, -1, st.mu, st.lt) == FRICTION_PAINLEVE:
+    if assign_modes(st.q, st.p, t, st.prm, st.held, REST_REVERSED, -1, st.mu, st.lt) == FRICTION_PAINLEVE:
         return False
-    stuck = False
-    for j in range(NCON):
-        if st.held[j] != before[j]:
-            stuck = stuck or st.held[j] == HELD_STICK
-            _record_mode_change(st, t, j, 1 if st.held[j] == HELD_STICK else (2 if before[j] == HELD_STICK else 3))
-    if stuck:
-        friction_project(st.q, st.p, st.prm, st.held, st.lam, st.lamt)
-        for j in range(NCON):
-            st.lam[j] = 0.0
-            st.lamt[j] = 0.0
+    if _newly_stuck(st, before):
+        _stick_projection(st)
+    _record_mode_changes(st, t, before, -1)
     st.n[N_FRESH] = 0
     return _record_contacts(st, k, t)
 

@@ -36,6 +36,7 @@ from vcirun.maps.dynamics import dynamics_rhs, velocity_guess
 from vcirun.maps.linalg import solve_small, copy_into, STACK_DOUBLES
 
 HELD_STICK = 2
+REST_REVERSED = -2       # assign_modes' `rest` for a grid state whose slips reversed unlocated (see there)
 FRICTION_OK = 0
 FRICTION_SINGULAR = 1     # the held contacts' contact matrix is singular (dependent normal rows)
 FRICTION_PAINLEVE = 2     # a slipping contact's B = G M^-1 (G - mu s W)^T <= 0: no or several solutions
@@ -102,7 +103,7 @@ def contact_rows(q, prm, held, A, G, W, idx, sidx, lead):
     if not _minv_rows(A, R, r, X):
         return -1, 0
     # pivoted (in order) Cholesky of K = R M^-1 R^T: L (r x r), a row with a vanishing pivot is skipped
-    L = scratch2(2 * NCON, 2 * NCON) if 4 * NCON * NCON <= STACK_DOUBLES else np.empty((2 * NCON, 2 * NCON))
+    L = scratch2(r, r) if r * r <= STACK_DOUBLES else np.empty((r, r))
     keep = scratch_i(2 * NCON)
     for a in range(r):
         keep[a] = 0
@@ -246,7 +247,7 @@ def friction_project(q, p, prm, held, lam, lt):
     _constraint_rows(G, W, idx, k, sidx, ks, C)
     _force_rows(G, W, held, mu, idx, k, sidx, ks, D)
     X = scratch2(2 * NCON, NDOF)
-    K = scratch2(2 * NCON, 2 * NCON) if 4 * NCON * NCON <= STACK_DOUBLES else np.empty((2 * NCON, 2 * NCON))
+    K = scratch2(r, r) if r * r <= STACK_DOUBLES else np.empty((r, r))
     if not _contact_matrix(A, C, D, r, X, K):
         return False
     x = scratch(NDOF)
@@ -311,10 +312,7 @@ def friction_stage(sid, q0, p0, hs, t, prm, ntol, maxit, held, v, q1, p1, imp, i
     phis = scratch(NCON)
     _force_rows(G0, W0, held, mu, idx, k, sidx, ks, D0)
     F = scratch(NDOF + 2 * NCON)
-    if (NDOF + 2 * NCON) ** 2 <= STACK_DOUBLES:
-        JJ = scratch2(NDOF + 2 * NCON, NDOF + 2 * NCON)
-    else:
-        JJ = np.empty((NDOF + 2 * NCON, NDOF + 2 * NCON))
+    JJ = scratch2(m, m) if m * m <= STACK_DOUBLES else np.empty((m, m))
     qn = scratch(NDOF)
     qm = scratch(NDOF)
     # a stage so short that hs v moves q by fewer than ~1e8 of its ulps (a partial step to an event
@@ -508,7 +506,7 @@ def friction_forces(q, p, t, prm, held, lam, lt):
     _constraint_rows(G, W, idx, k, sidx, ks, C)
     _force_rows(G, W, held, mu, idx, k, sidx, ks, D)
     X = scratch2(2 * NCON, NDOF)
-    K = scratch2(2 * NCON, 2 * NCON) if 4 * NCON * NCON <= STACK_DOUBLES else np.empty((2 * NCON, 2 * NCON))
+    K = scratch2(r, r) if r * r <= STACK_DOUBLES else np.empty((r, r))
     if not _contact_matrix(A, C, D, r, X, K):
         return FRICTION_SINGULAR
     for a in range(k):
@@ -597,7 +595,9 @@ def slip_tolerance(q, p, prm, j):
 def assign_modes(q, p, t, prm, held, rest, moving, lam, lt):
     """The modes of the held contacts at (q, p) (they touch and are pressed in), by an active set: each
     contact with friction whose slip velocity is at rest (within slip_tolerance, or the contact
-    `rest` whose slip has just stopped and every one at most 4x as fast as its residue) starts stuck, the others slip in the direction of their slip
+    `rest` whose slip has just stopped and every one at most 4x as fast as its residue; with rest =
+    REST_REVERSED every slipping contact whose slip velocity has turned against its direction: its
+    slip stopped inside the step, unlocated) starts stuck, the others slip in the direction of their slip
     velocity (the contact `moving`, whose stick has just ended, in the direction held[moving] gives);
     then, while a stuck contact violates Coulomb's static bound, the one with the largest
     excess |lt_j| / (mu_s,j lam_j) slips, in the direction the unbalanced force drives
@@ -611,6 +611,7 @@ def assign_modes(q, p, t, prm, held, rest, moving, lam, lt):
     # at a located stop the resolution of a slip velocity is the stopped contact's own residue: the
     # others as slow (a body whose contacts' slip rows coincide, as a chain lying flat) stop with it
     vrest = 4.0 * abs(vt[rest]) if rest >= 0 else 0.0
+    reversed_rest = rest == REST_REVERSED
     for j in range(NCON):
         if held[j] == 0:
             continue
@@ -618,7 +619,8 @@ def assign_modes(q, p, t, prm, held, rest, moving, lam, lt):
             held[j] = 1
         elif j == moving:
             continue
-        elif j == rest or abs(vt[j]) <= slip_tolerance(q, p, prm, j) + vrest:
+        elif (j == rest or abs(vt[j]) <= slip_tolerance(q, p, prm, j) + vrest
+              or (reversed_rest and slipping(held[j]) and held[j] * vt[j] < 0.0)):
             held[j] = HELD_STICK
         else:
             held[j] = 1 if vt[j] > 0.0 else -1
