@@ -78,7 +78,7 @@ def test_example_runs_and_records_impacts(where, command, claim, tmp_path, monke
 
 def test_every_scene_has_an_example_and_the_docs_have_commands():
     assert len(_catalog_commands()) == len(listed_scenes()) >= 21
-    assert any("cradle_gap" in c for _, c in _catalog_commands())
+    assert any("cradle_gap" in c for _, c, _ in _catalog_commands())
     friction = ("rocking_block_friction", "spinning_ball", "incline", "coulomb_oscillator", "painleve_rod",
                 "link_chain_friction_3")
     assert set(friction) <= set(listed_scenes())

@@ -74,16 +74,36 @@ def test_overridden_parameters_move_the_start_with_them():
         assert q0[1] + corner[1] == pytest.approx(0.0, abs=1e-15)
     q0, _ = get_scene("painleve_rod", l=2.0).initial_state()
     assert q0[1] - 2.0 * np.sin(q0[2]) == pytest.approx(0.0, abs=1e-15)
+    # the same through a run's parameter vector (vcirun.simulate, `--param`): the built-in's start is built
+    # at the run's parameters
+    s = get_scene("incline")
+    q0, p0 = s.initial_state(params=s.param_values({"theta": 0.5}))
+    assert abs(-np.sin(0.5) * p0[0] + np.cos(0.5) * p0[1]) < 1e-15
+
+
+def test_geometry_overrides_run_from_a_start_on_the_surface():
+    """`--param theta=0.5` on the incline and `--param a=2` on the rocking block: no impact at t = 0, the
+    closed forms at the overridden geometry."""
+    inc = vcirun.simulate("incline", "CVA", h=1e-2, T=1.0, params={"theta": 0.5})
+    cf = fo.incline(0.5, mu=0.2, mu_s=0.2, v0=2.0)
+    assert inc.ok and len(inc.impacts) == 0 and inc.mode_changes[0] == pytest.approx(cf.t_stop, abs=1e-9)
+    tr = vcirun.simulate("rocking_block_friction", "CVA", h=1e-3, T=1.5, params={"a": 2.0})
+    hz = fo.housner_rocking(0.1, a=2.0, b=0.4, impacts=2)
+    assert tr.ok and tr.impacts[0] > 0.1
+    np.testing.assert_allclose(tr.impacts[:2], hz.impact_times, atol=1e-5)
 
 
 def test_the_numeric_parts_import_no_sympy():
     code = ("import sys, json; from vcirun.scenes.data import scene_data\n"
+            "from vcirun.core.system_data import requested_start\n"
             "ds = [scene_data(n) for n in ('rocking_block_friction', 'spinning_ball', 'incline', "
             "'coulomb_oscillator', 'painleve_rod', 'link_chain_friction_4')]\n"
             "print(json.dumps({'sympy': 'sympy' in sys.modules, 'n': [d.n for d in ds], "
-            "'q0': [list(d.ic_map(d.default_beta)[0]) if d.default_beta is not None else None for d in ds]}))")
+            "'q0': [requested_start(d, params=d.param_values({'mu': 0.9, 'mu_s': 1.0} if 'mu_s' in d.params "
+            "else None))[1].tolist() for d in ds]}))")
     out = json.loads(subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout)
     assert out["sympy"] is False and out["n"] == [3, 3, 2, 2, 3, 6]
+    assert out["q0"][2] == [0.0, 0.0] and out["q0"][4][2] == 0.9
 
 
 def test_systems_lists_and_describes_them():

@@ -257,9 +257,9 @@ def spinning_ball(**overrides) -> SystemData:
 
 def incline(**overrides) -> SystemData:
     prm = merge_params({"m": 1.0, "g": 9.81, "theta": 0.3, "mu": 0.2, "mu_s": 0.2}, overrides)
-    th = prm["theta"]
     return SystemData(
-        name="incline", n=2, params=prm, ic_map=lambda beta: incline_start(th, beta), default_beta=2.0,
+        name="incline", n=2, params=prm, ic_map=lambda beta, p: incline_start(p["theta"], beta), ic_map_params=True,
+        default_beta=2.0,
         description="block (a point mass) on an incline of angle theta, launched uphill at beta m/s with "
                     "Coulomb friction mu: it stops, then sticks if tan theta <= mu_s, else slides back")
 
@@ -276,10 +276,9 @@ def coulomb_oscillator(**overrides) -> SystemData:
 
 def rocking_block_friction(**overrides) -> SystemData:
     prm = merge_params({"m": 1.0, "a": 1.0, "b": 0.4, "g": 9.81, "mu": 0.8, "mu_s": 0.8}, overrides)
-    a, b = prm["a"], prm["b"]
     return SystemData(
-        name="rocking_block_friction", n=3, params=prm, ic_map=lambda beta: rocking_block_friction_start(beta, a, b),
-        default_beta=0.1,
+        name="rocking_block_friction", n=3, params=prm, ic_map_params=True, default_beta=0.1,
+        ic_map=lambda beta, p: rocking_block_friction_start(beta, p["a"], p["b"]),
         description="Housner's rocking block (width b, height a) released at rest on a corner at the tilt "
                     "beta: it rocks on its corners without sliding (friction mu, mu_s), plastic corner impacts, "
                     "the angular velocity times 1 - 3/2 sin^2 alpha (alpha = atan(b/a)) at each (declared by "
@@ -288,10 +287,9 @@ def rocking_block_friction(**overrides) -> SystemData:
 
 def painleve_rod(**overrides) -> SystemData:
     prm = merge_params({"m": 1.0, "l": 1.0, "g": 9.81, "mu": 1.5, "mu_s": 1.5}, overrides)
-    l = prm["l"]
     return SystemData(
-        name="painleve_rod", n=3, params=prm, ic_map=lambda beta: painleve_rod_start(beta, -1.0, 0.0, l),
-        default_beta=0.9,
+        name="painleve_rod", n=3, params=prm, ic_map=lambda beta, p: painleve_rod_start(beta, -1.0, 0.0, p["l"]),
+        ic_map_params=True, default_beta=0.9,
         description="uniform rod (length 2 l) sliding on one end at 1 m/s from the tilt beta, friction mu: "
                     "where B = 1 + 3 cos^2 theta - 3 mu sin theta cos theta <= 0 (mu > 4/3) the held contact "
                     "has no unique force (Painleve's paradox) and the run ends with status painleve "

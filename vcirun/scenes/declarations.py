@@ -263,6 +263,7 @@ def compass_gait(**overrides) -> MechanicalSystem:
 
 def _with_start(d: sd.SystemData, s: MechanicalSystem) -> MechanicalSystem:
     s.ic_map, s.default_beta, s.default_q0, s.default_p0 = d.ic_map, d.default_beta, d.default_q0, d.default_p0
+    s.ic_map_params = d.ic_map_params
     s.description = d.description
     return s
 
