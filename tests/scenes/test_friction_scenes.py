@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 import vcirun
-from vcirun.scenes import friction, friction_oracles as fo
+from vcirun.scenes import friction
+from vcirun.scenes import friction_oracles as fo
 from vcirun.scenes.catalog import describe, listed_scenes
 from vcirun.scenes.data import scene_data
 from vcirun.scenes.declarations import get_scene

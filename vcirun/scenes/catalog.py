@@ -269,12 +269,12 @@ _EXAMPLE_ARGS = {
     "bouncing_ball": ("", "elastic bounces on the floor"),
     "ball_in_box": ("", "bounces off floor, walls and ceiling"),
     "double_pendulum_walls": ("", "the tip bounces between the walls"),
-    "rocking_block": ("--h 0.001 --T 3", "23 corner impacts, then at rest; frictionless, the corners slide: "
-                                         "rocking_block_friction rocks"),
-    "rocking_block_friction": ("--h 0.001 --T 1", "Housner's rocking: corner impacts at t = 0.2238, 0.551, "
-                                                  "0.7995, 0.9919 s, the corners sticking"),
-    "spinning_ball": ("--h 0.001 --T 1", "slides through the impact at t = 0.4284, rolls from t = 0.7281 "
-                                         "(slip -> stick); --beta 10 sticks at the impact"),
+    "rocking_block": ("--h 0.001 --T 3", ("23 corner impacts, then at rest; frictionless, the corners slide: "
+                                          "rocking_block_friction rocks")),
+    "rocking_block_friction": ("--h 0.001 --T 1", ("Housner's rocking: corner impacts at t = 0.2238, 0.551, "
+                                                   "0.7995, 0.9919 s, the corners sticking")),
+    "spinning_ball": ("--h 0.001 --T 1", ("slides through the impact at t = 0.4284, rolls from t = 0.7281 "
+                                          "(slip -> stick); --beta 10 sticks at the impact")),
     "incline": ("--h 0.01 --T 1", "stops at t = 0.419 s, slides back (slip reversed); --param mu_s=0.4 sticks"),
     "coulomb_oscillator": ("--h 0.01 --T 6", "four slip reversals, sticks at t = 4.97 s"),
     "painleve_rod": ("--h 0.001 --T 0.5", "B < 0 at the start: the run ends with status painleve (exit code 1)"),

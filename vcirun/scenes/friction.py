@@ -21,12 +21,28 @@ import numpy as np
 import sympy as sp
 
 from ..mechanics.bodies import Body, Joint, PointContact, planar_system
-from .data import (block_corner, coulomb_oscillator_start, incline_start, link_chain_start, painleve_rod_start,
-                   rocking_block_friction_start, spinning_ball_start)
 from ..mechanics.system import Constraint, MechanicalSystem
+from .data import (
+    block_corner,
+    coulomb_oscillator_start,
+    incline_start,
+    link_chain_start,
+    painleve_rod_start,
+    rocking_block_friction_start,
+    spinning_ball_start,
+)
 
-__all__ = ["spinning_ball", "incline", "coulomb_oscillator", "pushed_block", "rocking_block_friction", "painleve_rod",
-           "link_chain_friction", "compass_gait_stance", "block_corner"]
+__all__ = [
+    "block_corner",
+    "compass_gait_stance",
+    "coulomb_oscillator",
+    "incline",
+    "link_chain_friction",
+    "painleve_rod",
+    "pushed_block",
+    "rocking_block_friction",
+    "spinning_ball",
+]
 
 
 def spinning_ball(w0=50.0, *, m=1.0, R=0.1, mu=0.2, g=9.81, h=1.0, v0=0.0) -> MechanicalSystem:
