@@ -132,6 +132,7 @@ def test_bad_overrides_name_the_field():
         scene_data("link_chain_friction_3").param_values({"e": 1.5})
 
 
+@pytest.mark.slow   # four scenes' kernels: about 4 min of CPU on an empty cache
 def test_builtin_rocking_and_sliding_follow_their_closed_forms():
     """By name, on the compiled path: Housner's corner impacts (times and the angular-velocity ratio
     1 - 3/2 sin^2 alpha), the incline's stop, the oscillator's turning points, the ball's rolling start."""
