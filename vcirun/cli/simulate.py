@@ -136,6 +136,11 @@ def summary_lines(traj, total_seconds: float) -> list[tuple[str, str]]:
     rows.append(("steps", f"{traj.n_steps}"))
     imp = ", ".join(f"{t:.4g}" for t in traj.impacts[:8]) + (" ..." if len(traj.impacts) > 8 else "")
     rows.append(("impacts", f"{len(traj.impacts)}" + (f" at t = {imp}" if len(traj.impacts) else "")))
+    if len(traj.mode_changes):   # friction: stick/slip transitions of held contacts (located events)
+        kinds = np.bincount(np.asarray(traj.mode_change_kind, int), minlength=4)
+        mc = ", ".join(f"{t:.4g}" for t in traj.mode_changes[:8]) + (" ..." if len(traj.mode_changes) > 8 else "")
+        rows.append(("mode changes", (f"{len(traj.mode_changes)} at t = {mc} ({kinds[1]} slip -> stick, "
+                                      f"{kinds[2]} stick -> slip, {kinds[3]} slip reversed)")))
     rows.append(("status", traj.status + (f" ({traj.message})" if traj.message else "")))
     rows += energy_rows(traj)
     setup = max(0.0, total_seconds - traj.wall_time)

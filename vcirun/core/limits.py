@@ -62,6 +62,7 @@ FAMILY_SIZES = {
     #               (smallest K, largest K, coordinates(K), contacts(K))
     "n_pendulum": (1, 32, lambda k: k, lambda k: 1),
     "link_chain": (1, 30, lambda k: k + 2, lambda k: k + 1),
+    "link_chain_friction": (1, 30, lambda k: k + 2, lambda k: k + 1),
     "cradle_gap": (2, 32, lambda k: k, lambda k: k - 1),
     "cradle": (2, 32, lambda k: k, lambda k: k - 1),
     "newton_cradle": (1, 128, lambda k: k, lambda k: k - 1),

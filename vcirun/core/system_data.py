@@ -30,6 +30,7 @@ class SystemData:
     coordinates: list | None = None   # coordinate names (None: vcirun.scenes.catalog's for built-in scenes)
     default_beta: float | None = None
     restitution: dict | None = None   # parameter name -> the constraints it is the restitution coefficient of
+    ic_map_params: bool = False       # ic_map takes (beta, {parameter: value}): a start that moves with them
 
     def param_values(self, overrides: dict | None = None) -> np.ndarray:
         """Parameter vector in declaration order, with overrides applied (unknown names rejected, a
@@ -42,7 +43,8 @@ class SystemData:
         return cls(name=system.name, n=system.n, params=dict(system.params), ic_map=system.ic_map,
                    default_q0=system.default_q0, default_p0=system.default_p0, description=system.description,
                    coordinates=[str(c) for c in system.q], default_beta=getattr(system, "default_beta", None),
-                   restitution=restitution_parameters(system))
+                   restitution=restitution_parameters(system),
+                   ic_map_params=bool(getattr(system, "ic_map_params", False)))
 
 
 def restitution_parameters(system) -> dict:
@@ -96,13 +98,15 @@ def start_beta(d, beta=None, q0=None, p0=None):
     return getattr(d, "default_beta", None) if d.ic_map is not None else None
 
 
-def requested_start(d, beta=None, q0=None, p0=None) -> tuple:
+def requested_start(d, beta=None, q0=None, p0=None, params=None) -> tuple:
     """The one rule for a run's initial state (vcirun.simulate, MechanicalSystem.initial_state, and so
     the CLI, the sweeps and vcirun.verify): ("state", q0, p0) from explicit values or the system's
     default state, or ("legendre", q0, qdot0) from its initial-condition map at beta (given, or the
     system's `default_beta`; p0 = M(q0) qdot0 is the caller's: compiled or symbolic M).
-    d: anything with name, n, ic_map, default_q0, default_p0 (and optionally default_beta).
-    ValueError names what is missing."""
+    d: anything with name, n, ic_map, default_q0, default_p0 (and optionally default_beta, and
+    ic_map_params: its ic_map takes the parameter values too, e.g. a block started on its corner, so that a
+    start on a contact surface stays on it when a parameter is overridden); params: the run's parameter
+    vector in d.params' order (None: the defaults). ValueError names what is missing."""
     beta = start_beta(d, beta, q0, p0)
     if q0 is not None or p0 is not None:
         if q0 is None or p0 is None:
@@ -111,7 +115,11 @@ def requested_start(d, beta=None, q0=None, p0=None) -> tuple:
     elif beta is not None:
         if d.ic_map is None:
             raise ValueError(f"beta: system {d.name} has no initial-condition map; give q0 and p0")
-        qq, qdot = d.ic_map(float(beta))
+        if getattr(d, "ic_map_params", False):
+            vals = list(d.params.values()) if params is None else [float(v) for v in params]
+            qq, qdot = d.ic_map(float(beta), dict(zip(d.params, vals)))
+        else:
+            qq, qdot = d.ic_map(float(beta))
         kind, q0, p0 = "legendre", np.array(qq, dtype=float), np.array(qdot, dtype=float)
     elif d.default_q0 is not None:
         kind, q0, p0 = "state", np.array(d.default_q0, float), np.array(d.default_p0, float)

@@ -62,7 +62,8 @@ class MechanicalSystem:
     forcing   : optional length-n sympy Matrix f(q, qdot, t) (generalized forces), symbols `qd` and `t`
     ic_map    : optional callable beta -> (q0, qdot0) (a scene's initial-condition family, e.g. Xi)
     default_q0, default_p0: optional default start state; default_beta: optional default beta of
-                ic_map, the start of a system without a default state (vcirun.core.system_data)
+                ic_map, the start of a system without a default state (vcirun.core.system_data);
+                ic_map_params: ic_map takes (beta, {parameter: value}), a start that follows overrides
     """
 
     name: str
@@ -80,6 +81,7 @@ class MechanicalSystem:
     description: str = ""
     constraints: list | None = None
     default_beta: float | None = None
+    ic_map_params: bool = False   # ic_map takes (beta, {parameter: value}) (vcirun.core.system_data.requested_start)
     drawing: object = field(default=None, repr=False, compare=False)   # vcirun.mechanics.drawing.Drawing, for animations
 
     def __post_init__(self):
@@ -403,7 +405,7 @@ class MechanicalSystem:
 
     def initial_state(self, beta=None, q0=None, p0=None, params=None):
         """(q0, p0) from explicit values, the scene's initial-condition map at beta, or its default."""
-        kind, q0, p0 = requested_start(self, beta, q0, p0)  # the same rule as vcirun.simulate
+        kind, q0, p0 = requested_start(self, beta, q0, p0, params)  # the same rule as vcirun.simulate
         if kind == "legendre":
             q0, p0 = self.legendre(q0, p0, params)
         self.check_hyperregular(q0, params)

@@ -193,7 +193,7 @@ def start_state(d: SystemData, beta, q0, p0, prm, sysm=None):
     ("legendre", q0, qdot0) (p0 = M(q0) qdot0 is computed by `initial_state` with the compiled M).
     Same rules and messages as MechanicalSystem.initial_state; with the symbolic system at hand
     (cold path) the hyperregularity check runs here, before anything is generated or compiled."""
-    kind, q0, p0 = requested_start(d, beta, q0, p0)
+    kind, q0, p0 = requested_start(d, beta, q0, p0, prm)
     if sysm is not None:
         sysm.check_hyperregular(q0, prm)
     return kind, q0, p0, sysm is not None

@@ -120,7 +120,54 @@ BUILTIN_INFO |= {
         "the default state with its velocities scaled by beta",
         "the period-one gait at gamma = 3 deg just after heel strike"),
 }
-_SIZED_INFO = ("n_pendulum", "newton_cradle", "link_chain", "cradle_gap", "cradle")  # listed as <name>_3 (K: FAMILY_SIZES)
+_MU = ("", "Coulomb (kinetic) friction coefficient")
+_MU_S = ("", "static friction coefficient (>= mu)")
+_BLOCK = (("x", "m", "horizontal position of the block's centre"), ("y", "m", "height of the block's centre"),
+          ("theta", "rad", "tilt of the block"))
+BUILTIN_INFO |= {
+    "rocking_block_friction": SceneInfo(
+        "rocking_block_friction", _BLOCK,
+        {"m": ("kg", "mass"), "a": ("m", "block height"), "b": ("m", "block width"),
+         "g": ("m/s^2", "gravitational acceleration"), "mu": _MU, "mu_s": _MU_S},
+        "2 contacts: the lower corners (-b/2, -a/2) and (b/2, -a/2) above the floor y = 0, plastic, with "
+        "friction (declared by bodies)",
+        "at rest on a corner at the tilt theta = beta (the left corner for beta > 0), that corner on the floor",
+        "beta = 0.1"),
+    "spinning_ball": SceneInfo(
+        "spinning_ball", (("x", "m", "horizontal position of the centre"), ("y", "m", "height of the centre"),
+                          ("phi", "rad", "angle of the ball")),
+        {"m": ("kg", "mass"), "R": ("m", "radius"), "mu": _MU, "g": ("m/s^2", "gravitational acceleration")},
+        "1 contact: the rim above the floor, y - R >= 0, plastic, with friction (the slip velocity xdot + R phidot "
+        "includes the spin)",
+        "dropped from centre height 1, at rest but for the spin phidot = beta",
+        "beta = 50 (slides through the impact; beta = 10 sticks)"),
+    "incline": SceneInfo(
+        "incline", (("x", "m", "horizontal position"), ("y", "m", "height")),
+        {"m": ("kg", "mass"), "g": ("m/s^2", "gravitational acceleration"), "theta": ("rad", "slope angle"),
+         "mu": _MU, "mu_s": _MU_S},
+        "1 contact: -sin(theta) x + cos(theta) y >= 0 (the slope through the origin), plastic, with friction "
+        "along (cos theta, sin theta)",
+        "at the origin, launched up the slope at beta m/s",
+        "beta = 2 (stops at t = 0.419 s, then slides back: tan theta > mu_s)"),
+    "coulomb_oscillator": SceneInfo(
+        "coulomb_oscillator", (("x", "m", "position along the floor (the spring's rest point x = 0)"),
+                               ("y", "m", "height above the floor")),
+        {"m": ("kg", "mass"), "k": ("N/m", "spring stiffness"), "g": ("m/s^2", "gravitational acceleration"),
+         "mu": _MU, "mu_s": _MU_S},
+        "1 contact: the floor y >= 0, plastic, with friction along x",
+        "on the floor at x = beta, at rest", "beta = 1 (five half swings, then it sticks)"),
+    "painleve_rod": SceneInfo(
+        "painleve_rod", (("x", "m", "horizontal position of the rod's centre"),
+                         ("y", "m", "height of the rod's centre"), ("theta", "rad", "angle of the rod from the floor")),
+        {"m": ("kg", "mass"), "l": ("m", "half length"), "g": ("m/s^2", "gravitational acceleration"),
+         "mu": _MU, "mu_s": _MU_S},
+        "1 contact: the lower end C - l (cos theta, sin theta) above the floor y = 0, plastic, with friction "
+        "(declared by bodies)",
+        "its end on the floor at the tilt theta = beta, the centre moving at xdot = -1 m/s, not turning",
+        "beta = 0.9 (B < 0 there for mu = 1.5: status painleve)"),
+}
+
+_SIZED_INFO = ("n_pendulum", "newton_cradle", "link_chain", "cradle_gap", "cradle", "link_chain_friction")  # listed as <name>_3 (K: FAMILY_SIZES)
 
 
 def _sized_info(base: str, n: int) -> SceneInfo:
@@ -136,13 +183,15 @@ def _sized_info(base: str, n: int) -> SceneInfo:
                          {"m": ("kg", "mass of each ball"), "d": ("m", "ball diameter"), "e": _E},
                          f"{n - 1} contacts c{{i}}{{i+1}}: x_(i+1) - x_i - d >= 0", "",
                          "balls 2..N touching at rest, ball 1 0.2 m away approaching at 1 m/s")
-    if base == "link_chain":
+    if base in ("link_chain", "link_chain_friction"):
+        fr = base == "link_chain_friction"
         return SceneInfo(name, (("x", "m", "first end of link 1, horizontal"), ("y", "m", "first end of link 1, height"))
                          + tuple((f"theta{i}", "rad", f"absolute angle of link {i} from the horizontal")
                                  for i in range(1, n + 1)),
                          {"m": ("kg", "mass of each link"), "l": ("m", "length of each link"),
-                          "g": ("m/s^2", "gravitational acceleration"), "e": _E},
-                         f"{n + 1} contacts end0..end{n}: the link ends above the floor y = 0 (declared by bodies)",
+                          "g": ("m/s^2", "gravitational acceleration"), "e": _E, **({"mu": _MU} if fr else {})},
+                         f"{n + 1} contacts end0..end{n}: the link ends above the floor y = 0"
+                         + (", with friction mu" if fr else "") + " (declared by bodies)",
                          "height of the first end y = beta, tilted zigzag, at rest",
                          "y = 0.5, theta_k = 0.3 (-1)^k + 0.05, at rest")
     gap = base == "cradle_gap"
@@ -179,7 +228,7 @@ def scene_info(name: str) -> SceneInfo | None:
     if not args[1]:
         from .data import scene_data
 
-        return _sized_info(args[0], scene_data(name).n - (2 if args[0] == "link_chain" else 0))
+        return _sized_info(args[0], scene_data(name).n - (2 if args[0].startswith("link_chain") else 0))
     return _sized_info(args[0], args[1][0])
 
 
@@ -193,7 +242,7 @@ def describe(name: str) -> list[str]:
         raise ValueError(f"system: unknown built-in system {name!r} (choose one of {', '.join(listed_scenes())}; "
                          "the sized ones with K in their range, e.g. cradle_20)")
     d = scene_data(name)
-    sized = next((b for b in _SIZED_INFO if name.startswith(b + "_") and name[len(b) + 1:].isdigit()), None)
+    sized = _family(name)
     coords = ", ".join(f"{c} [{u}] {m}" for c, u, m in info.coordinates)
     lines = [f"{name}  {d.description}" + (f"  ({sized}_K: K from {FAMILY_SIZES[sized][0]} to "
                                            f"{FAMILY_SIZES[sized][1]})" if sized else ""),
@@ -220,11 +269,20 @@ _EXAMPLE_ARGS = {
     "bouncing_ball": ("", "elastic bounces on the floor"),
     "ball_in_box": ("", "bounces off floor, walls and ceiling"),
     "double_pendulum_walls": ("", "the tip bounces between the walls"),
-    "rocking_block": ("--h 0.001 --T 3", "23 corner impacts, then at rest"),
+    "rocking_block": ("--h 0.001 --T 3", ("23 corner impacts, then at rest; frictionless, the corners slide: "
+                                          "rocking_block_friction rocks")),
+    "rocking_block_friction": ("--h 0.001 --T 1", ("Housner's rocking: corner impacts at t = 0.2238, 0.551, "
+                                                   "0.7995, 0.9919 s, the corners sticking")),
+    "spinning_ball": ("--h 0.001 --T 1", ("slides through the impact at t = 0.4284, rolls from t = 0.7281 "
+                                          "(slip -> stick); --beta 10 sticks at the impact")),
+    "incline": ("--h 0.01 --T 1", "stops at t = 0.419 s, slides back (slip reversed); --param mu_s=0.4 sticks"),
+    "coulomb_oscillator": ("--h 0.01 --T 6", "four slip reversals, sticks at t = 4.97 s"),
+    "painleve_rod": ("--h 0.001 --T 0.5", "B < 0 at the start: the run ends with status painleve (exit code 1)"),
     "rimless_wheel": ("--h 0.001 --T 3", "a spoke impact every 0.4 s"),
     "compass_gait": ("--h 0.001 --T 3", "a heel strike every 0.73 s"),
 }
 _SIZED_EXAMPLE_ARGS = {"link_chain": ("--h 0.001 --T 2", "the link ends hit the floor, then rest"),
+                       "link_chain_friction": ("--h 0.001 --T 1", "the link ends hit the floor, stick and slip"),
                        "cradle": ("--h 0.001 --T 2", "ball 1 hits the touching row: Moreau's simultaneous law, "
                                                      "balls 2..N move on together"),
                        "cradle_gap": ("--h 0.001 --T 2", "pairwise impacts down the row, the last ball swings out"),
@@ -232,10 +290,15 @@ _SIZED_EXAMPLE_ARGS = {"link_chain": ("--h 0.001 --T 2", "the link ends hit the 
                        "n_pendulum": ("", "the tip hits the wall")}
 
 
+def _family(name: str, bare: bool = False) -> str | None:
+    """The sized family of `name` (<family>_K; with bare, the family's own name too), else None."""
+    return next((b for b in _SIZED_INFO if (name.startswith(b + "_") and name[len(b) + 1:].isdigit())
+                 or (bare and name == b)), None)
+
+
 def example_command(name: str) -> str:
     """The `vcirun simulate` line `vcirun systems` shows for a built-in scene, with what it shows."""
-    sized = next((b for b in _SIZED_INFO if (name.startswith(b + "_") and name[len(b) + 1:].isdigit()) or name == b),
-                 None)
+    sized = _family(name, bare=True)
     args, what = _EXAMPLE_ARGS.get(name) or (_SIZED_EXAMPLE_ARGS.get(sized) if sized else None) or ("", "")
     cmd = f"vcirun simulate --system {name}" + (f" {args}" if args else "")
     return cmd + (f"   ({what})" if what else "   (the default state)")

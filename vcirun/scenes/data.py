@@ -4,6 +4,8 @@ forcing on top of them). A warm start resolves a scene by name from here alone.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..core.limits import sized_family
@@ -109,18 +111,25 @@ def rocking_block(**overrides) -> SystemData:
         default_p0=np.zeros(3),
         ic_map=lambda beta: (np.array([0.0, beta, 0.2]), np.zeros(3)),
         description="rectangular block (width b, height a) dropped tilted on the floor y = 0; its two lower "
-                    "corners are the contacts, restitution e (declared by bodies)")
+                    "corners are the contacts, restitution e, frictionless: it slides as it bounces and settles "
+                    "(the block rocking on its corners without sliding: rocking_block_friction) (declared by bodies)")
+
+
+def link_chain_start(n: int, height: float):
+    """(q0, qdot0) of a chain of n links: a tilted zigzag (theta_k = 0.3 (-1)^k + 0.05: the ends at
+    different heights), its first end at (0, height), at rest (link_chain and link_chain_friction)."""
+    angles = [0.3 * (-1) ** k + 0.05 for k in range(1, int(n) + 1)]
+    return np.array([0.0, float(height)] + angles), np.zeros(int(n) + 2)
 
 
 def link_chain(n: int = 5, **overrides) -> SystemData:
     n = int(n)
     prm = merge_params({"m": 0.2, "l": 0.3, "g": 9.81, "e": 0.3}, overrides)
-    angles = [0.3 * (-1) ** k + 0.05 for k in range(1, n + 1)]  # a tilted zigzag: the ends at different heights
-    q0 = np.array([0.0, 0.5] + angles)
+    q0 = link_chain_start(n, 0.5)[0]
     return SystemData(
         name=f"link_chain_{n}", n=n + 2, params=prm, restitution=_EVERY_CONTACT, default_q0=q0,
         default_p0=np.zeros(n + 2),
-        ic_map=lambda beta: (np.array([0.0, beta] + angles), np.zeros(n + 2)),
+        ic_map=lambda beta: link_chain_start(n, beta),
         description=f"chain of {n} links (revolute joints, the first on a free joint) falling on the floor "
                     "y = 0; the link ends are the contacts, restitution e (declared by bodies)")
 
@@ -196,6 +205,108 @@ def compass_gait(**overrides) -> SystemData:
         description="compass-gait walker (Goswami et al.) on a slope gamma: heel strike as a declared reset")
 
 
+# --- the scenes with Coulomb friction -----------------------------------------------------------------
+# Their physics (M, V, the contacts with their friction) is vcirun.scenes.friction's, whose constructors
+# take their start states from the functions below (one definition, without sympy); the parameter
+# defaults here are the constructors' (tests/scenes/test_friction_scenes.py holds them equal).
+
+def block_corner(theta, a, b, side):
+    """The corner (side b/2, -a/2) of a block at angle theta, relative to its centre."""
+    cx, cy = side * b / 2.0, -a / 2.0
+    return cx * math.cos(theta) - cy * math.sin(theta), cx * math.sin(theta) + cy * math.cos(theta)
+
+
+def spinning_ball_start(w0, h=1.0, v0=0.0):
+    """(q0, qdot0) of the spinning ball: centre at height h, horizontal velocity v0, spin w0."""
+    return np.array([0.0, float(h), 0.0]), np.array([float(v0), 0.0, float(w0)])
+
+
+def incline_start(theta, v0=0.0):
+    """(q0, qdot0) of the block on the incline: at the origin (on the slope), velocity v0 up the slope."""
+    return np.zeros(2), float(v0) * np.array([math.cos(theta), math.sin(theta)])
+
+
+def coulomb_oscillator_start(x0=1.0, v0=0.0):
+    """(q0, qdot0) of the Coulomb oscillator: on the floor at x0 with velocity v0."""
+    return np.array([float(x0), 0.0]), np.array([float(v0), 0.0])
+
+
+def rocking_block_friction_start(theta0, a, b):
+    """(q0, qdot0) of the block at rest on one corner at the tilt theta0 (the left corner for theta0 >
+    0), that corner exactly on the floor y = 0."""
+    rx, ry = block_corner(theta0, a, b, -1 if theta0 > 0 else 1)
+    return np.array([-rx, -ry, float(theta0)]), np.zeros(3)
+
+
+def painleve_rod_start(theta0, xdot0, thetadot0, l):
+    """(q0, qdot0) of the rod with its end A on the floor at the tilt theta0: centre velocity (xdot0,
+    l cos(theta0) thetadot0) (A's normal velocity zero), angular velocity thetadot0."""
+    return (np.array([0.0, l * math.sin(theta0), float(theta0)]),
+            np.array([float(xdot0), l * math.cos(theta0) * thetadot0, float(thetadot0)]))
+
+
+def spinning_ball(**overrides) -> SystemData:
+    prm = merge_params({"m": 1.0, "R": 0.1, "mu": 0.2, "g": 9.81}, overrides)
+    return SystemData(
+        name="spinning_ball", n=3, params=prm, ic_map=lambda beta: spinning_ball_start(beta), default_beta=50.0,
+        description="ball (radius R, inertia 2/5 m R^2) dropped from centre height 1 with spin beta onto the "
+                    "floor y = 0: plastic impact with Coulomb friction mu (Capobianco et al. 2021, 10.1); the "
+                    "contact sticks at impact iff (2/7) R beta <= mu v_n, else it slides, then rolls "
+                    "(declared by bodies)")
+
+
+def incline(**overrides) -> SystemData:
+    prm = merge_params({"m": 1.0, "g": 9.81, "theta": 0.3, "mu": 0.2, "mu_s": 0.2}, overrides)
+    return SystemData(
+        name="incline", n=2, params=prm, ic_map=lambda beta, p: incline_start(p["theta"], beta), ic_map_params=True,
+        default_beta=2.0,
+        description="block (a point mass) on an incline of angle theta, launched uphill at beta m/s with "
+                    "Coulomb friction mu: it stops, then sticks if tan theta <= mu_s, else slides back")
+
+
+def coulomb_oscillator(**overrides) -> SystemData:
+    prm = merge_params({"m": 1.0, "k": 10.0, "g": 9.81, "mu": 0.1, "mu_s": 0.1}, overrides)
+    return SystemData(
+        name="coulomb_oscillator", n=2, params=prm, ic_map=lambda beta: coulomb_oscillator_start(beta),
+        default_beta=1.0,
+        description="block on the floor y = 0 on a spring k to x = 0, released at x = beta: Coulomb friction "
+                    "mu takes 2 mu m g / k of amplitude each half period pi sqrt(m/k); it sticks at the first "
+                    "turning point with |x| <= mu_s m g / k")
+
+
+def rocking_block_friction(**overrides) -> SystemData:
+    prm = merge_params({"m": 1.0, "a": 1.0, "b": 0.4, "g": 9.81, "mu": 0.8, "mu_s": 0.8}, overrides)
+    return SystemData(
+        name="rocking_block_friction", n=3, params=prm, ic_map_params=True, default_beta=0.1,
+        ic_map=lambda beta, p: rocking_block_friction_start(beta, p["a"], p["b"]),
+        description="Housner's rocking block (width b, height a) released at rest on a corner at the tilt "
+                    "beta: it rocks on its corners without sliding (friction mu, mu_s), plastic corner impacts, "
+                    "the angular velocity times 1 - 3/2 sin^2 alpha (alpha = atan(b/a)) at each (declared by "
+                    "bodies)")
+
+
+def painleve_rod(**overrides) -> SystemData:
+    prm = merge_params({"m": 1.0, "l": 1.0, "g": 9.81, "mu": 1.5, "mu_s": 1.5}, overrides)
+    return SystemData(
+        name="painleve_rod", n=3, params=prm, ic_map=lambda beta, p: painleve_rod_start(beta, -1.0, 0.0, p["l"]),
+        ic_map_params=True, default_beta=0.9,
+        description="uniform rod (length 2 l) sliding on one end at 1 m/s from the tilt beta, friction mu: "
+                    "where B = 1 + 3 cos^2 theta - 3 mu sin theta cos theta <= 0 (mu > 4/3) the held contact "
+                    "has no unique force (Painleve's paradox) and the run ends with status painleve "
+                    "(declared by bodies)")
+
+
+def link_chain_friction(n: int = 5, **overrides) -> SystemData:
+    n = int(n)
+    prm = merge_params({"m": 0.2, "l": 0.3, "g": 9.81, "e": 0.3, "mu": 0.5}, overrides)
+    q0, qdot0 = link_chain_start(n, 0.5)
+    return SystemData(
+        name=f"link_chain_friction_{n}", n=n + 2, params=prm, restitution=_EVERY_CONTACT, default_q0=q0,
+        default_p0=qdot0, ic_map=lambda beta: link_chain_start(n, beta),
+        description=f"the chain of {n} links of link_chain_{n} with Coulomb friction mu at the link ends: it lands, "
+                    "its ends stick and slip, it does not skate (declared by bodies)")
+
+
 BUILTIN_SCENE_DATA = {
     "cart_pendulum": cart_pendulum,
     "double_pendulum": double_pendulum,
@@ -212,6 +323,12 @@ BUILTIN_SCENE_DATA = {
     "cradle_gap": cradle_gap,
     "rimless_wheel": rimless_wheel,
     "compass_gait": compass_gait,
+    "rocking_block_friction": rocking_block_friction,
+    "spinning_ball": spinning_ball,
+    "incline": incline,
+    "coulomb_oscillator": coulomb_oscillator,
+    "painleve_rod": painleve_rod,
+    "link_chain_friction": link_chain_friction,
 }
 def scene_args(name: str):
     """(factory name, positional args) of a built-in scene name (`n_pendulum_K` -> ('n_pendulum', (K,))),

@@ -2,7 +2,9 @@
 a harmonic oscillator against a wall (closed-form oracle), an n-link pendulum (scaling), a
 linearly damped oscillator (forced DEL check), a bouncing ball with drag (impact accumulation), a
 ball in a box, a line of balls and the double pendulum between walls; the mechanisms declared by
-bodies and joints (rocking block, link chain, hanging cradle) are vcirun.scenes.mechanisms'.
+bodies and joints (rocking block, link chain, hanging cradle) are vcirun.scenes.mechanisms'; the
+scenes with Coulomb friction (rocking_block_friction, spinning_ball, incline, coulomb_oscillator,
+painleve_rod, link_chain_friction_K) are vcirun.scenes.friction's constructors.
 
 The numeric parts of each scene (parameter defaults, initial-condition map, default state,
 description) live in the sympy-free `vcirun.scenes.data`; this module adds the symbolic M, V, phi
@@ -14,7 +16,7 @@ import functools
 import sympy as sp
 
 from . import data as sd
-from . import mechanisms
+from . import friction, mechanisms
 from ..mechanics.system import Constraint, MechanicalSystem
 
 
@@ -254,6 +256,47 @@ def compass_gait(**overrides) -> MechanicalSystem:
     draw = dict(points=pts, segments=[("stance", "hip"), ("hip", "swing")], dots=["hip", "m_stance", "m_swing"],
                 lines=[((0, 0), (sp.sin(gam), sp.cos(gam)))], contacts=["swing"], advance=pts["swing"])
     return _system(d, [ts, tn], M, V, None, qd=[tsd, tnd], constraints=[heel], draw=draw)
+
+
+# --- the scenes with Coulomb friction: the constructors of vcirun.scenes.friction at the scene data's
+# parameters, with its start (initial-condition map, default beta or state) and description
+
+def _with_start(d: sd.SystemData, s: MechanicalSystem) -> MechanicalSystem:
+    s.ic_map, s.default_beta, s.default_q0, s.default_p0 = d.ic_map, d.default_beta, d.default_q0, d.default_p0
+    s.ic_map_params = d.ic_map_params
+    s.description = d.description
+    return s
+
+
+def rocking_block_friction(**overrides) -> MechanicalSystem:
+    d = sd.rocking_block_friction(**overrides)
+    return _with_start(d, friction.rocking_block_friction(**d.params))
+
+
+def spinning_ball(**overrides) -> MechanicalSystem:
+    d = sd.spinning_ball(**overrides)
+    return _with_start(d, friction.spinning_ball(**d.params))
+
+
+def incline(**overrides) -> MechanicalSystem:
+    d = sd.incline(**overrides)
+    return _with_start(d, friction.incline(**d.params))
+
+
+def coulomb_oscillator(**overrides) -> MechanicalSystem:
+    d = sd.coulomb_oscillator(**overrides)
+    return _with_start(d, friction.coulomb_oscillator(**d.params))
+
+
+def painleve_rod(**overrides) -> MechanicalSystem:
+    d = sd.painleve_rod(**overrides)
+    return _with_start(d, friction.painleve_rod(**d.params))
+
+
+def link_chain_friction(n: int = 5, **overrides) -> MechanicalSystem:
+    n = int(n)
+    d = sd.link_chain_friction(n, **overrides)
+    return _with_start(d, friction.link_chain_friction(n, **d.params))
 
 
 # One registry of built-in scenes: the names (and numeric parts) are vcirun.scenes.data's; each has its

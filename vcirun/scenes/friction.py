@@ -17,16 +17,32 @@ through params=); the start state is built from the arguments (exactly on the co
 the scene starts held)."""
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import sympy as sp
 
 from ..mechanics.bodies import Body, Joint, PointContact, planar_system
 from ..mechanics.system import Constraint, MechanicalSystem
+from .data import (
+    block_corner,
+    coulomb_oscillator_start,
+    incline_start,
+    link_chain_start,
+    painleve_rod_start,
+    rocking_block_friction_start,
+    spinning_ball_start,
+)
 
-__all__ = ["spinning_ball", "incline", "coulomb_oscillator", "pushed_block", "rocking_block_friction", "painleve_rod",
-           "link_chain_friction", "compass_gait_stance", "block_corner"]
+__all__ = [
+    "block_corner",
+    "compass_gait_stance",
+    "coulomb_oscillator",
+    "incline",
+    "link_chain_friction",
+    "painleve_rod",
+    "pushed_block",
+    "rocking_block_friction",
+    "spinning_ball",
+]
 
 
 def spinning_ball(w0=50.0, *, m=1.0, R=0.1, mu=0.2, g=9.81, h=1.0, v0=0.0) -> MechanicalSystem:
@@ -34,11 +50,12 @@ def spinning_ball(w0=50.0, *, m=1.0, R=0.1, mu=0.2, g=9.81, h=1.0, v0=0.0) -> Me
     angle), released at centre height h with horizontal velocity v0 and spin phidot = w0 onto the floor
     y = 0: restitution 0, friction mu (the rim's material point slides at xdot + R phidot). Defaults:
     Capobianco et al. 2021, section 10.1."""
+    q0, qdot0 = spinning_ball_start(w0, h, v0)
     s = planar_system("spinning_ball", [Body("ball", "m", "2*m*R**2/5", radius="R")],
                       [Joint("free", "ball", coordinates=("x", "y", "phi"))],
                       [PointContact("floor", "ball", radius="R", restitution=0, friction="mu")],
-                      params={"m": m, "R": R, "mu": mu, "g": g}, gravity="g", q0=[0.0, h, 0.0],
-                      qdot0=[v0, 0.0, w0],
+                      params={"m": m, "R": R, "mu": mu, "g": g}, gravity="g", q0=q0.tolist(),
+                      qdot0=qdot0.tolist(),
                       description="a ball dropped with spin on a floor, plastic impact with Coulomb friction "
                                   "(Capobianco et al. 2021, section 10.1)")
     return s
@@ -57,8 +74,8 @@ def incline(theta=0.3, *, mu=0.2, mu_s=None, v0=0.0, m=1.0, g=9.81) -> Mechanica
     s = MechanicalSystem(name="incline", q=[x, y], params={"m": m, "g": g, "theta": theta, "mu": mu, "mu_s": mu_s},
                          M=sp.eye(2) * M_, V=M_ * g_ * y, constraints=[c],
                          description="a block on an incline of angle theta with Coulomb friction mu, mu_s")
-    s.default_q0 = np.zeros(2)
-    s.default_p0 = m * v0 * np.array([math.cos(theta), math.sin(theta)])
+    s.default_q0, qdot0 = incline_start(theta, v0)
+    s.default_p0 = m * qdot0
     return s
 
 
@@ -75,8 +92,8 @@ def coulomb_oscillator(x0=1.0, *, v0=0.0, m=1.0, k=10.0, mu=0.1, mu_s=None, g=9.
                          params={"m": m, "k": k, "g": g, "mu": mu, "mu_s": mu_s},
                          M=sp.eye(2) * M_, V=k_ * x ** 2 / 2 + M_ * g_ * y, constraints=[c],
                          description="a block on a floor attached to a spring, Coulomb friction mu, mu_s")
-    s.default_q0 = np.array([float(x0), 0.0])
-    s.default_p0 = np.array([m * v0, 0.0])
+    s.default_q0, qdot0 = coulomb_oscillator_start(x0, v0)
+    s.default_p0 = m * qdot0
     return s
 
 
@@ -94,12 +111,6 @@ def pushed_block(*, c=2.0, mu=0.3, mu_s=0.5, m=1.0, g=9.81) -> MechanicalSystem:
     return s
 
 
-def block_corner(theta, a, b, side):
-    """The corner (side b/2, -a/2) of a block at angle theta, relative to its centre."""
-    cx, cy = side * b / 2.0, -a / 2.0
-    return cx * math.cos(theta) - cy * math.sin(theta), cx * math.sin(theta) + cy * math.cos(theta)
-
-
 def rocking_block_friction(theta0=0.1, *, a=1.0, b=0.4, m=1.0, g=9.81, mu=0.8, mu_s=None) -> MechanicalSystem:
     """A rectangular block (height a, width b, mass m, inertia m (a^2 + b^2)/12) on a free planar joint
     (x, y, theta of its centre), its two lower corners point contacts with the floor y = 0: plastic
@@ -107,8 +118,7 @@ def rocking_block_friction(theta0=0.1, *, a=1.0, b=0.4, m=1.0, g=9.81, mu=0.8, m
     tilt theta0 (the left corner for theta0 > 0), which lies exactly on the floor: Housner's rocking
     (vcirun.scenes.friction_oracles.housner_rocking) while the corners stick."""
     mu_s = mu if mu_s is None else mu_s
-    side = -1 if theta0 > 0 else 1
-    rx, ry = block_corner(theta0, a, b, side)
+    q0 = rocking_block_friction_start(theta0, a, b)[0]
     s = planar_system("rocking_block_friction", [Body("block", "m", "m*(a**2 + b**2)/12")],
                       [Joint("free", "block", coordinates=("x", "y", "theta"))],
                       [PointContact("left", "block", ("-b/2", "-a/2"), restitution=0, friction="mu",
@@ -116,7 +126,7 @@ def rocking_block_friction(theta0=0.1, *, a=1.0, b=0.4, m=1.0, g=9.81, mu=0.8, m
                        PointContact("right", "block", ("b/2", "-a/2"), restitution=0, friction="mu",
                                     static_friction="mu_s")],
                       params={"m": m, "a": a, "b": b, "g": g, "mu": mu, "mu_s": mu_s}, gravity="g",
-                      q0=[-rx, -ry, theta0],
+                      q0=q0.tolist(),
                       description="a block rocking on its corners without sliding (Housner), plastic corner "
                                   "impacts, Coulomb friction mu, mu_s")
     return s
@@ -130,12 +140,12 @@ def painleve_rod(theta0=0.5, *, xdot0=-1.0, thetadot0=0.0, mu=1.5, mu_s=None, m=
     thetadot0: the end slides at xdot0 + l sin(theta0) thetadot0. Painleve's B (friction_oracles.painleve_B)
     decides the held problem."""
     mu_s = mu if mu_s is None else mu_s
-    y0 = l * math.sin(theta0)
+    q0, qdot0 = painleve_rod_start(theta0, xdot0, thetadot0, l)
     s = planar_system("painleve_rod", [Body("rod", "m", "m*l**2/3")],
                       [Joint("free", "rod", coordinates=("x", "y", "theta"))],
                       [PointContact("end", "rod", ("-l", 0), restitution=0, friction="mu", static_friction="mu_s")],
-                      params={"m": m, "l": l, "g": g, "mu": mu, "mu_s": mu_s}, gravity="g", q0=[0.0, y0, theta0],
-                      qdot0=[xdot0, l * math.cos(theta0) * thetadot0, thetadot0],
+                      params={"m": m, "l": l, "g": g, "mu": mu, "mu_s": mu_s}, gravity="g", q0=q0.tolist(),
+                      qdot0=qdot0.tolist(),
                       description="a uniform rod sliding on one end with Coulomb friction (Painleve's paradox "
                                   "for mu > 4/3)")
     return s
@@ -152,10 +162,9 @@ def link_chain_friction(n=5, *, m=0.2, l=0.3, g=9.81, e=0.3, mu=0.5, height=0.5)
                for i in range(2, n + 1)]
     contacts = [PointContact("end0", "link1", restitution="e", friction="mu")]
     contacts += [PointContact(f"end{i}", f"link{i}", ("l", 0), restitution="e", friction="mu") for i in range(1, n + 1)]
-    angles = [0.3 * (-1) ** k + 0.05 for k in range(1, n + 1)]
     return planar_system(f"link_chain_friction_{n}", bodies, joints, contacts,
                          params={"m": m, "l": l, "g": g, "e": e, "mu": mu}, gravity="g",
-                         q0=[0.0, height] + angles,
+                         q0=link_chain_start(n, height)[0].tolist(),
                          description=f"chain of {n} links falling on the floor y = 0 with friction mu at the link "
                                      "ends")
 
