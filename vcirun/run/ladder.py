@@ -83,7 +83,7 @@ def estimate_of(runs: dict, N: int, p: float, mod=None, prm=None, grazing=True) 
     d = _difference(comp, run)
     est = ErrorEstimate("richardson", "ok", run.h, order=p, companion_h=(comp.h,), first_difference=d.first)
     if d.first:
-        est.status, est.message = "unresolved", f"the runs' impact sequences differ: {d.first}"
+        est.status, est.message = "unresolved", f"the runs do not resolve the impacts: {d.first}"
         return est
     floor = roundoff_level(run)
     third = _companion(runs, comp.N, 4)
@@ -125,9 +125,10 @@ def estimate_of(runs: dict, N: int, p: float, mod=None, prm=None, grazing=True) 
         if miss:
             t, c, low = miss[0]
             est.status = "unresolved"
-            est.first_difference = (f"contact {c} grazes near t = {t:.6g} (phi between the grid points down to "
-                                    f"{low:.3g}, within the run's error of the surface) without an impact")
-            est.message = "a grazing contact the grid does not resolve: " + est.first_difference
+            est.first_difference = (f"contact {c} comes within the run's error of its surface near t = {t:.6g} "
+                                    f"(phi down to {low:.3g}) without an impact: a grazing impact, or one just "
+                                    "before the end, may be missed")
+            est.message = "a contact the grid does not resolve: " + est.first_difference
             est.l2 = est.l2_bounds = est.final_q = est.final_p = None
     return est
 
