@@ -134,6 +134,23 @@ def test_tol_meets_the_tolerance_with_every_candidate():
         assert tr.H is not None and np.isfinite(tr.H).all()   # the final run keeps its energies
 
 
+def test_an_estimates_order_is_that_of_its_own_runs():
+    """A coarse pilot that holds a contact (a bounce taken for resting at a large h) lowers the verified
+    order to 2 for the estimates that use it, and only for those: the run at 128 steps, its companion
+    at 64 and its third run at 32 hold nothing and keep CVA8's order 8."""
+    from vcirun.run.choose import _Chooser
+    from vcirun.run.pilot import Runner
+
+    runner = Runner("cart_pendulum", T=5, beta=4.2)
+    ch = _Chooser(runner, None, T=5, tol=1e-6, h_max=None, max_time=None, energies=False, key=None)
+    for N in (16, 32, 64, 128):
+        assert ch.run("CVA8", N).ok
+    assert ch.order("CVA8") == ch.order("CVA8", 64) == 8
+    ch.runs["CVA8"][16].held = True
+    assert ch.order("CVA8", 128) == ch.order("CVA8") == 8
+    assert ch.order("CVA8", 64) == ch.order("CVA8", 32) == ch.order("CVA8", 16) == 2
+
+
 def test_tol_constraints_method_and_largest_step():
     ref = vcirun.reference("double_pendulum_walls", T=3)
     tr = vcirun.simulate("double_pendulum_walls", "CVA4", T=3, tol=1e-6, h=0.01)
