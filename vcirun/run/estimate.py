@@ -478,6 +478,26 @@ def slope_scale(run: Run, mod, prm) -> float:
     return s
 
 
+def companion_runs(run: Run, order, run_at, *, companions: int = 1, check_order: bool = True,
+                   names=None) -> tuple[list, Run | None]:
+    """The runs the Richardson estimate of `run` takes (`richardson`'s arguments): ([run, the companion
+    at 2N, and 4N where the order is seen there], the third run at N/2 or None). run_at(N): the Run
+    of the same method from the same start at N steps. The third run is at N/2 where N is even (half
+    the cost of one at 4N) and that run finishes, holds no contact and resolves the motion as the run
+    does (its events agree with the run's); else at 4N. An order not verified (None) always takes 4N."""
+    coarse = None
+    if companions == 1 and (order is None or check_order):
+        if run.N % 2 == 0 and run.N >= 4 and order is not None:
+            coarse = run_at(run.N // 2)
+            if not coarse.ok or coarse.held or difference(coarse, run, names).first:
+                # the run at 2h does not resolve the motion (or holds a contact): it says nothing about
+                # the run's order; the run at h / 4 does
+                coarse, companions = None, 2
+        else:
+            companions = 2
+    return [run] + [run_at(run.N * 2 ** (j + 1)) for j in range(companions)], coarse
+
+
 def estimate(tr, *, kind: str = "richardson", companions: int = 1, reference=None, system=None,
              grazing: bool = True, check_order: bool = True) -> ErrorEstimate:
     """`Trajectory.error_estimate` (see there)."""
@@ -503,19 +523,8 @@ def estimate(tr, *, kind: str = "richardson", companions: int = 1, reference=Non
     run = Run.of_trajectory(tr, meth, runner.module(meth), runner.params_vector(meth))
     order, why = verified_order(meth, runner, run.held)
     names = _contact_names(tr, args)
-    coarse = None
-    if companions == 1 and (order is None or check_order):
-        if run.N % 2 == 0 and run.N >= 4 and order is not None:
-            coarse = runner.run(meth, run.N // 2)   # the order check at half the cost of one more at h / 4
-            if not coarse.ok or coarse.held or difference(coarse, run, names).first:
-                # the run at 2h does not resolve the motion (or holds a contact the run does not): it says
-                # nothing about the run's order; the run at h / 4 does
-                coarse, companions = None, 2
-        else:
-            companions = 2
-    runs = [run]
-    for j in range(companions):
-        runs.append(runner.run(meth, run.N * 2 ** (j + 1)))
+    runs, coarse = companion_runs(run, order, lambda N: runner.run(meth, N), companions=companions,
+                                  check_order=check_order, names=names)
     for r in runs[1:]:
         run.held = run.held or r.held
     order2, why2 = verified_order(meth, runner, run.held)
