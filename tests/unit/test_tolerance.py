@@ -151,6 +151,27 @@ def test_an_estimates_order_is_that_of_its_own_runs():
     assert ch.order("CVA8", 64) == ch.order("CVA8", 32) == ch.order("CVA8", 16) == 2
 
 
+def test_amplified_round_off_is_not_an_estimate():
+    """A fast start of the double pendulum between walls: CVA8's error at 4984 steps (1.8e-9) exceeds its
+    error at 2492 (4.6e-10), round-off amplified from impact to impact; the three runs' differences
+    shrink at order 4.7, not 8. The estimate the choice makes is unresolved, not 9e-11."""
+    from vcirun.run.ladder import estimate_of
+    from vcirun.run.pilot import Runner
+
+    kw = dict(T=5.0, q0=[0.06284611255017669, 0.031911326875965096], p0=[6.076795465890721, -2.8034404143386507])
+    ref = vcirun.reference("double_pendulum_walls", **kw)
+    runner = Runner("double_pendulum_walls", **kw)
+    mod, prm = runner.module("CVA8"), runner.params_vector("CVA8")
+    runs = {N: runner.run("CVA8", N) for N in (623, 1246, 2492, 4984)}
+    errs = {N: vcirun.l2_error(vcirun.simulate("double_pendulum_walls", "CVA8", h=5.0 / N, **kw), ref)
+            for N in (2492, 4984)}
+    assert errs[4984] > 2 * errs[2492] > 0, errs
+    est = estimate_of(runs, 4984, 8, mod, prm)
+    assert est.status == "unresolved" and est.l2 is None and "round-off" in est.message, est
+    ok = estimate_of({N: runs[N] for N in (623, 1246, 2492)}, 2492, 8, mod, prm)   # order 7.9: a number
+    assert ok.status == "ok" and ok.l2 / errs[2492] > 1 / 3, (ok, errs)
+
+
 def test_tol_constraints_method_and_largest_step():
     ref = vcirun.reference("double_pendulum_walls", T=3)
     tr = vcirun.simulate("double_pendulum_walls", "CVA4", T=3, tol=1e-6, h=0.01)

@@ -29,7 +29,8 @@ N the model's median constant predicts (its companions check it).
 The final run (`_pursue`). The pick runs at the least N that reaches TARGET tol and that a companion
 can certify (at least twice the coarsest N that showed the order: `_certifiable`), nested with a run
 made already where that is cheaper than new companions at N/2 and N/4 (`_final_N`). Its Richardson
-estimate (`estimate_of`: the companion, the third run's observed order, the grazing check) decides:
+estimate (`estimate_of`: the companion, the third run's observed order, the grazing check, the
+round-off amplified by the motion) decides:
 accepted when the third run showed the order, the estimate is at most ACCEPT tol and its bracket's
 upper end at most BOUND tol; otherwise N grows by the estimate, or doubles where the impacts
 disagree, a contact grazes or the observed order is short of p, until accepted or the refinement has

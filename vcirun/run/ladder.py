@@ -1,7 +1,8 @@
 """The runs of one method from one start, read as a ladder: nested runs (each N a multiple of the
 coarser ones) give the error constant C of e(N) = C N^-p (`assess`), the observed order of three runs
 (`_observed_order`), and the Richardson estimate of one run from its companion and a third run
-(`estimate_of`, which also runs the grazing check). Used by vcirun.run.choose."""
+(`estimate_of`, which also runs the grazing check and reads an order short of p near round-off as
+round-off amplified by the motion). Used by vcirun.run.choose."""
 from __future__ import annotations
 
 import math
@@ -59,6 +60,7 @@ def _difference(coarse: Run, fine: Run):
 
 
 MAX_RATIO = 8     # a Richardson companion is at least 1/MAX_RATIO as fine as its run
+NOISE = 10.0      # an order short of p is read as amplified round-off where order p puts the run this near it
 
 
 def _companion(runs: dict, N: int, max_ratio: int = MAX_RATIO) -> Run | None:
@@ -102,6 +104,15 @@ def estimate_of(runs: dict, N: int, p: float, mod=None, prm=None, grazing=True) 
             if p_obs is not None and p_obs < 1.0:
                 est.status = "unresolved"
                 est.message = f"the differences do not shrink with h (observed order {p_obs:.2f})"
+                return est
+            if p_obs is not None and p_obs < p - 1.0 and d.l2 / (r ** p - 1.0) < NOISE * floor:
+                # an order more than one short where the verified order would put the run near round-off:
+                # the differences are round-off amplified by the motion (each impact multiplies it), not
+                # the step's error, and the finer run need not be the more accurate one
+                est.status = "unresolved"
+                est.message = (f"the differences shrink at order {p_obs:.2f}, not {p:g}, within {NOISE:g} times "
+                               f"the round-off level ({floor:.1e}) at order {p:g}: round-off amplified by the "
+                               "motion, not the step, sets them")
                 return est
             if p_obs is not None and p_obs < p - 0.5:
                 # the coarser runs are not yet asymptotic: the order they show, the smaller (safer) one
