@@ -25,14 +25,13 @@ event named) when the counts or contacts differ, when an impact time moves betwe
 more than a quarter of the time to that contact's neighbouring impact (the events may reorder),
 when an impact lies within four times the runs' disagreement on its time of the end (the exact
 motion may have it after the end), when the impact times of the three runs do not converge at the
-order, when the runs differ by
-more than LOST (1 %) of the motion's L2 norm (neither resolves it), or when a contact comes to rest
-after its impacts (a Zeno accumulation, or a bounce the run takes for resting at this h: the
-number of bounces before the hold depends on h, and two runs can agree on a wrong one). A contact whose gap
-phi dips between two grid points without an impact being recorded (a grazing contact the grid
-does not see: the parabola through phi at three grid points reaches the surface, to within the
-run's estimated error) makes the estimate unresolved too, even where both runs miss it alike, and
-so does a contact that approaches its surface in the run's last step and ends within that error of
+order, when the runs differ by more than LOST (1 %) of the motion's L2 norm (neither resolves it),
+or when a contact comes to rest after its impacts (a Zeno accumulation, or a bounce the run takes
+for resting at this h: the number of bounces before the hold depends on h, and two runs can agree
+on a wrong one). A contact whose gap phi dips between two grid points without an impact being
+recorded (a grazing contact the grid does not see: the parabola through phi at three grid points
+reaches the surface, to within the run's estimated error) makes the estimate unresolved too, even
+where both runs miss it alike, and so does a contact that approaches its surface in the run's last step and ends within that error of
 it (the exact motion may have touched before the end).
 """
 from __future__ import annotations
