@@ -158,7 +158,7 @@ def test_amplified_round_off_is_not_an_estimate():
     from vcirun.run.ladder import estimate_of
     from vcirun.run.pilot import Runner
 
-    kw = dict(T=5.0, q0=[0.06284611255017669, 0.031911326875965096], p0=[6.076795465890721, -2.8034404143386507])
+    kw = {"T": 5.0, "q0": [0.06284611255017669, 0.031911326875965096], "p0": [6.076795465890721, -2.8034404143386507]}
     ref = vcirun.reference("double_pendulum_walls", **kw)
     runner = Runner("double_pendulum_walls", **kw)
     mod, prm = runner.module("CVA8"), runner.params_vector("CVA8")
