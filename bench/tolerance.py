@@ -19,9 +19,10 @@ The issue's targets:
 2. CPU time of the tol= call (pilot runs included) against the cheapest (method, h) of the
    exhaustive search whose true error meets tol, both the median of REPEATS calls: <= 2x. The first
    call on each scene pilots every candidate (the scene model): listed apart;
-3. error estimates (Richardson, one companion at h / 2: the ladder's run at 2N) of the exhaustive
-   search's coarse runs (N <= 256) flagged "unresolved" where the run's impact sequence (impacts per
-   contact) differs from the reference's: 100 %. Also: how often an "ok" estimate's bracket holds
+3. error estimates (`tr.error_estimate()`: the companion at h / 2, the third run at 2h or h / 4; the
+   ladder's runs where it made them) of the exhaustive search's coarse runs (N <= 256) flagged
+   "unresolved" where the run's impact sequence (impacts per contact) differs from the reference's:
+   100 %. Also: how often an "ok" estimate's bracket holds
    the true error, and the ratio estimate / true error.
 
 The machine is shared: every cost is the median CPU time (time.thread_time) of REPEATS calls, and the
@@ -46,7 +47,7 @@ sys.path.insert(0, str(ROOT))
 
 import vcirun  # noqa: E402
 from vcirun.run.choose import DEFAULT_CANDIDATES  # noqa: E402
-from vcirun.run.estimate import richardson, verified_order  # noqa: E402
+from vcirun.run.estimate import companion_runs, richardson, verified_order  # noqa: E402
 from vcirun.run.pilot import Run, Runner  # noqa: E402
 
 TOLS = [1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9]
@@ -135,22 +136,32 @@ def exhaustive(system, T, q0, p0, ref, methods):
 
 
 def estimates(system, T, q0, p0, ref, rows, methods):
-    """Richardson estimates (companion: the ladder's run at 2N) of the coarse runs: [(method, N,
-    status, estimate, bounds, true error, sequence matches the reference's)]."""
+    """The estimates `tr.error_estimate()` makes (the companion at 2N, the third run at N/2 or 4N:
+    `companion_runs`; runs of the ladder where it made them) of the coarse runs: [(method, N, status,
+    estimate, bounds, true error, sequence matches the reference's)]."""
     out = []
     runner = Runner(system, T=T, q0=q0, p0=p0)
     for m in methods:
         meth = runner.method(m)
         mod, prm = runner.module(m), runner.params_vector(m)
+
+        def run_at(M, m=m, meth=meth, mod=mod, prm=prm):
+            row = rows.get((m, M))
+            tr = row[2] if row is not None else vcirun.simulate(system, m, h=T / M, T=T, q0=q0, p0=p0)
+            return Run.of_trajectory(tr, meth, mod, prm)
+
         for N in LADDER:
             if N > ESTIMATE_MAX_N:
                 break
-            a, b = rows.get((m, N)), rows.get((m, 2 * N))
-            if a is None or b is None or a[2] is None or not a[2].ok:
+            a = rows.get((m, N))
+            if a is None or a[2] is None or not a[2].ok:
                 continue
-            ra, rb = Run.of_trajectory(a[2], meth, mod, prm), Run.of_trajectory(b[2], meth, mod, prm)
-            p, _ = verified_order(meth, runner, ra.held or rb.held)
-            est = richardson([ra, rb], p, mod=mod, prm=prm)
+            ra = Run.of_trajectory(a[2], meth, mod, prm)
+            p, _ = verified_order(meth, runner, ra.held)
+            runs, coarse = companion_runs(ra, p, run_at)
+            held = any(r.held for r in runs)
+            p = verified_order(meth, runner, held)[0] if held else p
+            est = richardson(runs, p, mod=mod, prm=prm, coarse=coarse)
             out.append({"method": m, "N": N, "status": est.status, "l2": est.l2,
                         "bounds": list(est.l2_bounds) if est.l2_bounds else None, "true": a[0],
                         "matches": sequence_matches(a[2], ref), "first": est.first_difference[:160]})

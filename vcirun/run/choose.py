@@ -29,7 +29,8 @@ N the model's median constant predicts (its companions check it).
 The final run (`_pursue`). The pick runs at the least N that reaches TARGET tol and that a companion
 can certify (at least twice the coarsest N that showed the order: `_certifiable`), nested with a run
 made already where that is cheaper than new companions at N/2 and N/4 (`_final_N`). Its Richardson
-estimate (`estimate_of`: the companion, the third run's observed order, the grazing check) decides:
+estimate (`estimate_of`: the companion, the third run's observed order, the grazing check, the
+round-off amplified by the motion) decides:
 accepted when the third run showed the order, the estimate is at most ACCEPT tol and its bracket's
 upper end at most BOUND tol; otherwise N grows by the estimate, or doubles where the impacts
 disagree, a contact grazes or the observed order is short of p, until accepted or the refinement has
@@ -246,9 +247,20 @@ class _Chooser:
                                "role": "final" if final else "timing" if timing else "pilot"})
         return r
 
-    def order(self, label) -> float | None:
+    def order(self, label, N: int | None = None) -> float | None:
+        """The verified order of `label` for the estimate of its run N (default: its finest run): 2 where
+        that run, its companion or its third run holds a contact. A coarser run that takes a bounce for
+        resting does not lower the order of the finer runs that resolve it."""
         meth = self.runner.method(self.names.get(label, label))
-        held = any(r.held for r in self.runs.get(label, {}).values())
+        runs = self.runs.get(label, {})
+        if N is None and runs:
+            N = max(runs)
+        nested = []
+        r = runs.get(N)
+        while r is not None and len(nested) < 3:
+            nested.append(r)
+            r = _companion(runs, r.N, MAX_RATIO if len(nested) == 1 else 4)
+        held = any(r.held for r in nested)
         return verified_order(meth, self.runner, held)[0]
 
     def method_model(self, label) -> MethodModel | None:
@@ -264,7 +276,7 @@ class _Chooser:
         while True:
             r = self.run(name, N)
             spent += r.cpu
-            p = self.order(label)
+            p = self.order(label, N)
             if p is None:
                 return Assessment("failed", note="order not verified on this scene")
             a = assess(self.runs[label], p, need_order)
@@ -470,7 +482,6 @@ class _Chooser:
         for _ in range(MAX_ROUNDS):
             if self._spent(label) - spent0 > budget:
                 break
-            p = self.order(label)
             N = self._final_N(name, runs, N, pick.N_asymptotic or 1)
             if N > MAX_STEPS:
                 break
@@ -478,6 +489,7 @@ class _Chooser:
                 pick.status, pick.note = OVER_BUDGET, f"refining needs N = {N}, beyond max_time"
                 break
             r = self.run(name, N, final=True)
+            p = self.order(label, N)
             est = estimate_of(runs, N, p, mod, prm)
             last = est
             if est.status == "ok" and est.extras.get("floor", 0.0) > BOUND * self.tol:
@@ -553,6 +565,7 @@ class _Chooser:
             for N in sorted(runs, reverse=True):
                 if not runs[N].ok or _companion(runs, N) is None:
                     continue
+                p = self.order(label, N)
                 est = estimate_of(runs, N, p, self.runner.module(name), self.runner.params_vector(name))
                 if est.status == "ok":
                     if best is None or est.l2 < best[2].l2:

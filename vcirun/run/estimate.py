@@ -8,11 +8,13 @@ companion's error is 2^-p that of the run, so the run's error is d / (1 - 2^-p):
 sqrt(h sum_k |e_k|^2) (the norm of `vcirun.l2_error`), the final-state errors |q_N - q(t_N)| and
 |p_N - p(t_N)|. The stated bracket assumes only that the companion's error is at most 2^-(p-1)
 of the run's (one order of margin below the asymptotic ratio): e in [d / (1 + 2^(1-p)),
-d / (1 - 2^(1-p))]. With companions=2 (h / 2 and h / 4) the observed order of the two differences
-is checked against p: a ratio more than one order short says the runs are not in the asymptotic
-regime, and the estimate is then "unresolved", not a number. A method whose order is not verified
-on the scene (CVA6 and CVA8 under a generalized force) always takes two companions and uses the
-observed order.
+d / (1 - 2^(1-p))]. A third run shows the observed order of the two differences: at 2h where N is
+even (half the cost of a run at h / 4), else, or where the run at 2h does not finish or does not
+resolve the motion (its impacts differ from the run's), at h / 4 (companions=2 asks for h / 4). An
+observed order more than one short of p says the runs are not in the asymptotic regime, and the
+estimate is then "unresolved", not a number (check_order=False skips the third run). A method whose
+order is not verified on the scene (CVA6 and CVA8 under a generalized force) always takes the run at
+h / 4 and uses the observed order.
 
 Against the exact reference (kind "reference"): `vcirun.reference` from the run's start (or a
 Reference passed in): the error itself, to the reference's accuracy.
@@ -21,13 +23,16 @@ Unresolved. Impacts make the error non-smooth in h: the estimate compares the im
 records of the runs, contact by contact, and is "unresolved" (no number, the first differing
 event named) when the counts or contacts differ, when an impact time moves between the runs by
 more than a quarter of the time to that contact's neighbouring impact (the events may reorder),
-with two companions when the impact times do not converge at the order, when the runs differ by
-more than LOST (1 %) of the motion's L2 norm (neither resolves it), or when a contact comes to rest
-after its impacts (a Zeno accumulation, or a bounce the run takes for resting at this h: the
-number of bounces before the hold depends on h, and two runs can agree on a wrong one). A contact whose gap
-phi dips between two grid points without an impact being recorded (a grazing contact the grid
-does not see: the parabola through phi at three grid points reaches the surface, to within the
-run's estimated error) makes the estimate unresolved too, even where both runs miss it alike.
+when an impact lies within four times the runs' disagreement on its time of the end (the exact
+motion may have it after the end), when the impact times of the three runs do not converge at the
+order, when the runs differ by more than LOST (1 %) of the motion's L2 norm (neither resolves it),
+or when a contact comes to rest after its impacts (a Zeno accumulation, or a bounce the run takes
+for resting at this h: the number of bounces before the hold depends on h, and two runs can agree
+on a wrong one). A contact whose gap phi dips between two grid points without an impact being
+recorded (a grazing contact the grid does not see: the parabola through phi at three grid points
+reaches the surface, to within the run's estimated error) makes the estimate unresolved too, even
+where both runs miss it alike, and so does a contact that approaches its surface in the run's last step and ends within that error of
+it (the exact motion may have touched before the end).
 """
 from __future__ import annotations
 
@@ -53,7 +58,7 @@ class ErrorEstimate:
 
     l2: the estimated L2 error of the run's q on its grid (the norm of `vcirun.l2_error`), with
     l2_bounds (low, high); final_q, final_p: the error of the final state |q_N - q(t_N)|,
-    |p_N - p(t_N)|; order: the order used (observed_order: measured from two companions);
+    |p_N - p(t_N)|; order: the order used (observed_order: measured with the third run);
     companion_h: the steps of the companions; first_difference: where the impact sequences part
     ("" if they agree); note: what the number rests on."""
 
@@ -121,7 +126,8 @@ def _name(names, c) -> str:
 
 
 def sequence_difference(a: Run, b: Run, label_a: str, label_b: str, names=None) -> tuple[str, np.ndarray]:
-    """('' or where the event records of runs a and b part, impact-time differences of matched impacts).
+    """('' or where the event records of runs a and b part, impact-time differences of matched impacts,
+    contact by contact in the order of the contacts' indices and each contact's in time order).
 
     Per contact: the same number of impacts and of releases; then each impact time may move by at
     most a quarter of the time to that contact's neighbouring impact (in either run)."""
@@ -130,7 +136,7 @@ def sequence_difference(a: Run, b: Run, label_a: str, label_b: str, names=None) 
     if same:   # the common case: one pass, no per-contact bookkeeping unless an impact moves far
         d = np.abs(a.impacts - b.impacts)
         if len(d) < 2 or float(np.max(d)) <= 0.25 * _min_gap(a, b):
-            return "", d
+            return "", d[np.argsort(a.impact_contact, kind="stable")]   # contact by contact, as below
     ia, ra = _events(a)
     ib, rb = _events(b)
     firsts = []   # (time, text)
@@ -208,9 +214,32 @@ def difference(coarse: Run, fine: Run, names=None) -> Difference:
         if l2 > LOST * qn:
             first = (f"the runs at h = {coarse.h:.6g} and {fine.h:.6g} differ by {l2:.3g} in L2, more than "
                      f"{LOST:.0%} of the motion's {qn:.3g}: neither resolves it")
+    if not first and len(coarse.impacts):
+        first = _end_straddle(coarse, fine, names)
     return Difference(l2=l2, final_q=float(np.sqrt(np.sum(dq[-1] * dq[-1]))),
                       final_p=float(np.sqrt(np.sum(dp[-1] * dp[-1]))),
                       sup_q=float(np.max(np.abs(dq))) if dq.size else 0.0, dt=dt, first=first)
+
+
+def _end_straddle(coarse: Run, fine: Run, names=None) -> str:
+    """'' or the impact that the runs (with matched impacts per contact) place within four times their
+    disagreement on its time of the end t_N: the exact motion may have it after the end (the runs'
+    error in an impact time is about their difference there, and 4x leaves the margin of a run
+    whose order is not yet asymptotic)."""
+    t_end = coarse.t0 + coarse.h * coarse.N
+    ia, _ = _events(coarse)
+    ib, _ = _events(fine)
+    for c in sorted(ia):
+        ta, tb = ia[c], ib.get(c, np.zeros(0))
+        if len(ta) != len(tb):
+            continue
+        close = np.flatnonzero(t_end - np.maximum(ta, tb) < 4.0 * np.abs(ta - tb))
+        if close.size:
+            j = int(close[0])
+            return (f"{_name(names, c)}: impact {j + 1} at t = {ta[j]:.9g} (h = {coarse.h:.6g}) and {tb[j]:.9g} "
+                    f"(h = {fine.h:.6g}) is within four times the runs' disagreement on its time of the end "
+                    f"t = {t_end:.6g}: the exact motion may have it after the end")
+    return ""
 
 
 def roundoff_level(run: Run) -> float:
@@ -259,11 +288,31 @@ def _parabola_minima(f: np.ndarray, skip: np.ndarray):
     return cand + 1, low[cand], np.abs(curv[cand])
 
 
+def _end_approach(run: Run, mod, prm, margin: float) -> list:
+    """[(t_N, contact, phi_N)] for each contact that approaches its surface in the run's last step and
+    ends within `margin` of it (no event in the last steps): the exact motion, within the run's error
+    of the run, may have touched before the end (a parabola through the last grid points has its
+    vertex beyond the end, so `_parabola_minima` does not see it)."""
+    N = run.q.shape[0] - 1
+    if N < 2:
+        return []
+    if _near_event(run, 1)[N]:
+        return []
+    f = _phis(run, mod, prm, [N - 1, N])
+    out = []
+    for i in range(f.shape[1]):
+        a, b = float(f[0, i]), float(f[1, i])
+        if 0 < b < a and b <= margin:
+            out.append((run.t0 + N * run.h, i, b))
+    return out
+
+
 def near_misses(run: Run, mod, prm, margin: float = 0.0, screen: Run | None = None) -> list[tuple[float, int, float]]:
     """Grid minima of each gap phi_i that no impact explains and whose parabola through three grid
-    points reaches within `margin` of the surface: [(t, contact, lowest phi of the parabola)]. Points
-    next to a recorded impact or release are skipped; a held contact sits at phi = 0 and is skipped
-    by the same rule (its hold starts at an impact).
+    points reaches within `margin` of the surface: [(t, contact, lowest phi of the parabola)], and
+    contacts that approach their surface in the last step and end within `margin` of it.
+    Points next to a recorded impact or release are skipped; a held contact sits at phi = 0 and is
+    skipped by the same rule (its hold starts at an impact).
 
     screen: a coarser nested run of the same motion (a companion): phi is evaluated on its grid, and
     on the run's own grid only around the screen's minima that come within margin plus one
@@ -271,10 +320,10 @@ def near_misses(run: Run, mod, prm, margin: float = 0.0, screen: Run | None = No
     N, m = run.q.shape[0] - 1, int(mod.NCON)
     if N < 2:
         return []
+    out = _end_approach(run, mod, prm, margin)
     if screen is None:
         phis = _phis(run, mod, prm)
         near = _near_event(run, 1)
-        out = []
         for i in range(m):
             ks, low, _ = _parabola_minima(phis[:, i], near)
             for k, v in zip(ks, low):
@@ -293,11 +342,10 @@ def near_misses(run: Run, mod, prm, margin: float = 0.0, screen: Run | None = No
             if v <= margin + 2.0 * cv:
                 windows.update(range(max(0, (int(k) - 1) * r - 1), min(N, (int(k) + 1) * r + 1) + 1))
     if not windows:
-        return []
+        return sorted(out)
     ks = np.array(sorted(windows))
     phis = _phis(run, mod, prm, ks)
     near = _near_event(run, 1)
-    out = []
     for i in range(m):
         f = np.full(N + 1, np.inf)
         f[ks] = phis[:, i]
@@ -325,32 +373,35 @@ def verified_order(meth, runner: Runner | None, held: bool) -> tuple[int | None,
     return p, ""
 
 
-def richardson(runs: list[Run], order: int | None, names=None, mod=None, prm=None, grazing=True) -> ErrorEstimate:
-    """The estimate of runs[0] from its companions runs[1:] (each N twice the previous)."""
+def richardson(runs: list[Run], order: int | None, names=None, mod=None, prm=None, grazing=True,
+               coarse: Run | None = None) -> ErrorEstimate:
+    """The estimate of runs[0] from its companion runs[1] (N twice); the observed order from a third run,
+    runs[2] (4N) or `coarse` (N/2), where there is one."""
     run = runs[0]
     h = run.h
-    comp = tuple(r.h for r in runs[1:])
-    bad = [r for r in runs if not r.ok]
+    comp = tuple(r.h for r in runs[1:]) + ((coarse.h,) if coarse is not None else ())
+    bad = [r for r in runs + ([coarse] if coarse is not None else []) if not r.ok]
     if bad:
         r = bad[0]
         who = "the run" if r is run else f"the companion at h = {r.h:.6g}"
         return ErrorEstimate("richardson", FAILED, h, order=order, companion_h=comp,
                              message=f"{who} ended with status {r.status}")
-    diffs = [difference(a, b, names) for a, b in zip(runs[:-1], runs[1:])]
+    chain = ([coarse] if coarse is not None else []) + list(runs)
+    diffs = [difference(a, b, names) for a, b in zip(chain[:-1], chain[1:])]
     first = next((d.first for d in diffs if d.first), "")
     est = ErrorEstimate("richardson", OK, h, order=order, companion_h=comp, first_difference=first)
     if first:
         est.status = UNRESOLVED
-        est.message = f"the runs' impact sequences differ: {first}"
+        est.message = f"the runs do not resolve the impacts: {first}"
         return est
-    d0 = diffs[0]
+    # d0: the run against its companion (the estimate); (dc, df): a coarser and a finer pair for the order
+    d0 = diffs[1] if coarse is not None else diffs[0]
+    dc, df = (diffs[0], diffs[1]) if len(diffs) > 1 else (None, None)
     floor = roundoff_level(run)
     p_obs = None
-    if len(diffs) > 1:
-        d1 = diffs[1]
-        if d0.l2 > floor and d1.l2 > 0:
-            p_obs = math.log2(d0.l2 / d1.l2)
-            est.observed_order = p_obs
+    if dc is not None and dc.l2 > floor and df.l2 > 0:
+        p_obs = math.log2(dc.l2 / df.l2)
+        est.observed_order = p_obs
     if order is None:
         if p_obs is None:
             if d0.l2 <= floor:
@@ -358,7 +409,7 @@ def richardson(runs: list[Run], order: int | None, names=None, mod=None, prm=Non
                 est.note = "differences at round-off level"
             else:
                 est.status = UNRESOLVED
-                est.message = "the method's order is not verified here and two companions are needed to observe it"
+                est.message = "the method's order is not verified here and a third run is needed to observe it"
                 return est
         else:
             order = max(p_obs, 0.0)
@@ -373,16 +424,15 @@ def richardson(runs: list[Run], order: int | None, names=None, mod=None, prm=Non
         est.message = (f"the differences shrink at order {p_obs:.2f}, not {order}: the runs are not in the "
                        "asymptotic regime")
         return est
-    if p_obs is not None and len(d0.dt) and len(diffs[1].dt):
-        # impact times: the coarser difference must not be smaller by more than round-off than the finer
-        dt0, dt1 = d0.dt, diffs[1].dt
+    if p_obs is not None and len(dc.dt) and len(dc.dt) == len(df.dt):
+        # impact times: the coarser pair's difference must not be smaller by more than round-off than the finer's
         tfloor = 1e3 * _EPS * max(1.0, abs(run.t0) + h * run.N)
-        slow = np.flatnonzero((dt0 > tfloor) & (dt0 < dt1 * 2.0 ** (max(order, 1) - 1.5)))
+        slow = np.flatnonzero((dc.dt > tfloor) & (dc.dt < df.dt * 2.0 ** (max(order, 1) - 1.5)))
         if slow.size:
             j = int(slow[0])
             est.status = UNRESOLVED
-            est.message = (f"impact {j + 1}'s time does not converge at order {order:g} (differences {dt0[j]:.3g}, "
-                           f"{dt1[j]:.3g}): an ill-conditioned (grazing) impact")
+            est.message = (f"impact {j + 1}'s time does not converge at order {order:g} (differences "
+                           f"{dc.dt[j]:.3g}, {df.dt[j]:.3g}): an ill-conditioned (grazing) impact")
             return est
     ratio = float(runs[1].N // run.N)
     rho = ratio ** (-(order - 1.0)) if order > 1 else 0.5
@@ -399,9 +449,10 @@ def richardson(runs: list[Run], order: int | None, names=None, mod=None, prm=Non
         if miss:
             t, c, low = miss[0]
             est.status = UNRESOLVED
-            est.first_difference = (f"{_name(names, c)} grazes near t = {t:.6g} (phi between the grid points down to "
-                                    f"{low:.3g}, within the run's error of the surface) without an impact")
-            est.message = "a grazing contact the grid does not resolve: " + est.first_difference
+            est.first_difference = (f"{_name(names, c)} comes within the run's error of its surface near t = {t:.6g} "
+                                    f"(phi down to {low:.3g}) without an impact: a grazing impact, or one just "
+                                    "before the end, may be missed")
+            est.message = "a contact the grid does not resolve: " + est.first_difference
             est.l2 = est.l2_bounds = est.final_q = est.final_p = None
     return est
 
@@ -426,13 +477,35 @@ def slope_scale(run: Run, mod, prm) -> float:
     return s
 
 
+def companion_runs(run: Run, order, run_at, *, companions: int = 1, check_order: bool = True,
+                   names=None) -> tuple[list, Run | None]:
+    """The runs the Richardson estimate of `run` takes (`richardson`'s arguments): ([run, the companion
+    at 2N, and 4N where the order is seen there], the third run at N/2 or None). run_at(N): the Run
+    of the same method from the same start at N steps. The third run is at N/2 where N is even (half
+    the cost of one at 4N) and that run finishes, holds no contact and resolves the motion as the run
+    does (its events agree with the run's); else at 4N. An order not verified (None) always takes 4N."""
+    coarse = None
+    if companions == 1 and (order is None or check_order):
+        if run.N % 2 == 0 and run.N >= 4 and order is not None:
+            coarse = run_at(run.N // 2)
+            if not coarse.ok or coarse.held or difference(coarse, run, names).first:
+                # the run at 2h does not resolve the motion (or holds a contact): it says nothing about
+                # the run's order; the run at h / 4 does
+                coarse, companions = None, 2
+        else:
+            companions = 2
+    return [run] + [run_at(run.N * 2 ** (j + 1)) for j in range(companions)], coarse
+
+
 def estimate(tr, *, kind: str = "richardson", companions: int = 1, reference=None, system=None,
-             grazing: bool = True) -> ErrorEstimate:
+             grazing: bool = True, check_order: bool = True) -> ErrorEstimate:
     """`Trajectory.error_estimate` (see there)."""
     if kind not in ("richardson", "reference"):
         raise ValueError(f"kind: 'richardson' or 'reference' (got {kind!r})")
     if companions not in (1, 2):
         raise ValueError(f"companions: 1 or 2 (got {companions!r})")
+    if check_order not in (True, False):
+        raise ValueError(f"check_order: true or false (got {check_order!r})")
     if reference is not None:
         kind = "reference"
     if tr.status != OK:
@@ -448,17 +521,15 @@ def estimate(tr, *, kind: str = "richardson", companions: int = 1, reference=Non
     meth = args.method
     run = Run.of_trajectory(tr, meth, runner.module(meth), runner.params_vector(meth))
     order, why = verified_order(meth, runner, run.held)
-    if order is None:
-        companions = 2
-    runs = [run]
-    for j in range(companions):
-        runs.append(runner.run(meth, run.N * 2 ** (j + 1)))
+    names = _contact_names(tr, args)
+    runs, coarse = companion_runs(run, order, lambda N: runner.run(meth, N), companions=companions,
+                                  check_order=check_order, names=names)
     for r in runs[1:]:
         run.held = run.held or r.held
     order2, why2 = verified_order(meth, runner, run.held)
     order, why = (order2, why2) if order2 != order else (order, why)
-    est = richardson(runs, order, _contact_names(tr, args), runner.module(meth), runner.params_vector(meth),
-                     grazing=grazing)
+    est = richardson(runs, order, names, runner.module(meth), runner.params_vector(meth), grazing=grazing,
+                     coarse=coarse)
     if why and est.status == OK:
         est.note = (why + "; " + est.note) if est.note else why
     return est
@@ -533,8 +604,8 @@ def sweep_attrs(traj, h_requested: float, error_estimate: bool) -> dict:
     """The attributes a sweep stores for a run (scalars; vcirun.experiments.worker): for a run of
     `simulate(tol=...)` the choice (h stays the grid's h of the config, the largest step allowed; the
     step chosen is h_chosen, the method core_method) and its estimate; with error_estimate, the
-    estimate of any ok run (one companion at h / 2). est_status: ok / unresolved / failed; est_l2 etc.
-    NaN unless ok."""
+    estimate of any ok run (`Trajectory.error_estimate()`: the companion and the third run).
+    est_status: ok / unresolved / failed; est_l2 etc. NaN unless ok."""
     out = {}
     est = None
     choice = getattr(traj, "choice", None)

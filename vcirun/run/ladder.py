@@ -1,7 +1,8 @@
 """The runs of one method from one start, read as a ladder: nested runs (each N a multiple of the
 coarser ones) give the error constant C of e(N) = C N^-p (`assess`), the observed order of three runs
 (`_observed_order`), and the Richardson estimate of one run from its companion and a third run
-(`estimate_of`, which also runs the grazing check). Used by vcirun.run.choose."""
+(`estimate_of`, which also runs the grazing check and reads an order short of p near round-off as
+round-off amplified by the motion). Used by vcirun.run.choose."""
 from __future__ import annotations
 
 import math
@@ -59,6 +60,7 @@ def _difference(coarse: Run, fine: Run):
 
 
 MAX_RATIO = 8     # a Richardson companion is at least 1/MAX_RATIO as fine as its run
+NOISE = 10.0      # an order short of p is read as amplified round-off where order p puts the run this near it
 
 
 def _companion(runs: dict, N: int, max_ratio: int = MAX_RATIO) -> Run | None:
@@ -83,7 +85,7 @@ def estimate_of(runs: dict, N: int, p: float, mod=None, prm=None, grazing=True) 
     d = _difference(comp, run)
     est = ErrorEstimate("richardson", "ok", run.h, order=p, companion_h=(comp.h,), first_difference=d.first)
     if d.first:
-        est.status, est.message = "unresolved", f"the runs' impact sequences differ: {d.first}"
+        est.status, est.message = "unresolved", f"the runs do not resolve the impacts: {d.first}"
         return est
     floor = roundoff_level(run)
     third = _companion(runs, comp.N, 4)
@@ -102,6 +104,15 @@ def estimate_of(runs: dict, N: int, p: float, mod=None, prm=None, grazing=True) 
             if p_obs is not None and p_obs < 1.0:
                 est.status = "unresolved"
                 est.message = f"the differences do not shrink with h (observed order {p_obs:.2f})"
+                return est
+            if p_obs is not None and p_obs < p - 1.0 and d.l2 / (r ** p - 1.0) < NOISE * floor:
+                # an order more than one short where the verified order would put the run near round-off:
+                # the differences are round-off amplified by the motion (each impact multiplies it), not
+                # the step's error, and the finer run need not be the more accurate one
+                est.status = "unresolved"
+                est.message = (f"the differences shrink at order {p_obs:.2f}, not {p:g}, within {NOISE:g} times "
+                               f"the round-off level ({floor:.1e}) at order {p:g}: round-off amplified by the "
+                               "motion, not the step, sets them")
                 return est
             if p_obs is not None and p_obs < p - 0.5:
                 # the coarser runs are not yet asymptotic: the order they show, the smaller (safer) one
@@ -125,9 +136,10 @@ def estimate_of(runs: dict, N: int, p: float, mod=None, prm=None, grazing=True) 
         if miss:
             t, c, low = miss[0]
             est.status = "unresolved"
-            est.first_difference = (f"contact {c} grazes near t = {t:.6g} (phi between the grid points down to "
-                                    f"{low:.3g}, within the run's error of the surface) without an impact")
-            est.message = "a grazing contact the grid does not resolve: " + est.first_difference
+            est.first_difference = (f"contact {c} comes within the run's error of its surface near t = {t:.6g} "
+                                    f"(phi down to {low:.3g}) without an impact: a grazing impact, or one just "
+                                    "before the end, may be missed")
+            est.message = "a contact the grid does not resolve: " + est.first_difference
             est.l2 = est.l2_bounds = est.final_q = est.final_p = None
     return est
 

@@ -104,21 +104,23 @@ class Trajectory:
 
     # --- error estimate ---------------------------------------------------------------------------
     def error_estimate(self, kind: str = "richardson", *, companions: int = 1, reference=None, system=None,
-                       grazing: bool = True):
+                       grazing: bool = True, check_order: bool = True):
         """The estimated error of this run (vcirun.run.estimate.ErrorEstimate): its L2 error on the grid
         (the norm of `vcirun.l2_error`), with bounds, and the final-state errors.
 
-        kind "richardson": companion runs of the same method from the same start at h / 2 (and h / 4
-        with companions=2, which also checks the observed order), the method's verified order;
+        kind "richardson": a companion run of the same method from the same start at h / 2, the method's
+        verified order, and a third run (2h where N is even and that run resolves the motion, else
+        h / 4; companions=2: h / 4) whose observed order must be within one of it (check_order=False
+        skips the third run);
         kind "reference" (or reference= a `vcirun.reference`): against the exact reference.
-        status "unresolved" (no number) where the runs' impact sequences differ or a contact grazes
-        between grid points; "failed" where a run did not finish. A run of `simulate(tol=...)`
-        carries the estimate its choice made (`choice.estimate`); this computes a new one.
+        status "unresolved" (no number) where the runs' impact sequences differ, an impact lies near
+        the end within the runs' disagreement, or a contact grazes between grid points; "failed"
+        where a run did not finish. A run of `simulate(tol=...)` carries the estimate its choice made (`choice.estimate`); this computes a new one.
         system: the YAML path or MechanicalSystem of a trajectory read from a file."""
         from .estimate import estimate
 
         return estimate(self, kind=kind, companions=companions, reference=reference, system=system,
-                        grazing=grazing)
+                        grazing=grazing, check_order=check_order)
 
     # --- dense output -----------------------------------------------------------------------------
     @property
