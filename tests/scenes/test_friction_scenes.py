@@ -132,6 +132,15 @@ def test_bad_overrides_name_the_field():
         scene_data("link_chain_friction_3").param_values({"e": 1.5})
 
 
+def test_an_override_that_puts_mu_above_mu_s_is_refused_before_the_run():
+    """mu_s >= mu holds at the defaults; an override of mu alone can break it, and a run never starts
+    with mu_s < mu (plan.ready_start: the exact reference's check, for every run of simulate, ensemble,
+    sweeps and pilots)."""
+    with pytest.raises(ValueError, match=r"mu_s = 0.2 < mu = 0.3 .*give mu_s a value >= mu"):
+        vcirun.simulate("incline", "CVA", h=1e-2, T=0.1, params={"mu": 0.3})
+    assert vcirun.simulate("incline", "CVA", h=1e-2, T=0.1, params={"mu": 0.3, "mu_s": 0.3}).status == "ok"
+
+
 @pytest.mark.slow   # four scenes' kernels: about 4 min of CPU on an empty cache
 def test_builtin_rocking_and_sliding_follow_their_closed_forms():
     """By name, on the compiled path: Housner's corner impacts (times and the angular-velocity ratio

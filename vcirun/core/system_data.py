@@ -153,7 +153,7 @@ def friction_at(mod, prm, name: str, contacts=None) -> tuple:
                              "parameters; give its friction parameters finite values >= 0")
         if b < a:
             raise ValueError(f"params: system {name}: {who} has static friction mu_s = {b!r} < mu = {a!r} at these "
-                             "parameters; the static coefficient is at least the kinetic one")
+                             "parameters; the static coefficient is at least the kinetic one: give mu_s a value >= mu too")
     return mu, mu_s
 
 

@@ -240,7 +240,12 @@ def constraint_text(sysm, i: int) -> str:
 
 
 def ready_start(p: Plan, mod, start, prm):
-    """(q0, p0) of one run of plan `p` from its `start_state` (ValueError for a start the run refuses)."""
+    """(q0, p0) of one run of plan `p` from its `start_state` (ValueError for a start the run refuses,
+    or for friction coefficients the run's parameters make invalid: mu < 0, mu_s < mu)."""
+    if getattr(mod, "FRICTION", False):
+        from ..core.system_data import friction_at
+
+        friction_at(mod, prm, p.sysd.name)
     q0, p0 = initial_state(p.sysd, mod, start, prm)
     if p.constrained:
         check_admissible(p.sysd, mod, q0, prm, lambda i: constraint_text(p.sysm or resolve_system(p.system), i))
