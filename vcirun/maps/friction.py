@@ -324,7 +324,8 @@ def friction_stage(sid, q0, p0, hs, t, prm, ntol, maxit, held, v, q1, p1, imp, i
     for j in range(NDOF):
         vmax = max(vmax, abs(v[j]))
         qmax = max(qmax, abs(q0[j]))
-    limit = hs == 0.0 or hs * (1.0 + vmax) <= 1e8 * 2.220446049250313e-16 * (1.0 + qmax)
+    # (|hs|: a composition's stages can be negative, CVA4's middle one)
+    limit = hs == 0.0 or abs(hs) * (1.0 + vmax) <= 1e8 * 2.220446049250313e-16 * (1.0 + qmax)
     it = 0
     ok = False
     dprev = np.inf
