@@ -123,11 +123,19 @@ def test_verify_table_checks_dslips(frictional, rng):
 
 
 @pytest.mark.parametrize("name", sorted(BUILTIN_SCENES))
-def test_frictionless_builtins_have_zero_friction_kernels(name):
+def test_builtin_friction_kernels_are_their_declarations(name):
+    """The built-in friction scenes (rocking_block_friction, spinning_ball, ...) have FRICTION and their
+    declared coefficients; every other built-in has FRICTION off and zero friction kernels."""
     s = get_scene("n_pendulum_3" if name == "n_pendulum" else name)
     mod = python_module_for(s, SYSTEM_KERNELS)   # the generated text, uncompiled
-    assert mod.FRICTION is False and not s.has_friction
     prm = s.param_values()
+    assert mod.FRICTION is s.has_friction
+    if s.has_friction:
+        mu, mus = np.empty(s.m), np.empty(s.m)
+        mod.sys_friction(prm, mu, mus)
+        assert np.array_equal(mu, s.friction_values()[0]) and np.array_equal(mus, s.friction_values()[1])
+        assert np.any(mu > 0)
+        return
     W = _slips(mod, np.full(s.n, 0.3), prm, s.m, s.n)
     mu, mus, dd = np.ones(s.m), np.ones(s.m), np.ones(s.m)
     mod.sys_friction(prm, mu, mus)
