@@ -17,6 +17,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+# every test here deletes or damages entries of the one kernel cache's warm index that the others read:
+# one xdist worker runs them all (make test passes --dist loadgroup)
+pytestmark = pytest.mark.xdist_group("warm_index")
+
 import vcirun
 import vcirun.run.api as api
 import vcirun.run.resolve as resolve
