@@ -35,10 +35,10 @@ run: install
 
 # The default test suite (slow tests excluded; `make test-all` runs them too).
 test: install-dev
-	$(BIN)/python -m pytest -n 2 --dist loadgroup -q
+	$(BIN)/python -m pytest -n 2 -q
 
 test-all: install-dev
-	$(BIN)/python -m pytest -n 2 --dist loadgroup -q -m ''
+	$(BIN)/python -m pytest -n 2 -q -m ''
 
 # The full benchmark (about an hour; BENCH_ARGS=--quick for a short smoke run, or
 # BENCH_ARGS="--only steps,sim5" for some sections): tables on stdout, JSON and figures in results/.

@@ -62,3 +62,25 @@ def _build_log(request):
         with open(path, "a") as f:
             f.write(json.dumps({"test": request.node.nodeid, "wall_s": round(time.perf_counter() - t0, 2),
                                 "modules": [f"{e['system']}|{e['kernels']}" for e in new]}) + "\n")
+
+
+@pytest.fixture
+def warm_index_lock():
+    """Held by the tests that delete or damage warm-index entries of the kernel cache or expect them
+    intact (tests/unit/test_warm_start.py, test_kernel_cache.py): xdist workers, and test runs of other
+    checkouts, share that cache, and one such test between another's cold and warm child fails it.
+    An exclusive lock on a file named after the cache directory, so every run on one cache takes turns."""
+    import fcntl
+    import hashlib
+    import tempfile
+    from pathlib import Path
+
+    from vcirun.codegen.kernel_cache import default
+
+    tag = hashlib.sha256(str(default().cache_dir().resolve()).encode()).hexdigest()[:16]
+    with open(Path(tempfile.gettempdir()) / f"vcirun-test-warm-index-{tag}.lock", "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)

@@ -48,7 +48,7 @@ def test_modules_that_load_kernels_hold_no_module_level_state():
     assert found == [], found
 
 
-def test_a_report_holds_the_loads_of_its_block_and_a_new_cache_is_a_new_process():
+def test_a_report_holds_the_loads_of_its_block_and_a_new_cache_is_a_new_process(warm_index_lock):
     vcirun.simulate("cart_pendulum", "CVA", h=2e-2, T=1.0, beta=3.2)   # compiled and indexed (once per cache)
     kc = KernelCache()
     assert not kc.loaded and not kc.plans and not kc.warm_hits

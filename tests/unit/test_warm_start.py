@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-# every test here deletes or damages entries of the one kernel cache's warm index that the others read:
-# one xdist worker runs them all (make test passes --dist loadgroup)
-pytestmark = pytest.mark.xdist_group("warm_index")
+# every test here deletes or damages entries of the kernel cache's warm index that the others read:
+# they hold the suite's warm-index lock (tests/conftest.py), so two workers never run them at once
+pytestmark = pytest.mark.usefixtures("warm_index_lock")
 
 import vcirun
 import vcirun.run.api as api
@@ -45,8 +45,15 @@ FIELDS = ("t", "q", "p", "H", "Ed", "impacts", "impact_q", "impact_p_minus", "im
           "partial_steps", "newton_iters")
 
 CHILD = r"""
-import json, sys
+import json, os, sys, traceback
 args = json.loads(sys.argv[1])
+first_sympy = []   # where sympy was first imported from (the failure message of a warm run that built it)
+class _Watch:
+    def find_spec(self, name, path=None, target=None):
+        if name == "sympy" and not first_sympy:
+            first_sympy.append("".join(traceback.format_stack(limit=25)[:-1]))
+        return None
+sys.meta_path.insert(0, _Watch())
 import vcirun
 from vcirun.run import api, resolve
 from vcirun.codegen import build
@@ -57,6 +64,8 @@ for system, method, kw, force_cold, instance in args["runs"]:
     if force_cold:  # delete the index entry: the symbolic path must run (and write it again)
         ident = resolve._warm_ident(system)[0]
         default().index_path(ident, resolve_method(method).kernel_set()).unlink(missing_ok=True)
+    ident = resolve._warm_ident(system)[0]
+    indexed = ident is not None and default().index_path(ident, resolve_method(method).kernel_set()).is_file()
     if instance:
         system = resolve.resolve_system(system)
     with default().report() as built:
@@ -65,10 +74,11 @@ for system, method, kw, force_cold, instance in args["runs"]:
     fields = {f: getattr(tr, f) for f in args["fields"]}
     out.append({"fields": {f: [v.dtype.str, list(v.shape), v.tobytes().hex()] for f, v in fields.items()},
                 "status": tr.status, "system": tr.system, "options": tr.options,
-                "log": built.entries})
+                "log": built.entries, "indexed_before": indexed})
 print(json.dumps({"runs": out, "log": log, "sympy": "sympy" in sys.modules, "scipy_integrate": "scipy.integrate" in sys.modules,
                   "vcirun.mechanics": "vcirun.mechanics" in sys.modules,
-                  "derive": "vcirun.codegen.derive" in sys.modules}))
+                  "derive": "vcirun.codegen.derive" in sys.modules, "first_sympy": first_sympy[:1],
+                  "cache_dir": os.environ.get("VCIRUN_CACHE_DIR"), "tier": os.environ.get("VCIRUN_TIER")}))
 """
 
 
@@ -99,7 +109,9 @@ def test_warm_start_is_sympy_free_and_bit_identical_to_the_cold_path(yaml_file):
     cold = child([c + [True, False] for c in cases])              # by name, index entry deleted first
     warm = child([c + [False, False] for c in cases])             # by name, from the index
     inst = child([c[:2] + [c[2], False, True] for c in cases[:2]])  # MechanicalSystem instances: symbolic path
-    assert warm["sympy"] is False and warm["scipy_integrate"] is False
+    why = {k: warm[k] for k in ("first_sympy", "cache_dir", "tier")} | {
+        "indexed_before": [r["indexed_before"] for r in warm["runs"]], "log": warm["log"]}
+    assert warm["sympy"] is False and warm["scipy_integrate"] is False, why
     assert warm["vcirun.mechanics"] is False and warm["derive"] is False
     assert cold["sympy"] is True  # the cold path did build the symbolic systems
     # two modules (cart-pendulum, YAML system), both from the disk cache through the index
