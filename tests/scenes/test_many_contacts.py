@@ -18,7 +18,7 @@ K = 1000
 
 def polygon_box(k: int):
     ang = 2 * np.pi * (np.arange(k) + 0.5) / k
-    walls = [{"name": f"w{i}", "phi": f"1 - ({np.cos(a)!r})*x - ({np.sin(a)!r})*y"} for i, a in enumerate(ang)]
+    walls = [{"name": f"w{i}", "phi": f"1 - ({float(np.cos(a))!r})*x - ({float(np.sin(a))!r})*y"} for i, a in enumerate(ang)]
     return load_system_yaml({"name": f"polygon_{k}", "coordinates": ["x", "y"], "parameters": {"m": 1.0, "g": 1.0},
                              "mass_matrix": [["m", 0], [0, "m"]], "potential": "m*g*y", "constraints": walls,
                              "q0": [0.0, 0.0], "p0": [0.7, 0.3]})
