@@ -135,3 +135,24 @@ def test_warm_path_checks_the_mass_matrix_at_q0_compiled(monkeypatch):
     tr = vcirun.simulate("cart_pendulum", "CVA", h=1e-3, T=2e-3, q0=[1.0, 0.0], p0=[0.0, 0.0],
                          params={"m1": -0.2 + 1e-9})
     assert tr.q.shape == (3, 2)
+
+
+def test_the_gap_of_many_contacts_is_an_unevaluated_min():
+    """The gap min_i phi_i of many contacts is kept as written: sympy's evaluation compares its
+    arguments pairwise (48 s at 100 contacts, hours at 1000), and the kernels read it only below
+    derive.GAP_LOOP_MIN contacts (above, sys_phi is a loop over sys_phis)."""
+    from vcirun.codegen.derive import GAP_LOOP_MIN
+    from vcirun.mechanics.system import MIN_EVALUATED_BELOW, Constraint, MechanicalSystem
+
+    assert MIN_EVALUATED_BELOW == GAP_LOOP_MIN
+    x, y = sp.symbols("x y")
+    for k in (2, MIN_EVALUATED_BELOW - 1, MIN_EVALUATED_BELOW, 400):
+        ang = 2 * np.pi * (np.arange(k) + 0.5) / k
+        phis = [1 - float(np.cos(a)) * x - float(np.sin(a)) * y for a in ang]
+        s = MechanicalSystem(name=f"gon{k}", q=[x, y], params={}, M=sp.eye(2), V=sp.Integer(0),
+                             constraints=[Constraint(f"w{i}", f) for i, f in enumerate(phis)])
+        assert isinstance(s.phi, sp.Min) and set(s.phi.args) == set(phis)
+        assert len(s.phi.args) == k
+        q = np.array([0.3, -0.2])
+        at = {x: sp.Float(q[0]), y: sp.Float(q[1])}   # (xreplace: subs would re-evaluate the symbolic Min)
+        assert float(s.phi.xreplace(at)) == min(float(f.xreplace(at)) for f in phis)

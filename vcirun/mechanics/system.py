@@ -19,6 +19,9 @@ from .friction import check_constraint_friction, coefficient, static_coefficient
 from .friction import has_friction as contact_has_friction
 from .hybrid import check_constraint_hybrid, guarded, law_first, reset_map_exprs
 
+# constraints from which the gap Min is kept unevaluated (see _set_constraints)
+MIN_EVALUATED_BELOW = 9
+
 
 @dataclass(eq=False)
 class Constraint:
@@ -141,7 +144,11 @@ class MechanicalSystem:
         if len(set(names)) != len(names):
             raise ValueError(f"system {self.name}: constraint names must be distinct (got {names})")
         self.constraints = cons
-        self.phi = cons[0].phi if len(cons) == 1 else sp.Min(*[c.phi for c in cons])
+        # the gap min_i phi_i: sympy evaluates Min by comparing its arguments pairwise (0.2 s at 8
+        # contacts, 48 s at 100, hours at 1000); kernels use it only below MIN_EVALUATED_BELOW
+        # contacts (vcirun.codegen.derive.GAP_LOOP_MIN, the same number: above it sys_phi is a loop)
+        self.phi = cons[0].phi if len(cons) == 1 else sp.Min(*[c.phi for c in cons],
+                                                             evaluate=len(cons) < MIN_EVALUATED_BELOW)
         check_constraint_hybrid(self)
         check_constraint_friction(self)
 
