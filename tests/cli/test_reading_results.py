@@ -3,7 +3,6 @@ sweep's results file; `info`'s summary fits 80 columns; `store: {every: k}` stor
 the file reads back; `validate` estimates the stored size and warns above the threshold."""
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
 import pytest

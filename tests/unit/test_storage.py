@@ -21,7 +21,7 @@ from scipy import stats
 from vcirun.experiments import metrics
 from vcirun.run.trajectory_files import energy_summary
 from vcirun.io import rewrite
-from vcirun.io.checks import resolve_output, run_problem
+from vcirun.io.checks import resolve_output
 from vcirun.io.durable import ChildFailed, run_isolated
 from vcirun.io.errors import StorageError, one_line, os_text, write_error
 from vcirun.io.journal import read_journal, record_pieces, write_all

@@ -12,7 +12,6 @@ import json
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,7 +21,6 @@ import pytest
 pytestmark = pytest.mark.usefixtures("warm_index_lock")
 
 import vcirun
-import vcirun.run.api as api
 import vcirun.run.resolve as resolve
 from vcirun.codegen import build
 from vcirun.codegen.kernel_cache import KernelCache, default
