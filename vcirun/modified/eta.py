@@ -143,6 +143,14 @@ class StationaryEta:
                 nodes.append((f * sp.nsimplify(w), s_, beta))
         self._M = system.M
         self._V = system.V
+        # the entries (b, c) of M whose derivative d^A M_bc is not identically 0 for a multi-index A:
+        # M_bc not 0 and depending on every q_a of A (n of the n^2 for a diagonal M and A = (), none
+        # for a constant M and A != ()); the sums over b, c below run over these only
+        q = list(self.q)
+        self._deps = {(b, c): {a for a, qa in enumerate(q) if system.M[b, c].has(qa)}
+                      for b in range(self.n) for c in range(self.n) if system.M[b, c] != 0}
+        self._nzmemo: dict = {}
+        self._vdeps = {a for a, qa in enumerate(q) if sp.sympify(system.V).has(qa)}
         self._dmemo: dict = {}
         return nodes
 
@@ -172,6 +180,23 @@ class StationaryEta:
             self.tensor_def[sym] = e.xreplace(x) if beta else e
         return sym
 
+    def _nz(self, A) -> list:
+        """[(b, c), ...]: the entries of M with d^A M_bc possibly nonzero (see _quadrature)."""
+        if A not in self._nzmemo:
+            need = set(A)
+            self._nzmemo[A] = [bc for bc, dep in self._deps.items() if need <= dep]
+        return self._nzmemo[A]
+
+    def _may_be_nonzero(self, A, B) -> bool:
+        """Can the node tensor of (A, B) in _tensor_prim be nonzero (d^A of an entry of M, or of V,
+        that depends on every q_a of A)? False only where it is identically 0."""
+        if len(B) == 2:
+            dep = self._deps.get((B[0], B[1]))
+            return dep is not None and set(A) <= dep
+        if len(B) == 1:
+            return any(b == B[0] for b, _ in self._nz(A))
+        return bool(self._nz(A)) or set(A) <= self._vdeps
+
     def _tensor_prim(self, alpha):
         n = self.n
         h = self.h
@@ -193,8 +218,8 @@ class StationaryEta:
             for combo in product(*choices):
                 A = tuple(sorted(c[2] for c in combo if c[1] == "x"))
                 B = tuple(sorted(c[2] for c in combo if c[1] == "w"))
-                if len(B) > 2:
-                    continue
+                if len(B) > 2 or not self._may_be_nonzero(A, B):
+                    continue   # (a structurally zero tensor: its coefficient is not even formed)
                 coef = sp.Mul(*[c[0] for c in combo])
                 terms[A, B] = terms.get((A, B), 0) + coef
             for (A, B), coef in terms.items():
@@ -203,10 +228,10 @@ class StationaryEta:
                 if len(B) == 2:
                     val = self._tensor(N, "M", A, *B)
                 elif len(B) == 1:
-                    val = sp.Add(*[self._tensor(N, "M", A, B[0], c) * w[c] for c in range(n)])
+                    val = sp.Add(*[self._tensor(N, "M", A, B[0], c) * w[c] for b, c in self._nz(A) if b == B[0]])
                 else:
                     val = sp.Rational(1, 2) * sp.Add(*[self._tensor(N, "M", A, b, c) * w[b] * w[c]
-                                                       for b in range(n) for c in range(n)]) - self._tensor(N, "V", A)
+                                                       for b, c in self._nz(A)]) - self._tensor(N, "V", A)
                 total += cN * coef * val
         return total
 
