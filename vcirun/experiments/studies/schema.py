@@ -375,18 +375,18 @@ def load_any(path, *, check_semantics: bool = True):
 # --- semantic checks (cheap: no kernel is compiled, no sympy for built-in scenes) ---------------------
 def _check_system(name: str, params: dict | None, field: str, source: str, *, params_field: str = "params",
                   needs_ic_map: bool = False):
-    from ...scenes.data import scene_args, scene_data
+    from ...scenes.registry import scene_args, scene_data
 
     if scene_args(name) is None:
         if name.endswith((".yaml", ".yml")) or Path(name).is_file():
             if not Path(name).is_file():
                 raise ConfigError(f"system file not found: {name}", source=source, field=field)
             return
-        from ...scenes.data import BUILTIN_SCENE_DATA
+        from ...scenes.registry import BUILTIN_SCENES
 
-        hint = difflib.get_close_matches(name, list(BUILTIN_SCENE_DATA), n=1)
+        hint = difflib.get_close_matches(name, list(BUILTIN_SCENES), n=1)
         raise ConfigError(f"unknown built-in system {name!r}" + (f"; did you mean {hint[0]!r}?" if hint else "")
-                          + f" (choose one of {', '.join(BUILTIN_SCENE_DATA)}, or a YAML file path)",
+                          + f" (choose one of {', '.join(BUILTIN_SCENES)}, or a YAML file path)",
                           source=source, field=field)
     sd = scene_data(name)
     try:
