@@ -63,7 +63,7 @@ CART_PENDULUM = Scene(
     start=lambda p: dict(ic_map=lambda beta: (np.array([beta, 0.0]), np.array([0.0, 3.5 - 0.18 * beta])),
                          default_beta=3.2),
     example=("--beta 3.2", "3 impacts of the cart on the floor"),
-    study=StudyHooks(graze=_cart_graze, surface=_cart_surface))
+    study=StudyHooks(graze=_cart_graze, surface=_cart_surface, label="cart"))
 
 
 # --- the double pendulum against a wall -----------------------------------------------------------
@@ -142,7 +142,9 @@ DOUBLE_PENDULUM = Scene(
     default_text="both links horizontal, away from the wall, at rest (paper Figure 1; our choice)",
     symbolic=_double_symbolic, start=_double_start,
     example=("", "the second tip hits the wall twice in 5 s"),
-    study=StudyHooks(free_params={"w": _FAR_WALL}, graze=_double_graze, surface=_double_surface))
+    study=StudyHooks(free_params={"w": _FAR_WALL}, graze=_double_graze, surface=_double_surface,
+                     refused={"rest": "rest has no construction on the double pendulum (gravity pulls its tip off "
+                                      "the wall)"}))
 
 
 # --- the oscillators ------------------------------------------------------------------------------
@@ -247,7 +249,7 @@ BOUNCING_BALL = Scene(
     constraint="phi = y >= 0 (elastic floor)", ic_text="drop height y = beta, at rest", default_text="y = 1, at rest",
     symbolic=_ball_symbolic, start=lambda p: dict(ic_map=_ic_1d, **_at_one(p)),
     example=("", "elastic bounces on the floor"),
-    study=StudyHooks(closed_form=_ball_closed_form))
+    study=StudyHooks(closed_form=_ball_closed_form, label="ball"))
 
 
 # --- the n-link pendulum --------------------------------------------------------------------------

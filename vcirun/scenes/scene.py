@@ -50,11 +50,15 @@ class StudyHooks:
     graze(q0, params, phimin, depth) -> (q0, params): the start and parameters that move the motion's
       closest approach phimin to `depth` inside the constraint;
     surface(kind, {param: value}) -> (q, qdot): a state on phi = 0 (kinds 'out', 'in', 'rest', 'lift');
-    closed_form(q0, {param: value}, T, t) -> (impact times, q[:, 0] on the times t): the exact motion."""
+    closed_form(q0, {param: value}, T, t) -> (impact times, q[:, 0] on the times t): the exact motion;
+    refused: {surface kind: why it has no construction here} (a study config naming it is refused);
+    label: the scene's short name in the study report."""
     free_params: dict = field(default_factory=dict)
     graze: Callable | None = None
     surface: Callable | None = None
     closed_form: Callable | None = None
+    refused: dict = field(default_factory=dict)
+    label: str = ""
 
 
 class _ParamSymbols:

@@ -33,6 +33,7 @@ from ..config import STUDY_KEY, ConfigError, MethodSpec, parse_config, read_conf
 from ..config.errors import FieldError
 from ..config.messages import from_validation_error
 from ..config.specs import BetaSpec, ConfigModel, MethodName, PositiveFloat
+from ...scenes.registry import BUILTIN_SCENES
 
 __all__ = ["WorkPrecisionStudy", "ExtremesStudy", "STUDY_MODELS", "parse_study", "load_study", "load_any"]
 
@@ -127,7 +128,9 @@ def _unique_labels(methods):
 # --- extremes: one model per section -----------------------------------------------------------------
 # Each section is one family of runs of vcirun.experiments.studies (its docstring says what is measured
 # against which oracle); the defaults are the ones the functions use.
-ContactScene = Literal["cart_pendulum", "double_pendulum"]   # the scenes with a known construction
+# the scenes with a known construction of a grazing contact and of a start on the surface (their StudyHooks)
+ContactScene = Literal[tuple(name for name, s in BUILTIN_SCENES.items()
+                             if s.study is not None and s.study.graze is not None and s.study.surface is not None)]
 
 
 class _Scene(ConfigModel):
@@ -212,10 +215,11 @@ class SurfaceScene(ConfigModel):
     kinds: list[Literal["out", "in", "lift", "rest"]] = Field(min_length=1)
 
     @model_validator(mode="after")
-    def _rest(self):
-        if self.system == "double_pendulum" and "rest" in self.kinds:
-            raise FieldError(("kinds", self.kinds.index("rest")),
-                              "rest has no construction on the double pendulum (gravity pulls its tip off the wall)")
+    def _refused(self):
+        refused = BUILTIN_SCENES[self.system].study.refused   # kinds the scene has no construction for
+        for i, kind in enumerate(self.kinds):
+            if kind in refused:
+                raise FieldError(("kinds", i), refused[kind])
         return self
 
 
