@@ -60,7 +60,7 @@ def main():
     mopts = a.get("method_options", {})
     out = {"args": a, "import_s": t_import}
     if a["mode"] == "derive":
-        from vcirun.scenes.declarations import get_scene  # symbolic: imported only in this mode
+        from vcirun.scenes.registry import get_scene  # symbolic: imported only in this mode
         from vcirun.methods.table import resolve_method
 
         s = get_scene(a["system"])

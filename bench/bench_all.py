@@ -266,7 +266,7 @@ def section_build(res):
             fl = None
             if m == "CVA":  # the floor: the cached module loaded by path, nothing else imported
                 from vcirun.codegen.build import module_key
-                from vcirun.scenes.declarations import get_scene
+                from vcirun.scenes.registry import get_scene
                 from vcirun.methods.table import METHODS as MT
 
                 key = module_key(get_scene("cart_pendulum"), MT["CVA"].kernel_set())

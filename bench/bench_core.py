@@ -22,7 +22,7 @@ import sympy as sp
 
 import vcirun
 from vcirun.discrete.lagrangians import LIBRARY, step_expressions
-from vcirun.scenes.declarations import get_scene
+from vcirun.scenes.registry import get_scene
 
 
 def median_time(fn, repeat=7):

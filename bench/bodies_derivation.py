@@ -1,4 +1,4 @@
-"""Mass matrix of an N-link chain with a free base (vcirun.scenes.mechanisms.link_chain) derived two
+"""Mass matrix of an N-link chain with a free base (vcirun.scenes.contacts.LINK_CHAIN) derived two
 ways: vcirun.mechanics.bodies (phasor sums, collected by angle difference) and
 sympy.physics.mechanics (LagrangesMethod on the same kinematics), with and without trigsimp of its
 entries: sympy.count_ops of M and the derivation time.  Usage: python bench/bodies_derivation.py [N ...]
@@ -13,10 +13,10 @@ from sympy.physics import mechanics as me
 
 
 def ours(n):
-    from vcirun.scenes.mechanisms import link_chain
+    from vcirun.scenes.contacts import LINK_CHAIN
 
     t = time.perf_counter()
-    s = link_chain(n)
+    s = LINK_CHAIN.system(n)
     return s.M, time.perf_counter() - t
 
 

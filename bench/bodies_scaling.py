@@ -32,7 +32,7 @@ def one(case: str, method: str) -> dict:
 
     t0 = time.perf_counter()
     import vcirun
-    from vcirun.scenes.data import scene_data
+    from vcirun.scenes.registry import scene_data
 
     t_import = time.perf_counter() - t0
     d = scene_data(case)

@@ -4,7 +4,7 @@ than 5%") on the double pendulum against a wall?
 Usage:  python bench/fig1_study.py [--out docs/fig1.md]
 
 Scene (the paper gives neither parameters nor initial state; ours, unchanged for this study, see
-vcirun.scenes.declarations.double_pendulum): unit masses and lengths, g = 9.81, wall x = w = 1.2 for
+vcirun.scenes.paper.DOUBLE_PENDULUM): unit masses and lengths, g = 9.81, wall x = w = 1.2 for
 the second tip (phi = w - l1 sin th1 - l2 sin th2), released from rest with both links horizontal
 pointing away from the wall, th = (-pi/2, -pi/2). T = 10. CVA (SVC + R^CVA), with the constraint
 and without it (constrained=False, same SVC steps).

@@ -13,7 +13,7 @@ import sympy as sp
 from scipy.optimize import brentq
 
 from vcirun.discrete.lagrangians import LIBRARY, step_expressions
-from vcirun.scenes.declarations import get_scene
+from vcirun.scenes.registry import get_scene
 
 
 class PlainCVA:

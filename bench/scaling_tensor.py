@@ -84,7 +84,7 @@ def measure(system: str, kernel_path: str) -> dict:
 
 def mcvac_symbolic(Ks) -> list:
     from vcirun.codegen import derive
-    from vcirun.scenes.declarations import get_scene
+    from vcirun.scenes.registry import get_scene
     from vcirun.methods.table import resolve_method
     from vcirun.codegen.mh_kernels import modified_kernels_source
 

@@ -21,7 +21,7 @@ os.environ.setdefault("VCIRUN_TIER", "compiled")   # (before vcirun reads it; su
 def _compiled(system, method):
     """(MechanicalSystem, compiled module, parameter vector) for a built-in name or a system."""
     from vcirun.codegen.build import load_module
-    from vcirun.scenes.declarations import get_scene
+    from vcirun.scenes.registry import get_scene
     from vcirun.methods.table import resolve_method
 
     s = get_scene(system) if isinstance(system, str) else system

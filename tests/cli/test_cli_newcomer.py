@@ -62,19 +62,19 @@ def test_systems(runner):
 def test_systems_lists_every_builtin(runner):
     """Every scene `simulate` accepts is listed and described: its coordinates and every parameter
     with a unit and a meaning, so a new scene cannot be added without its description."""
-    from vcirun.scenes.catalog import listed_scenes, scene_info
-    from vcirun.scenes.data import BUILTIN_SCENE_DATA, scene_data
+    from vcirun.scenes.registry import listed_scenes, scene_info
+    from vcirun.scenes.registry import BUILTIN_SCENES, scene_data
 
     listed = invoke(runner, "systems").stdout
     for name in listed_scenes():
-        assert name.rsplit("_", 1)[0] in BUILTIN_SCENE_DATA or name in BUILTIN_SCENE_DATA
+        assert name.rsplit("_", 1)[0] in BUILTIN_SCENES or name in BUILTIN_SCENES
         assert f"\n{name}  " in "\n" + listed, name
         info, d = scene_info(name), scene_data(name)
         assert len(info.coordinates) == d.n, name
         assert set(d.params) <= set(info.params), (name, set(d.params) - set(info.params))
         r = invoke(runner, "systems", name)
         assert r.exit_code == 0 and "coordinates" in r.stdout and "example" in r.stdout, name
-    assert set(BUILTIN_SCENE_DATA) <= {n if n in BUILTIN_SCENE_DATA else n.rsplit("_", 1)[0] for n in listed_scenes()}
+    assert set(BUILTIN_SCENES) <= {n if n in BUILTIN_SCENES else n.rsplit("_", 1)[0] for n in listed_scenes()}
 
 
 def test_cache_info_and_clear(runner, tmp_path, monkeypatch):
@@ -106,7 +106,7 @@ def test_compile_announcement(monkeypatch, tmp_path, capsys):
     """A module missing from the cache is announced before it is built (without building it here)."""
     from vcirun.codegen import cache, cache_store
     from vcirun.cli import app as cli
-    from vcirun.scenes.declarations import get_scene
+    from vcirun.scenes.registry import get_scene
     from vcirun.methods.table import resolve_method
 
     monkeypatch.setenv("VCIRUN_CACHE_DIR", str(tmp_path / "empty"))
@@ -178,11 +178,11 @@ def test_default_start_is_one_rule(runner, tmp_path):
     the symbolic system and a sweep config without initial conditions all start from it."""
     from vcirun.core.system_data import requested_start
     from vcirun.experiments.config import parse_config
-    from vcirun.scenes.data import BUILTIN_SCENE_DATA, scene_data
-    from vcirun.scenes.declarations import get_scene
+    from vcirun.scenes.registry import BUILTIN_SCENES, scene_data
+    from vcirun.scenes.registry import get_scene
 
     assert scene_data("cart_pendulum").default_beta == 3.2
-    for name in BUILTIN_SCENE_DATA:
+    for name in BUILTIN_SCENES:
         name = name + "_3" if name in ("n_pendulum", "newton_cradle") else name
         d = scene_data(name)
         assert (d.default_q0 is not None) != (d.default_beta is not None), name  # exactly one default start

@@ -13,7 +13,7 @@ import pytest
 from typer.testing import CliRunner
 
 from vcirun.cli.main import app
-from vcirun.scenes.catalog import example_command, listed_scenes
+from vcirun.scenes.registry import example_command, listed_scenes
 
 ROOT = Path(__file__).resolve().parents[2]
 DOCS = [ROOT / "README.md"] + [ROOT / "docs" / f for f in ("guide.md", "bodies.md", "walkers.md")]

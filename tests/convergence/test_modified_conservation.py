@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from convergence.helpers import fit_order
-from vcirun.scenes.declarations import get_scene
+from vcirun.scenes.registry import get_scene
 from vcirun.codegen.evaluate import python_module
 
 SYSTEM = get_scene("cart_pendulum")

@@ -15,7 +15,7 @@ import sympy as sp
 
 from vcirun.discrete.lagrangians import LIBRARY, ld_expression
 from vcirun.modified import MH_LDS
-from vcirun.scenes.declarations import get_scene
+from vcirun.scenes.registry import get_scene
 from vcirun.codegen.evaluate import python_module
 from vcirun.modified.series import jet, modified_series, padd, pmul, pscale
 

@@ -374,11 +374,12 @@ def test_link_chain_with_friction_comes_to_rest_without_gaining_energy():
 
 def _pinned_gait():
     import vcirun
-    from vcirun.scenes.data import _compass_M, compass_gait
+    from vcirun.scenes.registry import scene_data
+    from vcirun.scenes.walkers import compass_gait_M
 
-    D = compass_gait()
+    D = scene_data("compass_gait")
     pin = vcirun.reference("compass_gait", T=1.0)
-    return D, pin, pin.impacts[0], (lambda q, p: np.linalg.solve(_compass_M(q, D.params), p))
+    return D, pin, pin.impacts[0], (lambda q, p: np.linalg.solve(np.array(compass_gait_M(q, D.params)), p))
 
 
 def _stance_forces(s, ref, tt):

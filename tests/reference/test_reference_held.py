@@ -35,7 +35,7 @@ from vcirun.reference_solution import held as rh
 from vcirun.reference_solution.dop853 import Dop853Backend
 from vcirun.reference_solution.loop import _geometry, _immediate
 from vcirun.reference_solution.taylor import TaylorBackend, taylor_model
-from vcirun.scenes.declarations import get_scene
+from vcirun.scenes.registry import get_scene
 from vcirun.mechanics.loader import load_system_yaml
 from vcirun.scenes.oracles import ball_in_box_exact, bead_release, zeno_ball
 

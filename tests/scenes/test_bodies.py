@@ -32,7 +32,7 @@ from vcirun.mechanics.bodies import (
 )
 from vcirun.mechanics.loader import load_system_yaml
 from vcirun.methods.table import METHODS
-from vcirun.scenes.declarations import get_scene
+from vcirun.scenes.registry import get_scene
 
 EX = Path(__file__).resolve().parents[2] / "docs" / "examples"
 

@@ -157,7 +157,7 @@ def test_double_pendulum_walls_energy_loss_is_newtons():
     """e = 0.9: CVA's reset is Newton's law itself, so H drops at each impact by exactly the
     continuous loss (1 - e^2) u^2 / (2 W) (u, W at the recorded impact state); VCI and MCVAC lose it
     from their own energies, so their H drops by it to O(h^2)."""
-    from vcirun.scenes.declarations import get_scene
+    from vcirun.scenes.registry import get_scene
 
     s = get_scene("double_pendulum_walls")
     prm = s.param_values({"e": 0.9})

@@ -203,14 +203,15 @@ def test_compass_gait_stance_foot_sticks_in_the_methods(method):
     """The compass gait's stance phase with a frictional foot (mu = 1, above the 0.274 the gait needs):
     the methods keep the foot stuck all stride long (its position 0 to round-off, mode 2 at every grid
     state, no mode change), and the legs follow the built-in pinned gait's reference at order 2."""
-    from vcirun.scenes.data import _compass_M, compass_gait
+    from vcirun.scenes.registry import scene_data
+    from vcirun.scenes.walkers import compass_gait_M
 
-    D = compass_gait()
+    D = scene_data("compass_gait")
     gam = D.params["gamma"]
     pin = vcirun.reference("compass_gait", T=1.0)
     ths = float(pin.impacts[0])
     y0 = pin.state(0.0)
-    q0, v0 = y0[:2], np.linalg.solve(_compass_M(y0[:2], D.params), y0[2:])
+    q0, v0 = y0[:2], np.linalg.solve(np.array(compass_gait_M(y0[:2], D.params)), y0[2:])
     s = scenes.compass_gait_stance(*q0, *v0, mu=1.0)
     T = 0.66                       # (a multiple of both steps, before the heel strike at 0.734)
     assert T < ths

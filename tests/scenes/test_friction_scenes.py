@@ -1,6 +1,6 @@
 """The friction scenes as built-in systems (`--system rocking_block_friction`, ...): their numeric parts
-(vcirun.scenes.data, sympy-free) hold the defaults of the constructors in vcirun.scenes.friction, which
-define their physics; the symbolic systems are those constructors; `vcirun systems` describes them; and
+(vcirun.scenes.registry.scene_data, sympy-free) hold the defaults of the constructors in
+vcirun.scenes.friction, which build the same physics from other starts; the symbolic systems are those constructors; `vcirun systems` describes them; and
 by name they run to their closed forms (vcirun.scenes.friction_oracles)."""
 from __future__ import annotations
 
@@ -14,9 +14,9 @@ import pytest
 import vcirun
 from vcirun.scenes import friction
 from vcirun.scenes import friction_oracles as fo
-from vcirun.scenes.catalog import describe, listed_scenes
-from vcirun.scenes.data import scene_data
-from vcirun.scenes.declarations import get_scene
+from vcirun.scenes.registry import describe, listed_scenes
+from vcirun.scenes.registry import scene_data
+from vcirun.scenes.registry import get_scene
 
 # name -> (the constructor at its own defaults, the constructor's start arguments at the scene's default beta)
 SCENES = {
@@ -95,7 +95,7 @@ def test_geometry_overrides_run_from_a_start_on_the_surface():
 
 
 def test_the_numeric_parts_import_no_sympy():
-    code = ("import sys, json; from vcirun.scenes.data import scene_data\n"
+    code = ("import sys, json; from vcirun.scenes.registry import scene_data\n"
             "from vcirun.core.system_data import requested_start\n"
             "ds = [scene_data(n) for n in ('rocking_block_friction', 'spinning_ball', 'incline', "
             "'coulomb_oscillator', 'painleve_rod', 'link_chain_friction_4')]\n"

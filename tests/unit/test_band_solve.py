@@ -7,7 +7,7 @@ from hypothesis import given, settings, strategies as st
 
 from vcirun.maps.linalg import solve_band, solve_small
 from vcirun.mechanics.system import MechanicalSystem
-from vcirun.scenes import declarations as decl
+from vcirun.scenes.registry import get_scene
 
 
 def _dense_elimination(A, b):
@@ -82,12 +82,12 @@ def _numeric_band(system, rng, k=5):
 
 
 @pytest.mark.parametrize("make, expected", [
-    (lambda: decl.newton_cradle(12), 0),
-    (lambda: decl.n_pendulum(4), 3),
-    (lambda: decl.double_pendulum_walls(), 1),
-    (lambda: decl.ball_in_box(), 0),
-    (lambda: decl.cart_pendulum(), 1),
-    (lambda: decl.damped_oscillator(), 0),
+    (lambda: get_scene("newton_cradle_12"), 0),
+    (lambda: get_scene("n_pendulum_4"), 3),
+    (lambda: get_scene("double_pendulum_walls"), 1),
+    (lambda: get_scene("ball_in_box"), 0),
+    (lambda: get_scene("cart_pendulum"), 1),
+    (lambda: get_scene("damped_oscillator"), 0),
 ])
 def test_bandwidth_of_the_built_in_scenes(make, expected):
     system = make()

@@ -23,7 +23,7 @@ import pytest
 
 from vcirun.codegen import c_emit, c_link, c_translate, cc, derive
 from vcirun.codegen.build import _PKG
-from vcirun.scenes.declarations import get_scene
+from vcirun.scenes.registry import get_scene
 from vcirun.methods.table import resolve_method
 
 pytestmark = pytest.mark.skipif(cc.compiler() is None, reason="no C compiler")

@@ -64,7 +64,7 @@ def _seed_core(dest: Path) -> None:
     them verified."""
     from vcirun.codegen.cache import core_key_for
     from vcirun.methods.table import METHODS
-    from vcirun.scenes.declarations import get_scene
+    from vcirun.scenes.registry import get_scene
 
     try:
         src = build.cache_dir()
@@ -466,7 +466,7 @@ def test_uncompiled_runs_call_the_c_kernels(case, tmp_path, method):
 
 def test_a_core_key_does_not_depend_on_the_c_compiler(monkeypatch, tmp_path):
     from vcirun.methods.table import METHODS
-    from vcirun.scenes.declarations import get_scene
+    from vcirun.scenes.registry import get_scene
 
     ks = METHODS["MCVAC"].kernel_set()
     s = get_scene("cart_pendulum")

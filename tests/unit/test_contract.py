@@ -213,7 +213,7 @@ def test_units_have_no_undefined_name_for_a_linter():
 
 def test_generated_part_defines_its_declared_names():
     from vcirun.codegen.derive import generated_source
-    from vcirun.scenes.declarations import get_scene
+    from vcirun.scenes.registry import get_scene
 
     s = get_scene("oscillator_wall")
     for ks in (SYSTEM_KERNELS, METHODS["VCI"].kernel_set(), resolve_method("SVA").kernel_set()):
@@ -254,7 +254,7 @@ def test_impact_impulse_is_the_recorded_momentum_jump(method):
         assert np.allclose(pp - pm, lam * grad, rtol=1e-13, atol=1e-13)
         assert lam > 0
     if method == "CVA":
-        from vcirun.scenes.declarations import get_scene
+        from vcirun.scenes.registry import get_scene
 
         s = get_scene("cart_pendulum")
         for lam, q, pm in zip(tr.impact_impulse, tr.impact_q, tr.impact_p_minus):

@@ -103,7 +103,7 @@ def test_bad_resets_are_errors_naming_the_field(extra, field, words):
 
 def test_rimless_wheel_strides(uncompiled):
     """At each impact theta = alpha, and the map: theta+ = -alpha, thetadot+ = cos(2 alpha) thetadot-."""
-    from vcirun.scenes.declarations import get_scene
+    from vcirun.scenes.registry import get_scene
 
     a = get_scene("rimless_wheel").params["alpha"]
     tr = _run("rimless_wheel", h=1e-2, T=2.0, loader=uncompiled)

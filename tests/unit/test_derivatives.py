@@ -16,7 +16,7 @@ import pytest
 import sympy as sp
 
 from vcirun.discrete.lagrangians import LIBRARY, ld_expression
-from vcirun.scenes.declarations import BUILTIN_SCENES
+from vcirun.scenes.registry import BUILTIN_SCENES
 
 # every built-in scene (cart_pendulum, double_pendulum, oscillator_wall, damped_oscillator, ...), the
 # n-link pendulum as its 3-link instance

@@ -20,7 +20,7 @@ from vcirun.codegen.evaluate import python_module_for
 from vcirun.codegen.kernel_set import SYSTEM_KERNELS
 from vcirun.mechanics.bodies import Body, CircleContact, Joint, PointContact, planar_system
 from vcirun.mechanics.loader import load_system_yaml
-from vcirun.scenes.declarations import BUILTIN_SCENES, get_scene
+from vcirun.scenes.registry import BUILTIN_SCENES, get_scene
 from vcirun.verification import fd
 
 

@@ -17,7 +17,7 @@ import hashlib, sys, tempfile
 from pathlib import Path
 from vcirun.codegen.derive import scene_source
 from vcirun.run.api import plan
-from vcirun.scenes.declarations import get_scene
+from vcirun.scenes.registry import get_scene
 for scene, meth in [a.split(":") for a in sys.argv[1:]]:
     p = plan(scene, meth, h=0.01, T=1.0, t0=0.0, constrained=None, energies=True, resting_contact=True,
              options={}, start=dict(beta=None, q0=None, p0=None, params=None))

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import sympy as sp
 
-from vcirun.scenes.declarations import get_scene
+from vcirun.scenes.registry import get_scene
 from vcirun.modified import MH_LDS
 from vcirun.modified.eta import StationaryEta
 from vcirun.codegen.evaluate import python_module

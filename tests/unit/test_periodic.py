@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from vcirun.experiments.periodic import periodic_orbit
-from vcirun.scenes.data import rimless_wheel
+from vcirun.scenes.registry import scene_data
 from vcirun.scenes.oracles import rimless_wheel_fixed_point
 
-PRM = rimless_wheel().params
+PRM = scene_data("rimless_wheel").params
 GAIT = rimless_wheel_fixed_point(**PRM)
 ML2 = PRM["m"] * PRM["l"] ** 2
 

@@ -211,7 +211,7 @@ def test_a_scene_takes_the_lean_core_only_when_it_has_one_unforced_contact():
     from vcirun.codegen import shared
     from vcirun.codegen.kernel_set import SYSTEM_KERNELS
     from vcirun.methods.table import METHODS
-    from vcirun.scenes.declarations import get_scene
+    from vcirun.scenes.registry import get_scene
 
     ks = METHODS["CVA"].kernel_set()
     feats = {name: build.system_core_features(ks, get_scene(name))
@@ -273,7 +273,7 @@ def test_cold_method_families_are_grouped_by_the_core_they_compile(tmp_path, mon
     """A sweep's preflight compiles cold kernel sets side by side, one group per shared core (CVA and
     VCI share theirs, MCVAA and MCVAC theirs); nothing is cold in a cache that holds them."""
     from vcirun.experiments.precompile import compile_groups
-    from vcirun.scenes.declarations import get_scene
+    from vcirun.scenes.registry import get_scene
 
     monkeypatch.delenv("VCIRUN_BUILD", raising=False)
     methods = [(m, {}, {}) for m in ("CVA", "MCVAA", "VCI", "MCVAC")]
@@ -296,7 +296,7 @@ def test_cold_scene_kernels_compile_side_by_side_in_worker_processes(tmp_path, m
     from vcirun.codegen.cache import cold_parts, core_key_for
     from vcirun.experiments.precompile import compile_side_by_side
     from vcirun.methods.table import METHODS
-    from vcirun.scenes.declarations import get_scene
+    from vcirun.scenes.registry import get_scene
 
     monkeypatch.delenv("VCIRUN_BUILD", raising=False)
     sysm = get_scene("cart_pendulum")
@@ -327,7 +327,7 @@ def test_a_kernel_declared_at_run_time_takes_the_next_slot_and_its_reset_a_core_
     from vcirun.codegen import roles, shared
     from vcirun.codegen.derive import scene_source
     from vcirun.methods.table import METHODS, Method
-    from vcirun.scenes.declarations import get_scene
+    from vcirun.scenes.registry import get_scene
 
     monkeypatch.setattr(roles, "KERNELS", dict(roles.KERNELS))
     monkeypatch.setattr(roles, "PARTS", dict(roles.PARTS))

@@ -12,7 +12,7 @@ import sympy as sp
 import yaml
 
 import vcirun
-from vcirun.scenes.declarations import BUILTIN_SCENES, get_scene
+from vcirun.scenes.registry import BUILTIN_SCENES, get_scene
 from vcirun.mechanics import load_system_yaml
 
 CART_YAML = """

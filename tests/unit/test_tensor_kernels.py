@@ -20,7 +20,7 @@ import pytest
 from vcirun.codegen import derive, frame
 from vcirun.discrete.quadrature import quadrature_nodes
 from vcirun.discrete.lagrangians import LIBRARY, ExplicitLd
-from vcirun.scenes.declarations import get_scene
+from vcirun.scenes.registry import get_scene
 
 SYSTEMS = ("cart_pendulum", "double_pendulum", "n_pendulum_3", "damped_oscillator", "forced_2dof")
 LDS = ("SE1", "SE2", "SVC", "midpoint")

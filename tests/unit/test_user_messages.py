@@ -51,7 +51,7 @@ def test_python_dash_m_runs_the_cli():
 
 
 def test_periodic_orbit_starts_from_the_default_state_and_says_why_a_return_failed():
-    from vcirun.scenes.data import scene_data
+    from vcirun.scenes.registry import scene_data
     from vcirun.scenes.oracles import rimless_wheel_fixed_point
 
     o = vcirun.periodic_orbit("rimless_wheel", "CVA", h=2e-3)     # no guess: the scene's default gait

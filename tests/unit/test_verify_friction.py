@@ -280,13 +280,14 @@ def test_compass_gait_stance_with_a_sliding_foot_verifies():
     0.05286; every judged check passes with CVA, MCVAA, VCI and CVA4 (mode-change time orders 2.08, 2.08,
     2.08, 3.85 measured on the interpreted tier). The runs' slip direction at the start comes from a
     round-off slip velocity (4e-15): their reversal at t ~ 1e-16 is left out and said."""
-    from vcirun.scenes.data import _compass_M, compass_gait
+    from vcirun.scenes.registry import scene_data
+    from vcirun.scenes.walkers import compass_gait_M
     from vcirun.scenes.friction import compass_gait_stance
 
-    D = compass_gait()
+    D = scene_data("compass_gait")
     pin = vcirun.reference("compass_gait", T=1.0)
     q0, p0 = pin.state(0.0)[:2], pin.state(0.0)[2:]
-    v0 = np.linalg.solve(_compass_M(q0, D.params), p0)
+    v0 = np.linalg.solve(np.array(compass_gait_M(q0, D.params)), p0)
     s = compass_gait_stance(*q0, *v0, mu=0.247, mu_s=0.26)
     res = vcirun.verify(s, methods="CVA,MCVAA,VCI,CVA4", T=0.73, h=[0.02, 0.01, 0.005, 0.0025, 0.00125])
     assert res.ok and not _not_passing(res), _not_passing(res)

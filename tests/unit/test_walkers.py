@@ -11,16 +11,17 @@ from typer.testing import CliRunner
 from vcirun.cli.main import app
 from vcirun.experiments.bifurcation import continuation
 from vcirun.experiments.periodic import periodic_orbit
-from vcirun.scenes.data import _compass_M, compass_gait
+from vcirun.scenes.registry import scene_data
+from vcirun.scenes.walkers import compass_gait_M
 
-D = compass_gait()
+D = scene_data("compass_gait")
 
 
 def _gait(method, h, **kw):
     o = periodic_orbit("compass_gait", method, h=h, guess=(D.default_q0, D.default_p0), **kw)
     q, p = o.fixed_point
     ev = o.eigenvalues[:3]                       # (the fourth is the section's ~0)
-    return o, np.concatenate([q, np.linalg.solve(_compass_M(q, D.params), p), [o.period],
+    return o, np.concatenate([q, np.linalg.solve(np.array(compass_gait_M(q, D.params)), p), [o.period],
                               ev.real, np.abs(ev.imag)])
 
 

@@ -162,7 +162,8 @@ def test_warm_key_follows_the_hashed_files(tmp_path, monkeypatch):
     assert k0 == build.warm_key_of(ident, ks)
     assert build.warm_key_of(("scene", "double_pendulum"), ks) != k0
     assert build.warm_key_of(ident, METHODS["VCI"].kernel_set()) != k0
-    for rel in ["scenes/data.py", "core/system_data.py", "scenes/declarations.py", "mechanics/loader.py",
+    for rel in ["scenes/scene.py", "scenes/registry.py", "scenes/paper.py", "scenes/friction.py", "core/system_data.py",
+                "mechanics/loader.py",
                 "collision/reset_cva.py",
                 "codegen/derive.py", "mechanics/system.py"]:
         f = pkg / rel

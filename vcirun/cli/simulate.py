@@ -76,7 +76,7 @@ def simulate_once(system: str, method: str | None, *, h: float | None, T: float,
         raise CliError(str(e)) from None
     for w in notes:
         typer.echo(f"note: {w.message}", err=True)
-    from vcirun.scenes.data import scene_args
+    from vcirun.scenes.registry import scene_args
 
     args = scene_args(system) if isinstance(system, str) else None
     if args is not None and args[1] == () and traj.system != system:

@@ -13,7 +13,7 @@ def systems(name: Optional[str] = typer.Argument(None, help="One scene (default:
     """The built-in scenes: coordinates, parameters (default, unit, meaning), constraints and initial
     states. The sized scenes (n_pendulum_K, newton_cradle_K, link_chain_K, cradle_K) run with K in
     their range (`vcirun systems cradle_3` says it); YAML files declare your own."""
-    from vcirun.scenes.catalog import describe, listed_scenes
+    from vcirun.scenes.registry import describe, listed_scenes
 
     console = _console()
     for nm in [name] if name else listed_scenes():

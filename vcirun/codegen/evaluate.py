@@ -53,7 +53,7 @@ def python_module(system, ld: str = "SVC", mh_order: int = 3, flow_order: int = 
     from .roles import MCVA_FAMILY, kernel_set
 
     if isinstance(system, str):
-        from ..scenes.declarations import get_scene
+        from ..scenes.registry import get_scene
 
         system = get_scene(system)
     ld, s, flow = check_mcva_options(ld, int(mh_order), int(flow_order))

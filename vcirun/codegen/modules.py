@@ -63,8 +63,9 @@ _GENERATOR_FILES = ["codegen/kernels.py", "codegen/printer.py", "codegen/modules
 # ... and, only for the MCVA family's modules (so that editing them does not invalidate CVA/VCI caches)
 _MODIFIED_GENERATOR_FILES = ["codegen/mh_kernels.py", "modified/eta.py", "modified/series.py"]
 # ... and, for the warm index only: the files that turn a scene name or a YAML file into a symbolic system
-_SYSTEM_FILES = ["core/system_data.py", "scenes/data.py", "scenes/declarations.py", "mechanics/loader.py",
-                 "mechanics/expressions.py"]
+_SYSTEM_FILES = ["core/system_data.py", "scenes/scene.py", "scenes/registry.py", "scenes/symbolic.py",
+                 "scenes/paper.py", "scenes/contacts.py", "scenes/walkers.py", "scenes/friction.py",
+                 "mechanics/loader.py", "mechanics/expressions.py"]
 WARM_FORMAT = 2
 
 

@@ -2,7 +2,7 @@
 
 `SystemData` holds n, the parameter names and default values, an initial-condition map
 beta -> (q0, qdot0), the default start (a state, or a beta of the map) and a description. A `MechanicalSystem` (symbolic) and a
-built-in scene's numeric data (`vcirun.scenes.data`) both reduce to it, so a warm start (kernel
+built-in scene's numeric data (`vcirun.scenes.scene.Scene.data`) both reduce to it, so a warm start (kernel
 module cached, see `vcirun.codegen.kernel_cache.KernelCache.warm_lookup`) resolves a system without importing sympy.
 The rules for a run's initial state (`requested_start`, `check_mass_matrix`, `start_tolerance`)
 live here once, for the symbolic and the numeric paths alike.
@@ -27,7 +27,7 @@ class SystemData:
     default_q0: np.ndarray | None = None
     default_p0: np.ndarray | None = None
     description: str = ""
-    coordinates: list | None = None   # coordinate names (None: vcirun.scenes.catalog's for built-in scenes)
+    coordinates: list | None = None   # coordinate names (None: the scene's, vcirun.scenes.registry, for built-in scenes)
     default_beta: float | None = None
     restitution: dict | None = None   # parameter name -> the constraints it is the restitution coefficient of
     ic_map_params: bool = False       # ic_map takes (beta, {parameter: value}): a start that moves with them

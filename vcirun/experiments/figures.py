@@ -374,7 +374,7 @@ def _parameter_values(spec) -> dict:
     out = {}
     try:
         if spec.get("name") and not spec.get("file"):
-            from ..scenes.data import scene_data
+            from ..scenes.registry import scene_data
 
             out = dict(scene_data(spec["name"]).params)
         elif spec.get("file"):

@@ -109,7 +109,7 @@ def reference_note(results) -> str:
 
 def collect(results) -> Table:
     """The (method, h, initial condition) table of a `vcirun.io.reader.Results` (or a path)."""
-    from vcirun.scenes.catalog import coordinate_names
+    from vcirun.scenes.registry import coordinate_names
     from vcirun.io.reader import Results, read_results
 
     res = results if isinstance(results, Results) else read_results(results)

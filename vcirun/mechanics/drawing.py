@@ -15,7 +15,7 @@ A `Drawing` is kept on the MechanicalSystem (`system.drawing`, None where nothin
 Three sources: planar mechanisms (`from_bodies`, called by vcirun.mechanics.bodies.planar_system: links
 from each joint to the body's other points, circles for bodies with a radius, dots for point masses,
 an `outline` polygon where a body declares one, the contact lines), the optional `draw:` section of a
-hand-written system file (`from_yaml`), and the built-in hand-written scenes (vcirun.scenes.declarations).
+hand-written system file (`from_yaml`), and the built-in hand-written scenes (their symbolic builders, vcirun.scenes.paper and the other scene modules).
 `numeric(drawing, names, values)` compiles it at the parameter values (sympy.lambdify) to arrays for many
 configurations at once; vcirun.run.animate draws them.
 """

@@ -158,7 +158,7 @@ def _module(traj):
     """(module, parameter vector) of a trajectory's dynamics (attached on demand, as dense output)."""
     dyn = traj.dynamics
     if dyn is None or getattr(dyn, "module", None) is None:
-        from ..scenes.catalog import scene_info
+        from ..scenes.registry import scene_info
 
         if scene_info(traj.system) is None and dyn is None:
             raise ValueError(f"energy account: the dynamics of system {traj.system!r} are not attached; call "

@@ -219,7 +219,7 @@ def _compute(ctx: _Context, lo: int, hi: int, workers: int, progress: Progress |
 def _dataset(ctx: _Context, res: dict, lo: int, wall: float):
     import xarray as xr
 
-    from ..scenes.catalog import coordinate_names
+    from ..scenes.registry import coordinate_names
 
     p = ctx.plan
     k = res["status"].shape[0]

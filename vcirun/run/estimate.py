@@ -549,7 +549,7 @@ def _args_from_record(tr, system):
     """RunArgs of a trajectory without them (read from a file, unpickled): a built-in scene by its name,
     else `system` must be given; the start is the run's first grid state."""
     from ..methods.table import resolve_method
-    from ..scenes.catalog import scene_info
+    from ..scenes.registry import scene_info
     from .pilot import RunArgs
 
     if system is None and scene_info(tr.system) is None:

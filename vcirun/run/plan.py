@@ -39,7 +39,7 @@ from ..core.system_data import (
 from ..codegen.kernel_cache import KernelCache, default
 from ..core.tolerances import split_options
 from ..methods.table import resolve_method
-from ..scenes.data import scene_args
+from ..scenes.registry import scene_args
 from .resolve import _warmable, resolve_numeric, resolve_system
 
 

@@ -14,7 +14,7 @@ from ..codegen import build
 from ..codegen.kernel_cache import KernelCache, default
 from ..codegen.tiers import Kernels
 from ..core.system_data import SystemData, restitution_parameters
-from ..scenes.data import scene_args, scene_data
+from ..scenes.registry import scene_args, scene_data
 
 
 def _is_yaml_source(s: str) -> bool:
@@ -37,7 +37,7 @@ def resolve_system(system, params: dict | None = None):
             from ..mechanics.loader import load_system_yaml
 
             return load_system_yaml(s)
-        from ..scenes.declarations import get_scene
+        from ..scenes.registry import get_scene
 
         return get_scene(s)
     raise ValueError(f"system: expected a built-in name, a YAML path or a MechanicalSystem, got {type(system).__name__}")
@@ -96,7 +96,7 @@ def _data_from_entry(ident, entry) -> SystemData | None:
 
 def _entry_data(sysm) -> dict:
     """What the warm index stores about a symbolic system (built-in scenes take the rest from
-    vcirun.scenes.data; YAML systems have no initial-condition map)."""
+    vcirun.scenes.registry; YAML systems have no initial-condition map)."""
     vec = lambda a: None if a is None else np.asarray(a, float).tolist()  # noqa: E731
     return {"name": sysm.name, "n": sysm.n, "params": [[k, v] for k, v in sysm.params.items()],
             "default_q0": vec(sysm.default_q0), "default_p0": vec(sysm.default_p0),

@@ -125,7 +125,7 @@ class Trajectory:
     # --- dense output -----------------------------------------------------------------------------
     @property
     def coordinate_names(self) -> list[str]:
-        from ..scenes.catalog import coordinate_names
+        from ..scenes.registry import coordinate_names
 
         return coordinate_names(self.system, self.q.shape[1], self.coordinates)
 
@@ -152,7 +152,7 @@ class Trajectory:
                 raise ValueError("dense output: this trajectory holds no grid states (stored with "
                                  "store_trajectories: false?)")
             if self.dynamics is None:
-                from ..scenes.catalog import scene_info
+                from ..scenes.registry import scene_info
 
                 if scene_info(self.system) is None:
                     raise ValueError(f"dense output: the dynamics of system {self.system!r} are not attached; "
@@ -198,7 +198,7 @@ class Trajectory:
 
     # --- conversions ------------------------------------------------------------------------------
     def _units(self) -> tuple[list, list, str]:
-        from ..scenes.catalog import momentum_unit, scene_info, units_for
+        from ..scenes.registry import momentum_unit, scene_info, units_for
 
         names = self.coordinate_names
         qu = units_for(self.system, names)

@@ -22,16 +22,16 @@ __all__ = ["build_system", "check_semantics_of", "check_memory_of"]
 def build_system(cfg: SweepConfig):
     """(system argument for vcirun.simulate/reference, parameter overrides or None, MechanicalSystem)."""
     from vcirun.mechanics import load_system_yaml
-    from vcirun.scenes.declarations import get_scene
-    from vcirun.scenes.data import BUILTIN_SCENE_DATA, scene_args
+    from vcirun.scenes.registry import get_scene
+    from vcirun.scenes.registry import BUILTIN_SCENES, scene_args
 
     s = cfg.system
     if isinstance(s, BuiltinSystem):
-        if scene_args(s.name) is None:  # the one scene registry (vcirun.scenes.data)
-            hint = difflib.get_close_matches(s.name, list(BUILTIN_SCENE_DATA), n=1)
+        if scene_args(s.name) is None:  # the one scene registry (vcirun.scenes.registry)
+            hint = difflib.get_close_matches(s.name, list(BUILTIN_SCENES), n=1)
             raise _Semantic("system",
                             f"unknown built-in system {s.name!r}" + (f"; did you mean {hint[0]!r}?" if hint else "")
-                            + f" (choose one of {', '.join(BUILTIN_SCENE_DATA)}, or a YAML file path)")
+                            + f" (choose one of {', '.join(BUILTIN_SCENES)}, or a YAML file path)")
         try:
             check_scene_size(s.name)
         except ValueError as e:

@@ -87,7 +87,7 @@ PositiveFloat = Annotated[float, Field(gt=0)]
 
 # --- system ---------------------------------------------------------------------------------------
 class BuiltinSystem(ConfigModel):
-    """A built-in scene (`vcirun.scenes.data.BUILTIN_SCENE_DATA`) with optional parameter overrides."""
+    """A built-in scene (`vcirun.scenes.registry.BUILTIN_SCENES`) with optional parameter overrides."""
     name: str = Field(min_length=1)
     params: dict[str, float] = Field(default_factory=dict)
 

@@ -19,11 +19,19 @@ from ...run.resolve import resolve_system
 from ...codegen.build import load_module
 from ...codegen.kernel_set import SYSTEM_KERNELS
 from ...scenes.oracles import ball_exact, ball_exact_onset, ball_position
+from ...scenes.registry import find_scene
+from ...scenes.scene import StudyHooks
 from ...reference_solution.exact import l2_error, reference
 from .outcome import cause, compiled, outcome, run
 
 __all__ = ["grazing_setup", "grazing_case", "boundary_start", "boundary_case", "dense_case", "surface_state",
            "surface_case", "accumulation_case"]
+
+
+def _hooks(system) -> StudyHooks:
+    """What the scene `system` offers these studies (vcirun.scenes.scene.StudyHooks; none for a YAML system)."""
+    found = find_scene(str(system))
+    return (found[0].study if found is not None else None) or StudyHooks()
 
 
 # --- grazing -----------------------------------------------------------------------------------
@@ -34,14 +42,16 @@ def grazing_setup(system, depth, *, beta=None, params=None, horizon=10.0) -> dic
     translated so that this minimum lies `depth` inside the constraint: for the cart-pendulum the
     initial height (y is cyclic: V is linear and M independent of y), for the double pendulum the
     wall (w = x_max - depth). The contact's normal velocity is then ~ sqrt(2 phi'' depth).
+    The scene says how (its StudyHooks: free_params, graze).
     Returns system name, params, q0, p0, t_star, phidd (phi'' at the minimum), vn, T."""
     from scipy.integrate import solve_ivp
 
     name = str(system)
     s = resolve_system(name)
-    base = dict(params or {})
-    if name == "double_pendulum":
-        base["w"] = 100.0  # out of reach: the unconstrained motion
+    hooks = _hooks(name)
+    if hooks.graze is None:
+        raise ValueError(f"grazing_setup: no translation known for {name}")
+    base = dict(params or {}) | hooks.free_params   # the constraint out of reach: the unconstrained motion
     prm = s.param_values(base)
     mod = load_module(s, SYSTEM_KERNELS)  # the continuous dynamics only
     q0, p0 = s.initial_state(beta=beta, params=prm)
@@ -69,14 +79,7 @@ def grazing_setup(system, depth, *, beta=None, params=None, horizon=10.0) -> dic
     phimin = float(mod.sys_phi(ys[:n], prm))
     eps = 1e-6  # phi'' by a central difference of phi' on the dense output
     phidd = (phidot(ts + eps, sol.sol(ts + eps)) - phidot(ts - eps, sol.sol(ts - eps))) / (2 * eps)
-    out_params = dict(params or {})
-    q0 = q0.copy()
-    if name == "cart_pendulum":
-        q0[0] -= phimin + depth         # phi = y: shift the whole motion down
-    elif name == "double_pendulum":
-        out_params["w"] = 100.0 - phimin - depth   # phi = w - x_tip: move the wall
-    else:
-        raise ValueError(f"grazing_setup: no translation known for {name}")
+    q0, out_params = hooks.graze(q0.copy(), dict(params or {}), phimin, depth)
     vn = math.sqrt(2 * phidd * depth) if depth > 0 else 0.0
     return {"system": name, "params": out_params, "q0": q0, "p0": p0.copy(), "t_star": ts, "phidd": phidd,
             "vn": vn, "depth": depth}
@@ -235,7 +238,7 @@ def boundary_case(system, method, *, h, k, T, beta=None, params=None) -> dict:
 
 def dense_case(system, method, *, h, T, beta=None, q0=None, p0=None, params=None) -> dict:
     """A motion with impacts less than one step apart (several in one step), against the exact
-    reference (cart-pendulum) or the closed form (bouncing ball without drag)."""
+    reference, or the scene's closed form where it has one (the bouncing ball)."""
     tr, crash = run(system, method, h=h, T=T, beta=beta, q0=q0, p0=p0, params=params)
     out = {"system": str(system), "method": method, "h": h, "T": T, "status": outcome(tr, crash),
            "cause": cause(tr)}
@@ -243,13 +246,11 @@ def dense_case(system, method, *, h, T, beta=None, q0=None, p0=None, params=None
         return out
     per_step = np.bincount(np.floor((tr.impacts + 1e-12 * h) / h).astype(int)) if len(tr.impacts) else np.zeros(1)
     out.update(impacts=int(len(tr.impacts)), max_per_step=int(per_step.max()))
-    if str(system) == "bouncing_ball":
+    closed_form = _hooks(system).closed_form
+    if closed_form is not None:
         s = resolve_system(system)
         prm = dict(zip(s.params, s.param_values(params)))
-        y0 = float(tr.q[0, 0])
-        times, speeds = ball_exact(y0, prm["g"], prm["c"] / prm["m"], T)
-        times = times[times <= T]
-        yex = ball_position(tr.t, y0, prm["g"], prm["c"] / prm["m"], times, speeds)
+        times, yex = closed_form(tr.q[0], prm, T, tr.t)
         out.update(ref_impacts=int(len(times)), err=float(np.max(np.abs(tr.q[:, 0] - yex))))
         if len(times) == len(tr.impacts):
             out["dt_impacts"] = float(np.max(np.abs(times - tr.impacts)))
@@ -270,22 +271,15 @@ def surface_state(system, kind, params=None):
     motion starts with a reflection), 'rest' (zero velocity, pushed in by gravity: resting contact,
     no elastic motion exists; cart-pendulum only: gravity pulls the double pendulum's tip away from
     its wall), 'lift' (zero normal velocity but accelerating away: tangential start).
-    Cart-pendulum: y = 0; double pendulum: the second tip on the wall x = w = 1.2."""
+    The scene builds the state (its StudyHooks.surface): the cart-pendulum on y = 0, the double
+    pendulum with its second tip on the wall x = w = 1.2."""
     s = resolve_system(system)
     prm = s.param_values(params)
     name = str(system)
-    if name == "cart_pendulum":
-        q = np.array([0.0, {"lift": np.pi}.get(kind, 0.3)])
-        qd = {"out": [1.0, 0.5], "in": [-1.0, 0.5], "rest": [0.0, 0.0], "lift": [0.0, 10.0]}[kind]
-    elif name == "double_pendulum":
-        w = float(prm[list(s.params).index("w")])
-        th1 = 0.3
-        th2 = math.asin(w - math.sin(th1))    # l1 = l2 = 1: tip exactly at x = w
-        q = np.array([th1, th2])
-        # normal direction of the tip: d x_tip = cos th1 dth1 + cos th2 dth2
-        qd = {"out": [0.0, -1.0], "in": [0.0, 1.0], "lift": [-1.0, math.cos(th1) / math.cos(th2)]}[kind]
-    else:
+    surface = _hooks(name).surface
+    if surface is None:
         raise ValueError(f"surface_state: no construction for {name}")
+    q, qd = surface(kind, {k: float(v) for k, v in zip(s.params, prm)})
     return s.legendre(q, np.asarray(qd, float), prm)
 
 

@@ -16,7 +16,15 @@ from pathlib import Path
 
 import numpy as np
 
+from ...scenes.registry import find_scene
 from .schema import SECTIONS
+
+
+def _label(system: str) -> str:
+    """A scene's short name in the report (its StudyHooks.label), else its name."""
+    found = find_scene(system)
+    study = found[0].study if found is not None else None
+    return (study.label if study is not None else "") or system
 
 __all__ = ["render", "render_extremes", "extremes_context"]
 
@@ -143,7 +151,7 @@ def _overview_table(res: dict) -> list:
     def dense(m):
         out = []
         for r in pick("dense", method=m):
-            sc = "cart" if r["system"] == "cart_pendulum" else "ball"
+            sc = _label(r["system"])
             if r["status"] == "ok":
                 out.append(f"{sc}: ok {r.get('impacts')}/{r.get('ref_impacts')} impacts")
             else:

@@ -33,6 +33,7 @@ from ..config import STUDY_KEY, ConfigError, MethodSpec, parse_config, read_conf
 from ..config.errors import FieldError
 from ..config.messages import from_validation_error
 from ..config.specs import BetaSpec, ConfigModel, MethodName, PositiveFloat
+from ...scenes.registry import BUILTIN_SCENES
 
 __all__ = ["WorkPrecisionStudy", "ExtremesStudy", "STUDY_MODELS", "parse_study", "load_study", "load_any"]
 
@@ -127,7 +128,9 @@ def _unique_labels(methods):
 # --- extremes: one model per section -----------------------------------------------------------------
 # Each section is one family of runs of vcirun.experiments.studies (its docstring says what is measured
 # against which oracle); the defaults are the ones the functions use.
-ContactScene = Literal["cart_pendulum", "double_pendulum"]   # the scenes with a known construction
+# the scenes with a known construction of a grazing contact and of a start on the surface (their StudyHooks)
+ContactScene = Literal[tuple(name for name, s in BUILTIN_SCENES.items()
+                             if s.study is not None and s.study.graze is not None and s.study.surface is not None)]
 
 
 class _Scene(ConfigModel):
@@ -212,10 +215,11 @@ class SurfaceScene(ConfigModel):
     kinds: list[Literal["out", "in", "lift", "rest"]] = Field(min_length=1)
 
     @model_validator(mode="after")
-    def _rest(self):
-        if self.system == "double_pendulum" and "rest" in self.kinds:
-            raise FieldError(("kinds", self.kinds.index("rest")),
-                              "rest has no construction on the double pendulum (gravity pulls its tip off the wall)")
+    def _refused(self):
+        refused = BUILTIN_SCENES[self.system].study.refused   # kinds the scene has no construction for
+        for i, kind in enumerate(self.kinds):
+            if kind in refused:
+                raise FieldError(("kinds", i), refused[kind])
         return self
 
 
@@ -375,18 +379,18 @@ def load_any(path, *, check_semantics: bool = True):
 # --- semantic checks (cheap: no kernel is compiled, no sympy for built-in scenes) ---------------------
 def _check_system(name: str, params: dict | None, field: str, source: str, *, params_field: str = "params",
                   needs_ic_map: bool = False):
-    from ...scenes.data import scene_args, scene_data
+    from ...scenes.registry import scene_args, scene_data
 
     if scene_args(name) is None:
         if name.endswith((".yaml", ".yml")) or Path(name).is_file():
             if not Path(name).is_file():
                 raise ConfigError(f"system file not found: {name}", source=source, field=field)
             return
-        from ...scenes.data import BUILTIN_SCENE_DATA
+        from ...scenes.registry import BUILTIN_SCENES
 
-        hint = difflib.get_close_matches(name, list(BUILTIN_SCENE_DATA), n=1)
+        hint = difflib.get_close_matches(name, list(BUILTIN_SCENES), n=1)
         raise ConfigError(f"unknown built-in system {name!r}" + (f"; did you mean {hint[0]!r}?" if hint else "")
-                          + f" (choose one of {', '.join(BUILTIN_SCENE_DATA)}, or a YAML file path)",
+                          + f" (choose one of {', '.join(BUILTIN_SCENES)}, or a YAML file path)",
                           source=source, field=field)
     sd = scene_data(name)
     try:
