@@ -14,6 +14,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 import vcirun
 from vcirun.scenes import friction as scenes
@@ -90,6 +92,44 @@ def test_spinning_ball_against_capobianco(method, w0):
     # the energy went to the plastic impact and to friction, nothing to the integration
     acc = tr.energy_account()
     assert abs(acc.error) <= 1e-10 * abs(tr.H[0])
+
+
+@pytest.mark.parametrize("method", FAST)
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(height=st.floats(0.3, 1.5), slip=st.floats(1e-4, 0.08), v_share=st.floats(0.0, 1.0),
+       h=st.sampled_from([1e-2, 4e-3]))
+def test_slip_that_stops_within_the_landing_step_is_located(method, height, slip, v_share, h):
+    """The spinning ball landing with a slip velocity s+ so small that friction stops it within a step
+    (s+ / (7/2 mu g) <= 1.2e-2 s): the stop falls in the rest of the landing step after the impact
+    (an event step) or in the next steps. It is located to the event tolerance wherever it falls, and
+    the motion is the closed form's to round-off (constant accelerations between the events); a stop
+    found only at the next grid state would put it up to h late, with the ball off by O(mu g h^2)."""
+    mu, g, R = 0.2, 9.81, 0.1
+    vn = math.sqrt(2.0 * (height - R) * g)
+    s0 = 3.5 * mu * vn + slip                     # the slip before the impact: s+ = slip after it
+    v0 = v_share * s0
+    w0 = (s0 - v0) / R
+    ex = oracles.spinning_ball(w0, h=height, v0=v0, mu=mu, g=g, R=R)
+    assert not ex.sticks and abs(ex.slip_plus - slip) <= 1e-12
+    T = h * math.ceil((ex.t_roll + 0.05) / h)
+    tr = vcirun.simulate(scenes.spinning_ball(w0, h=height, v0=v0), method, h=h, T=T)
+    assert tr.status == "ok", tr.message
+    assert len(tr.impacts) == 1 and abs(tr.impacts[0] - ex.t1) <= 1e-11
+    assert list(tr.mode_change_kind) == [1]
+    assert abs(tr.mode_changes[0] - ex.t_roll) <= 1e-10
+    want = np.array([ex.state(t) for t in tr.t])
+    assert np.max(np.abs(tr.q - want[:, :3])) <= 1e-11
+    assert np.all(tr.friction_work <= 0.0)
+    assert abs(tr.energy_account().error) <= 1e-10 * abs(tr.H[0])
+
+
+def test_slip_stop_inside_the_landing_step_is_a_case_of_the_property():
+    """The property above reaches the case it is written for: for one of its draws (height 1, the
+    slip 0.01, h = 1e-2) the impact and the stop fall in the same grid step."""
+    mu, g, R, h = 0.2, 9.81, 0.1, 1e-2
+    vn = math.sqrt(2.0 * 0.9 * g)
+    ex = oracles.spinning_ball((3.5 * mu * vn + 0.01) / R, h=1.0, mu=mu, g=g, R=R)
+    assert math.floor(ex.t1 / h) == math.floor(ex.t_roll / h)
 
 
 def _oscillator_turns(method, h):

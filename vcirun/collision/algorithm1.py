@@ -173,7 +173,7 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
                     status = ST_PAINLEVE
                     fail = i
                     break
-                frac, c, kind = _mode_event_fraction(st)
+                frac, c, kind = _mode_event_fraction(st, False)
             else:
                 contact_forces(qt, pt, t + h, prm, held, mu_end)
                 frac, c = _release_fraction(mu, mu_end, held)
@@ -268,25 +268,26 @@ def _release(st, t, tau, c):
 # --- friction: the end of a held contact's mode, located inside the step ------------------------------
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _mode_event_fraction(st):
+def _mode_event_fraction(st, strict):
     """(fraction of the step, contact, kind) of the first event of a held contact inside the held step
     just taken, by linear interpolation between its values at the step's start (st.mu, st.ev) and end
     (st.mu_end, st.ev_end): kind 0 a release (normal force turning tensile), 1 a slip that stops, 2 a
     stick that ends (maps/friction.py mode_event_values); (-1, -1, 0) if none. The start of the
-    located search (_locate_mode_event)."""
+    located search (_locate_mode_event). strict: only a value positive at the start counts (the rest
+    of a step after an event, where a mode just set can start at its root: a slip from rest)."""
     best = 2.0
     c = -1
     kind = 0
     for j in range(NCON):
         if st.held[j] == 0:
             continue
-        if st.mu_end[j] < 0.0:
+        if st.mu_end[j] < 0.0 and not (strict and not st.mu[j] > 0.0):
             f = 0.0 if st.mu[j] <= 0.0 else st.mu[j] / (st.mu[j] - st.mu_end[j])
             if f < best:
                 best = f
                 c = j
                 kind = 0
-        if st.ev_end[j] < 0.0:
+        if st.ev_end[j] < 0.0 and not (strict and not (st.ev[j] > 0.0 and math.isfinite(st.ev[j]))):
             f = 0.0 if not st.ev[j] > 0.0 else (st.ev[j] / (st.ev[j] - st.ev_end[j]) if math.isfinite(st.ev[j])
                                                  else 1.0)
             if f < best:
@@ -307,9 +308,9 @@ def _mode_event_value(st, te, c, kind, ev, lam, lt):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _locate_mode_event(st, t, tau0, c, kind):
-    """The root tau in [0, h] of held contact c's event function along the held step from (st.q, st.p)
-    at t (positive at tau = 0 unless the event is at the start, negative at h), from the
+def _locate_mode_event(st, t, L, tau0, c, kind):
+    """The root tau in [0, L] of held contact c's event function along the held step from (st.q, st.p)
+    at t (positive at tau = 0 unless the event is at the start, negative at L), from the
     interpolated tau0: secant iterations on the held map's own value, safeguarded by the bracket
     (Illinois), to event_tol h, ending at an evaluated point. On return (st.qt, st.pt) hold the state
     at tau and st.fw[0] its friction work. Returns (status, tau, iterations)."""
@@ -325,7 +326,7 @@ def _locate_mode_event(st, t, tau0, c, kind):
         st.fw[0] = 0.0
         return ST_OK, 0.0, 0
     a = 0.0
-    b = h
+    b = L
     tol = st.event_tol * h
     x = tau0 if (tau0 > a and tau0 < b) else 0.5 * (a + b)
     xp = np.nan
@@ -376,9 +377,21 @@ def _mode_change(st, t, tau0, c, kind):
     unbalanced force drives; the other held contacts' modes re-decided with it: maps/friction.py
     assign_modes), recorded, then the rest of the step as an event step from there. Returns
     (status, iterations)."""
-    status, tau, it = _locate_mode_event(st, t, tau0, c, kind)
+    status, tau, it = _locate_mode_event(st, t, st.h, tau0, c, kind)
     if status != ST_OK:
         return status, it
+    status = _change_mode(st, t, tau, c, kind)
+    if status != ST_OK:
+        return status, it
+    status, itc = _event_step(st, st.h - tau, t + tau, np.bool_(False))
+    return status, it + itc
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _change_mode(st, t, tau, c, kind):
+    """The change of held contact c's mode (kind as _mode_event_fraction) at the located event t + tau,
+    whose state _locate_mode_event left in (st.qt, st.pt) (with its friction work st.fw[0]): into
+    (st.q, st.p), the change made and recorded. Returns the status."""
     if tau > 0.0:
         st.out[O_FRICTION_WORK][st.n[N_STEP]] += st.fw[0]
         copy_into(st.q, st.qt)
@@ -392,7 +405,7 @@ def _mode_change(st, t, tau0, c, kind):
         st.n[N_HELD] -= 1
         _record_release(st, te, c)
         if st.n[N_HELD] > 0 and assign_modes(st.q, st.p, te, st.prm, st.held, -1, -1, st.mu, st.lt) == FRICTION_PAINLEVE:
-            return ST_PAINLEVE, it
+            return ST_PAINLEVE
         _record_mode_changes(st, te, before, -1)
     else:
         rest = c if kind == 1 else -1
@@ -400,16 +413,15 @@ def _mode_change(st, t, tau0, c, kind):
         if kind == 2:
             # slipping where the unbalanced tangential force drives: against the stuck force at the event
             if friction_forces(st.q, st.p, te, st.prm, st.held, st.mu, st.lt) == FRICTION_PAINLEVE:
-                return ST_PAINLEVE, it
+                return ST_PAINLEVE
             st.held[c] = -1 if st.lt[c] > 0.0 else 1
         if assign_modes(st.q, st.p, te, st.prm, st.held, rest, moving, st.mu, st.lt) == FRICTION_PAINLEVE:
-            return ST_PAINLEVE, it
+            return ST_PAINLEVE
         if _newly_stuck(st, before):
             # the slip velocity is zero to the event tolerance: zeroed (with the held normal velocities)
             _stick_projection(st)
         _record_mode_changes(st, te, before, c)
-    status, itc = _event_step(st, st.h - tau, te, np.bool_(False))
-    return status, it + itc
+    return ST_OK
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -465,8 +477,9 @@ def _record_mode_changes(st, t, before, c):
 def _modes_stale(st):
     """Does a held contact's mode contradict the grid state (st.ev from _record_contacts): a slip whose
     velocity has turned against its direction, or a stick past Coulomb's static bound? The partial
-    held steps of an event step (the rest of a step after an impact or a mode change) do not locate
-    mode events: one that happened there is found here, at the next grid state."""
+    held steps of an event step locate mode events whose value is positive at their start, up to
+    max_impacts_step per step (_event_step); one past those (a mode set at its own root, as a slip
+    from rest that reverses at once) is found here, at the next grid state."""
     for j in range(NCON):
         if st.held[j] != 0 and st.ev[j] < 0.0:
             return True
@@ -515,9 +528,16 @@ def _event_step(st, tau_max, t, have_end):
     copy_into(st.ph, st.p)
     tc = t
     k_imp = 0
+    k_mode = 0
     iters = 0
     while tau_max > 0.0:
         nheld = st.n[N_HELD]
+        # with friction, the held contacts' mode events inside each partial held step are located as
+        # in a grid step (up to max_impacts_step of them per step; past that, or for a mode whose
+        # value starts at its root, the grid state after the step finds it: _modes_stale)
+        locate = FRICTION and nheld > 0 and k_mode < st.max_impacts_step
+        if locate and mode_event_values(st.qh, st.ph, tc, st.prm, st.held, st.ev, st.mu, st.lt) == FRICTION_PAINLEVE:
+            return ST_PAINLEVE, iters
         code, dtau, E_pre, itc = search_collision(st.qh, st.ph, tau_max, st.h, tc, st.prm, st.ntol, st.maxit,
                                                   st.event_tol, st.qt, st.pt, st.vt, have_end, st.held,
                                                   nheld, st.fw)
@@ -525,6 +545,26 @@ def _event_step(st, tau_max, t, have_end):
         iters += itc
         if code < 0:
             return (ST_NEWTON_FAILED if code == -1 else ST_EVENT_FAILED), iters
+        if locate and dtau > 0.0:
+            if mode_event_values(st.qt, st.pt, tc + dtau, st.prm, st.held, st.ev_end, st.mu_end,
+                                 st.lt_end) == FRICTION_PAINLEVE:
+                return ST_PAINLEVE, iters
+            frac, c, kind = _mode_event_fraction(st, True)
+            if c >= 0:   # before the collision the search found, if any: located, changed, gone on from
+                k_mode += 1
+                copy_into(st.q, st.qh)
+                copy_into(st.p, st.ph)
+                status, tau, itl = _locate_mode_event(st, tc, dtau, frac * dtau, c, kind)
+                iters += itl
+                if status == ST_OK:
+                    status = _change_mode(st, tc, tau, c, kind)
+                if status != ST_OK:
+                    return status, iters
+                copy_into(st.qh, st.q)
+                copy_into(st.ph, st.p)
+                tau_max -= tau
+                tc += tau
+                continue
         if FRICTION and nheld > 0:   # the partial held step taken: its friction work
             st.out[O_FRICTION_WORK][st.n[N_STEP]] += st.fw[0]
         _log_partial(st, dtau)
