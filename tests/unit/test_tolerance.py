@@ -172,6 +172,53 @@ def test_amplified_round_off_is_not_an_estimate():
     assert ok.status == "ok" and ok.l2 / errs[2492] > 1 / 3, (ok, errs)
 
 
+FAST_DP = {"T": 5.0, "q0": [-0.338, 0.082], "p0": [-8.61, 3.43]}   # a fast start of the double pendulum between walls
+
+
+def test_twins_measure_the_round_off_floor_the_motion_amplifies():
+    """Twin runs perturbed at round-off level (h, and the start, by a few ulps) differ by what the motion
+    makes of round-off: 1e-8 and more on a fast start of the double pendulum between walls, where CVA8's
+    true error stops shrinking with h at that level; 1e-13 or less on smooth motions. Runs of one method
+    at one N share their truncation error, so no pair of them (run, companion, third run) shows it."""
+    from vcirun.run.estimate import amplified_floor
+    from vcirun.run.pilot import PERTURB_ULPS, Runner
+
+    runner = Runner("double_pendulum_walls", **FAST_DP)
+    base = runner.run("CVA8", 1024)
+    twins = [runner.run("CVA8", 1024, perturb=k) for k in ("h", "start")]
+    assert twins[0].h != base.h and abs(twins[0].h / base.h - 1) <= 2 * PERTURB_ULPS * np.finfo(float).eps
+    assert not np.array_equal(twins[1].q[0], base.q[0]) and np.allclose(twins[1].q[0], base.q[0], rtol=0, atol=1e-13)
+    floor, why = amplified_floor(base, twins, 4096)
+    assert why == "" and floor > 5e-9, floor
+    ref = vcirun.reference("double_pendulum_walls", **FAST_DP)
+    errs = [vcirun.l2_error(vcirun.simulate("double_pendulum_walls", "CVA8", h=5.0 / N, **FAST_DP), ref)
+            for N in (2048, 4096)]
+    assert min(errs) > 5e-9 and floor > min(errs) / 10, (floor, errs)   # the true error's floor, to a factor
+    for scene, q0, p0 in (("cart_pendulum", [1.0, 0.5], [0.5, -0.5]), ("ball_in_box", [0.3, 0.6], [1.5, -2.0])):
+        r = Runner(scene, T=5.0, q0=q0, p0=p0)
+        b = r.run("CVA8", 512)
+        f, why = amplified_floor(b, [r.run("CVA8", 512, perturb=k) for k in ("h", "start")], 2048)
+        assert why == "" and 0 < f < 1e-12, (scene, f)
+    with pytest.raises(ValueError, match="perturb"):
+        runner.run("CVA8", 64, perturb="q")
+
+
+def test_tol_below_the_amplified_floor_says_so():
+    """tol= on that start: 1e-6 is met (the measured floor goes into the bracket's upper end); 1e-8 is
+    below the floor, and the choice says below_floor instead of ok (it was accepted at 1e-9 with a true
+    error of 1e-8 when no run measured the floor)."""
+    tr = vcirun.simulate("double_pendulum_walls", tol=1e-6, **FAST_DP)
+    assert tr.choice.status == "ok", tr.choice
+    est = tr.choice.estimate
+    assert est.extras["floor_measured"] > 1e-9 and est.l2_bounds[1] >= est.extras["floor_measured"]
+    assert sum(x["role"].startswith("twin") for x in tr.choice.pilots) == 2
+    ref = vcirun.reference("double_pendulum_walls", **FAST_DP)
+    assert vcirun.l2_error(tr, ref) <= 1e-6
+    for tol in (1e-8, 1e-9):
+        tr = vcirun.simulate("double_pendulum_walls", tol=tol, **FAST_DP)
+        assert tr.choice.status == "below_floor" and "round-off floor" in tr.choice.reason, tr.choice
+
+
 def test_tol_constraints_method_and_largest_step():
     ref = vcirun.reference("double_pendulum_walls", T=3)
     tr = vcirun.simulate("double_pendulum_walls", "CVA4", T=3, tol=1e-6, h=0.01)

@@ -47,7 +47,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.values import check_number
-from .estimate import ErrorEstimate, verified_order
+from .estimate import ErrorEstimate, amplified_floor, verified_order
 from .ladder import MAX_RATIO, Assessment, _companion, assess, estimate_of
 from .pilot import Run, Runner
 from .scene_model import _MODELS, MethodModel, SceneModel, scene_key, scene_model  # noqa: F401 (public here too)
@@ -55,6 +55,7 @@ from .scene_model import _MODELS, MethodModel, SceneModel, scene_key, scene_mode
 TARGET = 0.5      # the final run aims at an estimated error of TARGET * tol
 ACCEPT = 1.0      # ... and is accepted when its estimate is at most ACCEPT * tol
 BOUND = 3.0       # ... and the upper end of its bracket at most BOUND * tol
+FLOOR_SHARE = 0.5   # ... and the round-off floor its twin runs measure at most FLOOR_SHARE * tol
 N_FIRST = 16      # the first pilot of a ladder (or T / h for a largest step h)
 MAX_STEPS = 1 << 22
 MAX_ROUNDS = 12   # refinements of the final before the choice says not_reached
@@ -233,18 +234,20 @@ class _Chooser:
         self.model = _MODELS.get(key)
 
     # --- runs ----------------------------------------------------------------------------------------
-    def run(self, name, N, final=False, timing=False) -> Run:
+    def run(self, name, N, final=False, timing=False, perturb=None) -> Run:
         N = int(N)
         label = _label(name)
         self.names[label] = name
         have = self.runs.setdefault(label, {})
-        if N in have and (not final or have[N].trajectory is not None):
+        if perturb is None and N in have and (not final or have[N].trajectory is not None):
             return have[N]
-        r = self.runner.run(name, N, trajectory=final, energies=self.energies if (final or timing) else False)
-        if not timing:
+        r = self.runner.run(name, N, trajectory=final, energies=self.energies if (final or timing) else False,
+                            perturb=perturb)
+        if not timing and perturb is None:
             have[N] = r
         self.pilot_log.append({"method": label, "N": N, "h": r.h, "status": r.status, "cpu": r.cpu,
-                               "role": "final" if final else "timing" if timing else "pilot"})
+                               "role": "final" if final else "timing" if timing else
+                               f"twin ({perturb})" if perturb else "pilot"})
         return r
 
     def order(self, label, N: int | None = None) -> float | None:
@@ -496,6 +499,24 @@ class _Chooser:
                 pick.status, pick.note = BELOW_FLOOR, (f"tol is below the round-off level {est.extras['floor']:.1e} "
                                                        "of these runs")
                 break
+            if est.status == "ok" and est.extras.get("checked") and est.l2 <= ACCEPT * self.tol \
+                    and est.l2_bounds[1] <= BOUND * self.tol:
+                floor, why = self._floor(name, runs, est, N)
+                if why:   # the impacts are decided at round-off level on the coarsest run: refine
+                    last = ErrorEstimate("richardson", "unresolved", r.h, order=p, message=why, first_difference=why)
+                    N = 2 * N
+                    continue
+                if floor > FLOOR_SHARE * self.tol:
+                    pick.status, pick.note = BELOW_FLOOR, (
+                        f"tol is below this motion's round-off floor: twin runs perturbed at round-off level "
+                        f"differ by {floor:.1e} (at N = {N}), more than {FLOOR_SHARE:g} tol")
+                    break
+                est.extras["floor_measured"] = floor
+                est.l2_bounds = (est.l2_bounds[0], est.l2_bounds[1] + floor)
+                if floor > est.extras.get("floor", 0.0):
+                    est.note = (est.note + "; " if est.note else "") + (
+                        f"the motion amplifies round-off to {floor:.1e} (twin runs perturbed at round-off level): "
+                        "in the bracket's upper end")
             if est.status == "ok" and est.extras.get("checked"):
                 if est.l2 <= ACCEPT * self.tol and est.l2_bounds[1] <= BOUND * self.tol:
                     third = est.extras.get("third")
@@ -517,6 +538,14 @@ class _Chooser:
             pick.status = NOT_REACHED
             pick.note = last.message if last is not None and last.status != "ok" else "the estimate stays above tol"
         return self._fallback(cands)   # (BELOW_FLOOR and OVER_BUDGET picks set the status there)
+
+    def _floor(self, name, runs: dict, est: ErrorEstimate, N: int) -> tuple[float, str]:
+        """The round-off floor of run N as the motion amplifies it (`amplified_floor`): twins, perturbed in
+        h and in the start at round-off level, of the coarsest run of the estimate (its third run, else its
+        companion: the floor hardly depends on h, and these cost a quarter or half of the run)."""
+        base = runs.get(est.extras.get("third")) or _companion(runs, N) or runs[N]
+        twins = [self.run(name, base.N, perturb=kind) for kind in ("h", "start")]
+        return amplified_floor(base, twins, N)
 
     def _spent(self, label) -> float:
         return sum(x["cpu"] for x in self.pilot_log if x["method"] == label)

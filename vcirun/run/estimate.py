@@ -248,6 +248,32 @@ def roundoff_level(run: Run) -> float:
     return ROUNDOFF * _EPS * (1.0 + float(np.max(np.abs(run.q)))) * math.sqrt(max(span, 1e-300))
 
 
+def amplified_floor(run: Run, twins: list, N: int, names=None) -> tuple[float, str]:
+    """(F, first): the round-off floor of an N-step run of the motion, measured on `run` and its
+    twins (`Runner.run(perturb="h")` and `perturb="start"`: the same method, N and start to within a
+    few ulps, so their truncation errors agree and they differ by what the motion makes of round-off).
+    F is the largest L2 difference among the runs (on run's grid), times sqrt(N / run.N): the round-off
+    of each step adds up like a random walk, so a finer run of the same motion has more of it. Two runs
+    that agree on their truncation error cannot show this floor; the twins do: where each impact
+    multiplies an error (the double pendulum between walls), round-off grows to 1e-8 and more, at
+    every h alike. first: where a twin's impacts part from the run's ("" if none): then the motion's
+    impact sequence is decided at the round-off level and F is inf."""
+    runs = [run] + [t for t in twins if t is not None]
+    bad = [t for t in runs if not t.ok or t.q.shape != run.q.shape]
+    if bad:
+        return math.inf, f"a twin run perturbed at round-off level ended with status {bad[0].status}"
+    worst = 0.0
+    for i in range(len(runs)):
+        for j in range(i + 1, len(runs)):
+            a, b = runs[i], runs[j]
+            first, _ = sequence_difference(a, b, "a run", "its twin perturbed at round-off level", names)
+            if first:
+                return math.inf, (f"a perturbation at round-off level changes the impacts (N = {run.N}): {first}")
+            dq = a.q - b.q
+            worst = max(worst, float(np.sqrt(run.h * np.sum(dq * dq))))
+    return worst * math.sqrt(max(N, run.N) / run.N), ""
+
+
 # --- grazing contacts ----------------------------------------------------------------------------------
 def _phis(run: Run, mod, prm, ks=None) -> np.ndarray:
     """phi_i at the grid states ks (default: all) of a run, (len(ks), m)."""

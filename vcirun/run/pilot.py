@@ -23,6 +23,15 @@ from ..core.system_data import start_beta
 
 _STATUS = record.STATUS_CODES
 _INDEX = {f.name: k for k, f in enumerate(record.FIELDS)}
+_EPS = float(np.finfo(float).eps)
+PERTURB_ULPS = 8.0   # the twin runs of `Runner.run(perturb=...)` differ from the run by this many eps
+
+
+def _nudged(x: np.ndarray, sign: float) -> np.ndarray:
+    """x moved by PERTURB_ULPS eps max|x| in alternating signs (a copy)."""
+    scale = float(np.max(np.abs(x))) if x.size else 0.0
+    signs = np.where(np.arange(x.size) % 2 == 0, sign, -sign).reshape(x.shape)
+    return x + PERTURB_ULPS * _EPS * max(scale, 1e-300) * signs
 
 
 @dataclass
@@ -156,19 +165,32 @@ class Runner:
         return int(self.module(method).NCON)
 
     # --- runs ---------------------------------------------------------------------------------------
-    def run(self, method, N: int, *, trajectory: bool = False, energies: bool | None = None) -> Run:
+    def run(self, method, N: int, *, trajectory: bool = False, energies: bool | None = None,
+            perturb: str | None = None) -> Run:
         """The run of `method` on N steps of h = T / N. trajectory=True also builds the Trajectory
         `vcirun.simulate` returns (energies along the grid unless energies=False), with the Runner's
-        `build` (vcirun.run.api.trajectory_of, handed in by the caller: this module does not import the API)."""
+        `build` (vcirun.run.api.trajectory_of, handed in by the caller: this module does not import the API).
+
+        perturb: a twin of that run that differs from it at the level of round-off only, for measuring
+        how much the motion amplifies round-off (`vcirun.run.estimate.amplified_floor`): "h" runs with
+        h (1 + PERTURB_ULPS eps) (every step rounds differently; the grid times move by at most
+        PERTURB_ULPS eps T), "start" from q0 and p0 moved by PERTURB_ULPS eps times their largest entry,
+        in alternating signs. Never with trajectory=True."""
         from .plan import run_loop
 
         if trajectory and self.build is None:
             raise ValueError("trajectory: this Runner was made without build= (vcirun.run.api.trajectory_of)")
+        if perturb not in (None, "h", "start") or (perturb and trajectory):
+            raise ValueError(f"perturb: None, 'h' or 'start', without trajectory=True (got {perturb!r})")
 
         energies = trajectory if energies is None else energies
         base, mod, q0, p0, prm, beta = self._base(method, energies)
         N = int(N)
         h = self.T / N
+        if perturb == "h":
+            h = h * (1.0 + PERTURB_ULPS * _EPS)
+        elif perturb == "start":
+            q0, p0 = _nudged(q0, 1.0), _nudged(p0, -1.0)
         p = dataclasses.replace(base, h=h, N=N, need=run_bytes(N, base.sysd.n), note="", _mod=mod)
         p.check_memory()
         c0 = time.thread_time()
