@@ -406,8 +406,8 @@ class _Chooser:
             return c
         C = mm.constant()
         c.C = C
-        c.N_asymptotic = int(np.median(mm.N_asymptotic)) if mm.N_asymptotic else None
-        c.N_resolved = int(np.median(mm.N_resolved)) if mm.N_resolved else None
+        c.N_asymptotic = mm.n_asymptotic()
+        c.N_resolved = mm.n_resolved()
         N = max(math.ceil((C / (TARGET * self.tol)) ** (1.0 / mm.order)) if C > 0 else 1,
                 c.N_resolved or 1, self.n_min)
         self._fill(c, N)

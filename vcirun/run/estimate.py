@@ -178,13 +178,24 @@ def sequence_difference(a: Run, b: Run, label_a: str, label_b: str, names=None) 
 
 def _min_gap(a: Run, b: Run) -> float:
     """The shortest time between two impacts of one contact, in either run (inf if none)."""
-    g = math.inf
-    for r in (a, b):
+    return min(_own_min_gap(a), _own_min_gap(b))
+
+
+def _own_min_gap(r: Run) -> float:
+    """The shortest time between two impacts of one contact of run r (inf if none; kept on the run)."""
+    g = r.diffs.get("min_gap")
+    if g is None:
+        g = math.inf
         if len(r.impacts) > 1:
-            for c in np.unique(r.impact_contact):
-                t = r.impacts[r.impact_contact == c]
-                if len(t) > 1:
-                    g = min(g, float(np.min(np.diff(t))))
+            c = r.impact_contact
+            if np.all(c == c[0]):
+                g = float(np.min(np.diff(r.impacts)))
+            else:
+                for k in np.unique(c):
+                    t = r.impacts[c == k]
+                    if len(t) > 1:
+                        g = min(g, float(np.min(np.diff(t))))
+        r.diffs["min_gap"] = g
     return g
 
 
@@ -276,27 +287,37 @@ def amplified_floor(run: Run, twins: list, N: int, names=None) -> tuple[float, s
 
 # --- grazing contacts ----------------------------------------------------------------------------------
 def _phis(run: Run, mod, prm, ks=None) -> np.ndarray:
-    """phi_i at the grid states ks (default: all) of a run, (len(ks), m)."""
+    """phi_i at the grid states ks (default: all, kept on the run) of a run, (len(ks), m)."""
+    if ks is None:
+        hit = run.diffs.get("phis")
+        if hit is not None and hit[0] is mod:
+            return hit[1]
     m = int(mod.NCON)
     ks = range(run.q.shape[0]) if ks is None else ks
     out = np.empty((len(ks), m))
-    row = np.empty(m)
-    sys_phis = mod.sys_phis
+    sys_phis, q = mod.sys_phis, run.q
     for j, k in enumerate(ks):
-        sys_phis(run.q[k], prm, row)
-        out[j] = row
+        sys_phis(q[k], prm, out[j])
+    if isinstance(ks, range):
+        run.diffs["phis"] = (mod, out)
     return out
 
 
 def _near_event(run: Run, reach: int) -> np.ndarray:
-    """Grid points within `reach` steps of a recorded impact or release (their minima are explained)."""
+    """Grid points within `reach` steps of a recorded impact or release (their minima are explained;
+    kept on the run)."""
+    key = ("near", reach)
+    near = run.diffs.get(key)
+    if near is not None:
+        return near
     N = run.q.shape[0] - 1
     near = np.zeros(N + 1, bool)
     events = np.concatenate([run.impacts, run.releases])
     if len(events):
         k_ev = np.clip(np.floor((events - run.t0) / run.h).astype(np.int64), 0, N)
-        for d in range(-reach, reach + 2):
-            near[np.clip(k_ev + d, 0, N)] = True
+        ks = (k_ev[:, None] + np.arange(-reach, reach + 2)[None, :]).ravel()
+        near[np.clip(ks, 0, N)] = True
+    run.diffs[key] = near
     return near
 
 
