@@ -203,6 +203,27 @@ def test_twins_measure_the_round_off_floor_the_motion_amplifies():
         runner.run("CVA8", 64, perturb="q")
 
 
+def test_pilot_runs_are_the_runs_simulate_makes():
+    """A pilot (no Trajectory), its Trajectory-building twin and `vcirun.simulate` with the same arguments
+    agree bit for bit (fresh buffers per run; a companion compares with the user's run exactly), on a
+    scene with impacts and one whose contacts come to rest."""
+    from vcirun.run.api import trajectory_of
+    from vcirun.run.pilot import Runner
+
+    for system, kw, N in (("double_pendulum_walls", FAST_DP, 700),
+                          ("docs/examples/rocking_block.yaml", {"T": 1.0, "q0": [0.0, 0.8, 0.1], "p0": [0.3, -0.5, 0.0]},
+                           200)):
+        runner = Runner(system, build=trajectory_of, **kw)
+        for m in ("CVA", "CVA4"):
+            a, b = runner.run(m, N), runner.run(m, N, trajectory=True)
+            tr = vcirun.simulate(system, m, h=kw["T"] / N, **kw)
+            assert tr.ok and len(tr.impacts) > 0
+            for r in (a, b):
+                assert np.array_equal(r.q, tr.q) and np.array_equal(r.p, tr.p)
+                assert np.array_equal(r.impacts, tr.impacts) and np.array_equal(r.impact_contact, tr.impact_contact)
+            assert np.array_equal(b.trajectory.q, tr.q) and a.q is not b.q
+
+
 def test_tol_below_the_amplified_floor_says_so():
     """tol= on that start: 1e-6 is met (the measured floor goes into the bracket's upper end); 1e-8 is
     below the floor, and the choice says below_floor instead of ok (it was accepted at 1e-9 with a true
