@@ -238,6 +238,11 @@ def _end_straddle(coarse: Run, fine: Run, names=None) -> str:
     error in an impact time is about their difference there, and 4x leaves the margin of a run
     whose order is not yet asymptotic)."""
     t_end = coarse.t0 + coarse.h * coarse.N
+    if np.array_equal(coarse.impact_contact, fine.impact_contact):   # impacts matched one for one, in order
+        ta, tb = coarse.impacts, fine.impacts
+        close = np.flatnonzero(t_end - np.maximum(ta, tb) < 4.0 * np.abs(ta - tb))
+        if not close.size:
+            return ""
     ia, _ = _events(coarse)
     ib, _ = _events(fine)
     for c in sorted(ia):
