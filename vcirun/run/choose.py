@@ -56,6 +56,7 @@ TARGET = 0.5      # the final run aims at an estimated error of TARGET * tol
 ACCEPT = 1.0      # ... and is accepted when its estimate is at most ACCEPT * tol
 BOUND = 3.0       # ... and the upper end of its bracket at most BOUND * tol
 FLOOR_SHARE = 0.5   # ... and the round-off floor its twin runs measure at most FLOOR_SHARE * tol
+CHAIN_MARGIN = 100.0  # no twin runs where the estimate's own runs differ by at most FLOOR_SHARE tol / CHAIN_MARGIN
 N_FIRST = 16      # the first pilot of a ladder (or T / h for a largest step h)
 MAX_STEPS = 1 << 22
 MAX_ROUNDS = 12   # refinements of the final before the choice says not_reached
@@ -388,13 +389,14 @@ class _Chooser:
             m = self.model.methods.setdefault(c.method, MethodModel(order=c.order))
             if c.C is not None:
                 m.C.append(c.C)
+            if c.C is not None or not scanned:   # (a scan's unresolved candidate has neither)
                 if c.N_resolved:
                     m.N_resolved.append(c.N_resolved)
                 if c.N_asymptotic:
                     m.N_asymptotic.append(c.N_asymptotic)
             if scanned and c.b is not None:
                 m.a, m.b = c.a, c.b
-            if c.C is None and not m.C:
+            if scanned and c.C is None and not m.C:
                 m.unresolved = c.note
 
     def _from_model(self, label) -> Candidate:
@@ -520,12 +522,15 @@ class _Chooser:
             if est.status == "ok" and est.extras.get("checked"):
                 if est.l2 <= ACCEPT * self.tol and est.l2_bounds[1] <= BOUND * self.tol:
                     third = est.extras.get("third")
-                    if self.method is None and third is not None and est.observed_order is not None \
-                            and abs(est.observed_order - p) <= 0.5 and est.l2 > 10 * est.extras.get("floor", 0.0):
-                        # what this start showed: its constant and where the order showed (an estimate
-                        # near round-off does not scale as N^-p: it says nothing about the constant)
-                        self._record([Candidate(label, order=p, C=est.l2 * N ** p, N_resolved=third,
-                                                N_asymptotic=third)])
+                    if self.method is None:
+                        # what this start showed: the coarsest run of an accepted estimate (where its order
+                        # showed, or its runs agreed to round-off) and, where the order showed above
+                        # round-off, its constant (an estimate near round-off does not scale as N^-p)
+                        shows = third is not None and est.observed_order is not None \
+                            and abs(est.observed_order - p) <= 0.5 and est.l2 > 10 * est.extras.get("floor", 0.0)
+                        coarsest = third or _companion(runs, N).N
+                        self._record([Candidate(label, order=p, C=est.l2 * N ** p if shows else None,
+                                                N_resolved=coarsest, N_asymptotic=coarsest)])
                     return self._result(r, label, cands, OK, reason, est)
                 if est.order is not None and est.order < p - 0.25:
                     N = 2 * N   # the companions are not yet asymptotic: shift the three runs up
@@ -544,7 +549,21 @@ class _Chooser:
         h and in the start at round-off level, of the coarsest run of the estimate (its third run, else its
         companion: the floor hardly depends on h, and these cost a quarter or half of the run)."""
         base = runs.get(est.extras.get("third")) or _companion(runs, N) or runs[N]
+        # runs at different h round differently from their first step on, so their difference holds a sample
+        # of the amplified round-off as a twin's does. Where both pairs of the estimate's runs differ by at
+        # most FLOOR_SHARE tol / CHAIN_MARGIN (runs agreeing to round-off, far more accurate than tol), the
+        # floor is taken to be below FLOOR_SHARE tol and no twin is run: CHAIN_MARGIN covers the spread of
+        # one sample (on 40 fast starts of the double pendulum between walls, the "h" and "start" twins of
+        # one run differed by up to 60 times)
+        comp = _companion(runs, N)
+        pairs = [runs[N].diffs.get(comp.N) if comp is not None else None]
+        if base is not comp and comp is not None:
+            pairs.append(comp.diffs.get(base.N))
+        if None not in pairs and max(d.l2 for d in pairs) <= FLOOR_SHARE * self.tol / CHAIN_MARGIN:
+            est.extras["floor_from"] = "the estimate's runs"
+            return max(d.l2 for d in pairs), ""
         twins = [self.run(name, base.N, perturb=kind) for kind in ("h", "start")]
+        est.extras["floor_from"] = f"twin runs at N = {base.N}"
         return amplified_floor(base, twins, N)
 
     def _spent(self, label) -> float:
