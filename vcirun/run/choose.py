@@ -40,6 +40,7 @@ docs/tolerance.md says where this fails.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -56,6 +57,7 @@ TARGET = 0.5      # the final run aims at an estimated error of TARGET * tol
 ACCEPT = 1.0      # ... and is accepted when its estimate is at most ACCEPT * tol
 BOUND = 3.0       # ... and the upper end of its bracket at most BOUND * tol
 FLOOR_SHARE = 0.5   # ... and the round-off floor its twin runs measure at most FLOOR_SHARE * tol
+NOISE_EXPLAINS = 4.0  # runs not showing the order differ by round-off where they differ by at most this times it
 CHAIN_MARGIN = 100.0  # no twin runs where the estimate's own runs differ by at most FLOOR_SHARE tol / CHAIN_MARGIN
 N_FIRST = 16      # the first pilot of a ladder (or T / h for a largest step h)
 MAX_STEPS = 1 << 22
@@ -519,17 +521,36 @@ class _Chooser:
                     est.note = (est.note + "; " if est.note else "") + (
                         f"the motion amplifies round-off to {floor:.1e} (twin runs perturbed at round-off level): "
                         "in the bracket's upper end")
+            if est.status == "unresolved" and est.extras.get("noise", math.inf) <= TARGET * self.tol:
+                # runs that agree far below tol without showing the order: where twins show the motion's
+                # round-off of their size, round-off is what they differ by, and the error is bounded by
+                # their largest difference plus that floor
+                noise = est.extras["noise"]
+                floor, why = self._floor(name, runs, est, N, twins=True)
+                if not why and noise <= NOISE_EXPLAINS * floor and noise + floor <= TARGET * self.tol:
+                    d = runs[N].diffs[_companion(runs, N).N]   # (final state: the finest pair's difference)
+                    est = dataclasses.replace(
+                        est, status="ok", l2=noise + floor, l2_bounds=(0.0, noise + floor), final_q=d.final_q,
+                        final_p=d.final_p, message="", note=(
+                            f"the runs agree to {noise:.1e} without showing the order, and twin runs perturbed at "
+                            f"round-off level differ by {floor:.1e}: round-off amplified by the motion sets their "
+                            "differences; the error is bounded by their sum"),
+                        extras=dict(est.extras, floor_measured=floor, bound_only=True))
+                    if self.method is None:
+                        self._record([Candidate(label, order=p, C=est.l2 * N ** p, N_resolved=est.extras["third"],
+                                                N_asymptotic=est.extras["third"])])
+                    return self._result(r, label, cands, OK, reason, est)
             if est.status == "ok" and est.extras.get("checked"):
                 if est.l2 <= ACCEPT * self.tol and est.l2_bounds[1] <= BOUND * self.tol:
                     third = est.extras.get("third")
                     if self.method is None:
                         # what this start showed: the coarsest run of an accepted estimate (where its order
-                        # showed, or its runs agreed to round-off) and, where the order showed above
-                        # round-off, its constant (an estimate near round-off does not scale as N^-p)
-                        shows = third is not None and est.observed_order is not None \
-                            and abs(est.observed_order - p) <= 0.5 and est.l2 > 10 * est.extras.get("floor", 0.0)
+                        # showed, or its runs agreed to round-off) and its constant; an estimate near round-off
+                        # does not scale as N^-p, and gives a bound: C <= (the round-off level) N^p (without
+                        # it the model's constant would be that of the starts whose errors are above round-off)
+                        floor = max(est.extras.get("floor", 0.0), est.extras.get("floor_measured", 0.0))
                         coarsest = third or _companion(runs, N).N
-                        self._record([Candidate(label, order=p, C=est.l2 * N ** p if shows else None,
+                        self._record([Candidate(label, order=p, C=max(est.l2, floor) * N ** p,
                                                 N_resolved=coarsest, N_asymptotic=coarsest)])
                     return self._result(r, label, cands, OK, reason, est)
                 if est.order is not None and est.order < p - 0.25:
@@ -544,7 +565,7 @@ class _Chooser:
             pick.note = last.message if last is not None and last.status != "ok" else "the estimate stays above tol"
         return self._fallback(cands)   # (BELOW_FLOOR and OVER_BUDGET picks set the status there)
 
-    def _floor(self, name, runs: dict, est: ErrorEstimate, N: int) -> tuple[float, str]:
+    def _floor(self, name, runs: dict, est: ErrorEstimate, N: int, twins: bool = False) -> tuple[float, str]:
         """The round-off floor of run N as the motion amplifies it (`amplified_floor`): twins, perturbed in
         h and in the start at round-off level, of the coarsest run of the estimate (its third run, else its
         companion: the floor hardly depends on h, and these cost a quarter or half of the run)."""
@@ -559,7 +580,7 @@ class _Chooser:
         pairs = [runs[N].diffs.get(comp.N) if comp is not None else None]
         if base is not comp and comp is not None:
             pairs.append(comp.diffs.get(base.N))
-        if None not in pairs and max(d.l2 for d in pairs) <= FLOOR_SHARE * self.tol / CHAIN_MARGIN:
+        if not twins and None not in pairs and max(d.l2 for d in pairs) <= FLOOR_SHARE * self.tol / CHAIN_MARGIN:
             est.extras["floor_from"] = "the estimate's runs"
             return max(d.l2 for d in pairs), ""
         twins = [self.run(name, base.N, perturb=kind) for kind in ("h", "start")]
