@@ -19,7 +19,9 @@ The scene model (`SceneModel`, per process, keyed by system, parameters, horizon
 first call on a scene runs a ladder N = N_FIRST, 2 N_FIRST, ... for every candidate until two pairs
 agree in their impacts and show the order (at least p - 1), or its pilots cost SCAN_BUDGET, and
 one timing run per candidate; it records each candidate's error constant on this start, the
-coarsest N that resolved the impacts and the coarsest N that showed the order. Later calls rank the
+coarsest N that resolved the impacts and the coarsest N that showed the order. Each accepted final
+run adds its start's constant (at round-off, the bound C <= floor N^p) and the coarsest N of its
+estimate's runs, so the model follows the starts seen, not only the first. Later calls rank the
 candidates by the model's median constant, pilot the best at N*/8 and N*/4 (the next where those
 pilots do not resolve the motion), and scale the others by what the pilots say about this start (a
 start that needs k times the steps for one method is taken to need k times the steps for every
@@ -32,11 +34,19 @@ made already where that is cheaper than new companions at N/2 and N/4 (`_final_N
 estimate (`estimate_of`: the companion, the third run's observed order, the grazing check, the
 round-off amplified by the motion) decides:
 accepted when the third run showed the order, the estimate is at most ACCEPT tol and its bracket's
-upper end at most BOUND tol; otherwise N grows by the estimate, or doubles where the impacts
-disagree, a contact grazes or the observed order is short of p, until accepted or the refinement has
-cost PURSUIT_BUDGET times the pick's predicted run. No candidate reaching tol gives the status
-not_reached (below_floor, over_budget) and the most accurate resolved run made (`_fallback`).
-docs/tolerance.md says where this fails.
+upper end at most BOUND tol, and the round-off floor of the motion is at most FLOOR_SHARE tol
+(`_floor`: two twins of the estimate's coarsest run, perturbed in h and in the start by a few ulps,
+differ from it by what the motion makes of round-off, `amplified_floor`; the estimate cannot show
+it: it divides its runs' difference by r^p - 1, 255 for CVA8 at r = 2, round-off and all, so a floor
+of 1e-8 hides under an estimate of 1e-10; twins are skipped where the estimate's runs themselves
+differ by at most FLOOR_SHARE tol / CHAIN_MARGIN). A floor above FLOOR_SHARE tol is the status
+below_floor.
+Runs that agree to within NOISE_EXPLAINS times that floor, far below tol, without showing the order
+are accepted with the bound (largest difference + floor). Otherwise N grows by the estimate, or
+doubles where the impacts disagree, a contact grazes or the observed order is short of p, until
+accepted or the refinement has cost PURSUIT_BUDGET times the pick's predicted run. No candidate
+reaching tol gives the status not_reached (below_floor, over_budget) and the most accurate resolved
+run made (`_fallback`). docs/tolerance.md says where this fails.
 """
 from __future__ import annotations
 

@@ -7,7 +7,9 @@ messages of `vcirun.simulate`) and runs the compiled loop directly for every oth
 building a Trajectory unless asked: a pilot keeps its grid q and p, its impact and release
 record and its status, and costs the loop and little else. Every run is the run `vcirun.simulate`
 makes with the same arguments (same plan, same start, same loop): bit for bit, so a pilot can be
-returned as the final trajectory and a companion compares with the user's run exactly.
+returned as the final trajectory and a companion compares with the user's run exactly. A twin
+(`Runner.run(perturb=...)`) is the same run with h or the start moved by a few ulps: how far it
+ends from the run is the round-off floor the motion amplifies.
 """
 from __future__ import annotations
 
