@@ -578,14 +578,15 @@ class _Chooser:
     def _floor(self, name, runs: dict, est: ErrorEstimate, N: int, twins: bool = False) -> tuple[float, str]:
         """The round-off floor of run N as the motion amplifies it (`amplified_floor`): twins, perturbed in
         h and in the start at round-off level, of the coarsest run of the estimate (its third run, else its
-        companion: the floor hardly depends on h, and these cost a quarter or half of the run)."""
+        companion: the floor hardly depends on h, and these cost a quarter or half of the run). twins:
+        run them even where the estimate's runs agree far below tol."""
         base = runs.get(est.extras.get("third")) or _companion(runs, N) or runs[N]
         # runs at different h round differently from their first step on, so their difference holds a sample
         # of the amplified round-off as a twin's does. Where both pairs of the estimate's runs differ by at
         # most FLOOR_SHARE tol / CHAIN_MARGIN (runs agreeing to round-off, far more accurate than tol), the
-        # floor is taken to be below FLOOR_SHARE tol and no twin is run: CHAIN_MARGIN covers the spread of
-        # one sample (on 40 fast starts of the double pendulum between walls, the "h" and "start" twins of
-        # one run differed by up to 60 times)
+        # floor is taken to be below FLOOR_SHARE tol and no twin is run; likewise one twin suffices where
+        # it is that far below. CHAIN_MARGIN covers the spread of one sample: on 40 fast starts of the
+        # double pendulum between walls, the "h" and "start" twins of one run differed by up to 63 times
         comp = _companion(runs, N)
         pairs = [runs[N].diffs.get(comp.N) if comp is not None else None]
         if base is not comp and comp is not None:
@@ -593,9 +594,14 @@ class _Chooser:
         if not twins and None not in pairs and max(d.l2 for d in pairs) <= FLOOR_SHARE * self.tol / CHAIN_MARGIN:
             est.extras["floor_from"] = "the estimate's runs"
             return max(d.l2 for d in pairs), ""
-        twins = [self.run(name, base.N, perturb=kind) for kind in ("h", "start")]
-        est.extras["floor_from"] = f"twin runs at N = {base.N}"
-        return amplified_floor(base, twins, N)
+        # the twin in h first; the twin in the start too unless the first is below FLOOR_SHARE tol / CHAIN_MARGIN
+        twins = [self.run(name, base.N, perturb="h")]
+        floor, why = amplified_floor(base, twins, N)
+        if why or floor > FLOOR_SHARE * self.tol / CHAIN_MARGIN:
+            twins.append(self.run(name, base.N, perturb="start"))
+            floor, why = amplified_floor(base, twins, N)
+        est.extras["floor_from"] = f"{len(twins)} twin run{'s' if len(twins) > 1 else ''} at N = {base.N}"
+        return floor, why
 
     def _spent(self, label) -> float:
         return sum(x["cpu"] for x in self.pilot_log if x["method"] == label)
