@@ -529,8 +529,8 @@ class _Chooser:
                 est.l2_bounds = (est.l2_bounds[0], est.l2_bounds[1] + floor)
                 if floor > est.extras.get("floor", 0.0):
                     est.note = (est.note + "; " if est.note else "") + (
-                        f"the motion amplifies round-off to {floor:.1e} (twin runs perturbed at round-off level): "
-                        "in the bracket's upper end")
+                        f"round-off as the motion amplifies it, up to {floor:.1e} ({est.extras['floor_from']}), "
+                        "is in the bracket's upper end")
             if est.status == "unresolved" and est.extras.get("noise", math.inf) <= TARGET * self.tol:
                 # runs that agree far below tol without showing the order: where twins show the motion's
                 # round-off of their size, round-off is what they differ by, and the error is bounded by
@@ -585,14 +585,15 @@ class _Chooser:
         # of the amplified round-off as a twin's does. Where both pairs of the estimate's runs differ by at
         # most FLOOR_SHARE tol / CHAIN_MARGIN (runs agreeing to round-off, far more accurate than tol), the
         # floor is taken to be below FLOOR_SHARE tol and no twin is run; likewise one twin suffices where
-        # it is that far below. CHAIN_MARGIN covers the spread of one sample: on 40 fast starts of the
-        # double pendulum between walls, the "h" and "start" twins of one run differed by up to 63 times
+        # it is that far below. CHAIN_MARGIN covers the spread of one sample: on 40 starts of the double
+        # pendulum between walls (bench/tolerance.py's), the "h" and "start" twins of one run differed by
+        # up to 63 times
         comp = _companion(runs, N)
         pairs = [runs[N].diffs.get(comp.N) if comp is not None else None]
         if base is not comp and comp is not None:
             pairs.append(comp.diffs.get(base.N))
         if not twins and None not in pairs and max(d.l2 for d in pairs) <= FLOOR_SHARE * self.tol / CHAIN_MARGIN:
-            est.extras["floor_from"] = "the estimate's runs"
+            est.extras["floor_from"] = "bounded by the estimate's runs"
             return max(d.l2 for d in pairs), ""
         # the twin in h first; the twin in the start too unless the first is below FLOOR_SHARE tol / CHAIN_MARGIN
         twins = [self.run(name, base.N, perturb="h")]
@@ -600,7 +601,8 @@ class _Chooser:
         if why or floor > FLOOR_SHARE * self.tol / CHAIN_MARGIN:
             twins.append(self.run(name, base.N, perturb="start"))
             floor, why = amplified_floor(base, twins, N)
-        est.extras["floor_from"] = f"{len(twins)} twin run{'s' if len(twins) > 1 else ''} at N = {base.N}"
+        est.extras["floor_from"] = (f"{len(twins)} twin run{'s' if len(twins) > 1 else ''} perturbed at round-off "
+                                    f"level, at N = {base.N}")
         return floor, why
 
     def _spent(self, label) -> float:

@@ -269,11 +269,11 @@ def amplified_floor(run: Run, twins: list, N: int, names=None) -> tuple[float, s
     twins (`Runner.run(perturb="h")` and `perturb="start"`: the same method, N and start to within a
     few ulps, so their truncation errors agree and they differ by what the motion makes of round-off).
     F is the largest L2 difference among the runs (on run's grid), times sqrt(N / run.N): the round-off
-    of each step adds up like a random walk, so a finer run of the same motion has more of it. Two runs
-    that agree on their truncation error cannot show this floor; the twins do: where each impact
-    multiplies an error (the double pendulum between walls), round-off grows to 1e-8 and more, at
-    every h alike. first: where a twin's impacts part from the run's ("" if none): then the motion's
-    impact sequence is decided at the round-off level and F is inf."""
+    of each step adds up like a random walk, so a finer run of the same motion has more of it. A
+    Richardson estimate cannot show this floor (it divides its runs' difference by r^p - 1, round-off
+    and all); the twins do: where each impact multiplies an error (the double pendulum between walls),
+    round-off grows to 1e-8 and more, at every h alike. first: where a twin's impacts part from the
+    run's ("" if none): then the motion's impact sequence is decided at round-off level and F is inf."""
     runs = [run] + [t for t in twins if t is not None]
     bad = [t for t in runs if not t.ok or t.q.shape != run.q.shape]
     if bad:
