@@ -240,6 +240,32 @@ def test_tol_below_the_amplified_floor_says_so():
         assert tr.choice.status == "below_floor" and "round-off floor" in tr.choice.reason, tr.choice
 
 
+def test_runs_agreeing_at_amplified_round_off_are_bounded_by_their_twins():
+    """The start above, CVA8 from 4984 steps on: the runs differ by about 1e-9 without showing the order
+    (round-off amplified by the motion). With tol = 1e-7 the choice makes twins, finds a floor of the
+    runs' differences' size, and accepts with the bound (largest difference + floor), which holds the
+    true error; with tol = 1e-9 that bound is above 0.5 tol, and the choice does not say ok."""
+    from vcirun.run.api import trajectory_of
+    from vcirun.run.choose import Candidate, _Chooser
+    from vcirun.run.pilot import Runner
+
+    kw = {"T": 5.0, "q0": [0.06284611255017669, 0.031911326875965096], "p0": [6.076795465890721, -2.8034404143386507]}
+    ref = vcirun.reference("double_pendulum_walls", **kw)
+    runner = Runner("double_pendulum_walls", build=trajectory_of, **kw)
+    base = {N: runner.run("CVA8", N) for N in (623, 1246, 2492)}
+    for tol, ok in ((1e-7, True), (1e-9, False)):
+        ch = _Chooser(runner, "CVA8", T=5.0, tol=tol, h_max=None, max_time=None, energies=True, key=None)
+        ch.names["CVA8"], ch.runs["CVA8"] = "CVA8", dict(base)
+        pick = Candidate("CVA8", order=8, C=1.0, N=4984, predicted_cost=0.05, N_asymptotic=623, status="ok")
+        tr = ch._pursue(pick, [pick], "a test")
+        est = tr.choice.estimate
+        assert (tr.choice.status == "ok") == ok, tr.choice
+        if ok:
+            assert est.extras.get("bound_only") and "round-off" in est.note, est
+            assert any(x["role"] == "twin (start)" for x in tr.choice.pilots)
+            assert vcirun.l2_error(tr, ref) <= est.l2 <= 0.5 * tol and est.l2_bounds == (0.0, est.l2), est
+
+
 def test_tol_constraints_method_and_largest_step():
     ref = vcirun.reference("double_pendulum_walls", T=3)
     tr = vcirun.simulate("double_pendulum_walls", "CVA4", T=3, tol=1e-6, h=0.01)
