@@ -25,6 +25,10 @@ The issue's targets:
    100 %. Also: how often an "ok" estimate's bracket holds
    the true error, and the ratio estimate / true error.
 
+Per scene also: the round-off floor (calls that say below_floor, the share of later calls that made
+twin runs, the largest measured floor / tol of an ok call) and where a later call's CPU goes (pilot
+and companion runs, final runs, twins, the rest: the choice's Python, comparisons, the Trajectory).
+
 The machine is shared: every cost is the median CPU time (time.thread_time) of REPEATS calls, and the
 load average is recorded.
 """
