@@ -55,8 +55,6 @@ import math
 import time
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from ..core.values import check_number
 from .estimate import ErrorEstimate, amplified_floor, verified_order
 from .ladder import MAX_RATIO, Assessment, _companion, assess, estimate_of
