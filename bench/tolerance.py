@@ -25,6 +25,10 @@ The issue's targets:
    100 %. Also: how often an "ok" estimate's bracket holds
    the true error, and the ratio estimate / true error.
 
+Per scene also: the round-off floor (calls that say below_floor, the share of later calls that made
+twin runs, the largest measured floor / tol of an ok call) and where a later call's CPU goes (pilot
+and companion runs, final runs, twins, the rest: the choice's Python, comparisons, the Trajectory).
+
 The machine is shared: every cost is the median CPU time (time.thread_time) of REPEATS calls, and the
 load average is recorded.
 """
@@ -215,6 +219,11 @@ def run_scene(label, n_states, seed, tols=TOLS):
                 "cheapest": None if ch_best is None else {"cpu": ch_best[0], "method": ch_best[1], "N": ch_best[2],
                                                           "true": ch_best[3]},
                 "pilots": len(ch.pilots), "reason": ch.reason[:300],
+                "twins": sum(str(x["role"]).startswith("twin") for x in ch.pilots),
+                "runs_cpu": {k: sum(x["cpu"] for x in ch.pilots if str(x["role"]).split()[0] == k)
+                             for k in ("pilot", "final", "twin", "timing")},
+                "call_cpu": float(ch.seconds.get("total_cpu", math.nan)),
+                "floor": (ch.estimate.extras.get("floor_measured") if ch.estimate is not None else None),
                 "ref_l2_accuracy": float(ref.accuracy) * math.sqrt(T)})
             first = False
         res["states"].append(st)
@@ -301,7 +310,19 @@ def summarize_scene(s) -> dict:
                                  "statuses": {st: sum(r["status"] == st for r in rt) for st in {r["status"] for r in rt}}}
     ests = [e for st in s["states"] for e in st["estimates"]]
     differ = [e for e in ests if not e["matches"]]
+    later = [r for r in rows if not r["first_call"]]
+    split = {}
+    for k in ("pilot", "final", "twin"):
+        split[k] = statistics.median([r["runs_cpu"][k] / r["call_cpu"] for r in later]) if later and "runs_cpu" in later[0] \
+            else math.nan
+    if later and "runs_cpu" in later[0]:
+        split["python"] = statistics.median([1 - sum(r["runs_cpu"].values()) / r["call_cpu"] for r in later])
+        split["runs_per_call"] = statistics.median([r["pilots"] for r in later])
+    floors = [r["floor"] / r["tol"] for r in ok if r.get("floor") is not None]
     return {"states": len(s["states"]), "runs": len(rows), "ok": len(ok),
+            "below_floor": sum(r["status"] == "below_floor" for r in rows),
+            "with_twins": sum(r.get("twins", 0) > 0 for r in later) / max(1, len(later)),
+            "floor_over_tol_max": max(floors) if floors else math.nan, "call_split": split,
             "over": sum(r["true"] > r["tol"] for r in ok),
             "ratio_median": statistics.median(ratios) if ratios else math.nan,
             "sequence_differs": len(differ), "flagged": sum(e["status"] != "ok" for e in differ),
@@ -323,6 +344,14 @@ def report(summary):
                 f"{g(t['ratio_median'], '.2f'):>9s} {g(t['ratio_max'], '.2f'):>6s}  {picks} | {best} | {sts}")
         log(f"   estimates of coarse runs whose impacts differ from the reference's: {s['sequence_differs']}, "
             f"flagged unresolved: {s['flagged']}")
+        log(f"   round-off floor: below_floor {s['below_floor']} of {s['runs']} calls; twin runs made in "
+            f"{100 * s['with_twins']:.0f} % of the later calls; largest floor / tol of an ok call "
+            f"{g(s['floor_over_tol_max'], '.2g')}")
+        sp = s["call_split"]
+        if "python" in sp:
+            log(f"   a later call's CPU (medians): pilot and companion runs {100 * sp['pilot']:.0f} %, final run(s) "
+                f"{100 * sp['final']:.0f} %, twins {100 * sp['twin']:.0f} %, the rest (the choice's Python, "
+                f"comparisons, Trajectory) {100 * sp['python']:.0f} %; {sp['runs_per_call']:g} runs a call")
     log("-- targets")
     log(f"   runs whose choice says ok and whose true L2 error exceeds tol: {summary['over_tol']} of "
         f"{summary['ok_runs']} ({100 * summary['over_tol_fraction']:.1f} %, target <= 5 %); worst "

@@ -172,6 +172,104 @@ def test_amplified_round_off_is_not_an_estimate():
     assert ok.status == "ok" and ok.l2 / errs[2492] > 1 / 3, (ok, errs)
 
 
+FAST_DP = {"T": 5.0, "q0": [-0.338, 0.082], "p0": [-8.61, 3.43]}   # a fast start of the double pendulum between walls
+
+
+def test_twins_measure_the_round_off_floor_the_motion_amplifies():
+    """Twin runs perturbed at round-off level (h, and the start, by a few ulps) differ by what the motion
+    makes of round-off: 1e-8 and more on a fast start of the double pendulum between walls, where CVA8's
+    true error stops shrinking with h at that level; 1e-13 or less on smooth motions. A Richardson
+    estimate does not show it: it divides its runs' difference, round-off and all, by r^p - 1."""
+    from vcirun.run.estimate import amplified_floor
+    from vcirun.run.pilot import PERTURB_ULPS, Runner
+
+    runner = Runner("double_pendulum_walls", **FAST_DP)
+    base = runner.run("CVA8", 1024)
+    twins = [runner.run("CVA8", 1024, perturb=k) for k in ("h", "start")]
+    assert twins[0].h != base.h and abs(twins[0].h / base.h - 1) <= 2 * PERTURB_ULPS * np.finfo(float).eps
+    assert not np.array_equal(twins[1].q[0], base.q[0]) and np.allclose(twins[1].q[0], base.q[0], rtol=0, atol=1e-13)
+    floor, why = amplified_floor(base, twins, 4096)
+    assert why == "" and floor > 5e-9, floor
+    ref = vcirun.reference("double_pendulum_walls", **FAST_DP)
+    errs = [vcirun.l2_error(vcirun.simulate("double_pendulum_walls", "CVA8", h=5.0 / N, **FAST_DP), ref)
+            for N in (2048, 4096)]
+    assert min(errs) > 5e-9 and floor > min(errs) / 10, (floor, errs)   # the true error's floor, to a factor
+    for scene, q0, p0 in (("cart_pendulum", [1.0, 0.5], [0.5, -0.5]), ("ball_in_box", [0.3, 0.6], [1.5, -2.0])):
+        r = Runner(scene, T=5.0, q0=q0, p0=p0)
+        b = r.run("CVA8", 512)
+        f, why = amplified_floor(b, [r.run("CVA8", 512, perturb=k) for k in ("h", "start")], 2048)
+        assert why == "" and 0 < f < 1e-12, (scene, f)
+    with pytest.raises(ValueError, match="perturb"):
+        runner.run("CVA8", 64, perturb="q")
+
+
+def test_pilot_runs_are_the_runs_simulate_makes():
+    """A pilot (no Trajectory), its Trajectory-building twin and `vcirun.simulate` with the same arguments
+    agree bit for bit (fresh buffers per run; a companion compares with the user's run exactly), on a
+    scene with impacts and one whose contacts come to rest."""
+    from vcirun.run.api import trajectory_of
+    from vcirun.run.pilot import Runner
+
+    for system, kw, N in (("double_pendulum_walls", FAST_DP, 700),
+                          ("docs/examples/rocking_block.yaml", {"T": 1.0, "q0": [0.0, 0.8, 0.1], "p0": [0.3, -0.5, 0.0]},
+                           200)):
+        runner = Runner(system, build=trajectory_of, **kw)
+        for m in ("CVA", "CVA4"):
+            a, b = runner.run(m, N), runner.run(m, N, trajectory=True)
+            tr = vcirun.simulate(system, m, h=kw["T"] / N, **kw)
+            assert tr.ok and len(tr.impacts) > 0
+            for r in (a, b):
+                assert np.array_equal(r.q, tr.q) and np.array_equal(r.p, tr.p)
+                assert np.array_equal(r.impacts, tr.impacts) and np.array_equal(r.impact_contact, tr.impact_contact)
+            assert np.array_equal(b.trajectory.q, tr.q) and a.q is not b.q
+
+
+def test_tol_below_the_amplified_floor_says_so(monkeypatch):
+    """tol= on that start (a scene model of its own): 1e-6 is met (the measured floor goes into the
+    bracket's upper end); 1e-8 is below the floor, and the choice says below_floor; at 1e-9, where the
+    runs' estimate says 5e-10 and the true error is 1e-8, it does not say ok."""
+    from vcirun.run import choose
+
+    monkeypatch.setattr(choose, "_MODELS", {})
+    tr = vcirun.simulate("double_pendulum_walls", tol=1e-6, **FAST_DP)
+    assert tr.choice.status == "ok", tr.choice
+    est = tr.choice.estimate
+    assert est.extras["floor_measured"] > 1e-9 and est.l2_bounds[1] >= est.extras["floor_measured"]
+    assert sum(x["role"].startswith("twin") for x in tr.choice.pilots) == 2
+    ref = vcirun.reference("double_pendulum_walls", **FAST_DP)
+    assert vcirun.l2_error(tr, ref) <= 1e-6
+    tr = vcirun.simulate("double_pendulum_walls", tol=1e-8, **FAST_DP)
+    assert tr.choice.status == "below_floor" and "round-off floor" in tr.choice.reason, tr.choice
+    tr = vcirun.simulate("double_pendulum_walls", tol=1e-9, **FAST_DP)
+    assert tr.choice.status in ("below_floor", "not_reached"), tr.choice
+
+
+def test_runs_agreeing_at_amplified_round_off_are_bounded_by_their_twins():
+    """The start above, CVA8 from 4984 steps on: the runs differ by about 1e-9 without showing the order
+    (round-off amplified by the motion). With tol = 1e-7 the choice makes twins, finds a floor of the
+    runs' differences' size, and accepts with the bound (largest difference + floor), which holds the
+    true error; with tol = 1e-9 that bound is above 0.5 tol, and the choice does not say ok."""
+    from vcirun.run.api import trajectory_of
+    from vcirun.run.choose import Candidate, _Chooser
+    from vcirun.run.pilot import Runner
+
+    kw = {"T": 5.0, "q0": [0.06284611255017669, 0.031911326875965096], "p0": [6.076795465890721, -2.8034404143386507]}
+    ref = vcirun.reference("double_pendulum_walls", **kw)
+    runner = Runner("double_pendulum_walls", build=trajectory_of, **kw)
+    base = {N: runner.run("CVA8", N) for N in (623, 1246, 2492)}
+    for tol, ok in ((1e-7, True), (1e-9, False)):
+        ch = _Chooser(runner, "CVA8", T=5.0, tol=tol, h_max=None, max_time=None, energies=True, key=None)
+        ch.names["CVA8"], ch.runs["CVA8"] = "CVA8", dict(base)
+        pick = Candidate("CVA8", order=8, C=1.0, N=4984, predicted_cost=0.05, N_asymptotic=623, status="ok")
+        tr = ch._pursue(pick, [pick], "a test")
+        est = tr.choice.estimate
+        assert (tr.choice.status == "ok") == ok, tr.choice
+        if ok:
+            assert est.extras.get("bound_only") and "round-off" in est.note, est
+            assert any(x["role"] == "twin (start)" for x in tr.choice.pilots)
+            assert vcirun.l2_error(tr, ref) <= est.l2 <= 0.5 * tol and est.l2_bounds == (0.0, est.l2), est
+
+
 def test_tol_constraints_method_and_largest_step():
     ref = vcirun.reference("double_pendulum_walls", T=3)
     tr = vcirun.simulate("double_pendulum_walls", "CVA4", T=3, tol=1e-6, h=0.01)

@@ -19,7 +19,9 @@ The scene model (`SceneModel`, per process, keyed by system, parameters, horizon
 first call on a scene runs a ladder N = N_FIRST, 2 N_FIRST, ... for every candidate until two pairs
 agree in their impacts and show the order (at least p - 1), or its pilots cost SCAN_BUDGET, and
 one timing run per candidate; it records each candidate's error constant on this start, the
-coarsest N that resolved the impacts and the coarsest N that showed the order. Later calls rank the
+coarsest N that resolved the impacts and the coarsest N that showed the order. Each accepted final
+run adds its start's constant (at round-off, the bound C <= floor N^p) and the coarsest N of its
+estimate's runs, so the model follows the starts seen, not only the first. Later calls rank the
 candidates by the model's median constant, pilot the best at N*/8 and N*/4 (the next where those
 pilots do not resolve the motion), and scale the others by what the pilots say about this start (a
 start that needs k times the steps for one method is taken to need k times the steps for every
@@ -32,22 +34,29 @@ made already where that is cheaper than new companions at N/2 and N/4 (`_final_N
 estimate (`estimate_of`: the companion, the third run's observed order, the grazing check, the
 round-off amplified by the motion) decides:
 accepted when the third run showed the order, the estimate is at most ACCEPT tol and its bracket's
-upper end at most BOUND tol; otherwise N grows by the estimate, or doubles where the impacts
-disagree, a contact grazes or the observed order is short of p, until accepted or the refinement has
-cost PURSUIT_BUDGET times the pick's predicted run. No candidate reaching tol gives the status
-not_reached (below_floor, over_budget) and the most accurate resolved run made (`_fallback`).
-docs/tolerance.md says where this fails.
+upper end at most BOUND tol, and the round-off floor of the motion is at most FLOOR_SHARE tol
+(`_floor`: two twins of the estimate's coarsest run, perturbed in h and in the start by a few ulps,
+differ from it by what the motion makes of round-off, `amplified_floor`; the estimate cannot show
+it: it divides its runs' difference by r^p - 1, 255 for CVA8 at r = 2, round-off and all, so a floor
+of 1e-8 hides under an estimate of 1e-10; twins are skipped where the estimate's runs themselves
+differ by at most FLOOR_SHARE tol / CHAIN_MARGIN). A floor above FLOOR_SHARE tol is the status
+below_floor.
+Runs that agree to within NOISE_EXPLAINS times that floor, far below tol, without showing the order
+are accepted with the bound (largest difference + floor). Otherwise N grows by the estimate, or
+doubles where the impacts disagree, a contact grazes or the observed order is short of p, until
+accepted or the refinement has cost PURSUIT_BUDGET times the pick's predicted run. No candidate
+reaching tol gives the status not_reached (below_floor, over_budget) and the most accurate resolved
+run made (`_fallback`). docs/tolerance.md says where this fails.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from ..core.values import check_number
-from .estimate import ErrorEstimate, verified_order
+from .estimate import ErrorEstimate, amplified_floor, verified_order
 from .ladder import MAX_RATIO, Assessment, _companion, assess, estimate_of
 from .pilot import Run, Runner
 from .scene_model import _MODELS, MethodModel, SceneModel, scene_key, scene_model  # noqa: F401 (public here too)
@@ -55,6 +64,9 @@ from .scene_model import _MODELS, MethodModel, SceneModel, scene_key, scene_mode
 TARGET = 0.5      # the final run aims at an estimated error of TARGET * tol
 ACCEPT = 1.0      # ... and is accepted when its estimate is at most ACCEPT * tol
 BOUND = 3.0       # ... and the upper end of its bracket at most BOUND * tol
+FLOOR_SHARE = 0.5   # ... and the round-off floor its twin runs measure at most FLOOR_SHARE * tol
+NOISE_EXPLAINS = 4.0  # runs not showing the order differ by round-off where they differ by at most this times it
+CHAIN_MARGIN = 100.0  # no twin runs where the estimate's own runs differ by at most FLOOR_SHARE tol / CHAIN_MARGIN
 N_FIRST = 16      # the first pilot of a ladder (or T / h for a largest step h)
 MAX_STEPS = 1 << 22
 MAX_ROUNDS = 12   # refinements of the final before the choice says not_reached
@@ -233,18 +245,20 @@ class _Chooser:
         self.model = _MODELS.get(key)
 
     # --- runs ----------------------------------------------------------------------------------------
-    def run(self, name, N, final=False, timing=False) -> Run:
+    def run(self, name, N, final=False, timing=False, perturb=None) -> Run:
         N = int(N)
         label = _label(name)
         self.names[label] = name
         have = self.runs.setdefault(label, {})
-        if N in have and (not final or have[N].trajectory is not None):
+        if perturb is None and N in have and (not final or have[N].trajectory is not None):
             return have[N]
-        r = self.runner.run(name, N, trajectory=final, energies=self.energies if (final or timing) else False)
-        if not timing:
+        r = self.runner.run(name, N, trajectory=final, energies=self.energies if (final or timing) else False,
+                            perturb=perturb)
+        if not timing and perturb is None:
             have[N] = r
         self.pilot_log.append({"method": label, "N": N, "h": r.h, "status": r.status, "cpu": r.cpu,
-                               "role": "final" if final else "timing" if timing else "pilot"})
+                               "role": "final" if final else "timing" if timing else
+                               f"twin ({perturb})" if perturb else "pilot"})
         return r
 
     def order(self, label, N: int | None = None) -> float | None:
@@ -385,13 +399,14 @@ class _Chooser:
             m = self.model.methods.setdefault(c.method, MethodModel(order=c.order))
             if c.C is not None:
                 m.C.append(c.C)
+            if c.C is not None or not scanned:   # (a scan's unresolved candidate has neither)
                 if c.N_resolved:
                     m.N_resolved.append(c.N_resolved)
                 if c.N_asymptotic:
                     m.N_asymptotic.append(c.N_asymptotic)
             if scanned and c.b is not None:
                 m.a, m.b = c.a, c.b
-            if c.C is None and not m.C:
+            if scanned and c.C is None and not m.C:
                 m.unresolved = c.note
 
     def _from_model(self, label) -> Candidate:
@@ -403,8 +418,8 @@ class _Chooser:
             return c
         C = mm.constant()
         c.C = C
-        c.N_asymptotic = int(np.median(mm.N_asymptotic)) if mm.N_asymptotic else None
-        c.N_resolved = int(np.median(mm.N_resolved)) if mm.N_resolved else None
+        c.N_asymptotic = mm.n_asymptotic()
+        c.N_resolved = mm.n_resolved()
         N = max(math.ceil((C / (TARGET * self.tol)) ** (1.0 / mm.order)) if C > 0 else 1,
                 c.N_resolved or 1, self.n_min)
         self._fill(c, N)
@@ -496,15 +511,55 @@ class _Chooser:
                 pick.status, pick.note = BELOW_FLOOR, (f"tol is below the round-off level {est.extras['floor']:.1e} "
                                                        "of these runs")
                 break
+            if est.status == "ok" and est.extras.get("checked") and est.l2 <= ACCEPT * self.tol \
+                    and est.l2_bounds[1] <= BOUND * self.tol:
+                floor, why = self._floor(name, runs, est, N)
+                if why:   # the impacts are decided at round-off level on the coarsest run: refine
+                    last = ErrorEstimate("richardson", "unresolved", r.h, order=p, message=why, first_difference=why)
+                    N = 2 * N
+                    continue
+                if floor > FLOOR_SHARE * self.tol:
+                    pick.status, pick.note = BELOW_FLOOR, (
+                        f"tol is below this motion's round-off floor: twin runs perturbed at round-off level "
+                        f"differ by {floor:.1e} (at N = {N}), more than {FLOOR_SHARE:g} tol")
+                    break
+                est.extras["floor_measured"] = floor
+                est.l2_bounds = (est.l2_bounds[0], est.l2_bounds[1] + floor)
+                if floor > est.extras.get("floor", 0.0):
+                    est.note = (est.note + "; " if est.note else "") + (
+                        f"round-off as the motion amplifies it, up to {floor:.1e} ({est.extras['floor_from']}), "
+                        "is in the bracket's upper end")
+            if est.status == "unresolved" and est.extras.get("noise", math.inf) <= TARGET * self.tol:
+                # runs that agree far below tol without showing the order: where twins show the motion's
+                # round-off of their size, round-off is what they differ by, and the error is bounded by
+                # their largest difference plus that floor
+                noise = est.extras["noise"]
+                floor, why = self._floor(name, runs, est, N, twins=True)
+                if not why and noise <= NOISE_EXPLAINS * floor and noise + floor <= TARGET * self.tol:
+                    d = runs[N].diffs[_companion(runs, N).N]   # (final state: the finest pair's difference)
+                    est = dataclasses.replace(
+                        est, status="ok", l2=noise + floor, l2_bounds=(0.0, noise + floor), final_q=d.final_q,
+                        final_p=d.final_p, message="", note=(
+                            f"the runs agree to {noise:.1e} without showing the order, and twin runs perturbed at "
+                            f"round-off level differ by {floor:.1e}: round-off amplified by the motion sets their "
+                            "differences; the error is bounded by their sum"),
+                        extras=dict(est.extras, floor_measured=floor, bound_only=True))
+                    if self.method is None:
+                        self._record([Candidate(label, order=p, C=est.l2 * N ** p, N_resolved=est.extras["third"],
+                                                N_asymptotic=est.extras["third"])])
+                    return self._result(r, label, cands, OK, reason, est)
             if est.status == "ok" and est.extras.get("checked"):
                 if est.l2 <= ACCEPT * self.tol and est.l2_bounds[1] <= BOUND * self.tol:
                     third = est.extras.get("third")
-                    if self.method is None and third is not None and est.observed_order is not None \
-                            and abs(est.observed_order - p) <= 0.5 and est.l2 > 10 * est.extras.get("floor", 0.0):
-                        # what this start showed: its constant and where the order showed (an estimate
-                        # near round-off does not scale as N^-p: it says nothing about the constant)
-                        self._record([Candidate(label, order=p, C=est.l2 * N ** p, N_resolved=third,
-                                                N_asymptotic=third)])
+                    if self.method is None:
+                        # what this start showed: the coarsest run of an accepted estimate (where its order
+                        # showed, or its runs agreed to round-off) and its constant; an estimate near round-off
+                        # does not scale as N^-p, and gives a bound: C <= (the round-off level) N^p (without
+                        # it the model's constant would be that of the starts whose errors are above round-off)
+                        floor = max(est.extras.get("floor", 0.0), est.extras.get("floor_measured", 0.0))
+                        coarsest = third or _companion(runs, N).N
+                        self._record([Candidate(label, order=p, C=max(est.l2, floor) * N ** p,
+                                                N_resolved=coarsest, N_asymptotic=coarsest)])
                     return self._result(r, label, cands, OK, reason, est)
                 if est.order is not None and est.order < p - 0.25:
                     N = 2 * N   # the companions are not yet asymptotic: shift the three runs up
@@ -517,6 +572,36 @@ class _Chooser:
             pick.status = NOT_REACHED
             pick.note = last.message if last is not None and last.status != "ok" else "the estimate stays above tol"
         return self._fallback(cands)   # (BELOW_FLOOR and OVER_BUDGET picks set the status there)
+
+    def _floor(self, name, runs: dict, est: ErrorEstimate, N: int, twins: bool = False) -> tuple[float, str]:
+        """The round-off floor of run N as the motion amplifies it (`amplified_floor`): twins, perturbed in
+        h and in the start at round-off level, of the coarsest run of the estimate (its third run, else its
+        companion: the floor hardly depends on h, and these cost a quarter or half of the run). twins:
+        run them even where the estimate's runs agree far below tol."""
+        base = runs.get(est.extras.get("third")) or _companion(runs, N) or runs[N]
+        # runs at different h round differently from their first step on, so their difference holds a sample
+        # of the amplified round-off as a twin's does. Where both pairs of the estimate's runs differ by at
+        # most FLOOR_SHARE tol / CHAIN_MARGIN (runs agreeing to round-off, far more accurate than tol), the
+        # floor is taken to be below FLOOR_SHARE tol and no twin is run; likewise one twin suffices where
+        # it is that far below. CHAIN_MARGIN covers the spread of one sample: on 40 starts of the double
+        # pendulum between walls (bench/tolerance.py's), the "h" and "start" twins of one run differed by
+        # up to 63 times
+        comp = _companion(runs, N)
+        pairs = [runs[N].diffs.get(comp.N) if comp is not None else None]
+        if base is not comp and comp is not None:
+            pairs.append(comp.diffs.get(base.N))
+        if not twins and None not in pairs and max(d.l2 for d in pairs) <= FLOOR_SHARE * self.tol / CHAIN_MARGIN:
+            est.extras["floor_from"] = "bounded by the estimate's runs"
+            return max(d.l2 for d in pairs), ""
+        # the twin in h first; the twin in the start too unless the first is below FLOOR_SHARE tol / CHAIN_MARGIN
+        twins = [self.run(name, base.N, perturb="h")]
+        floor, why = amplified_floor(base, twins, N)
+        if why or floor > FLOOR_SHARE * self.tol / CHAIN_MARGIN:
+            twins.append(self.run(name, base.N, perturb="start"))
+            floor, why = amplified_floor(base, twins, N)
+        est.extras["floor_from"] = (f"{len(twins)} twin run{'s' if len(twins) > 1 else ''} perturbed at round-off "
+                                    f"level, at N = {base.N}")
+        return floor, why
 
     def _spent(self, label) -> float:
         return sum(x["cpu"] for x in self.pilot_log if x["method"] == label)

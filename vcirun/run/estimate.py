@@ -178,13 +178,24 @@ def sequence_difference(a: Run, b: Run, label_a: str, label_b: str, names=None) 
 
 def _min_gap(a: Run, b: Run) -> float:
     """The shortest time between two impacts of one contact, in either run (inf if none)."""
-    g = math.inf
-    for r in (a, b):
+    return min(_own_min_gap(a), _own_min_gap(b))
+
+
+def _own_min_gap(r: Run) -> float:
+    """The shortest time between two impacts of one contact of run r (inf if none; kept on the run)."""
+    g = r.diffs.get("min_gap")
+    if g is None:
+        g = math.inf
         if len(r.impacts) > 1:
-            for c in np.unique(r.impact_contact):
-                t = r.impacts[r.impact_contact == c]
-                if len(t) > 1:
-                    g = min(g, float(np.min(np.diff(t))))
+            c = r.impact_contact
+            if np.all(c == c[0]):
+                g = float(np.min(np.diff(r.impacts)))
+            else:
+                for k in np.unique(c):
+                    t = r.impacts[c == k]
+                    if len(t) > 1:
+                        g = min(g, float(np.min(np.diff(t))))
+        r.diffs["min_gap"] = g
     return g
 
 
@@ -227,6 +238,11 @@ def _end_straddle(coarse: Run, fine: Run, names=None) -> str:
     error in an impact time is about their difference there, and 4x leaves the margin of a run
     whose order is not yet asymptotic)."""
     t_end = coarse.t0 + coarse.h * coarse.N
+    if np.array_equal(coarse.impact_contact, fine.impact_contact):   # impacts matched one for one, in order
+        ta, tb = coarse.impacts, fine.impacts
+        close = np.flatnonzero(t_end - np.maximum(ta, tb) < 4.0 * np.abs(ta - tb))
+        if not close.size:
+            return ""
     ia, _ = _events(coarse)
     ib, _ = _events(fine)
     for c in sorted(ia):
@@ -248,29 +264,65 @@ def roundoff_level(run: Run) -> float:
     return ROUNDOFF * _EPS * (1.0 + float(np.max(np.abs(run.q)))) * math.sqrt(max(span, 1e-300))
 
 
+def amplified_floor(run: Run, twins: list, N: int, names=None) -> tuple[float, str]:
+    """(F, first): the round-off floor of an N-step run of the motion, measured on `run` and its
+    twins (`Runner.run(perturb="h")` and `perturb="start"`: the same method, N and start to within a
+    few ulps, so their truncation errors agree and they differ by what the motion makes of round-off).
+    F is the largest L2 difference among the runs (on run's grid), times sqrt(N / run.N): the round-off
+    of each step adds up like a random walk, so a finer run of the same motion has more of it. A
+    Richardson estimate cannot show this floor (it divides its runs' difference by r^p - 1, round-off
+    and all); the twins do: where each impact multiplies an error (the double pendulum between walls),
+    round-off grows to 1e-8 and more, at every h alike. first: where a twin's impacts part from the
+    run's ("" if none): then the motion's impact sequence is decided at round-off level and F is inf."""
+    runs = [run] + [t for t in twins if t is not None]
+    bad = [t for t in runs if not t.ok or t.q.shape != run.q.shape]
+    if bad:
+        return math.inf, f"a twin run perturbed at round-off level ended with status {bad[0].status}"
+    worst = 0.0
+    for i in range(len(runs)):
+        for j in range(i + 1, len(runs)):
+            a, b = runs[i], runs[j]
+            first, _ = sequence_difference(a, b, "a run", "its twin perturbed at round-off level", names)
+            if first:
+                return math.inf, (f"a perturbation at round-off level changes the impacts (N = {run.N}): {first}")
+            dq = a.q - b.q
+            worst = max(worst, float(np.sqrt(run.h * np.sum(dq * dq))))
+    return worst * math.sqrt(max(N, run.N) / run.N), ""
+
+
 # --- grazing contacts ----------------------------------------------------------------------------------
 def _phis(run: Run, mod, prm, ks=None) -> np.ndarray:
-    """phi_i at the grid states ks (default: all) of a run, (len(ks), m)."""
+    """phi_i at the grid states ks (default: all, kept on the run) of a run, (len(ks), m)."""
+    if ks is None:
+        hit = run.diffs.get("phis")
+        if hit is not None and hit[0] is mod:
+            return hit[1]
     m = int(mod.NCON)
     ks = range(run.q.shape[0]) if ks is None else ks
     out = np.empty((len(ks), m))
-    row = np.empty(m)
-    sys_phis = mod.sys_phis
+    sys_phis, q = mod.sys_phis, run.q
     for j, k in enumerate(ks):
-        sys_phis(run.q[k], prm, row)
-        out[j] = row
+        sys_phis(q[k], prm, out[j])
+    if isinstance(ks, range):
+        run.diffs["phis"] = (mod, out)
     return out
 
 
 def _near_event(run: Run, reach: int) -> np.ndarray:
-    """Grid points within `reach` steps of a recorded impact or release (their minima are explained)."""
+    """Grid points within `reach` steps of a recorded impact or release (their minima are explained;
+    kept on the run)."""
+    key = ("near", reach)
+    near = run.diffs.get(key)
+    if near is not None:
+        return near
     N = run.q.shape[0] - 1
     near = np.zeros(N + 1, bool)
     events = np.concatenate([run.impacts, run.releases])
     if len(events):
         k_ev = np.clip(np.floor((events - run.t0) / run.h).astype(np.int64), 0, N)
-        for d in range(-reach, reach + 2):
-            near[np.clip(k_ev + d, 0, N)] = True
+        ks = (k_ev[:, None] + np.arange(-reach, reach + 2)[None, :]).ravel()
+        near[np.clip(ks, 0, N)] = True
+    run.diffs[key] = near
     return near
 
 

@@ -104,8 +104,10 @@ def estimate_of(runs: dict, N: int, p: float, mod=None, prm=None, grazing=True) 
             if p_obs is not None and p_obs < 1.0:
                 est.status = "unresolved"
                 est.message = f"the differences do not shrink with h (observed order {p_obs:.2f})"
+                est.extras["noise"] = max(d0.l2, d.l2)   # (the choice may measure round-off against them)
                 return est
             if p_obs is not None and p_obs < p - 1.0 and d.l2 / (r ** p - 1.0) < NOISE * floor:
+                est.extras["noise"] = max(d0.l2, d.l2)
                 # an order more than one short where the verified order would put the run near round-off:
                 # the differences are round-off amplified by the motion (each impact multiplies it), not
                 # the step's error, and the finer run need not be the more accurate one

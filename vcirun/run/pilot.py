@@ -7,7 +7,9 @@ messages of `vcirun.simulate`) and runs the compiled loop directly for every oth
 building a Trajectory unless asked: a pilot keeps its grid q and p, its impact and release
 record and its status, and costs the loop and little else. Every run is the run `vcirun.simulate`
 makes with the same arguments (same plan, same start, same loop): bit for bit, so a pilot can be
-returned as the final trajectory and a companion compares with the user's run exactly.
+returned as the final trajectory and a companion compares with the user's run exactly. A twin
+(`Runner.run(perturb=...)`) is the same run with h or the start moved by a few ulps: how far it
+ends from the run is the round-off floor the motion amplifies.
 """
 from __future__ import annotations
 
@@ -18,11 +20,20 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core import record
-from ..core.sizes import run_bytes
+from ..core.sizes import check_run_memory, memory_limit, run_bytes
 from ..core.system_data import start_beta
 
 _STATUS = record.STATUS_CODES
 _INDEX = {f.name: k for k, f in enumerate(record.FIELDS)}
+_EPS = float(np.finfo(float).eps)
+PERTURB_ULPS = 8.0   # the twin runs of `Runner.run(perturb=...)` differ from the run by this many eps
+
+
+def _nudged(x: np.ndarray, sign: float) -> np.ndarray:
+    """x moved by PERTURB_ULPS eps max|x| in alternating signs (a copy)."""
+    scale = float(np.max(np.abs(x))) if x.size else 0.0
+    signs = np.where(np.arange(x.size) % 2 == 0, sign, -sign).reshape(x.shape)
+    return x + PERTURB_ULPS * _EPS * max(scale, 1e-300) * signs
 
 
 @dataclass
@@ -47,7 +58,9 @@ class Run:
     cpu: float
     trajectory: object = None
     holds: tuple = ()    # (time, contact) where a contact not held at the start comes to rest
-    diffs: dict = dataclasses.field(default_factory=dict, repr=False)   # coarser N -> its Difference (ladder)
+    # what comparisons compute once per run: coarser N -> its Difference (the ladder); "phis", ("near", k),
+    # "min_gap" (vcirun.run.estimate)
+    diffs: dict = dataclasses.field(default_factory=dict, repr=False)
 
     @property
     def ok(self) -> bool:
@@ -94,6 +107,25 @@ def start_gaps(mod, q0, prm) -> np.ndarray:
     return out
 
 
+class _FreshBuffers:
+    """Fresh output buffers for each run of the loop (`record.allocate`'s), with the shapes, dtypes
+    and fills of each size worked out once (the `buffers` that `vcirun.run.plan.run_loop` takes)."""
+
+    def __init__(self):
+        self.specs: dict = {}
+
+    def get(self, N: int, n: int, m: int, cap_imp: int) -> tuple:
+        key = (N, n, m, cap_imp)
+        spec = self.specs.get(key)
+        if spec is None:
+            out = record.allocate(N, n, m=m, cap_impacts=cap_imp)
+            if len(self.specs) > 256:
+                self.specs.clear()
+            self.specs[key] = tuple((a.shape, a.dtype, f.fill) for f, a in zip(record.FIELDS, out))
+            return out
+        return tuple(np.empty(shape, dt) if fill is None else np.full(shape, fill, dt) for shape, dt, fill in spec)
+
+
 class Runner:
     """Runs of `system` from one start on [t0, t0 + T] (T the horizon of every run: h = T / N).
 
@@ -110,6 +142,8 @@ class Runner:
         self.constrained, self.resting_contact = constrained, resting_contact
         self.options = dict(options or {})
         self._plans: dict = {}
+        self._bytes: dict = {}
+        self._fresh = _FreshBuffers()
 
     # --- plans --------------------------------------------------------------------------------------
     def _base(self, method, energies: bool):
@@ -117,9 +151,15 @@ class Runner:
         from ..methods.table import resolve_method
         from .plan import first_call, plan, ready_start, start_state
 
+        fast = (method, energies) if isinstance(method, str) else None
+        hit = self._plans.get(fast) if fast is not None else None
+        if hit is not None:
+            return hit
         meth = resolve_method(method)
         key = (meth, energies)
         hit = self._plans.get(key)
+        if hit is not None and fast is not None:
+            self._plans[fast] = hit
         if hit is None:
             # a name (not the Method) lets plan() keep the plan of a built-in scene across Runners
             p = plan(self.system, method if isinstance(method, str) else meth, h=self.T, T=self.T, t0=self.t0,
@@ -134,6 +174,8 @@ class Runner:
             q0, p0 = ready_start(p, mod, start, prm)
             first_call(mod, p, q0, p0, prm)
             hit = self._plans[key] = (p, mod, q0, p0, prm, beta)
+            if fast is not None:
+                self._plans[fast] = hit
         return hit
 
     def method(self, method):
@@ -156,24 +198,47 @@ class Runner:
         return int(self.module(method).NCON)
 
     # --- runs ---------------------------------------------------------------------------------------
-    def run(self, method, N: int, *, trajectory: bool = False, energies: bool | None = None) -> Run:
+    def run(self, method, N: int, *, trajectory: bool = False, energies: bool | None = None,
+            perturb: str | None = None) -> Run:
         """The run of `method` on N steps of h = T / N. trajectory=True also builds the Trajectory
         `vcirun.simulate` returns (energies along the grid unless energies=False), with the Runner's
-        `build` (vcirun.run.api.trajectory_of, handed in by the caller: this module does not import the API)."""
+        `build` (vcirun.run.api.trajectory_of, handed in by the caller: this module does not import the API).
+
+        perturb: a twin of that run that differs from it at the level of round-off only, for measuring
+        how much the motion amplifies round-off (`vcirun.run.estimate.amplified_floor`): "h" runs with
+        h (1 + PERTURB_ULPS eps) (every step rounds differently; the grid times move by at most
+        PERTURB_ULPS eps T), "start" from q0 and p0 moved by PERTURB_ULPS eps times their largest entry,
+        in alternating signs. Never with trajectory=True."""
         from .plan import run_loop
 
         if trajectory and self.build is None:
             raise ValueError("trajectory: this Runner was made without build= (vcirun.run.api.trajectory_of)")
+        if perturb not in (None, "h", "start") or (perturb and trajectory):
+            raise ValueError(f"perturb: None, 'h' or 'start', without trajectory=True (got {perturb!r})")
 
         energies = trajectory if energies is None else energies
         base, mod, q0, p0, prm, beta = self._base(method, energies)
         N = int(N)
         h = self.T / N
-        p = dataclasses.replace(base, h=h, N=N, need=run_bytes(N, base.sysd.n), note="", _mod=mod)
-        p.check_memory()
+        if perturb == "h":
+            h = h * (1.0 + PERTURB_ULPS * _EPS)
+        elif perturb == "start":
+            q0, p0 = _nudged(q0, 1.0), _nudged(p0, -1.0)
+        n = base.sysd.n
+        need = self._bytes.get((N, n))
+        if need is None:
+            need = self._bytes[(N, n)] = run_bytes(N, n)
+        if trajectory:
+            p = dataclasses.replace(base, h=h, N=N, need=need, note="", _mod=mod)
+            p.check_memory()
+        else:   # (the plan's memory check, without a copy of the plan)
+            p = base
+            if need > memory_limit():
+                check_run_memory(N, n)
         c0 = time.thread_time()
         t_start = time.perf_counter()
-        out, counters = run_loop(mod, q0, p0, self.t0, h, N, prm, p.settings, base.sysd.n, p.max_impacts_step)
+        out, counters = run_loop(mod, q0, p0, self.t0, h, N, prm, p.settings, n, p.max_impacts_step,
+                                 buffers=self._fresh)
         wall = time.perf_counter() - t_start
         steps = counters["steps"]
         Q = out[_INDEX["q"]][: steps + 1]

@@ -25,12 +25,25 @@ class MethodModel:
 
     def constant(self) -> float | None:
         """The median error constant (cached: the model is consulted on every call)."""
-        if not self.C:
+        return self._median("C", float)
+
+    def n_asymptotic(self) -> int | None:
+        """The median of the coarsest N at which the order showed, over the starts piloted."""
+        return self._median("N_asymptotic", int)
+
+    def n_resolved(self) -> int | None:
+        """The median of the coarsest resolved N, over the starts piloted."""
+        return self._median("N_resolved", int)
+
+    def _median(self, name: str, kind):
+        values = getattr(self, name)
+        if not values:
             return None
-        memo = self.__dict__.get("_median")
-        if memo is None or memo[0] != len(self.C):
-            memo = self.__dict__["_median"] = (len(self.C), float(np.median(self.C)))
-        return memo[1]
+        memo = self.__dict__.setdefault("_medians", {})
+        hit = memo.get(name)
+        if hit is None or hit[0] != len(values):
+            hit = memo[name] = (len(values), kind(np.median(values)))
+        return hit[1]
 
 
 @dataclass
