@@ -204,6 +204,25 @@ def test_cold_build_estimate_counts_the_core_only_until_it_is_compiled(tmp_path,
     assert cache.estimate_compile_s(ks, 2) == pytest.approx(3.0)
 
 
+def test_cold_build_estimate_of_an_empty_cache_needs_no_core_key(tmp_path, monkeypatch):
+    """A cache with no core compiled or timed (a first run's): the first estimate of the core, without
+    assembling the core's text for its key; once a core is timed, the key is asked for again."""
+    from vcirun.codegen import cache, compile_notes
+    from vcirun.methods.table import METHODS
+
+    monkeypatch.setenv("VCIRUN_CACHE_DIR", str(tmp_path))
+    monkeypatch.delenv("VCIRUN_BUILD", raising=False)
+    ks = METHODS["CVA"].kernel_set()
+    kc = default()
+    key = kc.core_key_of(ks, 2)
+    want = compile_notes._DEFAULT_SCENE_S["CVA"] + compile_notes._DEFAULT_CORE_S["general"]
+    asked = []
+    monkeypatch.setattr(kc, "core_key_of", lambda *a, **k: asked.append(a) or key)
+    assert cache.estimate_compile_s(ks, 2) == pytest.approx(want) and not asked
+    (tmp_path / "build_times.json").write_text(json.dumps({f"core|{key}": 50.0}))
+    assert cache.estimate_compile_s(ks, 2) == pytest.approx(compile_notes._DEFAULT_SCENE_S["CVA"] + 50.0) and asked
+
+
 def test_a_scene_takes_the_lean_core_only_when_it_has_one_unforced_contact():
     """One constraint, no force, no declared reset: the lean core (those constants compiled in, the
     several-contact impact pruned), for a method's kernel set and the system-only one (the exact

@@ -42,11 +42,17 @@ def estimate_compile_s(ks, n: int, features: tuple = (), with_core: bool = True,
     times, kind = _times(), (ks.reset or "system").upper()
     if build.build_mode() != "shared":
         return _by_family(times, build.family(ks), n, _DEFAULT_S.get(kind, 15.0))
-    key = kc.core_key_of(ks, n, features)
     first = _DEFAULT_CORE_S[("lean" if features else "general") if ks.full_stages else
-                            ("system lean" if features else "system")]
-    core = 0.0 if kc.core_compiled(key) or not with_core else \
-        core_estimate_s(key, first + (5.0 if kind == "MCVA" else 0.0))
+                            ("system lean" if features else "system")] + (5.0 if kind == "MCVA" else 0.0)
+    if not with_core:
+        core = 0.0
+    elif not kc.any_core_compiled() and not any(k.startswith("core|") for k in times):
+        # (a cache with no core compiled or timed, as a first run's: the core's key, whose text costs
+        # ~0.3 s to assemble and check, is not needed for the first estimate)
+        core = first
+    else:
+        key = kc.core_key_of(ks, n, features)
+        core = 0.0 if kc.core_compiled(key) else core_estimate_s(key, first)
     return _by_family(times, "scene|" + build.family(ks), n, _DEFAULT_SCENE_S.get(kind, 3.5)) + core
 
 

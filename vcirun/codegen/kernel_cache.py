@@ -396,6 +396,21 @@ class KernelCache:
             return True
         return False
 
+    def any_core_compiled(self) -> bool:
+        """Has numba's cache the loop of any shared core? (True where the cache cannot say)"""
+        try:
+            d = self.cache_dir() / "__pycache__"
+        except cache_store.CacheError:
+            return True
+        if any(c[0] == d for c in self._compiled):
+            return True
+        try:
+            names = os.listdir(d)
+        except OSError:
+            return False
+        return any(n.startswith("core_") and n.endswith(".nbi") and (".integrate-" in n or ".hamiltonian-" in n)
+                   for n in names)
+
     def core_key_of(self, ks: KernelSet, n: int, features: tuple = ()) -> str:
         """The key of the shared core of (ks, n, features) (vcirun.codegen.shared): one per kernel-set
         family and feature variant (the lean core or the general one), or per (family, variant, n) with

@@ -45,13 +45,19 @@ class FigureSkipped(Exception):
 
 def save_figure(fig, outdir: Path, stem: str) -> list[Path]:
     """Write `fig` as <outdir>/<stem>.png and .pdf (for the CLI)."""
+    import matplotlib
+
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     paths = []
     with style():
+        # the tight box once for both files (in inches, the same at every dpi): savefig would draw the
+        # whole figure once more per file to find it
+        fig.draw_without_rendering()
+        box = fig.get_tightbbox().padded(matplotlib.rcParams["savefig.pad_inches"])
         for ext in ("png", "pdf"):
             p = outdir / f"{stem}.{ext}"
-            fig.savefig(p, dpi=200 if ext == "png" else None,
+            fig.savefig(p, dpi=200 if ext == "png" else None, bbox_inches=box,
                         metadata=None if ext == "png" else {"Creator": "vcirun"})
             paths.append(p)
     return paths
