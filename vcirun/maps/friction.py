@@ -34,6 +34,7 @@ from vcirun.codegen.roles import (
 )
 from vcirun.maps.dynamics import dynamics_rhs, velocity_guess
 from vcirun.maps.linalg import solve_small, copy_into, STACK_DOUBLES
+from vcirun.maps.newton import NEWTON_CONVERGED, NEWTON_GO_ON, newton_stop
 
 HELD_STICK = 2
 REST_REVERSED = -2       # assign_modes' `rest` for a grid state whose slips reversed unlocated (see there)
@@ -379,17 +380,9 @@ def friction_stage(sid, q0, p0, hs, t, prm, ntol, maxit, held, v, q1, p1, imp, i
             x[j] -= F[j]
             dn = max(dn, abs(F[j]))
             xn = max(xn, abs(x[j]))
-        if not math.isfinite(dn):
-            break
-        if dn <= ntol * (1.0 + xn):
-            ok = True
-            break
-        theta = dn / dprev
-        if it >= 2 and theta < 0.1 and theta / (1.0 - theta) * dn <= ntol * (1.0 + xn):
-            ok = True
-            break
-        if it >= 3 and dn >= dprev and dn <= math.sqrt(ntol) * (1.0 + xn):  # round-off floor
-            ok = True
+        stop = newton_stop(it, dn, dprev, xn, ntol, True)
+        if stop != NEWTON_GO_ON:
+            ok = stop == NEWTON_CONVERGED
             break
         dprev = dn
     for j in range(NDOF):
