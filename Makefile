@@ -7,9 +7,9 @@ BIN     := $(VENV)/bin
 
 # Bytecode is written (Python's default) even where the environment sets PYTHONDONTWRITEBYTECODE, for
 # what make starts: .venv and the checkout are this project's own (their __pycache__ is git-ignored),
-# and without it every process compiles what it imports from source again (sympy 5 s, matplotlib 4 s,
-# scipy 3 s, numba 2.5 s on the 2-core machine), in the sweep, its background compiles, the plots and
-# each of the test suite's subprocesses.
+# and without it every process compiles what it imports from source again (`import sympy` 3.5 s against
+# 0.6 s from bytecode, matplotlib 2.7 s, on the 2-core machine), in the sweep, its background
+# compiles, the plots and each of the test suite's subprocesses.
 unexport PYTHONDONTWRITEBYTECODE
 
 .PHONY: run test test-all bench reproduce extremes clean install install-dev
