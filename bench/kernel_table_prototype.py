@@ -384,7 +384,7 @@ def main(argv=None):
     for label, pkgs in (("cold+warm", None),):
         for pkg in ("vk_arg", "vk_glob"):
             for phase in ("cold", "warm"):
-                env = dict(os.environ, NUMBA_CACHE_DIR=str(root / f"numba_{pkg}"))
+                env = dict(os.environ, NUMBA_CACHE_DIR=str(root / f"numba_{pkg}"), VCIRUN_TIER="compiled")
                 t0 = time.perf_counter()
                 r = subprocess.run([sys.executable, str(here), "--child", "--root", str(root), "--pkgs", pkg,
                                     "--cases", a.cases.split(",")[0], "--methods", "CVA", "--repeats", "3"],
@@ -398,7 +398,8 @@ def main(argv=None):
                 print(f"  {pkg:8s} {phase}: first call (compile or cache load) {first['first_s']:6.2f} s wall, "
                       f"{first['first_cpu_s']:6.2f} s CPU (process {time.perf_counter() - t0:.1f} s, load "
                       f"{os.getloadavg()[0]:.1f})", flush=True)
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(root / "numba_loop"))
+    # (the scene's compiled kernels are linked by address: the compiled tier, built here if missing)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(root / "numba_loop"), VCIRUN_TIER="compiled")
     r = subprocess.run([sys.executable, str(here), "--child", "--root", str(root), "--cases", a.cases,
                         "--methods", a.methods, "--repeats", str(a.repeats)], capture_output=True, text=True, env=env)
     if r.returncode:

@@ -62,6 +62,24 @@ def jit_symbols(library) -> list[tuple[int, str]]:
     return syms
 
 
+def all_jit_symbols() -> list[tuple[int, str]]:
+    """The symbols of every function numba compiled in this process (the shared core's loop, the scene
+    module's kernels and their wrappers live in different libraries)."""
+    import gc
+
+    from numba.core.registry import CPUDispatcher
+
+    syms = {}
+    for obj in gc.get_objects():
+        if isinstance(obj, CPUDispatcher):
+            for cres in obj.overloads.values():
+                try:
+                    syms.update(jit_symbols(cres.library))
+                except Exception:
+                    continue
+    return sorted(syms.items())
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("module")
@@ -79,7 +97,8 @@ def main(argv=None):
             raise SystemExit("profile_loop: needs `perf` (linux-tools) on PATH")
         # fresh numba cache: the function symbols exist only for a module compiled in this process
         cache = tempfile.mkdtemp(prefix="profile_loop_numba_")
-        env = dict(os.environ, NUMBA_CACHE_DIR=cache, _PROFILE_LOOP_CHILD="1", PYTHONPATH=str(ROOT))
+        env = dict(os.environ, NUMBA_CACHE_DIR=cache, VCIRUN_CACHE_DIR=cache + "/vcirun", _PROFILE_LOOP_CHILD="1",
+                   PYTHONPATH=str(ROOT), VCIRUN_TIER="compiled")
         try:
             rc = subprocess.call([sys.executable, __file__] + (argv or sys.argv[1:]), env=env)
         finally:
@@ -94,8 +113,7 @@ def main(argv=None):
     warnings.simplefilter("ignore")
     raw, args, tr = capture_loop(load(a.module, a.method), a.system, a.method, a.h, a.T, a.beta,
                                  a.resting_contact == "on")
-    cres = next(iter(raw.overloads.values()))
-    syms = jit_symbols(cres.library)
+    syms = all_jit_symbols()
     entries = [s[0] for s in syms]
     t0 = time.perf_counter()
     raw(*args)

@@ -59,6 +59,49 @@ def test_a_stale_declaration_is_named(tmp_path, monkeypatch):
         units.check_unit(u)
 
 
+def test_a_passed_check_is_stamped_and_any_change_is_checked_again(tmp_path, monkeypatch):
+    """A unit that passed is not parsed again by a later process (its stamp in the cache), but a
+    changed unit, or changed declarations, are checked anew: the stamp names everything the check
+    reads."""
+    from vcirun.codegen import cache_store
+
+    monkeypatch.setenv(cache_store.ENV, str(tmp_path / "cache"))
+    good = "from vcirun.codegen.roles import sys_phi\n\ndef f(x, prm):\n    return sys_phi(x, prm)\n"
+    u = _unit(tmp_path, monkeypatch, good)
+    units.check_unit(u)
+    stamp = units._stamp(u)
+    assert stamp.exists()
+    calls = []
+    monkeypatch.setattr(units, "_check", lambda path, text: calls.append(path))
+    units.check_unit(u)
+    assert calls == []                      # stamped: not checked again
+    monkeypatch.undo()
+    monkeypatch.setenv(cache_store.ENV, str(tmp_path / "cache"))
+    u = _unit(tmp_path, monkeypatch, good.replace("sys_phi(x, prm)\n", "sys_phi(x)\n"))
+    assert units._stamp(u) != stamp
+    with pytest.raises(units.ContractError, match="sys_phi called with 1 arguments"):
+        units.check_unit(u)
+    assert not units._stamp(u).exists()     # a failed check leaves no stamp
+    u = _unit(tmp_path, monkeypatch, good)
+    monkeypatch.setitem(roles.ROLES, "extra_role", roles.RoleDecl("extra_role", ("a",), 0, ("a",), "a test role"))
+    assert units._stamp(u) != stamp         # the declarations are part of the stamp
+
+
+def test_the_interpreted_tier_checks_only_units_outside_the_package(monkeypatch):
+    """The package's units are checked by every compiled build and by this suite; the interpreted
+    tier runs them as Python and checks only a unit registered from outside."""
+    from vcirun.methods.table import METHODS
+
+    ks = METHODS["CVA"].kernel_set()
+    seen = []
+    monkeypatch.setattr(units, "check_unit", lambda u: seen.append(u.path))
+    monkeypatch.setattr(units, "check_generated", lambda text, ks: None)
+    units.assemble("", ks, check_package=False)
+    assert seen == []
+    units.assemble("", ks)
+    assert len(seen) == len(units.select_units(ks)) > 5
+
+
 def test_arity_is_checked_at_every_call_and_every_role_implementation(tmp_path, monkeypatch):
     u = _unit(tmp_path, monkeypatch, "from vcirun.codegen.roles import sys_phi\n\n"
                                      "def f(x, prm):\n    return sys_phi(x)\n")

@@ -239,9 +239,14 @@ def test_a_scene_takes_the_lean_core_only_when_it_has_one_unforced_contact():
     assert feats == {"cart_pendulum": shared.LEAN, "ball_in_box": F, "damped_oscillator": F, "rimless_wheel": F}
     assert build.system_core_features(SYSTEM_KERNELS, get_scene("cart_pendulum")) == shared.LEAN
     assert build.system_core_features(SYSTEM_KERNELS, get_scene("ball_in_box")) == F
-    from vcirun.scenes.friction import rocking_block_friction
+    from vcirun.scenes.friction import incline, rocking_block_friction
 
     assert build.system_core_features(ks, rocking_block_friction()) == ()   # friction: the general core
+    # one contact with friction: the lean core with FRICTION compiled in as True, reference included
+    assert build.system_core_features(ks, incline(0.3, mu=0.2)) == shared.LEAN_FRICTION
+    assert build.system_core_features(SYSTEM_KERNELS, incline(0.3, mu=0.2)) == shared.LEAN_FRICTION
+    assert "NCON = 1\nFORCED = False\n" in shared.core_source(ks, features=shared.LEAN_FRICTION)
+    assert len({default().core_key_of(ks, 2, f) for f in (shared.LEAN, shared.LEAN_FRICTION, ())}) == 3
     lean, general = shared.core_source(ks, features=shared.LEAN), shared.core_source(ks)
     assert "NCON = 1\nFORCED = False\n" in lean and "NCON = 1\n" not in general
     assert default().core_key_of(ks, 2, shared.LEAN) != default().core_key_of(ks, 2)

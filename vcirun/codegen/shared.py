@@ -196,22 +196,30 @@ from vcirun.codegen.kcall import f8ptr, i8ptr, kcall, slot
 # matrix and LCP, the forced, mapped and frictional paths) before typing them: the CVA core compiles
 # in about 60 % of the time of the general one (docs/performance.md, *Builds*). A frictionless scene
 # that is not lean takes the frictionless core (FRICTION compiled in as False: the held steps with
-# friction modes, the frictional impact law and the mode events pruned); a scene with friction takes
-# the general core, which reads every flag at run time. Three variants, not one per combination.
+# friction modes, the frictional impact law and the mode events pruned). A lean scene with friction (a
+# block on a ramp, a ball on the floor) takes the lean core with FRICTION compiled in as True: its held
+# step with friction costs 1.36x the frictionless one's on the lean core, against 1.56x on the general
+# core (docs/performance.md, *Friction*). Any other scene with friction takes the general core, which
+# reads every flag at run time. Four variants, not one per combination.
 LEAN = (("NCON", 1), ("FORCED", False), ("RESET_MAP", False), ("RESET_LAW_FIRST", False), ("FRICTION", False))
+LEAN_FRICTION = LEAN[:-1] + (("FRICTION", True),)
 FRICTIONLESS = (("FRICTION", False),)
-FEATURE_NAMES = {LEAN: "one contact, unforced", FRICTIONLESS: "any contacts and forcing, no friction",
+FEATURE_NAMES = {LEAN: "one contact, unforced", LEAN_FRICTION: "one contact with friction, unforced",
+                 FRICTIONLESS: "any contacts and forcing, no friction",
                  (): "any contacts, forcing and friction"}
 
 
 def core_features(ks: KernelSet, ncon: int, forced: bool, reset_map: bool, law_first: bool,
                   friction: bool = False) -> tuple:
-    """The features of the core that serves a scene with these constants: LEAN, FRICTIONLESS or ()
-    (general). The system-only set (the exact reference's kernels) too: its impact law prunes the same
-    branches (cart-pendulum reference, empty cache: 14.3 s general, 5.0 s lean; the same bits)."""
-    if dict(LEAN) == {"NCON": int(ncon), "FORCED": bool(forced), "RESET_MAP": bool(reset_map),
-                      "RESET_LAW_FIRST": bool(law_first), "FRICTION": bool(friction)}:
-        return LEAN
+    """The features of the core that serves a scene with these constants: LEAN, LEAN_FRICTION,
+    FRICTIONLESS or () (general). The system-only set (the exact reference's kernels) too: its impact
+    law prunes the same branches (cart-pendulum reference, empty cache: 14.3 s general, 5.0 s lean;
+    the same bits)."""
+    have = {"NCON": int(ncon), "FORCED": bool(forced), "RESET_MAP": bool(reset_map),
+            "RESET_LAW_FIRST": bool(law_first), "FRICTION": bool(friction)}
+    for lean in (LEAN, LEAN_FRICTION):
+        if dict(lean) == have:
+            return lean
     return () if friction else FRICTIONLESS
 
 
@@ -278,8 +286,8 @@ def core_source(ks: KernelSet, ndof: int | None = None, features: tuple = ()) ->
     It depends on the kernel set only through which units and bindings it has (and the Gauss flow's
     stage count, a module-level choice of maps/gauss.py): one core serves CVA on every Ld and
     composition. ndof None: NDOF is read at run time (one core for every scene); an int: a
-    compile-time constant (one core per n; measured in docs/performance.md). features: LEAN or ()
-    (core_features): the scene constants compiled in."""
+    compile-time constant (one core per n; measured in docs/performance.md). features: LEAN,
+    LEAN_FRICTION, FRICTIONLESS or () (core_features): the scene constants compiled in."""
     resets = core_resets(ks) if ks.full_stages else None
     ks = core_kernel_set(ks)
     fixed = dict(features) | ({} if ndof is None else {"NDOF": int(ndof)})

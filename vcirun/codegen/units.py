@@ -281,8 +281,54 @@ def _unit_of_module(module: str) -> Unit | None:
 
 def check_unit(u: Unit) -> None:
     """The unit against the declarations (see the module docstring); raises ContractError naming the
-    unit, the name and the fix."""
+    unit, the name and the fix. A unit that passed leaves a stamp in the kernel cache named by the
+    hash of everything the check reads (the unit, the units it imports from, the declarations, this
+    checker), so a new process does not parse and walk the units again: 1-2 s of a first call."""
+    stamp = _stamp(u)
+    if stamp is not None and stamp.exists():
+        return
     _check(u.path, u.text)
+    if stamp is not None:
+        try:
+            stamp.parent.mkdir(exist_ok=True)
+            stamp.touch()
+        except OSError:   # (a read-only or full cache: checked again next time)
+            pass
+
+
+def _stamp(u: Unit) -> Path | None:
+    """The stamp of u's passed check: root()/units_checked/<hash>; None if the cache is unusable."""
+    import hashlib
+
+    from .cache_store import CacheError, kernels_dir
+
+    try:
+        d = kernels_dir().parent / "units_checked"
+    except CacheError:
+        return None
+    h = hashlib.sha256(_checker_digest().encode())
+    for text in (u.path, u.text, *(sib.text for sib in _siblings(u.text))):
+        h.update(b"\0" + text.encode())
+    h.update(b"\0" + _declarations_digest().encode())
+    return d / h.hexdigest()[:32]
+
+
+@functools.lru_cache(maxsize=1)
+def _checker_digest() -> str:
+    """The checker's own sources (this module, the scratch rules of frame.py)."""
+    here = Path(__file__).resolve().parent
+    return "\0".join((here / f).read_text() for f in ("units.py", "frame.py"))
+
+
+def _siblings(text: str) -> list:
+    return [sib for sib in map(_unit_of_module, _imports(text)) if sib is not None]
+
+
+def _declarations_digest() -> str:
+    """What the check reads of the declarations (they grow when a reset is registered from outside)."""
+    k = sorted((n, d.per_stage, tuple(a for a, _ in d.args)) for n, d in roles.KERNELS.items())
+    r = sorted((n, d.params, d.optional) for n, d in roles.ROLES.items())
+    return repr((k, r, sorted(roles.CONSTANTS), sorted(implementations().items())))
 
 
 @functools.lru_cache(maxsize=128)
@@ -434,12 +480,16 @@ def standalone_source(paths) -> str:
     return "\n\n".join(u.body for u in order) + "\n"
 
 
-def assemble(generated: str, ks) -> str:
-    """generated part + the selected units + the bindings, checked: the module text."""
+def assemble(generated: str, ks, check_package: bool = True) -> str:
+    """generated part + the selected units + the bindings, checked: the module text. check_package
+    False checks only the units outside the package (a reset registered from outside): the
+    interpreted tier runs the units as Python, where a breach of the contract raises by itself, and
+    the package's units are checked by every compiled build and the test suite."""
     check_generated(generated, ks)
     selected = select_units(ks)
     for u in selected:
-        check_unit(u)
+        if check_package or Path(u.path).is_absolute():
+            check_unit(u)
     parts = [generated] + [u.body for u in selected]
     parts += [f"{role} = {target}" for role, target in bindings(ks).items()]
     return "\n\n".join(parts) + "\n"

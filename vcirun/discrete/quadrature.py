@@ -33,14 +33,16 @@ def quadrature_nodes(ld) -> tuple | None:
         if len(calls) != 1:
             return None
         call = calls.pop()
-        w = sp.simplify(term / (h * call))
+        # (rational functions of the symbols: cancel and expand decide them exactly, without
+        # simplify's heuristics and its import of sympy.physics.units, 0.4 s of a first call)
+        w = sp.cancel(term / (h * call))
         if not w.is_number or len(call.args) != 4:
             return None
         x, v = call.args[:2], call.args[2:]
-        if any(sp.simplify(v[k] - (b[k] - a[k]) / h) != 0 for k in range(2)):
+        if any(sp.cancel(v[k] - (b[k] - a[k]) / h) != 0 for k in range(2)):
             return None
-        c = sp.simplify((x[0] - a[0]) / (b[0] - a[0]))
-        if not c.is_number or sp.simplify(x[1] - (a[1] + c * (b[1] - a[1]))) != 0:
+        c = sp.cancel((x[0] - a[0]) / (b[0] - a[0]))
+        if not c.is_number or sp.expand(x[1] - (a[1] + c * (b[1] - a[1]))) != 0:
             return None
         nodes.append((float(c), float(w)))
     return tuple(nodes) if nodes else None
