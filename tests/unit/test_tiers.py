@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import vcirun
 from vcirun.codegen import tiers
@@ -74,6 +76,43 @@ def test_the_tiers_give_the_same_numbers(case):
 @pytest.mark.parametrize("case", [c for c in CASES if c not in QUICK], ids=lambda c: f"{c[0]}-{c[1]}-{c[2]}")
 def test_the_tiers_give_the_same_numbers_on_every_golden_case(case):
     _check_same(case)
+
+
+def _unit_solve_band():
+    """maps/linalg.py's solve_band as the unit wrote it, run as Python (no replacement)."""
+    import types
+
+    from vcirun.codegen import evaluate, units
+
+    mod = types.ModuleType("linalg_as_written")
+    mod.__dict__["njit"] = evaluate._njit
+    text = units.Unit("maps/linalg.py").body.replace("from numba import njit", "")
+    exec(compile(text, "linalg.py", "exec"), mod.__dict__)  # noqa: S102
+    return mod.solve_band
+
+
+@settings(max_examples=300, deadline=None)
+@given(n=st.integers(1, 9), bw=st.integers(0, 8), seed=st.integers(0, 2**32 - 1),
+       zero_col=st.booleans(), scale=st.sampled_from([1e-300, 1e-8, 1.0, 1e8, 1e300]))
+def test_the_interpreted_solver_has_the_bits_of_the_units(n, bw, seed, zero_col, scale):
+    """The interpreted tier's list solver (vcirun.codegen.evaluate.solve_band_lists) against the unit's
+    own solve_band run as Python: the same return, solution and destroyed matrix, bit for bit, on
+    banded, badly scaled and singular matrices."""
+    from vcirun.codegen.evaluate import PYTHON_REPLACEMENTS, solve_band_lists
+
+    assert PYTHON_REPLACEMENTS["solve_band"] is solve_band_lists
+    bw = min(bw, n - 1)
+    rng = np.random.default_rng(seed)
+    A = rng.standard_normal((n + 1, n + 1)) * scale   # (larger than n: the solvers use the top-left block)
+    A[np.abs(np.subtract.outer(np.arange(n + 1), np.arange(n + 1))) > bw] = 0.0
+    if zero_col:
+        A[:, rng.integers(n)] = 0.0
+    b = rng.standard_normal(n + 1)
+    A1, b1, A2, b2 = A.copy(), b.copy(), A.copy(), b.copy()
+    ok1 = _unit_solve_band()(A1, b1, n, bw)
+    ok2 = solve_band_lists(A2, b2, n, bw)
+    assert ok1 == ok2
+    assert np.array_equal(b1, b2, equal_nan=True) and np.array_equal(A1, A2, equal_nan=True)
 
 
 def test_the_tier_is_asked_for_by_argument_or_environment(monkeypatch):

@@ -40,7 +40,8 @@ from . import cache_lock, cache_store   # (light: numba is imported once a compi
 __all__ = ["start", "state", "marker", "failure", "in_progress", "Job"]
 
 # How the cores are shared: the caller computes at its own priority, a background compile at nice
-# NICE (the scheduler then gives a busy caller ~10 times its CPU share) and at most one background
+# NICE, its session too (Linux's autogroup ranks sessions by the session's nice value:
+# compile_worker._nice_session; the scheduler then gives a busy caller ~10 times its CPU share) and at most one background
 # compile per core at a time (the others wait for a slot: `slot`), so a sweep's interpreted runs are
 # not slowed by the compiles it started, and the compiles use the cores as soon as the runs leave them
 # idle. Measured in docs/performance.md (tiers).
