@@ -192,6 +192,11 @@ def test_a_restitution_parameter_outside_the_unit_interval_is_named(value):
     with pytest.raises(ValueError, match=rf"params.e: value {value:g} is the restitution coefficient of .* of "
                                          "system ball_in_box; it must be in \\[0, 1\\]"):
         vcirun.simulate("ball_in_box", "CVA", h=0.01, T=0.1, params={"e": value})
+    from vcirun.scenes.registry import scene_data
+
+    with pytest.raises(ValueError, match=rf"params.e: value {value:g} is the restitution coefficient of every "
+                                         "contact of system cradle_gap_3"):   # (before any symbolic work)
+        scene_data("cradle_gap_3").param_values({"e": value})
     d = {"name": "w", "coordinates": ["x"], "parameters": {"e": value, "m": 1.0}, "mass_matrix": [["m"]],
          "potential": "0", "constraints": [{"name": "wall", "phi": "x + 1", "restitution": "e"}],
          "q0": [0.0], "qdot0": [-1.0]}

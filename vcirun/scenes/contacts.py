@@ -264,8 +264,7 @@ CRADLE = Scene(
     example=("--h 0.001 --T 2", "ball 1 hits the touching row: Moreau's simultaneous law, balls 2..N move on together"))
 
 # the balls hung `gap` apart (pivots 2r + gap apart): each impact is one pair, in sequence down the row,
-# and the last ball swings out (the cradle of the desk toy). Its e is not declared as every contact's
-# restitution to SystemData (restitution=None: e is not range-checked before the symbolic system is built).
+# and the last ball swings out (the cradle of the desk toy)
 CRADLE_GAP = Scene(
     "cradle_gap", size=5,
     description=lambda n: (f"Newton's cradle of {n} balls hung with small gaps (pivots 2r + gap apart), restitution e; "
@@ -274,7 +273,7 @@ CRADLE_GAP = Scene(
     coordinates=_cradle_coordinates, params=_cradle_params(True), constraint=_cradle_constraint,
     ic_text="ball 1 released from theta1 = -beta, the others hanging at rest, gap apart",
     default_text="theta1 = -0.3, the others 0, at rest",
-    symbolic=_cradle_symbolic("(2*r + gap)*{i}"), start=_cradle_start,
+    restitution=EVERY_CONTACT_E, symbolic=_cradle_symbolic("(2*r + gap)*{i}"), start=_cradle_start,
     example=("--h 0.001 --T 2", "pairwise impacts down the row, the last ball swings out"))
 
 SCENES = (BALL_IN_BOX, NEWTON_CRADLE, DOUBLE_PENDULUM_WALLS, ROCKING_BLOCK, LINK_CHAIN, CRADLE, CRADLE_GAP)
