@@ -538,9 +538,7 @@ def _event_step(st, tau_max, t, have_end):
         locate = FRICTION and nheld > 0 and k_mode < st.max_impacts_step
         if locate and mode_event_values(st.qh, st.ph, tc, st.prm, st.held, st.ev, st.mu, st.lt) == FRICTION_PAINLEVE:
             return ST_PAINLEVE, iters
-        code, dtau, E_pre, itc = search_collision(st.qh, st.ph, tau_max, st.h, tc, st.prm, st.ntol, st.maxit,
-                                                  st.event_tol, st.qt, st.pt, st.vt, have_end, st.held,
-                                                  nheld, st.fw)
+        code, dtau, E_pre, itc = search_collision(st, tau_max, tc, have_end, nheld)
         have_end = False
         iters += itc
         if code < 0:

@@ -9,6 +9,7 @@
 # point shows the motion driving it into its constraint (unmask_penetrating). The impact law (collision/impact.py) still takes every
 # contact at phi = 0 into the impact. One constraint: no mask, the paper's search bit for bit.
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import njit
@@ -21,6 +22,15 @@ from vcirun.maps.held import held_step
 
 N_SCAN = 4  # interior samples of the initial bracket (first-root search), when the cubic model is unsure
 N_MODEL = 32  # samples of the cubic Hermite model of g on the bracket (no partial steps: free)
+
+# One search's record, which every stage of it takes (a numba namedtuple, like the loop's LoopState):
+# the state (qh, ph) at the search's start time t, the partial steps' output (qt, pt, vt: each stage
+# leaves the state at its last evaluated tau there), the held contacts (held, nheld) and the friction
+# work fw[0] of the last held partial step, the contacts left out of the gap (mask), the parameters
+# and the settings: the grid step h, Newton's tolerance and cap, the event tolerance and the root's,
+# tol = event_tol h.
+Search = namedtuple("Search", ("qh", "ph", "qt", "pt", "vt", "held", "fw", "mask", "prm",
+                               "h", "t", "ntol", "maxit", "event_tol", "tol", "nheld"))
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -116,21 +126,38 @@ def collision_time(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt, v
     (qt, pt, vt) hold the partial-step state at tau and E_pre its discrete energy (for R^VCI).
     The root is located to |Delta tau| <= event_tol * h; a start on the surface (g(0) <= 0, e.g.
     right after an impact) is not a root: the search first steps forward to a point with g > 0.
-    See search_collision for the method."""
+    See _search for the method."""
     nheld = 0
     for i in range(NCON):
         nheld += 1 if held[i] != 0 else 0
     fw = scratch(1)
-    return search_collision(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt, vt, np.bool_(False), held,
-                            nheld, fw)
+    mask = scratch_i(NCON)
+    s = Search(qh, ph, qt, pt, vt, held, fw, mask, prm, h, t, ntol, maxit, event_tol, event_tol * h, nheld)
+    return _search(s, tau_max, np.bool_(False))
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def search_collision(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt, vt, have_end, held, nheld, fw):
-    """collision_time; have_end: (qt, pt) already hold Phi^partial_{tau_max}(qh, ph) (Algorithm 1's
-    full step, when the partial map is the full one), so it is not recomputed. held (NCON), nheld:
-    the held contacts: partial steps are then the constrained map and the held contacts
-    stay out of the gap.
+def search_collision(st, tau_max, t, have_end, nheld):
+    """collision_time from the event loop's state st (collision/state.py LoopState: the search starts
+    at (st.qh, st.ph) at time t, with st.held's nheld contacts held); have_end: (st.qt, st.pt) already
+    hold Phi^partial_{tau_max}(qh, ph) (Algorithm 1's full step, when the partial map is the full
+    one), so it is not recomputed."""
+    mask = scratch_i(NCON)
+    s = Search(st.qh, st.ph, st.qt, st.pt, st.vt, st.held, st.fw, mask, st.prm, st.h, t, st.ntol, st.maxit,
+               st.event_tol, st.event_tol * st.h, nheld)
+    return _search(s, tau_max, have_end)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _partial(s, tau):
+    """The search's partial step to tau: (qt, pt, vt) = Phi^partial_tau(qh, ph); (iterations, E)."""
+    return partial_map(s.qh, s.ph, tau, s.h, s.t, s.prm, s.ntol, s.maxit, s.qt, s.pt, s.vt, s.held, s.nheld, s.fw)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _search(s, tau_max, have_end):
+    """The search of collision_time over the record s. The held contacts stay out of the gap, and
+    partial steps are then the constrained map.
 
     Method. g(0) > 0 > g(tau_max) brackets a root; CollisionTime is a set and the FIRST root is
     wanted. The cubic Hermite model of g from the values and the flow's slopes at both ends
@@ -139,77 +166,72 @@ def search_collision(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt,
     the iteration is secant on the partial map's own g (`_refine_root`). Typically 2-3 partial steps
     per impact, against 10-12 for bracketing alone.
     """
-    mask = scratch_i(NCON)
-    masked = touching_mask(qh, ph, h, event_tol, prm, mask, held)
+    masked = touching_mask(s.qh, s.ph, s.h, s.event_tol, s.prm, s.mask, s.held)
     iters = 0
     E = np.nan
     if not have_end:
-        it, E = partial_map(qh, ph, tau_max, h, t, prm, ntol, maxit, qt, pt, vt, held, nheld, fw)
+        it, E = _partial(s, tau_max)
         if it < 0:
             return -1, tau_max, E, -it
         iters += it
     if NCON > 1:
-        unmask_penetrating(qh, qt, prm, mask, held)
-    gb = gap(qt, prm, mask)
+        unmask_penetrating(s.qh, s.qt, s.prm, s.mask, s.held)
+    gb = gap(s.qt, s.prm, s.mask)
     if not math.isfinite(gb) and not (gb > 0.0 and masked > 0):  # (+inf: every contact masked or held)
         return -1, tau_max, E, iters
     if gb >= 0.0:
         if have_end:  # the caller's full step knows E; recompute only when asked for the state's energy
-            it, E = partial_map(qh, ph, tau_max, h, t, prm, ntol, maxit, qt, pt, vt, held, nheld, fw)
+            it, E = _partial(s, tau_max)
             iters += abs(it)
         return 0, tau_max, E, iters
-    db = gap_slope(qt, pt, prm, mask)
+    db = gap_slope(s.qt, s.pt, s.prm, s.mask)
     b = tau_max
     a = 0.0
-    ga = gap(qh, prm, mask)
-    da = gap_slope(qh, ph, prm, mask)
-    tol = event_tol * h
+    ga = gap(s.qh, s.prm, s.mask)
+    da = gap_slope(s.qh, s.ph, s.prm, s.mask)
     if ga <= 0.0:
-        code, a, ga, da, b, gb, db, E, itc = _leave_surface(qh, ph, tau_max, h, t, prm, ntol, maxit, tol, qt, pt,
-                                                              vt, mask, b, gb, db, held, nheld, fw)
+        code, a, ga, da, b, gb, db, E, itc = _leave_surface(s, tau_max, b, gb, db)
         iters += itc
         if code != 0:
             return code, (a if code == 1 else b), E, iters
     c = _model_first_root(a, ga, da, b, gb, db)
     if c < 0.0:
-        code, c, a, ga, b, gb, E, itc = _scan_bracket(qh, ph, h, t, prm, ntol, maxit, qt, pt, vt, mask, a, ga, b, gb,
-                                                      held, nheld, fw)
+        code, c, a, ga, b, gb, E, itc = _scan_bracket(s, a, ga, b, gb)
         iters += itc
         if code != 0:
             return code, c, E, iters
-    code, tau, E, itc = _refine_root(qh, ph, h, t, prm, ntol, maxit, tol, qt, pt, vt, mask, c, a, ga, b, gb, held,
-                                     nheld, fw)
+    code, tau, E, itc = _refine_root(s, c, a, ga, b, gb)
     return code, tau, E, iters + itc
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _leave_surface(qh, ph, tau_max, h, t, prm, ntol, maxit, tol, qt, pt, vt, mask, b, gb, db, held, nheld, fw):
+def _leave_surface(s, tau_max, b, gb, db):
     """On (or numerically just past) the surface at tau = 0: the trivial root at 0 is not a
     collision. Halve towards 0 until g > 0; the first collision lies before any point with g < 0.
     Returns (code, a, ga, da, b, gb, db, E, iters): code 0 with the bracket [a, b]; 1 = moving into the
     constraint from the surface, the impact at tau = 0 (returned as a, with its state); -1 = a partial
     step failed (at b)."""
-    s = tau_max
+    x = tau_max
     iters = 0
     E = np.nan
-    while s > 1e-3 * tol:
-        s *= 0.5
-        it, E = partial_map(qh, ph, s, h, t, prm, ntol, maxit, qt, pt, vt, held, nheld, fw)
+    while x > 1e-3 * s.tol:
+        x *= 0.5
+        it, E = _partial(s, x)
         if it < 0:
-            return -1, 0.0, 0.0, 0.0, s, gb, db, E, iters - it
+            return -1, 0.0, 0.0, 0.0, x, gb, db, E, iters - it
         iters += it
-        gs = gap(qt, prm, mask)
+        gs = gap(s.qt, s.prm, s.mask)
         if gs > 0.0:
-            return 0, s, gs, gap_slope(qt, pt, prm, mask), b, gb, db, E, iters
-        b = s
+            return 0, x, gs, gap_slope(s.qt, s.pt, s.prm, s.mask), b, gb, db, E, iters
+        b = x
         gb = gs
-        db = gap_slope(qt, pt, prm, mask)
-    it, E = partial_map(qh, ph, 0.0, h, t, prm, ntol, maxit, qt, pt, vt, held, nheld, fw)
+        db = gap_slope(s.qt, s.pt, s.prm, s.mask)
+    it, E = _partial(s, 0.0)
     return 1, 0.0, 0.0, 0.0, b, gb, db, E, iters + abs(it)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _scan_bracket(qh, ph, h, t, prm, ntol, maxit, qt, pt, vt, mask, a, ga, b, gb, held, nheld, fw):
+def _scan_bracket(s, a, ga, b, gb):
     """The cubic model is unsure (several sign changes, or no slopes): sample the bracket for the first
     sign change, as a plain bracket would skip an earlier root. Returns (code, c, a, ga, b, gb, E,
     iters): code 0 with the false-position point c of the narrowed bracket; 1 = a sample landed on
@@ -220,11 +242,11 @@ def _scan_bracket(qh, ph, h, t, prm, ntol, maxit, qt, pt, vt, mask, a, ga, b, gb
     E = np.nan
     for j in range(1, N_SCAN):
         c = a0 + span * j / N_SCAN
-        it, E = partial_map(qh, ph, c, h, t, prm, ntol, maxit, qt, pt, vt, held, nheld, fw)
+        it, E = _partial(s, c)
         if it < 0:
             return -1, c, a, ga, b, gb, E, iters - it
         iters += it
-        gc = gap(qt, prm, mask)
+        gc = gap(s.qt, s.prm, s.mask)
         if gc < 0.0:
             b = c
             gb = gc
@@ -238,12 +260,13 @@ def _scan_bracket(qh, ph, h, t, prm, ntol, maxit, qt, pt, vt, mask, a, ga, b, gb
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _refine_root(qh, ph, h, t, prm, ntol, maxit, tol, qt, pt, vt, mask, c, a, ga, b, gb, held, nheld, fw):
+def _refine_root(s, c, a, ga, b, gb):
     """From c in the bracket [a, b] (g(a) > 0 > g(b)): secant on the partial map's own g (Newton with
     the flow's slope for the first correction), safeguarded by the bracket: a step that leaves it, or
     a bracket that stops shrinking, falls back to Illinois / bisection. Stops when the correction is
     below a tenth of tol = event_tol * h, at an evaluated point (so the returned state is that of
-    the returned tau). Returns (code, tau, E, iters) as search_collision."""
+    the returned tau). Returns (code, tau, E, iters) as collision_time."""
+    tol = s.tol
     if not (c > a and c < b):
         c = 0.5 * (a + b)
     xp = np.nan  # previous evaluated point (secant)
@@ -253,11 +276,11 @@ def _refine_root(qh, ph, h, t, prm, ntol, maxit, tol, qt, pt, vt, mask, c, a, ga
     iters = 0
     E = np.nan
     for k in range(200):
-        it, E = partial_map(qh, ph, c, h, t, prm, ntol, maxit, qt, pt, vt, held, nheld, fw)
+        it, E = _partial(s, c)
         if it < 0:
             return -1, c, E, iters - it
         iters += it
-        gc = gap(qt, prm, mask)
+        gc = gap(s.qt, s.prm, s.mask)
         if not math.isfinite(gc):
             return -1, c, E, iters
         if gc > 0.0:
@@ -277,7 +300,7 @@ def _refine_root(qh, ph, h, t, prm, ntol, maxit, tol, qt, pt, vt, mask, c, a, ga
         if math.isfinite(xp) and gc != gp:
             step = gc * (c - xp) / (gc - gp)        # secant on the partial map's g
         else:
-            step = gc / gap_slope(qt, pt, prm, mask)  # first correction: Newton with the flow's slope
+            step = gc / gap_slope(s.qt, s.pt, s.prm, s.mask)  # first correction: Newton with the flow's slope
         if math.isfinite(step) and abs(step) <= 0.1 * tol:
             # converged at an evaluated point (a tenth of the tolerance: the superlinear steps rarely
             # land between, and it keeps |phi| at the reported state near round-off)
@@ -295,7 +318,7 @@ def _refine_root(qh, ph, h, t, prm, ntol, maxit, tol, qt, pt, vt, mask, c, a, ga
             # bracket collapsed: report the end closer to the surface, with its state
             tau = a if abs(ga) < abs(gb) else b
             if tau != c:
-                it, E = partial_map(qh, ph, tau, h, t, prm, ntol, maxit, qt, pt, vt, held, nheld, fw)
+                it, E = _partial(s, tau)
                 iters += abs(it)
             return 1, tau, E, iters
         xp = c
