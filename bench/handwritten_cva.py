@@ -183,7 +183,14 @@ def integrate(q0, p0, h, N, prm, Q, P, Hs, Eds, iters, impacts):
 def setup(h=1e-2, T=5.0, beta=3.2):
     """(arguments of integrate) for the cart-pendulum's Xi(beta) and its default parameters."""
     import vcirun
-    from vcirun.scenes.registry import scene_data
+
+    try:
+        from vcirun.scenes.registry import scene_data
+    except ImportError:   # a tree before the scene registry (the base of bench/loop_targets.py)
+        from vcirun.scenes.data import cart_pendulum as _cart
+
+        def scene_data(name):
+            return _cart()
 
     d = scene_data("cart_pendulum")
     tr = vcirun.simulate("cart_pendulum", "CVA", h=h, T=h, beta=beta)   # (vcirun's start state for Xi(beta))
