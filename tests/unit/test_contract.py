@@ -100,6 +100,11 @@ def test_the_interpreted_tier_checks_only_units_outside_the_package(monkeypatch)
     assert seen == []
     units.assemble("", ks)
     assert len(seen) == len(units.select_units(ks)) > 5
+    outside = units.Unit(str(units.PKG / "maps" / "linalg.py"))   # (an absolute path: a unit from outside)
+    monkeypatch.setattr(units, "select_units", lambda ks: [units.Unit("maps/newton.py"), outside])
+    seen.clear()
+    units.assemble("", ks, check_package=False)
+    assert seen == [outside.path]
 
 
 def test_arity_is_checked_at_every_call_and_every_role_implementation(tmp_path, monkeypatch):

@@ -44,7 +44,11 @@ def _nice_session(nice: int) -> None:
     """The worker runs in a session of its own, and where Linux groups the scheduling by session
     (autogroup, /proc/sys/kernel/sched_autogroup_enabled) a process's nice value only ranks it within
     its session: the sessions share the cores equally, and a niced compile took half of a two-core
-    machine from the sweep's interpreted runs. The session's own nice value ranks it among sessions."""
+    machine from the sweep's interpreted runs. The session's own nice value ranks it among sessions;
+    it is set only when the session is the worker's own (background.start makes one), never a
+    caller's."""
+    if os.getsid(0) != os.getpid():
+        return
     try:
         with open("/proc/self/autogroup", "w") as f:
             f.write(str(nice))
