@@ -39,7 +39,8 @@ _COLD = ("import json, resource, time; t = time.perf_counter(); import vcirun; "
 
 
 def _run(tree: Path, code: str, env_extra: dict | None = None, timeout: float = 7200) -> dict:
-    env = dict(os.environ, PYTHONPATH=str(tree), **(env_extra or {}))
+    # the compiled tier always: a row never times the interpreter while a background compile runs
+    env = dict(os.environ, PYTHONPATH=str(tree), VCIRUN_TIER="compiled", **(env_extra or {}))
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=str(tree),
                        timeout=timeout)
     if r.returncode:

@@ -1,7 +1,7 @@
 """Where a compiled loop spends its time: perf samples of one module's `integrate`, by function.
 
     python bench/profile_loop.py MODULE.py --system cart_pendulum --method CVA --h 0.032 --T 50
-                                 [--beta 3.2] [--seconds 10] [--top 30]
+                                 [--beta 3.2 | none] [--seconds 10] [--top 30]
 
 MODULE.py is a generated kernel module (a specialized-build module, or a shared-build scene module,
 which is then linked to this tree's core). It is compiled afresh into a temporary numba cache, so its
@@ -87,7 +87,8 @@ def main(argv=None):
     ap.add_argument("--method", default="CVA")
     ap.add_argument("--h", type=float, default=0.032)
     ap.add_argument("--T", type=float, default=50.0)
-    ap.add_argument("--beta", type=float, default=3.2)
+    ap.add_argument("--beta", type=lambda v: None if v.lower() == "none" else float(v), default=3.2,
+                    help="the scene's beta (none: its default start)")
     ap.add_argument("--seconds", type=float, default=10.0)
     ap.add_argument("--top", type=int, default=30)
     ap.add_argument("--resting-contact", choices=("on", "off"), default="on")

@@ -5,7 +5,7 @@ import pytest
 import sympy as sp
 from hypothesis import given, settings, strategies as st
 
-from vcirun.maps.linalg import solve_band, solve_small
+from vcirun.maps.linalg import _eliminate, solve_band, solve_small
 from vcirun.mechanics.system import MechanicalSystem
 from vcirun.scenes.registry import get_scene
 
@@ -53,6 +53,30 @@ def test_band_solve_has_the_bits_of_the_dense_elimination(n, data):
     if ok1:
         assert np.array_equal(b1, x) and np.array_equal(b2, x)
         assert np.allclose(A @ b2, b, rtol=0, atol=1e-8 * np.abs(A).sum(axis=1).max() * np.abs(b2).max() + 1e-300)
+
+
+_EDGE = st.one_of(st.sampled_from([0.0, -0.0, 1.0, -1.0, 2.0, 1e-300, -1e300, np.inf, -np.inf, np.nan]),
+                  st.floats(-1e6, 1e6, allow_nan=False))
+
+
+@settings(max_examples=400, deadline=None)
+@given(n=st.integers(1, 2), data=st.data())
+def test_small_solves_leave_what_the_elimination_leaves(n, data):
+    """n <= 2 runs straight-line code: the same return value and the same bits in b and A as the
+    general elimination, also at ties of the pivots, zero multipliers, singular and non-finite matrices
+    and a rank tolerance."""
+    bw = data.draw(st.integers(0, n - 1))
+    A = np.array(data.draw(st.lists(_EDGE, min_size=n * n, max_size=n * n))).reshape(n, n)
+    if data.draw(st.booleans()) and n == 2:
+        A[1, 0] = -A[0, 0]   # |a10| = |a00|: the first largest pivot stays
+    A[np.abs(np.subtract.outer(np.arange(n), np.arange(n))) > bw] = 0.0
+    b = np.array(data.draw(st.lists(_EDGE, min_size=n, max_size=n)))
+    tiny = data.draw(st.sampled_from([0.0, 1e-12, 1.5]))
+    A1, b1, A2, b2 = A.copy(), b.copy(), A.copy(), b.copy()
+    ok1, ok2 = solve_band(A1, b1, n, bw, tiny), _eliminate(A2, b2, n, bw, tiny)
+    assert ok1 == ok2
+    assert np.array_equal(b1, b2, equal_nan=True) and np.array_equal(A1, A2, equal_nan=True)
+    assert np.array_equal(np.signbit(b1), np.signbit(b2))
 
 
 def test_singular_band_matrix_is_refused():

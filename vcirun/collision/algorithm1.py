@@ -587,8 +587,10 @@ def _event_step(st, tau_max, t, have_end):
 
 
 # --- the impact and its cases ---------------------------------------------------------------------------
+# (inline="always": each has one call site, and a call passes the whole LoopState, some 60 arrays
+# flattened into scalars and reference-count calls: about 1 us per impact as functions)
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _impact(st, ti, dtau, tau_rem, E_pre, k_imp):
     """The impact at ti, where the search left the state just before it in (st.qt, st.pt) (the
     partial step of length dtau that reached it, its discrete energy E_pre and step velocity st.vt;
@@ -622,7 +624,7 @@ def _impact(st, ti, dtau, tau_rem, E_pre, k_imp):
     return _after_impact(st, ti, k, s, s0, mapped, k_imp), iters, mapped
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _declared_reset(st, ti, dtau, tau_rem, E_pre, s0):
     """A declared reset map (vcirun.mechanics.hybrid) at an impact with no contact held: the map
     takes (st.qt, st.pt) to (st.qn, st.pmap), then the method's reset at q+ from the map's p+ and
@@ -640,7 +642,7 @@ def _declared_reset(st, ti, dtau, tau_rem, E_pre, s0):
     return ST_OK, itr, (s0 if RESET_LAW_FIRST else 0.0)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _touching(st, ti, k_law):
     """The search stopped at contacts that the impact law finds not approaching (k_law = 0: normal
     velocity ~0, grazing or resting), or whose law has no solution (k_law < 0). With held contacts
@@ -693,7 +695,7 @@ def _unresolved_touch(st):
     return True
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _impact_in_hold(st, s0):
     """An impact of free contacts while others are held: the impact law's p+ = pt + s0 d (R^CVA with
     restitution; the paper's energy-based resets are not defined for the constrained map).
@@ -703,7 +705,7 @@ def _impact_in_hold(st, s0):
     return ST_OK, 0, s0
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _method_reset(st, ti, dtau, tau_rem, E_pre, s0, dE):
     """The method's reset (the role `reset`: R^CVA, R^VCI, R^MCVA, ...) along the impact law's
     direction, one contact or several. An energy-based reset (R^VCI, R^MCVA) has no reflecting root
@@ -729,7 +731,7 @@ def _method_reset(st, ti, dtau, tau_rem, E_pre, s0, dE):
     return ST_OK, -itr, s0
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _after_impact(st, ti, k, s, s0, mapped, k_imp):
     """What follows every impact: the accumulation test (impacts denser than the grid, or more than
     the cap in one step: held where energy leaves, else the run stops), the record's capacity, the

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import functools
 import math
 import os
 import re
@@ -95,6 +96,7 @@ _LIMIT: int | None = None
 _SCOPED: contextvars.ContextVar = contextvars.ContextVar("vcirun_memory_limit", default=None)
 
 
+@functools.lru_cache(maxsize=1)   # (two sysconf calls per simulate otherwise; it does not change)
 def _physical_memory() -> int:
     try:
         return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))

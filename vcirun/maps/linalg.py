@@ -19,7 +19,66 @@ def solve_band(A, b, n, bw, tiny=0.0):
     dense elimination (bw = n - 1, `solve_small`). O(n bw^2) instead of O(n^3) plus O(n^2) scans: a
     line of 100 free balls solves its diagonal step Jacobian in O(n). A (n, n) is destroyed.
     Returns False if a pivot is not above `tiny` (0: A is singular to working precision; the impact
-    law passes its rank tolerance) or not finite."""
+    law passes its rank tolerance) or not finite.
+
+    n <= 2 (the paper's scenes: cart-pendulum, double pendulum, one-DOF oscillators) runs straight-line
+    code with the loops' operations in their order (the same bits and the same A and b left behind,
+    `_eliminate`): a Newton step solves one such system per iteration, and the loops' bounds and
+    branches cost as much as the arithmetic there."""
+    if n == 2:
+        return _solve2(A, b, bw, tiny)
+    if n == 1:
+        amax = abs(A[0, 0])
+        if not amax > tiny or not math.isfinite(amax):
+            return False
+        b[0] = b[0] / A[0, 0]
+        return True
+    return _eliminate(A, b, n, bw, tiny)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _solve2(A, b, bw, tiny):
+    """`_eliminate` at n = 2 written out (the same operations in the same order)."""
+    a00 = A[0, 0]
+    a01 = A[0, 1]
+    a10 = A[1, 0]
+    a11 = A[1, 1]
+    b0 = b[0]
+    b1 = b[1]
+    amax = abs(a00)
+    if bw >= 1 and abs(a10) > amax:
+        amax = abs(a10)
+        a00, a01, a10, a11 = a10, a11, a00, a01
+        b0, b1 = b1, b0
+    if not amax > tiny or not math.isfinite(amax):
+        return False
+    if bw >= 1:
+        f = a10 * (1.0 / a00)
+        if f != 0.0:
+            a11 -= f * a01
+            b1 -= f * b0
+        A[0, 0] = a00
+        A[0, 1] = a01
+        A[1, 0] = a10
+        A[1, 1] = a11
+    amax = abs(a11)
+    if not amax > tiny or not math.isfinite(amax):
+        b[0] = b0
+        b[1] = b1
+        return False
+    b1 = b1 / a11
+    if bw >= 1:
+        b0 = (b0 - a01 * b1) / a00
+    else:
+        b0 = b0 / a00
+    b[0] = b0
+    b[1] = b1
+    return True
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _eliminate(A, b, n, bw, tiny=0.0):
+    """`solve_band`'s elimination and back substitution for any n."""
     for k in range(n):
         rows = min(n, k + bw + 1)
         cols = min(n, k + 2 * bw + 1)

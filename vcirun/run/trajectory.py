@@ -25,6 +25,10 @@ OK, NEWTON_FAILED, EVENT_FAILED, RESET_FAILED, ACCUMULATION, NONFINITE, PAINLEVE
 STATUS_CODES = record.STATUS_CODES
 
 
+# the record's rows every Trajectory has (empty where a run gave none), with their dtypes
+_DEFAULTED = tuple((f, np.bool_ if f.dtype == "bool" else np.dtype(f.dtype)) for f in record.FIELDS if f.only is None)
+
+
 @dataclass
 class Trajectory:
     method: str
@@ -81,10 +85,11 @@ class Trajectory:
     mode_change_kind: np.ndarray | None = None
 
     def __post_init__(self):
-        n = self.q.shape[1] if isinstance(self.q, np.ndarray) and self.q.ndim == 2 else 0
-        for f in record.FIELDS:
-            if getattr(self, f.name) is None and f.only is None:
-                dt = np.bool_ if f.dtype == "bool" else np.dtype(f.dtype)
+        n = None
+        for f, dt in _DEFAULTED:
+            if getattr(self, f.name) is None:
+                if n is None:
+                    n = self.q.shape[1] if isinstance(self.q, np.ndarray) and self.q.ndim == 2 else 0
                 setattr(self, f.name, np.zeros(f.shape(0, n, 0), dt))
 
     @property
