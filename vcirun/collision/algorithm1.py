@@ -25,7 +25,7 @@ from vcirun.collision.state import LoopState, N_COUNTS, N_FRESH, N_HELD, N_STEP
 from vcirun.collision.impact import impact_direction, normal_velocities, touch_tolerance
 from vcirun.collision.impact_friction import friction_impact_direction
 from vcirun.maps.dynamics import hamiltonian, force_power, velocity_guess
-from vcirun.maps.friction import (friction_step, friction_forces, friction_project, mode_event_values, assign_modes,
+from vcirun.maps.friction import (friction_forces, friction_project, mode_event_values, assign_modes,
                                   slipping, HELD_STICK, REST_REVERSED, FRICTION_PAINLEVE)
 from vcirun.maps.held import held_step, contact_forces, project_momentum, normal_acceleration
 from vcirun.maps.linalg import copy_into, set_row
@@ -237,13 +237,11 @@ def _free_flight(st, t, want_E):
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _hold(st, tau, t):
-    """The constrained map over tau with the held contacts on their surfaces (maps/held.py; with
-    friction maps/friction.py, its friction work in st.fw[0]) from (st.q, st.p) at t into (st.qt,
-    st.pt, st.vt). Returns (Newton iterations, < 0 on failure; discrete energy)."""
-    if FRICTION:
-        return friction_step(st.q, st.p, tau, t, st.prm, st.ntol, st.maxit, st.held, st.qt, st.pt, st.vt, st.imp,
-                             st.impt, st.fw)
-    return held_step(st.q, st.p, tau, t, st.prm, st.ntol, st.maxit, st.held, st.qt, st.pt, st.vt, st.imp)
+    """The constrained map over tau with the held contacts on their surfaces (maps/held.py held_step;
+    with friction in their slip and stick modes, its friction work in st.fw[0]) from (st.q, st.p) at t
+    into (st.qt, st.pt, st.vt). Returns (Newton iterations, < 0 on failure; discrete energy)."""
+    return held_step(st.q, st.p, tau, t, st.prm, st.ntol, st.maxit, st.held, st.qt, st.pt, st.vt, st.imp, st.impt,
+                     st.fw)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

@@ -15,9 +15,8 @@ import numpy as np
 from numba import njit
 
 from vcirun.codegen.frame import scratch, scratch_i
-from vcirun.codegen.roles import NCON, FRICTION, sys_phi, sys_phis, partial
+from vcirun.codegen.roles import NCON, sys_phi, sys_phis, partial
 from vcirun.collision.impact import gap, gap_slope, touching_mask, unmask_penetrating
-from vcirun.maps.friction import friction_step
 from vcirun.maps.held import held_step
 
 N_SCAN = 4  # interior samples of the initial bracket (first-root search), when the cubic model is unsure
@@ -27,10 +26,10 @@ N_MODEL = 32  # samples of the cubic Hermite model of g on the bracket (no parti
 # the state (qh, ph) at the search's start time t, the partial steps' output (qt, pt, vt: each stage
 # leaves the state at its last evaluated tau there), the held contacts (held, nheld) and the friction
 # work fw[0] of the last held partial step, the contacts left out of the gap (mask), the parameters
-# and the settings: the grid step h, Newton's tolerance and cap, the event tolerance and the root's,
-# tol = event_tol h.
+# and the settings: the grid step h, Newton's tolerance and cap, the event tolerance (the root's
+# tolerance is event_tol h).
 Search = namedtuple("Search", ("qh", "ph", "qt", "pt", "vt", "held", "fw", "mask", "prm",
-                               "h", "t", "ntol", "maxit", "event_tol", "tol", "nheld"))
+                               "h", "t", "ntol", "maxit", "event_tol", "nheld"))
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -105,14 +104,12 @@ def step_admissible(q, p, qt, h, event_tol, prm, held, nheld, phis):
 @njit(cache=True, nogil=True, error_model="numpy")
 def partial_map(q0, p0, tau, h, t, prm, ntol, maxit, q1, p1, v1, held, nheld, fw):
     """Phi^partial_tau, or with contacts held the constrained map of the full step's discrete
-    Lagrangian (maps/held.py: every method; maps/friction.py with friction: fw[0] receives its
-    friction work, the caller's to count when it takes the step)."""
+    Lagrangian (maps/held.py held_step: every method, with friction the contacts' slip and stick
+    modes; fw[0] receives its friction work, the caller's to count when it takes the step)."""
     if nheld > 0:
         imp = scratch(NCON)
-        if FRICTION:
-            impt = scratch(NCON)
-            return friction_step(q0, p0, tau, t, prm, ntol, maxit, held, q1, p1, v1, imp, impt, fw)
-        return held_step(q0, p0, tau, t, prm, ntol, maxit, held, q1, p1, v1, imp)
+        impt = scratch(NCON)
+        return held_step(q0, p0, tau, t, prm, ntol, maxit, held, q1, p1, v1, imp, impt, fw)
     return partial(q0, p0, tau, h, t, prm, ntol, maxit, q1, p1, v1)
 
 
@@ -132,7 +129,7 @@ def collision_time(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt, v
         nheld += 1 if held[i] != 0 else 0
     fw = scratch(1)
     mask = scratch_i(NCON)
-    s = Search(qh, ph, qt, pt, vt, held, fw, mask, prm, h, t, ntol, maxit, event_tol, event_tol * h, nheld)
+    s = Search(qh, ph, qt, pt, vt, held, fw, mask, prm, h, t, ntol, maxit, event_tol, nheld)
     return _search(s, tau_max, np.bool_(False))
 
 
@@ -144,7 +141,7 @@ def search_collision(st, tau_max, t, have_end, nheld):
     one), so it is not recomputed."""
     mask = scratch_i(NCON)
     s = Search(st.qh, st.ph, st.qt, st.pt, st.vt, st.held, st.fw, mask, st.prm, st.h, t, st.ntol, st.maxit,
-               st.event_tol, st.event_tol * st.h, nheld)
+               st.event_tol, nheld)
     return _search(s, tau_max, have_end)
 
 
@@ -214,7 +211,7 @@ def _leave_surface(s, tau_max, b, gb, db):
     x = tau_max
     iters = 0
     E = np.nan
-    while x > 1e-3 * s.tol:
+    while x > 1e-3 * (s.event_tol * s.h):
         x *= 0.5
         it, E = _partial(s, x)
         if it < 0:
@@ -266,7 +263,7 @@ def _refine_root(s, c, a, ga, b, gb):
     a bracket that stops shrinking, falls back to Illinois / bisection. Stops when the correction is
     below a tenth of tol = event_tol * h, at an evaluated point (so the returned state is that of
     the returned tau). Returns (code, tau, E, iters) as collision_time."""
-    tol = s.tol
+    tol = s.event_tol * s.h
     if not (c > a and c < b):
         c = 0.5 * (a + b)
     xp = np.nan  # previous evaluated point (secant)

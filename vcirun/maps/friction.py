@@ -29,8 +29,8 @@ from numba import njit
 
 from vcirun.codegen.frame import scratch, scratch2, scratch_i
 from vcirun.codegen.roles import (
-    NDOF, NCON, NODE_LEN, FULL_STAGES, FULL_FRACS, sys_M, sys_phis, sys_dphis, sys_ddphis, sys_Mdotv, sys_node,
-    sys_slips, sys_dslips, sys_friction, ld_PmJc, ld_Ppc, ld_Ed
+    NDOF, NCON, NODE_LEN, sys_M, sys_phis, sys_dphis, sys_ddphis, sys_Mdotv, sys_node,
+    sys_slips, sys_dslips, sys_friction, ld_PmJc, ld_Ppc
 )
 from vcirun.maps.dynamics import dynamics_rhs, velocity_guess
 from vcirun.maps.linalg import solve_small, copy_into, STACK_DOUBLES
@@ -412,41 +412,6 @@ def friction_stage(sid, q0, p0, hs, t, prm, ntol, maxit, held, v, q1, p1, imp, i
         if held[j] == HELD_STICK:
             impt[j] += pt[j]
     return it if ok else -it
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def friction_step(q0, p0, h, t, prm, ntol, maxit, held, q1, p1, vlast, imp, impt, work):
-    """The held step with friction over h (the scene's Ld's explicit stages in turn, each a
-    friction_stage) from (q0, p0): imp, impt (NCON) receive the normal and tangential impulses, work[0]
-    the friction work (all reset here). Returns (iterations, < 0 on failure; discrete energy of the
-    stages)."""
-    for j in range(NCON):
-        imp[j] = 0.0
-        impt[j] = 0.0
-    work[0] = 0.0
-    v = scratch(NDOF)
-    velocity_guess(q0, p0, prm, v)
-    qa = scratch(NDOF)
-    pa = scratch(NDOF)
-    copy_into(qa, q0)
-    copy_into(pa, p0)
-    total = 0
-    Ed = 0.0
-    ts = t
-    for s in range(FULL_STAGES.shape[0]):
-        hs = FULL_FRACS[s] * h
-        if s > 0:
-            velocity_guess(qa, pa, prm, v)
-        it = friction_stage(FULL_STAGES[s], qa, pa, hs, ts, prm, ntol, maxit, held, v, q1, p1, imp, impt, work)
-        if it < 0:
-            return it - total, np.nan
-        total += it
-        Ed += FULL_FRACS[s] * ld_Ed(FULL_STAGES[s], qa, v, hs, prm)
-        ts += hs
-        copy_into(qa, q1)
-        copy_into(pa, p1)
-    copy_into(vlast, v)
-    return total, Ed
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

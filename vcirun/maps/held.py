@@ -18,10 +18,11 @@ from numba import njit
 
 from vcirun.codegen.frame import scratch, scratch2, scratch_i
 from vcirun.codegen.roles import (
-    NDOF, NCON, NODE_LEN, FULL_STAGES, FULL_FRACS, sys_M, sys_phis, sys_dphis, sys_ddphis, sys_Mdotv, sys_node,
+    NDOF, NCON, NODE_LEN, FULL_STAGES, FULL_FRACS, FRICTION, sys_M, sys_phis, sys_dphis, sys_ddphis, sys_Mdotv, sys_node,
     ld_PmJc, ld_Ppc, ld_Ed
 )
 from vcirun.maps.dynamics import delassus, dynamics_rhs, velocity_guess
+from vcirun.maps.friction import friction_stage
 from vcirun.maps.linalg import solve_small, copy_into, STACK_DOUBLES
 from vcirun.maps.newton import NEWTON_CONVERGED, NEWTON_GO_ON, newton_stop
 
@@ -227,12 +228,19 @@ def held_stage(sid, q0, p0, hs, t, prm, ntol, maxit, held, v, q1, p1, imp):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def held_step(q0, p0, h, t, prm, ntol, maxit, held, q1, p1, vlast, imp):
+def held_step(q0, p0, h, t, prm, ntol, maxit, held, q1, p1, vlast, imp, impt, work):
     """The constrained map of the scene's discrete Lagrangian (its explicit stages in turn, each
-    constrained) over h from (q0, p0) with the contacts `held` held; imp (NCON) receives the
-    contact impulses. Returns (iterations, < 0 on failure; discrete energy -D3 Ld of the stages)."""
+    constrained: held_stage, or with friction maps/friction.py friction_stage, which holds the
+    contacts in their slip and stick modes) over h from (q0, p0) with the contacts `held` held; imp
+    (NCON) receives the contact impulses, with friction impt (NCON) the tangential ones and work[0]
+    the friction work (untouched without friction). Returns (iterations, < 0 on failure; discrete
+    energy -D3 Ld of the stages)."""
     for i in range(NCON):
         imp[i] = 0.0
+    if FRICTION:
+        for i in range(NCON):
+            impt[i] = 0.0
+        work[0] = 0.0
     v = scratch(NDOF)
     velocity_guess(q0, p0, prm, v)
     qa = scratch(NDOF)
@@ -246,7 +254,10 @@ def held_step(q0, p0, h, t, prm, ntol, maxit, held, q1, p1, vlast, imp):
         hs = FULL_FRACS[s] * h
         if s > 0:
             velocity_guess(qa, pa, prm, v)
-        it = held_stage(FULL_STAGES[s], qa, pa, hs, ts, prm, ntol, maxit, held, v, q1, p1, imp)
+        if FRICTION:
+            it = friction_stage(FULL_STAGES[s], qa, pa, hs, ts, prm, ntol, maxit, held, v, q1, p1, imp, impt, work)
+        else:
+            it = held_stage(FULL_STAGES[s], qa, pa, hs, ts, prm, ntol, maxit, held, v, q1, p1, imp)
         if it < 0:
             return it - total, np.nan
         total += it
