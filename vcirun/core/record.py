@@ -186,13 +186,17 @@ def trim(out: tuple, counters: dict, modified: bool) -> dict:
     used = {"grid": steps + 1, "step": steps, "impact": counters["n_impacts"], "partial": counters["n_partial"],
             "release": counters["n_releases"], "mode": counters["n_mode_changes"]}
     arrays = {}
-    for f, buf in zip(FIELDS, out):
-        if f.only == "modified" and not modified:
-            arrays[f.name] = None
+    for (name, axis, grid, only_modified), buf in zip(_TRIM, out):
+        if only_modified and not modified:
+            arrays[name] = None
             continue
-        k = used[f.axis]
-        arrays[f.name] = buf[:k] if f.axis == "grid" else buf[:k].copy()
+        k = used[axis]
+        arrays[name] = buf[:k] if grid else buf[:k].copy()
     return arrays
+
+
+# (name, axis, a grid row, only with a modified energy) of each field: what `trim` reads per run
+_TRIM = tuple((f.name, f.axis, f.axis == "grid", f.only == "modified") for f in FIELDS)
 
 
 def stored_names(kind: str) -> tuple:
