@@ -42,6 +42,8 @@ oscillator against a wall, the bouncing ball, the ball in a box ...) are in vcir
 """
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from ..codegen.build import load_module
@@ -86,10 +88,11 @@ class Reference:
         self.accuracy = accuracy
         self.kind = kind          # "taylor", "dop853" or "<method>@h=<h>"
         self.kind_reason = ""     # dop853: why the Taylor path could not express the system
-        # exact solves: the largest rest of the energy account, |H(t) - H(0) - int f . qdot + the impact
-        # law's losses so far| (vcirun.run.accounts): the solve's own energy error
-        self.energy_balance = np.nan
+        # exact solves: the energy account (vcirun.run.accounts), computed when first asked for
+        # (`energy_account`, `energy_balance`: 2001 energies, ~30 ms, which a sweep's references never
+        # read); _account_of makes it, None for a method reference
         self._account = None
+        self._account_of = None
         # held contacts: release times and contacts, held phases (t0, t1, held set)
         self.releases = np.zeros(0)
         self.release_contact = np.zeros(0, np.int64)
@@ -129,11 +132,20 @@ class Reference:
     def __call__(self, t) -> np.ndarray:
         return self.state(t)[..., : self.n]
 
+    @property
+    def energy_balance(self) -> float:
+        """Exact solves: the largest rest of the energy account, |H(t) - H(0) - int f . qdot + the impact
+        law's losses so far| (the solve's own energy error); NaN for a method reference."""
+        return np.nan if self._account is None and self._account_of is None else self.energy_account().error
+
     def energy_account(self):
         """H(t) - H(0) split into the impact law's losses (restitution, plastic holds, declared maps:
         the jumps of H at the solve's events), the forcing work and the rest, the solve's own energy
         error (`energy_balance` is its largest magnitude); a vcirun.run.accounts.EnergyAccount. Exact
         solves only (a method reference: the run's `energy_account`)."""
+        if self._account is None and self._account_of is not None:
+            self._account = self._account_of()
+            self._account_of = None
         if self._account is None:
             raise ValueError(f"energy account: a {self.kind} reference has none (exact solves only)")
         return self._account
@@ -393,12 +405,8 @@ def solve_exact(sysm, q0, p0, prm, T, *, rtol=1e-13, check_accuracy=True, restin
         if check_accuracy and not np.isfinite(acc):
             raise RuntimeError(f"reference: the accuracy check of {sysm.name} is not finite ({acc}): the solve "
                                "cannot be trusted")
-        from ..run.accounts import reference_account
-
-        ref._account = reference_account(sol.pieces, n, ref.impacts, mod, prm, T, bool(mod.FORCED),
-                                         impact_contact=ref.impact_contact,
-                                         friction=_friction_account(mod, prm, n, ref.mode_intervals))
-        ref.energy_balance = ref._account.error
+        ref._account_of = functools.partial(_account, sysm.name, sol.pieces, n, ref.impacts, mod, prm, T,
+                                            ref.impact_contact, ref.mode_intervals)
     except ReferenceCostError:
         raise
     except (ArithmeticError, ValueError, IndexError, np.linalg.LinAlgError) as e:
@@ -444,6 +452,18 @@ def l2_error(traj, ref) -> float:
     points k = 0..N of the run (a Riemann sum of the continuous L2 norm of q - q_ref on [0, T])."""
     d = traj.q - ref(traj.t)
     return float(np.sqrt(traj.h * np.sum(d * d)))
+
+
+def _account(name, pieces, n, impacts, mod, prm, T, impact_contact, mode_intervals):
+    """The energy account of an exact solve (vcirun.run.accounts.reference_account), with the solve's
+    failure message where its arithmetic fails."""
+    from ..run.accounts import reference_account
+
+    try:
+        return reference_account(pieces, n, impacts, mod, prm, T, bool(mod.FORCED), impact_contact=impact_contact,
+                                 friction=_friction_account(mod, prm, n, mode_intervals))
+    except (ArithmeticError, ValueError, IndexError, np.linalg.LinAlgError) as e:
+        raise RuntimeError(f"reference: the energy account of {name} failed ({type(e).__name__}: {e})") from None
 
 
 def _friction_account(mod, prm, n, mode_intervals):
