@@ -76,9 +76,10 @@ def _solve2(A, b, bw, tiny):
     return True
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _eliminate(A, b, n, bw, tiny=0.0):
-    """`solve_band`'s elimination and back substitution for any n."""
+    """`solve_band`'s elimination and back substitution for any n (inline: no call more per solve
+    than the loops had; the MCVA family's Gauss-Newton solves are 8 x 8 and larger)."""
     for k in range(n):
         rows = min(n, k + bw + 1)
         cols = min(n, k + 2 * bw + 1)
