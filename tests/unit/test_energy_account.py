@@ -61,6 +61,19 @@ def test_energy_reset_error_goes_to_the_rest():
     assert diffs[1] < diffs[0] / 2.5
 
 
+def test_reference_account_is_made_when_asked_and_travels_with_a_copy():
+    """The exact reference's account is computed on first use (a sweep's references never read it),
+    gives the same figures either way, and a pickled reference carries it (its maker holds the kernel
+    module, which does not pickle)."""
+    import pickle
+
+    ref = vcirun.reference("rocking_block", T=1, params={"e": 0.5})
+    assert ref._account is None
+    copy = pickle.loads(pickle.dumps(ref))
+    assert copy.energy_balance == ref.energy_balance == ref.energy_account().error
+    assert copy.energy_account().total(LAW) == ref.energy_account().total(LAW) < 0.0
+
+
 def test_reference_energy_balance_is_the_rest_with_and_without_restitution():
     for e in (1.0, 0.5):
         ref = vcirun.reference("rocking_block", T=2, params={"e": e})

@@ -132,6 +132,12 @@ class Reference:
     def __call__(self, t) -> np.ndarray:
         return self.state(t)[..., : self.n]
 
+    def __getstate__(self):
+        # the account's maker holds the kernel module, which does not pickle: a copy carries the account
+        if self._account_of is not None:
+            self.energy_account()
+        return dict(self.__dict__)
+
     @property
     def energy_balance(self) -> float:
         """Exact solves: the largest rest of the energy account, |H(t) - H(0) - int f . qdot + the impact
