@@ -197,7 +197,8 @@ def row_makerun() -> dict:
     with tempfile.TemporaryDirectory(prefix="vcirun_makerun_") as d:
         clone = Path(d) / "clone"
         subprocess.run(["git", "clone", "-q", str(ROOT), str(clone)], check=True)
-        env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV", "VCIRUN_CACHE_DIR")}
+        env = {k: v for k, v in os.environ.items()
+               if k not in ("PYTHONPATH", "VIRTUAL_ENV", "VCIRUN_CACHE_DIR", "VCIRUN_TIER")}   # as a user runs it
         env["VCIRUN_CACHE_DIR"] = str(Path(d) / "cache")
         env["PATH"] = os.pathsep.join(p for p in env.get("PATH", "").split(os.pathsep) if ".venv" not in p)
         steps, t0 = {}, time.perf_counter()
