@@ -365,7 +365,7 @@ def section_yardstick(res):
                             "nfev": b.options["nfev"]})
             curves[f"{solver}/{kern}@{h:g}"] = pts
     out["solve_ivp_curves"] = curves
-    log(f"  solve_ivp L2 error and loop ms over rtol 1e-1..1e-12 on the h = 1e-2 grid:")
+    log("  solve_ivp L2 error and loop ms over rtol 1e-1..1e-12 on the h = 1e-2 grid:")
     for key in ("DOP853/compiled@0.01", "DOP853/numpy@0.01", "Radau/compiled@0.01"):
         log(f"    {key:22s} " + "  ".join(f"{p['rtol']:.0e}:{p['l2']:.1e}/{p['loop_ms']:.1f}" for p in curves[key]))
     matched = {}
@@ -742,7 +742,7 @@ def section_loop(res):
     import loop_targets
 
     r = loop_targets.measure(Path(os.environ.get("VCIRUN_BENCH_BASE", "/work/main")),
-                             ["yardstick", "cradle", "coldbuild"], 41 if QUICK else 201)
+                             ["yardstick", "kernels", "cradle", "coldbuild"], 41 if QUICK else 201)
     loop_targets.report(r, log=log)
     res["loop"] = r
 

@@ -180,6 +180,158 @@ def integrate(q0, p0, h, N, prm, Q, P, Hs, Eds, iters, impacts):
     return N, nimp, 0
 
 
+# --- the same loop on the scene's generated kernels ------------------------------------------------
+# The yardstick of the engine alone: the loop above, by hand and allocation-free, with the mechanics
+# from the cart-pendulum's generated kernels (SVC_PmJ, SVC_Pp, SVC_Ed, sys_M, sys_V, sys_phi,
+# sys_dphi of the module vcirun runs) in place of the closed forms; what vcirun's loop costs beyond it
+# is the generic engine's (the loop state, the records, the event search, node data), not the
+# derivation's.
+
+def kernel_integrate(mod):
+    """integrate(q0, p0, h, N, prm, Q, P, Hs, Eds, iters, impacts) of `mod`'s kernels (compiled once per
+    process: a closure over the module's dispatchers)."""
+    PmJ, Pp, Ed_k, sys_M, sys_V = mod.SVC_PmJ, mod.SVC_Pp, mod.SVC_Ed, mod.sys_M, mod.sys_V
+    sys_phi, sys_dphi = mod.sys_phi, mod.sys_dphi
+
+    @njit(nogil=True, error_model="numpy")
+    def solve2(A, r0, r1):
+        det = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
+        return (A[1, 1] * r0 - A[0, 1] * r1) / det, (A[0, 0] * r1 - A[1, 0] * r0) / det
+
+    @njit(nogil=True, error_model="numpy")
+    def step(q0, p0, h, prm, v, r, J, A, q1, p1):
+        """SVC step from (q0, p0): (q1, p1) written; returns (Ed, iterations (< 0: no convergence))."""
+        sys_M(q0, prm, A)
+        v[0], v[1] = solve2(A, p0[0], p0[1])
+        it = 0
+        conv = False
+        dprev = np.inf
+        while it < MAXIT:
+            it += 1
+            PmJ(q0, v, h, 0.0, prm, r, J)
+            dy, dt = solve2(J, r[0] - p0[0], r[1] - p0[1])
+            v[0] -= dy
+            v[1] -= dt
+            dn = max(abs(dy), abs(dt))
+            vn = max(abs(v[0]), abs(v[1]))
+            if not math.isfinite(dn):
+                break
+            if dn <= NTOL * (1.0 + vn):
+                conv = True
+                break
+            theta = dn / dprev
+            if it >= 2 and theta < 0.1 and theta / (1.0 - theta) * dn <= NTOL * (1.0 + vn):
+                conv = True
+                break
+            if it >= 3 and dn >= dprev and dn <= math.sqrt(NTOL) * (1.0 + vn):
+                conv = True
+                break
+            dprev = dn
+        q1[0] = q0[0] + h * v[0]
+        q1[1] = q0[1] + h * v[1]
+        Pp(q0, v, h, 0.0, prm, p1)
+        return Ed_k(q0, v, h, prm), (it if conv else -it)
+
+    @njit(nogil=True, error_model="numpy")
+    def hamiltonian(q, p, prm, A):
+        sys_M(q, prm, A)
+        x0, x1 = solve2(A, p[0], p[1])
+        return 0.5 * (p[0] * x0 + p[1] * x1) + sys_V(q, prm)
+
+    @njit(nogil=True, error_model="numpy")
+    def integrate_k(q0, p0, h, N, prm, Q, P, Hs, Eds, iters, impacts):
+        v, r, g = np.empty(2), np.empty(2), np.empty(2)   # (one allocation per run, as integrate's w)
+        J, A = np.empty((2, 2)), np.empty((2, 2))
+        q, p, q1, p1 = q0.copy(), p0.copy(), np.empty(2), np.empty(2)
+        Q[0], P[0] = q, p
+        nimp = 0
+        for k in range(N):
+            E, it = step(q, p, h, prm, v, r, J, A, q1, p1)
+            Hs[k] = hamiltonian(q, p, prm, A)
+            Eds[k] = E
+            if it < 0:
+                return k, nimp, 1
+            its = it
+            if sys_phi(q1, prm) > 0.0:
+                q[:] = q1
+                p[:] = p1
+            else:
+                tau_max = h
+                tc = k * h
+                while tau_max > 0.0:
+                    a, ga = 0.0, sys_phi(q, prm)
+                    if ga <= 0.0:      # on the surface after an impact: step off it first
+                        a = tau_max
+                        while a > 1e-3 * ETOL * h:
+                            a *= 0.5
+                            step(q, p, a, prm, v, r, J, A, q1, p1)
+                            if sys_phi(q1, prm) > 0.0:
+                                break
+                        ga = sys_phi(q1, prm)
+                    E, it = step(q, p, tau_max, prm, v, r, J, A, q1, p1)
+                    its += abs(it)
+                    gb = sys_phi(q1, prm)
+                    if gb > 0.0:
+                        q[:] = q1
+                        p[:] = p1
+                        break
+                    b = tau_max
+                    side = 0
+                    c = 0.5 * (a + b)
+                    for _ in range(200):
+                        c = (a * gb - b * ga) / (gb - ga)
+                        if not (c > a and c < b):
+                            c = 0.5 * (a + b)
+                        E, it = step(q, p, c, prm, v, r, J, A, q1, p1)
+                        its += abs(it)
+                        gc = sys_phi(q1, prm)
+                        if gc > 0.0:
+                            a, ga = c, gc
+                            if side == 1:
+                                gb *= 0.5
+                            side = 1
+                        elif gc < 0.0:
+                            b, gb = c, gc
+                            if side == -1:
+                                ga *= 0.5
+                            side = -1
+                        else:
+                            break
+                        if b - a <= ETOL * h:
+                            break
+                    # R^CVA at the impact state: p+ = p- - 2 (g.M^-1 p-)/(g.M^-1 g) g, g = grad phi
+                    sys_dphi(q1, prm, g)
+                    sys_M(q1, prm, A)
+                    x0, x1 = solve2(A, g[0], g[1])
+                    lam = -2.0 * (x0 * p1[0] + x1 * p1[1]) / (x0 * g[0] + x1 * g[1])
+                    impacts[nimp] = tc + c
+                    nimp += 1
+                    q[:] = q1
+                    p[0] = p1[0] + lam * g[0]
+                    p[1] = p1[1] + lam * g[1]
+                    tc += c
+                    tau_max -= c
+            iters[k] = its
+            Q[k + 1] = q
+            P[k + 1] = p
+        return N, nimp, 0
+
+    return integrate_k
+
+
+def vcirun_module():
+    """The compiled module vcirun runs for cart-pendulum CVA (this tree's, in its default build)."""
+    from vcirun.codegen.build import load_module
+    from vcirun.methods.table import resolve_method
+
+    try:
+        from vcirun.scenes.registry import get_scene
+    except ImportError:   # a tree before the scene registry (the base of bench/loop_targets.py)
+        from vcirun.scenes.declarations import get_scene
+    s = get_scene("cart_pendulum")
+    return load_module(s, resolve_method("CVA").kernel_set())
+
+
 def setup(h=1e-2, T=5.0, beta=3.2):
     """(arguments of integrate) for the cart-pendulum's Xi(beta) and its default parameters."""
     import vcirun
@@ -201,27 +353,29 @@ def setup(h=1e-2, T=5.0, beta=3.2):
             np.empty(N), np.empty(N), np.zeros(N, np.int64), np.empty(64))
 
 
-def measure(repeats: int = 201) -> dict:
+def measure(repeats: int = 201, kernels: bool = False) -> dict:
     """Medians of interleaved calls: the hand-written loop, vcirun's compiled loop (Trajectory.wall_time)
-    and vcirun's whole simulate() call, cart-pendulum CVA, T = 5, h = 1e-2, beta = 3.2."""
+    and vcirun's whole simulate() call, cart-pendulum CVA, T = 5, h = 1e-2, beta = 3.2. kernels: the
+    hand-written loop on the scene's generated kernels (`kernel_integrate`), else on the closed forms."""
     import vcirun
 
     args = setup()
-    integrate(*args)
+    hand_loop = kernel_integrate(vcirun_module()) if kernels else integrate
+    hand_loop(*args)
     f = lambda: vcirun.simulate("cart_pendulum", "CVA", h=1e-2, T=5.0, beta=3.2)  # noqa: E731
     for _ in range(20):
         f()
-        integrate(*args)
+        hand_loop(*args)
     hand, loop, call = [], [], []
     for _ in range(repeats):
         t = time.perf_counter()
-        integrate(*args)
+        hand_loop(*args)
         hand.append(time.perf_counter() - t)
         t = time.perf_counter()
         tr = f()
         call.append(time.perf_counter() - t)
         loop.append(tr.wall_time)
-    steps, nimp, status = integrate(*args)
+    steps, nimp, status = hand_loop(*args)
     imp = args[-1][:nimp]
     ref = np.asarray(tr.impacts)
     hm, lm, cm = (statistics.median(x) * 1e3 for x in (hand, loop, call))
@@ -233,7 +387,8 @@ def measure(repeats: int = 201) -> dict:
 
 
 if __name__ == "__main__":
-    r = measure(int(sys.argv[1]) if len(sys.argv) > 1 else 201)
-    print(f"hand-written numba CVA {r['hand_ms']:.4f} ms, vcirun loop {r['loop_ms']:.4f} ms (x{r['loop_ratio']:.2f}), "
+    args = [a for a in sys.argv[1:] if a != "--kernels"]
+    r = measure(int(args[0]) if args else 201, kernels="--kernels" in sys.argv)
+    print(f"hand-written numba CVA{' (generated kernels)' if '--kernels' in sys.argv else ''} {r['hand_ms']:.4f} ms, vcirun loop {r['loop_ms']:.4f} ms (x{r['loop_ratio']:.2f}), "
           f"simulate() {r['call_ms']:.4f} ms (x{r['call_ratio']:.2f}); impacts {r['impacts']} / {r['vcirun_impacts']}, "
           f"max |dt_impact| {r['impact_time_diff']:.1e}, max |dq| {r['q_diff']:.1e}")

@@ -7,6 +7,8 @@ Rows (each tree in its own fresh process, its own code on PYTHONPATH, the shared
              and whole simulate() call against a hand-written allocation-free numba CVA loop
              (bench/handwritten_cva.py: the same trajectory, closed-form 2 x 2 mechanics), medians of
              interleaved calls
+  kernels    the same, the hand-written loop calling the scene's generated kernels (the module vcirun
+             runs) in place of the closed forms: the engine's cost alone
   cradle     newton_cradle_100 (99 contacts touching) CVA: CPU microseconds per smooth step before the
              first impact (h = 1e-4, T = 0.19; bench/bodies_scaling.py's measure)
   coldbuild  the first cart-pendulum CVA simulation with an empty kernel cache (VCIRUN_CACHE_DIR a fresh
@@ -27,7 +29,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 TARGETS = {"loop_ratio": 1.1, "call_ratio": 1.3, "cradle_us": 20.0}
 
-_YARDSTICK = "import json, sys; sys.path.insert(0, {bench!r}); import handwritten_cva as h; print(json.dumps(h.measure({n})))"
+_YARDSTICK = ("import json, sys; sys.path.insert(0, {bench!r}); import handwritten_cva as h; "
+              "print(json.dumps(h.measure({n}, kernels={kernels})))")
 _CRADLE = ("import json, sys; sys.path.insert(0, {bench!r}); import bodies_scaling as b; "
            "r = b.one('newton_cradle_100', 'CVA'); print(json.dumps({{k: r[k] for k in ('us_per_smooth_step', "
            "'smooth_steps', 'status_smooth')}}))")
@@ -54,7 +57,9 @@ def measure(base: Path, rows: list[str], repeats: int) -> dict:
     for name, tree in (("this", ROOT), ("base", base)):
         res = {"loadavg_before": os.getloadavg()[0]}
         if "yardstick" in rows:
-            res["yardstick"] = _run(tree, _YARDSTICK.format(bench=bench, n=repeats))
+            res["yardstick"] = _run(tree, _YARDSTICK.format(bench=bench, n=repeats, kernels=False))
+        if "kernels" in rows:
+            res["kernels"] = _run(tree, _YARDSTICK.format(bench=bench, n=repeats, kernels=True))
         if "cradle" in rows:
             res["cradle"] = _run(tree, _CRADLE.format(bench=bench))
         if "coldbuild" in rows:
@@ -68,14 +73,15 @@ def report(r: dict, log=print) -> None:
     log("== the loop's targets: this tree against the base, one run (fresh process per tree and row)")
     for name in ("this", "base"):
         t = r[name]
-        y = t.get("yardstick", {})
-        if "hand_ms" in y:
-            log(f"  {name:4s} hand-written CVA {y['hand_ms']:.4f} ms | loop {y['loop_ms']:.4f} ms = x{y['loop_ratio']:.2f} "
-                f"(target <= x{TARGETS['loop_ratio']}) | simulate() {y['call_ms']:.4f} ms = x{y['call_ratio']:.2f} "
-                f"(target <= x{TARGETS['call_ratio']}) | same trajectory: impacts {y['impacts']}/{y['vcirun_impacts']}, "
-                f"|dq| {y['q_diff']:.1e}")
-        elif y:
-            log(f"  {name:4s} yardstick: {y.get('error')}")
+        for row, what in (("yardstick", "closed forms"), ("kernels", "generated kernels")):
+            y = t.get(row, {})
+            if "hand_ms" in y:
+                log(f"  {name:4s} hand-written CVA ({what}) {y['hand_ms']:.4f} ms | loop {y['loop_ms']:.4f} ms = "
+                    f"x{y['loop_ratio']:.2f} (target <= x{TARGETS['loop_ratio']}) | simulate() {y['call_ms']:.4f} ms = "
+                    f"x{y['call_ratio']:.2f} (target <= x{TARGETS['call_ratio']}) | same trajectory: impacts "
+                    f"{y['impacts']}/{y['vcirun_impacts']}, |dq| {y['q_diff']:.1e}")
+            elif y:
+                log(f"  {name:4s} {row}: {y.get('error')}")
         c = t.get("cradle", {})
         if "us_per_smooth_step" in c:
             log(f"  {name:4s} newton_cradle_100 CVA {c['us_per_smooth_step']:.1f} us per smooth step "
@@ -93,7 +99,7 @@ def report(r: dict, log=print) -> None:
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--base", default="/work/main")
-    ap.add_argument("--rows", default="yardstick,cradle,coldbuild")
+    ap.add_argument("--rows", default="yardstick,kernels,cradle,coldbuild")
     ap.add_argument("--repeats", type=int, default=201)
     a = ap.parse_args(argv)
     r = measure(Path(a.base), a.rows.split(","), a.repeats)

@@ -147,6 +147,31 @@ def test_changed_yaml_parameters_are_a_new_index_entry_with_new_numbers(yaml_fil
     assert k1 != build.module_key(load_system_yaml(data | {"constraint": "y + 0.1"}), ks)
 
 
+def test_no_index_entry_where_the_files_changed_since_the_module_key(tmp_path, monkeypatch):
+    """A process whose package files are edited (or upgraded) while it compiles does not index its
+    module under the new files' key: the next process, on the new files, would load the old module."""
+    import shutil
+
+    from vcirun.codegen import modules as build   # (where the keys are computed: the names to patch)
+    from vcirun.scenes.registry import get_scene
+
+    pkg = tmp_path / "vcirun"
+    shutil.copytree(build._PKG, pkg, ignore=shutil.ignore_patterns("__pycache__"))
+    monkeypatch.setattr(build, "_PKG", pkg)
+    monkeypatch.setenv("VCIRUN_CACHE_DIR", str(tmp_path / "cache"))
+    kc = KernelCache()
+    sysm, ks, ident = get_scene("cart_pendulum"), METHODS["CVA"].kernel_set(), ("scene", "cart_pendulum")
+    key = kc.module_key(sysm, ks)
+    f = pkg / "collision" / "impact.py"
+    f.write_text(f.read_text() + "\n# edited\n")
+    kc.warm_record(ident, ks, key, {"name": sysm.name}, system=sysm)
+    assert not kc.index_path(ident, ks).exists()
+    new = build.module_key_of(sysm, ks, kc.backend_id())
+    assert new != key
+    kc.warm_record(ident, ks, new, {"name": sysm.name}, system=sysm)
+    assert kc.index_path(ident, ks).exists()
+
+
 def test_warm_key_follows_the_hashed_files(tmp_path, monkeypatch):
     """The index key changes with every file the module key hashes and with the system-defining files."""
     import shutil

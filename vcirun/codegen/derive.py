@@ -47,6 +47,7 @@ def system_kernels(system, with_dhq: bool = True) -> list[Kernel]:
     n = system.n
     q = system.q
     prm = system.param_symbols
+    G = system.constraint_jacobian
     ks = [
         Kernel("sys_M", [("q", q)], [("out", system.M)], prm),
         Kernel("sys_V", [("q", q)], [("V", system.V)], prm),
@@ -55,7 +56,8 @@ def system_kernels(system, with_dhq: bool = True) -> list[Kernel]:
         # seconds to print and its nested min() calls grow the kernel)
         *([Kernel("sys_phi", [("q", q)], [("phi", system.phi)], prm)] if system.m < GAP_LOOP_MIN else []),
         Kernel("sys_phis", [("q", q)], [("out", sp.Matrix([c.phi for c in system.constraints]))], prm),
-        Kernel("sys_dphis", [("q", q)], [("out", system.constraint_jacobian)], prm),
+        Kernel("sys_dphis", [("q", q)], [("out", G)], prm),
+        Kernel("sys_dphis_nz", [("q", q)], [("out", sp.Matrix(dphi_pattern(G)[2]))], prm),
         Kernel("sys_restitution", [], [("out", sp.Matrix([c.restitution for c in system.constraints]))], prm),
     ]
     if system.m == 1:
@@ -86,6 +88,22 @@ def system_kernels(system, with_dhq: bool = True) -> list[Kernel]:
         ks.append(Kernel("sys_dHq", [("q", q), ("x", x)], [("out", system.dH_dq_at(x))], prm))
     ks += force_kernels(system)
     return ks
+
+
+def dphi_pattern(G) -> tuple[list, list, list]:
+    """(row starts, columns, entries) of the structural nonzeros of G = grad phi (m x n) in row order: the
+    constants DPHI_ROW, DPHI_COL and the outputs of sys_dphis_nz (the entries sys_dphis writes, so
+    the same numbers). Without any nonzero, one zero entry in column 0 (arrays are never empty)."""
+    rows, cols, vals = [0], [], []
+    for i in range(G.shape[0]):
+        for j in range(G.shape[1]):
+            if G[i, j] != 0:
+                cols.append(j)
+                vals.append(G[i, j])
+        rows.append(len(cols))
+    if not cols:
+        cols, vals = [0], [sp.Integer(0)]
+    return rows, cols, vals
 
 
 def _depends(expr, q) -> list:
@@ -129,7 +147,11 @@ def force_kernels(system) -> list[Kernel]:
 def system_kernels_source(system, path: str | None = None) -> str:
     """Source of the system kernels on the chosen kernel path (sys_dHq from the tensors on "tensor")."""
     tensor = kernel_path(path) == "tensor"
-    parts = [f"NCON = {system.m}"] + [k.emit() for k in system_kernels(system, with_dhq=not tensor)]
+    ks = system_kernels(system, with_dhq=not tensor)
+    rows, cols, _ = dphi_pattern(next(k for k in ks if k.name == "sys_dphis").outputs[0][1])
+    parts = [f"NCON = {system.m}\nDPHI_NNZ = {len(cols)}\nDPHI_ROW = np.array({rows}, dtype=np.int64)\n"
+             f"DPHI_COL = np.array({cols}, dtype=np.int64)"]
+    parts += [k.emit() for k in ks]
     if system.m > 1:
         parts.append(_GAP_GRADIENT)
     if system.m >= GAP_LOOP_MIN:

@@ -501,9 +501,15 @@ class KernelCache:
         self._bodies[key] = body
         return entry
 
-    def warm_record(self, ident: tuple, ks: KernelSet, key: str, data: dict) -> None:
+    def warm_record(self, ident: tuple, ks: KernelSet, key: str, data: dict, system=None) -> None:
         """Write the index entry of (ident, ks) -> module `key` with numeric `data` (sealed, atomic; best
-        effort: a read-only or full cache only costs the next process the symbolic path)."""
+        effort: a read-only or full cache only costs the next process the symbolic path). With the
+        symbolic `system`, nothing is written unless `key` is still its module key: the index key hashes
+        the package's files as they are now, and where they changed since `key` was made (vcirun
+        upgraded or edited while this process compiled) an entry would send the new files to the old
+        module."""
+        if system is not None and build.module_key_of(system, ks, self.backend_id()) != key:
+            return
         entry = {"format": build.WARM_FORMAT, "ident": list(ident), "kernels": ks.key_text(), "module": key} | data
         try:
             path = self.index_path(ident, ks)

@@ -216,6 +216,12 @@ def sys_dphis(q: vec("NDOF"), prm: vec("NPRM"), out: mat("NCON", "NDOF")) -> int
 
 
 @kernel("system")
+def sys_dphis_nz(q: vec("NDOF"), prm: vec("NPRM"), out: vec("DPHI_NNZ")) -> int:
+    """out = the structural nonzeros of G(q) in row order: row i's are out[DPHI_ROW[i]:DPHI_ROW[i + 1]],
+    in the columns DPHI_COL (the same numbers as sys_dphis there)."""
+
+
+@kernel("system")
 def sys_ddphis(q: vec("NDOF"), v: vec("NDOF"), prm: vec("NPRM"), out: vec("NCON")) -> int:
     """out_i = v^T Hess(phi_i)(q) v: the velocity term of d^2 phi_i / dt^2."""
 
@@ -390,6 +396,14 @@ RESET_LAW_FIRST = _constant("RESET_LAW_FIRST", "system", "bool", False,
                             "the impact law acts before the declared map (plastic: true or a restitution)")
 FRICTION = _constant("FRICTION", "system", "bool", False,
                      "some contact has friction: a coefficient that is a number > 0 or a parameter (sys_friction)")
+# the structural nonzeros of G = grad phi in row order (CSR): the loops over every contact on every step
+# (touching, normal velocities, touch tolerances) run over them, O(nnz) where G is m x n (the 100-ball
+# cradle: 198 of 9900 entries)
+DPHI_NNZ = _constant("DPHI_NNZ", "system", "int", 1, "structural nonzeros of G (at least 1: a padding zero)")
+DPHI_ROW = _constant("DPHI_ROW", "system", "i8", np.zeros(2, np.int64),
+                     "start of row i's nonzeros in sys_dphis_nz's output (NCON + 1 entries)")
+DPHI_COL = _constant("DPHI_COL", "system", "i8", np.zeros(1, np.int64),
+                     "column of each nonzero, ascending within a row (DPHI_NNZ entries)")
 MH_FLOW_S = _constant("MH_FLOW_S", "modified", None, 2,
                       "stages of the Gauss flow (a module-level choice of maps/gauss.py)")
 
@@ -574,8 +588,8 @@ ENTRY = {
     # every module, the system-only one included: the continuous dynamics and the contact geometry
     "system": ("hamiltonian", "hamilton_rhs", "dynamics_rhs", "force_power", "gdot", "cva_lambda",
                "mass_matrix_ok", "impact_direction", "gap", "gap_slope", "touching_mask",
-               "sys_M", "sys_V", "sys_phi", "sys_dphi", "sys_phis", "sys_dphis", "sys_ddphis", "sys_Mdotv",
-               "sys_restitution", "sys_dHq", "sys_node", "sys_force", "sys_force_jac", "sys_reset_map",
+               "sys_M", "sys_V", "sys_phi", "sys_dphi", "sys_phis", "sys_dphis", "sys_dphis_nz", "sys_ddphis",
+               "sys_Mdotv", "sys_restitution", "sys_dHq", "sys_node", "sys_force", "sys_force_jac", "sys_reset_map",
                "declared_reset", "sys_slips", "sys_dslips", "sys_friction", "friction_impact_direction"),
     # a method's module: the loop, the collision-time search, its full map
     "steps": ("integrate", "collision_time", "ld_step", "full"),

@@ -26,7 +26,9 @@ import numpy as np
 from numba import njit
 
 from vcirun.codegen.frame import scratch, scratch2, scratch_i
-from vcirun.codegen.roles import NDOF, NCON, BAND, sys_M, sys_phi, sys_phis, sys_dphis, sys_restitution
+from vcirun.codegen.roles import (
+    NDOF, NCON, BAND, DPHI_NNZ, DPHI_ROW, DPHI_COL, sys_M, sys_phi, sys_phis, sys_dphis, sys_dphis_nz, sys_restitution,
+)
 from vcirun.collision.impact_law import impact_law
 from vcirun.maps.dynamics import cva_lambda, delassus, gdot
 from vcirun.maps.linalg import solve_band, STACK_DOUBLES
@@ -158,9 +160,12 @@ def touching_set(q, phis, G, u, h, event_tol, idx):
 def touch_tolerance(q, prm, i, u, h, event_tol):
     """How close to phi_i = 0 counts as touching: the event tolerance's worth of motion, or round-off
     of phi_i near q (64 eps (1 + |q| |grad phi_i|), as a start on the surface)."""
-    G = scratch2(NCON, NDOF)
-    sys_dphis(q, prm, G)
-    return _touch_tolerance_row(q, G, i, u, h, event_tol)
+    gv = scratch(DPHI_NNZ)
+    sys_dphis_nz(q, prm, gv)
+    qn = 0.0
+    for j in range(NDOF):
+        qn = max(qn, abs(q[j]))
+    return _touch_tolerance_nz(qn, gv, i, u, h, event_tol)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -179,6 +184,21 @@ def _touch_tolerance_qn(qn, G, i, u, h, event_tol):
     gq = 0.0
     for j in range(NDOF):
         gq = max(gq, abs(G[i, j]))
+    return _touch_tolerance_of(qn, gq, u, h, event_tol)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _touch_tolerance_nz(qn, gv, i, u, h, event_tol):
+    """_touch_tolerance_qn over row i's structural nonzeros gv (sys_dphis_nz): the same number (the
+    zeros leave max_j |G_ij| where it is), O(row) instead of O(n)."""
+    gq = 0.0
+    for k in range(DPHI_ROW[i], DPHI_ROW[i + 1]):
+        gq = max(gq, abs(gv[k]))
+    return _touch_tolerance_of(qn, gq, u, h, event_tol)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _touch_tolerance_of(qn, gq, u, h, event_tol):
     return max(4.0 * event_tol * h * abs(u), 64.0 * 2.220446049250313e-16 * (1.0 + qn * gq))
 
 
@@ -227,14 +247,16 @@ def normal_velocities(q, p, prm):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _normal_velocities_into(q, p, prm, u):
-    G = scratch2(NCON, NDOF)
-    sys_dphis(q, prm, G)
-    _normal_velocities_G(q, p, prm, G, u)
+    gv = scratch(DPHI_NNZ)
+    sys_dphis_nz(q, prm, gv)
+    _normal_velocities_nz(q, p, prm, gv, u)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _normal_velocities_G(q, p, prm, G, u):
-    """u = G M(q)^-1 p with G = grad phi at q given."""
+def _normal_velocities_nz(q, p, prm, gv, u):
+    """u = G M(q)^-1 p with G's structural nonzeros gv at q given (sys_dphis_nz). Row i's sum takes
+    its nonzeros in column order: the dense sum's terms but for its zero products, which leave a
+    finite sum unchanged (the same numbers where M^-1 p is finite)."""
     A = scratch2(NDOF, NDOF)
     x = scratch(NDOF)
     for i in range(NDOF):
@@ -246,8 +268,8 @@ def _normal_velocities_G(q, p, prm, G, u):
         return
     for i in range(NCON):
         s = 0.0
-        for j in range(NDOF):
-            s += G[i, j] * x[j]
+        for k in range(DPHI_ROW[i], DPHI_ROW[i + 1]):
+            s += gv[k] * x[DPHI_COL[k]]
         u[i] = s
 
 
@@ -264,10 +286,10 @@ def touching_mask(q, p, h, event_tol, prm, mask, held):
         return k
     phis = scratch(NCON)
     sys_phis(q, prm, phis)
-    G = scratch2(NCON, NDOF)
-    sys_dphis(q, prm, G)
+    gv = scratch(DPHI_NNZ)
+    sys_dphis_nz(q, prm, gv)
     u = scratch(NCON)
-    _normal_velocities_G(q, p, prm, G, u)
+    _normal_velocities_nz(q, p, prm, gv, u)
     qn = 0.0
     for j in range(NDOF):
         qn = max(qn, abs(q[j]))
@@ -276,11 +298,11 @@ def touching_mask(q, p, h, event_tol, prm, mask, held):
             continue
         if u[i] >= 0.0:
             # (the tolerance is >= 0: a contact at or below its surface needs no tolerance, O(n) each)
-            touching = phis[i] <= 0.0 or phis[i] <= _touch_tolerance_qn(qn, G, i, u[i], h, event_tol)
+            touching = phis[i] <= 0.0 or phis[i] <= _touch_tolerance_nz(qn, gv, i, u[i], h, event_tol)
         else:
             # approaching by less than its gap's round-off within a step: the search cannot resolve
             # that approach (docs/derivations/contacts.md 1.8): touching as well
-            r = _touch_tolerance_qn(qn, G, i, 0.0, h, 0.0)
+            r = _touch_tolerance_nz(qn, gv, i, 0.0, h, 0.0)
             touching = phis[i] <= r and -u[i] * h <= r
         if touching:
             mask[i] = 1
@@ -299,19 +321,19 @@ def unmask_penetrating(q0, q1, prm, mask, held):
     phis = scratch(NCON)
     sys_phis(q1, prm, phis)
     phis0 = scratch(NCON)
-    G = scratch2(NCON, NDOF)
+    gv = scratch(DPHI_NNZ)
     have_G = False  # built at the first candidate: only a negative phi_i can be below -tolerance
     qn = 0.0
     k = 0
     for i in range(NCON):
         if mask[i] == 1 and held[i] == 0 and phis[i] < 0.0:
             if not have_G:
-                sys_dphis(q1, prm, G)
+                sys_dphis_nz(q1, prm, gv)
                 sys_phis(q0, prm, phis0)
                 for j in range(NDOF):
                     qn = max(qn, abs(q1[j]))
                 have_G = True
-            if phis[i] < min(phis0[i], 0.0) - _touch_tolerance_qn(qn, G, i, 0.0, 1.0, 0.0):
+            if phis[i] < min(phis0[i], 0.0) - _touch_tolerance_nz(qn, gv, i, 0.0, 1.0, 0.0):
                 mask[i] = 0
                 k += 1
     return k

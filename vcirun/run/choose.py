@@ -250,10 +250,13 @@ class _Chooser:
         label = _label(name)
         self.names[label] = name
         have = self.runs.setdefault(label, {})
-        if perturb is None and N in have and (not final or have[N].trajectory is not None):
+        if perturb is None and N in have and (not final or have[N].trajectory is not None
+                                              or have[N].pending is not None):
             return have[N]
-        r = self.runner.run(name, N, trajectory=final, energies=self.energies if (final or timing) else False,
-                            perturb=perturb)
+        # a final run's Trajectory is built when it is returned (`_result`): of the final runs a choice
+        # makes, one is returned
+        r = self.runner.run(name, N, trajectory="later" if final else False,
+                            energies=self.energies if (final or timing) else False, perturb=perturb)
         if not timing and perturb is None:
             have[N] = r
         self.pilot_log.append({"method": label, "N": N, "h": r.h, "status": r.status, "cpu": r.cpu,
@@ -678,7 +681,7 @@ class _Chooser:
         return self._result(r, label, cands, status, reason, est)
 
     def _result(self, r: Run, label, cands, status, reason, est):
-        tr = r.trajectory
+        tr = r.built()
         total = time.thread_time() - self.cpu0
         for c in cands:
             if c.N is not None:

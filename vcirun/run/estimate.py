@@ -111,14 +111,24 @@ class Difference:
 
 
 def _events(run: Run):
-    """{contact: sorted impact times}, {contact: sorted release times}."""
-    imp: dict = {}
-    for t, c in zip(run.impacts, run.impact_contact):
-        imp.setdefault(int(c), []).append(float(t))
-    rel: dict = {}
-    for t, c in zip(run.releases, run.release_contact):
-        rel.setdefault(int(c), []).append(float(t))
-    return {c: np.sort(v) for c, v in imp.items()}, {c: np.sort(v) for c, v in rel.items()}
+    """{contact: sorted impact times}, {contact: sorted release times} (kept on the run: a run is compared
+    with several others; callers only read them)."""
+    hit = run.diffs.get("events")
+    if hit is None:
+        hit = run.diffs["events"] = (_by_contact(run.impacts, run.impact_contact),
+                                     _by_contact(run.releases, run.release_contact))
+    return hit
+
+
+def _by_contact(times: np.ndarray, contacts: np.ndarray) -> dict:
+    """{contact: np.sort of its times in record order} (one mask per contact, not a loop over events)."""
+    k = min(len(times), len(contacts))   # (pairs, as zip makes them)
+    if not k:
+        return {}
+    times, contacts = np.asarray(times, dtype=float)[:k], np.asarray(contacts)[:k]
+    if k == 1 or (contacts == contacts[0]).all():
+        return {int(contacts[0]): np.sort(times)}
+    return {int(c): np.sort(times[contacts == c]) for c in np.unique(contacts)}
 
 
 def _name(names, c) -> str:
@@ -188,13 +198,20 @@ def _own_min_gap(r: Run) -> float:
         g = math.inf
         if len(r.impacts) > 1:
             c = r.impact_contact
-            if np.all(c == c[0]):
+            if (c == c[0]).all():
                 g = float(np.min(np.diff(r.impacts)))
             else:
-                for k in np.unique(c):
-                    t = r.impacts[c == k]
-                    if len(t) > 1:
-                        g = min(g, float(np.min(np.diff(t))))
+                # each contact's consecutive impacts in record order: a stable sort by contact keeps that
+                # order, and the gaps between neighbours of one contact are the per-contact np.diff's
+                order = np.argsort(c, kind="stable")
+                gaps = np.diff(r.impacts[order])[c[order][1:] == c[order][:-1]]
+                if gaps.size and not np.isnan(gaps).any():
+                    g = float(np.min(gaps))
+                elif gaps.size:   # (a NaN time: the per-contact minima, as min() skips a NaN one)
+                    for k in np.unique(c):
+                        t = r.impacts[c == k]
+                        if len(t) > 1:
+                            g = min(g, float(np.min(np.diff(t))))
         r.diffs["min_gap"] = g
     return g
 
@@ -210,9 +227,11 @@ def difference(coarse: Run, fine: Run, names=None) -> Difference:
     r = fine.N // coarse.N
     if r * coarse.N != fine.N or r < 1:
         raise ValueError(f"companion: N = {fine.N} is not a multiple of N = {coarse.N}")
-    qf = fine.q[::r]
+    qf, pf = fine.q[::r], fine.p[::r]
     dq = coarse.q - qf
-    dp = coarse.p - fine.p[::r]
+    # only the last row of dp is read: that row alone, the same elementwise difference (runs of other
+    # lengths take the whole array, as broadcasting or its error would)
+    dp_end = (coarse.p[-1] - pf[-1]) if coarse.p.shape == pf.shape else (coarse.p - pf)[-1]
     l2 = float(np.sqrt(coarse.h * np.sum(dq * dq)))
     first, dt = sequence_difference(coarse, fine, f"h = {coarse.h:.6g}", f"h = {fine.h:.6g}", names)
     holds = sorted(coarse.holds + fine.holds)
@@ -228,7 +247,7 @@ def difference(coarse: Run, fine: Run, names=None) -> Difference:
     if not first and len(coarse.impacts):
         first = _end_straddle(coarse, fine, names)
     return Difference(l2=l2, final_q=float(np.sqrt(np.sum(dq[-1] * dq[-1]))),
-                      final_p=float(np.sqrt(np.sum(dp[-1] * dp[-1]))),
+                      final_p=float(np.sqrt(np.sum(dp_end * dp_end))),
                       sup_q=float(np.max(np.abs(dq))) if dq.size else 0.0, dt=dt, first=first)
 
 
@@ -318,26 +337,29 @@ def _near_event(run: Run, reach: int) -> np.ndarray:
     N = run.q.shape[0] - 1
     near = np.zeros(N + 1, bool)
     events = np.concatenate([run.impacts, run.releases])
-    if len(events):
-        k_ev = np.clip(np.floor((events - run.t0) / run.h).astype(np.int64), 0, N)
+    if len(events):   # (np.minimum(np.maximum(.)) is np.clip on integers, without its per-call overhead)
+        k_ev = np.minimum(np.maximum(np.floor((events - run.t0) / run.h).astype(np.int64), 0), N)
         ks = (k_ev[:, None] + np.arange(-reach, reach + 2)[None, :]).ravel()
-        near[np.clip(ks, 0, N)] = True
+        near[np.minimum(np.maximum(ks, 0), N)] = True
     run.diffs[key] = near
     return near
 
 
 def _parabola_minima(f: np.ndarray, skip: np.ndarray):
-    """(grid points k, the lowest value of the parabola through f[k-1], f[k], f[k+1] on [t_k-1, t_k+1],
-    its curvature): every k whose parabola has its vertex on that span (so a dip in the last step is
-    seen too) or is a grid minimum, f[k] > 0, not skipped."""
+    """(grid points k, contacts i, the lowest value of the parabola through f[k-1, i], f[k, i], f[k+1, i]
+    on [t_k-1, t_k+1], its curvature) of f (grid x contacts): every (k, i) whose parabola has its vertex
+    on that span (so a dip in the last step is seen too) or is a grid minimum, f[k, i] > 0, not skipped
+    (skip: per grid point, or per grid point and contact). Every contact at once: the same elementwise
+    arithmetic as one contact's column alone."""
     a, b, c = f[:-2], f[1:-1], f[2:]
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):   # inf outside a screen's windows
         curv = (a - 2 * b + c) / 2.0
         slope = (c - a) / 2.0
         s = np.where(curv > 0, -slope / (2 * curv), np.inf)
         low = np.where(curv > 0, b - slope * slope / (4 * curv), b)
-    cand = np.flatnonzero(((np.abs(s) <= 1.0) | ((b <= a) & (b <= c))) & (b > 0) & ~skip[1:-1])
-    return cand + 1, low[cand], np.abs(curv[cand])
+    skip = skip[1:-1] if skip.ndim == 2 else skip[1:-1, None]
+    ks, cs = np.nonzero(((np.abs(s) <= 1.0) | ((b <= a) & (b <= c))) & (b > 0) & ~skip)
+    return ks + 1, cs, low[ks, cs], np.abs(curv[ks, cs])
 
 
 def _end_approach(run: Run, mod, prm, margin: float) -> list:
@@ -373,39 +395,31 @@ def near_misses(run: Run, mod, prm, margin: float = 0.0, screen: Run | None = No
     if N < 2:
         return []
     out = _end_approach(run, mod, prm, margin)
+    t0, h = run.t0, run.h
     if screen is None:
-        phis = _phis(run, mod, prm)
-        near = _near_event(run, 1)
-        for i in range(m):
-            ks, low, _ = _parabola_minima(phis[:, i], near)
-            for k, v in zip(ks, low):
-                if v <= margin:
-                    out.append((run.t0 + int(k) * run.h, i, float(v)))
+        ks, cs, low, _ = _parabola_minima(_phis(run, mod, prm), _near_event(run, 1))
+        hit = low <= margin
+        out += [(t0 + k * h, i, v) for k, i, v in zip(ks[hit].tolist(), cs[hit].tolist(), low[hit].tolist())]
         return sorted(out)
     r = N // (screen.q.shape[0] - 1)
     if r < 1 or (screen.q.shape[0] - 1) * r != N or screen.q.shape[0] < 3:
         return near_misses(run, mod, prm, margin)
-    sphis = _phis(screen, mod, prm)
-    snear = _near_event(screen, 1)
-    windows = set()
-    for i in range(m):
-        ks, low, curv = _parabola_minima(sphis[:, i], snear)
-        for k, v, cv in zip(ks, low, curv):
-            if v <= margin + 2.0 * cv:
-                windows.update(range(max(0, (int(k) - 1) * r - 1), min(N, (int(k) + 1) * r + 1) + 1))
-    if not windows:
+    ks, _, low, curv = _parabola_minima(_phis(screen, mod, prm), _near_event(screen, 1))
+    sel = ks[low <= margin + 2.0 * curv]
+    if not sel.size:
         return sorted(out)
-    ks = np.array(sorted(windows))
-    phis = _phis(run, mod, prm, ks)
-    near = _near_event(run, 1)
-    for i in range(m):
-        f = np.full(N + 1, np.inf)
-        f[ks] = phis[:, i]
-        skip = near | ~np.isfinite(f)
-        kk, low, _ = _parabola_minima(np.where(np.isfinite(f), f, np.inf), skip)
-        for k, v in zip(kk, low):
-            if np.isfinite(v) and v <= margin:
-                out.append((run.t0 + int(k) * run.h, i, float(v)))
+    # the run's grid points within the windows [(k - 1) r - 1, (k + 1) r + 1] (clipped to [0, N]) around
+    # the screen's minima k that come near the surface: their union, ascending
+    edges = np.zeros(N + 2, np.int64)
+    np.add.at(edges, np.maximum(0, (sel - 1) * r - 1), 1)
+    np.add.at(edges, np.minimum(N, (sel + 1) * r + 1) + 1, -1)
+    ks = np.flatnonzero(np.cumsum(edges[: N + 1]) > 0)
+    f = np.full((N + 1, m), np.inf)
+    f[ks] = _phis(run, mod, prm, ks)
+    fin = np.isfinite(f)
+    kk, cs, low, _ = _parabola_minima(np.where(fin, f, np.inf), _near_event(run, 1)[:, None] | ~fin)
+    hit = np.isfinite(low) & (low <= margin)
+    out += [(t0 + k * h, i, v) for k, i, v in zip(kk[hit].tolist(), cs[hit].tolist(), low[hit].tolist())]
     return sorted(out)
 
 

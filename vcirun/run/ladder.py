@@ -16,9 +16,11 @@ def _observed_order(Na, Nb, Nc, dab, dbc) -> float | None:
     if not (dab > 0 and dbc > 0):
         return None
     target = math.log(dab / dbc)
+    log_ba, ab, bc = math.log(Nb / Na), Na / Nb, Nb / Nc   # (constant over the bisection: the same floats)
+    log1p = math.log1p
 
     def f(p):
-        return p * math.log(Nb / Na) + math.log1p(-(Na / Nb) ** p) - math.log1p(-(Nb / Nc) ** p) - target
+        return p * log_ba + log1p(-ab ** p) - log1p(-bc ** p) - target
 
     lo, hi = 0.05, 30.0
     flo, fhi = f(lo), f(hi)

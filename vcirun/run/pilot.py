@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core import record
+from ..core.bounds import nonfinite_start
 from ..core.sizes import check_run_memory, memory_limit, run_bytes
 from ..core.system_data import start_beta
 
@@ -27,6 +28,7 @@ _STATUS = record.STATUS_CODES
 _INDEX = {f.name: k for k, f in enumerate(record.FIELDS)}
 _EPS = float(np.finfo(float).eps)
 PERTURB_ULPS = 8.0   # the twin runs of `Runner.run(perturb=...)` differ from the run by this many eps
+DEFER_BYTES = 64 << 20   # Runner.run(trajectory="later") keeps a run's buffers up to this size for its build
 
 
 def _nudged(x: np.ndarray, sign: float) -> np.ndarray:
@@ -58,6 +60,8 @@ class Run:
     cpu: float
     trajectory: object = None
     holds: tuple = ()    # (time, contact) where a contact not held at the start comes to rest
+    # Runner.run(trajectory="later"): builds the Trajectory when `built()` first asks for it
+    pending: object = dataclasses.field(default=None, repr=False)
     # what comparisons compute once per run: coarser N -> its Difference (the ladder); "phis", ("near", k),
     # "min_gap" (vcirun.run.estimate)
     diffs: dict = dataclasses.field(default_factory=dict, repr=False)
@@ -65,6 +69,15 @@ class Run:
     @property
     def ok(self) -> bool:
         return self.status == "ok"
+
+    def built(self):
+        """The run's Trajectory (None for a run made without one), built now if its build was deferred."""
+        if self.trajectory is None and self.pending is not None:
+            tr, self.pending = self.pending(), None
+            if tr.status != self.status:   # (Runner.run read the status as the Trajectory gives it)
+                raise RuntimeError(f"a deferred Trajectory has status {tr.status}, its run {self.status}")
+            self.trajectory = tr
+        return self.trajectory
 
     @property
     def t(self) -> np.ndarray:
@@ -96,7 +109,8 @@ def hold_onsets(active: np.ndarray, t0: float, h: float, start_phis=None) -> tup
     if active.shape[0] > 1:
         on = active[1:] & ~active[:-1]
         ks, cs = np.nonzero(on)
-        out += [(t0 + (int(k) + 1) * h, int(c)) for k, c in zip(ks, cs)]
+        # t0 + (k + 1) h in float64, as Python computes it from the int k + 1 (exact below 2^53)
+        out += zip((t0 + (ks + 1).astype(float) * h).tolist(), cs.tolist())
     return tuple(out)
 
 
@@ -107,9 +121,16 @@ def start_gaps(mod, q0, prm) -> np.ndarray:
     return out
 
 
+def _zero_fill(fill, dt) -> bool:
+    """A fill whose bytes are all zero (0, 0.0, False): np.zeros makes it (from zeroed pages: cheaper
+    than np.full writing every entry of a large buffer), with the same bits."""
+    return fill is not None and not np.full((), fill, dt).tobytes().strip(b"\0")
+
+
 class _FreshBuffers:
-    """Fresh output buffers for each run of the loop (`record.allocate`'s), with the shapes, dtypes
-    and fills of each size worked out once (the `buffers` that `vcirun.run.plan.run_loop` takes)."""
+    """Fresh output buffers for each run of the loop (`record.allocate`'s, bit for bit), with the shapes,
+    dtypes and fills of each size worked out once (the `buffers` that `vcirun.run.plan.run_loop` takes).
+    One per process (`_FRESH`): the sizes recur from call to call of `simulate(tol=...)`."""
 
     def __init__(self):
         self.specs: dict = {}
@@ -121,9 +142,31 @@ class _FreshBuffers:
             out = record.allocate(N, n, m=m, cap_impacts=cap_imp)
             if len(self.specs) > 256:
                 self.specs.clear()
-            self.specs[key] = tuple((a.shape, a.dtype, f.fill) for f, a in zip(record.FIELDS, out))
+            self.specs[key] = tuple((a.shape, a.dtype, "zeros" if _zero_fill(f.fill, a.dtype) else f.fill)
+                                    for f, a in zip(record.FIELDS, out))
             return out
-        return tuple(np.empty(shape, dt) if fill is None else np.full(shape, fill, dt) for shape, dt, fill in spec)
+        empty, zeros, full = np.empty, np.zeros, np.full
+        return tuple(empty(shape, dt) if fill is None else zeros(shape, dt) if fill == "zeros" else
+                     full(shape, fill, dt) for shape, dt, fill in spec)
+
+
+_FRESH = _FreshBuffers()
+
+
+class _Lazy:
+    """Names this module imports on first use (vcirun.run.plan and vcirun.methods.table load kernels'
+    machinery), kept: an import statement in a function costs a microsecond or two per call."""
+
+    def __getattr__(self, name):
+        from ..methods.table import resolve_method
+        from .plan import run_loop
+
+        self.resolve_method, self.run_loop = resolve_method, run_loop
+        return getattr(self, name)
+
+
+_LAZY = _Lazy()
+_BYTES: dict = {}   # (N, n) -> run_bytes(N, n), a pure function of the sizes
 
 
 class Runner:
@@ -142,19 +185,18 @@ class Runner:
         self.constrained, self.resting_contact = constrained, resting_contact
         self.options = dict(options or {})
         self._plans: dict = {}
-        self._bytes: dict = {}
-        self._fresh = _FreshBuffers()
+        self._starts: dict = {}   # (sysd, sysm, constrained) ids -> [(module, q0, p0, prm, beta)]: see _base
 
     # --- plans --------------------------------------------------------------------------------------
     def _base(self, method, energies: bool):
         """(plan, module, q0, p0, prm, beta) of `method` (resolved once per method and energies flag)."""
-        from ..methods.table import resolve_method
-        from .plan import first_call, plan, ready_start, start_state
-
         fast = (method, energies) if isinstance(method, str) else None
         hit = self._plans.get(fast) if fast is not None else None
         if hit is not None:
             return hit
+        from ..methods.table import resolve_method
+        from .plan import first_call, plan, ready_start, start_state
+
         meth = resolve_method(method)
         key = (meth, energies)
         hit = self._plans.get(key)
@@ -167,11 +209,21 @@ class Runner:
                      energies=energies, resting_contact=self.resting_contact, options=self.options,
                      start=self.start)
             sysd = p.sysd
-            prm = sysd.param_values(self.params)
-            beta = start_beta(sysd, self.start["beta"], self.start["q0"], self.start["p0"])
-            start = start_state(sysd, beta, self.start["q0"], self.start["p0"], prm, p.sysm)
-            mod = p.module()
-            q0, p0 = ready_start(p, mod, start, prm)
+            # the start as the run takes it depends on the module, the system and the constraint flag, not
+            # on the energies flag: a method's runs with and without energies share it (the same functions
+            # of the same arguments, the same bits; the objects keyed by id stay alive in self._plans)
+            entries = self._starts.setdefault((id(sysd), id(p.sysm), p.constrained), [])
+            # (with an entry the start has been validated: the module may be loaded before it)
+            got = next((e for e in entries if e[0] is p.module()), None) if entries else None
+            if got is not None:
+                mod, q0, p0, prm, beta = got
+            else:
+                prm = sysd.param_values(self.params)
+                beta = start_beta(sysd, self.start["beta"], self.start["q0"], self.start["p0"])
+                start = start_state(sysd, beta, self.start["q0"], self.start["p0"], prm, p.sysm)
+                mod = p.module()   # (after the start is validated, as simulate does)
+                q0, p0 = ready_start(p, mod, start, prm)
+                entries.append((mod, q0, p0, prm, beta))
             first_call(mod, p, q0, p0, prm)
             hit = self._plans[key] = (p, mod, q0, p0, prm, beta)
             if fast is not None:
@@ -179,9 +231,7 @@ class Runner:
         return hit
 
     def method(self, method):
-        from ..methods.table import resolve_method
-
-        return resolve_method(method)
+        return _LAZY.resolve_method(method)
 
     def module(self, method):
         return self._base(method, False)[1]
@@ -198,25 +248,27 @@ class Runner:
         return int(self.module(method).NCON)
 
     # --- runs ---------------------------------------------------------------------------------------
-    def run(self, method, N: int, *, trajectory: bool = False, energies: bool | None = None,
+    def run(self, method, N: int, *, trajectory: bool | str = False, energies: bool | None = None,
             perturb: str | None = None) -> Run:
         """The run of `method` on N steps of h = T / N. trajectory=True also builds the Trajectory
         `vcirun.simulate` returns (energies along the grid unless energies=False), with the Runner's
         `build` (vcirun.run.api.trajectory_of, handed in by the caller: this module does not import the API).
+        trajectory="later": the same run, its Trajectory built when `Run.built()` asks for it (a choice
+        makes several final runs and returns one); built at once where the run's buffers, which a
+        deferred build keeps, are large (over DEFER_BYTES).
 
         perturb: a twin of that run that differs from it at the level of round-off only, for measuring
         how much the motion amplifies round-off (`vcirun.run.estimate.amplified_floor`): "h" runs with
         h (1 + PERTURB_ULPS eps) (every step rounds differently; the grid times move by at most
         PERTURB_ULPS eps T), "start" from q0 and p0 moved by PERTURB_ULPS eps times their largest entry,
         in alternating signs. Never with trajectory=True."""
-        from .plan import run_loop
-
+        run_loop = _LAZY.run_loop
         if trajectory and self.build is None:
             raise ValueError("trajectory: this Runner was made without build= (vcirun.run.api.trajectory_of)")
         if perturb not in (None, "h", "start") or (perturb and trajectory):
             raise ValueError(f"perturb: None, 'h' or 'start', without trajectory=True (got {perturb!r})")
 
-        energies = trajectory if energies is None else energies
+        energies = bool(trajectory) if energies is None else energies
         base, mod, q0, p0, prm, beta = self._base(method, energies)
         N = int(N)
         h = self.T / N
@@ -225,9 +277,11 @@ class Runner:
         elif perturb == "start":
             q0, p0 = _nudged(q0, 1.0), _nudged(p0, -1.0)
         n = base.sysd.n
-        need = self._bytes.get((N, n))
+        need = _BYTES.get((N, n))
         if need is None:
-            need = self._bytes[(N, n)] = run_bytes(N, n)
+            if len(_BYTES) > 4096:
+                _BYTES.clear()
+            need = _BYTES[(N, n)] = run_bytes(N, n)
         if trajectory:
             p = dataclasses.replace(base, h=h, N=N, need=need, note="", _mod=mod)
             p.check_memory()
@@ -238,7 +292,7 @@ class Runner:
         c0 = time.thread_time()
         t_start = time.perf_counter()
         out, counters = run_loop(mod, q0, p0, self.t0, h, N, prm, p.settings, n, p.max_impacts_step,
-                                 buffers=self._fresh)
+                                 buffers=_FRESH)
         wall = time.perf_counter() - t_start
         steps = counters["steps"]
         Q = out[_INDEX["q"]][: steps + 1]
@@ -247,18 +301,32 @@ class Runner:
         field = lambda name, k: out[_INDEX[name]][:k]  # noqa: E731
         active = field("contact_active", steps + 1)
         tr = None
-        if trajectory:
+        pending = None
+        if trajectory == "later" and need <= DEFER_BYTES:
+            status = _STATUS[counters["status"]]
+            if status == "ok" and nonfinite_start(out[_INDEX["H"]][0], out[_INDEX["Ed"]][0] if p.energies else None,
+                                                  out[_INDEX["Hmod"]][0] if p.energies and p.meth.has_modified_energy
+                                                  else None):
+                status = "nonfinite"   # (the status trajectory_of gives a start whose energy overflows)
+
+            def pending():
+                t = self.build(p, mod, out, counters, q0, p0, prm, beta, wall)
+                t.run_args = self.run_args(p.meth)
+                return t
+        elif trajectory:
             tr = self.build(p, mod, out, counters, q0, p0, prm, beta, wall)
             tr.run_args = self.run_args(p.meth)
             status = tr.status
         else:
             status = _STATUS[counters["status"]]
+        any_active = bool(active.any())   # (hold_onsets is () without a held contact)
         run = Run(method=p.meth, N=N, h=h, t0=self.t0, q=Q, p=P, impacts=field("impacts", k_imp).copy(),
                   impact_contact=field("impact_contact", k_imp).copy(), releases=field("releases", k_rel).copy(),
                   release_contact=field("release_contact", k_rel).copy(),
-                  held=bool(np.any(active)) or k_rel > 0, status=status, wall=wall,
+                  held=any_active or k_rel > 0, status=status, wall=wall,
                   cpu=time.thread_time() - c0, trajectory=tr,
-                  holds=hold_onsets(active, self.t0, h, start_gaps(mod, q0, prm) if active[:1].any() else None))
+                  holds=hold_onsets(active, self.t0, h, start_gaps(mod, q0, prm) if active[:1].any() else None)
+                  if any_active else (), pending=pending)
         return run
 
     def run_args(self, meth) -> "RunArgs":

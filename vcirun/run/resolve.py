@@ -132,7 +132,7 @@ def resolve_numeric(system, ks: build.KernelSet, kc: KernelCache | None = None):
 
     def indexed(tier):
         if ident is not None and (raw is None or _warm_ident(system)[1] == raw):  # the file we hashed
-            kc.warm_record(ident, ks, kc.module_key(sysm, ks), _entry_data(sysm))
+            kc.warm_record(ident, ks, kc.module_key(sysm, ks), _entry_data(sysm), system=sysm)
 
     return d, Kernels(kc, ks, sysm.name, len(sysm.param_symbols), sysm=sysm,
                       on_load=indexed if kc.warm else None), sysm

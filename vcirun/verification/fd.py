@@ -177,8 +177,18 @@ def _check_dphis(c, s):
     m, n = _ncon(c.mod), c.n
     G = np.empty((m, n))
     c.mod.sys_dphis(s.q, c.prm, G)
-    return [("sys_dphis", "FD of sys_phis in q", rel_err(G, map_jacobian(lambda q: _phis(c, q), s.q),
+    rows = [("sys_dphis", "FD of sys_phis in q", rel_err(G, map_jacobian(lambda q: _phis(c, q), s.q),
              _floor(float(np.max(np.abs(_phis(c, s.q)))))), FD_THRESHOLDS)]
+    if hasattr(c.mod, "sys_dphis_nz"):   # the structural nonzeros the per-step contact loops read
+        row, col = np.asarray(c.mod.DPHI_ROW), np.asarray(c.mod.DPHI_COL)
+        gv = np.empty(len(col))
+        c.mod.sys_dphis_nz(s.q, c.prm, gv)
+        S = np.zeros((m, n))
+        for i in range(m):
+            S[i, col[row[i]:row[i + 1]]] = gv[row[i]:row[i + 1]]
+        rows.append(("sys_dphis_nz", "sys_dphis (its nonzeros scattered by DPHI_ROW, DPHI_COL)",
+                     rel_err(S, G, 1.0), IDENTITY_THRESHOLDS))
+    return rows
 
 
 def _check_held_contact(c, s):

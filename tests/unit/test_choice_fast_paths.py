@@ -1,0 +1,138 @@
+"""The shortcuts that keep a later `simulate(tol=...)` call's Python small compute what the plain code
+computed, bit for bit: the scene model's median, the per-contact event records, the grazing screen of
+every contact at once, the hold onsets, and a final run whose Trajectory is built only when returned."""
+from __future__ import annotations
+
+import math
+import random
+
+import numpy as np
+import pytest
+
+from vcirun.run import estimate as es
+from vcirun.run.pilot import Run, Runner, hold_onsets
+from vcirun.run.scene_model import _median
+
+
+def _bits(a, b) -> bool:
+    if isinstance(a, np.ndarray):
+        return a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+    if isinstance(a, dict):
+        return a.keys() == b.keys() and all(_bits(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)):
+        return len(a) == len(b) and all(_bits(x, y) for x, y in zip(a, b))
+    if isinstance(a, float):
+        return (a == b and math.copysign(1, a) == math.copysign(1, b)) or (a != a and b != b)
+    return a == b
+
+
+def _run(impacts, contacts, N=10, h=0.5, q=None):
+    q = np.zeros((N + 1, 2)) if q is None else q
+    return Run(method=None, N=N, h=h, t0=0.0, q=q, p=np.zeros_like(q), impacts=np.asarray(impacts, float),
+               impact_contact=np.asarray(contacts, np.int64), releases=np.zeros(0),
+               release_contact=np.zeros(0, np.int64), held=False, status="ok", wall=0.0, cpu=0.0)
+
+
+# --- the plain versions ------------------------------------------------------------------------------
+def _plain_events(run):
+    imp: dict = {}
+    for t, c in zip(run.impacts, run.impact_contact):
+        imp.setdefault(int(c), []).append(float(t))
+    return {c: np.sort(v) for c, v in imp.items()}
+
+
+def _plain_min_gap(run):
+    g = math.inf
+    for k in np.unique(run.impact_contact):
+        t = run.impacts[run.impact_contact == k]
+        if len(t) > 1:
+            g = min(g, float(np.min(np.diff(t))))
+    return g
+
+
+def _plain_near_misses(run, mod, prm, margin):
+    """One contact at a time over the whole grid (no screen)."""
+    out = es._end_approach(run, mod, prm, margin)
+    phis = np.array([_phi(mod, run.q[k], prm) for k in range(run.q.shape[0])])
+    near = es._near_event(run, 1)
+    for i in range(phis.shape[1]):
+        f = phis[:, i]
+        a, b, c = f[:-2], f[1:-1], f[2:]
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            curv = (a - 2 * b + c) / 2.0
+            slope = (c - a) / 2.0
+            s = np.where(curv > 0, -slope / (2 * curv), np.inf)
+            low = np.where(curv > 0, b - slope * slope / (4 * curv), b)
+        for k in np.flatnonzero(((np.abs(s) <= 1.0) | ((b <= a) & (b <= c))) & (b > 0) & ~near[1:-1]):
+            if low[k] <= margin:
+                out.append((run.t0 + int(k + 1) * run.h, i, float(low[k])))
+    return sorted(out)
+
+
+def _phi(mod, q, prm):
+    out = np.empty(int(mod.NCON))
+    mod.sys_phis(np.ascontiguousarray(q), prm, out)
+    return out
+
+
+# --- the checks --------------------------------------------------------------------------------------
+def test_median_is_numpys():
+    rng = random.Random(5)
+    for _ in range(2000):
+        n = rng.randint(1, 40)
+        floats = [rng.lognormvariate(0, 20) for _ in range(n)]
+        ints = [rng.choice([16, 24, 96, 1000]) * rng.randint(1, 9) for _ in range(n)]
+        values = rng.choice([floats, ints])
+        assert _bits(float(_median(values)), float(np.median(values))), values
+        assert int(_median(values)) == int(np.median(values)) or not isinstance(values[0], int)
+    assert math.isnan(_median([1.0, math.nan, 2.0]))
+
+
+def test_event_records_and_gaps_per_contact():
+    rng = random.Random(7)
+    for _ in range(2000):
+        k, m = rng.randint(0, 30), rng.randint(1, 4)
+        times = np.sort([round(rng.uniform(0, 5), rng.choice([1, 9])) for _ in range(k)])
+        run = _run(times, [rng.randrange(m) for _ in range(k)])
+        assert _bits(es._events(run)[0], _plain_events(run))
+        assert _bits(es._own_min_gap(_run(run.impacts, run.impact_contact)), _plain_min_gap(run))
+
+
+def test_hold_onsets_times():
+    rng = random.Random(11)
+    for _ in range(500):
+        active = np.array([[rng.random() < 0.3 for _ in range(3)] for _ in range(rng.randint(2, 40))])
+        t0, h = rng.uniform(-1, 1), rng.uniform(1e-4, 1)
+        on = active[1:] & ~active[:-1]
+        want = tuple((t0 + (int(k) + 1) * h, int(c)) for k, c in zip(*np.nonzero(on)))
+        assert _bits(hold_onsets(active, t0, h), want)
+
+
+@pytest.mark.parametrize("system,q0,p0", [("ball_in_box", [0.2, 0.7], [2.5, -1.7]),
+                                          ("double_pendulum_walls", [0.3, -0.2], [6.0, 1.5])])
+def test_grazing_screen_of_every_contact_at_once(system, q0, p0):
+    """near_misses over all contacts at once is the per-contact scan (margins from none to everything),
+    and the screened scan on a companion's grid sees what the full scan sees where the screen applies."""
+    runner = Runner(system, T=5.0, q0=q0, p0=p0)
+    mod, prm = runner.module("CVA"), runner.params_vector("CVA")
+    for N in (32, 96, 256):
+        run, comp = runner.run("CVA", N), runner.run("CVA", N // 2)
+        for margin in (0.0, 1e-4, 1e-2, 0.3, 10.0):
+            plain = _plain_near_misses(run, mod, prm, margin)
+            assert _bits(es.near_misses(run, mod, prm, margin), plain), (N, margin)
+            screened = es.near_misses(run, mod, prm, margin, screen=comp)
+            assert set(screened) <= set(plain), (N, margin)
+    assert plain, "a margin of 10 finds every grid minimum"
+
+
+def test_a_deferred_trajectory_is_the_one_built_at_once():
+    from vcirun.run.api import trajectory_of
+
+    runner = Runner("double_pendulum_walls", T=5.0, q0=[0.3, -0.2], p0=[6.0, 1.5], build=trajectory_of)
+    now, later = runner.run("CVA4", 300, trajectory=True), runner.run("CVA4", 300, trajectory="later")
+    assert later.trajectory is None and later.pending is not None and later.status == now.status
+    tr = later.built()
+    assert tr is later.built() and later.pending is None
+    for name in ("q", "p", "H", "Ed", "impacts", "impact_contact", "contact_active"):
+        assert _bits(getattr(tr, name), getattr(now.trajectory, name)), name
+    assert tr.status == now.trajectory.status and tr.run_args.method == now.trajectory.run_args.method
