@@ -42,9 +42,11 @@ def one(case: str, method: str) -> dict:
     out = {"case": case, "method": method, "n": d.n, "import_s": t_import, "cold_build_s": cold}
     T = 0.19 if case.startswith("newton_cradle") else 0.25   # before the first impact (0.2 s; chain ~0.29 s)
     h = 1e-4
-    c0 = time.process_time()
+    # CPU of this thread: process time would count BLAS threads that spin after the previous case's
+    # NNLS (measured: 25-50 us per step on the second and third run of a process against 14-29 on the first)
+    c0 = time.thread_time()
     tr = vcirun.simulate(case, method, h=h, T=T, energies=False)
-    cpu = time.process_time() - c0
+    cpu = time.thread_time() - c0
     out |= {"smooth_steps": len(tr.t) - 1, "impacts_in_smooth_run": len(tr.impacts),
             "us_per_smooth_step": cpu / (len(tr.t) - 1) * 1e6, "status_smooth": tr.status}
     if case.startswith("newton_cradle"):
