@@ -151,6 +151,55 @@ def test_an_estimates_order_is_that_of_its_own_runs():
     assert ch.order("CVA8", 64) == ch.order("CVA8", 32) == ch.order("CVA8", 16) == 2
 
 
+def test_the_model_order_stands_for_the_third_run_only_where_it_was_seen():
+    """estimate_of(order_from=...): a pair without a third run is checked on the scene model's word
+    (one order of margin in the bracket) where the companion is at or above the N the model saw the
+    order at, and not below it."""
+    from vcirun.run.ladder import estimate_of
+    from vcirun.run.pilot import Runner
+
+    runner = Runner("cart_pendulum", T=5, beta=4.2)
+    mod, prm = runner.module("CVA8"), runner.params_vector("CVA8")
+    runs = {N: runner.run("CVA8", N) for N in (64, 128)}
+    plain = estimate_of(runs, 128, 8, mod, prm)
+    assert plain.status == "ok" and not plain.extras["checked"]
+    est = estimate_of(runs, 128, 8, mod, prm, order_from=64)
+    assert est.extras["checked"] and est.extras["order_from_model"] and est.observed_order is None
+    assert est.l2 == plain.l2 and est.l2_bounds[1] == pytest.approx(est.l2 * 255 / 127)
+    assert not estimate_of(runs, 128, 8, mod, prm, order_from=65).extras["checked"]
+    runs[32] = runner.run("CVA8", 32)   # a third run: its observed order, not the model's word
+    est = estimate_of(runs, 128, 8, mod, prm, order_from=64)
+    assert est.observed_order is not None and not est.extras.get("order_from_model")
+
+
+def test_a_later_call_runs_no_third_run_far_below_tol(monkeypatch):
+    """Later tol= calls on a scene: an estimate accepted on the scene model's order (no third run) is
+    at most THIRD_FREE tol; the largest floor of FLOOR_SAMPLES calls' twins far below tol stands for
+    the twins, a large one does not. Every run meets tol."""
+    from vcirun.run import choose
+
+    monkeypatch.setattr(choose, "_MODELS", {})
+    kw = dict(T=5, beta=4.2)
+    ref = vcirun.reference("cart_pendulum", **kw)
+    first = vcirun.simulate("cart_pendulum", tol=1e-6, **kw)
+    assert first.choice.status == "ok" and first.choice.estimate.observed_order is not None
+    (model,) = choose._MODELS.values()
+    for tol in (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9):
+        tr = vcirun.simulate("cart_pendulum", tol=tol, **kw)
+        c = tr.choice
+        assert c.status == "ok" and vcirun.l2_error(tr, ref) <= tol, c
+        if c.estimate.extras.get("order_from_model"):
+            assert c.estimate.l2 <= choose.THIRD_FREE * tol and c.estimate.observed_order is None, c.estimate
+    for mm in model.methods.values():
+        mm.floors[:] = [1e-20] * choose.FLOOR_SAMPLES   # a scene whose twins saw nothing
+    tr = vcirun.simulate("cart_pendulum", tol=1e-7, **kw)
+    assert tr.choice.status == "ok" and not any(x["role"].startswith("twin") for x in tr.choice.pilots), tr.choice
+    for mm in model.methods.values():
+        mm.floors[:] = [1.0] * choose.FLOOR_SAMPLES     # ... and one whose twins saw a large floor
+    tr = vcirun.simulate("cart_pendulum", tol=1e-7, **kw)
+    assert "scene model" not in tr.choice.estimate.extras.get("floor_from", ""), tr.choice
+
+
 def test_amplified_round_off_is_not_an_estimate():
     """A fast start of the double pendulum between walls: CVA8's error at 4984 steps (1.8e-9) exceeds its
     error at 2492 (4.6e-10), round-off amplified from impact to impact; the three runs' differences

@@ -47,6 +47,14 @@ doubles where the impacts disagree, a contact grazes or the observed order is sh
 accepted or the refinement has cost PURSUIT_BUDGET times the pick's predicted run. No candidate
 reaching tol gives the status not_reached (below_floor, over_budget) and the most accurate resolved
 run made (`_fallback`). docs/tolerance.md says where this fails.
+
+Later calls (a scene model; not in the paper, and resting on other starts of the scene): the final and
+one companion at N/2 are run first, the third run only where the pair needs it (`_needs_third`): not
+where the pair agrees to round-off, nor where the final's N is set by tol, the model saw the order at
+the companion's N (`_order_from`) and the estimate is at most THIRD_FREE tol (an estimate that small is
+over tol only where the pair is several orders short of p: docs/tolerance.md). No twins where
+FLOOR_SAMPLES twin measurements on the scene, the largest scaled to N, are CHAIN_MARGIN times below
+FLOOR_SHARE tol (`MethodModel.floor_at`: a sample of the starts seen, not a bound for this one).
 """
 from __future__ import annotations
 
@@ -67,6 +75,11 @@ BOUND = 3.0       # ... and the upper end of its bracket at most BOUND * tol
 FLOOR_SHARE = 0.5   # ... and the round-off floor its twin runs measure at most FLOOR_SHARE * tol
 NOISE_EXPLAINS = 4.0  # runs not showing the order differ by round-off where they differ by at most this times it
 CHAIN_MARGIN = 100.0  # no twin runs where the estimate's own runs differ by at most FLOOR_SHARE tol / CHAIN_MARGIN
+# later calls (a scene model): no third run where the model saw the order at the companion's N and the
+# estimate is at most THIRD_FREE tol; no twins where FLOOR_SAMPLES twin measurements on the scene, the
+# largest scaled to N, are at most FLOOR_SHARE tol / CHAIN_MARGIN
+THIRD_FREE = 0.125
+FLOOR_SAMPLES = 5
 N_FIRST = 16      # the first pilot of a ladder (or T / h for a largest step h)
 MAX_STEPS = 1 << 22
 MAX_ROUNDS = 12   # refinements of the final before the choice says not_reached
@@ -243,6 +256,8 @@ class _Chooser:
         self.cpu0 = time.thread_time()
         self.n_min = max(1, math.ceil(T / h_max * (1 - 1e-12))) if h_max else 1
         self.model = _MODELS.get(key)
+        self.later = False          # the candidates come from the scene model (not this call's scan)
+        self.disagrees = False      # ... and this start's pilots disagree with it (the third run is kept)
 
     # --- runs ----------------------------------------------------------------------------------------
     def run(self, name, N, final=False, timing=False, perturb=None) -> Run:
@@ -364,6 +379,7 @@ class _Chooser:
         for n in names:
             self.names[_label(n)] = n
         if self.model is not None and all(self.method_model(lb) is not None for lb in labels):
+            self.later = True
             cands = self._with_model(labels)
             how = f"ranked by the scene model ({self.model.starts} start{'s' if self.model.starts != 1 else ''} " \
                   "piloted in this process), scaled to this start by its pilots"
@@ -437,6 +453,7 @@ class _Chooser:
         preds = {lb: self._from_model(lb) for lb in labels}
         if not any(c.status == "ok" for c in preds.values()):
             # no candidate resolved on the starts seen (e.g. impacts accumulated there): this start may differ
+            self.later = False
             cands = self._scan(labels)
             self._record(cands, scanned=True)
             return cands
@@ -460,6 +477,9 @@ class _Chooser:
             piloted[c.method] = pc
             if pc.status == "ok" and scale is None and c.N:
                 scale = pc.N / c.N
+                # this start needs more than twice the model's steps, or its pilots show an order short of
+                # p: it is unlike the starts the model saw, and its final run keeps its third run
+                self.disagrees = scale > 2.0 or (a.observed is not None and a.observed < (pc.order or 0) - 0.5)
                 for lb, x in preds.items():
                     if lb not in piloted and x.status == "ok":
                         self._fill(x, max(int(math.ceil(x.N * scale)), self.n_min))
@@ -497,10 +517,17 @@ class _Chooser:
         # PURSUIT_FLOOR seconds): a motion no affordable step resolves is reported, not chased to MAX_STEPS
         budget = max(PURSUIT_FLOOR, PURSUIT_BUDGET * (pick.predicted_cost or 0.0))
         spent0 = self._spent(label)
+        # later calls make the third run after the pair, where the pair needs it (`_needs_third`); where the
+        # final's N is set by what a companion can certify (2 N_asymptotic), not by tol, the model's order
+        # does not stand for the third run: that run, where its order shows, is what lowers the model's
+        # coarsest asymptotic N (`_record`); without it the model keeps the first scan's, and every later
+        # call runs at twice that
+        lazy = self.later
+        order_from = self._order_from(label) if lazy and pick.N > _certifiable(pick) else None
         for _ in range(MAX_ROUNDS):
             if self._spent(label) - spent0 > budget:
                 break
-            N = self._final_N(name, runs, N, pick.N_asymptotic or 1)
+            N = self._final_N(name, runs, N, pick.N_asymptotic or 1, third=not lazy)
             if N > MAX_STEPS:
                 break
             if self.max_time is not None and pick.b is not None and (pick.a or 0) + pick.b * N > self.max_time:
@@ -508,7 +535,14 @@ class _Chooser:
                 break
             r = self.run(name, N, final=True)
             p = self.order(label, N)
-            est = estimate_of(runs, N, p, mod, prm)
+            est = estimate_of(runs, N, p, mod, prm, order_from=order_from)
+            if lazy and self._needs_third(est):
+                comp = _companion(runs, N)
+                k = next((k for k in (2, 3, 4) if comp.N % k == 0), None)
+                if k is not None and _companion(runs, comp.N, 4) is None:
+                    self.run(name, comp.N // k)
+                    p = self.order(label, N)
+                    est = estimate_of(runs, N, p, mod, prm)
             last = est
             if est.status == "ok" and est.extras.get("floor", 0.0) > BOUND * self.tol:
                 pick.status, pick.note = BELOW_FLOOR, (f"tol is below the round-off level {est.extras['floor']:.1e} "
@@ -561,8 +595,10 @@ class _Chooser:
                         # it the model's constant would be that of the starts whose errors are above round-off)
                         floor = max(est.extras.get("floor", 0.0), est.extras.get("floor_measured", 0.0))
                         coarsest = third or _companion(runs, N).N
-                        self._record([Candidate(label, order=p, C=max(est.l2, floor) * N ** p,
-                                                N_resolved=coarsest, N_asymptotic=coarsest)])
+                        # (an estimate on the model's order alone says nothing new of where the order shows)
+                        self._record([Candidate(label, order=p, C=max(est.l2, floor) * N ** p, N_resolved=coarsest,
+                                                N_asymptotic=None if est.extras.get("order_from_model")
+                                                else coarsest)])
                     return self._result(r, label, cands, OK, reason, est)
                 if est.order is not None and est.order < p - 0.25:
                     N = 2 * N   # the companions are not yet asymptotic: shift the three runs up
@@ -596,6 +632,14 @@ class _Chooser:
         if not twins and None not in pairs and max(d.l2 for d in pairs) <= FLOOR_SHARE * self.tol / CHAIN_MARGIN:
             est.extras["floor_from"] = "bounded by the estimate's runs"
             return max(d.l2 for d in pairs), ""
+        # a later call: where the twins of FLOOR_SAMPLES earlier calls on the scene, the largest scaled to
+        # this N, put the floor CHAIN_MARGIN times below FLOOR_SHARE tol, no twins (the model's floor is
+        # a sample of the starts seen, not a bound for this one: docs/tolerance.md)
+        mm = self.method_model(_label(name)) if self.later else None
+        seen = mm.floor_at(N, FLOOR_SAMPLES) if mm is not None else None
+        if not twins and seen is not None and seen <= FLOOR_SHARE * self.tol / CHAIN_MARGIN:
+            est.extras["floor_from"] = f"the scene model (twins of {len(mm.floors)} calls, the largest scaled)"
+            return seen, ""
         # the twin in h first; the twin in the start too unless the first is below FLOOR_SHARE tol / CHAIN_MARGIN
         twins = [self.run(name, base.N, perturb="h")]
         floor, why = amplified_floor(base, twins, N)
@@ -604,17 +648,21 @@ class _Chooser:
             floor, why = amplified_floor(base, twins, N)
         est.extras["floor_from"] = (f"{len(twins)} twin run{'s' if len(twins) > 1 else ''} perturbed at round-off "
                                     f"level, at N = {base.N}")
+        mm = self.method_model(_label(name))
+        if mm is not None and self.key is not None:
+            mm.floors.append(floor / math.sqrt(max(N, base.N)))
         return floor, why
 
     def _spent(self, label) -> float:
         return sum(x["cpu"] for x in self.pilot_log if x["method"] == label)
 
-    def _final_N(self, name, runs: dict, N: int, n_asym: int = 1) -> int:
+    def _final_N(self, name, runs: dict, N: int, n_asym: int = 1, third: bool = True) -> int:
         """The final run's N >= N, with a companion at or above n_asym (the coarsest N that showed the
         order) and a third run below it for the observed order; the cheapest of: a run M >= N made
         already that has both (M is run again with its Trajectory); k M (2 <= k <= MAX_RATIO) for a run
         M >= n_asym made already that has a third run below it; or N rounded up to a multiple of 4 with
-        companions at N/2 and N/4, run here."""
+        companions at N/2 and N/4, run here. third=False (the scene model has the order at n_asym): no
+        third run is needed, and a fresh final has one companion, at N/2."""
         N = max(int(N), self.n_min, 4, 2 * n_asym)
         options = []
         for M, r in runs.items():
@@ -622,19 +670,42 @@ class _Chooser:
                 continue
             comp = _companion(runs, M)
             if (M >= N and comp is not None and comp.N >= n_asym
-                    and _companion(runs, comp.N, 4) is not None):
+                    and (not third or _companion(runs, comp.N, 4) is not None)):
                 options.append((M, M))
             k = max(2, math.ceil(N / M))
-            if k <= MAX_RATIO and _companion(runs, M, 4) is not None:
+            if k <= MAX_RATIO and (not third or _companion(runs, M, 4) is not None):
                 options.append((k * M, k * M))
         fresh = 4 * math.ceil(N / 4)
-        options.append((1.75 * fresh, fresh))
+        options.append(((1.75 if third else 1.5) * fresh, fresh))
         cost, Nf = min(options)
         if Nf == fresh:
-            for M in (fresh // 2, fresh // 4):
+            for M in ((fresh // 2, fresh // 4) if third else (fresh // 2,)):
                 if M not in runs:
                     self.run(name, M)
         return Nf
+
+    def _needs_third(self, est: ErrorEstimate) -> bool:
+        """A later call's pair (the final and its companion) needs a third run for the observed order: where
+        its estimate is a number not checked (neither at round-off nor on the model's order), or checked on
+        the model's order alone but above THIRD_FREE tol and acceptable (the model's order alone certifies
+        only estimates far below tol; above tol N grows on it, and the run becomes the companion of the
+        next). Not where the runs are unresolved: N doubles."""
+        if est.status != "ok":
+            return False
+        if not est.extras.get("checked"):
+            return True
+        return bool(est.extras.get("order_from_model")) and THIRD_FREE * self.tol < est.l2 <= ACCEPT * self.tol \
+            and est.l2_bounds[1] <= BOUND * self.tol
+
+    def _order_from(self, label) -> int | None:
+        """On a later call, the N at and above which the scene model saw `label`'s order (the median of
+        its starts' coarsest asymptotic N, as `_certifiable`): a final whose companion is that fine needs no
+        third run for an estimate far below tol. None on a first call, without that record, or where this
+        start's pilots disagree with the model."""
+        if not self.later or self.disagrees:
+            return None
+        mm = self.method_model(label)
+        return mm.n_asymptotic() if mm is not None else None
 
     def _fallback(self, cands):
         """No candidate reaches tol within the limits: the most accurate resolved run made, with its

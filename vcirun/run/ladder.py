@@ -74,9 +74,13 @@ def _companion(runs: dict, N: int, max_ratio: int = MAX_RATIO) -> Run | None:
     return best
 
 
-def estimate_of(runs: dict, N: int, p: float, mod=None, prm=None, grazing=True) -> ErrorEstimate:
+def estimate_of(runs: dict, N: int, p: float, mod=None, prm=None, grazing=True,
+                order_from: int | None = None) -> ErrorEstimate:
     """The Richardson estimate of run N from its companion among `runs` (ratio r = N / N_companion),
-    with the observed order from a third nested run where there is one."""
+    with the observed order from a third nested run where there is one. order_from: the scene model's
+    word that the order showed at or above this N (vcirun.run.choose, later calls): without a third
+    run, a companion at or above it makes the estimate checked on that word (extras["order_from_model"],
+    the bracket one order wide, as for check_order=False), not on this start's runs."""
     run = runs[N]
     comp = _companion(runs, N)
     if not run.ok:
@@ -95,6 +99,11 @@ def estimate_of(runs: dict, N: int, p: float, mod=None, prm=None, grazing=True) 
     # allows the pair to be two orders short of p (one for p <= 2), and _pursue does not accept it
     margin = min(2.0, max(p - 1.0, 0.5))
     est.extras["checked"] = d.l2 <= floor
+    if third is None and d.l2 > floor and order_from is not None and comp.N >= order_from:
+        # no observed order: the order the model saw on other starts of the scene at this N (the
+        # choice accepts such an estimate only far below tol: vcirun.run.choose, THIRD_FREE)
+        margin = 1.0
+        est.extras["checked"] = est.extras["order_from_model"] = True
     if third is not None and d.l2 > floor:
         d0 = _difference(third, comp)
         if not d0.first and d0.l2 > floor:

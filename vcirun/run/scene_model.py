@@ -23,6 +23,16 @@ class MethodModel:
     b: float | None = None
     a: float | None = None
     unresolved: str = ""
+    # the round-off floors twin runs measured on this scene (any start), each as F / sqrt(N) (F grows like
+    # sqrt(N): vcirun.run.estimate.amplified_floor); inf where a twin changed the impacts
+    floors: list = field(default_factory=list)
+
+    def floor_at(self, N: int, samples: int) -> float | None:
+        """The largest floor measured on the scene, scaled to an N-step run; None with fewer than
+        `samples` measurements (a sample, not a bound: a start unlike those seen may amplify more)."""
+        if len(self.floors) < samples:
+            return None
+        return max(self.floors) * math.sqrt(N)
 
     def constant(self) -> float | None:
         """The median error constant (cached: the model is consulted on every call)."""
