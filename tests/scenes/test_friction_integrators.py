@@ -237,6 +237,22 @@ def test_link_chain_with_friction_settles_as_the_reference(method):
     assert terrs[0] < 5e-4 and terrs[1] < terrs[0] / 2.5, terrs
 
 
+@pytest.mark.parametrize("method", FAST)
+def test_link_chain_of_five_settles_through_a_stick_event_that_jumps(method):
+    """The built-in 5-link chain with friction (`vcirun simulate --system link_chain_friction --h 0.001
+    --T 1`). Lying almost flat on two stuck ends (t = 0.4532), their slip rows cross the dependence
+    threshold of maps/friction.py (DEPENDENT_TOL) inside a partial held step, and the first end's stick
+    event function mu_s lam - |lt| jumps there from +0.19 to -3e8: Illinois alone crept along the jump
+    and the run ended `event_failed` in step 453 (VCI: 450) after the located mode event's 100
+    iterations (collision/algorithm1.py _locate_mode_event, which now bisects where it stalls). The
+    chain comes to rest flat on its six ends, every end held and stuck."""
+    tr = vcirun.simulate("link_chain_friction", method, h=1e-3, T=1.0)
+    assert tr.status == "ok", tr.message
+    assert np.all(tr.contact_active[-1]) and np.all(tr.contact_mode[-1] == 2)
+    assert float(np.max(np.abs(tr.q[-1][1:]))) <= 1e-12      # y and every angle: flat on the floor
+    assert float(np.max(np.abs(tr.p[-1]))) <= 1e-12
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("method", ["CVA", "MCVAA"])
 def test_compass_gait_stance_foot_sticks_in_the_methods(method):

@@ -310,8 +310,19 @@ def _locate_mode_event(st, t, L, tau0, c, kind):
     """The root tau in [0, L] of held contact c's event function along the held step from (st.q, st.p)
     at t (positive at tau = 0 unless the event is at the start, negative at L), from the
     interpolated tau0: secant iterations on the held map's own value, safeguarded by the bracket
-    (Illinois), to event_tol h, ending at an evaluated point. On return (st.qt, st.pt) hold the state
-    at tau and st.fw[0] its friction work. Returns (status, tau, iterations)."""
+    (Illinois, and bisection when the iteration stalls: the collision search's rule for a bracket
+    that stops shrinking, events.py _refine_root), to event_tol h, ending at an evaluated point. On
+    return (st.qt, st.pt) hold the state at tau and st.fw[0] its friction work. Returns (status,
+    tau, iterations).
+
+    The event function can jump: a stuck contact's forces change model where a nearly dependent
+    stuck slip row crosses maps/friction.py's DEPENDENT_TOL (the 5-link chain lying almost flat on
+    two stuck ends: mu_s lam - |lt| from +0.19 to -3e8 within one partial step). Illinois alone
+    creeps along such a jump (the far end weighs 1e9 times the near one: some 30 halvings of it per
+    crossing; 100 evaluations were not enough). The safeguard bisects there, the bracket closes on
+    the jump, and the search ends on its near side once the secant correction across it is below
+    tol / 10 (the jump then known to 2e-9 and 4e-13, after 70 and 159 evaluations, for the 5-link
+    chain with CVA and VCI at h = 1e-3): the cap is the collision search's, 200."""
     h = st.h
     ga = st.mu[c] if kind == 0 else st.ev[c]
     gb = st.mu_end[c] if kind == 0 else st.ev_end[c]
@@ -330,8 +341,9 @@ def _locate_mode_event(st, t, L, tau0, c, kind):
     xp = np.nan
     gp = np.nan
     side = 0
+    width = b - a
     iters = 0
-    for _ in range(100):
+    for k in range(200):
         it, _E = _hold(st, x, t)
         if it < 0:
             return ST_NEWTON_FAILED, x, iters - it
@@ -361,6 +373,13 @@ def _locate_mode_event(st, t, L, tau0, c, kind):
             xn = (a * gb - b * ga) / (gb - ga)
             if not (xn > a and xn < b):
                 xn = 0.5 * (a + b)
+        if k % 3 == 2:
+            # stalling (the bracket not halved in three evaluations, nor the correction in the last
+            # one: Illinois creeping along a jump, its steps doubling): bisect. A secant converging
+            # from one side keeps its bracket but halves its corrections, and goes on untouched.
+            if b - a > 0.5 * width and abs(xn - x) > 0.5 * abs(x - xp):
+                xn = 0.5 * (a + b)
+            width = b - a
         xp = x
         gp = g
         x = xn

@@ -297,7 +297,7 @@ def touching_mask(q, p, h, event_tol, prm, mask, held):
         if mask[i] != 0:
             continue
         if u[i] >= 0.0:
-            # (the tolerance is >= 0: a contact at or below its surface needs no tolerance, O(n) each)
+            # (the tolerance is >= 0: a contact at or below its surface needs no tolerance, O(row) each)
             touching = phis[i] <= 0.0 or phis[i] <= _touch_tolerance_nz(qn, gv, i, u[i], h, event_tol)
         else:
             # approaching by less than its gap's round-off within a step: the search cannot resolve

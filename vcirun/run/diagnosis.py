@@ -35,7 +35,9 @@ def failure_cause(mod, status, Q, p, t0, fail, h, prm, tol, H0, impacts, modes=N
         if status == ACCUMULATION:
             return _accumulation(impacts, h, int(tol["max_impacts_step"]))
         if status == EVENT_FAILED:
-            return "the collision-time search did not bracket the root to event_tol * h within 200 iterations"
+            # (both event searches end so: the collision time and, with friction, a held contact's mode event)
+            return ("an event search (the collision time, or a held contact's stick or slip event) did not "
+                    "bracket its root to event_tol * h within 200 iterations")
         t = t0 + fail * h
         if status == NEWTON_FAILED:
             stiff = _stiff_force(mod, Q[-1], p, prm, h, t)
