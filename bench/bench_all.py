@@ -742,7 +742,8 @@ def section_loop(res):
     import loop_targets
 
     r = loop_targets.measure(Path(os.environ.get("VCIRUN_BENCH_BASE", "/work/main")),
-                             ["yardstick", "kernels", "cradle", "coldbuild"], 41 if QUICK else 201)
+                             ["yardstick", "kernels", "cradle", "coldbuild"], 41 if QUICK else 201,
+                             ("shared", "specialized"))
     loop_targets.report(r, log=log)
     res["loop"] = r
 

@@ -1,6 +1,7 @@
 """`make bench` section `loop`: the engine loop's targets, this tree against a base tree, in one run.
 
     python bench/loop_targets.py [--base /work/main] [--rows yardstick,cradle,coldbuild] [--repeats 201]
+                                 [--builds shared,specialized]
 
 Rows (each tree in its own fresh process, its own code on PYTHONPATH, the shared kernel cache):
   yardstick  cart-pendulum CVA, T = 5, h = 1e-2, beta = 3.2: vcirun's compiled loop (Trajectory.wall_time)
@@ -14,7 +15,9 @@ Rows (each tree in its own fresh process, its own code on PYTHONPATH, the shared
   coldbuild  the first cart-pendulum CVA simulation with an empty kernel cache (VCIRUN_CACHE_DIR a fresh
              directory): the family's lean core and the scene's module compiled, CPU seconds of the
              process and its children (the C compiler)
-Printed as a table with the targets of the engine issue; never asserted.
+The yardstick and kernels rows run in each build of --builds (VCIRUN_BUILD: the default shared core,
+whose loop calls the scene's kernels by address, and the specialized module, one scene compiled with
+the loop). Printed as a table with the targets of the engine issue; never asserted.
 """
 from __future__ import annotations
 
@@ -51,15 +54,19 @@ def _run(tree: Path, code: str, env_extra: dict | None = None, timeout: float = 
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
-def measure(base: Path, rows: list[str], repeats: int) -> dict:
+def measure(base: Path, rows: list[str], repeats: int, builds: tuple = ("shared",)) -> dict:
     bench = str(ROOT / "bench")
     out = {}
     for name, tree in (("this", ROOT), ("base", base)):
         res = {"loadavg_before": os.getloadavg()[0]}
-        if "yardstick" in rows:
-            res["yardstick"] = _run(tree, _YARDSTICK.format(bench=bench, n=repeats, kernels=False))
-        if "kernels" in rows:
-            res["kernels"] = _run(tree, _YARDSTICK.format(bench=bench, n=repeats, kernels=True))
+        for b in builds:
+            sfx = "" if b == "shared" else f"@{b}"
+            if "yardstick" in rows:
+                res["yardstick" + sfx] = _run(tree, _YARDSTICK.format(bench=bench, n=repeats, kernels=False),
+                                              {"VCIRUN_BUILD": b})
+            if "kernels" in rows:
+                res["kernels" + sfx] = _run(tree, _YARDSTICK.format(bench=bench, n=repeats, kernels=True),
+                                            {"VCIRUN_BUILD": b})
         if "cradle" in rows:
             res["cradle"] = _run(tree, _CRADLE.format(bench=bench))
         if "coldbuild" in rows:
@@ -73,7 +80,10 @@ def report(r: dict, log=print) -> None:
     log("== the loop's targets: this tree against the base, one run (fresh process per tree and row)")
     for name in ("this", "base"):
         t = r[name]
-        for row, what in (("yardstick", "closed forms"), ("kernels", "generated kernels")):
+        rows = [(k, ("closed forms" if k.startswith("yardstick") else "generated kernels")
+                 + (f", {k.split('@')[1]} build" if "@" in k else ", shared build"))
+                for k in t if k.startswith(("yardstick", "kernels"))]
+        for row, what in rows:
             y = t.get(row, {})
             if "hand_ms" in y:
                 log(f"  {name:4s} hand-written CVA ({what}) {y['hand_ms']:.4f} ms | loop {y['loop_ms']:.4f} ms = "
@@ -101,8 +111,9 @@ def main(argv=None):
     ap.add_argument("--base", default="/work/main")
     ap.add_argument("--rows", default="yardstick,kernels,cradle,coldbuild")
     ap.add_argument("--repeats", type=int, default=201)
+    ap.add_argument("--builds", default="shared,specialized")
     a = ap.parse_args(argv)
-    r = measure(Path(a.base), a.rows.split(","), a.repeats)
+    r = measure(Path(a.base), a.rows.split(","), a.repeats, tuple(a.builds.split(",")))
     report(r)
     print(json.dumps(r))
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import os
 
+from ..core.environ import getenv
 from . import modules as build
 
 __all__ = ["TIERS", "ENV", "requested", "Kernels", "load_module"]
@@ -34,7 +35,7 @@ def requested(tier=None) -> str:
     """The tier asked for: `tier`, else $VCIRUN_TIER, else "auto" (ValueError naming the field)."""
     field = "tier"
     if tier is None:
-        tier, field = os.environ.get(ENV, "").strip() or "auto", ENV
+        tier, field = getenv(ENV, "").strip() or "auto", ENV
     if not isinstance(tier, str) or tier.strip().lower() not in TIERS:
         raise ValueError(f"{field}: {tier!r} is not a tier (use auto, interpreted or compiled)")
     return tier.strip().lower()

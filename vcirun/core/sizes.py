@@ -19,6 +19,7 @@ import os
 import re
 
 from . import record
+from .environ import getenv
 from .values import as_real, describe
 
 __all__ = ["run_bytes", "stored_bytes", "parse_bytes", "format_bytes", "memory_limit", "set_memory_limit",
@@ -111,7 +112,7 @@ def memory_limit() -> int:
         return _SCOPED.get()
     if _LIMIT is not None:
         return _LIMIT
-    env = os.environ.get("VCIRUN_MAX_MEMORY")
+    env = getenv("VCIRUN_MAX_MEMORY")
     if env:
         return parse_bytes(env, "VCIRUN_MAX_MEMORY")
     return _physical_memory() // 2

@@ -55,11 +55,20 @@ def check_number(field: str, value, *, gt=None, ge=None, lt=None, le=None, integ
         x = int(x)
     elif x is None or not math.isfinite(x):
         raise ValueError(f"{field}: must be a finite number (got {describe(value)})")
-    for bound, ok, op in ((gt, lambda b: x > b, ">"), (ge, lambda b: x >= b, ">="), (lt, lambda b: x < b, "<"),
-                          (le, lambda b: x <= b, "<=")):
-        if bound is not None and not ok(bound):
-            raise ValueError(f"{field}: must be {op} {bound:g} (got {describe(value)})")
+    # (plain comparisons: this runs several times per simulate call)
+    if gt is not None and not x > gt:
+        _out_of_bounds(field, ">", gt, value)
+    if ge is not None and not x >= ge:
+        _out_of_bounds(field, ">=", ge, value)
+    if lt is not None and not x < lt:
+        _out_of_bounds(field, "<", lt, value)
+    if le is not None and not x <= le:
+        _out_of_bounds(field, "<=", le, value)
     return x
+
+
+def _out_of_bounds(field: str, op: str, bound, value):
+    raise ValueError(f"{field}: must be {op} {bound:g} (got {describe(value)})")
 
 
 def check_bool(field: str, value, *, allow_none: bool = False):

@@ -14,6 +14,7 @@ from ..core.system_data import start_beta
 from ..core.tolerances import DEFAULT_TOLERANCES
 from . import trajectory as tr
 from .diagnosis import failure_cause
+from .pilot import RunArgs
 from .plan import Buffers, first_call, plan, ready_start, run_loop, start_state
 
 _LOCAL = threading.local()   # this thread's reused loop buffers (vcirun.run.plan.Buffers)
@@ -80,7 +81,7 @@ def simulate(system, method=None, *, T, h=None, tol=None, beta=None, q0=None, p0
              resting_contact=resting_contact, options=options, start=dict(beta=beta, q0=q0, p0=p0, params=params),
              kc=kernel_cache.of(loader), tier=tier)
     sysd, h, N, t0 = p.sysd, p.h, p.N, p.t0
-    prm = sysd.param_values(params)
+    prm = p.params(params)
     p.check_memory()  # before any buffer is allocated
     beta = start_beta(sysd, beta, q0, p0)  # a scene's default beta, recorded in the trajectory
     start = start_state(sysd, beta, q0, p0, prm, p.sysm)
@@ -114,8 +115,6 @@ def _default_h(T):
 def run_args(p, system, beta, q0, p0, params, constrained, resting_contact, options, t0):
     """What `Trajectory.error_estimate` needs to run companions of this call (vcirun.run.pilot.RunArgs):
     the start as the run took it (q0, p0 after the Legendre transform), the plan's system and method."""
-    from .pilot import RunArgs
-
     return RunArgs(system=p.system, method=p.meth, t0=float(t0), q0=q0, p0=p0, params=params,
                    constrained=constrained, resting_contact=resting_contact,
                    options={k: v for k, v in options.items() if k not in ("ld", "mh_order", "flow_order")})
@@ -124,7 +123,7 @@ def run_args(p, system, beta, q0, p0, params, constrained, resting_contact, opti
 def trajectory_of(p, mod, out, counters, q0, p0, prm, beta, wall) -> tr.Trajectory:
     """The Trajectory of one finished loop of plan `p` (its grid rows are the Trajectory's)."""
     sysd, h, t0, tol, meth, energies = p.sysd, p.h, p.t0, p.tol, p.meth, p.energies
-    arrays = record.trim(out, counters, modified=meth.has_modified_energy)
+    arrays = record.trim(out, counters, modified=p.ks.modified is not None)   # (meth.has_modified_energy)
     status, fail = record.STATUS_CODES[counters["status"]], counters["fail_step"]
     message = ""
     if status != tr.OK:

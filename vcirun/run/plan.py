@@ -26,8 +26,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..codegen import build
 from ..core import record
 from ..core.bounds import check_simulate_args, check_start_args
+from ..core.environ import getenv
 from ..core.grid import grid_note
 from ..core.sizes import check_run_memory, memory_limit, run_bytes
 from ..core.system_data import (
@@ -72,7 +74,9 @@ class Plan:
     kc: KernelCache = None  # the kernel cache that loads its module
     tier: str = "auto"
     tier_used: str = None
+    memo: tuple = None      # resolve_numeric's warm memo of a built-in scene (what `_still_warm` looks up)
     _mod: object = None
+    _prm: np.ndarray = None  # the default parameter vector
 
     @property
     def max_impacts_step(self) -> int:
@@ -90,7 +94,12 @@ class Plan:
             check_run_memory(self.N, self.sysd.n)
 
     def params(self, params) -> np.ndarray:
-        return self.sysd.param_values(params)
+        """The run's parameter vector (a new array per call; the defaults' checks run once per plan)."""
+        if params is not None:
+            return self.sysd.param_values(params)
+        if self._prm is None:
+            self._prm = self.sysd.param_values(None)
+        return self._prm.copy()
 
 
 def first_call(mod, plan: Plan, q0, p0, prm) -> None:
@@ -110,16 +119,17 @@ def first_call(mod, plan: Plan, q0, p0, prm) -> None:
 
 
 _PLANS_MAX = 64   # plans kept per kernel cache
+# the environment that chooses a module (vcirun.codegen.modules.build_id and the kernel path)
+_BUILD_ENV = ("VCIRUN_BUILD", "NUMBA_DISABLE_JIT", "VCIRUN_CORE_NDOF", "VCIRUN_KERNEL_PATH")
 
 
 def _key(system, method, h, T, t0, constrained, energies, resting_contact, options, tier):
     """The key of a plan kept for reuse (None: resolve per call): a built-in scene's name (checked
     when the plan is stored), the method's name, every value with its type, the build mode, the tier."""
-    from ..codegen import build
-
     if type(system) is not str or type(method) is not str:
         return None
-    key = (system, method, build.build_id(), os.environ.get("VCIRUN_KERNEL_PATH", ""), tier, type(h), h, type(T), T,
+    # the settings that choose the module, as set (a finer key than the build id they make)
+    key = (system, method, tuple(getenv(k) for k in _BUILD_ENV), tier, type(h), h, type(T), T,
            type(t0), t0, type(constrained), constrained, type(energies), energies, type(resting_contact),
            resting_contact)
     if options:
@@ -169,7 +179,8 @@ def plan(system, method, *, h, T, t0=0.0, constrained=None, energies=True, resti
     p = Plan(system=system, sysd=sysd, sysm=sysm, meth=meth, load=load, h=h, T=T, N=N, t0=float(t0), tol=tol,
              mopts=mopts, constrained=bool(constrained), energies=bool(energies),
              resting_contact=bool(resting_contact), settings=settings, note=grid_note(h, T),
-             need=run_bytes(N, sysd.n), ks=ks, hit=hit, kc=kc, tier=tier)
+             need=run_bytes(N, sysd.n), ks=ks, hit=hit, kc=kc, tier=tier,
+             memo=(("scene", system), ks, os.environ.get("VCIRUN_KERNEL_PATH", ""), build.build_id()))
     if key is not None and sysm is None and scene_args(system) is not None:   # warm: nothing symbolic held
         with kc.lock:
             kc.plans[key] = p
@@ -180,8 +191,7 @@ def plan(system, method, *, h, T, t0=0.0, constrained=None, energies=True, resti
 
 def _still_warm(p: Plan, key) -> bool:
     """The warm-start memo that served plan `p` still holds its entry."""
-    memo = (("scene", key[0]), p.ks, key[3], key[2])   # (ident, ks, kernel path, build id)
-    return p.kc.warm_hits.get(memo) is p.hit
+    return p.kc.warm_hits.get(p.memo) is p.hit
 
 
 

@@ -1,0 +1,23 @@
+"""Environment variables read on a per-call path.
+
+`os.environ.get` of a name that is not set raises and catches a KeyError inside the mapping (about
+1.4 us here), and one `vcirun.simulate` call reads several names that are usually unset (the build
+mode, the kernel path, the tier, the memory limit). `getenv` looks the name up in the mapping's own
+dict (CPython keeps os.environ's encoded items in `os.environ._data`, updated by every assignment to
+os.environ), and falls back to `os.environ.get` where that dict is not there. The standard library
+only: every layer may import this.
+"""
+from __future__ import annotations
+
+import os
+
+_DATA = getattr(os.environ, "_data", None) if os.name == "posix" else None
+_DECODE = getattr(os.environ, "decodevalue", None)
+
+
+def getenv(name: str, default=None):
+    """os.environ.get(name, default), without the exception of an unset name."""
+    if _DATA is None or _DECODE is None:
+        return os.environ.get(name, default)
+    v = _DATA.get(name.encode("utf-8", "surrogateescape"))
+    return default if v is None else _DECODE(v)
