@@ -20,13 +20,11 @@ of the first rows of a larger buffer).
 from __future__ import annotations
 
 import math
-import os
 import time
 from dataclasses import dataclass
 
 import numpy as np
 
-from ..codegen import build
 from ..core import record
 from ..core.bounds import check_simulate_args, check_start_args
 from ..core.environ import getenv
@@ -42,7 +40,7 @@ from ..codegen.kernel_cache import KernelCache, default
 from ..core.tolerances import split_options
 from ..methods.table import resolve_method
 from ..scenes.registry import scene_args
-from .resolve import _warmable, resolve_numeric, resolve_system
+from .resolve import _warmable, resolve_numeric, resolve_system, warm_memo
 
 
 @dataclass(eq=False)
@@ -180,7 +178,7 @@ def plan(system, method, *, h, T, t0=0.0, constrained=None, energies=True, resti
              mopts=mopts, constrained=bool(constrained), energies=bool(energies),
              resting_contact=bool(resting_contact), settings=settings, note=grid_note(h, T),
              need=run_bytes(N, sysd.n), ks=ks, hit=hit, kc=kc, tier=tier,
-             memo=(("scene", system), ks, os.environ.get("VCIRUN_KERNEL_PATH", ""), build.build_id()))
+             memo=warm_memo(("scene", system), ks))
     if key is not None and sysm is None and scene_args(system) is not None:   # warm: nothing symbolic held
         with kc.lock:
             kc.plans[key] = p

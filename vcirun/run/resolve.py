@@ -104,6 +104,12 @@ def _entry_data(sysm) -> dict:
             "coordinates": [str(c) for c in sysm.q], "restitution": restitution_parameters(sysm)}
 
 
+def warm_memo(ident, ks: build.KernelSet) -> tuple:
+    """The key of a kernel cache's warm hits (`KernelCache.warm_hits`) for a warm identity (("scene", name)
+    of a built-in scene) and kernel set, under the build and kernel path set now."""
+    return ident, ks, os.environ.get("VCIRUN_KERNEL_PATH", ""), build.build_id()
+
+
 def resolve_numeric(system, ks: build.KernelSet, kc: KernelCache | None = None):
     """(SystemData, kernels, symbolic system or None) for `system` (built-in name, YAML path or
     MechanicalSystem) and kernel set `ks`; kernels(tier=None) returns the module from kernel cache `kc`
@@ -116,7 +122,7 @@ def resolve_numeric(system, ks: build.KernelSet, kc: KernelCache | None = None):
     kc = default() if kc is None else kc
     ident, raw = _warm_ident(system) if kc.warm else (None, None)
     if ident is not None:
-        memo = (ident, ks, os.environ.get("VCIRUN_KERNEL_PATH", ""), build.build_id())
+        memo = warm_memo(ident, ks)
         hit = kc.warm_hits.get(memo)
         if hit is not None:   # this cache has read the entry already: no file access per call
             return hit
