@@ -29,3 +29,16 @@ def test_an_unset_variable_gives_the_default_and_follows_later_changes(monkeypat
 def test_every_variable_of_this_process():
     for k, v in os.environ.items():
         assert getenv(k) == v
+
+
+@pytest.mark.parametrize("name", ["VCIRUN_BUILD", "NUMBA_DISABLE_JIT", "VCIRUN_CORE_NDOF", "VCIRUN_KERNEL_PATH"])
+def test_a_kept_plan_is_not_reused_under_another_build_setting(monkeypatch, name):
+    from vcirun.run.plan import _key
+
+    args = ("cart_pendulum", "CVA", 1e-2, 1.0, 0.0, None, True, True, {}, "auto")
+    monkeypatch.delenv(name, raising=False)
+    unset = _key(*args)
+    monkeypatch.setenv(name, "")
+    empty = _key(*args)
+    monkeypatch.setenv(name, "specialized")
+    assert len({unset, empty, _key(*args)}) == 3
