@@ -10,7 +10,7 @@ from numba import njit
 STACK_DOUBLES = 4096
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@njit(cache=True, nogil=True, error_model="numpy")
 def solve_band(A, b, n, bw, tiny=0.0):
     """Solve A x = b in place (x returned in b) by Gaussian elimination with partial pivoting, for a
     matrix whose entries (i, j) with |i - j| > bw are zero: the elimination restricted to the band
@@ -24,17 +24,9 @@ def solve_band(A, b, n, bw, tiny=0.0):
     n <= 2 (the paper's scenes: cart-pendulum, double pendulum, one-DOF oscillators) runs straight-line
     code with the loops' operations in their order (the same bits and the same A and b left behind,
     `_eliminate`): a Newton step solves one such system per iteration, and the loops' bounds and
-    branches cost as much as the arithmetic there. This function is inlined, so that case is pasted
-    into each caller (no call per Newton iteration: 3-4 % of the cart-pendulum CVA loop, either build);
-    other n call `_solve_other`."""
+    branches cost as much as the arithmetic there."""
     if n == 2:
         return _solve2(A, b, bw, tiny)
-    return _solve_other(A, b, n, bw, tiny)
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _solve_other(A, b, n, bw, tiny):
-    """`solve_band` at n != 2 (a call: the elimination's loops stay out of the callers' code)."""
     if n == 1:
         amax = abs(A[0, 0])
         if not amax > tiny or not math.isfinite(amax):
