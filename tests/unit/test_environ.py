@@ -1,4 +1,5 @@
-"""vcirun.core.environ.getenv reads the mapping os.environ keeps, as os.environ.get does."""
+"""vcirun.core.environ.getenv reads the mapping os.environ keeps, as os.environ.get does; the key of a
+kept plan follows the variables that choose its module."""
 from __future__ import annotations
 
 import os

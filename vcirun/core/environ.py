@@ -11,13 +11,14 @@ from __future__ import annotations
 
 import os
 
-_DATA = getattr(os.environ, "_data", None) if os.name == "posix" else None
+_DATA = getattr(os.environ, "_data", None)
+_ENCODE = getattr(os.environ, "encodekey", None)   # (the mapping's own key and value codecs)
 _DECODE = getattr(os.environ, "decodevalue", None)
 
 
 def getenv(name: str, default=None):
     """os.environ.get(name, default), without the exception of an unset name."""
-    if _DATA is None or _DECODE is None:
+    if not isinstance(_DATA, dict) or _ENCODE is None or _DECODE is None:
         return os.environ.get(name, default)
-    v = _DATA.get(name.encode("utf-8", "surrogateescape"))
+    v = _DATA.get(_ENCODE(name))
     return default if v is None else _DECODE(v)
