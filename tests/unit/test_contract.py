@@ -59,6 +59,22 @@ def test_a_stale_declaration_is_named(tmp_path, monkeypatch):
         units.check_unit(u)
 
 
+_NO_WRAPPER = '@njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True)\n'
+
+
+def test_a_function_python_calls_keeps_its_wrappers(tmp_path, monkeypatch):
+    """A unit function compiled without numba's Python wrapper cannot be called from Python (its entry
+    point is a null address): one Python calls on a module (roles.ENTRY) or a role's implementation
+    is refused with that flag; any other function may drop it."""
+    head = "from numba import njit\n\n"
+    for name, params in (("hamiltonian", "q, p, prm"), ("reset_cva", ", ".join(roles.ROLES["reset"].params))):
+        u = _unit(tmp_path, monkeypatch, head + _NO_WRAPPER + f"def {name}({params}):\n    return 0\n")
+        with pytest.raises(units.ContractError, match=rf"{name} is compiled without numba's Python wrapper, but "
+                                                      r"Python calls it .*: drop no_cpython_wrapper"):
+            units.check_unit(u)
+    units.check_unit(_unit(tmp_path, monkeypatch, head + _NO_WRAPPER + "def inner(q, p, prm):\n    return 0\n"))
+
+
 def test_a_passed_check_is_stamped_and_any_change_is_checked_again(tmp_path, monkeypatch):
     """A unit that passed is not parsed again by a later process (its stamp in the cache), but a
     changed unit, or changed declarations, are checked anew: the stamp names everything the check

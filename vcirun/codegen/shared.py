@@ -74,7 +74,9 @@ def _slot_name(k: roles.KernelDecl, sid: int) -> str:
 
 def _wrapper(k: roles.KernelDecl, attr: str) -> list[str]:
     call = ", ".join(f"carray({a}, {s.shape})" if s.kind in "ab" else a for a, s in k.args)
-    return ['@njit(cache=True, nogil=True, error_model="numpy")', f"def _p_{attr}({k.arg_names}):",
+    # called by address only: no Python or C entry wrapper is compiled for it
+    return ['@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)',
+            f"def _p_{attr}({k.arg_names}):",
             f"    return {attr}({call})", ""]
 
 
@@ -403,8 +405,8 @@ def link(name: str, scene_mod, core_mod, ks: KernelSet):
     mod = pytypes.ModuleType(name)
     mod.__file__ = getattr(scene_mod, "__file__", None)
     for k, v in vars(core_mod).items():
-        if k.startswith("__"):
-            continue
+        if k.startswith("__") or getattr(v, "targetoptions", {}).get("no_cpython_wrapper"):
+            continue   # (a function without numba's Python wrapper is called from compiled code only)
         mod.__dict__[k] = _Entry(v, scene) if hasattr(v, "py_func") else v
     for k, v in vars(scene_mod).items():
         if not k.startswith("__"):

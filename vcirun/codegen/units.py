@@ -375,6 +375,22 @@ def _check(path: str, text: str) -> None:
                                     f"({_sig_text(r.params, r.optional)}); {fn} takes ({_sig_text(params, optional)})"
                                     " (vcirun.codegen.roles)")
     check_frame(text, path)
+    check_wrappers(tree, path, set(impl))
+
+
+def check_wrappers(tree: ast.Module, path: str, implementations=()) -> None:
+    """A function compiled without numba's Python and C entry wrappers (`no_cpython_wrapper=True,
+    no_cfunc_wrapper=True`: a cold build compiles less) is called from compiled code only: a name
+    Python calls on a module (roles.ENTRY) or a role's implementation keeps its wrappers."""
+    entry = {n for names in roles.ENTRY.values() for n in names} | set(implementations)
+    for fn in tree.body:
+        if not isinstance(fn, ast.FunctionDef) or fn.name not in entry:
+            continue
+        for d in fn.decorator_list:
+            if isinstance(d, ast.Call) and any(k.arg == "no_cpython_wrapper" for k in d.keywords):
+                raise ContractError(f"{path}:{fn.lineno}: {fn.name} is compiled without numba's Python wrapper, "
+                                    "but Python calls it (vcirun.codegen.roles ENTRY, or a role's implementation): "
+                                    "drop no_cpython_wrapper and no_cfunc_wrapper")
 
 
 def _sig_text(params, optional) -> str:

@@ -32,7 +32,7 @@ from vcirun.maps.linalg import copy_into, set_row
 from vcirun.maps.steps import step_resolves_force
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _finite(x):
     for i in range(x.shape[0]):
         if not math.isfinite(x[i]):
@@ -117,8 +117,9 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
         lamt[j] = 0.0
     fw[0] = 0.0
     n[N_FRESH] = 0
-    set_row(Q, 0, q)
-    set_row(P, 0, p)
+    for j in range(NDOF):   # row 0 (set_row(Q, 0, q) would compile set_row once more, for a literal 0)
+        Q[0, j] = q[j]
+        P[0, j] = p[j]
     info[I_N_IMPACTS] = 0
     info[I_N_PARTIAL] = 0
     info[I_N_RELEASES] = 0
@@ -177,12 +178,13 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
             else:
                 contact_forces(qt, pt, t + h, prm, held, mu_end)
                 frac, c = _release_fraction(mu, mu_end, held)
+        tau = -1.0   # where in the step Algorithm 1's event step starts (< 0: none)
         if c >= 0:
             impact_step[i] = True  # a step with an event inside (a release, a friction mode's end)
             if FRICTION:
-                status, itc = _mode_change(st, t, frac * h, c, kind)
+                status, tau, itc = _mode_change(st, t, frac * h, c, kind)
             else:
-                status, itc = _release(st, t, frac * h, c)
+                status, tau, itc = _release(st, t, frac * h, c)
             iters += itc
         elif (not constrained) or ((sys_phi(qt, prm) > 0.0) if (NCON == 1 and nheld == 0) else (
                 _phis_positive(qt, prm, phis) or step_admissible(q, p, qt, h, st.event_tol, prm, held, nheld, phis))):
@@ -194,7 +196,12 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
             copy_into(p, pt)
         else:
             impact_step[i] = True
-            status, itc = _event_step(st, h, t, PARTIAL_IS_FULL and nheld == 0)
+            tau = 0.0
+        # the event step: the whole step (a collision in it), or its rest after a release or a mode's
+        # end at t + tau. Its one call site is here: a call from _release or _mode_change would link
+        # its code into theirs, and numba would optimize and emit it there once more.
+        if status == ST_OK and tau >= 0.0:
+            status, itc = _event_step(st, h - tau, t + tau, PARTIAL_IS_FULL and nheld == 0)
             iters += itc
         if status != ST_OK:
             fail = i
@@ -244,28 +251,27 @@ def _hold(st, tau, t):
                      st.fw)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _release(st, t, tau, c):
     """A grid step from t in which held contact c is released after tau: the constrained map to
-    t + tau, the release (recorded), then the rest of the step as an event step from there.
-    Returns (status, iterations)."""
+    t + tau and the release (recorded); integrate takes the rest of the step as an event step from
+    there. Returns (status, tau, iterations)."""
     it = 0
     if tau > 0.0:
         it, _ = _hold(st, tau, t)
         if it < 0:
-            return ST_NEWTON_FAILED, -it
+            return ST_NEWTON_FAILED, tau, -it
         copy_into(st.q, st.qt)
         copy_into(st.p, st.pt)
     st.held[c] = 0
     st.n[N_HELD] -= 1
     _record_release(st, t + tau, c)
-    status, itc = _event_step(st, st.h - tau, t + tau, np.bool_(False))
-    return status, it + itc
+    return ST_OK, tau, it
 
 
 # --- friction: the end of a held contact's mode, located inside the step ------------------------------
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _mode_event_fraction(st, strict):
     """(fraction of the step, contact, kind) of the first event of a held contact inside the held step
     just taken, by linear interpolation between its values at the step's start (st.mu, st.ev) and end
@@ -295,7 +301,7 @@ def _mode_event_fraction(st, strict):
     return (best if c >= 0 else -1.0), c, kind
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _mode_event_value(st, te, c, kind, ev, lam, lt):
     """The event function of held contact c at (st.qt, st.pt), time te: its normal force (kind 0) or its
     mode event value (ev, lam, lt: scratch). NaN in Painleve's case."""
@@ -305,7 +311,7 @@ def _mode_event_value(st, te, c, kind, ev, lam, lt):
     return lam[c] if kind == 0 else ev[c]
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _locate_mode_event(st, t, L, tau0, c, kind):
     """The root tau in [0, L] of held contact c's event function along the held step from (st.q, st.p)
     at t (positive at tau = 0 unless the event is at the start, negative at L), from the
@@ -386,25 +392,22 @@ def _locate_mode_event(st, t, L, tau0, c, kind):
     return ST_EVENT_FAILED, x, iters
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _mode_change(st, t, tau0, c, kind):
     """A grid step from t in which held contact c's mode ends (kind as _mode_event_fraction): the held
     map to the located event, the change there (kind 0: released; 1: its slip stopped, stuck if
     Coulomb's static bound holds, else slipping the other way; 2: its stick ended, slipping where the
     unbalanced force drives; the other held contacts' modes re-decided with it: maps/friction.py
-    assign_modes), recorded, then the rest of the step as an event step from there. Returns
-    (status, iterations)."""
+    assign_modes) and recorded; integrate takes the rest of the step as an event step from there.
+    Returns (status, tau, iterations)."""
     status, tau, it = _locate_mode_event(st, t, st.h, tau0, c, kind)
     if status != ST_OK:
-        return status, it
+        return status, tau, it
     status = _change_mode(st, t, tau, c, kind)
-    if status != ST_OK:
-        return status, it
-    status, itc = _event_step(st, st.h - tau, t + tau, np.bool_(False))
-    return status, it + itc
+    return status, tau, it
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _change_mode(st, t, tau, c, kind):
     """The change of held contact c's mode (kind as _mode_event_fraction) at the located event t + tau,
     whose state _locate_mode_event left in (st.qt, st.pt) (with its friction work st.fw[0]): into
@@ -441,7 +444,7 @@ def _change_mode(st, t, tau, c, kind):
     return ST_OK
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _newly_stuck(st, before):
     for j in range(NCON):
         if st.held[j] == HELD_STICK and before[j] != HELD_STICK:
@@ -449,7 +452,7 @@ def _newly_stuck(st, before):
     return False
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _stick_projection(st):
     """The stuck contacts' slip velocities zeroed with the held normal velocities (maps/friction.py
     friction_project); the kinetic energy it removes is friction's, booked as the current step's
@@ -471,7 +474,7 @@ def _stick_projection(st):
         st.lamt[j] = 0.0
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _record_mode_changes(st, t, before, c):
     """Record every held contact whose mode differs from before[] (contact c's first: the event's own),
     kind 1 stuck, 2 a stick ended, 3 a slip reversed."""
@@ -490,7 +493,7 @@ def _record_mode_changes(st, t, before, c):
             _record_mode_change(st, t, j, 1 if st.held[j] == HELD_STICK else (2 if before[j] == HELD_STICK else 3))
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _modes_stale(st):
     """Does a held contact's mode contradict the grid state (st.ev from _record_contacts): a slip whose
     velocity has turned against its direction, or a stick past Coulomb's static bound? The partial
@@ -503,7 +506,7 @@ def _modes_stale(st):
     return False
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _reassign_modes(st, k, t):
     """The held contacts' modes decided afresh at grid state k (time t) by maps/friction.py
     assign_modes, a slip whose velocity has turned against its direction tried stuck first (its slip
@@ -533,7 +536,7 @@ def _record_mode_change(st, t, c, kind):
         st.info[I_N_MODE_CHANGES] = k + 1
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _event_step(st, tau_max, t, have_end):
     """Lines 5-17 of Algorithm 1: the step of length tau_max (<= the grid step h) from (st.q, st.p) at
     t whose full step left the admissible set, by partial steps to each collision and the impact
@@ -688,7 +691,7 @@ def _touching(st, ti, k_law):
     return ST_RESET_FAILED, 0, 0, 0.0, 0.0
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _unresolved_touch(st):
     """Several constraints: at the search's root (st.qt, st.pt), every contact at or past its surface
     (phi_i <= 0; at least the smallest phi_i) has a normal velocity u_i >= 0 whose motion over a
@@ -775,7 +778,7 @@ def _after_impact(st, ti, k, s, s0, mapped, k_imp):
 
 # --- helpers of the grid step ---------------------------------------------------------------------------
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _record_contacts(st, k, t):
     """contact_active[k], contact_force[k] (and with friction contact_mode[k]) at grid state k (st.q,
     st.p); st.mu receives the held contacts' normal forces (with friction st.lt their tangential
@@ -808,7 +811,7 @@ def _record_contacts(st, k, t):
     return ok
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _release_fraction(mu, mu_end, held):
     """(fraction of the step, contact) of the first held contact whose force turns tensile inside the
     step, by linear interpolation of its force between the step's start (mu) and end (mu_end): O(h^2)
@@ -824,7 +827,7 @@ def _release_fraction(mu, mu_end, held):
     return (best if c >= 0 else -1.0), c
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _phis_positive(qt, prm, phis):
     """Every phi_i(qt) > 0 (phis: scratch): a full step with several contacts is admissible then,
     whatever is touching or held (step_admissible's first test, without its other arguments)."""
@@ -835,7 +838,7 @@ def _phis_positive(qt, prm, phis):
     return True
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _dissipative(q, p, t, prm, active):
     """True if an impacting contact has restitution < 1 or the force does negative work at (q, p, t)
     (drag): dense impacts then accumulate (their energy goes) and are held; elastic impacts of a
@@ -847,7 +850,7 @@ def _dissipative(q, p, t, prm, active):
     return _inelastic(prm, active)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _plastic(prm, active, lam):
     """Every contact of the impact that takes an impulse (lam_i > 0) has restitution 0."""
     e = scratch(NCON)
@@ -861,7 +864,7 @@ def _plastic(prm, active, lam):
     return hit
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _inelastic(prm, active):
     """True if a contact of the impact has restitution < 1 (only those can come to rest in _settle)."""
     e = scratch(NCON)
@@ -872,7 +875,7 @@ def _inelastic(prm, active):
     return False
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _small_bounce(q, pp, t, h, prm, j, e_j, u_j):
     """Contact j leaves p+ = pp with a bounce that comes to rest: restitution e_j < 1 and a normal
     velocity u_j at most |d^2 phi_j/dt^2| h while pressed in (its next flight shorter than two steps;
@@ -883,7 +886,7 @@ def _small_bounce(q, pp, t, h, prm, j, e_j, u_j):
     return a < 0.0 and u_j <= -a * h
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _law_suffices(q, pm, pp, E_pre, t, h, ntol, prm, active, lam):
     """After a reset without root, is the impact law's p+ = pp as good (docs/derivations/contacts.md
     7.4)? True if every contact that took an impulse (lam_i > 0) leaves with a bounce _settle holds
@@ -918,7 +921,7 @@ def _law_suffices(q, pm, pp, E_pre, t, h, ntol, prm, active, lam):
     return ke <= 10.0 * (abs(E_pre - H) + ntol * abs(H))
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _count(held):
     k = 0
     for j in range(NCON):
@@ -926,7 +929,7 @@ def _count(held):
     return k
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _settle(st, t, s, s0, accumulating):
     """After an impact at t (p+ = st.pp at st.qt): hold the impact's contacts that come to rest -- all
     of them when impacts accumulate, else those with restitution < 1 left a normal velocity below
@@ -969,7 +972,7 @@ def _settle(st, t, s, s0, accumulating):
     return _count(held)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def initially_held(q, p, t, h, event_tol, prm, held):
     """Hold the contacts the state rests on: touching (phi_i within its tolerance), normal velocity
     at most |d^2 phi_i/dt^2| h, pressed in, and with a compressive multiplier when held together

@@ -32,7 +32,7 @@ Search = namedtuple("Search", ("qh", "ph", "qt", "pt", "vt", "held", "fw", "mask
                                "h", "t", "ntol", "maxit", "event_tol", "nheld"))
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _hermite(s, ga, da, gb, db, H):
     s2 = s * s
     s3 = s2 * s
@@ -40,7 +40,7 @@ def _hermite(s, ga, da, gb, db, H):
             + (3.0 * s2 - 2.0 * s3) * gb + (s3 - s2) * H * db)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _model_first_root(a, ga, da, b, gb, db):
     """First root in (a, b) of the cubic Hermite model of g (values and slopes at both ends), or -1
     if the model shows more than one sign change (an earlier root may hide: scan instead) or is not
@@ -101,7 +101,7 @@ def step_admissible(q, p, qt, h, event_tol, prm, held, nheld, phis):
     return gap(qt, prm, mask) > 0.0 and unmask_penetrating(q, qt, prm, mask, held) == 0
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def partial_map(q0, p0, tau, h, t, prm, ntol, maxit, q1, p1, v1, held, nheld, fw):
     """Phi^partial_tau, or with contacts held the constrained map of the full step's discrete
     Lagrangian (maps/held.py held_step: every method, with friction the contacts' slip and stick
@@ -133,7 +133,7 @@ def collision_time(qh, ph, tau_max, h, t, prm, ntol, maxit, event_tol, qt, pt, v
     return _search(s, tau_max, np.bool_(False))
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def search_collision(st, tau_max, t, have_end, nheld):
     """collision_time from the event loop's state st (collision/state.py LoopState: the search starts
     at (st.qh, st.ph) at time t, with st.held's nheld contacts held); have_end: (st.qt, st.pt) already
@@ -151,7 +151,9 @@ def _partial(s, tau):
     return partial_map(s.qh, s.ph, tau, s.h, s.t, s.prm, s.ntol, s.maxit, s.qt, s.pt, s.vt, s.held, s.nheld, s.fw)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+# _search and its stages inline: search_collision is a frame for the mask around them, and a call
+# would have numba optimize and emit the partial steps below it once more in each caller
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _search(s, tau_max, have_end):
     """The search of collision_time over the record s. The held contacts stay out of the gap, and
     partial steps are then the constrained map.
@@ -201,7 +203,7 @@ def _search(s, tau_max, have_end):
     return code, tau, E, iters + itc
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _leave_surface(s, tau_max, b, gb, db):
     """On (or numerically just past) the surface at tau = 0: the trivial root at 0 is not a
     collision. Halve towards 0 until g > 0; the first collision lies before any point with g < 0.
@@ -227,7 +229,7 @@ def _leave_surface(s, tau_max, b, gb, db):
     return 1, 0.0, 0.0, 0.0, b, gb, db, E, iters + abs(it)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _scan_bracket(s, a, ga, b, gb):
     """The cubic model is unsure (several sign changes, or no slopes): sample the bracket for the first
     sign change, as a plain bracket would skip an earlier root. Returns (code, c, a, ga, b, gb, E,
@@ -256,7 +258,7 @@ def _scan_bracket(s, a, ga, b, gb):
     return 0, (a * gb - b * ga) / (gb - ga), a, ga, b, gb, E, iters
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _refine_root(s, c, a, ga, b, gb):
     """From c in the bracket [a, b] (g(a) > 0 > g(b)): secant on the partial map's own g (Newton with
     the flow's slope for the first correction), safeguarded by the bracket: a step that leaves it, or

@@ -234,7 +234,7 @@ def friction_impact_law(W, u, e, mu, lam):
     return LCP_UNIQUE if certified else FRIC_SOLVED
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _fr_groups(A, fric, k):
     """The groups of contacts that W couples (a path of nonzero blocks between them; a tangent row
     without friction does not count): group[i] in 0 .. ngroups - 1."""
@@ -270,7 +270,7 @@ def _fr_groups(A, fric, k):
     return group
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _fr_tableau(A, u, mu, lam1, r, k, ctc, nc, ia, ib, iz, ip, im, ig, T, m, attempt, qs):
     """Lemke's tableau [I | -M | -d | q] (d the covering vector) of one group's stage-2 LCP
     w = q + M x >= 0, x >= 0, x . w = 0.
@@ -340,7 +340,7 @@ def _fr_tableau(A, u, mu, lam1, r, k, ctc, nc, ia, ib, iz, ip, im, ig, T, m, att
             T[i, 2 * m + 1] += shift * (1.0 + ((7 * i + attempt) % 11) / 10.0)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _fr_cover(i, m, attempt):
     """Entry i of the covering vector of an attempt: 1 (Lemke's usual), then two ramps and a
     sawtooth, all in [1, 2]."""
@@ -353,7 +353,7 @@ def _fr_cover(i, m, attempt):
     return 1.0 + ((7 * i) % 11) / 10.0
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _fr_lemke(T, basis, m, x):
     """Lemke's complementary pivoting on the tableau T[:m] = [I | -M | -d | q] (d the covering vector).
     Ratio test: the least ratio rhs / column entry (right-hand sides below FRIC_RHS_TOL max |q| count
@@ -414,7 +414,7 @@ def _fr_lemke(T, basis, m, x):
     return 2
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _fr_basic_x(T, basis, m, x):
     """x of the tableau's basic solution (the basic x variables at their right-hand sides, >= 0)."""
     for i in range(m):
@@ -425,7 +425,7 @@ def _fr_basic_x(T, basis, m, x):
             x[basis[i] - m] = b if b > 0.0 else 0.0
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _fr_lex_less(T, a, b, c, m):
     """Row a before row b in the lexicographic rule on column c: the rows of B^-1 (the w columns)
     divided by their column-c entries, compared in order; entries within FRIC_TIE_TOL of the rows'
@@ -442,7 +442,7 @@ def _fr_lex_less(T, a, b, c, m):
     return a < b
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _fr_pivot(T, basis, r, c, m, nz):
     """Gauss-Jordan pivot on T[r, c]: column c's variable replaces basis[r]. The other rows are updated
     on the columns where the pivot row is nonzero only (nz: work array of 2m + 2 indices); for finite
@@ -467,7 +467,7 @@ def _fr_pivot(T, basis, r, c, m, nz):
     basis[r] = c
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _fr_extract(x, ctc, nc, ia, ib, ip, im, mu, P, lt):
     """P_i = a + b (>= 0) and lt_i = beta+ - beta-, put into Coulomb's cone exactly (round-off), for
     the group's contacts."""
@@ -485,7 +485,7 @@ def _fr_extract(x, ctc, nc, ia, ib, ip, im, mu, P, lt):
         lt[i] = t
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _fr_check(A, u, mu, lam1, r, P, lt, fric, k, ctc, nc, qs, wmax):
     """The law's conditions on (P, lt) at the group's contacts, in velocity units (impulses times
     max W_ii): u+_n >= 0, the rebound graph between P_i and u+_n,i, and friction
@@ -533,7 +533,7 @@ def _fr_check(A, u, mu, lam1, r, P, lt, fric, k, ctc, nc, qs, wmax):
     return True
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _fr_certified(A, mu, fric, k, ctc, nc, wmax):
     """The uniqueness bound of several contacts (docs/derivations/friction.md): W restricted to the
     group's rows (its normal rows, the tangent rows of its contacts with friction) minus c I positive
@@ -572,7 +572,7 @@ def _fr_certified(A, mu, fric, k, ctc, nc, wmax):
     return True
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _fr_single(A, u, mu, lam1, r, i, box, fr, k, qs, wmax, P, lt):
     """One contact alone in its group: the number of stage 2's solutions, by enumeration of its pieces
     (normal: the rebound graph's four, or u+_n = 0 / P = 0 without rebound; tangential: stick, slide +,

@@ -53,7 +53,7 @@ def impact_direction(q, pm, h, event_tol, prm, d, lam, active):
     return _impact_several(q, pm, h, event_tol, prm, e, d, lam, active)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _newton_loss_one(q, pm, prm, g, e):
     """(1 - e^2) u^2 / (2 W) of one contact with gradient g (0.0 exactly for e = 1)."""
     if e == 1.0:
@@ -63,7 +63,7 @@ def _newton_loss_one(q, pm, prm, g, e):
     x = scratch(NDOF)
     for i in range(NDOF):
         x[i] = g[i]
-    if not solve_band(A, x, NDOF, BAND):
+    if not solve_band(A, x, NDOF, BAND, 0.0):
         return 0.0
     W = 0.0
     u = 0.0
@@ -73,7 +73,7 @@ def _newton_loss_one(q, pm, prm, g, e):
     return (1.0 - e * e) * u * u / (2.0 * W)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _impact_several(q, pm, h, event_tol, prm, e, d, lam, active):
     phis = scratch(NCON)
     G = scratch2(NCON, NDOF)
@@ -156,7 +156,7 @@ def touching_set(q, phis, G, u, h, event_tol, idx):
     return k, approaching
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def touch_tolerance(q, prm, i, u, h, event_tol):
     """How close to phi_i = 0 counts as touching: the event tolerance's worth of motion, or round-off
     of phi_i near q (64 eps (1 + |q| |grad phi_i|), as a start on the surface)."""
@@ -168,7 +168,7 @@ def touch_tolerance(q, prm, i, u, h, event_tol):
     return _touch_tolerance_nz(qn, gv, i, u, h, event_tol)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _touch_tolerance_row(q, G, i, u, h, event_tol):
     """touch_tolerance with the constraint Jacobian G at q given (loops over the contacts build it
     once: O(m n), not O(m^2 n))."""
@@ -245,14 +245,14 @@ def normal_velocities(q, p, prm):
     return u
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _normal_velocities_into(q, p, prm, u):
     gv = scratch(DPHI_NNZ)
     sys_dphis_nz(q, prm, gv)
     _normal_velocities_nz(q, p, prm, gv, u)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _normal_velocities_nz(q, p, prm, gv, u):
     """u = G M(q)^-1 p with G's structural nonzeros gv at q given (sys_dphis_nz). Row i's sum takes
     its nonzeros in column order: the dense sum's terms but for its zero products, which leave a
@@ -262,7 +262,7 @@ def _normal_velocities_nz(q, p, prm, gv, u):
     for i in range(NDOF):
         x[i] = p[i]
     sys_M(q, prm, A)
-    if not solve_band(A, x, NDOF, BAND):
+    if not solve_band(A, x, NDOF, BAND, 0.0):
         for i in range(NCON):
             u[i] = np.nan
         return
@@ -310,7 +310,7 @@ def touching_mask(q, p, h, event_tol, prm, mask, held):
     return k
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def unmask_penetrating(q0, q1, prm, mask, held):
     """Unmask the masked contacts (held ones aside) that the motion from q0 to q1 drives into their
     constraint: phi_i(q1) below min(phi_i(q0), 0) by more than the round-off of phi_i at q1. A

@@ -145,14 +145,14 @@ def impact_law(W, um, e, lam):
     return LCP_MIN_NORM
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _lcp_clip_into(x, lam, k):
     """lam = max(x, 0): removes the round-off negatives (within the accepted violation)."""
     for i in range(k):
         lam[i] = x[i] if x[i] > 0.0 else 0.0
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _lcp_violation(A, q, x, mask, k, wmax):
     """Largest violation of the LCP conditions by x (supported on mask), in velocity units:
     -x_i wmax and |w_i| on the support (w_S = 0 there), -w_i off it."""
@@ -168,7 +168,7 @@ def _lcp_violation(A, q, x, mask, k, wmax):
     return v if v == v else np.inf
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _lcp_solve_support(A, q, mask, k, wmax, x):
     """x_S = -A_SS^-1 q_S, x = 0 off S = mask, by Gaussian elimination with partial pivoting
     (maps/linalg.py); False if A_SS is singular (a pivot not above LCP_RANK_TOL wmax)."""
@@ -194,7 +194,7 @@ def _lcp_solve_support(A, q, mask, k, wmax, x):
     return True
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _lcp_rank_full(A, mask, k, wmax):
     """True if the principal submatrix A_SS (S = mask; symmetric PSD) is positive definite: Cholesky
     with every pivot above LCP_RANK_TOL wmax. The empty matrix counts as nonsingular."""
@@ -205,7 +205,7 @@ def _lcp_rank_full(A, mask, k, wmax):
     return _cholesky_pd(A, sel, k, wmax)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _lcp_pinv_support(A, q, mask, k, wmax, x):
     """x_S = pinv(A_SS) (-q_S) (the least-norm least-squares solution; eigenvalues below LCP_RANK_TOL
     wmax count as zero), x = 0 off S, by the cyclic Jacobi eigendecomposition of the symmetric A_SS."""
@@ -273,7 +273,7 @@ LEMKE_PIVOT_TOL = 1e-12  # a tableau entry below this times its column's largest
 LEMKE_MAX_PIVOTS = 50    # times k (Lemke needs about k pivots; cycling is excluded by the lexicographic rule)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _lcp_large(A, q, qs, k, wmax, lam):
     """The LCP of k > LCP_MAX_CONTACTS contacts: Lemke, then the uniqueness checks of the case codes."""
     x = np.zeros(k)
@@ -350,7 +350,7 @@ def lemke(A, q, x):
     return 2
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _lex_less(T, a, b, c, k):
     """Row a before row b in the lexicographic ratio test on column c: (rhs, B^-1 row) / T[., c]."""
     ra = T[a, 2 * k + 1] / T[a, c]
@@ -365,7 +365,7 @@ def _lex_less(T, a, b, c, k):
     return a < b
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _pivot(T, basis, r, c, k):
     """Gauss-Jordan pivot on T[r, c]: column c's variable replaces basis[r]."""
     nc = T.shape[1]
@@ -383,7 +383,7 @@ def _pivot(T, basis, r, c, k):
     basis[r] = c
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _lcp_violation_dense(A, q, x, k, wmax):
     """Largest violation of x >= 0, w = q + A x >= 0 and of complementarity, in velocity units."""
     v = 0.0
@@ -395,7 +395,7 @@ def _lcp_violation_dense(A, q, x, k, wmax):
     return v if v == v else np.inf
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _cholesky_pd(A, sel, k, wmax):
     """True if A restricted to {i : sel[i] = 1} is positive definite (pivots above LCP_RANK_TOL wmax)."""
     idx = np.empty(k, np.int64)

@@ -77,7 +77,7 @@ def reset_mcva(q, pm, d, s0, dE, E_pre, vpre, dtau, tau_rem, h, t, prm, ntol, ma
     return it, lam
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _mcva_declared(q, pm, d, dE, h, prm, ntol, maxit, pp):
     """R^MCVA after a declared reset map (collision/declared.py): pm = d = the map's p+ at the
     post-impact q, and the caller's dE makes the target H~(q, pm) - dE the pre-impact H~ less the

@@ -58,7 +58,7 @@ def reset_vci(q, pm, d, s0, dE, E_pre, vpre, dtau, tau_rem, h, t, prm, ntol, max
     return -total, s0
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _vci_newton(q, pm, E_target, tau_rem, t, prm, ntol, maxit, g, lam_start, pp):
     """Newton on (w, lam) for eq. (33) (forced: its energy condition with the work terms, see
     reset_vci) from lam_start; returns (iterations or -iterations, lam)."""

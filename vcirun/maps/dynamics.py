@@ -18,7 +18,7 @@ def velocity_from(A, p, v):
     """v = A^{-1} p for A = M(q) (destroyed; a band matrix of half-width BAND); v = 0 if A is singular (Newton then starts from rest)."""
     for i in range(NDOF):
         v[i] = p[i]
-    if not solve_band(A, v, NDOF, BAND):
+    if not solve_band(A, v, NDOF, BAND, 0.0):
         for i in range(NDOF):
             v[i] = 0.0
 
@@ -38,7 +38,7 @@ def hamiltonian(q, p, prm):
     x = scratch(NDOF)
     copy_into(x, p)
     sys_M(q, prm, A)
-    solve_band(A, x, NDOF, BAND)
+    solve_band(A, x, NDOF, BAND, 0.0)
     s = 0.0
     for i in range(NDOF):
         s += p[i] * x[i]
@@ -54,7 +54,7 @@ def hamilton_rhs(y, prm, out):
     x = scratch(NDOF)
     copy_into(x, p)
     sys_M(q, prm, A)
-    solve_band(A, x, NDOF, BAND)
+    solve_band(A, x, NDOF, BAND, 0.0)
     g = scratch(NDOF)
     sys_dHq(q, x, prm, g)
     for i in range(NDOF):
@@ -96,7 +96,7 @@ def gdot(q, p, prm):
     x = scratch(NDOF)
     copy_into(x, p)
     sys_M(q, prm, A)
-    if not solve_band(A, x, NDOF, BAND):
+    if not solve_band(A, x, NDOF, BAND, 0.0):
         return np.nan
     g = scratch(NDOF)
     sys_dphi(q, prm, g)
@@ -115,7 +115,7 @@ def cva_lambda(q, pm, prm, g):
     sys_M(q, prm, A)
     x = scratch(NDOF)
     copy_into(x, g)
-    if not solve_band(A, x, NDOF, BAND):
+    if not solve_band(A, x, NDOF, BAND, 0.0):
         return 0.0
     gWg = 0.0
     gWp = 0.0
@@ -141,7 +141,7 @@ def delassus(A, G, idx, k, X, W):
         for r in range(NDOF):
             for c in range(NDOF):
                 B[r, c] = A[r, c]
-        if not solve_band(B, X[a], NDOF, BAND):
+        if not solve_band(B, X[a], NDOF, BAND, 0.0):
             ok = False
     for a in range(k):
         for c in range(k):

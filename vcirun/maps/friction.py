@@ -50,7 +50,7 @@ def slipping(mode):
     return mode == 1 or mode == -1
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _minv_rows(A, R, r, X):
     """X[c] = M^-1 R[c] for the first r rows (A = M, kept). Returns False if M is singular."""
     B = scratch2(NDOF, NDOF)
@@ -157,7 +157,7 @@ def contact_rows(q, prm, held, A, G, W, idx, sidx, lead):
     return k, ks
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _force_rows(G, W, held, mu, idx, k, sidx, ks, D):
     """D (k + ks rows): the force rows of the held contacts (G_j - mu_j s_j W_j slipping, G_j stuck),
     then the independent stuck contacts' slip rows W_j."""
@@ -172,7 +172,7 @@ def _force_rows(G, W, held, mu, idx, k, sidx, ks, D):
             D[k + b, i] = W[j, i]
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _constraint_rows(G, W, idx, k, sidx, ks, C):
     """C (k + ks rows): the held contacts' normal rows G_j, then the independent stuck slip rows W_j."""
     for a in range(k):
@@ -183,7 +183,7 @@ def _constraint_rows(G, W, idx, k, sidx, ks, C):
             C[k + b, i] = W[sidx[b], i]
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _contact_matrix(A, C, D, r, X, K):
     """X[c] = M^-1 D_c^T (A = M, kept) and K[a, c] = C_a . X[c]: the contact matrix C M^-1 D^T of the r
     rows (symmetric without slipping contacts). Returns False if M is singular."""
@@ -198,7 +198,7 @@ def _contact_matrix(A, C, D, r, X, K):
     return True
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _share(held, lead, lam, mus, lt):
     """The tangential forces (or impulses) lt of the independent stuck contacts shared within their
     groups in proportion to mu_s lam (equal shares where those vanish)."""

@@ -27,7 +27,7 @@ from vcirun.maps.linalg import solve_small, copy_into, STACK_DOUBLES
 from vcirun.maps.newton import NEWTON_CONVERGED, NEWTON_GO_ON, newton_stop
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _free_motion(q, p, t, prm, dd, G, A, w):
     """The terms of d^2 phi / dt^2 along the free motion through (q, p) at t, with v = M^-1 p and
     F = -dH/dq + f, into the caller's arrays: dd_i = v^T Hess phi_i v (NCON), G = grad phi
@@ -50,14 +50,27 @@ def _free_motion(q, p, t, prm, dd, G, A, w):
         w[j] = f[NDOF + j] - mdv[j]
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _copy2(dst, src):
     for i in range(src.shape[0]):
         for j in range(src.shape[1]):
             dst[i, j] = src[i, j]
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+# The count comes from a call, so numba types it int64 from the start: a count started at 0 in the
+# caller is first typed as the literal 0, and its first pass compiles the solvers once more for it.
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
+def _held_index(held, idx):
+    """idx[:k] <- the held contacts' indices in order; returns k."""
+    k = 0
+    for i in range(NCON):
+        if held[i] != 0:
+            idx[k] = i
+            k += 1
+    return k
+
+
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def contact_forces(q, p, t, prm, held, mu):
     """mu_A: the multipliers of the held contacts in the continuous motion through (q, p) at t,
     pdot = F + G_A^T mu, F = -dH/dq + f, from d^2/dt^2 phi_A = 0 with v = M^-1 p:
@@ -66,12 +79,8 @@ def contact_forces(q, p, t, prm, held, mu):
     if the held contacts' Delassus matrix is singular."""
     for i in range(NCON):
         mu[i] = 0.0
-    k = 0
     idx = scratch_i(NCON)
-    for i in range(NCON):
-        if held[i] != 0:
-            idx[k] = i
-            k += 1
+    k = _held_index(held, idx)
     if k == 0:
         return True
     dd = scratch(NCON)
@@ -104,17 +113,14 @@ def contact_forces(q, p, t, prm, held, mu):
     return True
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def project_momentum(q, p, prm, held, imp):
     """p <- p + G_A^T pi with G_A M^-1 p = 0 after (the held contacts' normal velocities zeroed, a
     plastic impact on them); imp[i] receives pi_i (0 for contacts not held)."""
-    k = 0
-    idx = scratch_i(NCON)
     for i in range(NCON):
         imp[i] = 0.0
-        if held[i] != 0:
-            idx[k] = i
-            k += 1
+    idx = scratch_i(NCON)
+    k = _held_index(held, idx)
     if k == 0:
         return True
     G = scratch2(NCON, NDOF)
@@ -144,7 +150,7 @@ def project_momentum(q, p, prm, held, imp):
     return True
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def held_stage(sid, q0, p0, hs, t, prm, ntol, maxit, held, v, q1, p1, imp):
     """One constrained explicit stage (see the unit's header); v: Newton's start on entry, the step
     velocity on exit; imp[i] += lam_i + mu_i. Returns Newton iterations (< 0 on failure)."""
@@ -227,7 +233,7 @@ def held_stage(sid, q0, p0, hs, t, prm, ntol, maxit, held, v, q1, p1, imp):
     return it if ok else -it
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def held_step(q0, p0, h, t, prm, ntol, maxit, held, q1, p1, vlast, imp, impt, work):
     """The constrained map of the scene's discrete Lagrangian (its explicit stages in turn, each
     constrained: held_stage, or with friction maps/friction.py friction_stage, which holds the
@@ -269,7 +275,7 @@ def held_step(q0, p0, h, t, prm, ntol, maxit, held, q1, p1, vlast, imp, impt, wo
     return total, Ed
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def normal_acceleration(q, p, t, prm, i):
     """d^2 phi_i / dt^2 of the free (unheld) motion through (q, p): negative when the motion is pressed
     into contact i."""

@@ -19,7 +19,8 @@ def solve_band(A, b, n, bw, tiny=0.0):
     dense elimination (bw = n - 1, `solve_small`). O(n bw^2) instead of O(n^3) plus O(n^2) scans: a
     line of 100 free balls solves its diagonal step Jacobian in O(n). A (n, n) is destroyed.
     Returns False if a pivot is not above `tiny` (0: A is singular to working precision; the impact
-    law passes its rank tolerance) or not finite.
+    law passes its rank tolerance) or not finite. The units pass `tiny` always: numba compiles a call
+    that omits it as a specialization of its own.
 
     n <= 2 (the paper's scenes: cart-pendulum, double pendulum, one-DOF oscillators) runs straight-line
     code with the loops' operations in their order (the same bits and the same A and b left behind,

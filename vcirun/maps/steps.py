@@ -41,7 +41,7 @@ def explicit_step(sid, q0, p0, h, t, prm, newton_tol, max_iter, v, q1, p1, c, cn
         ld_PmJc(sid, q0, v, h, t, prm, c, r, J)
         for i in range(NDOF):
             r[i] -= p0[i]
-        if not solve_band(J, r, NDOF, BAND):
+        if not solve_band(J, r, NDOF, BAND, 0.0):
             break
         dn = 0.0
         vn = 0.0
