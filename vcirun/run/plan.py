@@ -177,9 +177,9 @@ def plan(system, method, *, h, T, t0=0.0, constrained=None, energies=True, resti
     p = Plan(system=system, sysd=sysd, sysm=sysm, meth=meth, load=load, h=h, T=T, N=N, t0=float(t0), tol=tol,
              mopts=mopts, constrained=bool(constrained), energies=bool(energies),
              resting_contact=bool(resting_contact), settings=settings, note=grid_note(h, T),
-             need=run_bytes(N, sysd.n), ks=ks, hit=hit, kc=kc, tier=tier,
-             memo=warm_memo(("scene", system), ks))
+             need=run_bytes(N, sysd.n), ks=ks, hit=hit, kc=kc, tier=tier)
     if key is not None and sysm is None and scene_args(system) is not None:   # warm: nothing symbolic held
+        p.memo = warm_memo(("scene", system), ks)   # (read only for a kept plan)
         with kc.lock:
             kc.plans[key] = p
             while len(kc.plans) > _PLANS_MAX:

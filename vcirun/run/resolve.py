@@ -5,7 +5,6 @@ Used by vcirun.simulate and by a Trajectory that re-attaches its dynamics."""
 from __future__ import annotations
 
 import hashlib
-import os
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +12,7 @@ import numpy as np
 from ..codegen import build
 from ..codegen.kernel_cache import KernelCache, default
 from ..codegen.tiers import Kernels
+from ..core.environ import getenv
 from ..core.system_data import SystemData, restitution_parameters
 from ..scenes.registry import scene_args, scene_data
 
@@ -107,7 +107,7 @@ def _entry_data(sysm) -> dict:
 def warm_memo(ident, ks: build.KernelSet) -> tuple:
     """The key of a kernel cache's warm hits (`KernelCache.warm_hits`) for a warm identity (("scene", name)
     of a built-in scene) and kernel set, under the build and kernel path set now."""
-    return ident, ks, os.environ.get("VCIRUN_KERNEL_PATH", ""), build.build_id()
+    return ident, ks, getenv("VCIRUN_KERNEL_PATH", ""), build.build_id()
 
 
 def resolve_numeric(system, ks: build.KernelSet, kc: KernelCache | None = None):
