@@ -154,12 +154,8 @@ def project_momentum(q, p, prm, held, imp):
 def held_stage(sid, q0, p0, hs, t, prm, ntol, maxit, held, v, q1, p1, imp):
     """One constrained explicit stage (see the unit's header); v: Newton's start on entry, the step
     velocity on exit; imp[i] += lam_i + mu_i. Returns Newton iterations (< 0 on failure)."""
-    k = 0
     idx = scratch_i(NCON)
-    for i in range(NCON):
-        if held[i] != 0:
-            idx[k] = i
-            k += 1
+    k = _held_index(held, idx)
     m = NDOF + k
     x = scratch(m)
     for j in range(m):
