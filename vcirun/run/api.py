@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import threading
-import time
 
 import numpy as np
 
@@ -95,9 +94,7 @@ def simulate(system, method=None, *, T, h=None, tol=None, beta=None, q0=None, p0
     buffers = getattr(_LOCAL, "buffers", None)
     if buffers is None:
         buffers = _LOCAL.buffers = Buffers(keep_grid=False)
-    t_start = time.perf_counter()
-    out, counters = run_loop(mod, q0, p0, t0, h, N, prm, p.settings, sysd.n, p.max_impacts_step, buffers)
-    wall = time.perf_counter() - t_start
+    out, counters, wall = run_loop(mod, q0, p0, t0, h, N, prm, p.settings, sysd.n, p.max_impacts_step, buffers)
     traj = trajectory_of(p, mod, out, counters, q0, p0, prm, beta, wall)
     traj.tier = p.tier_used
     traj.run_args = run_args(p, system, beta, q0, p0, params, constrained, resting_contact, options, t0)

@@ -167,7 +167,7 @@ def _one(ctx: _Context, mod, i: int, j: int, res: dict) -> None:
     buffers = getattr(ctx.local, "buffers", None)
     if buffers is None:
         buffers = ctx.local.buffers = Buffers(keep_grid=True)
-    out, c = run_loop(mod, q0, p0, p.t0, p.h, p.N, prm, p.settings, p.sysd.n, p.max_impacts_step, buffers)
+    out, c, _ = run_loop(mod, q0, p0, p.t0, p.h, p.N, prm, p.settings, p.sysd.n, p.max_impacts_step, buffers)
     steps, status, fail = c["steps"], record.STATUS_CODES[c["status"]], c["fail_step"]
     H = out[_O_H][: steps + 1]
     H0 = float(H[0])

@@ -290,10 +290,8 @@ class Runner:
             if need > memory_limit():
                 check_run_memory(N, n)
         c0 = time.thread_time()
-        t_start = time.perf_counter()
-        out, counters = run_loop(mod, q0, p0, self.t0, h, N, prm, p.settings, n, p.max_impacts_step,
-                                 buffers=_FRESH)
-        wall = time.perf_counter() - t_start
+        out, counters, wall = run_loop(mod, q0, p0, self.t0, h, N, prm, p.settings, n, p.max_impacts_step,
+                                       buffers=_FRESH)
         steps = counters["steps"]
         Q = out[_INDEX["q"]][: steps + 1]
         P = out[_INDEX["p"]][: steps + 1]

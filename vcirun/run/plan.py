@@ -297,11 +297,14 @@ class Buffers:
 
 
 def run_loop(mod, q0, p0, t0, h, N, prm, settings, n, max_impacts_step, buffers: Buffers | None = None):
-    """(output buffers, counters) of the compiled loop. The impact record starts at N / 4 + 16
-    entries; the loop reports ST_ACCUMULATION also when it is full, which is a buffer size, not
-    impacts accumulating: then it reruns with room for every impact the caps allow."""
+    """(output buffers, counters, seconds in the compiled loop) of a run. The impact record starts at
+    N / 4 + 16 entries; the loop reports ST_ACCUMULATION also when it is full, which is a buffer size,
+    not impacts accumulating: then it reruns with room for every impact the caps allow. The seconds
+    are those of the compiled calls alone (a Trajectory's `wall_time`); preparing the buffers is the
+    caller's time."""
     cap_imp, most = record.impact_capacity(N), N * max_impacts_step + 16
     m = int(mod.NCON)
+    wall = 0.0
     while True:
         if buffers is None:
             out = record.allocate(N, n, m=m, cap_impacts=cap_imp)
@@ -310,9 +313,11 @@ def run_loop(mod, q0, p0, t0, h, N, prm, settings, n, max_impacts_step, buffers:
         info = np.zeros(len(record.COUNTERS), dtype=np.int64)
         # no np.errstate here: the compiled loop never touches numpy's error state, and with
         # NUMBA_DISABLE_JIT=1 the caller's np.errstate(all="raise") must reach the numerics
+        t_start = time.perf_counter()
         mod.integrate(q0, p0, t0, h, N, prm, settings, out, info)
+        wall += time.perf_counter() - t_start
         counters = dict(zip(record.COUNTERS, info.tolist()))
         full_record = counters["n_impacts"] + m > cap_imp  # (an impact adds up to NCON entries)
         if not (counters["status"] == record.STATUS_OF["accumulation"] and full_record) or cap_imp >= most:
-            return out, counters
+            return out, counters, wall
         cap_imp = min(4 * cap_imp, most)
