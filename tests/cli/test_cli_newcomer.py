@@ -201,3 +201,27 @@ def test_default_start_is_one_rule(runner, tmp_path):
     ic = cfg.initial_conditions()
     assert [c.key for c in ic] == ["default"] and get_scene("cart_pendulum").initial_state(
         **ic[0].simulate_kwargs())[0].tolist() == api.q[0].tolist()
+
+
+def test_cache_info_lists_each_scene_once_and_caps_the_list():
+    from vcirun.cli.cache import SHOWN, ready_text
+
+    names = [f"scene{i:03d}/CVA[SVC]" for i in range(SHOWN + 5)] + ["scene000/CVA[SVC]"] * 3
+    text = ready_text(names)
+    assert text.startswith(f"compiled tier ready for {len(names)} module(s) of {SHOWN + 5} scene/kernel set(s): ")
+    assert "scene000/CVA[SVC] (x4)" in text and text.count("scene000/") == 1
+    assert text.endswith(", ... and 5 more (--all lists them)") and f"scene{SHOWN - 1:03d}/" in text
+    assert f"scene{SHOWN:03d}/" not in text
+    full = ready_text(names, all_names=True)
+    assert f"scene{SHOWN + 4:03d}/CVA[SVC]" in full and "more" not in full
+
+
+@pytest.mark.parametrize("suffix", [".nc", ".csv", ".npz"])
+def test_a_run_saved_for_other_tools_is_named_as_such(runner, tmp_path, suffix):
+    """info, plot and animate read runs saved as .h5; the other save formats get one line saying so."""
+    f = tmp_path / f"run{suffix}"
+    f.write_bytes(b"\0" * 16)
+    for args in (["info", str(f)], ["plot", str(f)], ["animate", str(f)]):
+        r = invoke(runner, *args)
+        assert r.exit_code == 1, (args, r.output)
+        assert "is for other tools" in r.output and "saved as .h5" in r.output, (args, r.output)

@@ -107,7 +107,7 @@ class Sweep:
                 continue
             if line is None:
                 break
-            m = re.search(r"; (\d+) saved", line)
+            m = re.search(r"; (\d+) committed", line)
             if m and int(m.group(1)) >= n:
                 return int(m.group(1))
         self.proc.kill()

@@ -48,6 +48,7 @@ def test_elastic_law_term_is_exactly_zero_and_rest_is_the_drift():
     assert len(acc.events) > 0 and acc.total(LAW) == 0.0 and all(ev.loss == 0.0 for ev in acc.events)
     np.testing.assert_array_equal(acc.rest_series, tr.H - tr.H[0])
     assert acc.error == np.max(np.abs(tr.H - tr.H[0]))
+    assert "-0.000000e+00" not in str(acc) and "the law removed 0.000000e+00" in str(acc)   # (no negative zero)
 
 
 def test_energy_reset_error_goes_to_the_rest():

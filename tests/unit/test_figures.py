@@ -105,3 +105,9 @@ def test_trajectory_plot_with_dense_output():
     assert [a.get_ylabel() for a in fig.axes] == ["y [m]", "theta [rad]", "energy [J]"]
     dense_line = fig.axes[0].lines[0]
     assert len(dense_line.get_xdata()) == 8 * (len(tr.t) - 1) + 1
+
+
+def test_steps_are_written_as_the_paper_writes_them_without_losing_digits():
+    from vcirun.run.plotting import fmt_h
+
+    assert [fmt_h(h) for h in (1e-2, 3.2e-2, 2e-1, 1e-4, 1.25e-3)] == ["1E-2", "3.2E-2", "2E-1", "1E-4", "1.25E-3"]

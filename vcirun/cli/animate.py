@@ -56,6 +56,13 @@ def _selection(method, h, beta) -> str:
     return ", ".join(p for p in parts if p) or "any"
 
 
+def _default_name(traj) -> str:
+    """<system>_<method>_h<h>[_beta<beta>].gif: runs of one scene with other steps or starts do not
+    overwrite each other's animation."""
+    beta = f"_beta{traj.beta:g}" if isinstance(traj.beta, (int, float)) else ""
+    return f"{traj.system}_{traj.method}_h{traj.h:g}{beta}.gif"
+
+
 @app.command(epilog="Examples:\n\n"
              "  vcirun animate --system rocking_block --h 0.001 --T 3\n\n"
              "  vcirun animate --system docs/examples/cradle20.yaml --T 2 --output cradle.gif\n\n"
@@ -79,7 +86,7 @@ def animate(
     param: List[str] = typer.Option([], "--param", "-p", help="Parameter override NAME=VALUE (repeatable)."),
     output: Optional[Path] = typer.Option(None, "--output", "-o",
                                           help="Animation file, .gif (Pillow) or .mp4 (needs ffmpeg) (default: "
-                                               "results/animations/<system>_<method>.gif)."),
+                                               "results/animations/<system>_<method>_h<h>[_beta<beta>].gif)."),
     fps: float = typer.Option(30.0, "--fps", help="Frames per second of the animation."),
     speed: Optional[float] = typer.Option(None, "--speed",
                                           help="Motion seconds per animation second (default 1, raised to fit "
@@ -91,7 +98,7 @@ def animate(
     """Animate one run: the mechanism drawn from its scene's geometry (bodies-form scenes, built-in scenes, a
     YAML draw: section; else its configuration), impacts marked, the energy and a time bar beside it."""
     from .simulate import _parse_params, _parse_vector, simulate_once
-    from vcirun.io.single import is_trajectory_file, read_single
+    from vcirun.io.single import is_trajectory_file, not_read_back, read_single
 
     _announce_compiles()
     try:
@@ -101,6 +108,8 @@ def animate(
                                "animated as stored")
             if not results.exists():
                 raise CliError(f"{results}: file not found")
+            if not_read_back(results):
+                raise CliError(not_read_back(results))
             if is_trajectory_file(results):
                 if run is not None or method is not None or h is not None or beta is not None:
                     raise CliError(f"{results} holds one run: --run, --method, --h, --beta choose a run of a sweep's "
@@ -116,7 +125,7 @@ def animate(
                                     T=5.0 if T is None else T, beta=beta, params=_parse_params(param),
                                     q0=_parse_vector(q0, "--q0"), p0=_parse_vector(p0, "--p0"))
             what = f"{traj.system} {traj.method} h = {traj.h:g}"
-        out = output or Path("results") / "animations" / f"{traj.system}_{traj.method}.gif"
+        out = output or Path("results") / "animations" / _default_name(traj)
         if out.suffix.lower() not in (".gif", ".mp4"):
             raise CliError(f"--output {out}: an animation is .gif or .mp4")
         try:

@@ -161,6 +161,11 @@ def _reads_results(fn):
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
+        from vcirun.io.single import not_read_back
+
+        why = not_read_back(kwargs["results"]) if kwargs.get("results") is not None else None
+        if why:
+            _fail(why)
         try:
             return fn(*args, **kwargs)
         except _control_flow():

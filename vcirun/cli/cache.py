@@ -15,8 +15,24 @@ def _mb(n: int) -> str:
     return f"{n / 1e6:.1f} MB"
 
 
-@cache_app.command("info", epilog="Example:\n\n  vcirun cache info")
-def cache_info():
+SHOWN = 40   # scene/kernel-set names listed by `cache info` without --all
+
+
+def ready_text(compiled, all_names: bool = False) -> str:
+    """The line of compiled modules: each scene/kernel-set name once, with how many modules it has (one per
+    build mode, kernel path and vcirun or numba version), the first SHOWN names unless all_names."""
+    from collections import Counter
+
+    count = Counter(compiled)
+    names = [f"{k} (x{v})" if v > 1 else k for k, v in sorted(count.items())]
+    more = len(names) - SHOWN if not all_names and len(names) > SHOWN else 0
+    text = (f"compiled tier ready for {len(compiled)} module(s) of {len(count)} scene/kernel set(s): "
+            + ", ".join(names[: len(names) - more]))
+    return text + (f", ... and {more} more (--all lists them)" if more else "")
+
+
+@cache_app.command("info", epilog="Example:\n\n  vcirun cache info\n\n  vcirun cache info --all")
+def cache_info(all_names: bool = typer.Option(False, "--all", help="List every compiled scene/kernel set.")):
     """Where the compiled kernels are, how much space they take, what is compiled and what is being
     compiled (in the background or by another run)."""
     from vcirun.codegen import cache
@@ -30,7 +46,7 @@ def cache_info():
                f"{i.files} files, {_mb(i.bytes)} (of these {i.shared_objects} C kernel libraries, {i.numba_files} numba "
                f"files" + (f", {i.quarantined} files set aside by a failed check" if i.quarantined else "") + ")")
     if i.compiled:
-        typer.echo(f"compiled tier ready for {len(i.compiled)}: " + ", ".join(sorted(i.compiled)))
+        typer.echo(ready_text(i.compiled, all_names))
     import time
 
     for what, who in i.building:

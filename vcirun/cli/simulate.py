@@ -129,7 +129,7 @@ def _momenta(system, q0, qdot0, params):
     return (A @ np.asarray(qdot0, float)).tolist()
 
 
-def summary_lines(traj, total_seconds: float) -> list[tuple[str, str]]:
+def summary_lines(traj, total_seconds: float, tier=None) -> list[tuple[str, str]]:
     """The facts `vcirun simulate` prints about a run."""
     rows = [("run", f"{traj.system}  {traj.method}  h = {traj.h:g}  T = {traj.T:g}"
              + (f"  beta = {traj.beta:g}" if traj.beta is not None else ""))]
@@ -145,7 +145,7 @@ def summary_lines(traj, total_seconds: float) -> list[tuple[str, str]]:
     rows += energy_rows(traj)
     setup = max(0.0, total_seconds - traj.wall_time)
     rows.append(("wall time", f"{traj.wall_time:.4g} s integrating{_on_tier(traj)}; {total_seconds:.3g} s in "
-                              f"total, of which {setup:.3g} s {_setup_words(traj)}"))
+                              f"total, of which {setup:.3g} s {_setup_words(traj, tier)}"))
     return rows
 
 
@@ -153,8 +153,9 @@ def _on_tier(traj) -> str:
     return " on the interpreted tier" if getattr(traj, "tier", None) == "interpreted" else ""
 
 
-def _setup_words(traj) -> str:
-    """What the time before the integration went to, from the call's build report."""
+def _setup_words(traj, tier=None) -> str:
+    """What the time before the integration went to, from the call's build report (tier: the tier the
+    call asked for, None for $VCIRUN_TIER or auto)."""
     built = getattr(traj, "built", None)
     if built is not None and built.unsaved:
         return (f"compiling kernels (not cached: {built.unsaved[0][1][:120]}; the next run compiles them "
@@ -162,6 +163,10 @@ def _setup_words(traj) -> str:
     if built is not None and built.compiled:
         return "compiling kernels (cached for the next runs)"
     if getattr(traj, "tier", None) == "interpreted":
+        from vcirun.codegen.tiers import requested
+
+        if requested(tier) == "interpreted":   # asked for: no compiled tier is being built
+            return "deriving kernels and setting up (the interpreted tier, as asked)"
         return "deriving kernels and setting up (the compiled tier is built in the background)"
     return "loading kernels and setting up"
 
@@ -235,7 +240,7 @@ def simulate(
     t = Table(show_header=False, box=None, pad_edge=False)
     t.add_column(style="bold")
     t.add_column()
-    for k, v in summary_lines(traj, total):
+    for k, v in summary_lines(traj, total, tier):
         t.add_row(k, v)
     _console().print(t)
     if traj.choice is not None:   # --tol: the candidates, the pick and the run's error estimate

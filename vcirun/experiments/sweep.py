@@ -171,9 +171,10 @@ class _Reporter:
         elif self.enabled:
             # (saved: committed to the file so far; runs finished since are committed by the next batch,
             # the last ones when the sweep finishes)
-            self.console.print(f"[{self.done}/{self.total}] {note}; {saved} saved to the file"
-                               + (" (the rest as the sweep finishes)" if self.done == self.total and saved < self.done
-                                  else "")
+            pending = self.done - saved
+            self.console.print(f"[{self.done}/{self.total}] {note}; {saved} committed to the file"
+                               + ((f", {pending} in the next batch" if self.done < self.total
+                                   else f", the last {pending} as the sweep finishes") if pending > 0 else "")
                                + (f"; {self.failed} failed" if self.failed else ""), highlight=False, markup=False)
 
     def stop(self) -> None:

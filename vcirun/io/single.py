@@ -7,9 +7,21 @@ from pathlib import Path
 
 from .errors import StorageError, one_line
 
-__all__ = ["TRAJECTORY_FORMAT", "is_trajectory_file", "read_single"]
+__all__ = ["TRAJECTORY_FORMAT", "is_trajectory_file", "read_single", "not_read_back"]
 
 TRAJECTORY_FORMAT = "vcirun-trajectory"
+# the other formats Trajectory.save writes: for other tools, not read back by vcirun
+_EXPORTS = {".nc": "netCDF (xarray.open_dataset)", ".csv": "CSV (pandas.read_csv)", ".npz": "npz (numpy.load)"}
+
+
+def not_read_back(path) -> str | None:
+    """The one-line error for a run saved in a format vcirun writes but does not read back (.nc, .csv,
+    .npz), else None."""
+    kind = _EXPORTS.get(Path(path).suffix.lower())
+    if kind is None:
+        return None
+    return (f"{path}: a run saved as {kind} is for other tools; vcirun info, plot and animate read a run "
+            "saved as .h5 (vcirun simulate --output run.h5, or Trajectory.save('run.h5'))")
 
 
 def is_trajectory_file(path) -> bool:

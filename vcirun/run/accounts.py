@@ -142,9 +142,10 @@ class EnergyAccount:
         """The account as aligned text lines."""
         rows = self.rows()
         w = max(len(k) for k, _ in rows)
-        lines = [f"{k:<{w}}  {v: .6e}" for k, v in rows]
+        # (+ 0.0: a sum of zeros printed as 0, not -0)
+        lines = [f"{k:<{w}}  {v + 0.0: .6e}" for k, v in rows]
         if self.events:
-            lines.append(f"{len(self.events)} impact events; the law removed {self.law_loss:.6e}")
+            lines.append(f"{len(self.events)} impact events; the law removed {self.law_loss + 0.0:.6e}")
         lines += list(self.notes)
         return "\n".join(lines)
 

@@ -48,7 +48,8 @@ def new_figure(nrows=1, ncols=1, *, figsize, **kw):
     return fig, axes
 
 def fmt_h(h: float) -> str:
-    m, e = f"{h:.1e}".split("e")
+    """h as the paper writes it (1E-2, 3.2E-2), to three significant digits (1.25E-3)."""
+    m, e = f"{h:.2e}".split("e")
     m = m.rstrip("0").rstrip(".")
     return f"{m}E{int(e)}"
 

@@ -57,7 +57,7 @@ CART_PENDULUM = Scene(
             "L": Param(2.0, "m", "rod length"), "g": Param(10.0, "m/s^2", "gravitational acceleration")},
     constraint="phi = y >= 0 (the cart hits the floor)",
     ic_text="Xi(beta) = FL([beta, 0], [0, 3.5 - 0.18 beta]) (paper Section 5.1); beta in [3.2, 5.2] for Figure 4",
-    default_text="none: give --beta (default 3.2 on the command line) or q0 and p0",
+    default_text="beta = 3.2: Xi(3.2), the paper's Figure 3 start",
     symbolic=_cart_symbolic,
     # the paper's Figure 3 start
     start=lambda p: dict(ic_map=lambda beta: (np.array([beta, 0.0]), np.array([0.0, 3.5 - 0.18 * beta])),

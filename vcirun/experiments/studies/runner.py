@@ -105,7 +105,7 @@ def _run(cfg, source, output, quick, only, plot, log, tables, command, report_ou
         from .wp_model import from_study
 
         res["model"] = from_study(res)
-    path = wp.save(res, output or cfg.output)
+    path = wp.save(res, output or quick_output(cfg.output, quick))
     if tables is not None:
         wp.print_tables(wp.load(path), file=sys.stdout if tables == "stdout" else tables)
     figures = []
@@ -114,6 +114,13 @@ def _run(cfg, source, output, quick, only, plot, log, tables, command, report_ou
 
         figures = list(plot_study(path))
     return StudyRun(cfg.study, res["name"], path, figures=figures, seconds=time.perf_counter() - t0)
+
+
+def quick_output(path, quick: bool):
+    """The results file of a study: the config's, or beside it with `_quick` for a smoke run (--quick),
+    so that a smoke run never replaces full results."""
+    path = Path(path)
+    return path.with_name(f"{path.stem}_quick{path.suffix}") if quick else path
 
 
 def _run_extremes(cfg: ExtremesStudy, source, *, output, only, log, command, t0, report_output=None) -> StudyRun:
