@@ -409,6 +409,19 @@ def test_recommend_reads_a_stored_study(tmp_path):
     assert "pick: CVA8" in out.output and "work-precision study s" in out.output
     bad = CliRunner().invoke(app, ["recommend", "cart_pendulum", "--tol", "-1"])
     assert bad.exit_code == 1 and "--tol" in bad.output
+    # a start or parameters are those of pilot runs: the stored study is not used, and a bad name is refused
+    own = CliRunner().invoke(app, ["recommend", "cart_pendulum", "--tol", "1e-6", "--results", str(tmp_path),
+                                   "--param", "bogus=50"])
+    assert own.exit_code == 1 and "stored measurements are not used" in own.output and "params.bogus" in own.output
+
+
+def test_recommend_says_when_tol_is_not_reached():
+    from typer.testing import CliRunner
+
+    from vcirun.cli.main import app
+
+    out = CliRunner().invoke(app, ["recommend", "oscillator_wall", "--tol", "1e-300", "--T", "1", "--pilots"])
+    assert out.exit_code == 1 and "--tol 1e-300 not reached" in out.output, out.output
 
 
 def test_simulate_cli_tol(tmp_path):

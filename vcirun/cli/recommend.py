@@ -56,6 +56,7 @@ def _stored_models(system: str, sources: list[Path]) -> list[dict]:
 
 
 def _print_model(model: dict, tol: float, T: float | None) -> bool:
+    """Print the model's table at tol (each stored horizon, or T); True where a pick was printed."""
     from vcirun.experiments.studies import wp_model
 
     horizons = model["horizons"]
@@ -65,6 +66,7 @@ def _print_model(model: dict, tol: float, T: float | None) -> bool:
         if not keys:
             typer.echo(f"{model['source']}: no measurements at T = {T:g} (it has T = {', '.join(horizons)})")
             return False
+    picked = False
     for k in keys:
         hz = horizons[k]
         rows = wp_model.predict(hz, tol, hz["T"])
@@ -79,11 +81,13 @@ def _print_model(model: dict, tol: float, T: float | None) -> bool:
                        f"{_g(r['N'], 'd'):>8s} {_g(r['predicted_error'], '.2e'):>11s} "
                        f"{_g(None if r['predicted_cost'] is None else r['predicted_cost'] * 1e3):>9s}  {r['note']}")
         if pick is not None:
+            picked = True
             typer.echo(f"pick: {pick['method']} at h = {pick['h']:.6g} ({pick['N']} steps), predicted error "
                        f"{pick['predicted_error']:.2e}, {pick['predicted_cost'] * 1e3:.3g} ms")
         else:
-            typer.echo("pick: none (no method of these measurements can be predicted)")
-    return True
+            typer.echo("pick: none (no method of these measurements can be predicted: they hold no "
+                       "timings or no error above the reference's floor)")
+    return picked
 
 
 @app.command(epilog="Examples:\n\n"
@@ -111,14 +115,22 @@ def recommend(
     if not (tol > 0 and math.isfinite(tol)):
         _fail(f"--tol: must be a positive number (got {tol:g})")
     try:
-        shown = False
+        start_given = [n for n, v in (("--beta", beta), ("--q0", q0), ("--p0", p0), ("--param", param)) if v]
+        if start_given and not pilots:   # stored measurements are of their own starts and parameters
+            typer.echo(f"{', '.join(start_given)}: the start and parameters of pilot runs; stored measurements "
+                       "are not used")
+            pilots = True
+        picked, models = False, []
         if not pilots:
             sources = list(results) or ([Path("results")] if Path("results").is_dir() else [])
-            for model in _stored_models(system, sources):
-                shown = _print_model(model, tol, T) or shown
-        if shown:
+            models = _stored_models(system, sources)
+            for model in models:
+                picked = _print_model(model, tol, T) or picked
+        if picked:
             return
-        if results and not pilots:
+        if models:
+            typer.echo(f"no stored measurement of {system} predicts a pick: pilot runs")
+        elif results and not pilots:
             typer.echo(f"no stored measurements of {system} in {', '.join(map(str, results))}: pilot runs")
         _announce_compiles()
         import vcirun
@@ -137,3 +149,5 @@ def recommend(
         typer.echo(f"run: {c.method} h = {c.h:.6g} ({c.N} steps), status {c.status}; {c.estimate}")
     except CliError as e:
         _fail(str(e))
+    if c.status != "ok":   # (as `vcirun simulate --tol`: tol not reached is not a recommendation)
+        _fail(f"--tol {tol:g} not reached ({c.status}): {c.reason}")

@@ -71,7 +71,8 @@ def simulate(system, method=None, *, T, h=None, tol=None, beta=None, q0=None, p0
         return simulate_to_tolerance(system, None if method == "auto" else method, T=T, tol=tol, h_max=h,
                                      max_time=max_time, beta=beta, q0=q0, p0=p0, params=params,
                                      constrained=constrained, t0=t0, energies=energies,
-                                     resting_contact=resting_contact, options=options, build=trajectory_of)
+                                     resting_contact=resting_contact, options=options, build=trajectory_of,
+                                     tier=tier, loader=loader)
     if method is None:
         raise ValueError("method: give a method (CVA, VCI, MCVAA, MCVAC, CVA4, ...) or tol= to have one chosen")
     if h is None:

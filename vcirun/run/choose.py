@@ -166,7 +166,8 @@ def candidate_table(cands, pick: str, tol: float) -> str:
         mark = "*" if c.method == pick else " "
         lines.append(f"{mark}{c.method:7s} {g(c.order, 'g'):>5s} {g(ch, '.3e'):>18s} "
                      f"{g(None if c.b is None else c.b * 1e6, '.3g'):>8s} {g(h, '.4g'):>10s} "
-                     f"{g(c.N, 'd'):>8s} {g(c.predicted_error, '.2e'):>11s} "
+                     f"{(g(c.N, 'd') if c.N is None or c.N < 10**8 else format(float(c.N), '.1e')):>8s} "
+                     f"{g(c.predicted_error, '.2e'):>11s} "
                      f"{g(None if c.predicted_cost is None else c.predicted_cost * 1e3, '.3g'):>9s}  "
                      f"{c.status}{(': ' + c.note) if c.note else ''}")
     return f"tol = {tol:g}\n" + "\n".join(lines)
@@ -197,7 +198,8 @@ def _candidates(method, n_contacts: int, forced: bool, mapped: bool) -> tuple[li
                           "(R^VCI fails or loses bounces with impacts denser than the grid)")
             continue
         if forced and name in ("MCVAA", "MCVAC"):
-            left[name] = "the MCVA family refuses a generalized force"
+            left[name] = ("under a generalized force its order is 2 (its modified energy is not conserved), as "
+                          "CVA's, at several times CVA's cost per step")
             continue
         if forced and name in ("CVA6", "CVA8"):
             left[name] = "its order under a generalized force is not verified"
@@ -208,12 +210,17 @@ def _candidates(method, n_contacts: int, forced: bool, mapped: bool) -> tuple[li
 
 def simulate_to_tolerance(system, method=None, *, T, tol, h_max=None, max_time=None, beta=None, q0=None, p0=None,
                           params=None, constrained=None, t0=0.0, energies=True, resting_contact=True,
-                          options=None, build=None):
+                          options=None, build=None, tier=None, loader=None):
     """`vcirun.simulate(..., tol=...)`; see the module docstring. build: vcirun.run.api.trajectory_of
-    (the API hands it in: this module does not import the API)."""
+    (the API hands it in: this module does not import the API); tier, loader: as simulate's, for every
+    run of the choice."""
+    from ..codegen import kernel_cache
+    from ..codegen.tiers import requested
+
     options = dict(options or {})
     if tol is None:
         raise ValueError("max_time: only with tol= (a time budget constrains the choice of method and h)")
+    requested(tier)   # a bad tier is refused before any run (ValueError naming the field)
     tol = check_number("tol", tol, gt=0)
     T = check_number("T", T, gt=0)
     if h_max is not None:
@@ -236,10 +243,28 @@ def simulate_to_tolerance(system, method=None, *, T, tol, h_max=None, max_time=N
 
         resolve_method(method)   # an unknown name raises here, naming the field
     runner = Runner(system, T=T, t0=t0, beta=beta, q0=q0, p0=p0, params=params, constrained=constrained,
-                    resting_contact=resting_contact, options=options, build=build)
+                    resting_contact=resting_contact, options=options, build=build, tier=tier,
+                    kc=kernel_cache.of(loader))
+    if method is not None:
+        _check_named_method(runner, method)
     key = scene_key(system, params, T, t0, constrained, resting_contact, options, energies)
     chooser = _Chooser(runner, method, T=T, tol=tol, h_max=h_max, max_time=max_time, energies=energies, key=key)
     return chooser.choose()
+
+
+def _check_named_method(runner: Runner, method) -> None:
+    """A method the user names must be one whose runs tol= can certify (ValueError naming `method`):
+    one that keeps the constraint (a discrete Lagrangian alone integrates through the surface), and one
+    whose order is verified on this scene."""
+    meth = runner.method(method)
+    if meth.constrained is False and runner.n_contacts(method) > 0:
+        raise ValueError(f"method: {meth.name} ignores the constraint, and tol= measures the error of the "
+                         "constrained motion; name a collision integrator (CVA, VCI, MCVAA, MCVAC, CVA4, ...) "
+                         "or leave method out")
+    order, why = verified_order(meth, runner, False)
+    if order is None:
+        raise ValueError(f"method: {why}, so tol= cannot certify its runs; name CVA or CVA4 (or leave method "
+                         "out), or run it with h= and read tr.error_estimate() (the observed order)")
 
 
 def _label(name) -> str:
@@ -350,8 +375,8 @@ class _Chooser:
             return c
         c.C, c.N_resolved, c.N_asymptotic = a.C, a.N_resolved, a.N_asymptotic
         self._fill(c, max(N, _certifiable(c)))
-        if a.observed is not None:
-            c.note = f"observed order {a.observed:.2f}"
+        if a.observed is not None:   # (after the reason _fill gives, which it must not hide)
+            c.note = f"{c.note}; observed order {a.observed:.2f}" if c.note else f"observed order {a.observed:.2f}"
         return c
 
     def _fill(self, c: Candidate, N: int):

@@ -92,7 +92,8 @@ class ErrorEstimate:
         if self.status != OK:
             return f"error estimate ({self.kind}): {self.status}: {self.message}"
         lo, hi = self.l2_bounds if self.l2_bounds else (math.nan, math.nan)
-        return (f"error estimate ({self.kind}, order {self.order:g}): L2 {self.l2:.3e} (in [{lo:.3e}, {hi:.3e}]), "
+        order = f", order {self.order:g}" if self.order is not None else ""   # (none against a reference)
+        return (f"error estimate ({self.kind}{order}): L2 {self.l2:.3e} (in [{lo:.3e}, {hi:.3e}]), "
                 f"final |dq| {self.final_q:.3e}, |dp| {self.final_p:.3e}" + (f"; {self.note}" if self.note else ""))
 
 
@@ -345,6 +346,11 @@ def _near_event(run: Run, reach: int) -> np.ndarray:
     return near
 
 
+# the gap a guarded constraint reads while its guard is not armed (vcirun.mechanics.hybrid.GUARD_OFF; a test
+# holds them equal): a jump to or from it is the guard arming, not a dip the grid would miss
+GUARD_OFF = 1.0
+
+
 def _parabola_minima(f: np.ndarray, skip: np.ndarray):
     """(grid points k, contacts i, the lowest value of the parabola through f[k-1, i], f[k, i], f[k+1, i]
     on [t_k-1, t_k+1], its curvature) of f (grid x contacts): every (k, i) whose parabola has its vertex
@@ -358,7 +364,8 @@ def _parabola_minima(f: np.ndarray, skip: np.ndarray):
         s = np.where(curv > 0, -slope / (2 * curv), np.inf)
         low = np.where(curv > 0, b - slope * slope / (4 * curv), b)
     skip = skip[1:-1] if skip.ndim == 2 else skip[1:-1, None]
-    ks, cs = np.nonzero(((np.abs(s) <= 1.0) | ((b <= a) & (b <= c))) & (b > 0) & ~skip)
+    unarmed = (a == GUARD_OFF) | (b == GUARD_OFF) | (c == GUARD_OFF)   # a parabola across a guard's arming
+    ks, cs = np.nonzero(((np.abs(s) <= 1.0) | ((b <= a) & (b <= c))) & (b > 0) & ~skip & ~unarmed)
     return ks + 1, cs, low[ks, cs], np.abs(curv[ks, cs])
 
 
@@ -376,7 +383,7 @@ def _end_approach(run: Run, mod, prm, margin: float) -> list:
     out = []
     for i in range(f.shape[1]):
         a, b = float(f[0, i]), float(f[1, i])
-        if 0 < b < a and b <= margin:
+        if 0 < b < a and b <= margin and a != GUARD_OFF:   # (not a guard arming in the last step)
             out.append((run.t0 + N * run.h, i, b))
     return out
 
@@ -568,7 +575,7 @@ def estimate(tr, *, kind: str = "richardson", companions: int = 1, reference=Non
     """`Trajectory.error_estimate` (see there)."""
     if kind not in ("richardson", "reference"):
         raise ValueError(f"kind: 'richardson' or 'reference' (got {kind!r})")
-    if companions not in (1, 2):
+    if isinstance(companions, bool) or not isinstance(companions, (int, np.integer)) or companions not in (1, 2):
         raise ValueError(f"companions: 1 or 2 (got {companions!r})")
     if check_order not in (True, False):
         raise ValueError(f"check_order: true or false (got {check_order!r})")
@@ -638,6 +645,8 @@ def _against_reference(tr, args, ref) -> ErrorEstimate:
     from .pilot import Run
 
     h = float(tr.h)
+    if ref is not None:
+        _check_reference(tr, ref)
     if ref is None:
         if float(tr.t[0]) != 0.0:
             raise ValueError(f"reference: the exact reference starts at t = 0 and this run at t0 = {tr.t[0]:g}; "
@@ -663,6 +672,25 @@ def _against_reference(tr, args, ref) -> ErrorEstimate:
         note += "; the run's impact sequence differs from the reference's"
     return ErrorEstimate("reference", OK, h, l2=l2, l2_bounds=(max(0.0, l2 - pad), l2 + pad), final_q=fq, final_p=fp,
                          first_difference=first, note=note, extras={"reference": ref})
+
+
+def _check_reference(tr, ref) -> None:
+    """A reference handed in must be one (callable in t, with .p) of this run's motion: its state at the
+    run's first grid time is the run's start (ValueError naming `reference` otherwise)."""
+    if not callable(ref) or not callable(getattr(ref, "p", None)):
+        raise ValueError(f"reference: a vcirun.reference(...) of this run's start (got {type(ref).__name__})")
+    t0 = float(tr.t[0])
+    q0, p0 = np.asarray(tr.q[0], float), np.asarray(tr.p[0], float)
+    try:
+        qr, pr = np.asarray(ref(t0), float), np.asarray(ref.p(t0), float)
+    except (ValueError, TypeError) as e:
+        raise ValueError(f"reference: cannot be evaluated at the run's t0 = {t0:g} ({e})") from None
+    scale = 1e-8 * (1.0 + float(np.max(np.abs(np.concatenate([q0, p0])))))
+    if qr.shape != q0.shape or pr.shape != p0.shape or float(np.max(np.abs(qr - q0))) > scale \
+            or float(np.max(np.abs(pr - p0))) > scale:
+        raise ValueError(f"reference: it is at q = {np.round(qr, 9).tolist()}, p = {np.round(pr, 9).tolist()} at "
+                         f"t = {t0:g}, this run starts at q = {np.round(q0, 9).tolist()}, p = "
+                         f"{np.round(p0, 9).tolist()}: compute the reference from the run's start")
 
 
 # --- what a sweep stores -------------------------------------------------------------------------------

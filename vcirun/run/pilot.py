@@ -177,8 +177,9 @@ class Runner:
     flow_order) go with the method: pass a `vcirun.methods.table.Method` or a name."""
 
     def __init__(self, system, *, T, t0=0.0, beta=None, q0=None, p0=None, params=None, constrained=None,
-                 resting_contact=True, options=None, build=None):
+                 resting_contact=True, options=None, build=None, tier=None, kc=None):
         self.system, self.T, self.t0 = system, float(T), float(t0)
+        self.tier, self.kc = tier, kc   # vcirun.codegen.tiers.requested's tier and the kernel cache of plan()
         self.build = build   # vcirun.run.api.trajectory_of, for runs that return their Trajectory
         self.start = dict(beta=beta, q0=q0, p0=p0, params=params)
         self.params = params
@@ -207,7 +208,7 @@ class Runner:
             p = plan(self.system, method if isinstance(method, str) else meth, h=self.T, T=self.T, t0=self.t0,
                      constrained=self.constrained,
                      energies=energies, resting_contact=self.resting_contact, options=self.options,
-                     start=self.start)
+                     start=self.start, kc=self.kc, tier=self.tier)
             sysd = p.sysd
             # the start as the run takes it depends on the module, the system and the constraint flag, not
             # on the energies flag: a method's runs with and without energies share it (the same functions
@@ -309,11 +310,11 @@ class Runner:
 
             def pending():
                 t = self.build(p, mod, out, counters, q0, p0, prm, beta, wall)
-                t.run_args = self.run_args(p.meth)
+                t.run_args, t.tier = self.run_args(p.meth), p.tier_used
                 return t
         elif trajectory:
             tr = self.build(p, mod, out, counters, q0, p0, prm, beta, wall)
-            tr.run_args = self.run_args(p.meth)
+            tr.run_args, tr.tier = self.run_args(p.meth), p.tier_used
             status = tr.status
         else:
             status = _STATUS[counters["status"]]

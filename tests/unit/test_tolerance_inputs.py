@@ -1,0 +1,56 @@
+"""What `simulate(tol=...)` and `error_estimate` refuse, and what they pass on: a method whose runs the
+choice cannot certify is refused by name; the tier reaches every run of the choice; a reference of
+another start is refused."""
+from __future__ import annotations
+
+import warnings
+
+import pytest
+
+import vcirun
+
+
+@pytest.fixture(autouse=True)
+def _quiet():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        yield
+
+
+@pytest.mark.parametrize("system, kw, words", [
+    ("cart_pendulum", dict(method="SVC"), "ignores the constraint"),
+    ("cart_pendulum", dict(method="midpoint"), "ignores the constraint"),
+    ("bouncing_ball", dict(method="CVA6", params={"c": 0.5}), "not verified"),
+    ("cart_pendulum", dict(tier="bogus"), "tier"),
+])
+def test_refused_by_name(system, kw, words):
+    with pytest.raises(ValueError, match=words):
+        vcirun.simulate(system, T=1, tol=1e-4, **kw)
+
+
+def test_the_tier_reaches_every_run_and_the_trajectory_says_which():
+    tr = vcirun.simulate("oscillator_wall", T=1, tol=1e-5, method="CVA", tier="interpreted")
+    assert tr.tier == "interpreted" and tr.choice.status == "ok"
+    tc = vcirun.simulate("oscillator_wall", T=1, tol=1e-5, method="CVA", tier="compiled")
+    assert tc.tier == "compiled"
+    # (the choices may differ: their costs per step are the tier's) the same run on either tier
+    again = vcirun.simulate("oscillator_wall", tr.method, T=1, h=tr.h, tier="compiled")
+    assert abs(again.q - tr.q).max() <= 1e-12
+
+
+@pytest.mark.parametrize("kw, words", [
+    (dict(companions=2.0), "companions"), (dict(companions=True), "companions"),
+    (dict(reference="x"), "reference"),
+])
+def test_error_estimate_arguments(kw, words):
+    tr = vcirun.simulate("cart_pendulum", "CVA", T=1, h=0.01)
+    with pytest.raises(ValueError, match=words):
+        tr.error_estimate(**kw)
+
+
+def test_a_reference_of_another_start_is_refused_and_one_of_this_start_is_printed():
+    tr = vcirun.simulate("cart_pendulum", "CVA4", T=2, h=0.01, beta=4.2)
+    with pytest.raises(ValueError, match="reference: it is at q"):
+        tr.error_estimate(reference=vcirun.reference("cart_pendulum", T=2, beta=3.2))
+    est = tr.error_estimate(reference=vcirun.reference("cart_pendulum", T=2, beta=4.2))
+    assert est.status == "ok" and str(est).startswith("error estimate (reference): L2 ")
