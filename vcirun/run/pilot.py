@@ -89,12 +89,16 @@ class Run:
         its module and parameters, a hold the record starts with is checked against phi(q0)."""
         held = bool(np.any(tr.contact_active)) or len(tr.releases) > 0
         t0 = float(tr.t[0]) if len(tr.t) else 0.0
+        impacts, contacts = np.asarray(tr.impacts, float), np.asarray(tr.impact_contact)
+        holds = hold_onsets(np.asarray(tr.contact_active), t0, float(tr.h),
+                            start_gaps(mod, tr.q[0], prm) if mod is not None and len(tr.q) else None)
+        if mod is not None:
+            holds = accumulated_holds(holds, impacts, contacts, float(tr.h), restitutions(mod, prm))
         return cls(method=method, N=tr.n_steps, h=float(tr.h), t0=t0, q=tr.q,
-                   p=tr.p, impacts=np.asarray(tr.impacts, float), impact_contact=np.asarray(tr.impact_contact),
+                   p=tr.p, impacts=impacts, impact_contact=contacts,
                    releases=np.asarray(tr.releases, float), release_contact=np.asarray(tr.release_contact),
                    held=held, status=tr.status, wall=float(tr.wall_time), cpu=float("nan"), trajectory=tr,
-                   holds=hold_onsets(np.asarray(tr.contact_active), t0, float(tr.h),
-                                     start_gaps(mod, tr.q[0], prm) if mod is not None and len(tr.q) else None))
+                   holds=holds)
 
 
 def hold_onsets(active: np.ndarray, t0: float, h: float, start_phis=None) -> tuple:
@@ -112,6 +116,32 @@ def hold_onsets(active: np.ndarray, t0: float, h: float, start_phis=None) -> tup
         # t0 + (k + 1) h in float64, as Python computes it from the int k + 1 (exact below 2^53)
         out += zip((t0 + (ks + 1).astype(float) * h).tolist(), cs.tolist())
     return tuple(out)
+
+
+def accumulated_holds(onsets: tuple, impacts, impact_contact, h: float, restitution) -> tuple:
+    """The hold onsets that accumulating impacts may have made: all but those of a plastic contact
+    (restitution 0) that begin in the step of one of its impacts. A plastic impact leaves its contact
+    at rest at once, as the law says, at an impact time the runs locate to their order; after an impact
+    with e > 0 a run holds the contact where the bounce left is below what its step resolves, and that
+    depends on h (vcirun.run.estimate.difference reads these onsets as unresolved)."""
+    if not onsets or restitution is None:
+        return onsets
+    out = []
+    for t, c in onsets:
+        if restitution[c] == 0.0:
+            ti = impacts[impact_contact == c]
+            # the onset is the grid point after the step of the impact: t - h < t_impact <= t
+            if np.any((ti > t - h * (1.0 + 1e-9)) & (ti <= t + 1e-12 * max(1.0, abs(t)))):
+                continue
+        out.append((t, c))
+    return tuple(out)
+
+
+def restitutions(mod, prm) -> np.ndarray:
+    """e of every contact at parameters prm."""
+    out = np.empty(int(mod.NCON))
+    mod.sys_restitution(np.ascontiguousarray(prm, dtype=float), out)
+    return out
 
 
 def start_gaps(mod, q0, prm) -> np.ndarray:
@@ -319,13 +349,15 @@ class Runner:
         else:
             status = _STATUS[counters["status"]]
         any_active = bool(active.any())   # (hold_onsets is () without a held contact)
-        run = Run(method=p.meth, N=N, h=h, t0=self.t0, q=Q, p=P, impacts=field("impacts", k_imp).copy(),
-                  impact_contact=field("impact_contact", k_imp).copy(), releases=field("releases", k_rel).copy(),
-                  release_contact=field("release_contact", k_rel).copy(),
+        impacts, contacts = field("impacts", k_imp).copy(), field("impact_contact", k_imp).copy()
+        holds = ()
+        if any_active:
+            holds = hold_onsets(active, self.t0, h, start_gaps(mod, q0, prm) if active[:1].any() else None)
+            holds = accumulated_holds(holds, impacts, contacts, h, restitutions(mod, prm))
+        run = Run(method=p.meth, N=N, h=h, t0=self.t0, q=Q, p=P, impacts=impacts, impact_contact=contacts,
+                  releases=field("releases", k_rel).copy(), release_contact=field("release_contact", k_rel).copy(),
                   held=any_active or k_rel > 0, status=status, wall=wall,
-                  cpu=time.thread_time() - c0, trajectory=tr,
-                  holds=hold_onsets(active, self.t0, h, start_gaps(mod, q0, prm) if active[:1].any() else None)
-                  if any_active else (), pending=pending)
+                  cpu=time.thread_time() - c0, trajectory=tr, holds=holds, pending=pending)
         return run
 
     def run_args(self, meth) -> "RunArgs":
