@@ -225,3 +225,10 @@ def test_a_run_saved_for_other_tools_is_named_as_such(runner, tmp_path, suffix):
         r = invoke(runner, *args)
         assert r.exit_code == 1, (args, r.output)
         assert "is for other tools" in r.output and "saved as .h5" in r.output, (args, r.output)
+
+
+def test_simulate_takes_the_system_as_an_argument_too(runner):
+    r = invoke(runner, "simulate", "oscillator_wall", "--T", "0.5")
+    assert r.exit_code == 0 and "oscillator_wall" in r.stdout, r.output
+    r = invoke(runner, "simulate", "oscillator_wall", "--system", "cart_pendulum", "--T", "0.5")
+    assert r.exit_code == 1 and "name two systems" in r.output

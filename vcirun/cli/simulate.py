@@ -177,11 +177,14 @@ def _setup_words(traj, tier=None) -> str:
              "  vcirun simulate --method MCVA --ld SVC --mh-order 3 --flow-order 4\n\n"
              "  vcirun simulate --system double_pendulum --method CVA --unconstrained\n\n"
              "  vcirun simulate --system double_pendulum --q0 -1.2,-1.0 --p0 0,0 --output run.h5\n\n"
-             "  vcirun simulate --system cart_pendulum --beta 4.2 --tol 1e-6")
+             "  vcirun simulate --system cart_pendulum --beta 4.2 --tol 1e-6\n\n"
+             "  vcirun simulate incline --T 2               (the system as an argument, as --system)")
 def simulate(
-    system: str = typer.Option("cart_pendulum", "--system", "-s",
-                               help="Built-in scene (cart_pendulum, double_pendulum, oscillator_wall, ...) "
-                                    "or a YAML system file."),
+    scene: Optional[str] = typer.Argument(None, help="The system, as --system (give one of the two).",
+                                          show_default=False),
+    system: Optional[str] = typer.Option(None, "--system", "-s",
+                                         help="Built-in scene (cart_pendulum, double_pendulum, oscillator_wall, "
+                                              "...) or a YAML system file (default cart_pendulum)."),
     method: Optional[str] = typer.Option(None, "--method", "-m",
                                          help="CVA (default), VCI, MCVAA, MCVAC, MCVA (with --ld, --mh-order), "
                                               "or a discrete Lagrangian (SE1 SE2 SVA SVB SVC midpoint) ignoring "
@@ -222,6 +225,9 @@ def simulate(
     """Simulate one run and print a summary (steps, impacts, status, energy error, wall time)."""
     _announce_compiles()
     try:
+        if scene is not None and system is not None and scene != system:
+            raise CliError(f"SYSTEM {scene!r} and --system {system!r} name two systems: give one")
+        system = scene or system or "cart_pendulum"
         check_output(output, "--output", (".h5", ".hdf5", ".nc", ".csv", ".npz"), example="run.h5")
         traj, total = simulate_once(system, method, h=h, T=T, beta=beta, ld=ld, mh_order=mh_order,
                                     flow_order=flow_order, params=_parse_params(param),
