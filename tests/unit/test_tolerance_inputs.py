@@ -54,3 +54,14 @@ def test_a_reference_of_another_start_is_refused_and_one_of_this_start_is_printe
         tr.error_estimate(reference=vcirun.reference("cart_pendulum", T=2, beta=3.2))
     est = tr.error_estimate(reference=vcirun.reference("cart_pendulum", T=2, beta=4.2))
     assert est.status == "ok" and str(est).startswith("error estimate (reference): L2 ")
+
+
+def test_a_model_of_interpreted_costs_is_not_the_compiled_tiers():
+    """The scene model keeps costs per step: one made on the interpreted tier (100-1000x slower) is kept
+    apart, and the first compiled call pilots every candidate."""
+    a = vcirun.simulate("oscillator_wall", T=0.75, tol=1e-5, tier="interpreted")
+    assert a.tier == "interpreted" and "pilots of every candidate" in a.choice.reason
+    b = vcirun.simulate("oscillator_wall", T=0.75, tol=1e-5, tier="compiled")
+    assert b.tier == "compiled" and "pilots of every candidate" in b.choice.reason, b.choice.reason
+    c = vcirun.simulate("oscillator_wall", T=0.75, tol=1e-5, tier="compiled")
+    assert "pilots of every candidate" not in c.choice.reason, c.choice.reason

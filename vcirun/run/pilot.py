@@ -267,6 +267,10 @@ class Runner:
     def module(self, method):
         return self._base(method, False)[1]
 
+    def tier_used(self, method) -> str | None:
+        """The tier `method`'s runs take (vcirun.codegen.tiers: "compiled", "interpreted" or "substitute")."""
+        return self._base(method, False)[0].tier_used
+
     def params_vector(self, method) -> np.ndarray:
         return self._base(method, False)[4]
 
