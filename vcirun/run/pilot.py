@@ -92,7 +92,7 @@ class Run:
         impacts, contacts = np.asarray(tr.impacts, float), np.asarray(tr.impact_contact)
         holds = hold_onsets(np.asarray(tr.contact_active), t0, float(tr.h),
                             start_gaps(mod, tr.q[0], prm) if mod is not None and len(tr.q) else None)
-        if mod is not None:
+        if mod is not None and holds:
             holds = accumulated_holds(holds, impacts, contacts, float(tr.h), restitutions(mod, prm))
         return cls(method=method, N=tr.n_steps, h=float(tr.h), t0=t0, q=tr.q,
                    p=tr.p, impacts=impacts, impact_contact=contacts,
