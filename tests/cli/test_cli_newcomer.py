@@ -232,3 +232,14 @@ def test_simulate_takes_the_system_as_an_argument_too(runner):
     assert r.exit_code == 0 and "oscillator_wall" in r.stdout, r.output
     r = invoke(runner, "simulate", "oscillator_wall", "--system", "cart_pendulum", "--T", "0.5")
     assert r.exit_code == 1 and "name two systems" in r.output
+
+
+def test_a_sweep_written_as_nc_is_read_as_results(runner, tmp_path):
+    out = tmp_path / "p.nc"
+    r = invoke(runner, "sweep", str(Path(__file__).resolve().parents[2] / "configs" / "quick.yaml"), "--output",
+               str(out), "--quiet")
+    assert r.exit_code == 0, r.output
+    r = invoke(runner, "info", str(out))
+    assert r.exit_code == 0 and "is for other tools" not in r.output, r.output
+    r = invoke(runner, "info", str(tmp_path / "missing.csv"))
+    assert r.exit_code == 1 and "is for other tools" not in r.output

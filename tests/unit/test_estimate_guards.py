@@ -11,6 +11,13 @@ import vcirun
 from vcirun.run import estimate
 
 
+@pytest.fixture(autouse=True)
+def _quiet():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        yield
+
+
 def test_the_screens_guard_value_is_the_generators():
     from vcirun.mechanics.hybrid import GUARD_OFF
 
@@ -19,7 +26,6 @@ def test_the_screens_guard_value_is_the_generators():
 
 @pytest.mark.parametrize("N", [18, 72])
 def test_compass_gait_estimate_is_a_number_that_brackets_the_true_error(N):
-    warnings.simplefilter("ignore")
     tr = vcirun.simulate("compass_gait", "CVA4", T=1, h=1 / N)
     est = tr.error_estimate()
     assert est.status == "ok", est.message
@@ -28,7 +34,6 @@ def test_compass_gait_estimate_is_a_number_that_brackets_the_true_error(N):
 
 
 def test_compass_gait_tol_is_met():
-    warnings.simplefilter("ignore")
     tr = vcirun.simulate("compass_gait", T=1, tol=1e-6)
     assert tr.choice.status == "ok", tr.choice.reason
     assert vcirun.l2_error(tr, vcirun.reference("compass_gait", T=1)) <= 1e-6

@@ -413,6 +413,9 @@ def test_recommend_reads_a_stored_study(tmp_path):
     own = CliRunner().invoke(app, ["recommend", "cart_pendulum", "--tol", "1e-6", "--results", str(tmp_path),
                                    "--param", "bogus=50"])
     assert own.exit_code == 1 and "stored measurements are not used" in own.output and "params.bogus" in own.output
+    zero = CliRunner().invoke(app, ["recommend", "cart_pendulum", "--tol", "1e-3", "--results", str(tmp_path),
+                                    "--beta", "0", "--T", "0.2"])
+    assert "--beta: the start and parameters of pilot runs" in zero.output, zero.output
 
 
 def test_recommend_says_when_tol_is_not_reached():

@@ -59,9 +59,33 @@ def test_a_reference_of_another_start_is_refused_and_one_of_this_start_is_printe
 def test_a_model_of_interpreted_costs_is_not_the_compiled_tiers():
     """The scene model keeps costs per step: one made on the interpreted tier (100-1000x slower) is kept
     apart, and the first compiled call pilots every candidate."""
-    a = vcirun.simulate("oscillator_wall", T=0.75, tol=1e-5, tier="interpreted")
-    assert a.tier == "interpreted" and "pilots of every candidate" in a.choice.reason
-    b = vcirun.simulate("oscillator_wall", T=0.75, tol=1e-5, tier="compiled")
-    assert b.tier == "compiled" and "pilots of every candidate" in b.choice.reason, b.choice.reason
-    c = vcirun.simulate("oscillator_wall", T=0.75, tol=1e-5, tier="compiled")
-    assert "pilots of every candidate" not in c.choice.reason, c.choice.reason
+    from vcirun.run.scene_model import _MODELS
+
+    kept = dict(_MODELS)
+    _MODELS.clear()   # (the process's models: this test starts without any)
+    try:
+        a = vcirun.simulate("oscillator_wall", T=0.75, tol=1e-5, tier="interpreted")
+        assert a.tier == "interpreted" and "pilots of every candidate" in a.choice.reason
+        b = vcirun.simulate("oscillator_wall", T=0.75, tol=1e-5, tier="compiled")
+        assert b.tier == "compiled" and "pilots of every candidate" in b.choice.reason, b.choice.reason
+        c = vcirun.simulate("oscillator_wall", T=0.75, tol=1e-5, tier="compiled")
+        assert "pilots of every candidate" not in c.choice.reason, c.choice.reason
+    finally:
+        _MODELS.clear()
+        _MODELS.update(kept)
+
+
+def test_the_estimates_companions_run_on_the_calls_tier():
+    tr = vcirun.simulate("oscillator_wall", "CVA", T=0.5, h=0.01, tier="interpreted")
+    assert tr.run_args.tier == "interpreted"
+    runner = tr.run_args.runner(0.5)
+    assert runner.tier_used("CVA") == "interpreted"
+
+
+def test_a_substitute_loader_keeps_no_scene_model():
+    from vcirun.codegen.evaluate import python_module_for
+    from vcirun.run.scene_model import _MODELS
+
+    before = set(_MODELS)
+    tr = vcirun.simulate("oscillator_wall", T=0.6, tol=1e-4, method="CVA", loader=python_module_for)
+    assert tr.choice.status == "ok" and set(_MODELS) == before

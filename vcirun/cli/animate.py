@@ -57,8 +57,8 @@ def _selection(method, h, beta) -> str:
 
 
 def _default_name(traj) -> str:
-    """<system>_<method>_h<h>[_beta<beta>].gif: runs of one scene with other steps or starts do not
-    overwrite each other's animation."""
+    """<system>_<method>_h<h>[_beta<beta>].gif: runs of one scene with other steps or betas do not
+    overwrite each other's animation (runs that differ only in q0, p0, parameters or T do: --output)."""
     beta = f"_beta{traj.beta:g}" if isinstance(traj.beta, (int, float)) else ""
     return f"{traj.system}_{traj.method}_h{traj.h:g}{beta}.gif"
 

@@ -115,7 +115,8 @@ def recommend(
     if not (tol > 0 and math.isfinite(tol)):
         _fail(f"--tol: must be a positive number (got {tol:g})")
     try:
-        start_given = [n for n, v in (("--beta", beta), ("--q0", q0), ("--p0", p0), ("--param", param)) if v]
+        start_given = [n for n, v in (("--beta", beta), ("--q0", q0), ("--p0", p0), ("--param", param))
+                       if v is not None and v != []]   # (--beta 0 is a start)
         if start_given and not pilots:   # stored measurements are of their own starts and parameters
             typer.echo(f"{', '.join(start_given)}: the start and parameters of pilot runs; stored measurements "
                        "are not used")

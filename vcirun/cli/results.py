@@ -266,8 +266,8 @@ def study(
                                             "long_horizon or extremes).", show_default=False),
     output: Optional[Path] = typer.Option(None, "--output", "-o", help="Results JSON (overrides the config's output)."),
     quick: bool = typer.Option(False, "--quick", help="Work precision: one initial condition, fewer repeats and "
-                                                      "tolerances (a smoke run, written beside the full results "
-                                                      "as <name>_quick.json unless --output is given)."),
+                                                      "tolerances (a smoke run, written beside the config's output "
+                                                      "as <output>_quick.json unless --output is given)."),
     plot: bool = typer.Option(False, "--plot", help="Work precision: also draw the figures."),
     only: List[str] = typer.Option([], "--only", help="Extremes: run only these sections (comma-separated or "
                                                       "repeated); the others are kept from the existing results."),

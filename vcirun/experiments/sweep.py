@@ -145,6 +145,7 @@ class _Reporter:
         self.live = self.enabled and console.is_terminal
         self._progress = None
         self.label = label
+        self.stored_before = 0   # runs the file held when this session started (a resumed sweep)
 
     def start(self) -> None:
         """Start the live display (a thread; the fork-based pool must exist before it)."""
@@ -171,7 +172,7 @@ class _Reporter:
         elif self.enabled:
             # (saved: committed to the file so far; runs finished since are committed by the next batch,
             # the last ones when the sweep finishes)
-            pending = self.done - saved
+            pending = self.done - (saved - self.stored_before)   # this session's runs not yet committed
             self.console.print(f"[{self.done}/{self.total}] {note}; {saved} committed to the file"
                                + ((f", {pending} in the next batch" if self.done < self.total
                                    else f", the last {pending} as the sweep finishes") if pending > 0 else "")
@@ -398,6 +399,7 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
                          + (f", {summary.deleted_incomplete} incomplete or damaged groups discarded"
                             if summary.deleted_incomplete else "")
                          + (f", {len(ref_only)} missing reference(s) to recompute" if ref_only else ""))
+        reporter.stored_before = len(writer.complete_runs)
         for note in writer.notes:   # damaged journal records skipped: their runs are among the pending
             reporter.log(f"note: {note}")
         ref_T, ref_h = reference_horizon(cfg), min(cfg.h)

@@ -16,10 +16,22 @@ _EXPORTS = {".nc": "netCDF (xarray.open_dataset)", ".csv": "CSV (pandas.read_csv
 
 def not_read_back(path) -> str | None:
     """The one-line error for a run saved in a format vcirun writes but does not read back (.nc, .csv,
-    .npz), else None."""
-    kind = _EXPORTS.get(Path(path).suffix.lower())
-    if kind is None:
+    .npz), else None: None too for a file that is not there (its own error) and for one of vcirun's
+    HDF5 files under such a name (a sweep's results written as .nc is read as any results file)."""
+    path = Path(path)
+    kind = _EXPORTS.get(path.suffix.lower())
+    if kind is None or not path.is_file():
         return None
+    try:
+        import h5py
+
+        with h5py.File(path, "r") as f:
+            fmt = f.attrs.get("format", "")
+            fmt = fmt.decode() if isinstance(fmt, bytes) else str(fmt)
+        if fmt.startswith("vcirun"):
+            return None
+    except Exception:  # noqa: BLE001 - not HDF5 or unreadable: not one of vcirun's files
+        pass
     return (f"{path}: a run saved as {kind} is for other tools; vcirun info, plot and animate read a run "
             "saved as .h5 (vcirun simulate --output run.h5, or Trajectory.save('run.h5'))")
 

@@ -115,7 +115,8 @@ def run_args(p, system, beta, q0, p0, params, constrained, resting_contact, opti
     the start as the run took it (q0, p0 after the Legendre transform), the plan's system and method."""
     return RunArgs(system=p.system, method=p.meth, t0=float(t0), q0=q0, p0=p0, params=params,
                    constrained=constrained, resting_contact=resting_contact,
-                   options={k: v for k, v in options.items() if k not in ("ld", "mh_order", "flow_order")})
+                   options={k: v for k, v in options.items() if k not in ("ld", "mh_order", "flow_order")},
+                   tier=p.tier, kc=p.kc)
 
 
 def trajectory_of(p, mod, out, counters, q0, p0, prm, beta, wall) -> tr.Trajectory:

@@ -248,8 +248,11 @@ def simulate_to_tolerance(system, method=None, *, T, tol, h_max=None, max_time=N
     if method is not None:
         _check_named_method(runner, method)
     key = scene_key(system, params, T, t0, constrained, resting_contact, options, energies)
-    if runner.tier_used(method if method is not None else "CVA") == "interpreted":
+    served = runner.tier_used(method if method is not None else "CVA")
+    if served == "interpreted":
         key += ("interpreted tier",)   # a model of the interpreter's costs per step, apart from the compiled one's
+    elif served != "compiled":
+        key = None   # a substitute loader: its costs are its own, kept by no model
     chooser = _Chooser(runner, method, T=T, tol=tol, h_max=h_max, max_time=max_time, energies=energies, key=key)
     return chooser.choose()
 

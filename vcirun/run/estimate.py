@@ -347,7 +347,9 @@ def _near_event(run: Run, reach: int) -> np.ndarray:
 
 
 # the gap a guarded constraint reads while its guard is not armed (vcirun.mechanics.hybrid.GUARD_OFF; a test
-# holds them equal): a jump to or from it is the guard arming, not a dip the grid would miss
+# holds them equal): a jump to or from it is the guard arming, not a dip the grid would miss. The screen
+# skips every parabola through that exact value (on an unguarded contact a gap of exactly 1.0 at a grid
+# point is one point of a dip that the neighbouring parabolas still see)
 GUARD_OFF = 1.0
 
 
@@ -677,8 +679,9 @@ def _against_reference(tr, args, ref) -> ErrorEstimate:
 def _check_reference(tr, ref) -> None:
     """A reference handed in must be one (callable in t, with .p) of this run's motion: its state at the
     run's first grid time is the run's start (ValueError naming `reference` otherwise)."""
-    if not callable(ref) or not callable(getattr(ref, "p", None)):
-        raise ValueError(f"reference: a vcirun.reference(...) of this run's start (got {type(ref).__name__})")
+    if not callable(ref) or not callable(getattr(ref, "p", None)) or not all(
+            hasattr(ref, a) for a in ("impacts", "impact_contact", "kind")):
+        raise ValueError(f"reference: a vcirun.reference(...) of this run's motion (got {type(ref).__name__})")
     t0 = float(tr.t[0])
     q0, p0 = np.asarray(tr.q[0], float), np.asarray(tr.p[0], float)
     try:
@@ -690,7 +693,7 @@ def _check_reference(tr, ref) -> None:
             or float(np.max(np.abs(pr - p0))) > scale:
         raise ValueError(f"reference: it is at q = {np.round(qr, 9).tolist()}, p = {np.round(pr, 9).tolist()} at "
                          f"t = {t0:g}, this run starts at q = {np.round(q0, 9).tolist()}, p = "
-                         f"{np.round(p0, 9).tolist()}: compute the reference from the run's start")
+                         f"{np.round(p0, 9).tolist()}: pass a reference of this run's motion")
 
 
 # --- what a sweep stores -------------------------------------------------------------------------------

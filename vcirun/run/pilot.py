@@ -216,6 +216,7 @@ class Runner:
         self.constrained, self.resting_contact = constrained, resting_contact
         self.options = dict(options or {})
         self._plans: dict = {}
+        self._tiers: dict = {}    # id(module) -> the tier it was loaded on
         self._starts: dict = {}   # (sysd, sysm, constrained) ids -> [(module, q0, p0, prm, beta)]: see _base
 
     # --- plans --------------------------------------------------------------------------------------
@@ -255,6 +256,7 @@ class Runner:
                 mod = p.module()   # (after the start is validated, as simulate does)
                 q0, p0 = ready_start(p, mod, start, prm)
                 entries.append((mod, q0, p0, prm, beta))
+            self._tiers[id(mod)] = p.tier_used   # (the tier of this module; the kept plan may move on later)
             first_call(mod, p, q0, p0, prm)
             hit = self._plans[key] = (p, mod, q0, p0, prm, beta)
             if fast is not None:
@@ -269,7 +271,7 @@ class Runner:
 
     def tier_used(self, method) -> str | None:
         """The tier `method`'s runs take (vcirun.codegen.tiers: "compiled", "interpreted" or "substitute")."""
-        return self._base(method, False)[0].tier_used
+        return self._tiers.get(id(self.module(method)))
 
     def params_vector(self, method) -> np.ndarray:
         return self._base(method, False)[4]
@@ -344,11 +346,11 @@ class Runner:
 
             def pending():
                 t = self.build(p, mod, out, counters, q0, p0, prm, beta, wall)
-                t.run_args, t.tier = self.run_args(p.meth), p.tier_used
+                t.run_args, t.tier = self.run_args(p.meth), self._tiers.get(id(mod), p.tier_used)
                 return t
         elif trajectory:
             tr = self.build(p, mod, out, counters, q0, p0, prm, beta, wall)
-            tr.run_args, tr.tier = self.run_args(p.meth), p.tier_used
+            tr.run_args, tr.tier = self.run_args(p.meth), self._tiers.get(id(mod), p.tier_used)
             status = tr.status
         else:
             status = _STATUS[counters["status"]]
@@ -367,7 +369,7 @@ class Runner:
     def run_args(self, meth) -> "RunArgs":
         return RunArgs(system=self.system, method=meth, t0=self.t0, beta=self.start["beta"], q0=self.start["q0"],
                        p0=self.start["p0"], params=self.params, constrained=self.constrained,
-                       resting_contact=self.resting_contact, options=dict(self.options))
+                       resting_contact=self.resting_contact, options=dict(self.options), tier=self.tier, kc=self.kc)
 
 
 @dataclass
@@ -387,7 +389,10 @@ class RunArgs:
     constrained: bool | None = None
     resting_contact: bool = True
     options: dict = dataclasses.field(default_factory=dict)
+    tier: str | None = None   # the call's tier and kernel cache: the companions run as the run did
+    kc: object = dataclasses.field(default=None, repr=False)
 
     def runner(self, T: float) -> Runner:
         return Runner(self.system, T=T, t0=self.t0, beta=self.beta, q0=self.q0, p0=self.p0, params=self.params,
-                      constrained=self.constrained, resting_contact=self.resting_contact, options=self.options)
+                      constrained=self.constrained, resting_contact=self.resting_contact, options=self.options,
+                      tier=self.tier, kc=self.kc)

@@ -59,7 +59,7 @@ def run_config(cfg, *, source: str = "<study>", output=None, quick: bool = False
     import warnings
 
     _check_options(cfg, source, quick=quick, only=only)
-    _not_tracked(cfg.output if output is None else None, "output", source)
+    _not_tracked(quick_output(cfg.output, quick) if output is None else None, "output", source)
     if isinstance(cfg, ExtremesStudy) and cfg.report is not None and report_output is None:
         _not_tracked(cfg.report.output, "report.output", source)
     t0 = time.perf_counter()
