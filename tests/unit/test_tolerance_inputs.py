@@ -89,3 +89,24 @@ def test_a_substitute_loader_keeps_no_scene_model():
     before = set(_MODELS)
     tr = vcirun.simulate("oscillator_wall", T=0.6, tol=1e-4, method="CVA", loader=python_module_for)
     assert tr.choice.status == "ok" and set(_MODELS) == before
+
+
+def test_a_scan_with_a_candidate_on_the_interpreted_tier_files_its_costs_apart(monkeypatch):
+    """Under the auto tier one candidate's compiled module may still be building while the others are
+    compiled: that scan's costs per step go to the interpreted tier's model."""
+    from vcirun.run import pilot
+    from vcirun.run.choose import INTERPRETED_KEY
+    from vcirun.run.scene_model import _MODELS
+
+    real = pilot.Runner.tier_used
+    monkeypatch.setattr(pilot.Runner, "tier_used",
+                        lambda self, m: "interpreted" if getattr(m, "name", m) == "CVA4" else real(self, m))
+    kept = dict(_MODELS)
+    _MODELS.clear()
+    try:
+        vcirun.simulate("oscillator_wall", T=0.8, tol=1e-5)
+        keys = list(_MODELS)
+        assert len(keys) == 1 and keys[0][-1] == INTERPRETED_KEY, keys
+    finally:
+        _MODELS.clear()
+        _MODELS.update(kept)

@@ -184,6 +184,7 @@ def _certifiable(c: Candidate) -> int:
 
 
 SCAN_BUDGET = 0.05   # CPU seconds of pilots per candidate on a scene's first call
+INTERPRETED_KEY = "interpreted tier"   # marks the scene model of costs measured on the interpreted tier
 N_CAL = 1024         # the timing run of a candidate (cost per step)
 
 
@@ -250,7 +251,7 @@ def simulate_to_tolerance(system, method=None, *, T, tol, h_max=None, max_time=N
     key = scene_key(system, params, T, t0, constrained, resting_contact, options, energies)
     served = runner.tier_used(method if method is not None else "CVA")
     if served == "interpreted":
-        key += ("interpreted tier",)   # a model of the interpreter's costs per step, apart from the compiled one's
+        key += (INTERPRETED_KEY,)   # a model of the interpreter's costs per step, apart from the compiled one's
     elif served != "compiled":
         key = None   # a substitute loader: its costs are its own, kept by no model
     chooser = _Chooser(runner, method, T=T, tol=tol, h_max=h_max, max_time=max_time, energies=energies, key=key)
@@ -439,6 +440,14 @@ class _Chooser:
         """Add this start's error constants (and, from a scan, the costs) to the scene model."""
         if self.key is None:
             return
+        if scanned and INTERPRETED_KEY not in self.key and any(
+                self.runner.tier_used(self.names[c.method]) == "interpreted" for c in cands if c.method in self.names):
+            # a candidate timed on the interpreted tier (its compiled module still being built): the
+            # costs of this scan are filed with the interpreted tier's model, not the compiled one's
+            if feats is None and self.model is not None:
+                feats = dict(n_contacts=self.model.n_contacts, forced=self.model.forced, mapped=self.model.mapped)
+            self.key = self.key + (INTERPRETED_KEY,)
+            self.model = _MODELS.get(self.key)
         if self.model is None:
             self.model = _MODELS.setdefault(self.key, SceneModel(self.key, self.T, **(feats or {})))
         self.model.starts += 1
