@@ -110,3 +110,11 @@ def test_a_scan_with_a_candidate_on_the_interpreted_tier_files_its_costs_apart(m
     finally:
         _MODELS.clear()
         _MODELS.update(kept)
+
+
+def test_not_reached_because_the_pilots_budget_ran_out_says_so():
+    """A long horizon of the cart-pendulum: every candidate's pilots stop on their CPU budget before the
+    impacts are resolved; the reason names the budget, not the step limit."""
+    tr = vcirun.simulate("cart_pendulum", T=300, tol=1e-6)
+    assert tr.choice.status == "not_reached"
+    assert tr.choice.reason.startswith("no candidate resolved the motion before its pilots' budget ran out")

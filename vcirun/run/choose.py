@@ -784,7 +784,12 @@ class _Chooser:
                 N = max(N_FIRST, self.n_min)
                 est = ErrorEstimate("richardson", "failed", self.T / N, message=f"every pilot failed; {notes}")
         r = self.run(self.names.get(label, label), N, final=True)
-        reason = {NOT_REACHED: f"no step within the limits reaches tol = {self.tol:g}",
+        live = [c for c in cands if c.status != "excluded"]
+        budget_out = bool(live) and all("pilots stopped at N" in (c.note or "") for c in live)
+        reason = {NOT_REACHED: (f"no candidate resolved the motion before its pilots' budget ran out "
+                                f"({SCAN_BUDGET * 1e3:.0f} ms of CPU each, on a scene's first call): tol = "
+                                f"{self.tol:g} is not reached" if budget_out
+                                else f"no step within the limits reaches tol = {self.tol:g}"),
                   BELOW_FLOOR: f"tol = {self.tol:g} is below the round-off level of this scene's runs",
                   OVER_BUDGET: f"max_time = {self.max_time} s does not allow a run that reaches tol"}[status]
         reason += f"; the run returned is the most accurate one made ({label}, N = {r.N}); {notes}"
