@@ -121,3 +121,14 @@ def test_dissipative_scenes_verify_clean(scene):
     else:
         assert any("window" in n for n in res.notes)
         assert res.check("impact times", "CVA").data["err"] and max(res.check("impact times", "CVA").data["err"]) < 1e-11
+
+
+def test_a_declared_force_that_vanishes_is_checked_as_unforced():
+    """The bouncing ball declares a drag -c ydot; at c = 0 its map is the unforced, symplectic one, and
+    verify judges symplecticity and H~ instead of skipping them as for a forced map (c = 0.5)."""
+    hs = [0.02, 0.01, 0.005]
+    free = vcirun.verify("bouncing_ball", "MCVAC", T=1.0, h=hs)
+    assert free.check("symplecticity", "MCVAC").verdict == ck.PASS
+    assert any("vanishes at these parameter values" in n for n in free.notes)
+    drag = vcirun.verify("bouncing_ball", "MCVAC", T=1.0, h=hs, params={"c": 0.5})
+    assert drag.check("symplecticity", "MCVAC").verdict == ck.SKIP
