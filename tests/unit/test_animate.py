@@ -164,3 +164,26 @@ def test_configuration_space_fallback(tmp_path):
     q = tr(a.times[4])
     assert _near(img, a.to_pixels(a.scene_ax, q[0], q[1]), _rgb(COLORS[1]))
     assert a.scene_ax.collections   # the dashed boundary contour y = -0.2 x
+
+
+def test_a_run_that_stopped_at_its_start_names_its_status():
+    import warnings
+
+    import pytest
+
+    import vcirun
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        tr = vcirun.simulate("painleve_rod", "CVA", T=1, h=0.005)
+    assert tr.status == "painleve"
+    with pytest.raises(ValueError, match="ended at its start with status painleve"):
+        tr.animate()
+
+
+def test_every_built_in_scene_is_drawn_from_its_geometry():
+    """`vcirun animate` draws built-in scenes from their geometry; none falls back to configuration space."""
+    from vcirun.scenes.registry import get_scene, listed_scenes
+
+    missing = [n for n in listed_scenes() if getattr(get_scene(n), "drawing", None) is None]
+    assert not missing, missing

@@ -72,6 +72,9 @@ class Animation:
     def __init__(self, traj, *, system=None, fps=FPS, speed=None, max_frames=MAX_FRAMES, energy=True, dpi=100):
         _check_args(fps, speed, max_frames, dpi)
         if len(traj.t) < 2:
+            if getattr(traj, "status", "ok") != "ok":   # a run that stopped in its first step: nothing moved
+                raise ValueError(f"animate: the run ended at its start with status {traj.status}: "
+                                 f"{getattr(traj, 'message', '')}")
             raise ValueError("animate: the trajectory holds fewer than two grid states (stored with "
                              "store_trajectories: false?)")
         self.traj, self.fps, self.dpi = traj, float(fps), float(dpi)

@@ -150,10 +150,17 @@ def _incline_symbolic(x):
 
     (qx, qy), p = x.q, x.p
     th = p.theta
+    from ..mechanics.drawing import Drawing
+
     c = Constraint("slope", -sp.sin(th) * qx + sp.cos(th) * qy, sp.Integer(0), friction=p.mu,
                    static_friction=p.mu_s, slip=(sp.cos(th), sp.sin(th)))
-    return MechanicalSystem(name=x.d.name, q=[qx, qy], params=x.d.params, M=sp.eye(2) * p.m, V=p.m * p.g * qy,
-                            constraints=[c], description=x.d.description)
+    s = MechanicalSystem(name=x.d.name, q=[qx, qy], params=x.d.params, M=sp.eye(2) * p.m, V=p.m * p.g * qy,
+                         constraints=[c], description=x.d.description)
+    # the drawing: the mass on the slope, the line through the origin with normal (-sin theta, cos theta)
+    s.drawing = Drawing(q=[qx, qy], points={"mass": (qx, qy)}, dots=["mass"],
+                        lines=[((0, 0), (-sp.sin(th), sp.cos(th)))], contacts=["mass"]).check(
+        f"scene {x.d.name} drawing")
+    return s
 
 
 INCLINE = Scene(
@@ -192,10 +199,17 @@ def _coulomb_oscillator_symbolic(x):
     from .symbolic import Constraint, MechanicalSystem
 
     (qx, qy), p = x.q, x.p
+    from ..mechanics.drawing import Drawing
+
     c = Constraint("floor", qy, sp.Integer(0), friction=p.mu, static_friction=p.mu_s,
                    slip=(sp.Integer(1), sp.Integer(0)))
-    return MechanicalSystem(name=x.d.name, q=[qx, qy], params=x.d.params, M=sp.eye(2) * p.m,
-                            V=p.k * qx ** 2 / 2 + p.m * p.g * qy, constraints=[c], description=x.d.description)
+    s = MechanicalSystem(name=x.d.name, q=[qx, qy], params=x.d.params, M=sp.eye(2) * p.m,
+                         V=p.k * qx ** 2 / 2 + p.m * p.g * qy, constraints=[c], description=x.d.description)
+    # the drawing: the block on the floor, the spring from its rest point x = 0 (its length the extension)
+    pts = {"rest": (sp.Integer(0), sp.Rational(1, 10)), "block": (qx, qy + sp.Rational(1, 10)), "foot": (qx, qy)}
+    s.drawing = Drawing(q=[qx, qy], points=pts, segments=[("rest", "block")], dots=["block"],
+                        lines=[((0, 0), (0, 1))], contacts=["foot"]).check(f"scene {x.d.name} drawing")
+    return s
 
 
 COULOMB_OSCILLATOR = Scene(
@@ -250,7 +264,8 @@ def _rocking_block_friction_symbolic(x):
     from ..mechanics.bodies import Body, Joint, PointContact
     from .symbolic import mechanism
 
-    return mechanism(x.d, [Body("block", "m", "m*(a**2 + b**2)/12")],
+    corners = (("-b/2", "-a/2"), ("b/2", "-a/2"), ("b/2", "a/2"), ("-b/2", "a/2"))   # drawn as the rectangle
+    return mechanism(x.d, [Body("block", "m", "m*(a**2 + b**2)/12", outline=corners)],
                      [Joint("free", "block", coordinates=tuple(map(str, x.q)))],
                      [PointContact("left", "block", ("-b/2", "-a/2"), restitution=0, friction="mu",
                                    static_friction="mu_s"),
