@@ -21,6 +21,8 @@ LAMBDA_RATIO_WARN = 1e-4  # smallest eigenvalue of M fallen below this fraction 
 ASYMPTOTIC_REL = 1e-3     # an order miss with relative errors below this is a wrong method, not a coarse ladder
 NEAR_ROUND_OFF = 1e5      # errors below this many eps (relative) are near the plateau: not used for the asymptotic h
 ENVELOPE_TOL = 0.3        # an error that scatters in h: its upper envelope's slope within this of the theory warns
+ENERGY_TOL = 0.3          # one-sided tolerance on the order of the energy change across impact steps
+IMPACT_RATIO = 10.0       # ... or an impact step changes the energy at most this many times a smooth step
 
 
 def envelope_slope(hs, errs, floor: float):
@@ -41,8 +43,7 @@ def envelope_slope(hs, errs, floor: float):
     return float(np.polyfit(np.log(h[o]), np.log(env), 1)[0]), int(h.size)
 
 
-def _scatter_warning(name, method, hs, errs, theory, tol, one_sided, scale, quantity, thr, expected, rows, data,
-                     local):
+def _scatter_warning(name, method, hs, errs, theory, one_sided, scale, quantity, thr, expected, rows, data, local):
     """The warning for a ladder whose errors scatter in h -- some local slope below half the theory's
     order and some above it -- but whose upper envelope falls at the theory's order (within
     ENVELOPE_TOL), else None: such a method is not shown wrong by the ladder. A clean wrong order (every
@@ -63,8 +64,6 @@ def _scatter_warning(name, method, hs, errs, theory, tol, one_sided, scale, quan
                  f"{k} points above 100x round-off falls at order {slope:.3g}: consistent with order {theory:g} "
                  "for an error that depends on where each impact falls in its step (VCI); a longer ladder would "
                  "fit it", rows, data)
-ENERGY_TOL = 0.3          # one-sided tolerance on the order of the energy change across impact steps
-IMPACT_RATIO = 10.0       # ... or an impact step changes the energy at most this many times a smooth step
 
 
 @dataclass
@@ -306,7 +305,7 @@ def order_check(name, method, hs, errs, theory, *, scale=1.0, tol=ORDER_TOL, one
                          "round-off at these h -- the method integrates this motion exactly (e.g. a variational "
                          "integrator on a free flight under constant gravity) or the ladder is too fine; larger h "
                          "would show the order if there is one", rows, data)
-        scatter = _scatter_warning(name, method, hs, errs, theory, tol, one_sided, scale, quantity, thr, expected,
+        scatter = _scatter_warning(name, method, hs, errs, theory, one_sided, scale, quantity, thr, expected,
                                    rows, data, ", ".join(fmt(s) for _, s in local_slopes(hs, errs)))
         if scatter is not None:
             return scatter
@@ -355,7 +354,7 @@ def order_check(name, method, hs, errs, theory, *, scale=1.0, tol=ORDER_TOL, one
                      f"not in the asymptotic regime on this ladder: fit over {span} gives {slope:.3g} (local slopes "
                      f"{local}) and the finest {quantity} is still {finest / scale:.2e} of the solution's size: use "
                      "smaller h", rows, data)
-    scatter = _scatter_warning(name, method, hs, errs, theory, tol, one_sided, scale, quantity, thr, expected,
+    scatter = _scatter_warning(name, method, hs, errs, theory, one_sided, scale, quantity, thr, expected,
                                rows, data, ", ".join(fmt(s) for _, s in local_slopes(hs, errs)))
     if scatter is not None:
         return scatter
