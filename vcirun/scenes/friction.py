@@ -146,12 +146,11 @@ def _incline_symbolic(x):
     theta, sin theta) (up the slope)."""
     import sympy as sp
 
+    from ..mechanics.drawing import Drawing
     from .symbolic import Constraint, MechanicalSystem
 
     (qx, qy), p = x.q, x.p
     th = p.theta
-    from ..mechanics.drawing import Drawing
-
     c = Constraint("slope", -sp.sin(th) * qx + sp.cos(th) * qy, sp.Integer(0), friction=p.mu,
                    static_friction=p.mu_s, slip=(sp.cos(th), sp.sin(th)))
     s = MechanicalSystem(name=x.d.name, q=[qx, qy], params=x.d.params, M=sp.eye(2) * p.m, V=p.m * p.g * qy,
@@ -196,11 +195,10 @@ def _coulomb_oscillator_symbolic(x):
     restitution 0, friction mu, static friction mu_s, slip row (1, 0)."""
     import sympy as sp
 
+    from ..mechanics.drawing import Drawing
     from .symbolic import Constraint, MechanicalSystem
 
     (qx, qy), p = x.q, x.p
-    from ..mechanics.drawing import Drawing
-
     c = Constraint("floor", qy, sp.Integer(0), friction=p.mu, static_friction=p.mu_s,
                    slip=(sp.Integer(1), sp.Integer(0)))
     s = MechanicalSystem(name=x.d.name, q=[qx, qy], params=x.d.params, M=sp.eye(2) * p.m,
