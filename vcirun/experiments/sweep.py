@@ -145,7 +145,7 @@ class _Reporter:
         self.live = self.enabled and console.is_terminal
         self._progress = None
         self.label = label
-        self.stored_before = 0   # runs the file held when this session started (a resumed sweep)
+        self.stored_before = 0   # runs the file held when this run of the sweep started (a resumed sweep)
 
     def start(self) -> None:
         """Start the live display (a thread; the fork-based pool must exist before it)."""
@@ -172,7 +172,7 @@ class _Reporter:
         elif self.enabled:
             # (saved: committed to the file so far; runs finished since are committed by the next batch,
             # the last ones when the sweep finishes)
-            pending = self.done - (saved - self.stored_before)   # this session's runs not yet committed
+            pending = self.done - (saved - self.stored_before)   # runs computed here, not yet committed
             self.console.print(f"[{self.done}/{self.total}] {note}; {saved} committed to the file"
                                + ((f", {pending} in the next batch" if self.done < self.total
                                    else f", the last {pending} as the sweep finishes") if pending > 0 else "")
