@@ -108,8 +108,9 @@ def animate(
                                "animated as stored")
             if not results.exists():
                 raise CliError(f"{results}: file not found")
-            if not_read_back(results):
-                raise CliError(not_read_back(results))
+            why = not_read_back(results)
+            if why:
+                raise CliError(why)
             if is_trajectory_file(results):
                 if run is not None or method is not None or h is not None or beta is not None:
                     raise CliError(f"{results} holds one run: --run, --method, --h, --beta choose a run of a sweep's "
