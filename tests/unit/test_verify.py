@@ -182,6 +182,36 @@ def test_symplecticity_defect_sees_a_dissipative_map(compiled):
     assert ck.symplecticity_check("CVA", rows, forced=False).verdict == ck.PASS
 
 
+def _shears(damp):
+    """A symplectic map of R^4 (two shears, p -= grad V(q), then q += grad T(p), V and T of frequency 40,
+    whose FD Jacobian the stencil's truncation dominates down to a step of 3e-5), or with p scaled by
+    `damp` first: a map whose own defect is 1 - damp."""
+    a, b = np.array([1.0, 2.0]), np.array([1.0, -1.0])
+
+    def f(y):
+        q, p = y[:2], damp * y[2:]
+        p = p - 3.0 * np.sin(40.0 * (q @ a)) / 40.0 * a
+        q = q + 3.0 * np.cos(40.0 * (p @ b)) / 40.0 * b
+        return np.concatenate([q, p])
+    return f
+
+
+def test_symplecticity_defect_is_judged_at_the_step_where_the_stencil_is_accurate():
+    from vcirun.verification.fd import map_jacobian, symplecticity_defect
+    from vcirun.verification.suite import _defect
+
+    y = np.array([0.3, -0.2, 0.5, 0.1])
+    sym = _shears(1.0)
+    assert symplecticity_defect(map_jacobian(sym, y, 1e-4)) > 1e-7   # the stencil at 1e-4 is still truncation-bound
+    rows = [{"map": "full Phi_h", "h": 0.1, "state": "start", "defect": _defect(sym, y)}]
+    assert ck.symplecticity_check("CVA", rows, forced=False).verdict == ck.PASS
+    for damp, verdict in ((1 - 1e-5, ck.FAIL), (1 - 1e-7, ck.WARN)):   # a defect of its own stays
+        d = _defect(_shears(damp), y)
+        assert abs(d - (1 - damp)) < 0.05 * (1 - damp)
+        rows = [{"map": "full Phi_h", "h": 0.1, "state": "start", "defect": d}]
+        assert ck.symplecticity_check("CVA", rows, forced=False).verdict == verdict
+
+
 @pytest.mark.parametrize("kwargs, field", [
     (dict(h=[0.1, 0.05]), "h"), (dict(h=[0.1, -0.05, 0.02]), "h"), (dict(T=-1.0), "T"),
     (dict(methods="CVA,NOPE"), "method"), (dict(methods=""), "methods"), (dict(q0=[1.0]), "initial state"),
