@@ -168,6 +168,42 @@ def test_derivative_table_catches_a_perturbed_kernel(compiled):
     assert c.verdict != ck.PASS and "sys_dphi" in c.threshold
 
 
+class _PerturbedMH:
+    """A compiled MCVA module whose mh_gradient returns its gradient or its Hessian scaled by 1 + 1e-5."""
+
+    def __init__(self, mod, which):
+        self._mod, self._which = mod, which
+
+    def __getattr__(self, k):
+        f = getattr(self._mod, k)
+        if k != "mh_gradient":
+            return f
+
+        def g(*args):
+            out = f(*args)
+            args[-2 if self._which == "grad" else -1][:] *= 1.0 + 1e-5
+            return out
+        return g
+
+
+def test_modified_hamiltonian_checks_take_the_step_where_the_stencil_is_accurate(compiled):
+    """The gradient and Hessian checks of mh_gradient follow the FD step down until the difference
+    stops falling: the correct kernels pass far inside the threshold, and a kernel off by 1e-5 keeps a
+    difference of 1e-5 at every step."""
+    _, mod, prm = compiled("oscillator_wall", "MCVAC")
+    probes = [Probe(np.array([0.3]), np.array([-0.7]), 0.0, 0.04), Probe(np.array([-0.2]), np.array([0.5]), 1.0, 0.04)]
+    ks = vcirun.methods.table.resolve_method("MCVAC").kernel_set()
+
+    def worst(m):
+        return {r["kernel"]: r["worst"] for r in check_kernels(m, prm, probes, full_stages=ks.full_stages)}
+
+    ok = worst(mod)
+    assert ok["mh_gradient (grad)"] < 1e-8 and ok["mh_gradient (hess)"] < 1e-8, ok
+    for which in ("grad", "hess"):
+        bad = worst(_PerturbedMH(mod, which))[f"mh_gradient ({which})"]
+        assert 3e-6 < bad < 3e-5, (which, bad)
+
+
 def test_symplecticity_defect_sees_a_dissipative_map(compiled):
     from vcirun.verification.suite import _symplecticity_rows
 
