@@ -17,7 +17,7 @@ from vcirun.codegen.roles import (
     I_N_PARTIAL, I_STEPS, I_N_RELEASES, I_N_MODE_CHANGES, S_CONSTRAINED, S_NEWTON_TOL, S_MAX_ITER, S_EVENT_TOL,
     S_MAX_IMPACTS_STEP, S_ENERGIES, S_RESTING_CONTACT, ST_OK, ST_NEWTON_FAILED, ST_EVENT_FAILED, ST_RESET_FAILED,
     ST_ACCUMULATION, ST_NONFINITE, ST_PAINLEVE, RESET_MAP, RESET_LAW_FIRST, FRICTION, sys_phi, sys_phis,
-    sys_restitution, full, reset, modified_energy
+    sys_restitution, sys_friction, full, reset, modified_energy
 )
 from vcirun.collision.declared import declared_reset
 from vcirun.collision.events import search_collision, step_admissible
@@ -126,7 +126,7 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
     info[I_N_MODE_CHANGES] = 0
     n[N_HELD] = initially_held(q, p, t0, h, st.event_tol, prm, held) if resting else 0
     status = ST_OK
-    if FRICTION and n[N_HELD] > 0 and assign_modes(q, p, t0, prm, held, -1, -1, mu, lt) == FRICTION_PAINLEVE:
+    if FRICTION and n[N_HELD] > 0 and assign_modes(q, p, t0, prm, held, -1, -1, mu, lt, p) == FRICTION_PAINLEVE:
         status = ST_PAINLEVE
     # accumulation across steps: dense = [time of the last impact, start of the current
     # run of impacts that each follow the previous one by less than one grid step h, its length]
@@ -179,6 +179,12 @@ def integrate(q0, p0, t0, h, N, prm, settings, out, info):
                 contact_forces(qt, pt, t + h, prm, held, mu_end)
                 frac, c = _release_fraction(mu, mu_end, held)
         tau = -1.0   # where in the step Algorithm 1's event step starts (< 0: none)
+        if FRICTION and c >= 0 and constrained and not (_phis_positive(qt, prm, phis) or step_admissible(
+                q, p, qt, h, st.event_tol, prm, held, nheld, phis)):
+            # a free contact reaches its surface inside the step as well: the event step from the
+            # step's start finds that collision first and locates the mode events before it (a mode's
+            # end taken first would carry the motion past the collision, into the constraint)
+            c = -1
         if c >= 0:
             impact_step[i] = True  # a step with an event inside (a release, a friction mode's end)
             if FRICTION:
@@ -424,7 +430,7 @@ def _change_mode(st, t, tau, c, kind):
         st.held[c] = 0
         st.n[N_HELD] -= 1
         _record_release(st, te, c)
-        if st.n[N_HELD] > 0 and assign_modes(st.q, st.p, te, st.prm, st.held, -1, -1, st.mu, st.lt) == FRICTION_PAINLEVE:
+        if st.n[N_HELD] > 0 and assign_modes(st.q, st.p, te, st.prm, st.held, -1, -1, st.mu, st.lt, st.p) == FRICTION_PAINLEVE:
             return ST_PAINLEVE
         _record_mode_changes(st, te, before, -1)
     else:
@@ -435,7 +441,7 @@ def _change_mode(st, t, tau, c, kind):
             if friction_forces(st.q, st.p, te, st.prm, st.held, st.mu, st.lt) == FRICTION_PAINLEVE:
                 return ST_PAINLEVE
             st.held[c] = -1 if st.lt[c] > 0.0 else 1
-        if assign_modes(st.q, st.p, te, st.prm, st.held, rest, moving, st.mu, st.lt) == FRICTION_PAINLEVE:
+        if assign_modes(st.q, st.p, te, st.prm, st.held, rest, moving, st.mu, st.lt, st.p) == FRICTION_PAINLEVE:
             return ST_PAINLEVE
         if _newly_stuck(st, before):
             # the slip velocity is zero to the event tolerance: zeroed (with the held normal velocities)
@@ -517,7 +523,7 @@ def _reassign_modes(st, k, t):
     before = scratch_i(NCON)
     for j in range(NCON):
         before[j] = st.held[j]
-    if assign_modes(st.q, st.p, t, st.prm, st.held, REST_REVERSED, -1, st.mu, st.lt) == FRICTION_PAINLEVE:
+    if assign_modes(st.q, st.p, t, st.prm, st.held, REST_REVERSED, -1, st.mu, st.lt, st.p) == FRICTION_PAINLEVE:
         return False
     if _newly_stuck(st, before):
         _stick_projection(st)
@@ -731,11 +737,12 @@ def _method_reset(st, ti, dtau, tau_rem, E_pre, s0, dE):
     direction, one contact or several. An energy-based reset (R^VCI, R^MCVA) has no reflecting root
     at a slow or grazing impact: where its energy balance cannot matter (_law_suffices), the impact
     law's p+ is taken (as during a hold; docs/derivations/contacts.md 7.4), else the run fails.
-    With friction, a plastic impact (every contact that takes an impulse has e = 0) takes the impact
-    law's p+: the energy-based resets have a double root there and an O(h^(p/2)) multiplier
+    With friction, a plastic impact (every contact that takes an impulse leaves it with no normal
+    velocity: e = 0, or the tangential impulse presses it in) takes the impact law's p+: the
+    energy-based resets have a double root there and an O(h^(p/2)) multiplier
     (docs/derivations/contacts.md 2.4), which the tangential impulse would carry into the slip.
     Returns (status, iterations, the multiplier s of p+ = pt + s d)."""
-    if FRICTION and _plastic(st.prm, st.active, st.lam):
+    if FRICTION and _plastic(st.qt, st.pt, s0, st.d, st.prm, st.active, st.lam):
         for j in range(NDOF):
             st.pp[j] = st.pt[j] + s0 * st.d[j]
         return ST_OK, 0, s0
@@ -770,8 +777,9 @@ def _after_impact(st, ti, k, s, s0, mapped, k_imp):
     _record_impacts(st, ti, s, s0)
     if FRICTION and st.n[N_HELD] > 0:
         # the held contacts' modes after the impulse (a stuck contact may be set slipping, a landing one
-        # sticks where its slip velocity left the impact at rest and the static bound holds)
-        if assign_modes(st.qt, st.pp, ti, st.prm, st.held, -1, -1, st.mu, st.lt) == FRICTION_PAINLEVE:
+        # sticks where its slip velocity left the impact at rest, to the rounding of the momentum
+        # before it, st.pt, and the static bound holds)
+        if assign_modes(st.qt, st.pp, ti, st.prm, st.held, -1, -1, st.mu, st.lt, st.pt) == FRICTION_PAINLEVE:
             return ST_PAINLEVE
     return ST_OK
 
@@ -840,28 +848,49 @@ def _phis_positive(qt, prm, phis):
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _dissipative(q, p, t, prm, active):
-    """True if an impacting contact has restitution < 1 or the force does negative work at (q, p, t)
-    (drag): dense impacts then accumulate (their energy goes) and are held; elastic impacts of a
-    conservative motion are sustained (flights shorter than h, not a Zeno point) and are not."""
+    """True if an impacting contact has restitution < 1 or friction, or the force does negative work at
+    (q, p, t) (drag): dense impacts then accumulate (their energy goes) and are held; elastic impacts
+    of a conservative frictionless motion are sustained (flights shorter than h, not a Zeno point)
+    and are not."""
     v = scratch(NDOF)
     velocity_guess(q, p, prm, v)
     if FORCED and force_power(q, v, t, prm) < 0.0:
         return True
+    if FRICTION:
+        mu = scratch(NCON)
+        mus = scratch(NCON)
+        sys_friction(prm, mu, mus)
+        for j in range(NCON):
+            if active[j] != 0 and mu[j] > 0.0:
+                return True
     return _inelastic(prm, active)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
-def _plastic(prm, active, lam):
-    """Every contact of the impact that takes an impulse (lam_i > 0) has restitution 0."""
+def _plastic(q, p, s0, d, prm, active, lam):
+    """Every contact of the impact that takes an impulse (lam_i > 0) leaves it with no normal velocity:
+    restitution 0, or the law's p+ = p + s0 d at rest along grad phi_i, |u+_i| <= 1e-12 |u-_i| (a
+    tangential impulse that presses the contact in stops its rebound whatever its restitution: the
+    same double root of the energy-based resets' balance as at e = 0)."""
     e = scratch(NCON)
     sys_restitution(prm, e)
     hit = False
+    elastic = False
     for j in range(NCON):
         if active[j] != 0 and lam[j] > 0.0:
             hit = True
-            if e[j] != 0.0:
-                return False
-    return hit
+            elastic = elastic or e[j] != 0.0
+    if not (hit and elastic):
+        return hit
+    pp = scratch(NDOF)
+    for j in range(NDOF):
+        pp[j] = p[j] + s0 * d[j]
+    um = normal_velocities(q, p, prm)
+    up = normal_velocities(q, pp, prm)
+    for j in range(NCON):
+        if active[j] != 0 and lam[j] > 0.0 and e[j] != 0.0 and not abs(up[j]) <= 1e-12 * abs(um[j]):
+            return False
+    return True
 
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)

@@ -537,7 +537,10 @@ def slip_tolerance(q, p, prm, j):
     """How close to 0 a slip velocity counts as rest: the round-off of W_j M^-1 p, 64 eps |W_j|_1
     max_i |v_i| with v = M^-1 p. The velocity's largest component, not the components W_j weighs: a
     contact point at rest on a moving mechanism (a stance foot) has W_j v = 0 from components that
-    carry the solve's rounding of the whole v."""
+    carry the solve's rounding of the whole v. After an impulse, p is the momentum before it: the
+    slip velocities the impulse leaves carry the rounding of that one (a box that lands flat and
+    sticks is at rest after the impact, its corners' slip velocities are the rounding of its
+    landing velocity, 1e-17, not 0)."""
     v = scratch(NDOF)
     velocity_guess(q, p, prm, v)
     W = scratch2(NCON, NDOF)
@@ -551,7 +554,7 @@ def slip_tolerance(q, p, prm, j):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def assign_modes(q, p, t, prm, held, rest, moving, lam, lt):
+def assign_modes(q, p, t, prm, held, rest, moving, lam, lt, p_round):
     """The modes of the held contacts at (q, p) (they touch and are pressed in), by an active set: each
     contact with friction whose slip velocity is at rest (within slip_tolerance, or the contact
     `rest` whose slip has just stopped and every one at most 4x as fast as its residue; with rest =
@@ -561,7 +564,8 @@ def assign_modes(q, p, t, prm, held, rest, moving, lam, lt):
     then, while a stuck contact violates Coulomb's static bound, the one with the largest
     excess |lt_j| / (mu_s,j lam_j) slips, in the direction the unbalanced force drives
     (s_j = -sign(lt_j)). Frictionless held contacts slip (held[j] = 1). lam, lt: the final forces.
-    Returns friction_forces' code in the modes chosen."""
+    p_round: the momentum whose rounding the slip velocities carry (slip_tolerance): p, or after an
+    impulse the momentum before it. Returns friction_forces' code in the modes chosen."""
     mu = scratch(NCON)
     mus = scratch(NCON)
     sys_friction(prm, mu, mus)
@@ -578,7 +582,7 @@ def assign_modes(q, p, t, prm, held, rest, moving, lam, lt):
             held[j] = 1
         elif j == moving:
             continue
-        elif (j == rest or abs(vt[j]) <= slip_tolerance(q, p, prm, j) + vrest
+        elif (j == rest or abs(vt[j]) <= max(slip_tolerance(q, p, prm, j), slip_tolerance(q, p_round, prm, j)) + vrest
               or (reversed_rest and slipping(held[j]) and held[j] * vt[j] < 0.0)):
             held[j] = HELD_STICK
         else:
