@@ -117,3 +117,22 @@ def test_the_size_estimate_counts_friction_rows_for_friction_systems_only():
     assert sizes.stored_bytes(N, n, m) - without == rows   # no impacts, no mode changes
     assert sizes.stored_bytes(N, n, m, impacts=4, mode_changes=3) - \
         sizes.stored_bytes(N, n, m, impacts=4, mode_changes=3, friction=False) == rows + 4 * 8 + 3 * (8 + 8 + 8)
+
+
+def test_a_sweep_whose_reference_stops_at_painleve_stores_every_run(tmp_path):
+    """Painleve's rod at beta = 0.9 has no consistent contact force at t = 0: the exact reference stops
+    there (status painleve, T = 0). The sweep stored nothing (the reference's values were asked up to
+    T) and lost the healthy start with it. The reference's end is recorded as its failure, the runs
+    are stored: the Painleve start failed with its status, the other ok with its L2 error."""
+    from vcirun.experiments.config import load_config
+    from vcirun.experiments.sweep import run_sweep
+
+    cfg = tmp_path / "pain.yaml"
+    cfg.write_text(f"name: pain\nsystem: painleve_rod\nmethods: [CVA]\nh: [0.01]\nbeta: {{values: [0.9, 0.3]}}\n"
+                   f"T: 0.5\noutput: {tmp_path / 'pain.h5'}\n")
+    run_sweep(load_config(cfg), workers=1, progress=False)
+    res = read_results(tmp_path / "pain.h5")
+    status = sorted(r.attrs["status"] for r in res.runs)
+    assert status == ["ok", "painleve"], status
+    ok = next(r for r in res.runs if r.attrs["status"] == "ok")
+    assert ok.attrs["l2_error"] is not None and ok.attrs["l2_error"] < 1e-3

@@ -162,6 +162,11 @@ def _reference(st: _WorkerState, ic: InitialCondition):
     except Exception as e:  # noqa: BLE001 - recorded; runs keep their trajectories, l2 becomes NaN
         st.ref_errors[ic.key] = _one_line(f"{type(e).__name__}: {e}")
         return None
+    if getattr(ref, "status", "ok") != "ok":
+        # an exact reference that stopped before T (Painleve's case) has no values past its end: the
+        # runs and the reference's record say so, as for a reference that raised
+        st.ref_errors[ic.key] = _one_line(f"the exact reference stopped at t = {ref.T:.6g}: {ref.message}")
+        return None
     if ref.kind in ("taylor", "dop853") and not math.isfinite(ref.accuracy):
         # an exact reference whose accuracy is unknown is not a reference (runs get NaN, not a number)
         st.ref_errors[ic.key] = f"the exact reference's self-reported accuracy is {ref.accuracy}"
