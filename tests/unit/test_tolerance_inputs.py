@@ -118,3 +118,16 @@ def test_not_reached_because_the_pilots_budget_ran_out_says_so():
     tr = vcirun.simulate("cart_pendulum", T=300, tol=1e-6)
     assert tr.choice.status == "not_reached"
     assert tr.choice.reason.startswith("no candidate resolved the motion before its pilots' budget ran out")
+
+
+def test_a_first_call_on_the_interpreted_tier_reaches_tol(monkeypatch):
+    """The README's example on the tier `auto` runs while the compiled one is built: the scan's pilots
+    get INTERPRETED_SCAN_FACTOR times SCAN_BUDGET there. With 50 ms of interpreted pilots every
+    candidate stopped short of resolving the motion and the call answered not_reached; it reaches tol,
+    checked against the exact reference."""
+    from vcirun.run import choose
+
+    monkeypatch.setattr(choose, "_MODELS", {})   # a first call: the scan, not a scene model's ranking
+    tr = vcirun.simulate("cart_pendulum", T=5, beta=4.2, tol=1e-4, tier="interpreted")
+    assert tr.tier == "interpreted" and tr.choice.status == "ok", tr.choice.reason
+    assert vcirun.l2_error(tr, vcirun.reference("cart_pendulum", T=5, beta=4.2)) <= 1e-4

@@ -184,6 +184,10 @@ def _certifiable(c: Candidate) -> int:
 
 
 SCAN_BUDGET = 0.05   # CPU seconds of pilots per candidate on a scene's first call
+# the interpreted tier's steps cost 100-1000 times the compiled tier's: its pilots get this many times
+# SCAN_BUDGET, enough for the ladders to reach the steps a compiled scan resolves the motion at (the
+# cart-pendulum at beta = 4.2: CVA8 resolves at N = 64, which 50 ms of interpreted pilots stop short of)
+INTERPRETED_SCAN_FACTOR = 40
 INTERPRETED_KEY = "interpreted tier"   # marks the scene model of costs measured on the interpreted tier
 N_CAL = 1024         # the timing run of a candidate (cost per step)
 
@@ -424,11 +428,14 @@ class _Chooser:
 
     def _scan(self, labels) -> list:
         """A ladder and a timing run for every candidate, each ladder bounded by SCAN_BUDGET CPU seconds
-        (or twice the best predicted final run, if that is more)."""
+        (INTERPRETED_SCAN_FACTOR times that on the interpreted tier; or twice the best predicted final
+        run, if that is more)."""
         cands = []
         best = 0.0
         for label in labels:
-            a = self.ladder(self.names[label], N_FIRST, budget=max(SCAN_BUDGET, 2 * best))
+            scan = SCAN_BUDGET * (INTERPRETED_SCAN_FACTOR if self.runner.tier_used(self.names[label]) == "interpreted"
+                                  else 1.0)
+            a = self.ladder(self.names[label], N_FIRST, budget=max(scan, 2 * best))
             cost = self.timing(self.names[label])
             c = self.predict(label, a, cost)
             cands.append(c)
@@ -787,7 +794,8 @@ class _Chooser:
         live = [c for c in cands if c.status != "excluded"]
         budget_out = bool(live) and all("pilots stopped at N" in (c.note or "") for c in live)
         reason = {NOT_REACHED: (f"no candidate resolved the motion before its pilots' budget ran out "
-                                f"({SCAN_BUDGET * 1e3:.0f} ms of CPU each, on a scene's first call): tol = "
+                                f"({SCAN_BUDGET * 1e3:.0f} ms of CPU each, {INTERPRETED_SCAN_FACTOR} times that on the "
+                                f"interpreted tier, on a scene's first call): tol = "
                                 f"{self.tol:g} is not reached" if budget_out
                                 else f"no step within the limits reaches tol = {self.tol:g}"),
                   BELOW_FLOOR: f"tol = {self.tol:g} is below the round-off level of this scene's runs",
