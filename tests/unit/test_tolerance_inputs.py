@@ -131,3 +131,37 @@ def test_a_first_call_on_the_interpreted_tier_reaches_tol(monkeypatch):
     tr = vcirun.simulate("cart_pendulum", T=5, beta=4.2, tol=1e-4, tier="interpreted")
     assert tr.tier == "interpreted" and tr.choice.status == "ok", tr.choice.reason
     assert vcirun.l2_error(tr, vcirun.reference("cart_pendulum", T=5, beta=4.2)) <= 1e-4
+
+
+def test_a_tol_run_that_did_not_reach_tol_is_not_counted_ok(tmp_path):
+    """A sweep of tol: whose run finished (status ok) without reaching tol (tol_status not_reached)
+    was counted "1 ok", passed --strict and was left out of `info --failed`; open_results had no
+    tol_status. It counts as "tol not_reached", is listed with the failed runs, and the table holds the
+    choice's strings."""
+    from types import SimpleNamespace
+
+    from vcirun.experiments.sweep import _status_counts
+    from vcirun.experiments.tables import run_status, runs_table
+    from vcirun.io.reader import read_results
+    from vcirun.io.writer import ResultsWriter
+    from vcirun.run.estimate import sweep_attrs
+    from vcirun.run.trajectory_files import trajectory_payload
+
+    tr = vcirun.simulate("oscillator_wall", T=1, tol=1e-300, method="CVA")
+    assert tr.status == "ok" and tr.choice.status != "ok"
+    attrs, arrays = trajectory_payload(tr)
+    attrs.update(sweep_attrs(tr, 1.0, False), label="tol=1e-300", method="auto", method_index=0, ic_key="default",
+                 ic_index=0, l2_error=None, run_id="r0")
+    path = tmp_path / "tol.h5"
+    with ResultsWriter(path, root_attrs={"name": "t"}, config_key="f" * 64) as w:
+        w.add_run("r0", attrs, arrays)
+        w.finish("complete")
+    res = read_results(path)
+    a = res.runs[0].attrs
+    assert run_status(a) == f"tol {tr.choice.status}"
+    assert _status_counts(SimpleNamespace(complete_runs={"r0": a})) == {f"tol {tr.choice.status}": 1}
+    table = runs_table(res, only_failed=True)
+    assert len(table.rows) == 1 and table.rows[0][4] == f"tol {tr.choice.status}"
+    assert float(table.rows[0][2]) == pytest.approx(tr.h)   # the step chosen, not the config's largest
+    ds = vcirun.open_results(path)
+    assert str(ds.tol_status.values.ravel()[0]) == tr.choice.status and "core_method" in ds

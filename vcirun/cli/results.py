@@ -35,8 +35,9 @@ def sweep(
         None, "--worker-cache-dir", metavar="DIR",
         help="Kernel cache of the Dask workers (their VCIRUN_CACHE_DIR), e.g. one on a shared filesystem."),
     strict: bool = typer.Option(False, "--strict",
-                                help="Exit with status 1 when any run in the file did not finish with status ok "
-                                     "(for scripts and CI; the runs are stored either way)."),
+                                help="Exit with status 1 when any run in the file did not finish with status ok, or "
+                                     "a run of tol: did not reach it (for scripts and CI; the runs are stored "
+                                     "either way)."),
 ):
     """Run every method x h x initial condition of CONFIG in parallel into one HDF5 file; resumable.
     Locally by default; on a Dask cluster with --scheduler."""
@@ -86,7 +87,7 @@ def sweep(
     not_ok = sum(n for st, n in summary.status_counts.items() if st != "ok")
     if strict and not_ok:
         _fail(f"--strict: {not_ok} of {sum(summary.status_counts.values())} stored runs did not finish with status "
-              f"ok; `vcirun info {summary.path} --failed` lists them")
+              f"ok or did not reach their tol; `vcirun info {summary.path} --failed` lists them")
     typer.echo(f"next: vcirun plot {summary.path}")
 
 
@@ -350,10 +351,13 @@ def info(
         print_table(runs_table(res, only_failed=failed), console, compact=True)
     elif res.runs:
         print_table(summary_table(res), console, compact=True)
-    bad = [r for r in res.runs if r.attrs.get("status") != "ok"]
+    from vcirun.experiments.tables import run_status
+
+    bad = [r for r in res.runs if run_status(r.attrs) != "ok"]
     for r in bad[:50]:
-        typer.echo(f"  {r.run_id} {r.attrs.get('label')} h={r.attrs.get('h'):g}: {r.attrs.get('status')}: "
-                   f"{r.attrs.get('message', '')}")
+        a = r.attrs
+        why = a.get("message", "") if a.get("status") != "ok" else a.get("tol_reason", "")
+        typer.echo(f"  {r.run_id} {a.get('label')} h={a.get('h_chosen', a.get('h')):g}: {run_status(a)}: {why}")
     if len(bad) > 50:
         typer.echo(f"  ... and {len(bad) - 50} more failed runs")
 

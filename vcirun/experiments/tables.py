@@ -189,19 +189,29 @@ def summary_table(results: Results) -> Table:
                                    "integration; every run: --runs", left_columns=1)
 
 
+def run_status(a: dict) -> str:
+    """A stored run's status for tables: its trajectory's status, or "tol <status>" for a run of tol=
+    that finished without reaching its tolerance (its choice's status: not_reached, below_floor,
+    over_budget)."""
+    status, tol = str(a.get("status", "")), a.get("tol_status")
+    return f"tol {tol}" if status == "ok" and tol not in (None, "", "ok") else status
+
+
 def runs_table(results: Results, only_failed: bool = False) -> Table:
-    """One row per stored run: id, method, h, initial condition, status, impacts, L2 error, wall time."""
+    """One row per stored run: id, method, h (the step a run of tol= chose), initial condition, status,
+    impacts, L2 error, wall time."""
     rows, csv_rows = [], []
     for r in results.runs:
         a = r.attrs
-        if only_failed and a.get("status") == "ok":
+        if only_failed and run_status(a) == "ok":
             continue
+        h = a.get("h_chosen", a.get("h", float("nan")))
         beta = r.beta_or_none
         ic = f"{beta:g}" if beta is not None else str(a.get("ic_key", ""))
         l2 = a.get("l2_error")
         wt = a.get("wall_time")
-        rows.append([r.run_id, str(a.get("label", "")), f"{a.get('h', float('nan')):g}", ic,
-                     str(a.get("status", "")), str(a.get("n_impacts", "")),
+        rows.append([r.run_id, str(a.get("label", "")), f"{h:g}", ic,
+                     run_status(a), str(a.get("n_impacts", "")),
                      f"{l2:.3e}" if l2 is not None and math.isfinite(l2) else "-",
                      f"{1e3 * wt:.3g}" if wt is not None and math.isfinite(wt) else "-"])
         if len(rows[-1][3]) > 12:   # an initial-condition key (state=...): its index fits the column

@@ -6,7 +6,9 @@ initial-condition axis: `beta` (its values) when the config sweeps beta, else `i
 over (method, h, <ic>) (`.sel(method="MCVAA", h=0.01)` selects on the method dimension: see
 vcirun/io/xr.py): l2_error, wall_time, wall_time_call, n_steps, n_impacts, n_partial_steps,
 newton_iters_total, H0, max_abs_dH, H_range, Ed_range, Hmod_range, fail_step, fail_time, t_end (the
-grid's end N h), and the strings status, message, l2_note, run_id. Per initial condition: q0, p0
+grid's end N h), and the strings status, message, l2_note, run_id (and, where runs hold them, a tol:
+sweep's core_method, tol_status, tol_reason and the estimates' est_kind, est_status, est_message).
+Per initial condition: q0, p0
 (over `coordinate`, named from the system), reference_accuracy, reference_n_impacts, reference_status,
 reference_path.
 
@@ -34,6 +36,9 @@ __all__ = ["open_results", "collect", "Table", "ResultsWarning", "METRICS"]
 _SKIP = {"method_index", "ic_index", "worker_pid", "complete", "has_trajectory", "has_Hmod", "beta", "h",
          "T_requested", "committed_at"}
 _STRINGS = ("status", "message", "l2_note", "run_id")
+# strings a sweep of tol: or with error_estimate: true stores (vcirun.run.estimate.sweep_attrs): variables
+# where some run holds them
+_OPTIONAL_STRINGS = ("core_method", "tol_status", "tol_reason", "est_kind", "est_status", "est_message")
 # the metrics every table has (the module docstring's list), whatever the file holds
 METRICS = ("l2_error", "wall_time", "wall_time_call", "n_steps", "n_impacts", "n_partial_steps", "newton_iters_total",
            "H0", "max_abs_dH", "H_range", "Ed_range", "Hmod_range", "fail_step", "fail_time", "t_end")
@@ -136,9 +141,12 @@ def collect(results) -> Table:
     for r in res.runs:
         cells[(li[r.attrs["label"]], hi[float(r.attrs["h"])], ii[r.attrs["ic_key"]])] = r
     numeric, strings = {}, {s: np.full(shape, "missing" if s == "status" else "", dtype=object) for s in _STRINGS}
+    for s_ in _OPTIONAL_STRINGS:
+        if any(s_ in r.attrs for r in cells.values()):
+            strings[s_] = np.full(shape, "", dtype=object)
     for idx, r in cells.items():
         for k, v in r.attrs.items():
-            if k in _STRINGS:   # (as stored: text HDF5 can hold)
+            if k in strings:   # (as stored: text HDF5 can hold)
                 strings[k][idx] = "" if v is None else encode_attr(k, str(v))
                 continue
             t = type(v)   # (plain floats and ints first: most of a run's attributes)
@@ -161,7 +169,7 @@ def collect(results) -> Table:
         if complete and all(is_int) and np.all(np.isfinite(arr)):
             arr = arr.astype(np.int64)
         variables[name] = (dims3, arr, dict(_ATTRS.get(name, {})))
-    for name in _STRINGS:
+    for name in strings:
         variables[name] = (dims3, strings[name], {})
 
     # per initial condition: start state and the reference's facts
