@@ -165,3 +165,22 @@ def test_a_tol_run_that_did_not_reach_tol_is_not_counted_ok(tmp_path):
     assert float(table.rows[0][2]) == pytest.approx(tr.h)   # the step chosen, not the config's largest
     ds = vcirun.open_results(path)
     assert str(ds.tol_status.values.ravel()[0]) == tr.choice.status and "core_method" in ds
+
+
+def test_an_estimate_of_a_run_that_ignores_the_constraint_says_so():
+    """SVC on the cart-pendulum ignores the wall: its companions converge to the smooth motion, so the
+    estimate (5e-4) is its error against that motion, while against the scene's motion it is 13. The
+    estimate says which motion it is of."""
+    tr = vcirun.simulate("cart_pendulum", "SVC", h=0.01, T=2)
+    est = tr.error_estimate()
+    assert est.status == "ok" and "ignores the scene's constraint" in est.note
+    assert "ignores" not in (vcirun.simulate("cart_pendulum", "CVA", h=0.01, T=2).error_estimate().note or "")
+
+
+def test_a_refused_system_does_not_stay_on_the_trajectory():
+    tr = vcirun.simulate("cart_pendulum", "CVA", h=0.01, T=1)
+    for call in (lambda: tr.error_estimate(system=3), lambda: tr.attach_dynamics("no_such_scene")):
+        with pytest.raises(ValueError):
+            call()
+    assert tr.error_estimate().status in ("ok", "unresolved")
+    assert tr.source == "cart_pendulum"

@@ -36,6 +36,8 @@ it (the exact motion may have touched before the end).
 """
 from __future__ import annotations
 
+import dataclasses
+
 import math
 from dataclasses import asdict, dataclass, field
 
@@ -588,8 +590,8 @@ def estimate(tr, *, kind: str = "richardson", companions: int = 1, reference=Non
     args = getattr(tr, "run_args", None)
     if args is None:
         args = _args_from_record(tr, system)
-    elif system is not None:
-        args.system = system
+    elif system is not None:   # (for this estimate: a system refused here must not stay on the trajectory)
+        args = dataclasses.replace(args, system=system)
     if kind == "reference":
         return _against_reference(tr, args, reference)
     runner = args.runner(float(tr.T))
@@ -607,6 +609,13 @@ def estimate(tr, *, kind: str = "richardson", companions: int = 1, reference=Non
                      coarse=coarse)
     if why and est.status == OK:
         est.note = (why + "; " + est.note) if est.note else why
+    if est.status == OK and int(getattr(runner.module(meth), "NCON", 0)) > 0 and (
+            getattr(meth, "reset", "") is None or (tr.options or {}).get("constrained") is False):
+        # a run that ignores the scene's constraint converges to the smooth motion: its companions
+        # measure its error against that motion, which can be far from the scene's
+        ignored = ("the run ignores the scene's constraint: this is its error against the motion with the "
+                   "constraint ignored, not against the scene's motion (kind='reference' compares with that)")
+        est.note = (ignored + "; " + est.note) if est.note else ignored
     return est
 
 

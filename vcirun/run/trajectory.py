@@ -141,11 +141,11 @@ class Trajectory:
         from ..codegen.kernel_set import SYSTEM_KERNELS
         from .resolve import resolve_numeric
 
-        if system is not None:
-            self.source = system
         sysd, load, _ = resolve_numeric(self.system if system is None else system, SYSTEM_KERNELS)
         prm = sysd.param_values(params if params is not None else (self.options or {}).get("params"))
         self.dynamics = _dynamics(load(), prm)
+        if system is not None:   # (only once it resolved: a refused system does not stay on the trajectory)
+            self.source = system
         self.__dict__.pop("_dense", None)
         self.__dict__.pop("_account", None)
         return self
