@@ -176,7 +176,7 @@ def test_bad_option_values_are_one_error_line(place, capsys, args, words):
 
 ENV_CASES = [
     ("VCIRUN_COMMIT_INTERVAL", "abc"), ("VCIRUN_COMMIT_INTERVAL", "-1"), ("VCIRUN_COMMIT_INTERVAL", "nan"),
-    ("VCIRUN_MAX_MEMORY", "lots"), ("VCIRUN_MAX_MEMORY", "-5GB"), ("VCIRUN_BUILD", "turbo"),
+    ("VCIRUN_MAX_MEMORY", "lots"), ("VCIRUN_MAX_MEMORY", "-5GB"), ("VCIRUN_BUILD", "turbo"), ("VCIRUN_TIER", "bogus"),
     ("VCIRUN_CORE_NDOF", "many"), ("VCIRUN_KERNEL_BACKEND", "fortran"), ("VCIRUN_KERNEL_PATH", "sideways"),
     ("VCIRUN_C_MIN_STATEMENTS", "some"), ("VCIRUN_CACHE_DIR", ""), ("NUMBA_OPT", "bogus"),
     ("NUMBA_NUM_THREADS", "0"), ("NUMBA_NUM_THREADS", "abc"),
@@ -239,3 +239,32 @@ def test_a_usage_error_is_one_line_in_the_vcirun_script_too():
     assert r.returncode == 2 and r.stderr.strip().splitlines() == [
         "error: Invalid value for '--h': Input should be a valid number, unable to parse string as a number "
         "(`vcirun simulate --help` lists the options)"], r.stderr
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--output", "{d}/afile/a.gif"], ["--output", "folder"]),     # a file where its folder should be
+    (["--output", "{d}/adir"], ["--output", ".gif or .mp4"]),
+    (["--fps", "0.001", "--output", "{d}/a.gif"], ["fps"]),            # a GIF frame lasts at most 655 s
+], ids=["file-as-folder", "folder", "fps-tiny"])
+def test_animate_refuses_an_unwritable_output_before_the_run(place, capsys, args, words):
+    code, out, err = run(capsys, "animate", "--system", "oscillator_wall", "--T", "0.05",
+                         *[a.replace("{d}", str(place)) for a in args])
+    one_error(code, out, err, *words)
+    assert not (place / "a.gif").exists()
+
+
+@pytest.mark.parametrize("content", [b"garbage", b"", b"[1, 2]", b'{"study": "work_precision", "model": '
+                                     b'{"system": "cart_pendulum", "horizons": {"5": {"T": 0}}}}'],
+                         ids=["garbage-h5", "empty-h5", "json-list", "json-T0"])
+def test_recommend_notes_unreadable_measurements_and_goes_on(place, capsys, content):
+    """A damaged or edited store is noted ("not read") and skipped (then pilot runs answer), not a
+    traceback (StorageError, AttributeError on a JSON list, ZeroDivisionError on an edited model)."""
+    from vcirun.cli.recommend import _stored_models
+
+    f = place / ("m.json" if content.startswith((b"[", b"{")) else "m.h5")
+    f.write_bytes(content)
+    assert _stored_models("cart_pendulum", [f]) == []
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    if not content.startswith(b"["):   # (a JSON list is not a study: skipped without a note)
+        assert "not read" in err, err

@@ -2,6 +2,8 @@
 file of one run (`vcirun simulate --output run.h5`), or a run made here (--system, --method)."""
 from __future__ import annotations
 
+import os
+
 from pathlib import Path
 from typing import List, Optional
 
@@ -63,6 +65,21 @@ def _default_name(traj) -> str:
     return f"{traj.system}_{traj.method}_h{traj.h:g}{beta}.gif"
 
 
+def _check_output(out: Path) -> None:
+    """--output names a .gif or .mp4 file that can be written: its folder exists (or can be made) and is
+    writable, and it is not a folder itself."""
+    if out.suffix.lower() not in (".gif", ".mp4"):
+        raise CliError(f"--output {out}: an animation is .gif or .mp4")
+    if out.is_dir():
+        raise CliError(f"--output {out}: is a folder; name the animation file in it")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise CliError(f"--output {out}: its folder cannot be made ({e.strerror or e})") from None
+    if not os.access(out.parent, os.W_OK):
+        raise CliError(f"--output {out}: its folder {out.parent} is not writable")
+
+
 @app.command(epilog="Examples:\n\n"
              "  vcirun animate --system rocking_block --h 0.001 --T 3\n\n"
              "  vcirun animate --system docs/examples/cradle20.yaml --T 2 --output cradle.gif\n\n"
@@ -102,6 +119,8 @@ def animate(
 
     _announce_compiles()
     try:
+        if output is not None:   # before any run is read or made
+            _check_output(output)
         if results is not None:
             if any(v is not None for v in (T, q0, p0)) or param:
                 raise CliError("--T, --q0, --p0, --param: options of a run made here; a results file's run is "
@@ -137,6 +156,8 @@ def animate(
             anim.save(out)
         except ValueError as e:
             raise CliError(str(e)) from None
+        except OSError as e:
+            raise CliError(f"--output {out}: cannot write it ({e.strerror or e})") from None
     except CliError as e:
         _fail(str(e))
     except _expected_errors() as e:

@@ -45,6 +45,10 @@ def _vcirun(env) -> str | None:
             parse_bytes(env["VCIRUN_MAX_MEMORY"], "VCIRUN_MAX_MEMORY")
         except ValueError as e:
             return str(e)
+    if "VCIRUN_TIER" in env:
+        p = _choice("VCIRUN_TIER", env["VCIRUN_TIER"], ("auto", "interpreted", "compiled"))
+        if p:
+            return p
     if "VCIRUN_BUILD" in env:
         p = _choice("VCIRUN_BUILD", env["VCIRUN_BUILD"], ("shared", "specialized"))
         if p:

@@ -22,6 +22,7 @@ def _stored_models(system: str, sources: list[Path]) -> list[dict]:
     """The models of the stored measurements of `system` among `sources` (files, or folders searched for
     *.json studies and *.h5 sweeps)."""
     from vcirun.experiments.studies import wp_model
+    from vcirun.io.errors import StorageError
 
     files = []
     for s in sources:
@@ -39,20 +40,40 @@ def _stored_models(system: str, sources: list[Path]) -> list[dict]:
                 from vcirun.experiments.studies.jsonio import load_json
 
                 res = load_json(f)
-                if res.get("study") != "work_precision":
+                if not isinstance(res, dict) or res.get("study") != "work_precision":
                     continue
                 model = res.get("model") or wp_model.from_study(res)
             elif f.suffix in (".h5", ".hdf5"):
                 model = wp_model.from_results(f)
             else:
                 continue
-        except (OSError, ValueError, KeyError, TypeError) as e:
+            _check_model(model)
+        except (OSError, ValueError, KeyError, TypeError, AttributeError, ZeroDivisionError, StorageError) as e:
             typer.echo(f"note: {f}: not read ({type(e).__name__}: {str(e)[:120]})", err=True)
             continue
         name = str(model.get("system") or "")
         if name == system or Path(name).stem == want or name == want:
             out.append(model)
     return out
+
+
+def _check_model(model) -> None:
+    """A stored model recommend can print: every horizon predicts, with finite positive constants and
+    costs (ValueError naming what is not; an edited or damaged study would print nan or negative
+    errors and costs)."""
+    from vcirun.experiments.studies import wp_model
+
+    if not isinstance(model, dict) or not isinstance(model.get("horizons"), dict) or not model["horizons"]:
+        raise ValueError("its model has no horizons")
+    for k, hz in model["horizons"].items():
+        T = float(hz["T"])
+        if not (T > 0 and math.isfinite(T)):
+            raise ValueError(f"horizon {k}: T = {hz['T']!r}")
+        for r in wp_model.predict(hz, 1e-6, T):
+            for name in ("C_h", "b", "predicted_error", "predicted_cost"):
+                v = r.get(name)
+                if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                    raise ValueError(f"horizon {k}, method {r.get('method')}: {name} = {v!r}")
 
 
 def _print_model(model: dict, tol: float, T: float | None) -> bool:

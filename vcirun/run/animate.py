@@ -57,7 +57,7 @@ def _resolve(traj, system):
 def _check_args(fps, speed, max_frames, dpi):
     from ..core.values import check_number
 
-    check_number("fps", fps, gt=0, le=240)
+    check_number("fps", fps, ge=0.01, le=240)   # (a GIF frame lasts at most 655 s)
     if speed is not None:
         check_number("speed", speed, gt=0)
     check_number("max_frames", max_frames, integer=True, ge=2, le=100_000)
