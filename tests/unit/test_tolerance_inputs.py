@@ -22,6 +22,7 @@ def _quiet():
     ("cart_pendulum", dict(method="midpoint"), "ignores the constraint"),
     ("bouncing_ball", dict(method="CVA6", params={"c": 0.5}), "not verified"),
     ("cart_pendulum", dict(tier="bogus"), "tier"),
+    ("cart_pendulum", dict(h=1e-7), "^h: .*more than tol='s limit"),   # 1e7 steps a run: 3.3 GB, minutes
 ])
 def test_refused_by_name(system, kw, words):
     with pytest.raises(ValueError, match=words):

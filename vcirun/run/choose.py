@@ -232,6 +232,9 @@ def simulate_to_tolerance(system, method=None, *, T, tol, h_max=None, max_time=N
         h_max = check_number("h", h_max, gt=0)
         if h_max > T:
             raise ValueError(f"h: the largest step allowed must be <= T = {T:g} (got {h_max:g})")
+        if T / h_max > MAX_STEPS:   # every run allowed would be longer than the choice's step limit
+            raise ValueError(f"h: the largest step allowed, {h_max:g}, needs {T / h_max:.3g} steps over T = {T:g}, "
+                             f"more than tol='s limit of {MAX_STEPS} per run; allow a larger h or leave it out")
     if max_time is not None:
         max_time = check_number("max_time", max_time, gt=0)
     if constrained is False:
