@@ -62,6 +62,9 @@ def place(tmp_path, monkeypatch):
 CASES = [
     # simulate
     (["simulate", "--h", "abc"], ["--h"]),
+    (["simulate", "--system", "", "--T", "0.1"], ["--system", "empty"]),
+    (["simulate", " ", "--T", "0.1"], ["SYSTEM", "empty"]),
+    (["animate", "--system", "", "--T", "0.1"], ["--system", "empty"]),
     (["simulate", "--h", "0"], ["h: must be > 0"]),
     (["simulate", "--h", "-1"], ["h: must be > 0"]),
     (["simulate", "--h", "nan"], ["h: must be a finite number"]),

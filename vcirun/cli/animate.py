@@ -141,6 +141,8 @@ def animate(
         else:
             if run is not None:
                 raise CliError("--run: chooses a run of a results file; name the file first")
+            if system is not None and not system.strip():
+                raise CliError("--system: empty; name a built-in scene (vcirun systems) or a YAML file")
             traj, _ = simulate_once(system or "cart_pendulum", method or "CVA", h=1e-3 if h is None else h,
                                     T=5.0 if T is None else T, beta=beta, params=_parse_params(param),
                                     q0=_parse_vector(q0, "--q0"), p0=_parse_vector(p0, "--p0"))

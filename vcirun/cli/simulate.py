@@ -227,6 +227,9 @@ def simulate(
     try:
         if scene is not None and system is not None and scene != system:
             raise CliError(f"SYSTEM {scene!r} and --system {system!r} name two systems: give one")
+        for flag, v in (("SYSTEM", scene), ("--system", system)):
+            if v is not None and not v.strip():
+                raise CliError(f"{flag}: empty; name a built-in scene (vcirun systems) or a YAML file")
         system = scene or system or "cart_pendulum"
         check_output(output, "--output", (".h5", ".hdf5", ".nc", ".csv", ".npz"), example="run.h5")
         traj, total = simulate_once(system, method, h=h, T=T, beta=beta, ld=ld, mh_order=mh_order,
