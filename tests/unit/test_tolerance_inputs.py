@@ -185,3 +185,15 @@ def test_a_refused_system_does_not_stay_on_the_trajectory():
             call()
     assert tr.error_estimate().status in ("ok", "unresolved")
     assert tr.source == "cart_pendulum"
+
+
+@pytest.mark.parametrize("tol, words", [([True], "tol: each entry must be a positive number"),
+                                        ([1e-4, True], "tol: each entry"), (True, "tol: each entry"),
+                                        ([1e-4, 1e-4], "tol: 0.0001 is listed twice")])
+def test_a_bad_tol_list_is_named(tol, words):
+    """A bad entry of `tol:` was reported as "methods: required key is missing" (the methods tol makes
+    were not made), a repeated one as a duplicate label of methods[1]."""
+    from vcirun.experiments.config import ConfigError, parse_config
+
+    with pytest.raises(ConfigError, match=words):
+        parse_config({"name": "t", "system": "cart_pendulum", "tol": tol, "beta": [3.2], "T": 1})

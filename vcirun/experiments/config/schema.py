@@ -118,7 +118,13 @@ class SweepConfig(ConfigModel):
             return data
         tols = tols if isinstance(tols, list) else [tols]
         data = dict(data, tol=tols)
-        good = all(isinstance(t, (int, float)) and not isinstance(t, bool) and 0 < t < float("inf") for t in tols)
+        bad = [t for t in tols if not (isinstance(t, (int, float)) and not isinstance(t, bool) and 0 < t < float("inf"))]
+        if bad:   # (named here: the methods it would have made would be reported missing instead)
+            raise ValueError(f"tol: each entry must be a positive number, e.g. 1.0e-6 (got {bad[0]!r})")
+        twice = sorted({t for t in tols if tols.count(t) > 1})
+        if twice:
+            raise ValueError(f"tol: {twice[0]:g} is listed twice; list each tolerance once")
+        good = True
         methods = data.get("methods") or ["auto"]
         if good and isinstance(methods, list):
             entries = []
