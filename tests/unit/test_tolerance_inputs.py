@@ -197,3 +197,21 @@ def test_a_bad_tol_list_is_named(tol, words):
 
     with pytest.raises(ConfigError, match=words):
         parse_config({"name": "t", "system": "cart_pendulum", "tol": tol, "beta": [3.2], "T": 1})
+
+
+def test_the_size_of_a_tol_sweep_is_bounded_by_the_step_limit():
+    """validate estimated a tol: sweep at one step a run (h defaults to T, the largest step allowed):
+    8.3 KiB for a file that grew to 257 MB. The runs' steps are chosen as they run: the estimate says
+    so and gives the bound at the choice's step limit, and warns above 2 GiB."""
+    from vcirun.experiments.config import parse_config
+    from vcirun.experiments.store_size import TOL_MAX_STEPS, store_estimate_of
+    from vcirun.run.choose import MAX_STEPS
+
+    assert TOL_MAX_STEPS == MAX_STEPS
+    cfg = parse_config({"name": "t", "system": "cart_pendulum", "tol": [1e-8], "methods": ["CVA"],
+                        "beta": {"start": 3.0, "stop": 4.0, "num": 10}, "T": 5})
+    est = store_estimate_of(cfg)
+    assert est.tol_most > 1e9 and est.warn and "runs of tol:" in est.line() and "up to" in est.advice()
+    plain = store_estimate_of(parse_config({"name": "p", "system": "cart_pendulum", "methods": ["CVA"], "h": [0.01],
+                                            "beta": [3.2], "T": 5}))
+    assert plain.tol_most == 0.0 and "tol" not in plain.line()

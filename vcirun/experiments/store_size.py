@@ -13,6 +13,7 @@ from ..core.sizes import format_bytes, stored_bytes
 __all__ = ["STORE_WARN_BYTES", "StoreEstimate", "estimate_store", "store_estimate_of"]
 
 STORE_WARN_BYTES = 2 * 2**30
+TOL_MAX_STEPS = 1 << 22   # the steps of a run of tol= at most (vcirun.run.choose.MAX_STEPS; a test holds them equal)
 
 
 @dataclass(frozen=True)
@@ -22,22 +23,29 @@ class StoreEstimate:
     every: int            # the config's store: 1 full, k every k-th, 0 metrics
     largest: float        # bytes of the largest run (the finest h)
     h_largest: float
+    tol_most: float = 0.0  # runs of tol: the bytes of all of them at the choice's step limit (0: none)
 
     @property
     def warn(self) -> bool:
-        return self.total > STORE_WARN_BYTES
+        return max(self.total, self.tol_most) > STORE_WARN_BYTES
 
     def line(self) -> str:
         what = {0: "impact records and summaries only (store: metrics)", 1: "every grid state"}.get(
             self.every, f"every {self.every}th grid state")
-        return (f"about {format_bytes(self.total)} for {self.runs} runs ({what}; the largest run, h = "
+        text = (f"about {format_bytes(self.total)} for {self.runs} runs ({what}; the largest run, h = "
                 f"{self.h_largest:g}, {format_bytes(self.largest)})")
+        if self.tol_most:
+            text += (f"; runs of tol: store the grid of the step they choose, which is known only when they run: "
+                     f"up to {format_bytes(self.tol_most)} at the choice's limit of {TOL_MAX_STEPS} steps a run")
+        return text
 
     def advice(self) -> str:
         """Above STORE_WARN_BYTES: the config keys that make it smaller."""
-        k = max(2, int(round(4 * self.total / STORE_WARN_BYTES)) * max(self.every, 1))
-        return (f"more than {format_bytes(STORE_WARN_BYTES)}; store: {{every: {k}}} keeps every {k}th grid state "
-                f"(about {format_bytes(self.total * max(self.every, 1) / k)}), store: metrics none")
+        most = max(self.total, self.tol_most)
+        k = max(2, int(round(4 * most / STORE_WARN_BYTES)) * max(self.every, 1))
+        return (f"{'up to ' if self.tol_most > self.total else ''}more than {format_bytes(STORE_WARN_BYTES)}; "
+                f"store: {{every: {k}}} keeps every {k}th grid state (about {format_bytes(most * max(self.every, 1) / k)}"
+                f"{' at most' if self.tol_most > self.total else ''}), store: metrics none")
 
 
 def estimate_store(cfg, n: int, m: int, pending=None, friction: bool = True) -> StoreEstimate:
@@ -49,7 +57,11 @@ def estimate_store(cfg, n: int, m: int, pending=None, friction: bool = True) -> 
     every = cfg.store_every
     per_h = {h: stored_bytes(grid_steps(h, cfg.T)[2], n, m, every=every, friction=friction) for h in set(hs)}
     h_big = max(per_h, key=per_h.get) if per_h else float("nan")
-    return StoreEstimate(float(sum(per_h[h] for h in hs)), len(hs), every, float(per_h.get(h_big, 0.0)), h_big)
+    # (a run of tol: takes h as its largest step: its grid has at least T / h steps, at most the limit)
+    tol_most = (len(hs) * stored_bytes(TOL_MAX_STEPS, n, m, every=every, friction=friction)
+                if getattr(cfg, "tol", None) else 0.0)
+    return StoreEstimate(float(sum(per_h[h] for h in hs)), len(hs), every, float(per_h.get(h_big, 0.0)), h_big,
+                         float(tol_most))
 
 
 def store_estimate_of(cfg) -> StoreEstimate:
