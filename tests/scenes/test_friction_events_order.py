@@ -60,8 +60,8 @@ def _phis(name, method, h, tr):
 def test_a_mode_event_after_a_collision_in_the_same_step_waits_for_it(method):
     """The three-link chain with friction at h = 4e-3: in the step from t = 0.460 a held end's slip
     reverses at 0.4628 while the middle joint's contact reaches the floor at 0.4608. Taking the mode's
-    end first carried the chain 8.5e-4 into the floor, and the next held step pulled it out with an
-    impulse whose friction work was +1658 J (status ok). The collision is taken first: no grid state
+    end first would carry the chain 8.5e-4 into the floor, and the next held step would pull it out with
+    an impulse whose friction work is +1658 J. The collision is taken first: no grid state
     inside a constraint, the friction work of every step <= 0, and H never above H(0)."""
     h = 4e-3
     tr = vcirun.simulate("link_chain_friction_3", method, h=h, T=1.0)
@@ -83,8 +83,8 @@ def test_a_box_that_lands_flat_and_sticks_stays_at_rest(box, method):
     """Dropped flat from 1 cm at (vx, vy) = (0.5, -1) with e = 0 and mu = 3: the plastic impact stops
     both corners (|Pt| = m vx = 0.644 inside the cone), and the box is at rest after t = 0.00955. Its
     corners' slip velocities after the impulse are the rounding of the landing velocity (1e-17), which
-    read against the box at rest set them slipping: with mu > 1.92 Painleve's status at h = 1e-3, below
-    it a slip -> stick record at the impact. The tolerance is the rounding of the momentum before the
+    read against the box at rest would set them slipping (with mu > 1.92 into Painleve's case, below it
+    with a slip -> stick record at the impact). The tolerance is the rounding of the momentum before the
     impulse: stuck at once, no mode change, at rest where the reference is."""
     m, a = 1.288, 0.6723
     q0, p0 = [0.0, a / 2 + 0.01, 0.0], [0.5 * m, -1.0 * m, 0.0]
@@ -111,9 +111,9 @@ def _rod_start(m, l, th0, y0, vx, vy, w):
 def test_an_impact_whose_friction_presses_the_contact_in_takes_the_law_in_every_method(rod):
     """A rod end landing with e = 0.519 and mu = 1.992: the law's tangential impulse stops the slip and
     presses the end in, so it leaves with no normal velocity (no rebound). R^VCI's energy balance has
-    the double root of e = 0 there: it missed the law's impulse by 0.027 at h = 1e-2 (the slip after it
-    3.8e-2 instead of 0, reversed by friction). Every method takes the law's p+: the impulses of VCI
-    and MCVAC are CVA's, which is the law's."""
+    the double root of e = 0 there: its multiplier would miss the law's impulse by 0.027 at h = 1e-2
+    (the slip after it 3.8e-2 instead of 0, reversed by friction). Every method takes the law's p+: the
+    impulses of VCI and MCVAC are CVA's, which is the law's."""
     m, l, e, mu = 1.880, 0.394, 0.519, 1.992
     q0, p0 = _rod_start(m, l, 0.7417, 0.266400, -1.273, -2.949, 4.051)
     prm = dict(m=m, l=l, e=e, mu=mu)
@@ -128,8 +128,8 @@ def test_an_impact_whose_friction_presses_the_contact_in_takes_the_law_in_every_
 
 def test_elastic_impacts_with_friction_accumulate_and_are_held(rod):
     """e = 1 and mu = 4.33: friction takes energy at every rebound (0.074 m/s out for 0.133 in), so the
-    impacts accumulate to a rest. Dense elastic impacts were taken for a conservative motion (VCI at
-    h = 1e-4 ended `accumulation`); with friction they lose energy and are held, and VCI ends where
+    impacts accumulate to a rest. Dense elastic impacts of a frictionless conservative motion stop the
+    run (`accumulation`); with friction they lose energy and are held, and VCI at h = 1e-4 ends where
     CVA does."""
     m, l = 1.8164152273389282, 0.3221273816094278
     q0, p0 = _rod_start(m, l, 0.8525222609484108, 0.2444707098330269, -1.8821322969529006, -1.7174192767951013,

@@ -121,9 +121,8 @@ def test_the_size_estimate_counts_friction_rows_for_friction_systems_only():
 
 def test_a_sweep_whose_reference_stops_at_painleve_stores_every_run(tmp_path):
     """Painleve's rod at beta = 0.9 has no consistent contact force at t = 0: the exact reference stops
-    there (status painleve, T = 0). The sweep stored nothing (the reference's values were asked up to
-    T) and lost the healthy start with it. The reference's end is recorded as its failure, the runs
-    are stored: the Painleve start failed with its status, the other ok with its L2 error."""
+    there (status painleve, T = 0), and has no values up to T. Its end is recorded as its failure and
+    every run is stored: the Painleve start failed with its status, the other ok with its L2 error."""
     from vcirun.experiments.config import load_config
     from vcirun.experiments.sweep import run_sweep
 

@@ -123,8 +123,8 @@ def test_not_reached_because_the_pilots_budget_ran_out_says_so():
 
 def test_a_first_call_on_the_interpreted_tier_reaches_tol(monkeypatch):
     """The README's example on the tier `auto` runs while the compiled one is built: the scan's pilots
-    get INTERPRETED_SCAN_FACTOR times SCAN_BUDGET there. With 50 ms of interpreted pilots every
-    candidate stopped short of resolving the motion and the call answered not_reached; it reaches tol,
+    get INTERPRETED_SCAN_FACTOR times SCAN_BUDGET there (50 ms of interpreted pilots stop every
+    candidate short of resolving the motion: not_reached). It reaches tol,
     checked against the exact reference."""
     from vcirun.run import choose
 
@@ -135,10 +135,9 @@ def test_a_first_call_on_the_interpreted_tier_reaches_tol(monkeypatch):
 
 
 def test_a_tol_run_that_did_not_reach_tol_is_not_counted_ok(tmp_path):
-    """A sweep of tol: whose run finished (status ok) without reaching tol (tol_status not_reached)
-    was counted "1 ok", passed --strict and was left out of `info --failed`; open_results had no
-    tol_status. It counts as "tol not_reached", is listed with the failed runs, and the table holds the
-    choice's strings."""
+    """A run of a tol: sweep that finished (status ok) without reaching tol (tol_status not_reached)
+    counts as "tol not_reached", not ok (the summary, --strict, `info --failed`), and the table holds
+    the choice's strings."""
     from types import SimpleNamespace
 
     from vcirun.experiments.sweep import _status_counts
@@ -191,8 +190,7 @@ def test_a_refused_system_does_not_stay_on_the_trajectory():
                                         ([1e-4, True], "tol: each entry"), (True, "tol: each entry"),
                                         ([1e-4, 1e-4], "tol: 0.0001 is listed twice")])
 def test_a_bad_tol_list_is_named(tol, words):
-    """A bad entry of `tol:` was reported as "methods: required key is missing" (the methods tol makes
-    were not made), a repeated one as a duplicate label of methods[1]."""
+    """A bad or repeated entry of `tol:` is named as such (not as the methods it would have made)."""
     from vcirun.experiments.config import ConfigError, parse_config
 
     with pytest.raises(ConfigError, match=words):
@@ -200,9 +198,9 @@ def test_a_bad_tol_list_is_named(tol, words):
 
 
 def test_the_size_of_a_tol_sweep_is_bounded_by_the_step_limit():
-    """validate estimated a tol: sweep at one step a run (h defaults to T, the largest step allowed):
-    8.3 KiB for a file that grew to 257 MB. The runs' steps are chosen as they run: the estimate says
-    so and gives the bound at the choice's step limit, and warns above 2 GiB."""
+    """A tol: sweep's h defaults to T, the largest step allowed: one step a run would estimate 8.3 KiB
+    for a file of 257 MB. The runs' steps are chosen as they run: the estimate says so, gives the
+    bound at the choice's step limit, and warns above 2 GiB."""
     from vcirun.experiments.config import parse_config
     from vcirun.experiments.store_size import TOL_MAX_STEPS, store_estimate_of
     from vcirun.run.choose import MAX_STEPS
