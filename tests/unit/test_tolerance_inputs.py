@@ -213,3 +213,15 @@ def test_the_size_of_a_tol_sweep_is_bounded_by_the_step_limit():
     plain = store_estimate_of(parse_config({"name": "p", "system": "cart_pendulum", "methods": ["CVA"], "h": [0.01],
                                             "beta": [3.2], "T": 5}))
     assert plain.tol_most == 0.0 and "tol" not in plain.line()
+
+
+@pytest.mark.parametrize("system, method, words", [("cart_pendulum", "SVC", "ignores the constraint"),
+                                                   ("damped_oscillator", "CVA6", "not verified")])
+def test_validate_refuses_the_methods_tol_cannot_certify(system, method, words):
+    """The refusals of simulate(tol=, method=) hold for a config's methods with tol: before it runs (the
+    sweep's preflight made them; validate passed such configs)."""
+    from vcirun.experiments.config import ConfigError, parse_config
+
+    with pytest.raises(ConfigError, match=words):
+        parse_config({"name": "t", "system": system, "tol": [1e-4], "methods": [method], "T": 1})
+    parse_config({"name": "t", "system": system, "tol": [1e-4], "methods": ["CVA4"], "T": 1})
