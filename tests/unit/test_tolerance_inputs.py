@@ -225,3 +225,12 @@ def test_validate_refuses_the_methods_tol_cannot_certify(system, method, words):
     with pytest.raises(ConfigError, match=words):
         parse_config({"name": "t", "system": system, "tol": [1e-4], "methods": [method], "T": 1})
     parse_config({"name": "t", "system": system, "tol": [1e-4], "methods": ["CVA4"], "T": 1})
+
+
+def test_a_small_largest_step_still_gets_a_ladder():
+    """h = 1e-5 over T = 1 starts every ladder at 1e5 steps, whose first run costs most of the scan's
+    CPU budget: the budget stopped the ladder after one run (not_reached, with an estimate of 2e-11
+    for tol = 1e-3). A ladder that starts at the floor h sets makes three runs whatever they cost."""
+    tr = vcirun.simulate("cart_pendulum", "CVA", T=1, tol=1e-3, h=1e-5)
+    assert tr.choice.status == "ok", tr.choice.reason
+    assert tr.h <= 1e-5 and tr.choice.estimate.l2 <= 1e-3

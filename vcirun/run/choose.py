@@ -343,18 +343,23 @@ class _Chooser:
         label = _label(name)
         spent = 0.0
         N = max(int(N0), self.n_min, 1)
+        # a ladder that starts at the floor the largest step allowed sets (h_max) makes three runs
+        # whatever they cost: the order shows on no fewer, and a coarser start is not allowed
+        floor_runs = 3 if self.n_min > int(N0) else 0
         while True:
             r = self.run(name, N)
             spent += r.cpu
+            floor_runs -= 1
             p = self.order(label, N)
             if p is None:
                 return Assessment("failed", note="order not verified on this scene")
             a = assess(self.runs[label], p, need_order)
             if a.status in ("resolved", "saturated"):
                 return a
-            if 2 * N > MAX_STEPS or spent > budget:
+            over = spent > budget and floor_runs <= 0
+            if 2 * N > MAX_STEPS or over:
                 a.note = (a.note + "; " if a.note else "") + (
-                    f"pilots stopped at N = {N} ({spent * 1e3:.3g} ms spent)" if spent > budget
+                    f"pilots stopped at N = {N} ({spent * 1e3:.3g} ms spent)" if over
                     else f"no resolution up to N = {N}")
                 return a
             N *= 2
