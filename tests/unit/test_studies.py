@@ -74,6 +74,7 @@ WP = {"study": "work_precision", "name": "w", "system": "cart_pendulum", "beta":
     ({"system": "double_pendulum", "params": {"m9": 1}}, ["params: unknown parameter of system double_pendulum"]),
     ({"system": "damped_oscillator"}, ["beta: system damped_oscillator has no initial-condition map"]),
     ({"h": [1e-2, -1]}, ["h[1]: must be > 0"]),
+    ({"h": [1e-2, 10]}, ["h[1]: 10 is longer than T = 1"]),
     ({"repeat": 3}, ["repeat: unknown key; did you mean 'repeats'?"]),
 ])
 def test_work_precision_schema_names_the_field(change, words):

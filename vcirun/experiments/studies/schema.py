@@ -81,6 +81,11 @@ class WorkPrecisionStudy(ConfigModel):
     @model_validator(mode="after")
     def _consistent(self):
         _unique_labels(self.methods)
+        T_min = min(self.horizons())
+        for i, h in enumerate(self.h):
+            if h > T_min:
+                raise FieldError(("h", i), f"{h:g} is longer than T = {T_min:g}: every step must be at most the "
+                                           "horizon")
         for b in self.baselines:
             solver, _, rhs = b.partition("/")
             if solver not in BASELINES or rhs not in ("", "numpy"):
