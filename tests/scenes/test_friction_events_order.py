@@ -140,3 +140,19 @@ def test_elastic_impacts_with_friction_accumulate_and_are_held(rod):
     assert ref.status == "ok" and tr.status == "ok", tr.message
     assert tr.contact_active[-1].all()
     assert np.max(np.abs(tr.q[-1] - ref.q[-1])) < 1e-6
+
+
+def test_the_reference_holds_elastic_impacts_that_friction_makes_accumulate(rod):
+    """e = 1 with mu = 0.84: the frictional law slows each rebound of the rod end, and the impacts
+    accumulate at t = 0.0441. The exact reference holds the contact there (elastic impacts without
+    friction do not accumulate and stay an error), and the integrators' runs, which hold it where
+    the impacts become denser than the grid, end within 2e-7 of it."""
+    m, l = 0.8890699973260017, 0.8100087812888994
+    q0, p0 = _rod_start(m, l, 0.3562085356170906, 0.28306403348922576, -0.6604595034446588, -0.8338567734868132,
+                        -0.9927319568047039)
+    prm = dict(m=m, l=l, e=1.0, mu=0.8398026955069208)
+    ref = vcirun.reference(rod, T=0.2, q0=q0, p0=p0, params=prm)
+    assert ref.status == "ok" and ref.held_intervals and ref.held_intervals[-1][1] == pytest.approx(0.2)
+    assert abs(ref.held_intervals[0][0] - 0.04414) < 1e-4
+    tr = vcirun.simulate(rod, "CVA", h=1e-3, T=0.2, q0=q0, p0=p0, params=prm)
+    assert tr.status == "ok" and np.max(np.abs(tr.q[-1] - ref(tr.t[-1]))) < 1e-6

@@ -165,29 +165,36 @@ def _immediate(g, t, y, A, R, tol=rh.HELD_TOL, S=None):
     return None
 
 
-def _group(times_of, e_of, hit, t, geo, A, S=None):
+def _group(times_of, e_of, hit, t, geo, A, S=None, mu_of=None):
     """(contacts whose impacts accumulate at this impact, their Zeno time): those just hit whose own
     flights shrink below ZENO_FLIGHT at the ratio e (rh.accumulating) or, with several contacts, at a
     steady ratio below 1, or whose next flight, 2 u+ / |a| (u+ its normal velocity after the impact, a
     its normal acceleration on the held flow of A, pulling it back), is already shorter than
     ZENO_FLIGHT -- a rebound too small to resolve, whose bounces end by t + 2 u+ / (|a| (1 - e)) for a
     constant a; and every other contact accumulating with them (last impact within a few flights).
-    The Zeno time labels the held interval; the motion from this impact on is the held one either way."""
+    The Zeno time labels the held interval; the motion from this impact on is the held one either way.
+    An elastic contact (e >= 1) accumulates only with friction (mu_of[i] > 0), whose impulses take energy
+    at every rebound; its Zeno time is then labelled by the next landing."""
     acc, t_inf = set(), t
     a = geo.held_acc(tuple(A), S) if hit else None
+
+    def dissipates(i):
+        return e_of[i] < 1.0 or (mu_of is not None and mu_of[i] > 0.0)
+
     for i in hit:
-        if e_of[i] >= 1.0:
+        if not dissipates(i):
             continue
         if rh.accumulating(times_of[i], e=e_of[i]) or _steady(times_of[i]):
             acc.add(i)
             t_inf = max(t_inf, rh.zeno_extrapolation(times_of[i]))
         elif a[i] < 0.0 and 2.0 * max(float(geo.u[i]), 0.0) < rh.ZENO_FLIGHT * -a[i]:
             acc.add(i)
-            t_inf = max(t_inf, t + 2.0 * max(float(geo.u[i]), 0.0) / (-a[i] * (1.0 - e_of[i])))
+            t_inf = max(t_inf, t + 2.0 * max(float(geo.u[i]), 0.0) / (-a[i] * (1.0 - e_of[i] if e_of[i] < 1.0
+                                                                               else 1.0)))
     if not acc:
         return set(), t
     for j in range(len(times_of)):
-        if j not in acc and times_of[j] and t - times_of[j][-1] <= 8 * rh.ZENO_FLIGHT and e_of[j] < 1.0 \
+        if j not in acc and times_of[j] and t - times_of[j][-1] <= 8 * rh.ZENO_FLIGHT and dissipates(j) \
                 and (rh.accumulating(times_of[j]) or _steady(times_of[j])):
             acc.add(j)
             t_inf = max(t_inf, rh.zeno_extrapolation(times_of[j]))
@@ -360,7 +367,8 @@ def solve(backend, mod, q0, p0, prm, T, *, names, resting_contact=True, max_impa
                 if resting_contact:
                     geo = _geometry(mod, t, y, prm)
                     A, S = hold(t, y, None, geo=geo)
-                    acc, t_inf = _group(times_of, e_of, hit, t, geo, A, S) if hit else (set(), t)
+                    acc, t_inf = (_group(times_of, e_of, hit, t, geo, A, S, None if fric is None else fric[0])
+                                  if hit else (set(), t))
                     if acc:   # held from here (a Zeno time past T: to T, within the bounce heights left)
                         A, stop = tuple(sorted(set(A) | acc)), min(max(t_inf, t), float(T))
                         if S is not None:
