@@ -124,9 +124,8 @@ class SweepConfig(ConfigModel):
         twice = sorted({t for t in tols if tols.count(t) > 1})
         if twice:
             raise ValueError(f"tol: {twice[0]:g} is listed twice; list each tolerance once")
-        good = True
         methods = data.get("methods") or ["auto"]
-        if good and isinstance(methods, list):
+        if isinstance(methods, list):
             entries = []
             for t in tols:
                 for m in methods:
