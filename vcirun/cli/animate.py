@@ -119,7 +119,13 @@ def animate(
 
     _announce_compiles()
     try:
-        if output is not None:   # before any run is read or made
+        from vcirun.run.animate import check_args
+
+        try:   # before any run is read or made
+            check_args(fps, speed, max_frames, dpi)
+        except ValueError as e:
+            raise CliError(str(e)) from None
+        if output is not None:
             _check_output(output)
         if results is not None:
             if any(v is not None for v in (T, q0, p0)) or param:

@@ -54,7 +54,8 @@ def _resolve(traj, system):
                       "drawn in configuration space (give system= its YAML path to draw it)")
 
 
-def _check_args(fps, speed, max_frames, dpi):
+def check_args(fps, speed, max_frames, dpi):
+    """The animation's options (ValueError naming the field)."""
     from ..core.values import check_number
 
     check_number("fps", fps, ge=0.01, le=240)   # (a GIF frame lasts at most 655 s)
@@ -70,7 +71,7 @@ class Animation:
     object displays itself (HTML, every frame embedded)."""
 
     def __init__(self, traj, *, system=None, fps=FPS, speed=None, max_frames=MAX_FRAMES, energy=True, dpi=100):
-        _check_args(fps, speed, max_frames, dpi)
+        check_args(fps, speed, max_frames, dpi)
         if len(traj.t) < 2:
             if getattr(traj, "status", "ok") != "ok":   # a run that stopped in its first step: nothing moved
                 raise ValueError(f"animate: the run ended at its start with status {traj.status}: "
