@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, example, given, settings
+from hypothesis import HealthCheck, assume, example, given, settings
 from hypothesis import strategies as st
 from scipy.integrate import solve_ivp
 
@@ -203,6 +203,10 @@ def test_coulomb_oscillator_against_the_mode_equations(x0, v0, m, k, mu, dmu, g)
     mu_s = mu + dmu
     cf = fo.coulomb_oscillator(x0, v0, m=m, k=k, mu=mu, mu_s=mu_s, g=g)
     turns, t_stop, x_stop = _oscillator_numeric(x0, v0, m, k, mu, mu_s, g)
+    # the numerical solution restarts at every turn and its error adds up over them: past 1000 turns
+    # (x0 = -3, k = 15, m = 0.2, mu = 0.023, g = 1: 4800 turns over 1741 s, 1.2e-9 off at the end, 4.8e-10
+    # within the first 1000) it is above the 1e-9 compared here
+    assume(len(turns) <= 1000)
     # a turn within round-off of the stick threshold may be decided either way
     if any(abs(k * abs(x) - mu_s * m * g) <= 1e-7 * (1 + abs(x)) * k for _, x in turns + [(0, x0)]):
         return
