@@ -156,3 +156,15 @@ def test_the_reference_holds_elastic_impacts_that_friction_makes_accumulate(rod)
     assert abs(ref.held_intervals[0][0] - 0.04414) < 1e-4
     tr = vcirun.simulate(rod, "CVA", h=1e-3, T=0.2, q0=q0, p0=p0, params=prm)
     assert tr.status == "ok" and np.max(np.abs(tr.q[-1] - ref(tr.t[-1]))) < 1e-6
+
+
+def test_the_reference_ends_a_flat_slide_in_painleves_case_with_the_status(box):
+    """The box flat on both corners, sliding at 1 m/s with mu = 2.5 > b / a: no set of its corners has
+    consistent forces, and the leading corner alone has B < 0 (Painleve's case). The reference ends at
+    t = 0 with status painleve, as the integrators do, instead of raising that no forces exist."""
+    m, a = 1.288, 0.6723
+    q0, p0 = [0.0, a / 2, 0.0], [m * 1.0, 0.0, 0.0]
+    ref = vcirun.reference(box, T=0.3, q0=q0, p0=p0, params={"mu": 2.5})
+    assert ref.status == "painleve" and "painleve" in ref.message
+    tr = vcirun.simulate(box, "CVA", h=1e-3, T=0.3, q0=q0, p0=p0, params={"mu": 2.5})
+    assert tr.status == "painleve"
