@@ -234,3 +234,21 @@ def test_a_small_largest_step_still_gets_a_ladder():
     tr = vcirun.simulate("cart_pendulum", "CVA", T=1, tol=1e-3, h=1e-5)
     assert tr.choice.status == "ok", tr.choice.reason
     assert tr.h <= 1e-5 and tr.choice.estimate.l2 <= 1e-3
+
+
+def test_a_long_call_says_what_it_has_made(monkeypatch, capsys):
+    """A tol= call over a long horizon runs pilots of seconds each and returned after minutes with
+    nothing said: once it has run PROGRESS_S it prints a line per PROGRESS_S on stderr (a fake clock
+    here: 6 s a run)."""
+    from vcirun.run import choose
+
+    import itertools
+
+    clock = itertools.count(0.0, 6.0)
+    monkeypatch.setattr(choose.time, "monotonic", lambda: next(clock))
+    vcirun.simulate("oscillator_wall", T=1, tol=1e-5, method="CVA")
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("tol = 1e-05: ")]
+    assert lines and " runs in " in lines[0] and "the last CVA at N = " in lines[0]
+    monkeypatch.undo()
+    vcirun.simulate("oscillator_wall", T=1, tol=1e-5, method="CVA")   # a short call says nothing
+    assert "tol = 1e-05: " not in capsys.readouterr().err

@@ -60,6 +60,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
 import time
 from dataclasses import dataclass, field
 
@@ -184,6 +185,7 @@ def _certifiable(c: Candidate) -> int:
 
 
 SCAN_BUDGET = 0.05   # CPU seconds of pilots per candidate on a scene's first call
+PROGRESS_S = 10.0    # a call that has run this long says on stderr what it has made (_Chooser._say)
 # the interpreted tier's steps cost 100-1000 times the compiled tier's: its pilots get this many times
 # SCAN_BUDGET, enough for the ladders to reach the steps a compiled scan resolves the motion at (the
 # cart-pendulum at beta = 4.2: CVA8 resolves at N = 64, which 50 ms of interpreted pilots stop short of)
@@ -292,6 +294,7 @@ class _Chooser:
         self.names: dict = {}       # label -> what runner.run takes (a name or a Method)
         self.pilot_log: list = []
         self.cpu0 = time.thread_time()
+        self.wall0 = self.said = time.monotonic()   # (a progress line on stderr once a call is long: _say)
         self.n_min = max(1, math.ceil(T / h_max * (1 - 1e-12))) if h_max else 1
         self.model = _MODELS.get(key)
         self.later = False          # the candidates come from the scene model (not this call's scan)
@@ -315,7 +318,20 @@ class _Chooser:
         self.pilot_log.append({"method": label, "N": N, "h": r.h, "status": r.status, "cpu": r.cpu,
                                "role": "final" if final else "timing" if timing else
                                f"twin ({perturb})" if perturb else "pilot"})
+        self._say(label, N, r)
         return r
+
+    def _say(self, label, N, r) -> None:
+        """One line on stderr per PROGRESS_S seconds (or a tenth of the time elapsed, if longer) once the
+        call has run PROGRESS_S: the runs made and the last one (a long horizon's runs take seconds
+        each, and the call says nothing else until it returns)."""
+        now = time.monotonic()
+        elapsed = now - self.wall0
+        if elapsed < PROGRESS_S or now - self.said < max(PROGRESS_S, 0.1 * elapsed):
+            return
+        self.said = now
+        print(f"tol = {self.tol:g}: {len(self.pilot_log)} runs in {elapsed:.0f} s; the last {label} at N = {N} "
+              f"({r.cpu:.3g} s of CPU, {r.status})", file=sys.stderr, flush=True)
 
     def order(self, label, N: int | None = None) -> float | None:
         """The verified order of `label` for the estimate of its run N (default: its finest run): 2 where
