@@ -510,10 +510,11 @@ def _signals_deferred(on_main: bool):
 def _status_counts(writer: ResultsWriter) -> dict:
     """Stored runs by status; a run of tol= that finished but did not reach its tolerance (its choice's
     status not_reached, below_floor, over_budget) is counted as "tol <status>", not as ok."""
+    from .tables import run_status
+
     counts: dict[str, int] = defaultdict(int)
     for a in writer.complete_runs.values():
-        status, tol = a.get("status", "?"), a.get("tol_status")
-        counts[f"tol {tol}" if status == "ok" and tol not in (None, "", "ok") else status] += 1
+        counts[run_status(a) or "?"] += 1
     return dict(counts)
 
 

@@ -65,7 +65,7 @@ import time
 from dataclasses import dataclass, field
 
 from ..core.values import check_number
-from .estimate import ErrorEstimate, amplified_floor, verified_order
+from .estimate import ErrorEstimate, amplified_floor, forced_order, verified_order
 from .ladder import MAX_RATIO, Assessment, _companion, assess, estimate_of
 from .pilot import Run, Runner
 from .scene_model import _MODELS, MethodModel, SceneModel, scene_key, scene_model  # noqa: F401 (public here too)
@@ -268,18 +268,24 @@ def simulate_to_tolerance(system, method=None, *, T, tol, h_max=None, max_time=N
 
 
 def _check_named_method(runner: Runner, method) -> None:
-    """A method the user names must be one whose runs tol= can certify (ValueError naming `method`):
-    one that keeps the constraint (a discrete Lagrangian alone integrates through the surface), and one
-    whose order is verified on this scene."""
-    meth = runner.method(method)
-    if meth.constrained is False and runner.n_contacts(method) > 0:
-        raise ValueError(f"method: {meth.name} ignores the constraint, and tol= measures the error of the "
-                         "constrained motion; name a collision integrator (CVA, VCI, MCVAA, MCVAC, CVA4, ...) "
-                         "or leave method out")
-    order, why = verified_order(meth, runner, False)
-    if order is None:
-        raise ValueError(f"method: {why}, so tol= cannot certify its runs; name CVA or CVA4 (or leave method "
-                         "out), or run it with h= and read tr.error_estimate() (the observed order)")
+    """A method the user names must be one whose runs tol= can certify (ValueError naming `method`)."""
+    why = uncertifiable(runner.method(method), runner.n_contacts(method), runner.forced(method))
+    if why:
+        raise ValueError(f"method: {why}")
+
+
+def uncertifiable(meth, n_contacts: int, forced: bool) -> str | None:
+    """Why tol= cannot certify the runs of `meth` on a scene with n_contacts contacts and a generalized
+    force or not (None: it can): a discrete Lagrangian alone ignores the constraint (it integrates
+    through the surface), and an order under forcing that is not verified cannot be assumed."""
+    if meth.constrained is False and n_contacts > 0:
+        return (f"{meth.name} ignores the constraint, and tol= measures the error of the constrained motion; "
+                "name a collision integrator (CVA, VCI, MCVAA, MCVAC, CVA4, ...) or leave the method out")
+    if meth.constrained is not False and forced and forced_order(meth) is None:
+        return (f"{meth.name}'s order under a generalized force is not verified, so tol= cannot certify its "
+                "runs; name CVA or CVA4 (or leave the method out), or run it with h= and read "
+                "tr.error_estimate() (the observed order)")
+    return None
 
 
 def _label(name) -> str:

@@ -435,16 +435,23 @@ def near_misses(run: Run, mod, prm, margin: float = 0.0, screen: Run | None = No
 
 
 # --- the estimate --------------------------------------------------------------------------------------
+def forced_order(meth) -> int | None:
+    """The order of `meth` verified under a generalized force (its `forcing` property), None where it
+    has not been measured (CVA6, CVA8)."""
+    forcing = (meth.properties or {}).get("forcing")
+    return int(str(forcing).split()[-1]) if forcing else None
+
+
 def verified_order(meth, runner: Runner | None, held: bool) -> tuple[int | None, str]:
     """(order, why) the estimate may assume: the method's order through impacts; 2 while contacts are
     held (the constrained steps and releases are second order); None where it is not verified (CVA6
     and CVA8 under a generalized force: their forced order has not been measured)."""
     p = int(meth.impact_order)
     if runner is not None and meth.constrained is not False and runner.forced(meth):
-        forcing = (meth.properties or {}).get("forcing")
-        if not forcing:
+        forcing = forced_order(meth)
+        if forcing is None:
             return None, f"{meth.name}'s order under a generalized force is not verified"
-        p = min(p, int(str(forcing).split()[-1]))
+        p = min(p, forcing)
     if held and p > 2:
         return 2, "contacts held: the constrained steps and releases are second order"
     return p, ""

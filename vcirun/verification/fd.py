@@ -456,7 +456,7 @@ GRADIENT_STEPS = (FD_STEP, 3e-4, 1e-4, 3e-5, 1e-5)
 HESSIAN_STEPS = (3e-3, 1e-3, 3e-4, 1e-4)
 
 
-def _falling_min(err, steps, threshold):
+def falling_min(err, steps, threshold):
     """The smallest err(d) along `steps`, taken in turn until it is a hundredth of `threshold` or stops
     falling (to less than a third of the previous step's)."""
     best = np.inf
@@ -483,7 +483,7 @@ def _check_mh(c, s):
         return [("mh_gradient", "Newton on the stationary stage velocities", np.inf, FD_THRESHOLDS)]
     floor = _floor(val)
     rows.append(("mh_gradient (grad)", "FD of mh_energy in (q, p) at the step where the difference stops falling",
-                 _falling_min(lambda d: rel_err(grad, gradient(E, y, d), floor), GRADIENT_STEPS, FD_THRESHOLDS[0]),
+                 falling_min(lambda d: rel_err(grad, gradient(E, y, d), floor), GRADIENT_STEPS, FD_THRESHOLDS[0]),
                  FD_THRESHOLDS))
     terms = np.empty(int(mod.MH_ORDER))
 
@@ -494,7 +494,7 @@ def _check_mh(c, s):
 
     floor = _floor(eta(y))   # (the gradient's floor is the energy's)
     rows.append(("mh_gradient (hess)", "Hessian of eta (mh_terms[0]) by 4th-order FD at the step where the difference "
-                 "stops falling", _falling_min(lambda d: rel_err(hess, mixed_hessian(eta, y, d), floor), HESSIAN_STEPS,
+                 "stops falling", falling_min(lambda d: rel_err(hess, mixed_hessian(eta, y, d), floor), HESSIAN_STEPS,
                                                FD_THRESHOLDS[0]), FD_THRESHOLDS))
     tot = float(mod.mh_terms(s.q, s.p, h, prm, terms))
     series = sum(h ** i * terms[i] for i in range(len(terms)))

@@ -8,7 +8,7 @@ import numpy as np
 
 from ..run.accounts import FRICTION, LAW
 from . import checks as ck
-from .fd import Probe, check_kernels, map_jacobian, symplecticity_defect
+from .fd import Probe, check_kernels, falling_min, map_jacobian, symplecticity_defect
 from .harness import StepFailed, exact_smooth, smooth_until_failure, step
 from .window import Window, settle_window
 
@@ -690,15 +690,9 @@ DEFECT_STEPS = (1e-3, 3e-4, 1e-4, 3e-5, 1e-5)
 
 def _defect(f, y):
     """The symplecticity defect of map f at y: J by the 4th-order stencil at the steps of DEFECT_STEPS
-    in turn, until the defect is a hundredth of the pass threshold or stops falling (to less than a
-    third of the previous step's: round-off, or the map's own defect); the smallest is kept."""
-    best = np.inf
-    for d in DEFECT_STEPS:
-        x = symplecticity_defect(map_jacobian(f, y, d))
-        if x <= 0.01 * ck.SYMPLECTIC_THRESHOLDS[0] or not x < best / 3:
-            return min(x, best)
-        best = x
-    return best
+    in turn, until the defect stops falling (fd.falling_min), the smallest kept."""
+    return falling_min(lambda d: symplecticity_defect(map_jacobian(f, y, d)), DEFECT_STEPS,
+                       ck.SYMPLECTIC_THRESHOLDS[0])
 
 
 def _symplecticity_rows(mod, prm, probes, hs, mcva, n):

@@ -92,15 +92,12 @@ def check_semantics_of(cfg: SweepConfig, *, source: str = "<config>") -> None:
         except (ValueError, TypeError, NotImplementedError) as e:
             _, msg = _strip_field(str(e), "")
             raise ConfigError(msg, source=source, field=f"methods[{i}]") from None
-        if m.tol is not None:   # the methods tol= refuses to certify (vcirun.run.choose._check_named_method)
-            if meth.constrained is False and sysm.m > 0:
-                raise ConfigError(f"{meth.name} ignores the constraint, and tol: measures the error of the "
-                                  "constrained motion; name a collision integrator (CVA, VCI, MCVAA, MCVAC, CVA4, "
-                                  "...) or leave methods out", source=source, field=f"methods[{i}]")
-            if meth.constrained is not False and sysm.is_forced and not (meth.properties or {}).get("forcing"):
-                raise ConfigError(f"{meth.name}'s order under a generalized force is not verified, so tol: cannot "
-                                  "certify its runs; name CVA or CVA4, or leave methods out", source=source,
-                                  field=f"methods[{i}]")
+        if m.tol is not None:   # the methods tol= refuses to certify
+            from vcirun.run.choose import uncertifiable
+
+            why = uncertifiable(meth, sysm.m, bool(sysm.is_forced))
+            if why:
+                raise ConfigError(why, source=source, field=f"methods[{i}]")
     if isinstance(cfg.reference, MethodReference):
         try:
             resolve_method(cfg.reference.method)
