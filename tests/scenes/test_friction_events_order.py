@@ -10,6 +10,8 @@ impacts in the integrators"), each against an exact account of the case:
 - elastic impacts with friction accumulating: they lose energy and are held, like e < 1."""
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -153,6 +155,12 @@ def test_the_reference_holds_elastic_impacts_that_friction_makes_accumulate(rod)
     prm = dict(m=m, l=l, e=1.0, mu=0.8398026955069208)
     ref = vcirun.reference(rod, T=0.2, q0=q0, p0=p0, params=prm)
     assert ref.status == "ok" and ref.held_intervals and ref.held_intervals[-1][1] == pytest.approx(0.2)
+    # the first landing from the free flight's closed form: y0 + vy t - g t^2 / 2 = l sin(th0 + w t)
+    from scipy.optimize import brentq
+
+    y0, vy, th0, w = q0[1], -0.8338567734868132, q0[2], -0.9927319568047039
+    gap = lambda t: y0 + vy * t - 9.81 * t * t / 2 - l * np.sin(th0 + w * t)   # noqa: E731
+    assert abs(ref.impacts[0] - brentq(gap, 0.0, 0.05, xtol=1e-15)) < 1e-10
     assert abs(ref.held_intervals[0][0] - 0.04414) < 1e-4
     tr = vcirun.simulate(rod, "CVA", h=1e-3, T=0.2, q0=q0, p0=p0, params=prm)
     assert tr.status == "ok" and np.max(np.abs(tr.q[-1] - ref(tr.t[-1]))) < 1e-6
@@ -165,6 +173,10 @@ def test_the_reference_ends_a_flat_slide_in_painleves_case_with_the_status(box):
     m, a = 1.288, 0.6723
     q0, p0 = [0.0, a / 2, 0.0], [m * 1.0, 0.0, 0.0]
     ref = vcirun.reference(box, T=0.3, q0=q0, p0=p0, params={"mu": 2.5})
-    assert ref.status == "painleve" and "painleve" in ref.message
+    assert ref.status == "painleve" and "contact right" in ref.message
+    # the leading corner's B from the equations: 1/m + b^2 / (4 I) - mu a b / (4 I), I = m (a^2 + b^2) / 12
+    b, inertia = 0.8316, m * (a * a + 0.8316 ** 2) / 12
+    B = 1 / m + b * b / (4 * inertia) - 2.5 * a * b / (4 * inertia)
+    assert B < 0 and abs(float(re.search(r"B = (-?[0-9.e+-]+)", ref.message).group(1)) - B) < 1e-5
     tr = vcirun.simulate(box, "CVA", h=1e-3, T=0.3, q0=q0, p0=p0, params={"mu": 2.5})
     assert tr.status == "painleve"
