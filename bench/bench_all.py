@@ -781,6 +781,8 @@ def main(argv=None):
     # the rows time the compiled tier (a first call on cold kernels would run interpreted while they
     # compile in the background); the tiers section gives its own processes the auto tier
     os.environ.setdefault("VCIRUN_TIER", "compiled")
+    # one build for every row (the auto build would switch a hot module to its specialized build mid-run)
+    os.environ.setdefault("VCIRUN_BUILD", "shared")
     res = {"machine": {"cpus": len(os.sched_getaffinity(0)), "python": sys.version.split()[0],
                        "loadavg_start": list(os.getloadavg()), "started": time.strftime("%Y-%m-%d %H:%M:%S"),
                        "cache_dir": os.environ.get("VCIRUN_CACHE_DIR", "")},

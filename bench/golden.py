@@ -62,8 +62,7 @@ def main(argv=None) -> int:
     ap.add_argument("--tier", choices=("compiled", "interpreted"), default="compiled",
                     help="the kernels' tier (vcirun.codegen.tiers): golden trajectories are the compiled tier's")
     a = ap.parse_args(argv)
-    if a.build == "specialized":
-        os.environ["VCIRUN_BUILD"] = "specialized"
+    os.environ["VCIRUN_BUILD"] = a.build   # (pinned: the auto build could switch a case mid-run)
     if a.mode == "capture":
         data = {}
         for c in CASES:

@@ -380,7 +380,14 @@ def measure(repeats: int = 201, kernels: bool = False) -> dict:
     imp = args[-1][:nimp]
     ref = np.asarray(tr.impacts)
     hm, lm, cm = (statistics.median(x) * 1e3 for x in (hand, loop, call))
-    return {"hand_ms": hm, "loop_ms": lm, "call_ms": cm, "loop_ratio": lm / hm, "call_ratio": cm / hm,
+    try:   # which build ran (the auto build runs the specialized module once it is in the cache)
+        from vcirun.codegen.kernel_cache import default
+
+        mod = next(iter(default().plans.values())).module()
+        ran = "shared" if hasattr(mod, "SHARED_CORE") else "specialized"
+    except (ImportError, AttributeError, StopIteration):
+        ran = "?"
+    return {"module_build": ran, "hand_ms": hm, "loop_ms": lm, "call_ms": cm, "loop_ratio": lm / hm, "call_ratio": cm / hm,
             "hand_min_ms": min(hand) * 1e3, "loop_min_ms": min(loop) * 1e3, "call_min_ms": min(call) * 1e3,
             "status": int(status), "impacts": int(nimp), "vcirun_impacts": int(len(ref)),
             "impact_time_diff": float(np.max(np.abs(imp - ref))) if len(ref) == nimp else float("nan"),

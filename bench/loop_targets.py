@@ -1,7 +1,7 @@
 """`make bench` section `loop`: the engine loop's targets, this tree against a base tree, in one run.
 
     python bench/loop_targets.py [--base /work/main] [--rows yardstick,cradle,coldbuild] [--repeats 201]
-                                 [--builds shared,specialized]
+                                 [--builds shared,specialized,auto]
 
 Rows (each tree in its own fresh process, its own code on PYTHONPATH, the shared kernel cache):
   yardstick  cart-pendulum CVA, T = 5, h = 1e-2, beta = 3.2: vcirun's compiled loop (Trajectory.wall_time)
@@ -15,9 +15,11 @@ Rows (each tree in its own fresh process, its own code on PYTHONPATH, the shared
   coldbuild  the first cart-pendulum CVA simulation with an empty kernel cache (VCIRUN_CACHE_DIR a fresh
              directory): the family's lean core and the scene's module compiled, CPU seconds of the
              process and its children (the C compiler)
-The yardstick and kernels rows run in each build of --builds (VCIRUN_BUILD: the default shared core,
-whose loop calls the scene's kernels by address, and the specialized module, one scene compiled with
-the loop). Printed as a table with the targets of the engine issue; never asserted.
+The yardstick and kernels rows run in each build of --builds (VCIRUN_BUILD: the shared core, whose loop
+calls the scene's kernels by address; the specialized module, one scene compiled with the loop; auto,
+the default, which runs the specialized module once the scene has been hot on this machine, as after
+the specialized row, and is measured for this tree only). Printed as a table with the targets of the
+engine issue; never asserted.
 """
 from __future__ import annotations
 
@@ -60,6 +62,8 @@ def measure(base: Path, rows: list[str], repeats: int, builds: tuple = ("shared"
     for name, tree in (("this", ROOT), ("base", base)):
         res = {"loadavg_before": os.getloadavg()[0]}
         for b in builds:
+            if b == "auto" and name == "base":
+                continue
             sfx = "" if b == "shared" else f"@{b}"
             if "yardstick" in rows:
                 res["yardstick" + sfx] = _run(tree, _YARDSTICK.format(bench=bench, n=repeats, kernels=False),
@@ -89,7 +93,8 @@ def report(r: dict, log=print) -> None:
                 log(f"  {name:4s} hand-written CVA ({what}) {y['hand_ms']:.4f} ms | loop {y['loop_ms']:.4f} ms = "
                     f"x{y['loop_ratio']:.2f} (target <= x{TARGETS['loop_ratio']}) | simulate() {y['call_ms']:.4f} ms = "
                     f"x{y['call_ratio']:.2f} (target <= x{TARGETS['call_ratio']}) | same trajectory: impacts "
-                    f"{y['impacts']}/{y['vcirun_impacts']}, |dq| {y['q_diff']:.1e}")
+                    f"{y['impacts']}/{y['vcirun_impacts']}, |dq| {y['q_diff']:.1e}; module: "
+                    f"{y.get('module_build', '?')}")
             elif y:
                 log(f"  {name:4s} {row}: {y.get('error')}")
         c = t.get("cradle", {})
@@ -111,7 +116,7 @@ def main(argv=None):
     ap.add_argument("--base", default="/work/main")
     ap.add_argument("--rows", default="yardstick,kernels,cradle,coldbuild")
     ap.add_argument("--repeats", type=int, default=201)
-    ap.add_argument("--builds", default="shared,specialized")
+    ap.add_argument("--builds", default="shared,specialized,auto")
     a = ap.parse_args(argv)
     r = measure(Path(a.base), a.rows.split(","), a.repeats, tuple(a.builds.split(",")))
     report(r)

@@ -6,7 +6,11 @@ disk under $VCIRUN_CACHE_DIR (default ~/.cache/vcirun): a cold run pays numba's 
 
 The suite runs on the compiled tier (VCIRUN_TIER=compiled, unless set otherwise): its runs are sized for
 compiled loops, and the tests of the interpreted tier and of the switch between the two
-(tests/unit/test_tiers.py) ask for their tiers themselves.
+(tests/unit/test_tiers.py) ask for their tiers themselves. It runs the shared build
+(VCIRUN_BUILD=shared, unless set otherwise): in the default auto build a module that runs HOT_S
+seconds in a worker would start a specialized build in the background, which costs the suite a
+compile and makes which module ran depend on the order of the tests; tests/unit/test_specialize.py
+tests the auto build.
 """
 from __future__ import annotations
 
@@ -16,6 +20,7 @@ import numpy as np
 import pytest
 
 os.environ.setdefault("VCIRUN_TIER", "compiled")   # (before vcirun reads it; subprocesses inherit it)
+os.environ.setdefault("VCIRUN_BUILD", "shared")
 
 
 def _compiled(system, method):

@@ -139,6 +139,11 @@ CASES = [
     (["verify", "cart_pendulum", "--output", "/dev/null"], ["--output", "not a regular file"]),
     (["verify", "cart_pendulum", "--param", "nope=1"], ["nope"]),
     (["verify", "cradle_40"], ["cradle_40 has 40 coordinates"]),
+    # simulate: the API's checks, in the command's flags
+    (["simulate", "cart_pendulum", "--tol", "1e-4", "--unconstrained", "--T", "1"],
+     ["--unconstrained: --tol measures", "drop --unconstrained"]),
+    (["simulate", "cart_pendulum", "--max-time", "2", "--T", "1"], ["--max-time: only with --tol"]),
+    (["simulate", "ball_in_box", "--T", "1", "--q0", "0.5,-2", "--p0", "0,0"], ["(or pass --unconstrained)"]),
     # systems
     (["systems", "no_such_scene"], ["no_such_scene"]),
     (["systems", "cradle_999"], ["cradle_999 has 999 coordinates"]),

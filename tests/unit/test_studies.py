@@ -76,6 +76,10 @@ WP = {"study": "work_precision", "name": "w", "system": "cart_pendulum", "beta":
     ({"h": [1e-2, -1]}, ["h[1]: must be > 0"]),
     ({"h": [1e-2, 10]}, ["h[1]: 10 is longer than T = 1"]),
     ({"repeat": 3}, ["repeat: unknown key; did you mean 'repeats'?"]),
+    ({"system": "incline", "beta": [0.5], "baselines": {"DOP853": [1e-6]}},
+     ["baselines: the solve_ivp baselines take one elastic constraint; incline", "leave baselines out"]),
+    ({"system": str(ROOT / "docs/examples/rocking_block.yaml")},
+     ["system: this study starts every run from Xi(beta)", "has none", "initial_states"]),
 ])
 def test_work_precision_schema_names_the_field(change, words):
     with pytest.raises(ConfigError) as e:

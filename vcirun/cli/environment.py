@@ -50,7 +50,7 @@ def _vcirun(env) -> str | None:
         if p:
             return p
     if "VCIRUN_BUILD" in env:
-        p = _choice("VCIRUN_BUILD", env["VCIRUN_BUILD"], ("shared", "specialized"))
+        p = _choice("VCIRUN_BUILD", env["VCIRUN_BUILD"], ("auto", "shared", "specialized"))
         if p:
             return p
     if "VCIRUN_CORE_NDOF" in env:

@@ -35,6 +35,18 @@ def _parse_vector(text: str | None, name: str):
         raise CliError(f"{name}: expected comma-separated numbers such as 1.2,-1.0 (got {text!r})") from None
 
 
+# the Python API's words for what this command spells as flags (messages come from vcirun.simulate)
+_API_WORDS = (("drop constrained=False", "drop --unconstrained"), ("pass constrained=False", "pass --unconstrained"),
+              ("constrained: ", "--unconstrained: "), ("max_time: only with tol=", "--max-time: only with --tol"),
+              ("max_time = ", "--max-time "), ("tol= ", "--tol "), ("tol=:", "--tol:"))
+
+
+def _cli_words(msg: str) -> str:
+    for api, flag in _API_WORDS:
+        msg = msg.replace(api, flag)
+    return msg
+
+
 def simulate_once(system: str, method: str | None, *, h: float | None, T: float, beta: float | None = None, ld=None,
                   mh_order=None, flow_order=None, params: dict | None = None, constrained: bool | None = None,
                   newton_tol=None, event_tol=None, q0=None, p0=None, qdot0=None, tier=None, tol=None,
@@ -73,7 +85,7 @@ def simulate_once(system: str, method: str | None, *, h: float | None, T: float,
             warnings.simplefilter("always", GridWarning)
             traj = vcirun.simulate(system, method, h=h, T=T, beta=beta, tier=tier, **kw)
     except ValueError as e:
-        raise CliError(str(e)) from None
+        raise CliError(_cli_words(str(e))) from None
     for w in notes:
         typer.echo(f"note: {w.message}", err=True)
     from vcirun.scenes.registry import scene_args

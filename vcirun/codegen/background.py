@@ -119,11 +119,13 @@ def state(d: Path, key: str) -> str:
 
 class Job:
     """What the background process builds: the module key, its kernel set, the system's name, its
-    number of parameters and the cache it writes (the caller's: VCIRUN_CACHE_DIR is passed on resolved)."""
+    number of parameters, the cache it writes (the caller's: VCIRUN_CACHE_DIR is passed on resolved)
+    and the build (vcirun.codegen.modules.build_mode; None: the caller's environment decides)."""
 
-    def __init__(self, key: str, ks, system: str, nprm: int, root: Path, family: str = ""):
+    def __init__(self, key: str, ks, system: str, nprm: int, root: Path, family: str = "",
+                 build: str | None = None):
         self.key, self.ks, self.system, self.nprm, self.root = key, ks, system, int(nprm), Path(root)
-        self.family = family
+        self.family, self.build = family, build
 
     @property
     def label(self) -> str:
@@ -132,12 +134,13 @@ class Job:
     def encode(self) -> str:
         return base64.b64encode(pickle.dumps({"key": self.key, "ks": self.ks, "system": self.system,
                                               "nprm": self.nprm, "root": str(self.root),
-                                              "family": self.family})).decode()
+                                              "family": self.family, "build": self.build})).decode()
 
     @classmethod
     def decode(cls, text: str) -> "Job":
         d = pickle.loads(base64.b64decode(text.encode()))   # noqa: S301 - written by our own caller
-        return cls(d["key"], d["ks"], d["system"], d["nprm"], Path(d["root"]), d.get("family", ""))
+        return cls(d["key"], d["ks"], d["system"], d["nprm"], Path(d["root"]), d.get("family", ""),
+                   d.get("build"))
 
 
 def start(job: Job, d: Path):
@@ -146,6 +149,8 @@ def start(job: Job, d: Path):
     stays interpreted; the reason is the exception's)."""
     env = dict(os.environ)
     env[cache_store.ENV] = str(job.root)
+    if job.build is not None:
+        env["VCIRUN_BUILD"] = job.build
     pkg_parent = str(Path(__file__).resolve().parents[2])
     env["PYTHONPATH"] = pkg_parent + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     log = open(log_path(d, job.key), "ab")   # noqa: SIM115 - handed to the child

@@ -8,10 +8,13 @@ from __future__ import annotations
 from .kernel_set import KernelSet
 from .modules import (  # noqa: F401 - the names other layers import from here
     _PKG,
+    BUILDS,
     WARM_FORMAT,
     backend_id,
     build_id,
     build_mode,
+    build_policy,
+    building,
     cache_dir,
     core_ndof,
     family,
@@ -19,6 +22,7 @@ from .modules import (  # noqa: F401 - the names other layers import from here
     interpreted_text,
     module_key_of,
     module_text,
+    specialized_key,
     system_core_features,
     warm_key_of,
 )

@@ -89,7 +89,10 @@ class KernelCache:
         self._generated: dict = {}    # module key -> (generated text, number of parameters)
         self._interpreted: dict = {}  # module key -> the interpreted tier's module
         self.started: dict = {}       # module key -> background compile process started by this cache
-        self.told: set = set()        # ("tier" | "failed", module key) notices this cache said
+        self.told: set = set()        # ("tier" | "failed" | "specialized", module key) notices this cache said
+        self.upgrades: dict = {}      # shared module key -> its specialized build (vcirun.codegen.specialize)
+        # False: a module keeps the build its first run found (a sweep times its runs: one build per module)
+        self.switch_builds = True
 
     @property
     def warm(self) -> bool:

@@ -11,7 +11,13 @@ Two builds (`build_mode`, VCIRUN_BUILD):
   set's *shared core* (`KernelCache.load_core`, vcirun.codegen.shared: one file `core_<key>.py` per family,
   compiled once per machine), which calls the scene's kernels by address; `shared.link` joins the two.
 - "specialized": one file per (scene, kernel set) = generated kernels + units + bindings, compiled
-  together (the loop ~15 % faster, 35-40 s per scene cold).
+  together (a loop 1.3-1.6 times faster, 35-40 s per scene cold).
+- "auto" (default): the shared build first; a module whose loop has run HOT_S seconds in one process
+  gets its specialized build compiled in the background, and later runs take it
+  (vcirun.codegen.specialize). Both builds compute the same bits (bench/golden.py checks it).
+
+A specialized module's key is derived from its shared module's (`specialized_key`), so a process
+finds it from the shared key alone (no sympy) and a pinned VCIRUN_BUILD=specialized shares it.
 
 Either way the whole event loop is compiled and cached by numba: numba cannot cache a function that
 takes another jitted function as an argument, and a compiled loop calling compiled kernels is what
@@ -37,6 +43,8 @@ and rebuilt, said on one line. The module is executed from the checked text (no 
 """
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import functools
 import hashlib
 import importlib.util
@@ -104,18 +112,40 @@ def _key_files(ks: KernelSet) -> set:
     return files
 
 
+BUILDS = ("auto", "shared", "specialized")
+# the build a block of code makes and loads (`building`): a specialized build started by the auto policy
+_BUILDING = contextvars.ContextVar("vcirun_building", default=None)
+
+
+def build_policy() -> str:
+    """VCIRUN_BUILD: "auto" (default), "shared" or "specialized" (ValueError naming the variable)."""
+    mode = os.environ.get("VCIRUN_BUILD", "auto").strip().lower() or "auto"
+    if mode not in BUILDS:
+        raise ValueError(f"VCIRUN_BUILD: {mode!r} is not a build mode (use auto, shared or specialized)")
+    return mode
+
+
 def build_mode() -> str:
-    """"shared" (default): a scene module holds only its kernels and links to the shared core of its
-    kernel set (vcirun.codegen.shared), compiled once per machine; "specialized": one module with the
-    scene's kernels and every unit compiled together (a faster loop, a cold build of 35-40 s per
-    scene). VCIRUN_BUILD selects it; uncompiled runs (NUMBA_DISABLE_JIT=1) are always specialized,
-    since the core calls kernels by machine address."""
-    mode = os.environ.get("VCIRUN_BUILD", "shared").strip().lower() or "shared"
-    if mode not in ("shared", "specialized"):
-        raise ValueError(f"VCIRUN_BUILD: {mode!r} is not a build mode (use shared or specialized)")
+    """The build a module is made in: "shared" (a scene module holds only its kernels and links to the
+    shared core of its kernel set (vcirun.codegen.shared), compiled once per machine) or "specialized"
+    (one module with the scene's kernels and every unit compiled together: a faster loop, a cold build
+    of 35-40 s per scene). Inside `building(mode)`, that mode; else VCIRUN_BUILD, whose "auto" starts
+    shared. Uncompiled runs (NUMBA_DISABLE_JIT=1) are always specialized, since the core calls kernels
+    by machine address."""
     if os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0"):
         return "specialized"
-    return mode
+    mode = _BUILDING.get() or build_policy()
+    return "shared" if mode == "auto" else mode
+
+
+@contextlib.contextmanager
+def building(mode: str):
+    """Keys, texts and loads inside the block are those of build `mode` ("shared" or "specialized")."""
+    token = _BUILDING.set(mode)
+    try:
+        yield
+    finally:
+        _BUILDING.reset(token)
 
 
 def core_ndof() -> str:
@@ -131,13 +161,13 @@ def build_id() -> str:
     return f"{build_mode()}|core_ndof={core_ndof()}"
 
 
-def _versions(backend: str) -> bytes:
+def _versions(backend: str, build: str | None = None) -> bytes:
     # + the step-kernel path (codegen.derive: tensor or expanded), so the two never share a module,
     # + the kernel backend (codegen.cc: numba, or C with this compiler and flags: `backend_id`), + the
-    # build mode
+    # build (`build_id` unless given)
     path = os.environ.get("VCIRUN_KERNEL_PATH", "")
     return (f"{__version__}|{numba.__version__}|{sys.version_info[:2]}|kernels={path}|{backend}"
-            f"|build={build_id()}").encode()
+            f"|build={build_id() if build is None else build}").encode()
 
 
 def backend_id() -> str:
@@ -148,14 +178,23 @@ def backend_id() -> str:
 
 
 def module_key_of(system, ks: KernelSet, backend: str | None = None) -> str:
-    """The module key of (symbolic system, ks) (`backend`: backend_id(), passed by a caller that keeps it)."""
+    """The module key of (symbolic system, ks) in the build made now (`build_mode`; `backend`: backend_id(),
+    passed by a caller that keeps it): the shared module's key hashes everything its text and machine
+    code depend on; the specialized module's is derived from it (`specialized_key`)."""
     h = hashlib.sha256()
     h.update(system.fingerprint().encode())
     h.update(ks.key_text().encode())
-    h.update(_versions(backend_id() if backend is None else backend))
+    h.update(_versions(backend_id() if backend is None else backend, f"shared|core_ndof={core_ndof()}"))
     for rel in sorted(_key_files(ks)):  # every listed file exists (a missing one is a packaging error)
         h.update((_PKG / rel).read_bytes())
-    return h.hexdigest()[:20]
+    key = h.hexdigest()[:20]
+    return key if build_mode() == "shared" else specialized_key(key)
+
+
+def specialized_key(shared_key: str) -> str:
+    """The key of the specialized module of the same (system, kernel set, versions, files) as the shared
+    module `shared_key`: both are made from the same generated text."""
+    return hashlib.sha256(f"specialized|{shared_key}".encode()).hexdigest()[:20]
 
 
 def generate(system, ks: KernelSet, d: Path) -> str:

@@ -130,6 +130,16 @@ def _model(sysm, prm, kernels):
     return _MODELS[key]
 
 
+def refusal(sysm) -> str | None:
+    """Why the solve_ivp baselines cannot run symbolic system `sysm`, or None. Their event loop and reset
+    are the paper's: one elastic constraint (the general impact law lives in the compiled loop and the
+    exact reference)."""
+    if sysm.m != 1 or any(c.restitution != 1 for c in sysm.constraints):
+        return (f"the solve_ivp baselines take one elastic constraint; {sysm.name} declares {sysm.m} "
+                f"(restitutions {[str(c.restitution) for c in sysm.constraints]})")
+    return None
+
+
 def solve_ivp_run(system, method: str = "DOP853", *, h, T, rtol, atol=None, beta=None, q0=None, p0=None,
                   params=None, t0: float = 0.0, kernels: str = "compiled", max_impacts: int = 100_000,
                   first_step=None, time_limit: float | None = None, energies: bool = True, escape: bool = True,
@@ -155,12 +165,9 @@ def solve_ivp_run(system, method: str = "DOP853", *, h, T, rtol, atol=None, beta
     if not (rtol > 0 and np.isfinite(rtol)):
         raise ValueError(f"rtol: must be positive (got {rtol})")
     sysm = resolve_system(system)
-    if sysm.m != 1 or any(c.restitution != 1 for c in sysm.constraints):
-        # the baselines' event loop and reset are the paper's: one elastic constraint (the
-        # general impact law lives in the compiled loop and the exact reference)
-        raise ValueError(f"system: the solve_ivp baselines take one elastic constraint; {sysm.name} declares "
-                         f"{sysm.m} (restitutions {[str(c.restitution) for c in sysm.constraints]}); "
-                         "use vcirun.simulate or vcirun.reference")
+    refused = refusal(sysm)
+    if refused:
+        raise ValueError(f"system: {refused}; use vcirun.simulate or vcirun.reference")
     prm = sysm.param_values(params)
     q0, p0 = sysm.initial_state(beta=beta, q0=q0, p0=p0, params=prm)
     model = _model(sysm, prm, kernels)

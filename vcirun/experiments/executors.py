@@ -253,8 +253,19 @@ class LocalExecutor:
 
     @staticmethod
     def _in_process(tasks):
+        from vcirun.codegen.kernel_cache import default
+
         from . import worker as sweep  # (the worker side of a sweep)
 
+        kc = default()
+        switch, kc.switch_builds = kc.switch_builds, False   # (as a pool worker: one build per module)
+        try:
+            yield from LocalExecutor._in_process_runs(tasks, sweep)
+        finally:
+            kc.switch_builds = switch
+
+    @staticmethod
+    def _in_process_runs(tasks, sweep):
         for task in tasks:
             # run by run, so an interruption loses at most one run (the reference is cached)
             for j, spec in enumerate(task.runs):

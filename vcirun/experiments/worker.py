@@ -131,6 +131,10 @@ def _init_worker(cfg: SweepConfig, ref_T: float, ref_h: float, parent_pid: int |
         _set_parent_death_signal()
         if os.getppid() != parent_pid:  # the parent died before prctl took effect
             os._exit(1)
+    if in_pool:   # a module keeps its build in a sweep (one build per method's times; vcirun.codegen.specialize)
+        from vcirun.codegen.kernel_cache import default
+
+        default().switch_builds = False
     if _STATE is None or _STATE.cfg != cfg or (_STATE.ref_T, _STATE.ref_h) != (ref_T, ref_h):
         _STATE = _WorkerState(cfg, ref_T, ref_h)
 
@@ -276,6 +280,7 @@ def _execute_run(st: _WorkerState, spec: RunSpec, ref) -> dict:
     attrs, arrays = trajectory_payload(traj, store_arrays=st.cfg.store_every)
     attrs["wall_time_repeats"] = walls
     attrs["tier"] = str(getattr(traj, "tier", "compiled"))
+    attrs["build"] = str(getattr(traj, "build", None) or "")
     if attrs["tier"] == "interpreted":
         # the run's numbers are the compiled tier's (vcirun.codegen.tiers); its time is not: kept apart,
         # so that no table or figure of wall_time mixes the tiers (Table II's means skip a None)

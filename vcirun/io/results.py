@@ -6,8 +6,9 @@ initial-condition axis: `beta` (its values) when the config sweeps beta, else `i
 over (method, h, <ic>) (`.sel(method="MCVAA", h=0.01)` selects on the method dimension: see
 vcirun/io/xr.py): l2_error, wall_time, wall_time_call, n_steps, n_impacts, n_partial_steps,
 newton_iters_total, H0, max_abs_dH, H_range, Ed_range, Hmod_range, fail_step, fail_time, t_end (the
-grid's end N h), and the strings status, message, l2_note, run_id (and, where runs hold them, a tol:
-sweep's core_method, tol_status, tol_reason and the estimates' est_kind, est_status, est_message).
+grid's end N h), and the strings status, message, l2_note, run_id (and, where runs hold them, tier and
+build, the compiled module's build: shared or specialized (vcirun.codegen.specialize); a tol: sweep's
+core_method, tol_status, tol_reason and the estimates' est_kind, est_status, est_message).
 Per initial condition: q0, p0
 (over `coordinate`, named from the system), reference_accuracy, reference_n_impacts, reference_status,
 reference_path.
@@ -38,7 +39,8 @@ _SKIP = {"method_index", "ic_index", "worker_pid", "complete", "has_trajectory",
 _STRINGS = ("status", "message", "l2_note", "run_id")
 # strings a sweep of tol: or with error_estimate: true stores (vcirun.run.estimate.sweep_attrs): variables
 # where some run holds them
-_OPTIONAL_STRINGS = ("core_method", "tol_status", "tol_reason", "est_kind", "est_status", "est_message")
+_OPTIONAL_STRINGS = ("tier", "build", "core_method", "tol_status", "tol_reason", "est_kind", "est_status",
+                     "est_message")
 # the metrics every table has (the module docstring's list), whatever the file holds
 METRICS = ("l2_error", "wall_time", "wall_time_call", "n_steps", "n_impacts", "n_partial_steps", "newton_iters_total",
            "H0", "max_abs_dH", "H_range", "Ed_range", "Hmod_range", "fail_step", "fail_time", "t_end")

@@ -96,8 +96,9 @@ def simulate(system, method=None, *, T, h=None, tol=None, beta=None, q0=None, p0
     if buffers is None:
         buffers = _LOCAL.buffers = Buffers(keep_grid=False)
     out, counters, wall = run_loop(mod, q0, p0, t0, h, N, prm, p.settings, sysd.n, p.max_impacts_step, buffers)
+    p.ran(wall)
     traj = trajectory_of(p, mod, out, counters, q0, p0, prm, beta, wall)
-    traj.tier = p.tier_used
+    traj.tier, traj.build = p.tier_used, p.build_used
     traj.run_args = run_args(p, system, beta, q0, p0, params, constrained, resting_contact, options, t0)
     return traj
 

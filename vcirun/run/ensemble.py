@@ -167,7 +167,8 @@ def _one(ctx: _Context, mod, i: int, j: int, res: dict) -> None:
     buffers = getattr(ctx.local, "buffers", None)
     if buffers is None:
         buffers = ctx.local.buffers = Buffers(keep_grid=True)
-    out, c, _ = run_loop(mod, q0, p0, p.t0, p.h, p.N, prm, p.settings, p.sysd.n, p.max_impacts_step, buffers)
+    out, c, wall = run_loop(mod, q0, p0, p.t0, p.h, p.N, prm, p.settings, p.sysd.n, p.max_impacts_step, buffers)
+    p.ran(wall)
     steps, status, fail = c["steps"], record.STATUS_CODES[c["status"]], c["fail_step"]
     H = out[_O_H][: steps + 1]
     H0 = float(H[0])
@@ -248,7 +249,7 @@ def _dataset(ctx: _Context, res: dict, lo: int, wall: float):
         coords["p0"] = (rc, np.array(per["p0"][lo: lo + k]))
     attrs = {"system": p.sysd.name, "method": p.meth.name, "h": p.h, "T": p.N * p.h, "t0": p.t0, "N": p.N,
              "constrained": int(p.constrained), "energies": int(p.energies), "wall_time": wall,
-             "tier": str(p.tier_used),
+             "tier": str(p.tier_used), "build": str(p.build_used or ""),
              "messages": [f"run {i}: {m}" for i, m in sorted(res["messages"].items())]}
     return xr.Dataset(data, coords=coords, attrs=attrs)
 

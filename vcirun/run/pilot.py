@@ -329,6 +329,7 @@ class Runner:
         c0 = time.thread_time()
         out, counters, wall = run_loop(mod, q0, p0, self.t0, h, N, prm, p.settings, n, p.max_impacts_step,
                                        buffers=_FRESH)
+        base.ran(wall)
         steps = counters["steps"]
         Q = out[_INDEX["q"]][: steps + 1]
         P = out[_INDEX["p"]][: steps + 1]

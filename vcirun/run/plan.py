@@ -37,6 +37,7 @@ from ..core.system_data import (
     start_tolerance,
 )
 from ..codegen.kernel_cache import KernelCache, default
+from ..codegen.specialize import upgrade
 from ..core.tolerances import split_options
 from ..methods.table import resolve_method
 from ..scenes.registry import scene_args
@@ -75,16 +76,40 @@ class Plan:
     memo: tuple = None      # resolve_numeric's warm memo of a built-in scene (what `_still_warm` looks up)
     _mod: object = None
     _prm: np.ndarray = None  # the default parameter vector
+    _up: object = None      # the specialized build of its shared module (vcirun.codegen.specialize)
 
     @property
     def max_impacts_step(self) -> int:
         return int(self.tol["max_impacts_step"])
 
     def module(self):
+        """The module a run takes now: the kernels on the tier asked for; in the auto build, the specialized
+        module of the same kernels once it is there (vcirun.codegen.specialize)."""
+        up = self._up
         if self._mod is None or (self.tier_used == "interpreted" and self.tier == "auto" and self.load.poll()):
-            self._mod = self.load(self.tier)
-            self.tier_used = self.load.tier
+            if self._mod is None:
+                up = self._up = upgrade(self.kc or default(), self.load, self.tier)
+            if up is not None and (up.mod is not None or (up.due() and up.poll() is not None)):
+                self._mod, self.tier_used = up.mod, "compiled"
+            else:
+                self._mod = self.load(self.tier)
+                self.tier_used = self.load.tier
+        elif up is not None and up.due() and self.tier_used == "compiled" and up.poll() is not None:
+            self._mod = up.mod
         return self._mod
+
+    @property
+    def build_used(self) -> str | None:
+        """The build of the compiled module last returned ("shared" or "specialized"; None on the
+        interpreted tier)."""
+        if self.tier_used != "compiled":
+            return None
+        return "shared" if hasattr(self._mod, "SHARED_CORE") else "specialized"
+
+    def ran(self, seconds: float) -> None:
+        """A run of its module took `seconds` in the compiled loop (what makes a module hot)."""
+        if self._up is not None and self.tier_used == "compiled":
+            self._up.seconds += seconds
 
     def check_memory(self) -> None:
         """The memory check of one run against the limit in force now (a sweep scopes its own)."""

@@ -390,6 +390,11 @@ def _check_system(name: str, params: dict | None, field: str, source: str, *, pa
         if name.endswith((".yaml", ".yml")) or Path(name).is_file():
             if not Path(name).is_file():
                 raise ConfigError(f"system file not found: {name}", source=source, field=field)
+            if needs_ic_map:   # (a YAML system declares q0 and p0, never a map beta -> (q0, p0))
+                raise ConfigError(f"this study starts every run from Xi(beta), a built-in scene's initial-condition "
+                                  f"map, and the YAML system {name} has none; use a built-in scene with one "
+                                  f"(cart_pendulum, double_pendulum), or a sweep config with initial_states",
+                                  source=source, field=field)
             return
         from ...scenes.registry import BUILTIN_SCENES
 
@@ -421,6 +426,14 @@ def _check_method(name: str, options: dict, field: str, source: str):
 def _check_semantics(cfg, source: str) -> None:
     if isinstance(cfg, WorkPrecisionStudy):
         _check_system(cfg.system, cfg.params, "system", source, needs_ic_map=True)
+        if cfg.baselines:   # (the symbolic system: sympy, only for a study that runs solve_ivp)
+            from ...run.resolve import resolve_system
+            from ..baselines import refusal
+
+            refused = refusal(resolve_system(cfg.system))
+            if refused:
+                raise ConfigError(f"{refused}; leave baselines out (baselines: {{}}) for this system",
+                                  source=source, field="baselines")
         for i, m in enumerate(cfg.methods):
             _check_method(m.name, {k: v for k, v in m.simulate_kwargs().items() if k in ("ld", "mh_order", "flow_order")},
                           f"methods[{i}]", source)
