@@ -129,7 +129,7 @@ class Job:
 
     @property
     def label(self) -> str:
-        return f"{self.system}/{self.family}"
+        return f"{self.system}/{self.family}" + (f" ({self.build} build)" if self.build else "")
 
     def encode(self) -> str:
         return base64.b64encode(pickle.dumps({"key": self.key, "ks": self.ks, "system": self.system,
