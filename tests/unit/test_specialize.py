@@ -2,7 +2,6 @@
 in the background, and runs switch to it with the same bits."""
 from __future__ import annotations
 
-import logging
 import time
 
 import numpy as np
@@ -91,7 +90,7 @@ def test_a_hot_module_starts_its_specialized_build_once(monkeypatch):
     assert hasattr(_plan(kc).module(), "SHARED_CORE") and _plan(kc)._up.state == "building"
 
 
-def test_a_failed_specialized_build_leaves_the_shared_one_said_once(monkeypatch, caplog):
+def test_a_failed_specialized_build_leaves_the_shared_one_said_once(monkeypatch):
     monkeypatch.setenv("VCIRUN_BUILD", "auto")
     monkeypatch.setattr(specialize, "HOT_S", 0.0)
     monkeypatch.setattr(specialize, "POLL_S", 0.0)
@@ -112,18 +111,19 @@ def test_a_failed_specialized_build_leaves_the_shared_one_said_once(monkeypatch,
     monkeypatch.setattr(background, "state", state)
     monkeypatch.setattr(background, "start", lambda job, d: Running())
     monkeypatch.setattr(background, "failure", lambda d_, k: {"reason": "RuntimeError: no compiler"})
+    told = []
+    monkeypatch.setattr(cache_store, "LISTENERS", [told.append])   # (the notices, as the CLI gets them)
     run = lambda kc: vcirun.simulate("cart_pendulum", "MCVAA", h=0.01, T=1.0, beta=3.2, loader=kc)  # noqa: E731
     kc = KernelCache()
-    with caplog.at_level(logging.INFO, logger="vcirun"):
-        runs = [run(kc) for _ in range(4)]
-        said = [r.message for r in caplog.records if "specialized build" in r.message]
-        assert len(said) == 1 and "RuntimeError: no compiler" in said[0] and "stay on the shared build" in said[0]
-        assert _plan(kc)._up.state == "off" and {r.build for r in runs} == {"shared"}
-        later = KernelCache()   # a later process finds the failure record: quiet, shared
-        runs.append(run(later))
-        assert len([r for r in caplog.records if "specialized build" in r.message]) == 1
-        (up,) = later.upgrades.values()
-        assert up.state == "off" and runs[-1].build == "shared"
+    runs = [run(kc) for _ in range(4)]
+    said = [m for m in told if "specialized build" in m]
+    assert len(said) == 1 and "RuntimeError: no compiler" in said[0] and "stay on the shared build" in said[0]
+    assert _plan(kc)._up.state == "off" and {r.build for r in runs} == {"shared"}
+    later = KernelCache()   # a later process finds the failure record: quiet, shared
+    runs.append(run(later))
+    assert len([m for m in told if "specialized build" in m]) == 1
+    (up,) = later.upgrades.values()
+    assert up.state == "off" and runs[-1].build == "shared"
     for r in runs[1:]:
         _same(r, runs[0])
 
@@ -196,3 +196,55 @@ def test_a_sweep_keeps_each_module_on_the_build_its_first_run_found(monkeypatch,
     assert set(np.asarray(ds["build"]).ravel().tolist()) == {"shared"}, "one build for every run of the sweep"
     assert kc.switch_builds   # (restored after the sweep)
     assert vcirun.simulate("ball_in_box", "CVA", **RUN).build == "specialized"   # the next run takes it
+    # the next sweep in this process starts on the specialized build and keeps it
+    s = run_sweep(cfg, output=tmp_path / "s2.h5", workers=1, progress=False)
+    ds = vcirun.open_results(tmp_path / "s2.h5")
+    assert s.computed == 4 and set(np.asarray(ds["build"]).ravel().tolist()) == {"specialized"}
+
+
+def test_a_sweep_resumed_over_shared_runs_stays_shared_else_takes_what_is_built(monkeypatch):
+    from vcirun.experiments.sweep import builds_for_sweep
+
+    taken = []
+    monkeypatch.setattr(specialize, "take_built", taken.append)
+    kc = KernelCache()
+    builds_for_sweep(kc, [{"build": "specialized"}, {"status": "ok"}])
+    assert kc.specialize and taken == [kc]
+    builds_for_sweep(kc, [{"build": "specialized"}, {"build": "shared"}])
+    assert not kc.specialize and taken == [kc]
+    assert specialize.upgrade(kc, None, "compiled") is None   # (no module is specialized while it holds)
+
+
+def test_a_marker_without_its_module_or_machine_code_is_dropped(tmp_path):
+    class Load:
+        key = "0" * 20
+
+    up = specialize.Upgrade(KernelCache(), Load())
+    d = tmp_path
+    (d / "__pycache__").mkdir()
+    marker = background.marker_path(d, up.key)
+    for files in ([], [f"vk_{up.key}.py"], [f"__pycache__/vk_{up.key}.integrate-12.py311.nbi"]):
+        marker.write_text("{}")
+        for f in files:
+            (d / f).write_text("")
+        assert not up._built(d) and not marker.exists()
+        for f in files:
+            (d / f).unlink()
+    marker.write_text("{}")
+    for f in (f"vk_{up.key}.py", f"__pycache__/vk_{up.key}.integrate-12.py311.nbi"):
+        (d / f).write_text("")
+    assert up._built(d) and marker.exists()
+
+
+def test_an_uncompiled_run_marks_nothing_compiled(tmp_path):
+    """NUMBA_DISABLE_JIT=1 runs the specialized module's text as Python: no marker, or the auto build of a
+    later process would take a module numba never compiled (and compile it in the foreground)."""
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, NUMBA_DISABLE_JIT="1", VCIRUN_CACHE_DIR=str(tmp_path), VCIRUN_BUILD="auto")
+    code = "import vcirun; print(vcirun.simulate('bouncing_ball', 'CVA', h=0.05, T=0.5).build)"
+    r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert list((tmp_path / "kernels").glob("vk_*.py")) and not list((tmp_path / "kernels").glob("*.ready"))

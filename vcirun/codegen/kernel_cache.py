@@ -93,6 +93,7 @@ class KernelCache:
         self.upgrades: dict = {}      # shared module key -> its specialized build (vcirun.codegen.specialize)
         # False: a module keeps the build its first run found (a sweep times its runs: one build per module)
         self.switch_builds = True
+        self.specialize = True        # False: modules stay on the shared build (a sweep resumed on it)
 
     @property
     def warm(self) -> bool:
@@ -216,7 +217,9 @@ class KernelCache:
             background.lock_path(d, key), f"the compiled tier of {system_name}/{build.family(ks)}")
         with lock:
             mod = self._compiled_module(key, system_name, ks, system)
-            if not self.background and background.marker(d, key) is None:
+            # (no marker for a module run uncompiled: NUMBA_DISABLE_JIT=1 compiles nothing)
+            if not self.background and os.environ.get("NUMBA_DISABLE_JIT", "0") in ("", "0") \
+                    and background.marker(d, key) is None:
                 nprm = self._nprm(key, ks, system, mod)
                 if nprm is not None:
                     self.finish(mod, key, system_name, ks, nprm)

@@ -9,8 +9,12 @@ ensemble, a long study), its specialized module (the same generated text, with t
 together with the kernels) is built by a background process at low priority (vcirun.codegen.background,
 the same machinery as the compiled tier's), and the runs after its marker appears take it: in this
 process at the next poll, in later processes from their first run. A sweep, which times its runs,
-holds each module on the build its first run found (`KernelCache.switch_builds`; the runs record
-theirs), so that no table of one method's times mixes the two; the build it started serves the next.
+takes the specialized modules built before it starts (`take_built`) and holds each module on the
+build it starts on (`KernelCache.switch_builds`; a sweep resumed over runs of the shared build stays
+on it, `KernelCache.specialize`; the runs record theirs), so that no table of one method's times
+mixes the two; a build it starts serves the next sweep. An ensemble holds its module too
+(vcirun.run.plan.Plan.hold). A marker whose module or numba code is gone is dropped and the module
+built again, so a load never compiles in the caller's process.
 
 The two builds compute the same bits (numba compiles both without fused multiply-adds or
 reassociation; bench/golden.py compares every golden case of each build with the same capture), so a
@@ -19,12 +23,13 @@ leaves the runs on the shared one, said once.
 """
 from __future__ import annotations
 
+import os
 import time
 
 from . import background, cache_store
 from . import modules as build
 
-__all__ = ["HOT_S", "POLL_S", "Upgrade", "upgrade"]
+__all__ = ["HOT_S", "POLL_S", "Upgrade", "upgrade", "take_built"]
 
 HOT_S = 10.0   # seconds of one module's compiled loops in a process before its specialized build starts
 POLL_S = 1.0   # seconds between two looks for the marker of a specialized build in progress
@@ -67,6 +72,8 @@ class Upgrade:
             self.state = "off"
             return None
         state = background.state(d, self.key)
+        if state == "compiled" and not self._built(d):
+            state = "none"   # (a marker whose module or machine code is gone: built again once hot)
         if state == "compiled":
             if first or self.kc.switch_builds:
                 return self._load()
@@ -86,6 +93,21 @@ class Upgrade:
             elif proc is None or proc.poll() is not None:
                 self._start(d)
         return None
+
+    def _built(self, d) -> bool:
+        """Are the module file and numba's code of its loop there (else the marker is dropped)? A load
+        never compiles the specialized module in the caller's process."""
+        try:
+            ok = (d / f"vk_{self.key}.py").is_file() and any(
+                n.startswith(f"vk_{self.key}.integrate-") and n.endswith(".nbi") for n in os.listdir(d / "__pycache__"))
+        except OSError:
+            ok = False
+        if not ok:
+            try:
+                background.marker_path(d, self.key).unlink()
+            except OSError:
+                pass
+        return ok
 
     def _start(self, d) -> None:
         if self._starts >= _STARTS:
@@ -131,7 +153,7 @@ def upgrade(kc, load, tier: str):
     None where there is none: a substitute loader, VCIRUN_BUILD other than auto, uncompiled runs, the
     interpreted tier asked for. A new one looks once for a specialized module another process built
     (`Upgrade.mod` is then set)."""
-    if tier == "interpreted" or kc.loader is not None or build.build_policy() != "auto" \
+    if tier == "interpreted" or kc.loader is not None or not kc.specialize or build.build_policy() != "auto" \
             or build.build_mode() != "shared":
         return None
     key = load.key
@@ -140,3 +162,11 @@ def upgrade(kc, load, tier: str):
         up = kc.upgrades[key] = Upgrade(kc, load)
         up.poll(first=True)
     return up
+
+
+def take_built(kc) -> None:
+    """Take every specialized module built since this cache's modules were first used (a sweep starts:
+    its runs then keep the build they start on; forked workers inherit it)."""
+    for up in list(kc.upgrades.values()):
+        if up.state in ("waiting", "building", "held"):
+            up.poll(first=True)

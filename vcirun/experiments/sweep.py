@@ -184,6 +184,18 @@ class _Reporter:
             self._progress = None
 
 
+def builds_for_sweep(kc, stored) -> None:
+    """One build per method's times (vcirun.codegen.specialize): a sweep resumed over runs of the shared
+    build (`stored`: the attributes of the runs in the file) stays on it (`kc.specialize` False until the
+    sweep ends); otherwise it takes the specialized modules built so far, and keeps what it starts on."""
+    from vcirun.codegen.specialize import take_built
+
+    if "shared" in {a.get("build") for a in stored}:
+        kc.specialize = False
+    else:
+        take_built(kc)
+
+
 def _preflight(cfg: SweepConfig, pending: list[RunSpec]) -> tuple[int, int, bool, int]:
     """One step of every method in this process: loads the kernels the workers use (on the tier asked
     for, VCIRUN_TIER: compiled ones, cold ones compiled side by side, vcirun.experiments.precompile; in
@@ -346,7 +358,7 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
                            commit_interval=commit_interval)
     writer.final_hooks = _final_hooks(writer)
     writer.acquire()
-    executor, frozen = None, False
+    executor, frozen, specialize = None, False, None
     try:
         known = {s.run_id for s in specs}
         if retry_failed:
@@ -369,6 +381,9 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
             return summary
         from vcirun.codegen.kernel_cache import default
 
+        kc = default()
+        specialize = kc.specialize
+        builds_for_sweep(kc, writer.complete_runs.values())
         t_pre = time.monotonic()
         with default().report() as built:
             n, m, friction, side = _preflight(cfg, pending or [specs[0]])
@@ -471,6 +486,8 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
         writer.close()
         if frozen:
             gc.unfreeze()
+        if specialize is not None:
+            kc.specialize = specialize
 
 
 def _finalize(writer: ResultsWriter, summary: SweepSummary, if_missing: bool = False) -> None:

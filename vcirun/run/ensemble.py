@@ -296,8 +296,8 @@ def _prepare(system, method, h, T, beta, q0, p0, params, outputs, constrained, t
     check_run_memory(p.N, n, copies=workers, field="h")
     check_results_memory(k if batch is None else min(k, batch), n, p.N, outputs)
     p.module()
-    if p.tier_used in ("compiled", "interpreted"):   # one tier for the whole ensemble (a copy: p may be kept)
-        p = dataclasses.replace(p, tier=p.tier_used)
+    if p.tier_used in ("compiled", "interpreted"):   # one tier and build for the whole ensemble (a copy: p may be kept)
+        p = dataclasses.replace(p, tier=p.tier_used, hold=True)
     ctx = _Context(p, per, k, outputs)
     mod = p.module()
     for i in range(k):   # numba's first call of the loop, untimed, from the first start it accepts

@@ -77,6 +77,7 @@ class Plan:
     _mod: object = None
     _prm: np.ndarray = None  # the default parameter vector
     _up: object = None      # the specialized build of its shared module (vcirun.codegen.specialize)
+    hold: bool = False      # keep the module it has (an ensemble: one build for all its runs)
 
     @property
     def max_impacts_step(self) -> int:
@@ -84,19 +85,26 @@ class Plan:
 
     def module(self):
         """The module a run takes now: the kernels on the tier asked for; in the auto build, the specialized
-        module of the same kernels once it is there (vcirun.codegen.specialize)."""
+        module of the same kernels once it is there (vcirun.codegen.specialize), unless the plan holds
+        the module it has (`hold`) or its kernel cache holds the shared build (`specialize` False)."""
         up = self._up
         if self._mod is None or (self.tier_used == "interpreted" and self.tier == "auto" and self.load.poll()):
             if self._mod is None:
                 up = self._up = upgrade(self.kc or default(), self.load, self.tier)
-            if up is not None and (up.mod is not None or (up.due() and up.poll() is not None)):
+            if up is not None and self._specialized(up):
                 self._mod, self.tier_used = up.mod, "compiled"
             else:
                 self._mod = self.load(self.tier)
                 self.tier_used = self.load.tier
-        elif up is not None and up.due() and self.tier_used == "compiled" and up.poll() is not None:
-            self._mod = up.mod
+        elif (up is not None and not self.hold and self.tier_used == "compiled" and self._mod is not up.mod
+              and up.kc.specialize and self._specialized(up)):
+            self._mod = up.mod   # (loaded here, or by another plan of the same module)
         return self._mod
+
+    @staticmethod
+    def _specialized(up) -> bool:
+        """Is the specialized module there (loaded by any plan of the module, or found now)?"""
+        return up.mod is not None or (up.due() and up.poll() is not None)
 
     @property
     def build_used(self) -> str | None:
