@@ -14,7 +14,8 @@ build it starts on (`KernelCache.switch_builds`; a sweep resumed over runs of th
 on it, `KernelCache.specialize`; the runs record theirs), so that no table of one method's times
 mixes the two; a build it starts serves the next sweep. An ensemble holds its module too
 (vcirun.run.plan.Plan.hold). A marker whose module or numba code is gone is dropped and the module
-built again, so a load never compiles in the caller's process.
+built again in the background, so a load finds its machine code there (only a damaged entry of
+numba's cache is compiled again in the caller's process, by numba).
 
 The two builds compute the same bits (numba compiles both without fused multiply-adds or
 reassociation; bench/golden.py compares every golden case of each build with the same capture), so a
@@ -95,8 +96,8 @@ class Upgrade:
         return None
 
     def _built(self, d) -> bool:
-        """Are the module file and numba's code of its loop there (else the marker is dropped)? A load
-        never compiles the specialized module in the caller's process."""
+        """Are the module file and numba's code of its loop there (else the marker is dropped), so that a
+        load does not compile the specialized module in the caller's process?"""
         try:
             ok = (d / f"vk_{self.key}.py").is_file() and any(
                 n.startswith(f"vk_{self.key}.integrate-") and n.endswith(".nbi") for n in os.listdir(d / "__pycache__"))
