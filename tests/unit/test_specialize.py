@@ -247,4 +247,5 @@ def test_an_uncompiled_run_marks_nothing_compiled(tmp_path):
     code = "import vcirun; print(vcirun.simulate('bouncing_ball', 'CVA', h=0.05, T=0.5).build)"
     r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr
+    assert r.stdout.split()[-1] == "None"   # (no build: nothing compiled)
     assert list((tmp_path / "kernels").glob("vk_*.py")) and not list((tmp_path / "kernels").glob("*.ready"))

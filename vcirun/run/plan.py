@@ -109,8 +109,8 @@ class Plan:
     @property
     def build_used(self) -> str | None:
         """The build of the compiled module last returned ("shared" or "specialized"; None on the
-        interpreted tier)."""
-        if self.tier_used != "compiled":
+        interpreted tier, and where numba compiles nothing: NUMBA_DISABLE_JIT=1)."""
+        if self.tier_used != "compiled" or not hasattr(getattr(self._mod, "integrate", None), "py_func"):
             return None
         return "shared" if hasattr(self._mod, "SHARED_CORE") else "specialized"
 
