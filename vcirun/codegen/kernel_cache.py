@@ -337,7 +337,9 @@ class KernelCache:
             mod.CACHE_LABEL = core.CACHE_LABEL
             extra = {"link_s": time.perf_counter() - t0, "core_key": core.CORE_KEY,
                      "core_cold": not self.core_compiled(core.CORE_KEY)}
-        else:
+        else:   # the specialized build's module (the kernels and the loop in one module)
+            if os.environ.get("NUMBA_DISABLE_JIT", "0") in ("", "0"):
+                label += " (specialized build)"
             mod = self._import(name, path, body, self._owner(label, key, None))
             mod.CACHE_LABEL = label
         self._record({"key": key, "system": system_name, "kernels": ks.key_text(), "cached": cached,
