@@ -249,3 +249,14 @@ def test_an_uncompiled_run_marks_nothing_compiled(tmp_path):
     assert r.returncode == 0, r.stderr
     assert r.stdout.split()[-1] == "None"   # (no build: nothing compiled)
     assert list((tmp_path / "kernels").glob("vk_*.py")) and not list((tmp_path / "kernels").glob("*.ready"))
+
+
+def test_a_sweep_says_which_methods_runs_mix_builds():
+    from types import SimpleNamespace
+
+    from vcirun.experiments.sweep import _mixed_builds
+
+    runs = [{"label": "CVA", "build": "shared"}, {"label": "CVA", "build": "specialized"},
+            {"label": "CVA", "build": "specialized"}, {"label": "VCI", "build": "shared"}, {"label": "MCVAC"}]
+    writer = SimpleNamespace(complete_runs={str(i): a for i, a in enumerate(runs)})
+    assert _mixed_builds(writer) == {"CVA": {"shared": 1, "specialized": 2}}

@@ -79,6 +79,11 @@ def sweep(
                    "the compiled one was built in the background: same numbers, no wall_time (kept apart as "
                    "wall_time_interpreted); `vcirun sweep --force` times them once `vcirun cache info` shows "
                    "the compiled tier ready")
+    for label, builds in summary.mixed_builds.items():
+        typer.echo(f"note: {label}'s runs ran on both builds ("
+                   + ", ".join(f"{n} {b}" for b, n in sorted(builds.items()))
+                   + "): their wall times differ by the build, not only by the run; `open_results(...)['build']` "
+                   "says which (`vcirun sweep --force` with one VCIRUN_BUILD times them all on one)")
     if summary.computed and summary.failed:
         typer.echo(f"note: {summary.failed} run(s) did not finish with status ok; `vcirun info {summary.path}` "
                    "lists their messages")

@@ -74,6 +74,7 @@ class SweepSummary:
     compiled: int = 0          # kernel modules the preflight generated and compiled (cold cache)
     interpreted: int = 0       # computed runs that ran on the interpreted tier (untimed: wall_time None)
     summary_error: str = ""    # why the summary group could not be written ("" if it was)
+    mixed_builds: dict = field(default_factory=dict)  # method label -> {build: runs} where its runs mix builds
 
     @property
     def ok(self) -> bool:
@@ -377,6 +378,7 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
                 writer.finish("complete")
             _finalize(writer, summary, if_missing=True)  # a no-op resume leaves the file untouched
             summary.status_counts = _status_counts(writer)
+            summary.mixed_builds = _mixed_builds(writer)
             summary.wall_time = time.monotonic() - t_start
             return summary
         from vcirun.codegen.kernel_cache import default
@@ -478,6 +480,7 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
                                  "rerun the same command to resume")
             raise SweepError(f"{_one_line(broken)}; {saved}; rerun the same command to resume")
         summary.status_counts = _status_counts(writer)
+        summary.mixed_builds = _mixed_builds(writer)
         summary.wall_time = time.monotonic() - t_start
         return summary
     finally:
@@ -533,6 +536,17 @@ def _status_counts(writer: ResultsWriter) -> dict:
     for a in writer.complete_runs.values():
         counts[run_status(a) or "?"] += 1
     return dict(counts)
+
+
+def _mixed_builds(writer: ResultsWriter) -> dict:
+    """{method label: {build: stored runs}} of the methods whose stored runs ran on both builds
+    (vcirun.codegen.specialize): their wall times are not comparable run to run (the sweep keeps one
+    build per method; a file resumed across a change of VCIRUN_BUILD can hold both)."""
+    per: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
+    for a in writer.complete_runs.values():
+        if a.get("build"):
+            per[str(a.get("label"))][a["build"]] += 1
+    return {k: dict(v) for k, v in per.items() if len(v) > 1}
 
 
 def sweep_file(config_path, *, output=None, force: bool = False, workers: int | None = None,
