@@ -29,6 +29,7 @@ from pathlib import Path
 import llvmlite
 import numba
 
+from ..core.environ import jit_disabled
 from . import cache_lock, cache_store, numba_cache
 from . import modules as build
 from .cache_store import CacheDamage
@@ -218,8 +219,7 @@ class KernelCache:
         with lock:
             mod = self._compiled_module(key, system_name, ks, system)
             # (no marker for a module run uncompiled: NUMBA_DISABLE_JIT=1 compiles nothing)
-            if not self.background and os.environ.get("NUMBA_DISABLE_JIT", "0") in ("", "0") \
-                    and background.marker(d, key) is None:
+            if not self.background and not jit_disabled() and background.marker(d, key) is None:
                 nprm = self._nprm(key, ks, system, mod)
                 if nprm is not None:
                     self.finish(mod, key, system_name, ks, nprm)
@@ -338,7 +338,7 @@ class KernelCache:
             extra = {"link_s": time.perf_counter() - t0, "core_key": core.CORE_KEY,
                      "core_cold": not self.core_compiled(core.CORE_KEY)}
         else:   # the specialized build's module (the kernels and the loop in one module)
-            if os.environ.get("NUMBA_DISABLE_JIT", "0") in ("", "0"):
+            if not jit_disabled():
                 label += " (specialized build)"
             mod = self._import(name, path, body, self._owner(label, key, None))
             mod.CACHE_LABEL = label

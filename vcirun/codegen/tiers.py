@@ -20,9 +20,7 @@ with -ffp-contract=off), and to 1e-12 otherwise (tests/unit/test_tiers.py, on be
 """
 from __future__ import annotations
 
-import os
-
-from ..core.environ import getenv
+from ..core.environ import getenv, jit_disabled
 from . import modules as build
 
 __all__ = ["TIERS", "ENV", "requested", "Kernels", "load_module"]
@@ -39,10 +37,6 @@ def requested(tier=None) -> str:
     if not isinstance(tier, str) or tier.strip().lower() not in TIERS:
         raise ValueError(f"{field}: {tier!r} is not a tier (use auto, interpreted or compiled)")
     return tier.strip().lower()
-
-
-def _jit_disabled() -> bool:
-    return os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0")
 
 
 class Kernels:
@@ -96,7 +90,7 @@ class Kernels:
             return kc.loader(self.system(), self.ks)
         tier = requested(tier)
         if tier == "auto":
-            tier = "compiled" if (_jit_disabled() or kc.background or self.ready()
+            tier = "compiled" if (jit_disabled() or kc.background or self.ready()
                                   or not self._background()) else "interpreted"
         mod = self._compiled() if tier == "compiled" else self._interpreted()
         self.tier = tier

@@ -22,3 +22,8 @@ def getenv(name: str, default=None):
         return os.environ.get(name, default)
     v = _DATA.get(_ENCODE(name))
     return default if v is None else _DECODE(v)
+
+
+def jit_disabled() -> bool:
+    """NUMBA_DISABLE_JIT=1: numba compiles nothing (every module runs as Python)."""
+    return getenv("NUMBA_DISABLE_JIT", "0") not in ("", "0")

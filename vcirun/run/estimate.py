@@ -37,7 +37,6 @@ it (the exact motion may have touched before the end).
 from __future__ import annotations
 
 import dataclasses
-
 import math
 from dataclasses import asdict, dataclass, field
 

@@ -27,7 +27,7 @@ import numpy as np
 
 from ..core import record
 from ..core.bounds import check_simulate_args, check_start_args
-from ..core.environ import getenv
+from ..core.environ import getenv, jit_disabled
 from ..core.grid import grid_note
 from ..core.sizes import check_run_memory, memory_limit, run_bytes
 from ..core.system_data import (
@@ -110,7 +110,7 @@ class Plan:
     def build_used(self) -> str | None:
         """The build of the compiled module last returned ("shared" or "specialized"; None on the
         interpreted tier, and where numba compiles nothing: NUMBA_DISABLE_JIT=1)."""
-        if self.tier_used != "compiled" or not hasattr(getattr(self._mod, "integrate", None), "py_func"):
+        if self.tier_used != "compiled" or jit_disabled():
             return None
         return "shared" if hasattr(self._mod, "SHARED_CORE") else "specialized"
 
