@@ -2,6 +2,7 @@
 in the background, and runs switch to it with the same bits."""
 from __future__ import annotations
 
+import sys
 import time
 
 import numpy as np
@@ -222,18 +223,36 @@ def test_a_marker_without_its_module_or_machine_code_is_dropped(tmp_path):
     up = specialize.Upgrade(KernelCache(), Load())
     d = tmp_path
     (d / "__pycache__").mkdir()
-    marker = background.marker_path(d, up.key)
-    for files in ([], [f"vk_{up.key}.py"], [f"__pycache__/vk_{up.key}.integrate-12.py311.nbi"]):
+    marker, module = background.marker_path(d, up.key), d / f"vk_{up.key}.py"
+    text = "import math\n\n\n@njit(cache=True)\ndef integrate(q0, p0):\n    return q0\n"   # (decorator on line 4)
+    index = d / "__pycache__" / f"vk_{up.key}.integrate-4.py{sys.version_info[0]}{sys.version_info[1]}.nbi"
+    sealed = cache_store.seal_text(text, {"key": up.key})
+    for files in ([], [(module, sealed)], [(index, "")], [(module, "garbage"), (index, "")],
+                  [(module, sealed), (index.with_name(index.name.replace("-4.", "-5.")), "")]):
         marker.write_text("{}")
-        for f in files:
-            (d / f).write_text("")
-        assert not up._built(d) and not marker.exists()
-        for f in files:
-            (d / f).unlink()
+        for f, content in files:
+            f.write_text(content)
+        assert not up._built(d) and not marker.exists(), files
+        for f, _ in files:
+            f.unlink()
     marker.write_text("{}")
-    for f in (f"vk_{up.key}.py", f"__pycache__/vk_{up.key}.integrate-12.py311.nbi"):
-        (d / f).write_text("")
+    module.write_text(sealed)
+    index.write_text("")
     assert up._built(d) and marker.exists()
+
+
+def test_the_index_a_loaded_module_has_is_the_one_looked_for(monkeypatch):
+    """numba_cache.index_exists names the file numba wrote for a specialized module's loop."""
+    from vcirun.codegen import numba_cache
+
+    monkeypatch.setenv("VCIRUN_BUILD", "specialized")
+    vcirun.simulate("ball_in_box", "CVA", **RUN)   # (built and run: numba's index written)
+    kc = default()
+    key = kc.module_key(get_scene("ball_in_box"), resolve_method("CVA").kernel_set())
+    path = kc.cache_dir() / f"vk_{key}.py"
+    body = cache_store.unseal_text(cache_store.read(path), key)[0]
+    assert numba_cache.index_exists(path, "integrate", body)
+    assert not numba_cache.index_exists(path, "no_such_function", body)
 
 
 def test_an_uncompiled_run_marks_nothing_compiled(tmp_path):

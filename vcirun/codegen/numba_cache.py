@@ -121,6 +121,20 @@ class _Impl(caching.CompileResultCacheImpl):
         self._filename_base = self.get_filename_base(f"{modname}.{qualname}", getattr(sys, "abiflags", ""))
 
 
+def index_exists(path: Path, fn: str, text: str) -> bool:
+    """Has numba's cache an index for the top-level function `fn` of the claimed module file `path`, whose
+    text is `text`? Its name is `_Impl`'s: `__pycache__/<module>.<fn>-<line>.py<XY><abiflags>.nbi`, <line>
+    the function's first line (its first decorator's). One file looked up, no directory listed."""
+    lines = text.splitlines()
+    i = next((k for k, line in enumerate(lines) if line.startswith(f"def {fn}(")), None)
+    if i is None:
+        return False
+    while i > 0 and lines[i - 1].startswith("@"):
+        i -= 1
+    tag = f"py{sys.version_info[0]}{sys.version_info[1]}{getattr(sys, 'abiflags', '')}"
+    return (path.parent / "__pycache__" / f"{path.stem}.{fn}-{i + 1}.{tag}.nbi").is_file()
+
+
 class _File(caching.IndexDataCacheFile):
     """numba's index and data files, sealed with their digest."""
 

@@ -24,10 +24,9 @@ leaves the runs on the shared one, said once.
 """
 from __future__ import annotations
 
-import os
 import time
 
-from . import background, cache_store
+from . import background, cache_store, numba_cache
 from . import modules as build
 
 __all__ = ["HOT_S", "POLL_S", "Upgrade", "upgrade", "take_built"]
@@ -98,11 +97,13 @@ class Upgrade:
     def _built(self, d) -> bool:
         """Are the module file and numba's code of its loop there (else the marker is dropped), so that a
         load does not compile the specialized module in the caller's process?"""
+        path = d / f"vk_{self.key}.py"
         try:
-            ok = (d / f"vk_{self.key}.py").is_file() and any(
-                n.startswith(f"vk_{self.key}.integrate-") and n.endswith(".nbi") for n in os.listdir(d / "__pycache__"))
-        except OSError:
-            ok = False
+            data = cache_store.read(path)
+            ok = data is not None and numba_cache.index_exists(path, "integrate",
+                                                                cache_store.unseal_text(data, self.key)[0])
+        except (cache_store.CacheError, ValueError, OSError):
+            ok = False   # (a damaged file: the load would set it aside and compile it here)
         if not ok:
             try:
                 background.marker_path(d, self.key).unlink()
