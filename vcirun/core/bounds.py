@@ -116,7 +116,8 @@ def check_reference_args(*, T, rtol=1e-13, method="exact", h=None, beta=None, q0
 def nonfinite_start(H0, Ed0=0.0, Hmod0=0.0, q0=None, p0=None) -> str:
     """Why a run cannot be trusted from its first grid point ('' if it can): a non-finite initial energy
     (an initial state so large that H overflows) makes every energy error NaN."""
-    if all(v is None or math.isfinite(v) for v in (H0, Ed0, Hmod0)):   # (every run asks: the common case first)
+    if ((H0 is None or math.isfinite(H0)) and (Ed0 is None or math.isfinite(Ed0))
+            and (Hmod0 is None or math.isfinite(Hmod0))):   # (every run asks: the common case first)
         return ""
     bad = [(name, v) for name, v in (("H", H0), ("Ed", Ed0), ("Hmod", Hmod0)) if v is not None and not np.isfinite(v)]
     if not bad:

@@ -16,11 +16,17 @@ _ENCODE = getattr(os.environ, "encodekey", None)   # (the mapping's own key and 
 _DECODE = getattr(os.environ, "decodevalue", None)
 
 
+_KEYS: dict = {}   # name -> its encoded key in _DATA
+
+
 def getenv(name: str, default=None):
     """os.environ.get(name, default), without the exception of an unset name."""
-    if not isinstance(_DATA, dict) or _ENCODE is None or _DECODE is None:
-        return os.environ.get(name, default)
-    v = _DATA.get(_ENCODE(name))
+    key = _KEYS.get(name)
+    if key is None:
+        if not isinstance(_DATA, dict) or _ENCODE is None or _DECODE is None:
+            return os.environ.get(name, default)
+        key = _KEYS[name] = _ENCODE(name)
+    v = _DATA.get(key)
     return default if v is None else _DECODE(v)
 
 

@@ -32,6 +32,8 @@ def describe(value) -> str:
 
 def as_real(value):
     """float of a real scalar (Python or numpy number, 0-d array), else None. bool is not a number."""
+    if type(value) is float:   # (the common case, before the abstract-class checks)
+        return value
     if isinstance(value, (bool, np.bool_)):
         return None
     if isinstance(value, np.ndarray):

@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import threading
 
-import numpy as np
 
 from ..codegen import kernel_cache
 from ..core import record
@@ -14,7 +13,7 @@ from ..core.tolerances import DEFAULT_TOLERANCES
 from . import trajectory as tr
 from .diagnosis import failure_cause
 from .pilot import RunArgs
-from .plan import Buffers, first_call, plan, ready_start, run_loop, start_state
+from .plan import Buffers, first_call, plan, ready_start, run_loop, start_state, take
 
 _LOCAL = threading.local()   # this thread's reused loop buffers (vcirun.run.plan.Buffers)
 
@@ -123,7 +122,7 @@ def run_args(p, system, beta, q0, p0, params, constrained, resting_contact, opti
 def trajectory_of(p, mod, out, counters, q0, p0, prm, beta, wall) -> tr.Trajectory:
     """The Trajectory of one finished loop of plan `p` (its grid rows are the Trajectory's)."""
     sysd, h, t0, tol, meth, energies = p.sysd, p.h, p.t0, p.tol, p.meth, p.energies
-    arrays = record.trim(out, counters, modified=p.ks.modified is not None)   # (meth.has_modified_energy)
+    arrays = take(out, counters, p.ks.modified is not None, p.empties(int(mod.NCON)))   # (meth.has_modified_energy)
     status, fail = record.STATUS_CODES[counters["status"]], counters["fail_step"]
     message = ""
     if status != tr.OK:
@@ -141,9 +140,10 @@ def trajectory_of(p, mod, out, counters, q0, p0, prm, beta, wall) -> tr.Trajecto
                                            else None, q0, p0)
     if bad_start and status == tr.OK:
         status, fail, message = tr.NONFINITE, 0, f"{tr.NONFINITE} at t = {t0:.6g}: {bad_start}"
-    return tr.Trajectory(
-        method=meth.name, system=sysd.name, h=h, T=p.N * h, t=t0 + h * np.arange(counters["steps"] + 1), **arrays,
+    arrays.update(
+        method=meth.name, system=sysd.name, h=h, T=p.N * h, t=p.grid(counters["steps"]),
         status=status, message=message, fail_step=fail, fail_time=(t0 + fail * h) if fail >= 0 else float("nan"),
         beta=beta, wall_time=wall, tolerances={k: tol[k] for k in DEFAULT_TOLERANCES},
         options={"params": dict(zip(sysd.params, prm.tolist())), "constrained": p.constrained, **p.mopts},
         coordinates=getattr(sysd, "coordinates", None), dynamics=tr._dynamics(mod, prm), source=p.system)
+    return tr.Trajectory.of_run(arrays)

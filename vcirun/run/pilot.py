@@ -373,7 +373,7 @@ class Runner:
                        resting_contact=self.resting_contact, options=dict(self.options), tier=self.tier, kc=self.kc)
 
 
-@dataclass
+@dataclass(slots=True)   # (one per simulate call: slots halve its construction)
 class RunArgs:
     """The arguments of a `vcirun.simulate` call, kept on its Trajectory (`tr.run_args`) so that
     `tr.error_estimate()` can run companions of the same run: the system as given (a name, a file

@@ -38,6 +38,7 @@ from ..core.system_data import (
 )
 from ..codegen.kernel_cache import KernelCache, default
 from ..codegen.specialize import upgrade
+from ..codegen.tiers import requested
 from ..core.tolerances import split_options
 from ..methods.table import resolve_method
 from ..scenes.registry import scene_args
@@ -78,6 +79,9 @@ class Plan:
     _prm: np.ndarray = None  # the default parameter vector
     _up: object = None      # the specialized build of its shared module (vcirun.codegen.specialize)
     hold: bool = False      # keep the module it has (an ensemble: one build for all its runs)
+    _t: np.ndarray = None   # the grid times t0 + h k, k = 0..N
+    _build: tuple = (None, None)   # (module, its build) of `build_used`
+    _empty: tuple = None    # (contacts, `empty_records`) of `empties`
 
     @property
     def max_impacts_step(self) -> int:
@@ -112,12 +116,29 @@ class Plan:
         interpreted tier, and where numba compiles nothing: NUMBA_DISABLE_JIT=1)."""
         if self.tier_used != "compiled" or jit_disabled():
             return None
-        return "shared" if hasattr(self._mod, "SHARED_CORE") else "specialized"
+        mod, build = self._build
+        if mod is not self._mod:
+            mod, build = self._build = self._mod, "shared" if hasattr(self._mod, "SHARED_CORE") else "specialized"
+        return build
 
     def ran(self, seconds: float) -> None:
         """A run of its module took `seconds` in the compiled loop (what makes a module hot)."""
         if self._up is not None and self.tier_used == "compiled":
             self._up.seconds += seconds
+
+    def grid(self, steps: int) -> np.ndarray:
+        """t0 + h k, k = 0..steps (a new array per call; the whole grid's values computed once per plan)."""
+        t = self._t
+        if t is None:
+            t = self._t = self.t0 + self.h * np.arange(self.N + 1)
+        return t.copy() if steps == self.N else t[: steps + 1].copy()
+
+    def empties(self, m: int) -> dict:
+        """`empty_records` of its runs (m: the contacts of its module), made once."""
+        e = self._empty
+        if e is None or e[0] != m:
+            e = self._empty = (m, empty_records(self.sysd.n, m))
+        return e[1]
 
     def check_memory(self) -> None:
         """The memory check of one run against the limit in force now (a sweep scopes its own)."""
@@ -160,7 +181,7 @@ def _key(system, method, h, T, t0, constrained, energies, resting_contact, optio
     if type(system) is not str or type(method) is not str:
         return None
     # the settings that choose the module, as set (a finer key than the build id they make)
-    key = (system, method, tuple(getenv(k) for k in _BUILD_ENV), tier, type(h), h, type(T), T,
+    key = (system, method, tuple(map(getenv, _BUILD_ENV)), tier, type(h), h, type(T), T,
            type(t0), t0, type(constrained), constrained, type(energies), energies, type(resting_contact),
            resting_contact)
     if options:
@@ -179,8 +200,6 @@ def plan(system, method, *, h, T, t0=0.0, constrained=None, energies=True, resti
     validated here with the rest (same checks, order and messages as one call of simulate). `kc`: the
     kernel cache (default: the API's), which keeps the plan when the run names a built-in scene; `tier`:
     vcirun.codegen.tiers.requested (None: $VCIRUN_TIER, else auto)."""
-    from ..codegen.tiers import requested
-
     options = dict(options or {})
     start = start or {}
     kc = default() if kc is None else kc
@@ -296,23 +315,29 @@ def ready_start(p: Plan, mod, start, prm):
 # --- the loop ---------------------------------------------------------------------------------------
 
 class Buffers:
-    """One run's output tuple, kept for the next run of the same size in this thread. The grid rows
-    are kept too when `keep_grid` (an ensemble reads its results out of them); simulate hands its
-    grid rows to the Trajectory, so it takes fresh ones per run and reuses the rest (which `record.trim`
-    copies)."""
+    """One run's output tuple, kept for the next run of the same size in this thread.
+
+    keep_grid=True (an ensemble, which reads its results out of the buffers): every buffer is kept, and
+    those with a fill value are refilled before each run. keep_grid=False (simulate, which hands its
+    grid and step rows to the Trajectory: `take`): the grid and step rows are new arrays per run,
+    allocated with their fills, and only the impact, partial-step, release and mode-change records
+    are kept; those have no fill (the loop writes each entry it counts) and `take` copies what a run
+    counted. Either way a run's buffers start exactly as newly allocated ones."""
 
     def __init__(self, keep_grid: bool):
         self.keep_grid = keep_grid
         self.dims, self.cap, self.big, self.views, self.views_cap = None, -1, None, None, -1
-        fresh_grid = [] if keep_grid else [i for i, f in enumerate(record.FIELDS) if f.axis == "grid"]
-        self._fresh = tuple((i, record.FIELDS[i].fill) for i in fresh_grid)   # new arrays per run
+        fresh = () if keep_grid else ("grid", "step")
+        self._fresh = tuple(i for i, f in enumerate(record.FIELDS) if f.axis in fresh)
         self._refill = tuple((i, f.fill) for i, f in enumerate(record.FIELDS)
-                             if f.fill is not None and i not in fresh_grid)   # reused, refilled per run
+                             if f.fill is not None and i not in self._fresh)   # reused, refilled per run
+        self._spec = ()   # (index, shape, dtype, fill) of each fresh row at the current dims
 
     def get(self, N: int, n: int, m: int, cap_imp: int) -> tuple:
         if self.big is None or self.dims != (N, n, m) or self.cap < cap_imp:
             self.big = record.allocate(N, n, m=m, cap_impacts=cap_imp)   # as a fresh run's: no refill
             self.dims, self.cap, self.views, self.views_cap = (N, n, m), cap_imp, list(self.big), cap_imp
+            self._spec = tuple((i, self.big[i].shape, self.big[i].dtype, record.FIELDS[i].fill) for i in self._fresh)
             return self.big
         if self.views_cap != cap_imp:   # a run that starts again with the smaller first capacity
             rows = record.axis_rows(N, cap_imp)
@@ -320,13 +345,64 @@ class Buffers:
                           for f, b in zip(record.FIELDS, self.big)]
             self.views_cap = cap_imp
         out = list(self.views)
-        for i, fill in self._fresh:   # the grid rows of the previous run left with its Trajectory
-            out[i] = np.empty_like(out[i])
-            if fill is not None:
-                out[i].fill(fill)   # (np.full_like costs twice empty_like and fill: 8 grid rows per run)
+        empty, zeros = np.empty, np.zeros
+        for i, shape, dt, fill in self._spec:   # the rows of the previous run left with its Trajectory
+            if fill is None:
+                out[i] = empty(shape, dt)
+            elif fill == 0:
+                out[i] = zeros(shape, dt)   # (0, 0.0 and False: all-zero bytes)
+            else:
+                a = out[i] = empty(shape, dt)
+                a.fill(fill)
         for i, fill in self._refill:
             out[i].fill(fill)
         return tuple(out)
+
+
+# the fields `take` reads, by axis: (counter of the axis's rows, or None for the grid and step rows that
+# are handed over; ((name, index, only with a modified energy), ...))
+_COUNTER = {"impact": "n_impacts", "partial": "n_partial", "release": "n_releases", "mode": "n_mode_changes"}
+_GROUPS = tuple((axis, _COUNTER.get(axis), tuple((f.name, i, f.only == "modified")
+                                                  for i, f in enumerate(record.FIELDS) if f.axis == axis))
+                for axis in ("grid", "step", "impact", "partial", "release", "mode"))
+
+
+def empty_records(n: int, m: int) -> dict:
+    """{axis: {name: a read-only array of no entries}} of the records (impacts, partial steps, releases,
+    mode changes) of runs with n coordinates and m contacts: what `take` gives a record a run left
+    empty, shared by the runs of a plan (`Plan.empties`; no run may change another's)."""
+    e = {}
+    for axis, counter, fields in _GROUPS:
+        e[axis] = {}
+        for name, i, _ in fields:
+            f = record.FIELDS[i]
+            a = e[axis][name] = np.empty(f.shape(0, n, m), np.bool_ if f.dtype == "bool" else f.dtype)
+            a.flags.writeable = False
+    return e
+
+
+def take(out: tuple, counters: dict, modified: bool, empties: dict) -> dict:
+    """{name: array} of a finished loop whose grid and step rows are its own (`Buffers(keep_grid=False)`,
+    or buffers allocated for the run): those rows as views up to the states and steps reached, the
+    records (impacts, partial steps, releases, mode changes) copied up to their counts, a record with no
+    entries as the read-only array of `empties` (`empty_records`). The same values as
+    `vcirun.core.record.trim`."""
+    steps = counters["steps"]
+    arrays = {}
+    for axis, counter, fields in _GROUPS:
+        if counter is None:
+            k = steps + 1 if axis == "grid" else steps
+            for name, i, only_modified in fields:
+                buf = out[i]
+                arrays[name] = None if only_modified and not modified else buf if k == buf.shape[0] else buf[:k]
+            continue
+        k = counters[counter]
+        if k:
+            for name, i, _ in fields:
+                arrays[name] = out[i][:k].copy()
+        else:
+            arrays.update(empties[axis])
+    return arrays
 
 
 def run_loop(mod, q0, p0, t0, h, N, prm, settings, n, max_impacts_step, buffers: Buffers | None = None):

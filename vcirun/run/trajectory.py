@@ -13,6 +13,7 @@ order 4 between grid points (exact at them).
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -26,7 +27,8 @@ STATUS_CODES = record.STATUS_CODES
 
 
 # the record's rows every Trajectory has (empty where a run gave none), with their dtypes
-_DEFAULTED = tuple((f, np.bool_ if f.dtype == "bool" else np.dtype(f.dtype)) for f in record.FIELDS if f.only is None)
+_DEFAULTED = tuple((f.name, f, np.bool_ if f.dtype == "bool" else np.dtype(f.dtype)) for f in record.FIELDS
+                   if f.only is None)
 
 
 @dataclass
@@ -85,12 +87,26 @@ class Trajectory:
     mode_change_kind: np.ndarray | None = None
 
     def __post_init__(self):
+        d = self.__dict__
         n = None
-        for f, dt in _DEFAULTED:
-            if getattr(self, f.name) is None:
+        for name, f, dt in _DEFAULTED:
+            if d[name] is None:
                 if n is None:
                     n = self.q.shape[1] if isinstance(self.q, np.ndarray) and self.q.ndim == 2 else 0
-                setattr(self, f.name, np.zeros(f.shape(0, n, 0), dt))
+                d[name] = np.zeros(f.shape(0, n, 0), dt)
+
+    @classmethod
+    def of_run(cls, values: dict) -> "Trajectory":
+        """The Trajectory of a finished run: `values` holds method, system, h, T, t, tolerances, options
+        and every record row (None only for a row of some methods only, Hmod), as `__init__` takes
+        them; the other fields take their defaults. The same object as `Trajectory(**values)`, built
+        without the per-field pass of `__post_init__` (every row is given: `RUN_FIELDS` names what a
+        run gives, and a test holds `vcirun.run.api.trajectory_of` to it)."""
+        obj = cls.__new__(cls)
+        d = obj.__dict__
+        d.update(_DEFAULTS)
+        d.update(values)
+        return obj
 
     @property
     def ok(self) -> bool:
@@ -391,6 +407,13 @@ def read_trajectory(path) -> Trajectory:
         if c is not None:
             tr.coordinates = [x.decode() if isinstance(x, bytes) else str(x) for x in c]
     return tr
+
+
+# Trajectory.of_run: the defaults of the fields with one, and the fields a run must give (RUN_FIELDS)
+_DEFAULTS = {f.name: f.default for f in dataclasses.fields(Trajectory) if f.default is not dataclasses.MISSING}
+RUN_FIELDS = frozenset(f.name for f in dataclasses.fields(Trajectory)
+                        if f.default is dataclasses.MISSING or f.name in ("tolerances", "options")
+                        or (f.name in record.FIELD and record.FIELD[f.name].only is None))
 
 
 def _dynamics(mod, prm):

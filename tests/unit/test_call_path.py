@@ -1,0 +1,93 @@
+"""The per-call path of `vcirun.simulate` hands the loop's grid and step rows to the Trajectory and
+copies the records (vcirun.run.plan.Buffers, take; Trajectory.of_run): the values are record.trim's
+and Trajectory(**values)'s, a reused buffer never reaches a returned Trajectory, and one run's
+arrays are never changed by the next."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import vcirun
+from vcirun.core import record
+from vcirun.run import api
+from vcirun.run.plan import Buffers, empty_records, take
+from vcirun.run.trajectory import RUN_FIELDS, Trajectory
+
+
+def _filled(N, n, m, cap, rng):
+    out = record.allocate(N, n, m=m, cap_impacts=cap)
+    for a in out:
+        if a.dtype == np.bool_:
+            a[...] = rng.random(a.shape) < 0.5
+        else:
+            a[...] = rng.integers(-5, 5, a.shape) if a.dtype.kind == "i" else rng.standard_normal(a.shape)
+    return out
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_take_gives_the_values_of_record_trim(seed):
+    rng = np.random.default_rng(seed)
+    N, n, m = int(rng.integers(1, 40)), int(rng.integers(1, 4)), int(rng.integers(1, 4))
+    cap = record.impact_capacity(N)
+    out = _filled(N, n, m, cap, rng)
+    steps = int(rng.integers(0, N + 1))
+    counters = {"status": 0, "fail_step": -1, "steps": steps, "n_impacts": int(rng.integers(0, 3)) * int(seed % 2),
+                "n_partial": int(rng.integers(0, 5)), "n_releases": int(seed % 3 == 0), "n_mode_changes": 0}
+    for modified in (False, True):
+        ref = record.trim(out, counters, modified)
+        got = take(out, counters, modified, empty_records(n, m))
+        assert ref.keys() == got.keys()
+        for k in ref:
+            if ref[k] is None:
+                assert got[k] is None, k
+                continue
+            assert got[k].dtype == ref[k].dtype and got[k].shape == ref[k].shape, k
+            assert np.array_equal(got[k], ref[k]), k
+            f = record.FIELD[k]
+            if f.axis in ("grid", "step"):
+                assert np.shares_memory(got[k], out[record.FIELDS.index(f)]) or got[k].size == 0, k
+            else:   # a record: never a view of the buffer the next run reuses
+                assert got[k].size == 0 or not np.shares_memory(got[k], out[record.FIELDS.index(f)]), k
+
+
+def test_empty_records_are_read_only():
+    e = empty_records(2, 1)
+    for axis, fields in e.items():
+        for name, a in fields.items():
+            assert a.shape[0] == 0 and not a.flags.writeable, name
+
+
+def test_of_run_is_the_dataclass_constructor():
+    tr = vcirun.simulate("cart_pendulum", "CVA", h=1e-2, T=2.0, beta=3.2)
+    values = {f.name: getattr(tr, f.name) for f in dataclasses.fields(Trajectory) if f.name in RUN_FIELDS}
+    values.update(status=tr.status, wall_time=tr.wall_time, beta=tr.beta)
+    a, b = Trajectory.of_run(dict(values)), Trajectory(**values)
+    for f in dataclasses.fields(Trajectory):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        if isinstance(x, np.ndarray):
+            assert np.array_equal(x, y) and x.dtype == y.dtype, f.name
+        else:
+            assert x == y or (x != x and y != y), f.name   # (NaN: fail_time of a run that did not fail)
+
+
+def test_a_run_gives_every_field_of_run_fields():
+    tr = vcirun.simulate("cart_pendulum", "MCVAA", h=1e-2, T=1.0, beta=3.2)
+    for name in RUN_FIELDS:
+        assert name in tr.__dict__, name
+    assert tr.Hmod is not None and len(tr.Hmod) == len(tr.t)
+
+
+def test_consecutive_runs_never_share_their_arrays():
+    api._LOCAL.buffers = Buffers(keep_grid=False)
+    a = vcirun.simulate("cart_pendulum", "CVA", h=1e-2, T=5.0, beta=3.2)
+    keep = {k: np.array(getattr(a, k), copy=True) for k in ("q", "p", "H", "impacts", "impact_q", "newton_iters",
+                                                               "impact_step", "contact_active", "t")}
+    b = vcirun.simulate("cart_pendulum", "CVA", h=1e-2, T=5.0, beta=2.9)
+    c = vcirun.simulate("cart_pendulum", "CVA", h=1e-2, T=5.0, beta=3.2)
+    assert len(a.impacts) > 0 and not np.array_equal(a.q, b.q)
+    for k, v in keep.items():
+        assert np.array_equal(getattr(a, k), v), k            # not overwritten by the later runs
+        assert np.array_equal(getattr(c, k), v), k            # the same start gives the same bits
+        assert not np.shares_memory(getattr(a, k), getattr(c, k)) or v.size == 0, k
