@@ -301,3 +301,22 @@ def test_rocking_block_comes_to_rest_on_both_corners_as_the_reference(method):
         assert np.all(tr.contact_mode[-1] == 2) and float(np.max(np.abs(tr.p[-1]))) <= 1e-12
         errs.append(float(np.max(np.abs(tr.q[-1] - q_end))))
     assert errs[0] < 1e-4 and errs[1] < errs[0] / 2.5, errs
+
+
+def test_painleve_cause_takes_the_slip_direction_of_the_state():
+    """Where the failing grid state records no slip mode, the cause takes the sign of the slip velocity
+    W M^-1 p: a rod at th0 = 1.0 sliding to +x has B(+1) > 0 (no paradox), though B(-1) < 0."""
+    from vcirun.run.diagnosis import failure_cause
+
+    th0, mu = 1.0, 1.5
+    assert oracles.painleve_B(th0, mu, 1.0) > 0.0 > oracles.painleve_B(th0, mu, -1.0)
+    tr = vcirun.simulate(scenes.painleve_rod(th0, xdot0=-1.0, mu=mu), "CVA", h=1e-3, T=0.01)
+    assert tr.status == "painleve"
+    mod, prm = tr.dynamics.module, tr.dynamics.prm
+    q = tr.q[:1]
+    tol = dict(tr.tolerances)
+    for sign, expect in ((-1.0, "direction -1"), (1.0, "")):
+        p = np.array([sign, 0.0, 0.0])   # the rod's horizontal momentum (xdot0 = +-1, m = 1)
+        cause = failure_cause(mod, "painleve", q, p, 0.0, 0, 1e-3, prm, tol, 0.0, np.zeros(0),
+                              modes=np.zeros((1, 1), np.int8))
+        assert (expect in cause) if expect else cause == "", (sign, cause)

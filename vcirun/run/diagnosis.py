@@ -31,7 +31,7 @@ def failure_cause(mod, status, Q, p, t0, fail, h, prm, tol, H0, impacts, modes=N
     found (the status itself then says what failed). Never raises."""
     try:
         if status == PAINLEVE:
-            return _painleve(mod, Q[-1], prm, t0 + fail * h, h, None if modes is None else modes[-1])
+            return _painleve(mod, Q[-1], p, prm, t0 + fail * h, h, None if modes is None else modes[-1])
         if status == ACCUMULATION:
             return _accumulation(impacts, h, int(tol["max_impacts_step"]))
         if status == EVENT_FAILED:
@@ -205,9 +205,11 @@ def fastest_mode(mod, q, p, prm) -> float:
     return float(np.max(np.abs(np.linalg.eigvals(J))))
 
 
-def _painleve(mod, q, prm, t, h, mode) -> str:
+def _painleve(mod, q, p, prm, t, h, mode) -> str:
     """Which slipping contact meets Painleve's paradox at the failing step: B_j = G_j M^-1 (G_j -
-    mu_j s_j W_j)^T <= 0 (docs/derivations/friction.md), with the contact's name index and B."""
+    mu_j s_j W_j)^T <= 0 (docs/derivations/friction.md), with the contact's name index and B. The slip
+    direction s_j is the contact's recorded mode where it slips at the failing grid state, else the sign
+    of its slip velocity W_j M^-1 p there; both directions only where the contact does not slide."""
     n, m = q.shape[0], int(mod.NCON)
     G, W, A = np.empty((m, n)), np.empty((m, n)), np.empty((n, n))
     mu, mus = np.empty(m), np.empty(m)
@@ -216,11 +218,19 @@ def _painleve(mod, q, prm, t, h, mode) -> str:
     mod.sys_M(q, prm, A)
     mod.sys_friction(prm, mu, mus)
     Minv = np.linalg.inv(A)
+    qdot = Minv @ np.asarray(p, dtype=float)
     out = []
     for j in range(m):
         if mu[j] <= 0.0:
             continue
-        for s in ((int(mode[j]),) if mode is not None and int(mode[j]) in (1, -1) else (1, -1)):
+        v = float(W[j] @ qdot)
+        if mode is not None and int(mode[j]) in (1, -1):
+            dirs = (int(mode[j]),)
+        elif abs(v) > 1e-12 * (1.0 + float(np.max(np.abs(W[j]))) * float(np.max(np.abs(qdot)))):
+            dirs = (1 if v > 0 else -1,)
+        else:
+            dirs = (1, -1)
+        for s in dirs:
             B = float(G[j] @ Minv @ (G[j] - mu[j] * s * W[j]))
             scale = float(G[j] @ Minv @ G[j])
             if B <= 1e-12 * scale:
