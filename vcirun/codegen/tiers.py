@@ -33,7 +33,12 @@ def requested(tier=None) -> str:
     """The tier asked for: `tier`, else $VCIRUN_TIER, else "auto" (ValueError naming the field)."""
     field = "tier"
     if tier is None:
-        tier, field = getenv(ENV, "").strip() or "auto", ENV
+        tier, field = getenv(ENV), ENV
+        if tier is None:   # (every simulate call asks: the common case first)
+            return "auto"
+        tier = tier.strip() or "auto"
+    elif type(tier) is str and tier in TIERS:
+        return tier
     if not isinstance(tier, str) or tier.strip().lower() not in TIERS:
         raise ValueError(f"{field}: {tier!r} is not a tier (use auto, interpreted or compiled)")
     return tier.strip().lower()

@@ -9,7 +9,6 @@ from ..core import record
 from ..core.bounds import nonfinite_start
 from ..core.grid import GridWarning
 from ..core.system_data import start_beta
-from ..core.tolerances import DEFAULT_TOLERANCES
 from . import trajectory as tr
 from .diagnosis import failure_cause
 from .pilot import RunArgs
@@ -143,7 +142,7 @@ def trajectory_of(p, mod, out, counters, q0, p0, prm, beta, wall) -> tr.Trajecto
     arrays.update(
         method=meth.name, system=sysd.name, h=h, T=p.N * h, t=p.grid(counters["steps"]),
         status=status, message=message, fail_step=fail, fail_time=(t0 + fail * h) if fail >= 0 else float("nan"),
-        beta=beta, wall_time=wall, tolerances={k: tol[k] for k in DEFAULT_TOLERANCES},
+        beta=beta, wall_time=wall, tolerances=p.tolerances(),
         options={"params": dict(zip(sysd.params, prm.tolist())), "constrained": p.constrained, **p.mopts},
         coordinates=getattr(sysd, "coordinates", None), dynamics=tr._dynamics(mod, prm), source=p.system)
     return tr.Trajectory.of_run(arrays)

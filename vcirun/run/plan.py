@@ -39,7 +39,7 @@ from ..core.system_data import (
 from ..codegen.kernel_cache import KernelCache, default
 from ..codegen.specialize import upgrade
 from ..codegen.tiers import requested
-from ..core.tolerances import split_options
+from ..core.tolerances import DEFAULT_TOLERANCES, split_options
 from ..methods.table import resolve_method
 from ..scenes.registry import scene_args
 from .resolve import _warmable, resolve_numeric, resolve_system, warm_memo
@@ -82,6 +82,7 @@ class Plan:
     _t: np.ndarray = None   # the grid times t0 + h k, k = 0..N
     _build: tuple = (None, None)   # (module, its build) of `build_used`
     _empty: tuple = None    # (contacts, `empty_records`) of `empties`
+    _tolerances: dict = None
 
     @property
     def max_impacts_step(self) -> int:
@@ -139,6 +140,13 @@ class Plan:
         if e is None or e[0] != m:
             e = self._empty = (m, empty_records(self.sysd.n, m))
         return e[1]
+
+    def tolerances(self) -> dict:
+        """The run's solver tolerances by name (a new dict per call)."""
+        t = self._tolerances
+        if t is None:
+            t = self._tolerances = {k: self.tol[k] for k in DEFAULT_TOLERANCES}
+        return dict(t)
 
     def check_memory(self) -> None:
         """The memory check of one run against the limit in force now (a sweep scopes its own)."""
@@ -359,12 +367,14 @@ class Buffers:
         return tuple(out)
 
 
-# the fields `take` reads, by axis: (counter of the axis's rows, or None for the grid and step rows that
-# are handed over; ((name, index, only with a modified energy), ...))
+# what `take` reads: every field's name in table order; the grid and step rows (name, index, axis),
+# handed over; the records by axis (axis, counter of its entries, ((name, index), ...)), copied
+_NAMES = tuple(f.name for f in record.FIELDS)
+_OWN = tuple((f.name, i, f.axis) for i, f in enumerate(record.FIELDS) if f.axis in ("grid", "step"))
 _COUNTER = {"impact": "n_impacts", "partial": "n_partial", "release": "n_releases", "mode": "n_mode_changes"}
-_GROUPS = tuple((axis, _COUNTER.get(axis), tuple((f.name, i, f.only == "modified")
-                                                  for i, f in enumerate(record.FIELDS) if f.axis == axis))
-                for axis in ("grid", "step", "impact", "partial", "release", "mode"))
+_RECORDS = tuple((axis, counter, tuple((f.name, i) for i, f in enumerate(record.FIELDS) if f.axis == axis))
+                 for axis, counter in _COUNTER.items())
+_Q = _NAMES.index("q")
 
 
 def empty_records(n: int, m: int) -> dict:
@@ -372,9 +382,9 @@ def empty_records(n: int, m: int) -> dict:
     mode changes) of runs with n coordinates and m contacts: what `take` gives a record a run left
     empty, shared by the runs of a plan (`Plan.empties`; no run may change another's)."""
     e = {}
-    for axis, counter, fields in _GROUPS:
+    for axis, counter, fields in _RECORDS:
         e[axis] = {}
-        for name, i, _ in fields:
+        for name, i in fields:
             f = record.FIELDS[i]
             a = e[axis][name] = np.empty(f.shape(0, n, m), np.bool_ if f.dtype == "bool" else f.dtype)
             a.flags.writeable = False
@@ -383,25 +393,24 @@ def empty_records(n: int, m: int) -> dict:
 
 def take(out: tuple, counters: dict, modified: bool, empties: dict) -> dict:
     """{name: array} of a finished loop whose grid and step rows are its own (`Buffers(keep_grid=False)`,
-    or buffers allocated for the run): those rows as views up to the states and steps reached, the
-    records (impacts, partial steps, releases, mode changes) copied up to their counts, a record with no
-    entries as the read-only array of `empties` (`empty_records`). The same values as
-    `vcirun.core.record.trim`."""
+    or buffers allocated for the run): those rows as they are (views up to the states and steps reached
+    where the run stopped early), the records (impacts, partial steps, releases, mode changes) copied up
+    to their counts, a record with no entries as the read-only array of `empties` (`empty_records`).
+    The same values as `vcirun.core.record.trim`."""
+    arrays = dict(zip(_NAMES, out))
     steps = counters["steps"]
-    arrays = {}
-    for axis, counter, fields in _GROUPS:
-        if counter is None:
-            k = steps + 1 if axis == "grid" else steps
-            for name, i, only_modified in fields:
-                buf = out[i]
-                arrays[name] = None if only_modified and not modified else buf if k == buf.shape[0] else buf[:k]
-            continue
+    if steps + 1 != out[_Q].shape[0]:   # a run that stopped before t_N
+        for name, i, axis in _OWN:
+            arrays[name] = out[i][: steps + 1 if axis == "grid" else steps]
+    for axis, counter, fields in _RECORDS:
         k = counters[counter]
         if k:
-            for name, i, _ in fields:
+            for name, i in fields:
                 arrays[name] = out[i][:k].copy()
         else:
             arrays.update(empties[axis])
+    if not modified:
+        arrays["Hmod"] = None
     return arrays
 
 
