@@ -52,11 +52,14 @@ def test_take_gives_the_values_of_record_trim(seed):
                 assert got[k].size == 0 or not np.shares_memory(got[k], out[record.FIELDS.index(f)]), k
 
 
-def test_empty_records_are_read_only():
-    e = empty_records(2, 1)
-    for axis, fields in e.items():
+def test_empty_records_take_in_place_arithmetic_as_every_record():
+    tr = vcirun.simulate("cart_pendulum", "CVA", h=1e-2, T=0.1, beta=3.2)   # no impact, release or mode change
+    assert tr.impacts.size == 0 and tr.releases.size == 0 and tr.mode_changes.size == 0
+    tr.impacts -= 1.0
+    tr.releases += 2.0
+    for axis, fields in empty_records(2, 1).items():
         for name, a in fields.items():
-            assert a.shape[0] == 0 and not a.flags.writeable, name
+            assert a.shape[0] == 0 and a.flags.writeable, name
 
 
 def test_of_run_is_the_dataclass_constructor():

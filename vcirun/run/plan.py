@@ -378,16 +378,16 @@ _Q = _NAMES.index("q")
 
 
 def empty_records(n: int, m: int) -> dict:
-    """{axis: {name: a read-only array of no entries}} of the records (impacts, partial steps, releases,
-    mode changes) of runs with n coordinates and m contacts: what `take` gives a record a run left
-    empty, shared by the runs of a plan (`Plan.empties`; no run may change another's)."""
+    """{axis: {name: an array of no entries}} of the records (impacts, partial steps, releases, mode
+    changes) of runs with n coordinates and m contacts: what `take` gives a record a run left empty,
+    shared by the runs of a plan (`Plan.empties`). Writable, as every other record (`tr.impacts -= t0`
+    works on any run), and nothing written to an array of no entries reaches another run."""
     e = {}
     for axis, counter, fields in _RECORDS:
         e[axis] = {}
         for name, i in fields:
             f = record.FIELDS[i]
-            a = e[axis][name] = np.empty(f.shape(0, n, m), np.bool_ if f.dtype == "bool" else f.dtype)
-            a.flags.writeable = False
+            e[axis][name] = np.empty(f.shape(0, n, m), np.bool_ if f.dtype == "bool" else f.dtype)
     return e
 
 
@@ -395,7 +395,7 @@ def take(out: tuple, counters: dict, modified: bool, empties: dict) -> dict:
     """{name: array} of a finished loop whose grid and step rows are its own (`Buffers(keep_grid=False)`,
     or buffers allocated for the run): those rows as they are (views up to the states and steps reached
     where the run stopped early), the records (impacts, partial steps, releases, mode changes) copied up
-    to their counts, a record with no entries as the read-only array of `empties` (`empty_records`).
+    to their counts, a record with no entries as the shared array of `empties` (`empty_records`).
     The same values as `vcirun.core.record.trim`."""
     arrays = dict(zip(_NAMES, out))
     steps = counters["steps"]
