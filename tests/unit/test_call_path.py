@@ -94,3 +94,22 @@ def test_consecutive_runs_never_share_their_arrays():
         assert np.array_equal(getattr(a, k), v), k            # not overwritten by the later runs
         assert np.array_equal(getattr(c, k), v), k            # the same start gives the same bits
         assert not np.shares_memory(getattr(a, k), getattr(c, k)) or v.size == 0, k
+
+
+def test_a_plan_made_from_a_kept_one_computes_its_own_grid_times():
+    """simulate(tol=) makes its runs' plans from the kept plan of h = T (dataclasses.replace): the grid
+    times a plain call with h = T left on that plan are not theirs."""
+    vcirun.simulate("cart_pendulum", "CVA", T=0.01)   # h = min(1e-2, T) = T: a grid of two times
+    tr = vcirun.simulate("cart_pendulum", "CVA", T=0.01, tol=1e-9)
+    assert len(tr.t) == len(tr.q) > 2
+    assert np.array_equal(tr.t, tr.h * np.arange(len(tr.q)))
+    tr.to_xarray()
+
+
+def test_changing_an_empty_record_of_one_run_leaves_the_others():
+    a = vcirun.simulate("cart_pendulum", "CVA", h=1e-2, T=0.1, beta=3.2)
+    a.releases.flags.writeable = False
+    a.impact_q.shape = (0, 1, 2)
+    b = vcirun.simulate("cart_pendulum", "CVA", h=1e-2, T=0.1, beta=3.2)
+    assert b.releases.flags.writeable and b.impact_q.shape == (0, 2)
+    b.releases += 1.0

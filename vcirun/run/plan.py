@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -79,10 +79,12 @@ class Plan:
     _prm: np.ndarray = None  # the default parameter vector
     _up: object = None      # the specialized build of its shared module (vcirun.codegen.specialize)
     hold: bool = False      # keep the module it has (an ensemble: one build for all its runs)
-    _t: np.ndarray = None   # the grid times t0 + h k, k = 0..N
-    _build: tuple = (None, None)   # (module, its build) of `build_used`
-    _empty: tuple = None    # (contacts, `empty_records`) of `empties`
-    _tolerances: dict = None
+    # memos of values that follow from the fields above (init=False: `dataclasses.replace`, which makes
+    # a plan of another grid from a kept one, starts them afresh)
+    _t: tuple = field(default=None, init=False, repr=False, compare=False)   # (t0, h, N, t0 + h k for k = 0..N)
+    _build: tuple = field(default=(None, None), init=False, repr=False, compare=False)   # (module, its build)
+    _empty: tuple = field(default=None, init=False, repr=False, compare=False)   # (contacts, `empty_records`)
+    _tolerances: dict = field(default=None, init=False, repr=False, compare=False)
 
     @property
     def max_impacts_step(self) -> int:
@@ -129,9 +131,10 @@ class Plan:
 
     def grid(self, steps: int) -> np.ndarray:
         """t0 + h k, k = 0..steps (a new array per call; the whole grid's values computed once per plan)."""
-        t = self._t
-        if t is None:
-            t = self._t = self.t0 + self.h * np.arange(self.N + 1)
+        memo = self._t
+        if memo is None or memo[:3] != (self.t0, self.h, self.N):
+            memo = self._t = (self.t0, self.h, self.N, self.t0 + self.h * np.arange(self.N + 1))
+        t = memo[3]
         return t.copy() if steps == self.N else t[: steps + 1].copy()
 
     def empties(self, m: int) -> dict:
@@ -379,9 +382,8 @@ _Q = _NAMES.index("q")
 
 def empty_records(n: int, m: int) -> dict:
     """{axis: {name: an array of no entries}} of the records (impacts, partial steps, releases, mode
-    changes) of runs with n coordinates and m contacts: what `take` gives a record a run left empty,
-    shared by the runs of a plan (`Plan.empties`). Writable, as every other record (`tr.impacts -= t0`
-    works on any run), and nothing written to an array of no entries reaches another run."""
+    changes) of runs with n coordinates and m contacts: what `take` gives a record a run left empty, as a
+    view per run (`Plan.empties` keeps them per plan)."""
     e = {}
     for axis, counter, fields in _RECORDS:
         e[axis] = {}
@@ -395,7 +397,7 @@ def take(out: tuple, counters: dict, modified: bool, empties: dict) -> dict:
     """{name: array} of a finished loop whose grid and step rows are its own (`Buffers(keep_grid=False)`,
     or buffers allocated for the run): those rows as they are (views up to the states and steps reached
     where the run stopped early), the records (impacts, partial steps, releases, mode changes) copied up
-    to their counts, a record with no entries as the shared array of `empties` (`empty_records`).
+    to their counts, a record with no entries as a new view of its array in `empties` (`empty_records`).
     The same values as `vcirun.core.record.trim`."""
     arrays = dict(zip(_NAMES, out))
     steps = counters["steps"]
@@ -407,8 +409,9 @@ def take(out: tuple, counters: dict, modified: bool, empties: dict) -> dict:
         if k:
             for name, i in fields:
                 arrays[name] = out[i][:k].copy()
-        else:
-            arrays.update(empties[axis])
+        else:   # a view per run: a change of its flags or shape stays with the run
+            for name, a in empties[axis].items():
+                arrays[name] = a[:]
     if not modified:
         arrays["Hmod"] = None
     return arrays
