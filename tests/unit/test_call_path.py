@@ -113,3 +113,15 @@ def test_changing_an_empty_record_of_one_run_leaves_the_others():
     b = vcirun.simulate("cart_pendulum", "CVA", h=1e-2, T=0.1, beta=3.2)
     assert b.releases.flags.writeable and b.impact_q.shape == (0, 2)
     b.releases += 1.0
+
+
+def test_every_run_says_its_tier_and_build_and_a_saved_one_keeps_them(tmp_path):
+    from vcirun.run.trajectory import read_trajectory
+
+    for tr in (vcirun.simulate("cart_pendulum", "CVA", h=1e-2, T=1.0, beta=3.2),
+               vcirun.simulate("cart_pendulum", T=1.0, tol=1e-4, beta=3.2)):   # (made by the choice's Runner)
+        assert tr.tier == "compiled" and tr.build in ("shared", "specialized"), (tr.tier, tr.build)
+        tr.save(tmp_path / "run.h5")
+        back = read_trajectory(tmp_path / "run.h5")
+        assert (back.tier, back.build) == (tr.tier, tr.build)
+    assert Trajectory(method="CVA", system="x", h=0.1, T=1.0, t=np.zeros(1)).build is None

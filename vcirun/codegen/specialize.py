@@ -150,6 +150,12 @@ class Upgrade:
                              f"stay on the shared build (the same numbers, a slower loop)")
 
 
+def module_build(mod) -> str:
+    """The build a compiled module was made by: "shared" (a scene's kernels linked to a shared core,
+    which marks the module with SHARED_CORE) or "specialized"."""
+    return "shared" if hasattr(mod, "SHARED_CORE") else "specialized"
+
+
 def upgrade(kc, load, tier: str):
     """The Upgrade of the shared module `load` (vcirun.codegen.tiers.Kernels) in `kc`, kept per module, or
     None where there is none: a substitute loader, VCIRUN_BUILD other than auto, uncompiled runs, the

@@ -279,8 +279,7 @@ def _execute_run(st: _WorkerState, spec: RunSpec, ref) -> dict:
     call = min(calls)
     attrs, arrays = trajectory_payload(traj, store_arrays=st.cfg.store_every)
     attrs["wall_time_repeats"] = walls
-    attrs["tier"] = str(getattr(traj, "tier", "compiled"))
-    attrs["build"] = str(getattr(traj, "build", None) or "")
+    attrs["tier"] = traj.tier or "compiled"
     if attrs["tier"] == "interpreted":
         # the run's numbers are the compiled tier's (vcirun.codegen.tiers); its time is not: kept apart,
         # so that no table or figure of wall_time mixes the tiers (Table II's means skip a None)

@@ -189,9 +189,9 @@ class _Lazy:
 
     def __getattr__(self, name):
         from ..methods.table import resolve_method
-        from .plan import run_loop
+        from .plan import build_of, run_loop
 
-        self.resolve_method, self.run_loop = resolve_method, run_loop
+        self.resolve_method, self.run_loop, self.build_of = resolve_method, run_loop, build_of
         return getattr(self, name)
 
 
@@ -348,10 +348,12 @@ class Runner:
             def pending():
                 t = self.build(p, mod, out, counters, q0, p0, prm, beta, wall)
                 t.run_args, t.tier = self.run_args(p.meth), self._tiers.get(id(mod), p.tier_used)
+                t.build = _LAZY.build_of(mod, t.tier)
                 return t
         elif trajectory:
             tr = self.build(p, mod, out, counters, q0, p0, prm, beta, wall)
             tr.run_args, tr.tier = self.run_args(p.meth), self._tiers.get(id(mod), p.tier_used)
+            tr.build = _LAZY.build_of(mod, tr.tier)
             status = tr.status
         else:
             status = _STATUS[counters["status"]]

@@ -37,7 +37,7 @@ from ..core.system_data import (
     start_tolerance,
 )
 from ..codegen.kernel_cache import KernelCache, default
-from ..codegen.specialize import upgrade
+from ..codegen.specialize import module_build, upgrade
 from ..codegen.tiers import requested
 from ..core.tolerances import DEFAULT_TOLERANCES, split_options
 from ..methods.table import resolve_method
@@ -121,7 +121,7 @@ class Plan:
             return None
         mod, build = self._build
         if mod is not self._mod:
-            mod, build = self._build = self._mod, "shared" if hasattr(self._mod, "SHARED_CORE") else "specialized"
+            mod, build = self._build = self._mod, build_of(self._mod, "compiled")
         return build
 
     def ran(self, seconds: float) -> None:
@@ -163,6 +163,14 @@ class Plan:
         if self._prm is None:
             self._prm = self.sysd.param_values(None)
         return self._prm.copy()
+
+
+def build_of(mod, tier: str | None) -> str | None:
+    """The build of a module loaded on `tier`: "shared" or "specialized" for a compiled module, None on
+    the interpreted tier and where numba compiles nothing (NUMBA_DISABLE_JIT=1)."""
+    if tier != "compiled" or jit_disabled():
+        return None
+    return module_build(mod)
 
 
 def first_call(mod, plan: Plan, q0, p0, prm) -> None:

@@ -58,6 +58,11 @@ class Trajectory:
     run_args: object = field(default=None, repr=False, compare=False)
     # simulate(tol=...): the choice of method and h (vcirun.run.choose.Choice), else None
     choice: object = field(default=None, repr=False, compare=False)
+    # the kernels' tier ("compiled" or "interpreted") and the compiled module's build ("shared" or
+    # "specialized"; None on the interpreted tier and where numba compiles nothing), as run; a
+    # trajectory read from a file has what the file stored (None where it stored nothing)
+    tier: str | None = field(default=None, compare=False)
+    build: str | None = field(default=None, compare=False)
     # The run record: one field per row of vcirun.core.record.FIELDS, in its order (a test holds them
     # equal), written out so that editors and type checkers see them. None here; `__post_init__`
     # makes each an empty array of its row's dtype, except rows of some methods only (Hmod).
@@ -392,7 +397,8 @@ def trajectory_from_group(g):
         status=a.get("status", ""), message=a.get("message", ""), fail_step=int(a.get("fail_step", -1)),
         fail_time=float(a.get("fail_time", float("nan"))),
         beta=None if beta is None or not np.isfinite(beta) else float(beta), wall_time=float(a.get("wall_time", 0.0)),
-        tolerances=a.get("tolerances") or {}, options=a.get("options") or {})
+        tolerances=a.get("tolerances") or {}, options=a.get("options") or {}, tier=a.get("tier") or None,
+        build=a.get("build") or None)
 
 
 def read_trajectory(path) -> Trajectory:

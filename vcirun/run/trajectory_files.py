@@ -192,6 +192,7 @@ def trajectory_payload(traj, *, store_arrays: bool | int = True) -> tuple[dict, 
         "has_Hmod": traj.Hmod is not None, "has_trajectory": every > 0, "store_every": every,
         "friction_rows": has_friction_data(traj),
         "tolerances": dict(traj.tolerances), "options": dict(traj.options),
+        "tier": traj.tier or "", "build": traj.build or "",   # ("": not known, e.g. a run read from an old file)
     }
     attrs.update(energy_summary(traj))
     left_out = () if attrs["friction_rows"] else record.FRICTION_ROWS
