@@ -382,9 +382,9 @@ class Buffers:
 # handed over; the records by axis (axis, counter of its entries, ((name, index), ...)), copied
 _NAMES = tuple(f.name for f in record.FIELDS)
 _OWN = tuple((f.name, i, f.axis) for i, f in enumerate(record.FIELDS) if f.axis in ("grid", "step"))
-_COUNTER = {"impact": "n_impacts", "partial": "n_partial", "release": "n_releases", "mode": "n_mode_changes"}
 _RECORDS = tuple((axis, counter, tuple((f.name, i) for i, f in enumerate(record.FIELDS) if f.axis == axis))
-                 for axis, counter in _COUNTER.items())
+                 for axis, counter in (("impact", "n_impacts"), ("partial", "n_partial"), ("release", "n_releases"),
+                                       ("mode", "n_mode_changes")))
 _Q = _NAMES.index("q")
 
 
