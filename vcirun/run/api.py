@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import threading
 
-
 from ..codegen import kernel_cache
 from ..core import record
 from ..core.bounds import nonfinite_start
