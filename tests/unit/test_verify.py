@@ -347,3 +347,40 @@ def test_forced_system_every_judged_check_passes():
     for m in ("CVA", "VCI", "MCVAC"):
         c = res.check("energy across impacts", m)
         assert "H - W" in c.note and c.value >= 1.7
+
+
+class _NoSolveAbove:
+    """A compiled MCVA module whose Newton-solved maps (mh_gradient, gauss_partial) report no convergence
+    at steps above h_max, as a fast motion's stage equations do at a coarse step."""
+
+    def __init__(self, mod, h_max):
+        self._mod, self._h_max = mod, h_max
+
+    def __getattr__(self, k):
+        f = getattr(self._mod, k)
+        if k == "mh_gradient":
+            return lambda q, p, h, *rest: (-1, float("nan")) if h > self._h_max else f(q, p, h, *rest)
+        if k == "gauss_partial":
+            return lambda q, p, tau, h, *rest: (-1, 0) if h > self._h_max else f(q, p, tau, h, *rest)
+        return f
+
+
+def test_maps_whose_newton_fails_at_the_coarse_step_are_checked_at_a_finer_one(compiled):
+    """A map the kernels cannot solve at the ladder's coarsest step is checked at the largest smaller step
+    of the ladder where it solves, and the row names that step; solved at none, it fails."""
+    from vcirun.verification.suite import _symplecticity_rows
+
+    _, mod, prm = compiled("oscillator_wall", "MCVAC")
+    probes = [Probe(np.array([0.3]), np.array([-0.7]), 0.0, 0.04)]
+    hs = [0.04 / 2 ** k for k in range(7)]
+    rows = {r["kernel"]: r for r in check_kernels(_NoSolveAbove(mod, 0.006), prm, probes, h_min=hs[-1])}
+    assert rows["mh_gradient (grad)"]["worst"] < 1e-8 and "at h = 0.005" in rows["mh_gradient (grad)"]["against"]
+    sym = _symplecticity_rows(_NoSolveAbove(mod, 0.006), prm, probes, hs, True, 1)
+    part = [r for r in sym if r["map"].startswith("partial")]
+    assert [r["h"] for r in part] == [0.005, 0.005] and max(r["defect"] for r in part) < 1e-8
+    assert ck.symplecticity_check("MCVAC", sym, forced=False).verdict == ck.PASS
+    never = _NoSolveAbove(mod, 0.0)
+    rows = {r["kernel"]: r for r in check_kernels(never, prm, probes, h_min=hs[-1])}
+    assert rows["mh_gradient"]["worst"] == np.inf
+    sym = _symplecticity_rows(never, prm, probes, hs, True, 1)
+    assert ck.symplecticity_check("MCVAC", sym, forced=False).verdict == ck.FAIL

@@ -22,6 +22,22 @@ import numpy as np
 FD_THRESHOLDS = (1e-6, 1e-4)
 IDENTITY_THRESHOLDS = (1e-10, 1e-7)
 FD_STEP = 1e-3
+# A map whose Newton solve does not converge at a probe's step h (h times the motion's fastest rate
+# beyond what the method's stage equations solve: a 12-link pendulum's MCVAC stages at h = 0.04) is
+# checked at h / 2, h / 4, ... down to the finest step of the verification's ladder, and the row names
+# the step; a map that converges at none of them fails. These checks test the kernels, and a step the
+# integrator cannot take says nothing about them (the orders and H~ checks judge the steps).
+MAX_HALVINGS = 6   # (0.04 / 2^6 = 0.000625, the default ladder's finest step)
+
+
+def smaller_steps(h: float, h_min: float | None = None):
+    """h, then h / 2, h / 4, ... down to h_min (default h / 2^MAX_HALVINGS)."""
+    floor = h / 2 ** MAX_HALVINGS if h_min is None else h_min
+    x = h
+    yield x
+    while 0.5 * x >= floor * (1.0 - 1e-12):
+        x *= 0.5
+        yield x
 
 
 def _steps(x, d):
@@ -113,9 +129,10 @@ class _Ctx:
     """What the checks need: the module, the parameter vector, an optional generalized force
     f(q, qdot, t) (numpy; None if unforced), and small wrappers around the kernels."""
 
-    def __init__(self, mod, prm, force=None):
+    def __init__(self, mod, prm, force=None, h_min=None):
         self.mod, self.prm, self.force = mod, prm, force
         self.n = int(mod.NDOF)
+        self.h_min = h_min   # the finest step a Newton-solved map is tried at (smaller_steps)
 
     def M(self, q):
         A = np.empty((self.n, self.n))
@@ -469,10 +486,21 @@ def falling_min(err, steps, threshold):
 
 
 def _check_mh(c, s):
+    """The modified-Hamiltonian kernels at probe s: at its step, else at the largest smaller step
+    (smaller_steps) where mh_gradient's Newton converges and mh_energy is defined at every point of the
+    FD stencils; the rows name the step when it is not the probe's."""
+    rows = []
+    for h in smaller_steps(s.h, c.h_min):   # (see MAX_HALVINGS)
+        at = "" if h == s.h else f" (at h = {h:g}: the stage equations are not solved at h = {s.h:g} at this state)"
+        rows = _mh_rows(c, s, h, at)
+        if all(np.isfinite(r[2]) for r in rows):
+            break
+    return rows
+
+
+def _mh_rows(c, s, h, at):
     mod, prm, n = c.mod, c.prm, c.n
     rows = []
-    h = s.h
-    E = lambda y: float(mod.mh_energy(np.ascontiguousarray(y[:n]), np.ascontiguousarray(y[n:]), h, prm))  # noqa: E731
     y = np.concatenate([s.q, s.p])
     m = int(mod.MH_M)
     u, W = np.empty(m), np.empty((m, m))
@@ -480,9 +508,11 @@ def _check_mh(c, s):
     mod.mh_guess(s.q, s.p, prm, u)
     it, val = mod.mh_gradient(s.q, s.p, h, prm, u, W, grad, hess)
     if it < 0 or not np.isfinite(val):
-        return [("mh_gradient", "Newton on the stationary stage velocities", np.inf, FD_THRESHOLDS)]
+        return [("mh_gradient", f"Newton on the stationary stage velocities, at h = {s.h:g} and every step down to "
+                 f"{h:g}", np.inf, FD_THRESHOLDS)]
+    E = lambda y: float(mod.mh_energy(np.ascontiguousarray(y[:n]), np.ascontiguousarray(y[n:]), h, prm))  # noqa: E731
     floor = _floor(val)
-    rows.append(("mh_gradient (grad)", "FD of mh_energy in (q, p) at the step where the difference stops falling",
+    rows.append(("mh_gradient (grad)", "FD of mh_energy in (q, p) at the step where the difference stops falling" + at,
                  falling_min(lambda d: rel_err(grad, gradient(E, y, d), floor), GRADIENT_STEPS, FD_THRESHOLDS[0]),
                  FD_THRESHOLDS))
     terms = np.empty(int(mod.MH_ORDER))
@@ -494,11 +524,11 @@ def _check_mh(c, s):
 
     floor = _floor(eta(y))   # (the gradient's floor is the energy's)
     rows.append(("mh_gradient (hess)", "Hessian of eta (mh_terms[0]) by 4th-order FD at the step where the difference "
-                 "stops falling", falling_min(lambda d: rel_err(hess, mixed_hessian(eta, y, d), floor), HESSIAN_STEPS,
-                                               FD_THRESHOLDS[0]), FD_THRESHOLDS))
+                 "stops falling" + at, falling_min(lambda d: rel_err(hess, mixed_hessian(eta, y, d), floor), HESSIAN_STEPS,
+                                                    FD_THRESHOLDS[0]), FD_THRESHOLDS))
     tot = float(mod.mh_terms(s.q, s.p, h, prm, terms))
     series = sum(h ** i * terms[i] for i in range(len(terms)))
-    rows.append(("mh_terms", "eta + h H2 + ... + h^(s-1) H_s = mh_energy", max(rel_err(series, val, 1.0),
+    rows.append(("mh_terms", "eta + h H2 + ... + h^(s-1) H_s = mh_energy" + at, max(rel_err(series, val, 1.0),
                  rel_err(tot, val, 1.0)), IDENTITY_THRESHOLDS))
     return rows
 
@@ -522,14 +552,16 @@ KERNEL_CHECKS = [
 ]
 
 
-def check_kernels(mod, prm, probes, force=None, full_stages=None, declared=None):
+def check_kernels(mod, prm, probes, force=None, full_stages=None, declared=None, h_min=None):
     """Run every applicable row of KERNEL_CHECKS at every probe. full_stages: the kernel set's
     ((explicit Ld name, fraction), ...) (the DEL residual of ld_step needs the stage's name);
     declared: numpy callables {"M", "V", "phis"} of q from the declaration, and for systems with friction
     "slips" (q -> W_t(q)) and "friction" (the arrays mu, mu_s) (None: those rows are skipped).
+    h_min: the finest step at which a map whose Newton solve does not converge at a probe's step is
+    tried (`smaller_steps`; default the probe's step / 2^MAX_HALVINGS).
     Returns a list of dicts {kernel, against, worst (relative error over the probes), thresholds},
     one per kernel row."""
-    c = _Ctx(mod, np.asarray(prm, float), force)
+    c = _Ctx(mod, np.asarray(prm, float), force, h_min)
     c.full_stages, c.declared = full_stages, declared
     worst: dict = {}
     for names, fn in KERNEL_CHECKS:

@@ -8,7 +8,7 @@ import numpy as np
 
 from ..run.accounts import FRICTION, LAW
 from . import checks as ck
-from .fd import Probe, check_kernels, falling_min, map_jacobian, symplecticity_defect
+from .fd import Probe, check_kernels, falling_min, map_jacobian, smaller_steps, symplecticity_defect
 from .harness import StepFailed, exact_smooth, smooth_until_failure, step
 from .window import Window, settle_window
 
@@ -443,7 +443,7 @@ class _Session:
         mcva = meth.has_modified_energy
         self.say(f"{name}: derivative checks of the generated kernels at {len(self.probes)} states")
         rows = check_kernels(mod, self.prm, self.probes, force=self.force, full_stages=ks.full_stages,
-                             declared=self.declared())
+                             declared=self.declared(), h_min=self.hs[-1])
         self.add(ck.derivative_check(name, rows, len(self.probes)))
         self.say(f"{name}: symplecticity defect of its one-step maps")
         rows = _symplecticity_rows(mod, self.prm, self.probes, self.hs, mcva, self.n)
@@ -695,6 +695,19 @@ def _defect(f, y):
                        ck.SYMPLECTIC_THRESHOLDS[0])
 
 
+def _defect_where_defined(make, y, x, h_min):
+    """(defect, the step it was measured at) of the map make(h) at y: at step x, else at the largest of
+    x / 2, x / 4, ... >= h_min at which every Newton solve of the stencil converges (fd.smaller_steps:
+    a step the map's equations cannot be solved at says nothing about its symplecticity); (inf, x)
+    where it converges at none."""
+    for h in smaller_steps(x, h_min):
+        try:
+            return _defect(make(h), y), h
+        except StepFailed:
+            continue
+    return float("inf"), x
+
+
 def _symplecticity_rows(mod, prm, probes, hs, mcva, n):
     rows = []
     h_list = [hs[0], hs[len(hs) // 2]]
@@ -702,23 +715,20 @@ def _symplecticity_rows(mod, prm, probes, hs, mcva, n):
         label = "start" if k == 0 else f"t = {s.t:.4g}"
         y = np.concatenate([s.q, s.p])
         for x in h_list:
-            def full(yy, x=x, t=s.t):
-                return np.concatenate(step(mod, yy[:n], yy[n:], x, t, prm, newton_tol=NEWTON_TOL))
-            try:
-                rows.append({"map": "full Phi_h", "h": x, "state": label, "defect": _defect(full, y)})
-            except StepFailed:
-                rows.append({"map": "full Phi_h", "h": x, "state": label, "defect": float("inf")})
+            def full(x, t=s.t):
+                return lambda yy: np.concatenate(step(mod, yy[:n], yy[n:], x, t, prm, newton_tol=NEWTON_TOL))
+            d, at = _defect_where_defined(full, y, x, hs[-1])
+            rows.append({"map": "full Phi_h", "h": at, "state": label, "defect": d})
             if mcva and hasattr(mod, "gauss_partial"):
-                def part(yy, x=x, t=s.t):
-                    q1, p1, v = np.empty(n), np.empty(n), np.empty(n)
-                    it, _ = mod.gauss_partial(np.ascontiguousarray(yy[:n]), np.ascontiguousarray(yy[n:]), 0.5 * x, x, t,
-                                              prm, NEWTON_TOL, 50, q1, p1, v)
-                    if it < 0:
-                        raise StepFailed("gauss_partial did not converge")
-                    return np.concatenate([q1, p1])
-                try:
-                    d = _defect(part, y)
-                except StepFailed:
-                    d = float("inf")
-                rows.append({"map": "partial flow of H~ (tau = h/2)", "h": x, "state": label, "defect": d})
+                def part(x, t=s.t):
+                    def f(yy):
+                        q1, p1, v = np.empty(n), np.empty(n), np.empty(n)
+                        it, _ = mod.gauss_partial(np.ascontiguousarray(yy[:n]), np.ascontiguousarray(yy[n:]), 0.5 * x,
+                                                  x, t, prm, NEWTON_TOL, 50, q1, p1, v)
+                        if it < 0:
+                            raise StepFailed("gauss_partial did not converge")
+                        return np.concatenate([q1, p1])
+                    return f
+                d, at = _defect_where_defined(part, y, x, hs[-1])
+                rows.append({"map": "partial flow of H~ (tau = h/2)", "h": at, "state": label, "defect": d})
     return rows
