@@ -384,3 +384,27 @@ def test_maps_whose_newton_fails_at_the_coarse_step_are_checked_at_a_finer_one(c
     assert rows["mh_gradient"]["worst"] == np.inf
     sym = _symplecticity_rows(never, prm, probes, hs, True, 1)
     assert ck.symplecticity_check("MCVAC", sym, forced=False).verdict == ck.FAIL
+
+
+def test_l2_of_a_reset_that_moves_q_leaves_out_the_points_between_the_two_impacts():
+    """q jumps by 1 at the impact; the run's impact is 3e-4 after the reference's, so the grid point at
+    t = 0.5 compares states on opposite sides of the jump. Left out where the reset moves q (the
+    impact-time check judges that difference), kept (the paper's metric) where q is continuous."""
+    from types import SimpleNamespace
+
+    from vcirun.verification.suite import _l2_error
+
+    h = 1e-3
+    t = h * np.arange(1001)
+    tau_ref, tau_run = 0.4998, 0.5001
+
+    def motion(tt, tau):
+        tt = np.asarray(tt, float)
+        return (np.sin(tt) + (tt >= tau))[:, None]
+
+    run = SimpleNamespace(t=t, h=h, q=motion(t, tau_run) + 1e-6, impacts=np.array([tau_run]))
+    ref = lambda tt: motion(tt, tau_ref)  # noqa: E731
+    kept = _l2_error(run, ref, np.array([tau_ref]), jumps=False)
+    assert kept == pytest.approx(np.sqrt(h * (1.0 + 1000 * 1e-12)), rel=1e-3)   # the straddling point's jump
+    left_out = _l2_error(run, ref, np.array([tau_ref]), jumps=True)
+    assert left_out == pytest.approx(np.sqrt(h * 1000 * 1e-12), rel=1e-3)

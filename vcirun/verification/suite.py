@@ -528,10 +528,8 @@ class _Session:
                 elif nimp != nref:
                     excl.append((x, f"{nimp} impacts, reference {nref}"))
                 else:
-                    from ..reference_solution.exact import l2_error
-
                     l2_h.append(x)
-                    l2.append(l2_error(tr, ref))
+                    l2.append(_l2_error(tr, ref, ref_imp, self.sysm.reset_map is not None))
                     coarse.append(_on_coarsest(tr, x, Tw, self.hs[0]))
             if self.friction and self.ref_ok:
                 from .friction import compare, run_mode_changes
@@ -640,6 +638,25 @@ def _energy_changes(tr, acc, modified):
     for term in acc.terms:
         E = E - term.series
     return np.abs(np.diff(E))
+
+
+def _l2_error(tr, ref, ref_imp, jumps: bool) -> float:
+    """`vcirun.l2_error` of a run whose impacts pair with the reference's (ref_imp, the same count); where
+    the system's reset map moves q (`jumps`), without the grid points that lie between a run's impact and
+    the reference's. There the run and the reference are on opposite sides of q's jump (a wheel's leg
+    exchange), an O(1) difference at a point whose impact-time error the impact-time check judges; a
+    grid point that falls in that gap at one h and not at the next made the rimless wheel's MCVAC errors
+    0.03, 0.11, 0.11, 5e-4, 1e-4, 0.03, 0.03 down the ladder."""
+    from ..reference_solution.exact import l2_error
+
+    if not jumps or not len(ref_imp):
+        return l2_error(tr, ref)
+    t = tr.t
+    keep = np.ones(t.shape[0], bool)
+    for a, b in zip(np.asarray(tr.impacts, float), np.asarray(ref_imp, float)):
+        keep &= ~((t >= min(a, b)) & (t < max(a, b)))
+    d = tr.q[keep] - ref(t[keep])
+    return float(np.sqrt(tr.h * np.sum(d * d)))
 
 
 def _on_coarsest(tr, h, T, h0):
