@@ -276,3 +276,10 @@ def test_recommend_notes_unreadable_measurements_and_goes_on(place, capsys, cont
     assert "Traceback" not in err
     if not content.startswith(b"["):   # (a JSON list is not a study: skipped without a note)
         assert "not read" in err, err
+
+
+def test_a_yaml_system_without_a_start_names_the_flags(capsys):
+    """A system file with no default state: simulate and verify name the flags that give one."""
+    example = ROOT / "docs" / "examples" / "cart_double_spring.yaml"
+    for args in (("simulate", "--system", example, "--method", "CVA"), ("verify", example, "-q")):
+        one_error(*run(capsys, *args), "needs --q0 and --p0 (or --beta)")

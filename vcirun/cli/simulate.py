@@ -38,7 +38,9 @@ def _parse_vector(text: str | None, name: str):
 # the Python API's words for what this command spells as flags (messages come from vcirun.simulate)
 _API_WORDS = (("drop constrained=False", "drop --unconstrained"), ("pass constrained=False", "pass --unconstrained"),
               ("constrained: ", "--unconstrained: "), ("max_time: only with tol=", "--max-time: only with --tol"),
-              ("max_time = ", "--max-time "), ("tol= ", "--tol "), ("tol=:", "--tol:"))
+              ("max_time = ", "--max-time "), ("tol= ", "--tol "), ("tol=:", "--tol:"),
+              ("needs q0 and p0 (or beta)", "needs --q0 and --p0 (or --beta)"),
+              ("give both q0 and p0 (or beta)", "give both --q0 and --p0 (or --beta)"))
 
 
 def _cli_words(msg: str) -> str:

@@ -7,6 +7,7 @@ from typing import List, Optional
 import typer
 
 from .app import CliError, _console, _fail, app, check_output
+from .simulate import _cli_words
 from .simulate import _parse_params, _parse_vector
 
 
@@ -28,7 +29,7 @@ def verify_system(system: str, *, methods: str = "CVA,MCVAC", q0=None, p0=None, 
         res = vcirun.verify(system, methods=methods, q0=q0, p0=p0, beta=beta, T=T, h=h, params=params or None,
                             progress=progress)
     except ValueError as e:
-        raise CliError(str(e)) from None
+        raise CliError(_cli_words(str(e))) from None
     try:
         written = res.save(output) if output is not None else []
     except OSError as e:
