@@ -644,9 +644,9 @@ def _l2_error(tr, ref, ref_imp, jumps: bool) -> float:
     """`vcirun.l2_error` of a run whose impacts pair with the reference's (ref_imp, the same count); where
     the system's reset map moves q (`jumps`), without the grid points that lie between a run's impact and
     the reference's. There the run and the reference are on opposite sides of q's jump (a wheel's leg
-    exchange), an O(1) difference at a point whose impact-time error the impact-time check judges; a
-    grid point that falls in that gap at one h and not at the next made the rimless wheel's MCVAC errors
-    0.03, 0.11, 0.11, 5e-4, 1e-4, 0.03, 0.03 down the ladder."""
+    exchange), an O(1) difference at a point whose impact-time error the impact-time check judges. With
+    those points kept, a grid point that falls in the gap at one h and not at the next gives the rimless
+    wheel's MCVAC errors 0.03, 0.11, 0.11, 5e-4, 1e-4, 0.03, 0.03 down the ladder."""
     from ..reference_solution.exact import l2_error
 
     if not jumps or not len(ref_imp):
