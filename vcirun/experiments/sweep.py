@@ -387,7 +387,7 @@ def run_sweep(cfg: SweepConfig, *, config_text: str | None = None, config_path=N
         specialize = kc.specialize
         builds_for_sweep(kc, writer.complete_runs.values())
         t_pre = time.monotonic()
-        with default().report() as built:
+        with kc.report() as built:
             n, m, friction, side = _preflight(cfg, pending or [specs[0]])
         summary.prepare_time = time.monotonic() - t_pre  # kernels loaded or compiled: not run time
         # What is loaded now (numba, LLVM, the kernels) stays for the sweep: frozen out of the garbage

@@ -121,7 +121,7 @@ class Plan:
             return None
         mod, build = self._build
         if mod is not self._mod:
-            mod, build = self._build = self._mod, build_of(self._mod, "compiled")
+            mod, build = self._build = self._mod, module_build(self._mod)
         return build
 
     def ran(self, seconds: float) -> None:
