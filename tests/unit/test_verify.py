@@ -239,13 +239,56 @@ def test_symplecticity_defect_is_judged_at_the_step_where_the_stencil_is_accurat
     y = np.array([0.3, -0.2, 0.5, 0.1])
     sym = _shears(1.0)
     assert symplecticity_defect(map_jacobian(sym, y, 1e-4)) > 1e-7   # the stencil at 1e-4 is still truncation-bound
-    rows = [{"map": "full Phi_h", "h": 0.1, "state": "start", "defect": _defect(sym, y)}]
+    d, floor = _defect(sym, y)
+    rows = [{"map": "full Phi_h", "h": 0.1, "state": "start", "defect": d, "floor": floor}]
     assert ck.symplecticity_check("CVA", rows, forced=False).verdict == ck.PASS
     for damp, verdict in ((1 - 1e-5, ck.FAIL), (1 - 1e-7, ck.WARN)):   # a defect of its own stays
-        d = _defect(_shears(damp), y)
-        assert abs(d - (1 - damp)) < 0.05 * (1 - damp)
-        rows = [{"map": "full Phi_h", "h": 0.1, "state": "start", "defect": d}]
+        d, floor = _defect(_shears(damp), y)
+        assert abs(d - (1 - damp)) < 0.05 * (1 - damp) and floor == 0.0
+        rows = [{"map": "full Phi_h", "h": 0.1, "state": "start", "defect": d, "floor": floor}]
         assert ck.symplecticity_check("CVA", rows, forced=False).verdict == verdict
+
+
+def _noisy_shears(damp, quantum, A=8.0, k=40.0):
+    """`_shears` with |J| ~ 20, its output rounded to multiples of `quantum`: the round-off of a map
+    solved to a tolerance, which the FD stencil divides by its step."""
+    a, b = np.array([1.0, 2.0]), np.array([1.0, -1.0])
+
+    def f(y):
+        q, p = y[:2], damp * y[2:]
+        p = p - A * np.sin(k * (q @ a)) / k * a
+        q = q + A * np.cos(k * (p @ b)) / k * b
+        return np.round(np.concatenate([q, p]) / quantum) * quantum
+    return f
+
+
+def test_symplecticity_defect_at_the_stencils_round_off_floor_passes_and_a_defect_of_its_own_does_not():
+    """A symplectic map whose FD defect bottoms out above 1e-8 (truncation falling as d^4, then round-off
+    of its output, at NEWTON_TOL's level, rising as 1/d: a V) passes with its floor stated; the same
+    map with a defect of 1e-7 of its own, which stays flat in d, warns."""
+    from vcirun.verification.suite import DEFECT_STEPS, NEWTON_TOL, _defect
+    from vcirun.verification.fd import map_jacobian, symplecticity_defect
+
+    y = np.array([0.3, -0.2, 0.5, 0.1])
+    quantum = 2.0 ** -45   # 2.8e-14, about NEWTON_TOL
+    assert 0.5 * NEWTON_TOL < quantum < 5 * NEWTON_TOL
+    sym = _noisy_shears(1.0, quantum)
+    seq = [symplecticity_defect(map_jacobian(sym, y, d)) for d in DEFECT_STEPS]
+    k = int(np.argmin(seq))
+    assert seq[k - 1] > 3 * seq[k] and seq[k + 1] > 1.5 * seq[k] and seq[k] > 1e-8   # a V above the threshold
+    d, floor = _defect(sym, y)
+    assert d == seq[k] and d <= floor < 1e-6
+    rows = [{"map": "full Phi_h", "h": 0.1, "state": "start", "defect": d, "floor": floor},
+            {"map": "full Phi_h", "h": 0.05, "state": "start", "defect": 3e-12, "floor": 0.0}]
+    c = ck.symplecticity_check("CVA", rows, forced=False)
+    assert c.verdict == ck.PASS and "round-off floor" in c.note and "(FD floor" in c.rows[0]["max |J^T Omega J - Omega|"]
+    assert c.value == 3e-12   # the value shown is the worst defect the stencil resolves
+    for damp in (1 - 1e-7, 1 - 3e-7):
+        d, floor = _defect(_noisy_shears(damp, quantum), y)
+        assert floor == 0.0 and abs(d - (1 - damp)) < 0.3 * (1 - damp)
+        c = ck.symplecticity_check("CVA", [{"map": "full Phi_h", "h": 0.1, "state": "start", "defect": d,
+                                             "floor": floor}], forced=False)
+        assert c.verdict == ck.WARN and "floor" not in c.note
 
 
 @pytest.mark.parametrize("kwargs, field", [

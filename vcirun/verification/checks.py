@@ -386,20 +386,44 @@ def converges_elsewhere(c, hs, errs, diffs, scale) -> None:
 # --- symplecticity -----------------------------------------------------------------------------------
 
 def symplecticity_check(method, rows, forced) -> Check:
-    """rows: dicts {map, h, state, defect}."""
+    """rows: dicts {map, h, state, defect, floor}. floor (optional, 0 if none): the defect the FD
+    stencil's round-off makes at that state where the defect lies at the bottom of a V in the stencil's
+    step (vcirun.verification.suite._defect). A defect at or below its floor is the stencil's error and
+    passes below the fail threshold, stated in the note; every other defect is judged by
+    SYMPLECTIC_THRESHOLDS."""
     if not rows:
         return skip("symplecticity", method, "no map could be evaluated")
-    worst = max(rows, key=lambda r: r["defect"] if np.isfinite(r["defect"]) else np.inf)
-    shown = [{"map": r["map"], "h": f"{r['h']:.4g}", "state": r["state"], "max |J^T Omega J - Omega|": fmt(r["defect"])}
+
+    def at_floor(r):
+        return r["defect"] <= r.get("floor", 0.0)
+
+    def verdict(r):
+        if at_floor(r) and r["defect"] < SYMPLECTIC_THRESHOLDS[1]:
+            return PASS
+        return by_threshold(r["defect"], SYMPLECTIC_THRESHOLDS)
+
+    rank = {PASS: 0, WARN: 1, FAIL: 2}
+    # the worst verdict; among equals a defect of the map's own before one at a stencil's floor
+    worst = max(rows, key=lambda r: (rank[verdict(r)], not at_floor(r),
+                                     r["defect"] if np.isfinite(r["defect"]) else np.inf))
+    shown = [{"map": r["map"], "h": f"{r['h']:.4g}", "state": r["state"],
+              "max |J^T Omega J - Omega|": fmt(r["defect"]) + (f" (FD floor {fmt(r['floor'])})" if at_floor(r) else "")}
              for r in rows]
     thr = f"{SYMPLECTIC_THRESHOLDS[0]:.0e}"
     if forced:
         return Check("symplecticity", method, SKIP, worst["defect"], thr, "not symplectic (forced system)",
                      "a forced map contracts or expands phase volume: the defect is reported, not judged", shown)
-    v = by_threshold(worst["defect"], SYMPLECTIC_THRESHOLDS)
-    return Check("symplecticity", method, v, worst["defect"], thr, "symplectic (defect at FD accuracy)",
-                 f"worst: {worst['map']} at h = {worst['h']:.4g}, {worst['state']} (J by a 4th-order FD stencil; "
-                 f"{len(rows)} Jacobians)", shown)
+    note = (f"worst: {worst['map']} at h = {worst['h']:.4g}, {worst['state']} (J by a 4th-order FD stencil; "
+            f"{len(rows)} Jacobians)")
+    floors = [r for r in rows if at_floor(r) and r["defect"] > SYMPLECTIC_THRESHOLDS[0]]
+    if floors:
+        big = max(floors, key=lambda r: r["defect"])
+        note += (f"; {len(floors)} above {thr} at the stencil's round-off floor (the defect falls as d^4, then "
+                 "rises as 1/d, and its bottom is within what NEWTON_TOL / d in J makes), which resolves no "
+                 f"defect of the map's own below it: largest {fmt(big['defect'])}, floor {fmt(big['floor'])} "
+                 f"({big['map']}, h = {big['h']:.4g}, {big['state']})")
+    return Check("symplecticity", method, verdict(worst), worst["defect"], thr, "symplectic (defect at FD accuracy)",
+                 note, shown)
 
 
 # --- impacts -------------------------------------------------------------------------------------
