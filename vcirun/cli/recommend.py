@@ -172,4 +172,4 @@ def recommend(
     except CliError as e:
         _fail(str(e))
     if c.status != "ok":   # (as `vcirun simulate --tol`: tol not reached is not a recommendation)
-        _fail(f"--tol {tol:g} not reached ({c.status}): {c.reason}")
+        _fail(f"--tol {tol:g} not reached ({c.status}): {c.reason.split('; ')[0]}")   # (the table gives the rest)

@@ -274,4 +274,5 @@ def simulate(
     if traj.status != "ok":
         _fail(f"run ended with status {traj.status}: {traj.message}")
     if traj.choice is not None and traj.choice.status != "ok":
-        _fail(f"--tol {tol:g} not reached ({traj.choice.status}): {traj.choice.reason}")
+        # (the reason's first clause: the table above gives the rest, each candidate's status included)
+        _fail(f"--tol {tol:g} not reached ({traj.choice.status}): {traj.choice.reason.split('; ')[0]}")
