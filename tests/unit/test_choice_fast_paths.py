@@ -136,3 +136,66 @@ def test_a_deferred_trajectory_is_the_one_built_at_once():
     for name in ("q", "p", "H", "Ed", "impacts", "impact_contact", "contact_active"):
         assert _bits(getattr(tr, name), getattr(now.trajectory, name)), name
     assert tr.status == now.trajectory.status and tr.run_args.method == now.trajectory.run_args.method
+
+
+@pytest.mark.parametrize("system,q0,p0", [("ball_in_box", [0.2, 0.7], [2.5, -1.7]),
+                                          ("cart_pendulum", [1.0, 0.3], [0.5, 0.2]),
+                                          ("double_pendulum_walls", [0.3, -0.2], [6.0, 1.5])])
+def test_phi_on_many_states_is_one_compiled_call_per_state(system, q0, p0):
+    """phi on a run's grid (and on chosen grid states) equals sys_phis called state by state, bit for bit:
+    on the run's states and on random states of many magnitudes (the column form where the kernel is
+    arithmetic only, the per-state calls where it is not)."""
+    runner = Runner(system, T=5.0, q0=q0, p0=p0)
+    mod, prm = runner.module("CVA"), runner.params_vector("CVA")
+    rng = np.random.default_rng(3)
+    run = runner.run("CVA", 200)
+    n = run.q.shape[1]
+    states = [run.q] + [rng.normal(size=(k, n)) * 10.0 ** rng.uniform(-8, 8, size=(k, n)) for k in (8, 9, 300)]
+    for q in states:
+        r = Run(method=None, N=q.shape[0] - 1, h=0.1, t0=0.0, q=np.ascontiguousarray(q), p=np.zeros_like(q),
+                impacts=np.zeros(0), impact_contact=np.zeros(0, np.int64), releases=np.zeros(0),
+                release_contact=np.zeros(0, np.int64), held=False, status="ok", wall=0.0, cpu=0.0)
+        want = np.array([_phi(mod, x, prm) for x in r.q])
+        assert _bits(es._phis(r, mod, prm), want)
+        ks = np.sort(rng.choice(q.shape[0], size=min(12, q.shape[0]), replace=False))
+        assert _bits(es._phis(r, mod, prm, ks), want[ks])
+        assert _bits(es._phis(r, mod, prm, [q.shape[0] - 2, q.shape[0] - 1]), want[-2:])
+    columns = es._column_form(mod.sys_phis)
+    if system == "double_pendulum_walls":
+        assert columns is None   # (its gaps take math.sin: called per state)
+    else:
+        assert columns is not None
+
+
+def test_column_form_only_for_arithmetic_kernels():
+    """The column form is refused for a kernel with a call, a power, a branch or an in-place operator."""
+    from numba import njit
+
+    def plain(q, prm, out):
+        s_x = q[0]
+        out[0] = -0.1 * s_x + q[1] / prm[0]
+        out[1] = 1 - s_x
+        return 0
+
+    def sine(q, prm, out):
+        out[0] = math.sin(q[0])
+        return 0
+
+    def power(q, prm, out):
+        out[0] = q[0] ** 3
+        return 0
+
+    def branch(q, prm, out):
+        out[0] = q[0] if q[0] > 0 else -q[0]
+        return 0
+
+    def inplace(q, prm, out):
+        s = q[0]
+        s += 1.0
+        out[0] = s
+        return 0
+
+    assert es._column_form(njit(plain)) is not None
+    for fn in (sine, power, branch, inplace):
+        assert es._column_form(njit(fn)) is None, fn.__name__
+    assert es._column_form(plain) is None   # (not compiled: no py_func; called per state)

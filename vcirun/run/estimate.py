@@ -46,6 +46,7 @@ from .pilot import Run, Runner
 
 OK, UNRESOLVED, FAILED = "ok", "unresolved", "failed"
 _EPS = float(np.finfo(float).eps)
+_add, _max, _sqrt = np.add.reduce, np.maximum.reduce, math.sqrt
 # differences below ROUNDOFF * eps * (1 + max|q|) * sqrt(T) are round-off (accumulated over the grid
 # and the impact-time solves, event_tol 1e-13): no order can be read from them
 ROUNDOFF = 2e4
@@ -143,12 +144,9 @@ def sequence_difference(a: Run, b: Run, label_a: str, label_b: str, names=None) 
 
     Per contact: the same number of impacts and of releases; then each impact time may move by at
     most a quarter of the time to that contact's neighbouring impact (in either run)."""
-    same = (len(a.impacts) == len(b.impacts) and np.array_equal(a.impact_contact, b.impact_contact)
-            and len(a.releases) == len(b.releases) and np.array_equal(a.release_contact, b.release_contact))
-    if same:   # the common case: one pass, no per-contact bookkeeping unless an impact moves far
-        d = np.abs(a.impacts - b.impacts)
-        if len(d) < 2 or float(np.max(d)) <= 0.25 * _min_gap(a, b):
-            return "", d[np.argsort(a.impact_contact, kind="stable")]   # contact by contact, as below
+    dt = _matched(a, b)
+    if dt is not None:   # the common case: one pass, no per-contact bookkeeping unless an impact moves far
+        return "", dt
     ia, ra = _events(a)
     ib, rb = _events(b)
     firsts = []   # (time, text)
@@ -186,6 +184,38 @@ def sequence_difference(a: Run, b: Run, label_a: str, label_b: str, names=None) 
                                             f"{len(tb)} at {label_b} (the first unmatched one at t = {extra[0]:.6g})"))
     first = min(firsts)[1] if firsts else ""
     return first, (np.concatenate(dts) if dts else np.zeros(0))
+
+
+def _equal(x: np.ndarray, y: np.ndarray) -> bool:
+    """np.array_equal of two arrays (the same shape and values), without its per-call overhead."""
+    return x.shape == y.shape and bool((x == y).all())
+
+
+def _matched(a: Run, b: Run, raw: bool = False):
+    """The impact-time differences of runs a and b, contact by contact (each contact's in time order),
+    where their records match one for one (the same contacts in the same order, as many releases) and
+    no impact moves by more than a quarter of the shortest time between two impacts of one contact;
+    None otherwise (`sequence_difference` then compares contact by contact). raw: also |t_a - t_b| in
+    record order, as a pair."""
+    if len(a.impacts) != len(b.impacts) or len(a.releases) != len(b.releases) \
+            or not _equal(a.impact_contact, b.impact_contact) or not _equal(a.release_contact, b.release_contact):
+        return None
+    d = np.abs(a.impacts - b.impacts)
+    if len(d) >= 2 and not _max(d) <= 0.25 * _min_gap(a, b):
+        return None
+    # contact by contact: a stable sort by contact (the identity where the record's contacts do not decrease)
+    dt = d if _in_contact_order(a) else d[np.argsort(a.impact_contact, kind="stable")]
+    return (dt, d) if raw else dt
+
+
+def _in_contact_order(r: Run) -> bool:
+    """The impact record's contacts do not decrease (one contact, or contact by contact): a stable sort
+    by contact leaves it as it is (kept on the run)."""
+    hit = r.diffs.get("contact_order")
+    if hit is None:
+        c = r.impact_contact
+        hit = r.diffs["contact_order"] = len(c) < 2 or bool((c[1:] >= c[:-1]).all())
+    return hit
 
 
 def _min_gap(a: Run, b: Run) -> float:
@@ -234,35 +264,45 @@ def difference(coarse: Run, fine: Run, names=None) -> Difference:
     # only the last row of dp is read: that row alone, the same elementwise difference (runs of other
     # lengths take the whole array, as broadcasting or its error would)
     dp_end = (coarse.p[-1] - pf[-1]) if coarse.p.shape == pf.shape else (coarse.p - pf)[-1]
-    l2 = float(np.sqrt(coarse.h * np.sum(dq * dq)))
-    first, dt = sequence_difference(coarse, fine, f"h = {coarse.h:.6g}", f"h = {fine.h:.6g}", names)
-    holds = sorted(coarse.holds + fine.holds)
+    # (np.sum, np.max and np.sqrt as the ufuncs' reductions and math.sqrt: the same correctly rounded
+    # operations without numpy's per-call wrappers)
+    l2 = _sqrt(coarse.h * float(_add(dq * dq, None)))
+    hit = _matched(coarse, fine, raw=True)
+    if hit is not None:
+        first, (dt, d_raw) = "", hit
+    else:
+        first, dt = sequence_difference(coarse, fine, f"h = {coarse.h:.6g}", f"h = {fine.h:.6g}", names)
+        d_raw = None
+    holds = sorted(coarse.holds + fine.holds) if coarse.holds or fine.holds else ()
     if not first and holds:
         t, c = holds[0]
         first = (f"{_name(names, c)} comes to rest at t = {t:.6g} (held after its impacts): where impacts "
                  "accumulate the number of bounces before the hold depends on h")
     if not first:
-        qn = float(np.sqrt(coarse.h * np.sum(qf * qf)))
+        qn = _sqrt(coarse.h * float(_add(qf * qf, None)))
         if l2 > LOST * qn:
             first = (f"the runs at h = {coarse.h:.6g} and {fine.h:.6g} differ by {l2:.3g} in L2, more than "
                      f"{LOST:.0%} of the motion's {qn:.3g}: neither resolves it")
     if not first and len(coarse.impacts):
-        first = _end_straddle(coarse, fine, names)
-    return Difference(l2=l2, final_q=float(np.sqrt(np.sum(dq[-1] * dq[-1]))),
-                      final_p=float(np.sqrt(np.sum(dp_end * dp_end))),
-                      sup_q=float(np.max(np.abs(dq))) if dq.size else 0.0, dt=dt, first=first)
+        first = _end_straddle(coarse, fine, names, d_raw)
+    e = dq[-1]
+    return Difference(l2=l2, final_q=_sqrt(float(_add(e * e, None))),
+                      final_p=_sqrt(float(_add(dp_end * dp_end, None))),
+                      sup_q=float(_max(np.abs(dq), None)) if dq.size else 0.0, dt=dt, first=first)
 
 
-def _end_straddle(coarse: Run, fine: Run, names=None) -> str:
+def _end_straddle(coarse: Run, fine: Run, names=None, d_raw=None) -> str:
     """'' or the impact that the runs (with matched impacts per contact) place within four times their
     disagreement on its time of the end t_N: the exact motion may have it after the end (the runs'
     error in an impact time is about their difference there, and 4x leaves the margin of a run
-    whose order is not yet asymptotic)."""
+    whose order is not yet asymptotic). d_raw: |t_coarse - t_fine| in record order where `_matched`
+    has it."""
     t_end = coarse.t0 + coarse.h * coarse.N
-    if np.array_equal(coarse.impact_contact, fine.impact_contact):   # impacts matched one for one, in order
+    if _equal(coarse.impact_contact, fine.impact_contact):   # impacts matched one for one, in order
         ta, tb = coarse.impacts, fine.impacts
-        close = np.flatnonzero(t_end - np.maximum(ta, tb) < 4.0 * np.abs(ta - tb))
-        if not close.size:
+        if d_raw is None or d_raw.shape != ta.shape:
+            d_raw = np.abs(ta - tb)
+        if not (t_end - np.maximum(ta, tb) < 4.0 * d_raw).any():
             return ""
     ia, _ = _events(coarse)
     ib, _ = _events(fine)
@@ -281,8 +321,12 @@ def _end_straddle(coarse: Run, fine: Run, names=None) -> str:
 
 def roundoff_level(run: Run) -> float:
     """The L2 difference two runs of this size can show from round-off alone."""
-    span = run.h * run.N
-    return ROUNDOFF * _EPS * (1.0 + float(np.max(np.abs(run.q)))) * math.sqrt(max(span, 1e-300))
+    level = run.diffs.get("roundoff")   # (kept on the run: every estimate and assessment of it asks)
+    if level is None:
+        span = run.h * run.N
+        level = run.diffs["roundoff"] = ROUNDOFF * _EPS * (1.0 + float(_max(np.abs(run.q), None))) \
+            * math.sqrt(max(span, 1e-300))
+    return level
 
 
 def amplified_floor(run: Run, twins: list, N: int, names=None) -> tuple[float, str]:
@@ -319,14 +363,69 @@ def _phis(run: Run, mod, prm, ks=None) -> np.ndarray:
         if hit is not None and hit[0] is mod:
             return hit[1]
     m = int(mod.NCON)
-    ks = range(run.q.shape[0]) if ks is None else ks
-    out = np.empty((len(ks), m))
-    sys_phis, q = mod.sys_phis, run.q
-    for j, k in enumerate(ks):
-        sys_phis(q[k], prm, out[j])
-    if isinstance(ks, range):
+    sys_phis = mod.sys_phis
+    q = run.q if ks is None else run.q[ks]
+    out = np.empty((q.shape[0], m))
+    columns = _column_form(sys_phis) if q.shape[0] >= COLUMNS_FROM else None
+    if columns is not None:
+        with np.errstate(all="ignore"):   # (the compiled kernel's error_model="numpy": no warnings)
+            columns(q.T, prm, out.T)
+    else:
+        for qk, row in zip(q, out):
+            sys_phis(qk, prm, row)
+    if ks is None:
         run.diffs["phis"] = (mod, out)
     return out
+
+
+# phi on many grid states at once: a compiled sys_phis whose Python source (the function numba compiles)
+# is arithmetic only (+, -, *, / and unary minus on entries of q and prm and number constants, each entry of
+# out assigned once) computes, called with the columns of q and out (q.T[j] is coordinate j at every
+# state), the same IEEE operations in the same order on every state: the same bits as one compiled call
+# per state (numba contracts no multiply-add without fastmath; tests/unit/test_choice_fast_paths.py holds
+# it on random states), without a Python-to-compiled call per state. A kernel with any other operation
+# (math.sin, **, a branch) is called per state.
+COLUMNS_FROM = 8   # states; fewer are cheaper one call each
+_PLAIN_OPS = frozenset(("RESUME", "NOP", "LOAD_FAST", "LOAD_FAST_CHECK", "STORE_FAST", "BINARY_SUBSCR", "STORE_SUBSCR",
+                        "UNARY_NEGATIVE", "RETURN_VALUE", "POP_TOP"))
+_COLUMN_FORMS: dict = {}   # id(code) -> (code, the function or None)
+
+
+def _column_form(kernel):
+    """The Python function of compiled `kernel` where it may be called on columns (see above), else None."""
+    fn = getattr(kernel, "py_func", None)
+    code = getattr(fn, "__code__", None)
+    if code is None:
+        return None
+    hit = _COLUMN_FORMS.get(id(code))
+    if hit is None or hit[0] is not code:
+        if len(_COLUMN_FORMS) > 256:
+            _COLUMN_FORMS.clear()
+        hit = _COLUMN_FORMS[id(code)] = (code, fn if _arithmetic_only(fn) else None)
+    return hit[1]
+
+
+def _arithmetic_only(fn) -> bool:
+    """fn(q, prm, out) is straight-line code of the operations _column_form allows (no call, attribute,
+    global, comparison, branch, loop, in-place or other operator; constants are numbers)."""
+    import dis
+    import inspect
+
+    code = fn.__code__
+    odd = (inspect.CO_VARARGS | inspect.CO_VARKEYWORDS | inspect.CO_GENERATOR | inspect.CO_COROUTINE
+           | inspect.CO_ITERABLE_COROUTINE | inspect.CO_ASYNC_GENERATOR)
+    if code.co_argcount != 3 or code.co_kwonlyargcount or code.co_freevars or code.co_cellvars or code.co_flags & odd:
+        return False
+    for ins in dis.get_instructions(code):
+        op = ins.opname
+        if op in _PLAIN_OPS:
+            continue
+        if op in ("LOAD_CONST", "RETURN_CONST") and (type(ins.argval) in (int, float) or ins.argval is None):
+            continue
+        if op == "BINARY_OP" and ins.argrepr in ("+", "-", "*", "/"):
+            continue
+        return False
+    return True
 
 
 def _near_event(run: Run, reach: int) -> np.ndarray:
@@ -359,17 +458,33 @@ def _parabola_minima(f: np.ndarray, skip: np.ndarray):
     on [t_k-1, t_k+1], its curvature) of f (grid x contacts): every (k, i) whose parabola has its vertex
     on that span (so a dip in the last step is seen too) or is a grid minimum, f[k, i] > 0, not skipped
     (skip: per grid point, or per grid point and contact). Every contact at once: the same elementwise
-    arithmetic as one contact's column alone."""
+    arithmetic as one contact's column alone. The vertex s = -slope / (2 curv) (inf where curv <= 0) is on
+    the span where |slope / (2 curv)| <= 1 and curv > 0 (IEEE division rounds -x as it rounds x); the
+    lowest value b - slope^2 / (4 curv) (b where curv <= 0) is computed at the points kept."""
     a, b, c = f[:-2], f[1:-1], f[2:]
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):   # inf outside a screen's windows
         curv = (a - 2 * b + c) / 2.0
         slope = (c - a) / 2.0
-        s = np.where(curv > 0, -slope / (2 * curv), np.inf)
-        low = np.where(curv > 0, b - slope * slope / (4 * curv), b)
-    skip = skip[1:-1] if skip.ndim == 2 else skip[1:-1, None]
-    unarmed = (a == GUARD_OFF) | (b == GUARD_OFF) | (c == GUARD_OFF)   # a parabola across a guard's arming
-    ks, cs = np.nonzero(((np.abs(s) <= 1.0) | ((b <= a) & (b <= c))) & (b > 0) & ~skip & ~unarmed)
-    return ks + 1, cs, low[ks, cs], np.abs(curv[ks, cs])
+        keep = (curv > 0) & (np.abs(slope / (2 * curv)) <= 1.0)
+    keep |= (b <= a) & (b <= c)
+    keep &= b > 0
+    keep &= ~(skip[1:-1] if skip.ndim == 2 else skip[1:-1, None])
+    if (f == GUARD_OFF).any():   # a parabola across a guard's arming
+        keep &= ~((a == GUARD_OFF) | (b == GUARD_OFF) | (c == GUARD_OFF))
+    ks, cs = np.nonzero(keep)
+    cv, sl, bv = curv[ks, cs], slope[ks, cs], b[ks, cs]
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        low = np.where(cv > 0, bv - sl * sl / (4 * cv), bv)
+    return ks + 1, cs, low, np.abs(cv)
+
+
+def _screen_minima(run: Run, mod, prm):
+    """`_parabola_minima` of run's phi on its whole grid, its impacts and releases skipped (kept on the run:
+    the grazing checks of two estimates screen with the same companion)."""
+    hit = run.diffs.get("minima")
+    if hit is None or hit[0] is not mod:
+        hit = run.diffs["minima"] = (mod, _parabola_minima(_phis(run, mod, prm), _near_event(run, 1)))
+    return hit[1]
 
 
 def _end_approach(run: Run, mod, prm, margin: float) -> list:
@@ -382,10 +497,14 @@ def _end_approach(run: Run, mod, prm, margin: float) -> list:
         return []
     if _near_event(run, 1)[N]:
         return []
-    f = _phis(run, mod, prm, [N - 1, N])
+    hit = run.diffs.get("phis")   # (the whole grid's where it was computed; else the last two states, kept)
+    if hit is None or hit[0] is not mod:
+        hit = run.diffs.get("end_phis")
+        if hit is None or hit[0] is not mod:
+            hit = run.diffs["end_phis"] = (mod, _phis(run, mod, prm, [N - 1, N]))
+    fa, fb = hit[1][-2:].tolist()
     out = []
-    for i in range(f.shape[1]):
-        a, b = float(f[0, i]), float(f[1, i])
+    for i, (a, b) in enumerate(zip(fa, fb)):
         if 0 < b < a and b <= margin and a != GUARD_OFF:   # (not a guard arming in the last step)
             out.append((run.t0 + N * run.h, i, b))
     return out
@@ -407,14 +526,14 @@ def near_misses(run: Run, mod, prm, margin: float = 0.0, screen: Run | None = No
     out = _end_approach(run, mod, prm, margin)
     t0, h = run.t0, run.h
     if screen is None:
-        ks, cs, low, _ = _parabola_minima(_phis(run, mod, prm), _near_event(run, 1))
+        ks, cs, low, _ = _screen_minima(run, mod, prm)
         hit = low <= margin
         out += [(t0 + k * h, i, v) for k, i, v in zip(ks[hit].tolist(), cs[hit].tolist(), low[hit].tolist())]
         return sorted(out)
     r = N // (screen.q.shape[0] - 1)
     if r < 1 or (screen.q.shape[0] - 1) * r != N or screen.q.shape[0] < 3:
         return near_misses(run, mod, prm, margin)
-    ks, _, low, curv = _parabola_minima(_phis(screen, mod, prm), _near_event(screen, 1))
+    ks, _, low, curv = _screen_minima(screen, mod, prm)
     sel = ks[low <= margin + 2.0 * curv]
     if not sel.size:
         return sorted(out)
