@@ -199,3 +199,19 @@ def test_column_form_only_for_arithmetic_kernels():
     for fn in (sine, power, branch, inplace):
         assert es._column_form(njit(fn)) is None, fn.__name__
     assert es._column_form(plain) is None   # (not compiled: no py_func; called per state)
+
+
+def test_fresh_buffers_are_record_allocates():
+    """A pilot's output buffers (shapes, dtypes, layout, fills) are record.allocate's, for any N, sizes and
+    impact capacity (their trailing shapes are kept per (n, m), the rows follow N)."""
+    from vcirun.core import record
+    from vcirun.run.pilot import _FRESH
+
+    for N, n, m in ((1, 1, 0), (5, 1, 1), (137, 2, 1), (64, 3, 4), (1000, 6, 2), (64, 3, 4)):
+        for cap in (record.impact_capacity(N), 4 * record.impact_capacity(N) + 3):
+            want, got = record.allocate(N, n, m=m, cap_impacts=cap), _FRESH.get(N, n, m, cap)
+            assert len(want) == len(got)
+            for a, b, f in zip(want, got, record.FIELDS):
+                assert a.shape == b.shape and a.dtype == b.dtype and b.flags.c_contiguous, f.name
+                if f.fill is not None:
+                    assert a.tobytes() == b.tobytes(), f.name

@@ -158,26 +158,40 @@ def _zero_fill(fill, dt) -> bool:
 
 
 class _FreshBuffers:
-    """Fresh output buffers for each run of the loop (`record.allocate`'s, bit for bit), with the shapes,
-    dtypes and fills of each size worked out once (the `buffers` that `vcirun.run.plan.run_loop` takes).
-    One per process (`_FRESH`): the sizes recur from call to call of `simulate(tol=...)`."""
+    """Fresh output buffers for each run of the loop (`record.allocate`'s, bit for bit), with the trailing
+    shapes, dtypes and fills of each (n, m) worked out once and the rows of each axis from
+    `record.axis_rows` (the `buffers` that `vcirun.run.plan.run_loop` takes). One per process (`_FRESH`):
+    a scene's (n, m) recurs from call to call of `simulate(tol=...)`, its N does not."""
 
     def __init__(self):
         self.specs: dict = {}
 
     def get(self, N: int, n: int, m: int, cap_imp: int) -> tuple:
-        key = (N, n, m, cap_imp)
-        spec = self.specs.get(key)
+        spec = self.specs.get((n, m))
         if spec is None:
-            out = record.allocate(N, n, m=m, cap_impacts=cap_imp)
             if len(self.specs) > 256:
                 self.specs.clear()
-            self.specs[key] = tuple((a.shape, a.dtype, "zeros" if _zero_fill(f.fill, a.dtype) else f.fill)
-                                    for f, a in zip(record.FIELDS, out))
-            return out
-        empty, zeros, full = np.empty, np.zeros, np.full
-        return tuple(empty(shape, dt) if fill is None else zeros(shape, dt) if fill == "zeros" else
-                     full(shape, fill, dt) for shape, dt, fill in spec)
+            spec = []
+            for f in record.FIELDS:
+                dt = np.bool_ if f.dtype == "bool" else np.dtype(f.dtype)
+                # 0: np.empty; 1: np.zeros (a fill of all-zero bytes, from zeroed pages); 2: np.full's fill
+                kind = 0 if f.fill is None else 1 if _zero_fill(f.fill, dt) else 2
+                spec.append((f.axis, f.shape(0, n, m)[1:], dt, kind, f.fill))
+            spec = self.specs[(n, m)] = tuple(spec)
+        rows = record.axis_rows(N, cap_imp)
+        empty, zeros = np.empty, np.zeros
+        out = []
+        add = out.append
+        for axis, tail, dt, kind, fill in spec:
+            if kind == 0:
+                add(empty((rows[axis],) + tail, dt))
+            elif kind == 1:
+                add(zeros((rows[axis],) + tail, dt))
+            else:   # (what np.full does: an empty array, then every entry set to the fill)
+                a = empty((rows[axis],) + tail, dt)
+                a.fill(fill)
+                add(a)
+        return tuple(out)
 
 
 _FRESH = _FreshBuffers()
@@ -215,11 +229,51 @@ class Runner:
         self.params = params
         self.constrained, self.resting_contact = constrained, resting_contact
         self.options = dict(options or {})
-        self._plans: dict = {}
+        self._plans: dict = {}    # (method, energies) -> (plan, module, q0, p0, prm, beta): see _base
+        self._resolved: dict = {}  # (method, energies) -> (plan, module, prm, beta, start): see _resolve
         self._tiers: dict = {}    # id(module) -> the tier it was loaded on
-        self._starts: dict = {}   # (sysd, sysm, constrained) ids -> [(module, q0, p0, prm, beta)]: see _base
+        self._states: dict = {}   # (sysd, sysm) ids -> (prm, beta, start_state)
+        self._ready: dict = {}    # (module, sysd, sysm, constrained) ids -> (q0, p0) as the runs take them
+        self._checked = False     # plan() has checked the start's arguments (beta, q0, p0, params)
 
     # --- plans --------------------------------------------------------------------------------------
+    def _resolve(self, method, energies: bool):
+        """(plan, module, prm, beta, start) of `method` (resolved once per method and energies flag): the
+        plan, the start validated (`start_state`: one per system, whatever the method), and the module
+        its runs take, loaded after that validation, as simulate loads it."""
+        fast = (method, energies) if isinstance(method, str) else None
+        hit = self._resolved.get(fast) if fast is not None else None
+        if hit is not None:
+            return hit
+        from ..methods.table import resolve_method
+        from .plan import plan, start_state
+
+        meth = resolve_method(method)
+        key = (meth, energies)
+        hit = self._resolved.get(key)
+        if hit is None:
+            # a name (not the Method) lets plan() keep the plan of a built-in scene across Runners; the start's
+            # arguments are the same for every plan of this Runner: plan() checks them on the first
+            p = plan(self.system, method if isinstance(method, str) else meth, h=self.T, T=self.T, t0=self.t0,
+                     constrained=self.constrained,
+                     energies=energies, resting_contact=self.resting_contact, options=self.options,
+                     start=None if self._checked else self.start, kc=self.kc, tier=self.tier)
+            self._checked = True
+            sysd = p.sysd
+            # (the objects keyed by id stay alive in self._resolved)
+            st = self._states.get((id(sysd), id(p.sysm)))
+            if st is None:
+                prm = sysd.param_values(self.params)
+                beta = start_beta(sysd, self.start["beta"], self.start["q0"], self.start["p0"])
+                st = self._states[(id(sysd), id(p.sysm))] = (
+                    prm, beta, start_state(sysd, beta, self.start["q0"], self.start["p0"], prm, p.sysm))
+            mod = p.module()   # (after the start is validated, as simulate does)
+            self._tiers[id(mod)] = p.tier_used   # (the tier of this module; the kept plan may move on later)
+            hit = self._resolved[key] = (p, mod) + st
+        if fast is not None:
+            self._resolved[fast] = hit
+        return hit
+
     def _base(self, method, energies: bool):
         """(plan, module, q0, p0, prm, beta) of `method` (resolved once per method and energies flag)."""
         fast = (method, energies) if isinstance(method, str) else None
@@ -227,40 +281,24 @@ class Runner:
         if hit is not None:
             return hit
         from ..methods.table import resolve_method
-        from .plan import first_call, plan, ready_start, start_state
+        from .plan import first_call, ready_start
 
-        meth = resolve_method(method)
-        key = (meth, energies)
+        p, mod, prm, beta, start = self._resolve(method, energies)
+        key = (resolve_method(method), energies)
         hit = self._plans.get(key)
-        if hit is not None and fast is not None:
-            self._plans[fast] = hit
         if hit is None:
-            # a name (not the Method) lets plan() keep the plan of a built-in scene across Runners
-            p = plan(self.system, method if isinstance(method, str) else meth, h=self.T, T=self.T, t0=self.t0,
-                     constrained=self.constrained,
-                     energies=energies, resting_contact=self.resting_contact, options=self.options,
-                     start=self.start, kc=self.kc, tier=self.tier)
-            sysd = p.sysd
             # the start as the run takes it depends on the module, the system and the constraint flag, not
             # on the energies flag: a method's runs with and without energies share it (the same functions
-            # of the same arguments, the same bits; the objects keyed by id stay alive in self._plans)
-            entries = self._starts.setdefault((id(sysd), id(p.sysm), p.constrained), [])
-            # (with an entry the start has been validated: the module may be loaded before it)
-            got = next((e for e in entries if e[0] is p.module()), None) if entries else None
-            if got is not None:
-                mod, q0, p0, prm, beta = got
-            else:
-                prm = sysd.param_values(self.params)
-                beta = start_beta(sysd, self.start["beta"], self.start["q0"], self.start["p0"])
-                start = start_state(sysd, beta, self.start["q0"], self.start["p0"], prm, p.sysm)
-                mod = p.module()   # (after the start is validated, as simulate does)
-                q0, p0 = ready_start(p, mod, start, prm)
-                entries.append((mod, q0, p0, prm, beta))
-            self._tiers[id(mod)] = p.tier_used   # (the tier of this module; the kept plan may move on later)
+            # of the same arguments, the same bits)
+            rk = (id(mod), id(p.sysd), id(p.sysm), p.constrained)
+            ready = self._ready.get(rk)
+            if ready is None:
+                ready = self._ready[rk] = ready_start(p, mod, start, prm)
+            q0, p0 = ready
             first_call(mod, p, q0, p0, prm)
             hit = self._plans[key] = (p, mod, q0, p0, prm, beta)
-            if fast is not None:
-                self._plans[fast] = hit
+        if fast is not None:
+            self._plans[fast] = hit
         return hit
 
     def method(self, method):
@@ -270,8 +308,10 @@ class Runner:
         return self._base(method, False)[1]
 
     def tier_used(self, method) -> str | None:
-        """The tier `method`'s runs take (vcirun.codegen.tiers: "compiled", "interpreted" or "substitute")."""
-        return self._tiers.get(id(self.module(method)))
+        """The tier `method`'s runs take (vcirun.codegen.tiers: "compiled", "interpreted" or "substitute"):
+        the module its runs take, without preparing the start for it (a method asked only for its tier
+        may make no run)."""
+        return self._tiers.get(id(self._resolve(method, False)[1]))
 
     def params_vector(self, method) -> np.ndarray:
         return self._base(method, False)[4]
