@@ -1,8 +1,11 @@
 """The shortcuts that keep a later `simulate(tol=...)` call's Python small compute what the plain code
-computed, bit for bit: the scene model's median, the per-contact event records, the grazing screen of
-every contact at once, the hold onsets, and a final run whose Trajectory is built only when returned."""
+computed, bit for bit: the scene model's median, the per-contact event records and gaps, the one-pass
+match of two event records, the grazing screen of every contact at once, phi on many grid states in one
+call, the last grid point's event mark, the hold onsets, the observed order's bisection, a pilot's fresh
+buffers, and a final run whose Trajectory is built only when returned."""
 from __future__ import annotations
 
+import dataclasses
 import math
 import random
 
@@ -215,3 +218,78 @@ def test_fresh_buffers_are_record_allocates():
                 assert a.shape == b.shape and a.dtype == b.dtype and b.flags.c_contiguous, f.name
                 if f.fill is not None:
                     assert a.tobytes() == b.tobytes(), f.name
+
+
+def _plain_observed_order(Na, Nb, Nc, dab, dbc):
+    if not (dab > 0 and dbc > 0):
+        return None
+    target = math.log(dab / dbc)
+
+    def f(p):
+        return p * math.log(Nb / Na) + math.log1p(-(Na / Nb) ** p) - math.log1p(-(Nb / Nc) ** p) - target
+
+    lo, hi = 0.05, 30.0
+    flo, fhi = f(lo), f(hi)
+    if flo > 0:
+        return 0.0
+    if fhi < 0:
+        return hi
+    for _ in range(50):
+        mid = 0.5 * (lo + hi)
+        if f(mid) > 0:
+            hi = mid
+        else:
+            lo = mid
+    return 0.5 * (lo + hi)
+
+
+def test_observed_order_bisection():
+    from vcirun.run.ladder import _observed_order
+
+    rng = random.Random(13)
+    for _ in range(3000):
+        Na = rng.choice([4, 8, 16, 24, 100])
+        Nb = Na * rng.choice([2, 3, 4])
+        Nc = Nb * rng.choice([2, 4])
+        dab, dbc = 10 ** rng.uniform(-14, 0), 10 ** rng.uniform(-14, 0)
+        want = _plain_observed_order(Na, Nb, Nc, dab, dbc)
+        assert _bits(_observed_order(Na, Nb, Nc, dab, dbc), want)
+    assert _observed_order(8, 16, 32, 0.0, 1.0) is None
+
+
+def test_matched_records_and_gaps_with_nan_and_sorted_contacts():
+    """The one-pass match of two records gives the per-contact impact-time differences (contacts in index
+    order, each in time order); the shortest gap per contact is the plain one with NaN times and with
+    records already in contact order."""
+    rng = random.Random(17)
+    for _ in range(2000):
+        k, m = rng.randint(0, 25), rng.randint(1, 4)
+        times = np.sort([rng.uniform(0, 5) for _ in range(k)])
+        contacts = [rng.randrange(m) for _ in range(k)]
+        if rng.random() < 0.3:
+            contacts.sort()
+        if k and rng.random() < 0.1:
+            times[rng.randrange(k)] = math.nan
+        a = _run(times, contacts)
+        one = k > 1 and len(set(contacts)) == 1   # (one contact: np.min of its gaps, NaN with a NaN time)
+        assert _bits(es._own_min_gap(a), float(np.min(np.diff(times))) if one else _plain_min_gap(a))
+        b = _run(times + np.array([rng.uniform(-1e-9, 1e-9) for _ in range(k)]), contacts)
+        dt = es._matched(a, b)
+        if dt is not None:
+            ca = np.asarray(contacts, np.int64)
+            want = [np.abs(a.impacts[ca == c] - b.impacts[ca == c]) for c in sorted(set(contacts))]
+            assert _bits(dt, np.concatenate(want) if want else np.zeros(0))
+
+
+def test_near_end_is_the_last_point_of_near_event():
+    rng = random.Random(19)
+    for _ in range(3000):
+        N, h, t0 = rng.randint(0, 40), rng.uniform(0.01, 1.0), rng.uniform(-1, 1)
+        imp = np.sort([t0 + rng.uniform(-0.5, N + 1.5) * h for _ in range(rng.randint(0, 4))])
+        rel = np.sort([t0 + rng.uniform(0, N) * h for _ in range(rng.choice([0, 0, 1, 2]))])
+        run = Run(method=None, N=N, h=h, t0=t0, q=np.zeros((N + 1, 1)), p=np.zeros((N + 1, 1)), impacts=imp,
+                  impact_contact=np.zeros(len(imp), np.int64), releases=rel,
+                  release_contact=np.zeros(len(rel), np.int64), held=False, status="ok", wall=0.0, cpu=0.0)
+        for reach in (0, 1, 2):
+            fresh = dataclasses.replace(run, diffs={})
+            assert es._near_end(fresh, reach) == bool(es._near_event(run, reach)[-1]), (N, imp, rel, reach)

@@ -511,10 +511,8 @@ class _Chooser:
         if not mm.C or mm.b is None:
             c.status, c.note = "unresolved", mm.unresolved or "not resolved on the starts piloted"
             return c
-        C = mm.constant()
+        C, c.N_asymptotic, c.N_resolved = mm.medians()
         c.C = C
-        c.N_asymptotic = mm.n_asymptotic()
-        c.N_resolved = mm.n_resolved()
         N = max(math.ceil((C / (TARGET * self.tol)) ** (1.0 / mm.order)) if C > 0 else 1,
                 c.N_resolved or 1, self.n_min)
         self._fill(c, N)

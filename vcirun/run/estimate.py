@@ -46,7 +46,7 @@ from .pilot import Run, Runner
 
 OK, UNRESOLVED, FAILED = "ok", "unresolved", "failed"
 _EPS = float(np.finfo(float).eps)
-_add, _max, _sqrt = np.add.reduce, np.maximum.reduce, math.sqrt
+_add, _max, _min, _sqrt = np.add.reduce, np.maximum.reduce, np.minimum.reduce, math.sqrt
 # differences below ROUNDOFF * eps * (1 + max|q|) * sqrt(T) are round-off (accumulated over the grid
 # and the impact-time solves, event_tol 1e-13): no order can be read from them
 ROUNDOFF = 2e4
@@ -188,7 +188,7 @@ def sequence_difference(a: Run, b: Run, label_a: str, label_b: str, names=None) 
 
 def _equal(x: np.ndarray, y: np.ndarray) -> bool:
     """np.array_equal of two arrays (the same shape and values), without its per-call overhead."""
-    return x.shape == y.shape and bool((x == y).all())
+    return x.shape == y.shape and (not x.size or bool((x == y).all()))
 
 
 def _matched(a: Run, b: Run, raw: bool = False):
@@ -203,18 +203,24 @@ def _matched(a: Run, b: Run, raw: bool = False):
     d = np.abs(a.impacts - b.impacts)
     if len(d) >= 2 and not _max(d) <= 0.25 * _min_gap(a, b):
         return None
-    # contact by contact: a stable sort by contact (the identity where the record's contacts do not decrease)
-    dt = d if _in_contact_order(a) else d[np.argsort(a.impact_contact, kind="stable")]
+    order = _contact_order(a)[0]   # contact by contact: the record stably sorted by contact
+    dt = d if order is None else d[order]
     return (dt, d) if raw else dt
 
 
-def _in_contact_order(r: Run) -> bool:
-    """The impact record's contacts do not decrease (one contact, or contact by contact): a stable sort
-    by contact leaves it as it is (kept on the run)."""
+def _contact_order(r: Run) -> tuple:
+    """(order, one): np.argsort(impact_contact, kind="stable") of run r, None where that is the identity
+    (the record's contacts do not decrease), and whether every impact is of one contact (kept on the run)."""
     hit = r.diffs.get("contact_order")
     if hit is None:
         c = r.impact_contact
-        hit = r.diffs["contact_order"] = len(c) < 2 or bool((c[1:] >= c[:-1]).all())
+        if len(c) < 2:
+            hit = (None, True)
+        elif (c[1:] >= c[:-1]).all():
+            hit = (None, bool(c[0] == c[-1]))
+        else:
+            hit = (np.argsort(c, kind="stable"), False)
+        r.diffs["contact_order"] = hit
     return hit
 
 
@@ -224,26 +230,29 @@ def _min_gap(a: Run, b: Run) -> float:
 
 
 def _own_min_gap(r: Run) -> float:
-    """The shortest time between two impacts of one contact of run r (inf if none; kept on the run)."""
+    """The shortest time between two impacts of one contact of run r (inf if none; kept on the run).
+    (np.diff(x) is x[1:] - x[:-1] and np.min np.minimum.reduce, which gives NaN where any entry is NaN.)"""
     g = r.diffs.get("min_gap")
     if g is None:
         g = math.inf
         if len(r.impacts) > 1:
-            c = r.impact_contact
-            if (c == c[0]).all():
-                g = float(np.min(np.diff(r.impacts)))
+            c, t = r.impact_contact, r.impacts
+            order, one = _contact_order(r)
+            if one:
+                g = float(_min(t[1:] - t[:-1]))
             else:
                 # each contact's consecutive impacts in record order: a stable sort by contact keeps that
                 # order, and the gaps between neighbours of one contact are the per-contact np.diff's
-                order = np.argsort(c, kind="stable")
-                gaps = np.diff(r.impacts[order])[c[order][1:] == c[order][:-1]]
-                if gaps.size and not np.isnan(gaps).any():
-                    g = float(np.min(gaps))
+                ts, cs = (t, c) if order is None else (t[order], c[order])
+                gaps = (ts[1:] - ts[:-1])[cs[1:] == cs[:-1]]
+                low = float(_min(gaps)) if gaps.size else math.nan
+                if low == low:
+                    g = low
                 elif gaps.size:   # (a NaN time: the per-contact minima, as min() skips a NaN one)
                     for k in np.unique(c):
-                        t = r.impacts[c == k]
-                        if len(t) > 1:
-                            g = min(g, float(np.min(np.diff(t))))
+                        tk = t[c == k]
+                        if len(tk) > 1:
+                            g = min(g, float(np.min(np.diff(tk))))
         r.diffs["min_gap"] = g
     return g
 
@@ -437,13 +446,32 @@ def _near_event(run: Run, reach: int) -> np.ndarray:
         return near
     N = run.q.shape[0] - 1
     near = np.zeros(N + 1, bool)
-    events = np.concatenate([run.impacts, run.releases])
-    if len(events):   # (np.minimum(np.maximum(.)) is np.clip on integers, without its per-call overhead)
-        k_ev = np.minimum(np.maximum(np.floor((events - run.t0) / run.h).astype(np.int64), 0), N)
+    k_ev = _event_steps(run, N)
+    if k_ev is not None:
         ks = (k_ev[:, None] + np.arange(-reach, reach + 2)[None, :]).ravel()
         near[np.minimum(np.maximum(ks, 0), N)] = True
     run.diffs[key] = near
     return near
+
+
+def _event_steps(run: Run, N: int):
+    """The grid step of each recorded impact and release, in [0, N] (None where there is none)."""
+    events = np.concatenate([run.impacts, run.releases]) if len(run.releases) else run.impacts
+    if not len(events):
+        return None
+    # (np.minimum(np.maximum(.)) is np.clip on integers, without its per-call overhead)
+    return np.minimum(np.maximum(np.floor((events - run.t0) / run.h).astype(np.int64), 0), N)
+
+
+def _near_end(run: Run, reach: int) -> bool:
+    """_near_event(run, reach)[N], the last grid point: from the whole grid's where it is kept, else from
+    the events alone (the point N is marked where an event's step k has k + reach + 1 >= N)."""
+    near = run.diffs.get(("near", reach))
+    if near is not None:
+        return bool(near[-1])
+    N = run.q.shape[0] - 1
+    k_ev = _event_steps(run, N)
+    return k_ev is not None and bool(_max(k_ev) >= N - reach - 1)
 
 
 # the gap a guarded constraint reads while its guard is not armed (vcirun.mechanics.hybrid.GUARD_OFF; a test
@@ -495,7 +523,7 @@ def _end_approach(run: Run, mod, prm, margin: float) -> list:
     N = run.q.shape[0] - 1
     if N < 2:
         return []
-    if _near_event(run, 1)[N]:
+    if _near_end(run, 1):
         return []
     hit = run.diffs.get("phis")   # (the whole grid's where it was computed; else the last two states, kept)
     if hit is None or hit[0] is not mod:

@@ -18,19 +18,15 @@ def _observed_order(Na, Nb, Nc, dab, dbc) -> float | None:
     target = math.log(dab / dbc)
     log_ba, ab, bc = math.log(Nb / Na), Na / Nb, Nb / Nc   # (constant over the bisection: the same floats)
     log1p = math.log1p
-
-    def f(p):
-        return p * log_ba + log1p(-ab ** p) - log1p(-bc ** p) - target
-
+    # f(p) = p log_ba + log1p(-ab^p) - log1p(-bc^p) - target, written out in the loop (the same operations)
     lo, hi = 0.05, 30.0
-    flo, fhi = f(lo), f(hi)
-    if flo > 0:
+    if lo * log_ba + log1p(-ab ** lo) - log1p(-bc ** lo) - target > 0:
         return 0.0
-    if fhi < 0:
+    if hi * log_ba + log1p(-ab ** hi) - log1p(-bc ** hi) - target < 0:
         return hi
     for _ in range(50):
         mid = 0.5 * (lo + hi)
-        if f(mid) > 0:
+        if mid * log_ba + log1p(-ab ** mid) - log1p(-bc ** mid) - target > 0:
             hi = mid
         else:
             lo = mid

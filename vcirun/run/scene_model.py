@@ -34,6 +34,15 @@ class MethodModel:
             return None
         return max(self.floors) * math.sqrt(N)
 
+    def medians(self) -> tuple:
+        """(constant(), n_asymptotic(), n_resolved()): what the choice reads of the model for every candidate
+        on every later call, kept while the lists keep their lengths (they only grow)."""
+        key = (len(self.C), len(self.N_asymptotic), len(self.N_resolved))
+        hit = self.__dict__.get("_all")
+        if hit is None or hit[0] != key:
+            hit = self.__dict__["_all"] = (key, (self.constant(), self.n_asymptotic(), self.n_resolved()))
+        return hit[1]
+
     def constant(self) -> float | None:
         """The median error constant (cached: the model is consulted on every call)."""
         return self._median("C", float)
