@@ -293,3 +293,22 @@ def test_near_end_is_the_last_point_of_near_event():
         for reach in (0, 1, 2):
             fresh = dataclasses.replace(run, diffs={})
             assert es._near_end(fresh, reach) == bool(es._near_event(run, reach)[-1]), (N, imp, rel, reach)
+
+
+def test_model_median_as_its_lists_grow():
+    """The scene model's medians, kept as its lists grow one value at a time (signed zeros, equal values,
+    the NaN rule), are those of the whole list sorted each time."""
+    from vcirun.run.scene_model import MethodModel
+
+    rng = random.Random(23)
+    for _ in range(200):
+        mm = MethodModel(order=4)
+        for _ in range(rng.randint(1, 60)):
+            mm.C.append(rng.choice([rng.lognormvariate(0, 20), 0.0, -0.0, 1.5, math.nan if rng.random() < 0.02 else 2.0]))
+            mm.N_asymptotic.append(rng.choice([16, 24, 32, 96]) * rng.randint(1, 4))
+            if rng.random() < 0.5:
+                mm.N_resolved.append(rng.choice([16, 32, 64]))
+            C, n_asym, n_res = mm.medians()
+            assert _bits(C, float(_median(mm.C)))
+            assert n_asym == int(_median(mm.N_asymptotic))
+            assert n_res == (int(_median(mm.N_resolved)) if mm.N_resolved else None)

@@ -366,7 +366,7 @@ def amplified_floor(run: Run, twins: list, N: int, names=None) -> tuple[float, s
 
 # --- grazing contacts ----------------------------------------------------------------------------------
 def _phis(run: Run, mod, prm, ks=None) -> np.ndarray:
-    """phi_i at the grid states ks (default: all, kept on the run) of a run, (len(ks), m)."""
+    """phi_i at the grid states ks (indices or a slice; default: all, kept on the run) of a run, (len(ks), m)."""
     if ks is None:
         hit = run.diffs.get("phis")
         if hit is not None and hit[0] is mod:
@@ -494,14 +494,13 @@ def _parabola_minima(f: np.ndarray, skip: np.ndarray):
         curv = (a - 2 * b + c) / 2.0
         slope = (c - a) / 2.0
         keep = (curv > 0) & (np.abs(slope / (2 * curv)) <= 1.0)
-    keep |= (b <= a) & (b <= c)
-    keep &= b > 0
-    keep &= ~(skip[1:-1] if skip.ndim == 2 else skip[1:-1, None])
-    if (f == GUARD_OFF).any():   # a parabola across a guard's arming
-        keep &= ~((a == GUARD_OFF) | (b == GUARD_OFF) | (c == GUARD_OFF))
-    ks, cs = np.nonzero(keep)
-    cv, sl, bv = curv[ks, cs], slope[ks, cs], b[ks, cs]
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        keep |= (b <= a) & (b <= c)
+        keep &= b > 0
+        keep &= ~(skip[1:-1] if skip.ndim == 2 else skip[1:-1, None])
+        if (f == GUARD_OFF).any():   # a parabola across a guard's arming
+            keep &= ~((a == GUARD_OFF) | (b == GUARD_OFF) | (c == GUARD_OFF))
+        ks, cs = np.nonzero(keep)
+        cv, sl, bv = curv[ks, cs], slope[ks, cs], b[ks, cs]
         low = np.where(cv > 0, bv - sl * sl / (4 * cv), bv)
     return ks + 1, cs, low, np.abs(cv)
 
@@ -529,7 +528,7 @@ def _end_approach(run: Run, mod, prm, margin: float) -> list:
     if hit is None or hit[0] is not mod:
         hit = run.diffs.get("end_phis")
         if hit is None or hit[0] is not mod:
-            hit = run.diffs["end_phis"] = (mod, _phis(run, mod, prm, [N - 1, N]))
+            hit = run.diffs["end_phis"] = (mod, _phis(run, mod, prm, slice(N - 1, N + 1)))
     fa, fb = hit[1][-2:].tolist()
     out = []
     for i, (a, b) in enumerate(zip(fa, fb)):

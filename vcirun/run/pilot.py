@@ -203,9 +203,11 @@ class _Lazy:
 
     def __getattr__(self, name):
         from ..methods.table import resolve_method
-        from .plan import build_of, run_loop
+        from . import plan
 
-        self.resolve_method, self.run_loop, self.build_of = resolve_method, run_loop, build_of
+        self.resolve_method, self.run_loop, self.build_of = resolve_method, plan.run_loop, plan.build_of
+        self.plan, self.start_state, self.ready_start, self.first_call = (plan.plan, plan.start_state, plan.ready_start,
+                                                                          plan.first_call)
         return getattr(self, name)
 
 
@@ -245,16 +247,13 @@ class Runner:
         hit = self._resolved.get(fast) if fast is not None else None
         if hit is not None:
             return hit
-        from ..methods.table import resolve_method
-        from .plan import plan, start_state
-
-        meth = resolve_method(method)
+        meth = _LAZY.resolve_method(method)
         key = (meth, energies)
         hit = self._resolved.get(key)
         if hit is None:
             # a name (not the Method) lets plan() keep the plan of a built-in scene across Runners; the start's
             # arguments are the same for every plan of this Runner: plan() checks them on the first
-            p = plan(self.system, method if isinstance(method, str) else meth, h=self.T, T=self.T, t0=self.t0,
+            p = _LAZY.plan(self.system, method if isinstance(method, str) else meth, h=self.T, T=self.T, t0=self.t0,
                      constrained=self.constrained,
                      energies=energies, resting_contact=self.resting_contact, options=self.options,
                      start=None if self._checked else self.start, kc=self.kc, tier=self.tier)
@@ -266,7 +265,7 @@ class Runner:
                 prm = sysd.param_values(self.params)
                 beta = start_beta(sysd, self.start["beta"], self.start["q0"], self.start["p0"])
                 st = self._states[(id(sysd), id(p.sysm))] = (
-                    prm, beta, start_state(sysd, beta, self.start["q0"], self.start["p0"], prm, p.sysm))
+                    prm, beta, _LAZY.start_state(sysd, beta, self.start["q0"], self.start["p0"], prm, p.sysm))
             mod = p.module()   # (after the start is validated, as simulate does)
             self._tiers[id(mod)] = p.tier_used   # (the tier of this module; the kept plan may move on later)
             hit = self._resolved[key] = (p, mod) + st
@@ -280,11 +279,8 @@ class Runner:
         hit = self._plans.get(fast) if fast is not None else None
         if hit is not None:
             return hit
-        from ..methods.table import resolve_method
-        from .plan import first_call, ready_start
-
         p, mod, prm, beta, start = self._resolve(method, energies)
-        key = (resolve_method(method), energies)
+        key = (_LAZY.resolve_method(method), energies)
         hit = self._plans.get(key)
         if hit is None:
             # the start as the run takes it depends on the module, the system and the constraint flag, not
@@ -293,9 +289,9 @@ class Runner:
             rk = (id(mod), id(p.sysd), id(p.sysm), p.constrained)
             ready = self._ready.get(rk)
             if ready is None:
-                ready = self._ready[rk] = ready_start(p, mod, start, prm)
+                ready = self._ready[rk] = _LAZY.ready_start(p, mod, start, prm)
             q0, p0 = ready
-            first_call(mod, p, q0, p0, prm)
+            _LAZY.first_call(mod, p, q0, p0, prm)
             hit = self._plans[key] = (p, mod, q0, p0, prm, beta)
         if fast is not None:
             self._plans[fast] = hit

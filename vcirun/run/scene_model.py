@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 import os
 import stat
+from bisect import insort
 from dataclasses import dataclass, field
 
 @dataclass
@@ -56,13 +57,25 @@ class MethodModel:
         return self._median("N_resolved", int)
 
     def _median(self, name: str, kind):
+        """_median of the list `name` (kept with the list sorted as it grows: each call of the choice adds a
+        value, and sorting the whole list again costs its length)."""
         values = getattr(self, name)
         if not values:
             return None
         memo = self.__dict__.setdefault("_medians", {})
-        hit = memo.get(name)
-        if hit is None or hit[0] != len(values):
-            hit = memo[name] = (len(values), kind(_median(values)))
+        hit = memo.get(name)   # (length, median, the values sorted but NaNs, any NaN)
+        n = len(values)
+        if hit is None or hit[0] != n:
+            # the lists only grow: the values added since are inserted after those equal to them (insort_right),
+            # where a stable sort of the whole list puts them; a list that shrank is sorted anew
+            old = hit is not None and hit[0] < n
+            s, nan = (hit[2], hit[3]) if old else ([], False)
+            for v in values[hit[0] if old else 0:]:
+                if math.isnan(v):
+                    nan = True
+                else:
+                    insort(s, v)
+            hit = memo[name] = (n, kind(math.nan if nan else _middle(s)), s, nan)
         return hit[1]
 
 
@@ -73,6 +86,11 @@ def _median(values) -> float:
     s = sorted(values)
     if any(map(math.isnan, s)):
         return math.nan
+    return _middle(s)
+
+
+def _middle(s: list):
+    """The median of a sorted list (not empty)."""
     m = len(s) // 2
     return s[m] if len(s) % 2 else (s[m - 1] + s[m]) / 2
 
