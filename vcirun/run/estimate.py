@@ -469,9 +469,12 @@ def _near_end(run: Run, reach: int) -> bool:
     near = run.diffs.get(("near", reach))
     if near is not None:
         return bool(near[-1])
-    N = run.q.shape[0] - 1
-    k_ev = _event_steps(run, N)
-    return k_ev is not None and bool(_max(k_ev) >= N - reach - 1)
+    hit = run.diffs.get(("near_end", reach))
+    if hit is None:
+        N = run.q.shape[0] - 1
+        k_ev = _event_steps(run, N)
+        hit = run.diffs[("near_end", reach)] = k_ev is not None and bool(_max(k_ev) >= N - reach - 1)
+    return hit
 
 
 # the gap a guarded constraint reads while its guard is not armed (vcirun.mechanics.hybrid.GUARD_OFF; a test
@@ -490,18 +493,19 @@ def _parabola_minima(f: np.ndarray, skip: np.ndarray):
     the span where |slope / (2 curv)| <= 1 and curv > 0 (IEEE division rounds -x as it rounds x); the
     lowest value b - slope^2 / (4 curv) (b where curv <= 0) is computed at the points kept."""
     a, b, c = f[:-2], f[1:-1], f[2:]
+    # (float constants: numpy converts an int operand to the same float, at a cost per operation)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):   # inf outside a screen's windows
-        curv = (a - 2 * b + c) / 2.0
+        curv = (a - 2.0 * b + c) / 2.0
         slope = (c - a) / 2.0
-        keep = (curv > 0) & (np.abs(slope / (2 * curv)) <= 1.0)
+        keep = (curv > 0.0) & (np.abs(slope / (2.0 * curv)) <= 1.0)
         keep |= (b <= a) & (b <= c)
-        keep &= b > 0
+        keep &= b > 0.0
         keep &= ~(skip[1:-1] if skip.ndim == 2 else skip[1:-1, None])
         if (f == GUARD_OFF).any():   # a parabola across a guard's arming
             keep &= ~((a == GUARD_OFF) | (b == GUARD_OFF) | (c == GUARD_OFF))
         ks, cs = np.nonzero(keep)
         cv, sl, bv = curv[ks, cs], slope[ks, cs], b[ks, cs]
-        low = np.where(cv > 0, bv - sl * sl / (4 * cv), bv)
+        low = np.where(cv > 0.0, bv - sl * sl / (4.0 * cv), bv)
     return ks + 1, cs, low, np.abs(cv)
 
 
@@ -692,6 +696,9 @@ _SLOPES: dict = {}
 def slope_scale(run: Run, mod, prm) -> float:
     """|grad phi| at the start (the largest over the contacts): converts a q error into a gap error
     (kept per module, parameters and start)."""
+    hit = run.diffs.get("slope")   # (kept on the run too: each estimate of the run asks)
+    if hit is not None and hit[0] is mod and hit[1] is prm:
+        return hit[2]
     key = (id(mod), prm.tobytes(), run.q[0].tobytes())
     s = _SLOPES.get(key)
     if s is None:
@@ -703,6 +710,7 @@ def slope_scale(run: Run, mod, prm) -> float:
         if len(_SLOPES) > 256:
             _SLOPES.clear()
         _SLOPES[key] = s
+    run.diffs["slope"] = (mod, prm, s)
     return s
 
 
