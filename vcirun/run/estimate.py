@@ -131,7 +131,13 @@ def _by_contact(times: np.ndarray, contacts: np.ndarray) -> dict:
     times, contacts = np.asarray(times, dtype=float)[:k], np.asarray(contacts)[:k]
     if k == 1 or (contacts == contacts[0]).all():
         return {int(contacts[0]): np.sort(times)}
-    return {int(c): np.sort(times[contacts == c]) for c in np.unique(contacts)}
+    # (np.unique of integers is sorted(set()) of them, without its per-call cost)
+    cs = sorted(set(contacts.tolist())) if contacts.dtype.kind in "iu" else np.unique(contacts)
+    return {int(c): np.sort(times[contacts == c]) for c in cs}
+
+
+_NO_TIMES = np.zeros(0)   # (a contact without events in one run: read, never written)
+_NO_TIMES.flags.writeable = False
 
 
 def _name(names, c) -> str:
@@ -152,7 +158,7 @@ def sequence_difference(a: Run, b: Run, label_a: str, label_b: str, names=None) 
     firsts = []   # (time, text)
     dts = []
     for c in sorted(set(ia) | set(ib)):
-        ta, tb = ia.get(c, np.zeros(0)), ib.get(c, np.zeros(0))
+        ta, tb = ia.get(c, _NO_TIMES), ib.get(c, _NO_TIMES)
         k = min(len(ta), len(tb))
         if len(ta) != len(tb):
             extra, who = (ta[k:], label_a) if len(ta) > len(tb) else (tb[k:], label_b)
@@ -165,7 +171,7 @@ def sequence_difference(a: Run, b: Run, label_a: str, label_b: str, names=None) 
             gaps = np.full(k, np.inf)
             for t in (ta[:k], tb[:k]):
                 if k > 1:
-                    g = np.diff(t)
+                    g = t[1:] - t[:-1]   # (np.diff)
                     gaps[:-1] = np.minimum(gaps[:-1], g)
                     gaps[1:] = np.minimum(gaps[1:], g)
             bad = np.flatnonzero(d > 0.25 * gaps)
@@ -176,7 +182,7 @@ def sequence_difference(a: Run, b: Run, label_a: str, label_b: str, names=None) 
                                f"({label_b}) moves by more than a quarter of the time to its neighbouring impact "
                                f"({gaps[j]:.3g}): the impacts may reorder"))
     for c in sorted(set(ra) | set(rb)):
-        ta, tb = ra.get(c, np.zeros(0)), rb.get(c, np.zeros(0))
+        ta, tb = ra.get(c, _NO_TIMES), rb.get(c, _NO_TIMES)
         if len(ta) != len(tb):
             k = min(len(ta), len(tb))
             extra = ta[k:] if len(ta) > len(tb) else tb[k:]
