@@ -304,7 +304,8 @@ def test_model_median_as_its_lists_grow():
     for _ in range(200):
         mm = MethodModel(order=4)
         for _ in range(rng.randint(1, 60)):
-            mm.C.append(rng.choice([rng.lognormvariate(0, 20), 0.0, -0.0, 1.5, math.nan if rng.random() < 0.02 else 2.0]))
+            nan_or_two = math.nan if rng.random() < 0.02 else 2.0
+            mm.C.append(rng.choice([rng.lognormvariate(0, 20), 0.0, -0.0, 1.5, nan_or_two]))
             mm.N_asymptotic.append(rng.choice([16, 24, 32, 96]) * rng.randint(1, 4))
             if rng.random() < 0.5:
                 mm.N_resolved.append(rng.choice([16, 32, 64]))

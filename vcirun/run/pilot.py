@@ -254,9 +254,9 @@ class Runner:
             # a name (not the Method) lets plan() keep the plan of a built-in scene across Runners; the start's
             # arguments are the same for every plan of this Runner: plan() checks them on the first
             p = _LAZY.plan(self.system, method if isinstance(method, str) else meth, h=self.T, T=self.T, t0=self.t0,
-                     constrained=self.constrained,
-                     energies=energies, resting_contact=self.resting_contact, options=self.options,
-                     start=None if self._checked else self.start, kc=self.kc, tier=self.tier)
+                           constrained=self.constrained,
+                           energies=energies, resting_contact=self.resting_contact, options=self.options,
+                           start=None if self._checked else self.start, kc=self.kc, tier=self.tier)
             self._checked = True
             sysd = p.sysd
             # (the objects keyed by id stay alive in self._resolved)
