@@ -813,7 +813,7 @@ class _Chooser:
             if fin:
                 N, label = fin[-1]
                 est = ErrorEstimate("richardson", "unresolved", self.T / N,
-                                    message=f"no candidate resolved the motion: {notes}")
+                                    message="no candidate resolved the motion (the choice's reason says why for each)")
             else:
                 label = cands[0].method
                 N = max(N_FIRST, self.n_min)

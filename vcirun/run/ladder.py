@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from .estimate import ErrorEstimate, difference, near_misses, roundoff_level, slope_scale
+from .estimate import ErrorEstimate, difference, near_misses, roundoff_level, sequence_difference, slope_scale
 from .pilot import Run
 
 def _observed_order(Na, Nb, Nc, dab, dbc) -> float | None:
@@ -70,10 +70,17 @@ def _companion(runs: dict, N: int, max_ratio: int = MAX_RATIO) -> Run | None:
     return best
 
 
+def _finest(runs: dict, N: int) -> Run | None:
+    """The finest ok run of the ladder finer than N (None if there is none)."""
+    M = max((M for M, r in runs.items() if M > N and r.ok), default=None)
+    return None if M is None else runs[M]
+
+
 def estimate_of(runs: dict, N: int, p: float, mod=None, prm=None, grazing=True,
                 order_from: int | None = None) -> ErrorEstimate:
     """The Richardson estimate of run N from its companion among `runs` (ratio r = N / N_companion),
-    with the observed order from a third nested run where there is one. order_from: the scene model's
+    with the observed order from a third nested run where there is one; "unresolved" where the
+    companion's impacts, or the finest run's of the ladder, differ from run N's. order_from: the scene model's
     word that the order showed at or above this N (vcirun.run.choose, later calls): without a third
     run, a companion at or above it makes the estimate checked on that word (extras["order_from_model"],
     the bracket one order wide, as for check_order=False), not on this start's runs."""
@@ -89,6 +96,16 @@ def estimate_of(runs: dict, N: int, p: float, mod=None, prm=None, grazing=True,
     if d.first:
         est.status, est.message = "unresolved", f"the runs do not resolve the impacts: {d.first}"
         return est
+    # the finest run of the ladder sees impacts that run N and its companion may both miss (a block at
+    # rest after two impacts at N = 32 and 64, rocking on at N = 128 and above): Richardson on a pair
+    # that agrees with itself is no bound then
+    fine = _finest(runs, N)
+    if fine is not None:
+        first, _ = sequence_difference(run, fine, f"h = {run.h:.6g}", f"h = {fine.h:.6g}")
+        if first:
+            est.status, est.first_difference = "unresolved", first
+            est.message = f"a finer run of the same method (N = {fine.N}) has other impacts: {first}"
+            return est
     floor = roundoff_level(run)
     third = _companion(runs, comp.N, 4)
     # checked: a third run showed the order (or the pair agrees to round-off); without it the bracket
