@@ -60,18 +60,7 @@ def main(calls: int = 1000) -> dict:
     hand_loop(*args)
     res = {}
     for name, f in (("floor", floor), ("simulate", call)):
-        for _ in range(100):
-            f()
-            hand_loop(*args)
-        hand, whole, wall = [], [], []
-        for _ in range(calls):
-            t = time.perf_counter()
-            hand_loop(*args)
-            hand.append(time.perf_counter() - t)
-            t = time.perf_counter()
-            r = f()
-            whole.append(time.perf_counter() - t)
-            wall.append(r.wall_time)
+        hand, wall, whole, _ = hw.interleaved(f, hand_loop, args, calls, warm=100)
         h, c, w = (statistics.median(x) * 1e6 for x in (hand, whole, wall))
         res[name] = {"hand_us": h, "call_us": c, "ratio": c / h, "outside_us": c - w}
         print(f"{name:8s}: hand-written loop {h:.1f} us, call {c:.1f} us = x{c / h:.2f}, outside the compiled loop "

@@ -354,17 +354,11 @@ def setup(h=1e-2, T=5.0, beta=3.2):
             np.empty(N), np.empty(N), np.zeros(N, np.int64), np.empty(64))
 
 
-def measure(repeats: int = 201, kernels: bool = False) -> dict:
-    """Medians of interleaved calls: the hand-written loop, vcirun's compiled loop (Trajectory.wall_time)
-    and vcirun's whole simulate() call, cart-pendulum CVA, T = 5, h = 1e-2, beta = 3.2. kernels: the
-    hand-written loop on the scene's generated kernels (`kernel_integrate`), else on the closed forms."""
-    import vcirun
-
-    args = setup()
-    hand_loop = kernel_integrate(vcirun_module()) if kernels else integrate
-    hand_loop(*args)
-    f = lambda: vcirun.simulate("cart_pendulum", "CVA", h=1e-2, T=5.0, beta=3.2)  # noqa: E731
-    for _ in range(20):
+def interleaved(f, hand_loop, args, repeats: int, warm: int = 20):
+    """(hand, loop, call, the last Trajectory): seconds of `repeats` calls of hand_loop(*args) and of f(),
+    alternating (as a sweep alternates runs), after `warm` rounds of both; loop: each Trajectory's
+    wall_time (its compiled loop alone)."""
+    for _ in range(warm):
         f()
         hand_loop(*args)
     hand, loop, call = [], [], []
@@ -376,6 +370,20 @@ def measure(repeats: int = 201, kernels: bool = False) -> dict:
         tr = f()
         call.append(time.perf_counter() - t)
         loop.append(tr.wall_time)
+    return hand, loop, call, tr
+
+
+def measure(repeats: int = 201, kernels: bool = False) -> dict:
+    """Medians of interleaved calls: the hand-written loop, vcirun's compiled loop (Trajectory.wall_time)
+    and vcirun's whole simulate() call, cart-pendulum CVA, T = 5, h = 1e-2, beta = 3.2. kernels: the
+    hand-written loop on the scene's generated kernels (`kernel_integrate`), else on the closed forms."""
+    import vcirun
+
+    args = setup()
+    hand_loop = kernel_integrate(vcirun_module()) if kernels else integrate
+    hand_loop(*args)
+    f = lambda: vcirun.simulate("cart_pendulum", "CVA", h=1e-2, T=5.0, beta=3.2)  # noqa: E731
+    hand, loop, call, tr = interleaved(f, hand_loop, args, repeats)
     steps, nimp, status = hand_loop(*args)
     imp = args[-1][:nimp]
     ref = np.asarray(tr.impacts)
