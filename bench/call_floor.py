@@ -6,10 +6,10 @@ kernels), medians of interleaved calls; printed, never asserted:
 
 "floor": only what a kept plan's run cannot skip -- a copy of the start, its two compiled calls
 (M(q0) for the Legendre transform, phi(q0) for admissibility), the loop buffers, the loop, the
-records taken by count, the grid times and `Trajectory.of_run`; "simulate": the whole call. The
-difference is what the call's checks, messages and dicts cost (the argument checks of the kept
-plan, the start's validation, the status, the energies' finiteness, options, tolerances, the
-dense-output closure, run_args)."""
+records taken by count and `Trajectory.of_run` with the fields that follow from the call left to
+their first read (vcirun.run.api._Derive); "simulate": the whole call. The difference is what the
+call's checks, messages and dicts cost (the argument checks of the kept plan, the start's
+validation, the status and message, the energies' finiteness)."""
 from __future__ import annotations
 
 import statistics
@@ -26,6 +26,7 @@ import handwritten_cva as hw  # noqa: E402
 import vcirun  # noqa: E402
 from vcirun.codegen.kernel_cache import default  # noqa: E402
 from vcirun.core import record  # noqa: E402
+from vcirun.run.api import _Derive  # noqa: E402
 from vcirun.run.plan import Buffers, take  # noqa: E402
 from vcirun.run.trajectory import Trajectory  # noqa: E402
 
@@ -39,21 +40,22 @@ def main(calls: int = 1000) -> dict:
     mod = p.module()
     prm0, q0s, p0s = p.params(None), tr.q[0].copy(), tr.p[0].copy()
     n, m = q0s.shape[0], int(mod.NCON)
-    buf, empties, names = Buffers(keep_grid=False), p.empties(m), record.COUNTERS
+    buf, names = Buffers(keep_grid=False), record.COUNTERS
 
     def floor():
         prm, q0, p0 = prm0.copy(), q0s.copy(), p0s.copy()
         mod.mass_matrix_ok(q0, prm, np.empty((n, n)))
         mod.sys_phis(q0, prm, np.empty(m))
-        out = buf.get(p.N, n, m, record.impact_capacity(p.N))
+        silent, own, records = p.rows(mod)
+        out = buf.get(p.N, n, m, record.impact_capacity(p.N), silent)
         info = np.zeros(len(names), np.int64)
         t = time.perf_counter()
         mod.integrate(q0, p0, 0.0, p.h, p.N, prm, p.settings, out, info)
         wall = time.perf_counter() - t
         counters = dict(zip(names, info.tolist()))
-        arrays = take(out, counters, False, empties)
-        arrays.update(method="CVA", t=p.grid(counters["steps"]), wall_time=wall, status="ok")
-        return Trajectory.of_run(arrays)
+        arrays = take(out, counters, False, own, records)
+        arrays.update(method="CVA", wall_time=wall, status="ok")
+        return Trajectory.of_run(arrays, _Derive(p, mod, prm, counters, m, None))
 
     args = hw.setup()
     hand_loop = hw.kernel_integrate(hw.vcirun_module())

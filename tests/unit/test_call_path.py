@@ -5,6 +5,7 @@ arrays are never changed by the next."""
 from __future__ import annotations
 
 import dataclasses
+import pickle
 
 import numpy as np
 import pytest
@@ -12,8 +13,8 @@ import pytest
 import vcirun
 from vcirun.core import record
 from vcirun.run import api
-from vcirun.run.plan import Buffers, empty_records, take
-from vcirun.run.trajectory import RUN_FIELDS, Trajectory
+from vcirun.run.plan import Buffers, take
+from vcirun.run.trajectory import DERIVED, RUN_FIELDS, Trajectory
 
 
 def _filled(N, n, m, cap, rng):
@@ -37,9 +38,10 @@ def test_take_gives_the_values_of_record_trim(seed):
                 "n_partial": int(rng.integers(0, 5)), "n_releases": int(seed % 3 == 0), "n_mode_changes": 0}
     for modified in (False, True):
         ref = record.trim(out, counters, modified)
-        got = take(out, counters, modified, empty_records(n, m))
-        assert ref.keys() == got.keys()
-        for k in ref:
+        got = take(out, counters, modified)
+        for k in ref.keys() - got.keys():   # (a record with no entries: left to the Trajectory's first read)
+            assert record.FIELD[k].axis not in ("grid", "step") and ref[k].shape[0] == 0, k
+        for k in got:
             if ref[k] is None:
                 assert got[k] is None, k
                 continue
@@ -57,9 +59,10 @@ def test_empty_records_take_in_place_arithmetic_as_every_record():
     assert tr.impacts.size == 0 and tr.releases.size == 0 and tr.mode_changes.size == 0
     tr.impacts -= 1.0
     tr.releases += 2.0
-    for axis, fields in empty_records(2, 1).items():
-        for name, a in fields.items():
-            assert a.shape[0] == 0 and a.flags.writeable, name
+    for f in record.FIELDS:
+        if f.axis not in ("grid", "step"):
+            a = getattr(tr, f.name)
+            assert a.shape == f.shape(0, 2, 1) and a.flags.writeable and a.flags.owndata, f.name
 
 
 def test_of_run_is_the_dataclass_constructor():
@@ -77,9 +80,34 @@ def test_of_run_is_the_dataclass_constructor():
 
 def test_a_run_gives_every_field_of_run_fields():
     tr = vcirun.simulate("cart_pendulum", "MCVAA", h=1e-2, T=1.0, beta=3.2)
-    for name in RUN_FIELDS:   # (given by the run, not a default: every run field holds a value)
-        assert tr.__dict__.get(name) is not None, name
+    for name in RUN_FIELDS:   # (given by the run or made on first read, not a default: each holds a value)
+        assert name in tr.__dict__ or name in DERIVED, name
+        assert getattr(tr, name) is not None, name
     assert tr.Hmod is not None and len(tr.Hmod) == len(tr.t)
+
+
+def test_fields_made_on_first_read_are_the_calls_own():
+    """A run's derived fields (the grid times, options, tolerances, dynamics, run_args, its empty records)
+    are made when first read, from the kept plan that later calls share: read after other calls with
+    other parameters, steps and methods, they are still this call's."""
+    a = vcirun.simulate("cart_pendulum", "CVA", h=1e-2, T=0.5, beta=3.2, params={"m2": 0.3}, newton_tol=1e-11)
+    assert "_derive" in a.__dict__ and "options" not in a.__dict__   # (nothing read yet)
+    vcirun.simulate("cart_pendulum", "CVA", h=1e-2, T=0.5, beta=3.2, newton_tol=1e-11)
+    vcirun.simulate("cart_pendulum", "MCVAA", h=1e-2, T=0.5, beta=2.0)
+    assert a.options == {"params": {"m1": 1.0, "m2": 0.3, "L": 2.0, "g": 10.0}, "constrained": True}
+    assert a.tolerances["newton_tol"] == 1e-11 and a.tolerances["event_tol"] == 1e-13
+    assert np.array_equal(a.t, 1e-2 * np.arange(51)) and a.t.shape == (51,)
+    assert a.dynamics.prm.tolist() == [1.0, 0.3, 2.0, 10.0]
+    assert a.run_args.params == {"m2": 0.3} and np.array_equal(a.run_args.q0, a.q[0])
+    e = Trajectory(**{f.name: getattr(a, f.name) for f in dataclasses.fields(Trajectory)})
+    for name in DERIVED:   # (the same values as a Trajectory made by its constructor)
+        x, y = getattr(a, name), getattr(e, name)
+        assert (np.array_equal(x, y) and x.dtype == y.dtype) if isinstance(x, np.ndarray) else x is y, name
+    assert a.releases.shape == (0,) and a.impact_q.shape == (0, 2) and a.impact_contact.dtype == np.int64
+    assert a.releases is a.releases   # (made once, then kept)
+    b = pickle.loads(pickle.dumps(vcirun.simulate("cart_pendulum", "CVA", h=1e-2, T=0.5, beta=3.2)))
+    assert "_derive" not in b.__dict__ and b.tolerances["newton_tol"] == 1e-12 and len(b.t) == 51
+    assert b.mode_changes.shape == (0,) and b.options["params"]["m2"] == 0.2
 
 
 def test_consecutive_runs_never_share_their_arrays():
@@ -125,3 +153,27 @@ def test_every_run_says_its_tier_and_build_and_a_saved_one_keeps_them(tmp_path):
         back = read_trajectory(tmp_path / "run.h5")
         assert (back.tier, back.build) == (tr.tier, tr.build)
     assert Trajectory(method="CVA", system="x", h=0.1, T=1.0, t=np.zeros(1)).build is None
+
+
+def test_rows_a_run_does_not_return_are_never_another_runs():
+    """The rows a run does not return (Plan.rows: the modified energy of a method without one, the
+    friction rows of a module without friction) are the Buffers' own: a run that returned its Hmod keeps
+    it through later runs of methods without one, and a module without friction gives zeros of the
+    grid's, the steps' and the impacts' lengths (its tangential impulses), also where the run stopped
+    early."""
+    api._LOCAL.buffers = Buffers(keep_grid=False)
+    a = vcirun.simulate("cart_pendulum", "MCVAA", h=1e-2, T=5.0, beta=3.2)
+    keep = a.Hmod.copy()
+    for beta in (3.0, 3.4):
+        b = vcirun.simulate("cart_pendulum", "CVA", h=1e-2, T=5.0, beta=beta)
+        assert b.Hmod is None and "contact_mode" not in b.__dict__
+    assert np.array_equal(a.Hmod, keep) and np.isfinite(keep).all()
+    assert b.contact_mode.shape == (501, 1) and b.contact_mode.dtype == np.int8 and not b.contact_mode.any()
+    assert b.friction_work.shape == (500,) and b.friction_work.dtype == np.float64 and not b.friction_work.any()
+    assert len(b.impacts) > 0 and "impact_impulse_t" not in b.__dict__
+    assert b.impact_impulse_t.shape == b.impacts.shape and not b.impact_impulse_t.any()
+    c = vcirun.simulate("cart_pendulum", "CVA", h=0.5, T=5.0, beta=3.2, newton_tol=1e-300, max_iter=1)
+    assert c.status != "ok" and len(c.friction_work) == len(c.newton_iters) and len(c.contact_mode) == len(c.q)
+    f = vcirun.simulate("rocking_block_friction", "CVA", h=1e-2, T=1.0)   # (friction: rows of its own)
+    assert "contact_mode" in f.__dict__ and f.contact_mode.any() and len(f.friction_work) == len(f.t) - 1
+    assert "impact_impulse_t" in f.__dict__ and f.impact_impulse_t.any()

@@ -16,7 +16,7 @@ _ENCODE = getattr(os.environ, "encodekey", None)   # (the mapping's own key and 
 _DECODE = getattr(os.environ, "decodevalue", None)
 
 
-_KEYS: dict = {}   # name -> its encoded key in _DATA
+_KEYS: dict = {}   # name -> its encoded key in _DATA; a tuple of names -> the tuple of their keys
 
 
 def getenv(name: str, default=None):
@@ -28,6 +28,18 @@ def getenv(name: str, default=None):
         key = _KEYS[name] = _ENCODE(name)
     v = _DATA.get(key)
     return default if v is None else _DECODE(v)
+
+
+def snapshot(names: tuple) -> tuple:
+    """The values of `names` as the environment holds them now (None where unset; the mapping's own
+    encoded form where it has one), for a cache key: two snapshots of the same names are equal exactly
+    when every name has the same value."""
+    keys = _KEYS.get(names)
+    if keys is None:
+        if not isinstance(_DATA, dict) or _ENCODE is None:
+            return tuple(os.environ.get(name) for name in names)
+        keys = _KEYS[names] = tuple(map(_ENCODE, names))
+    return tuple(map(_DATA.get, keys))
 
 
 def jit_disabled() -> bool:

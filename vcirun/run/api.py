@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import threading
 
+import numpy as np
+
 from ..codegen import kernel_cache
 from ..core import record
 from ..core.bounds import nonfinite_start
@@ -92,11 +94,12 @@ def simulate(system, method=None, *, T, h=None, tol=None, beta=None, q0=None, p0
     buffers = getattr(_LOCAL, "buffers", None)
     if buffers is None:
         buffers = _LOCAL.buffers = Buffers(keep_grid=False)
-    out, counters, wall = run_loop(mod, q0, p0, t0, h, N, prm, p.settings, sysd.n, p.max_impacts_step, buffers)
+    out, counters, wall = run_loop(mod, q0, p0, t0, h, N, prm, p.settings, sysd.n, p.max_impacts_step, buffers,
+                                   p.rows(mod)[0])   # (the rows a run does not return are the buffers' own)
     p.ran(wall)
-    traj = trajectory_of(p, mod, out, counters, q0, p0, prm, beta, wall)
+    traj = trajectory_of(p, mod, out, counters, q0, p0, prm, beta, wall,
+                         call=(system, beta, q0, p0, params, constrained, resting_contact, options, t0))
     traj.tier, traj.build = p.tier_used, p.build_used
-    traj.run_args = run_args(p, system, beta, q0, p0, params, constrained, resting_contact, options, t0)
     return traj
 
 
@@ -117,10 +120,52 @@ def run_args(p, system, beta, q0, p0, params, constrained, resting_contact, opti
                    tier=p.tier, kc=p.kc)
 
 
-def trajectory_of(p, mod, out, counters, q0, p0, prm, beta, wall) -> tr.Trajectory:
-    """The Trajectory of one finished loop of plan `p` (its grid rows are the Trajectory's)."""
+class _Derive:
+    """The fields of a run's Trajectory that follow from the call alone, made on their first read
+    (vcirun.run.trajectory.DERIVED): the grid times, the tolerances and options, the dense output's
+    dynamics, run_args (where the call handed its arguments), each record the run left empty and the
+    rows its module never writes (a module without friction: its friction rows and tangential impulses,
+    zeros). The
+    values are those of the plan, parameters and arguments of the call; a caller that reads none of
+    them does not pay for them."""
+
+    __slots__ = ("p", "mod", "prm", "counters", "m", "call")
+
+    def __init__(self, p, mod, prm, counters, m, call):
+        self.p, self.mod, self.prm, self.counters, self.m, self.call = p, mod, prm, counters, m, call
+
+    def __call__(self, name: str):
+        p = self.p
+        if name == "t":
+            return p.grid(self.counters["steps"])
+        if name == "tolerances":
+            return p.tolerances()
+        if name == "options":
+            return {"params": dict(zip(p.sysd.params, self.prm.tolist())), "constrained": p.constrained, **p.mopts}
+        if name == "dynamics":   # (its own parameters: a change through tr.dynamics.prm stays out of options)
+            return tr._dynamics(self.mod, self.prm.copy())
+        if name == "run_args":
+            return None if self.call is None else run_args(p, *self.call)
+        # a row the run left out: its zeros (Plan.rows: a module without friction never writes its
+        # friction rows and writes 0 in its tangential impulses), or a record with no entries
+        f = record.FIELD[name]
+        rows = self.counters["steps"] + 1 if f.axis == "grid" else self.counters[_COUNTS[f.axis]]
+        return np.zeros(f.shape(rows, p.sysd.n, self.m), np.bool_ if f.dtype == "bool" else f.dtype)
+
+
+_COUNTS = {"step": "steps", "impact": "n_impacts", "partial": "n_partial", "release": "n_releases",
+           "mode": "n_mode_changes"}   # the counter of each axis's rows (the grid has steps + 1)
+
+
+def trajectory_of(p, mod, out, counters, q0, p0, prm, beta, wall, call=None) -> tr.Trajectory:
+    """The Trajectory of one finished loop of plan `p` (its grid rows are the Trajectory's). call: the
+    arguments of `run_args` after `p` (system, beta, q0, p0, params, constrained, resting_contact,
+    options, t0), for `tr.run_args`; the fields that follow from the call alone are made on first read
+    (`_Derive`)."""
     sysd, h, t0, tol, meth, energies = p.sysd, p.h, p.t0, p.tol, p.meth, p.energies
-    arrays = take(out, counters, p.ks.modified is not None, p.empties(int(mod.NCON)))   # (meth.has_modified_energy)
+    m = int(mod.NCON)
+    _, own, records = p.rows(mod)
+    arrays = take(out, counters, p.ks.modified is not None, own, records)   # (meth.has_modified_energy)
     status, fail = record.STATUS_CODES[counters["status"]], counters["fail_step"]
     message = ""
     if status != tr.OK:
@@ -128,8 +173,10 @@ def trajectory_of(p, mod, out, counters, q0, p0, prm, beta, wall) -> tr.Trajecto
         P = out[record.FIELDS.index(record.FIELD["p"])]
         message = (f"{status} in step {fail} (t = {t0 + fail * h:.6g}) from q = {Q[fail].tolist()}, "
                    f"p = {P[fail].tolist()}")
+        impacts, modes = arrays.get("impacts"), arrays.get("contact_mode")   # (absent: none, no friction)
         cause = failure_cause(mod, status, Q[: fail + 1], P[fail], t0, fail, h, prm, tol, float(arrays["H"][0]),
-                              arrays["impacts"], modes=arrays["contact_mode"][: fail + 1])
+                              np.empty(0) if impacts is None else impacts,
+                              modes=None if modes is None else modes[: fail + 1])
         if cause:
             message += f"; cause: {cause}"
     # an energy that is not finite from the start (e.g. q0 = 1e300) is a failure, not ok
@@ -139,9 +186,7 @@ def trajectory_of(p, mod, out, counters, q0, p0, prm, beta, wall) -> tr.Trajecto
     if bad_start and status == tr.OK:
         status, fail, message = tr.NONFINITE, 0, f"{tr.NONFINITE} at t = {t0:.6g}: {bad_start}"
     arrays.update(
-        method=meth.name, system=sysd.name, h=h, T=p.N * h, t=p.grid(counters["steps"]),
+        method=meth.name, system=sysd.name, h=h, T=p.N * h,
         status=status, message=message, fail_step=fail, fail_time=(t0 + fail * h) if fail >= 0 else float("nan"),
-        beta=beta, wall_time=wall, tolerances=p.tolerances(),
-        options={"params": dict(zip(sysd.params, prm.tolist())), "constrained": p.constrained, **p.mopts},
-        coordinates=getattr(sysd, "coordinates", None), dynamics=tr._dynamics(mod, prm), source=p.system)
-    return tr.Trajectory.of_run(arrays)
+        beta=beta, wall_time=wall, coordinates=getattr(sysd, "coordinates", None), source=p.system)
+    return tr.Trajectory.of_run(arrays, _Derive(p, mod, prm, counters, m, call))

@@ -166,7 +166,7 @@ class _FreshBuffers:
     def __init__(self):
         self.specs: dict = {}
 
-    def get(self, N: int, n: int, m: int, cap_imp: int) -> tuple:
+    def get(self, N: int, n: int, m: int, cap_imp: int, silent: tuple = ()) -> tuple:   # (all fresh, silent or not)
         spec = self.specs.get((n, m))
         if spec is None:
             if len(self.specs) > 256:

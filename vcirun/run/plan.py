@@ -27,7 +27,7 @@ import numpy as np
 
 from ..core import record
 from ..core.bounds import check_simulate_args, check_start_args
-from ..core.environ import getenv, jit_disabled
+from ..core.environ import jit_disabled, snapshot
 from ..core.grid import grid_note
 from ..core.sizes import check_run_memory, memory_limit, run_bytes
 from ..core.system_data import (
@@ -83,8 +83,9 @@ class Plan:
     # a plan of another grid from a kept one, starts them afresh)
     _t: tuple = field(default=None, init=False, repr=False, compare=False)   # (t0, h, N, t0 + h k for k = 0..N)
     _build: tuple = field(default=(None, None), init=False, repr=False, compare=False)   # (module, its build)
-    _empty: tuple = field(default=None, init=False, repr=False, compare=False)   # (contacts, `empty_records`)
     _tolerances: dict = field(default=None, init=False, repr=False, compare=False)
+    _called: object = field(default=None, init=False, repr=False, compare=False)   # the module first_call made ready
+    _rows: tuple = field(default=None, init=False, repr=False, compare=False)     # (module, `rows`)
 
     @property
     def max_impacts_step(self) -> int:
@@ -117,11 +118,10 @@ class Plan:
     def build_used(self) -> str | None:
         """The build of the compiled module last returned ("shared" or "specialized"; None on the
         interpreted tier, and where numba compiles nothing: NUMBA_DISABLE_JIT=1)."""
-        if self.tier_used != "compiled" or jit_disabled():
-            return None
         mod, build = self._build
-        if mod is not self._mod:
-            mod, build = self._build = self._mod, module_build(self._mod)
+        if mod is not self._mod:   # (the tier and the environment that chooses the build are the plan's)
+            build = None if self.tier_used != "compiled" or jit_disabled() else module_build(self._mod)
+            self._build = (self._mod, build)
         return build
 
     def ran(self, seconds: float) -> None:
@@ -137,12 +137,21 @@ class Plan:
         t = memo[3]
         return t.copy() if steps == self.N else t[: steps + 1].copy()
 
-    def empties(self, m: int) -> dict:
-        """`empty_records` of its runs (m: the contacts of its module), made once."""
-        e = self._empty
-        if e is None or e[0] != m:
-            e = self._empty = (m, empty_records(self.sysd.n, m))
-        return e[1]
+    def rows(self, mod) -> tuple:
+        """(silent, own, records) of its runs on module `mod`. silent: the indices of the grid and step rows
+        a run does not return and whose values the loop never reads (Buffers.get); own: the grid and
+        step rows `take` hands over; records: the record rows `take` copies by count. Left out: the
+        modified energy of a method without one (the loop writes it, a run returns None) and, in a
+        module without friction, the friction rows and the tangential impulses (never written, or
+        written 0: the Trajectory makes their zeros on first read)."""
+        r = self._rows
+        if r is None or r[0] is not mod:
+            friction = bool(getattr(mod, "FRICTION", False))
+            silent = (() if self.ks.modified is not None else (_HMOD,)) + (() if friction else _FRICTION_ROWS)
+            records = _RECORDS if friction else tuple(
+                (axis, counter, tuple(x for x in fields if x[1] != _IMPULSE_T)) for axis, counter, fields in _RECORDS)
+            r = self._rows = (mod, (silent, tuple(x for x in _OWN if x[1] not in silent), records))
+        return r[1]
 
     def tolerances(self) -> dict:
         """The run's solver tolerances by name (a new dict per call)."""
@@ -177,8 +186,11 @@ def first_call(mod, plan: Plan, q0, p0, prm) -> None:
     """numba's first call of a module's loop (load from its cache, or compile) is not integration:
     one untimed step from the run's start, so a run's wall_time measures the integration only (once per
     module and kernel cache)."""
+    if plan._called is mod:
+        return
     kc = plan.kc or default()
     if mod.__name__ in kc.first_calls or getattr(mod, "TIER", "") == "interpreted":
+        plan._called = mod
         return
     from ..codegen.cache import first_call_lock, note_first_call
 
@@ -187,6 +199,7 @@ def first_call(mod, plan: Plan, q0, p0, prm) -> None:
     with first_call_lock(mod, kc=kc):  # one compile per module across processes (sweep and test workers)
         run_loop(mod, q0, p0, plan.t0, plan.h, 1, prm, plan.settings, plan.sysd.n, plan.max_impacts_step)
     note_first_call(mod, plan.meth.kernel_set(), time.perf_counter() - t_first, kc=kc)
+    plan._called = mod
 
 
 _PLANS_MAX = 64   # plans kept per kernel cache
@@ -200,7 +213,7 @@ def _key(system, method, h, T, t0, constrained, energies, resting_contact, optio
     if type(system) is not str or type(method) is not str:
         return None
     # the settings that choose the module, as set (a finer key than the build id they make)
-    key = (system, method, tuple(map(getenv, _BUILD_ENV)), tier, type(h), h, type(T), T,
+    key = (system, method, snapshot(_BUILD_ENV), tier, type(h), h, type(T), T,
            type(t0), t0, type(constrained), constrained, type(energies), energies, type(resting_contact),
            resting_contact)
     if options:
@@ -219,7 +232,6 @@ def plan(system, method, *, h, T, t0=0.0, constrained=None, energies=True, resti
     validated here with the rest (same checks, order and messages as one call of simulate). `kc`: the
     kernel cache (default: the API's), which keeps the plan when the run names a built-in scene; `tier`:
     vcirun.codegen.tiers.requested (None: $VCIRUN_TIER, else auto)."""
-    options = dict(options or {})
     start = start or {}
     kc = default() if kc is None else kc
     tier = requested(tier)
@@ -232,7 +244,7 @@ def plan(system, method, *, h, T, t0=0.0, constrained=None, energies=True, resti
         if p is not None and _still_warm(p, key):
             check_start_args(**start)
             return p
-    mopts, tol = split_options(options)
+    mopts, tol = split_options(options or {})
     h, T, N = check_simulate_args(h=h, T=T, t0=t0, constrained=constrained, energies=energies, tolerances=tol,
                                   system=system, resting_contact=resting_contact, **start)
     if not _warmable(system):
@@ -289,7 +301,7 @@ def initial_state(d: SystemData, mod, start, prm):
     if not checked and not ok:
         check_mass_matrix(d.name, q0, Mq)
     if kind == "legendre":
-        p0 = Mq @ p0
+        p0 = Mq.dot(p0)   # (numpy's gemv, as @, in a third of its time)
     return q0, p0
 
 
@@ -341,7 +353,9 @@ class Buffers:
     grid and step rows to the Trajectory: `take`): the grid and step rows are new arrays per run,
     allocated with their fills, and only the impact, partial-step, release and mode-change records
     are kept; those have no fill (the loop writes each entry it counts) and `take` copies what a run
-    counted. Either way a run's buffers start exactly as newly allocated ones."""
+    counted. The rows a run does not return and its loop never reads (`get`'s silent: `Plan.rows`) are
+    this object's own, made once per size. Either way every row a run reads or returns starts exactly
+    as in newly allocated buffers."""
 
     def __init__(self, keep_grid: bool):
         self.keep_grid = keep_grid
@@ -350,22 +364,29 @@ class Buffers:
         self._fresh = tuple(i for i, f in enumerate(record.FIELDS) if f.axis in fresh)
         self._refill = tuple((i, f.fill) for i, f in enumerate(record.FIELDS)
                              if f.fill is not None and i not in self._fresh)   # reused, refilled per run
-        self._spec = ()   # (index, shape, dtype, fill) of each fresh row at the current dims
+        self._specs = {}   # silent -> (index, shape, dtype, fill) of each fresh row at the current dims
+        self._own = {}     # index -> a silent row's array at the current dims (never handed over)
 
-    def get(self, N: int, n: int, m: int, cap_imp: int) -> tuple:
+    def get(self, N: int, n: int, m: int, cap_imp: int, silent: tuple = ()) -> tuple:
         if self.big is None or self.dims != (N, n, m) or self.cap < cap_imp:
             self.big = record.allocate(N, n, m=m, cap_impacts=cap_imp)   # as a fresh run's: no refill
             self.dims, self.cap, self.views, self.views_cap = (N, n, m), cap_imp, list(self.big), cap_imp
-            self._spec = tuple((i, self.big[i].shape, self.big[i].dtype, record.FIELDS[i].fill) for i in self._fresh)
-            return self.big
+            self._specs, self._own = {}, {}
+            return self.big   # (its silent rows stay with it: a run never returns them)
         if self.views_cap != cap_imp:   # a run that starts again with the smaller first capacity
             rows = record.axis_rows(N, cap_imp)
             self.views = [b if b.shape[0] == rows[f.axis] else b[: rows[f.axis]]
                           for f, b in zip(record.FIELDS, self.big)]
             self.views_cap = cap_imp
         out = list(self.views)
+        if self.keep_grid:
+            silent = ()
+        spec = self._specs.get(silent)
+        if spec is None:
+            spec = self._specs[silent] = tuple((i, self.big[i].shape, self.big[i].dtype, record.FIELDS[i].fill)
+                                               for i in self._fresh if i not in silent)
         empty, zeros = np.empty, np.zeros
-        for i, shape, dt, fill in self._spec:   # the rows of the previous run left with its Trajectory
+        for i, shape, dt, fill in spec:   # the rows the previous run left with its Trajectory
             if fill is None:
                 out[i] = empty(shape, dt)
             elif fill == 0:
@@ -373,6 +394,12 @@ class Buffers:
             else:
                 a = out[i] = empty(shape, dt)
                 a.fill(fill)
+        for i in silent:   # (not big's: big's row may be with the Trajectory of a run that returned it)
+            a = self._own.get(i)
+            if a is None:
+                a = self._own[i] = np.empty(self.big[i].shape, self.big[i].dtype)
+                a.fill(0 if record.FIELDS[i].fill is None else record.FIELDS[i].fill)
+            out[i] = a
         for i, fill in self._refill:
             out[i].fill(fill)
         return tuple(out)
@@ -386,46 +413,39 @@ _RECORDS = tuple((axis, counter, tuple((f.name, i) for i, f in enumerate(record.
                  for axis, counter in (("impact", "n_impacts"), ("partial", "n_partial"), ("release", "n_releases"),
                                        ("mode", "n_mode_changes")))
 _Q = _NAMES.index("q")
+# rows a run may not return (Plan.rows): the modified energy (methods without one), the friction rows
+# and the tangential impulses (a module without friction never writes the first two and writes 0 in
+# the third)
+_HMOD = _NAMES.index("Hmod")
+_FRICTION_ROWS = (_NAMES.index("contact_mode"), _NAMES.index("friction_work"))
+_IMPULSE_T = _NAMES.index("impact_impulse_t")
 
 
-def empty_records(n: int, m: int) -> dict:
-    """{axis: {name: an array of no entries}} of the records (impacts, partial steps, releases, mode
-    changes) of runs with n coordinates and m contacts: what `take` gives a record a run left empty, as a
-    view per run (`Plan.empties` keeps them per plan)."""
-    e = {}
-    for axis, counter, fields in _RECORDS:
-        e[axis] = {}
-        for name, i in fields:
-            f = record.FIELDS[i]
-            e[axis][name] = np.empty(f.shape(0, n, m), np.bool_ if f.dtype == "bool" else f.dtype)
-    return e
-
-
-def take(out: tuple, counters: dict, modified: bool, empties: dict) -> dict:
+def take(out: tuple, counters: dict, modified: bool, own: tuple = _OWN, records: tuple = _RECORDS) -> dict:
     """{name: array} of a finished loop whose grid and step rows are its own (`Buffers(keep_grid=False)`,
-    or buffers allocated for the run): those rows as they are (views up to the states and steps reached
-    where the run stopped early), the records (impacts, partial steps, releases, mode changes) copied up
-    to their counts, a record with no entries as a new view of its array in `empties` (`empty_records`).
-    The same values as `vcirun.core.record.trim`."""
-    arrays = dict(zip(_NAMES, out))
+    or buffers allocated for the run): the grid and step rows of `own` ((name, index, axis)) as they are
+    (views up to the states and steps reached where the run stopped early), the record rows of
+    `records` ((axis, counter, ((name, index), ...))) copied up to their counts. The defaults take
+    every row; `Plan.rows` leaves out those a run does not return. A row left out and a record with
+    no entries are not in the dict (Trajectory.of_run's derive makes them on first read); Hmod is None
+    without `modified`. The values of `vcirun.core.record.trim`."""
     steps = counters["steps"]
     if steps + 1 != out[_Q].shape[0]:   # a run that stopped before t_N
-        for name, i, axis in _OWN:
-            arrays[name] = out[i][: steps + 1 if axis == "grid" else steps]
-    for axis, counter, fields in _RECORDS:
+        arrays = {name: out[i][: steps + 1 if axis == "grid" else steps] for name, i, axis in own}
+    else:
+        arrays = {name: out[i] for name, i, _ in own}
+    for axis, counter, fields in records:
         k = counters[counter]
         if k:
             for name, i in fields:
                 arrays[name] = out[i][:k].copy()
-        else:   # a view per run: a change of its flags or shape stays with the run
-            for name, a in empties[axis].items():
-                arrays[name] = a[:]
     if not modified:
         arrays["Hmod"] = None
     return arrays
 
 
-def run_loop(mod, q0, p0, t0, h, N, prm, settings, n, max_impacts_step, buffers: Buffers | None = None):
+def run_loop(mod, q0, p0, t0, h, N, prm, settings, n, max_impacts_step, buffers: Buffers | None = None,
+             silent: tuple = ()):
     """(output buffers, counters, seconds in the compiled loop) of a run. The impact record starts at
     N / 4 + 16 entries; the loop reports ST_ACCUMULATION also when it is full, which is a buffer size,
     not impacts accumulating: then it reruns with room for every impact the caps allow. The seconds
@@ -438,7 +458,7 @@ def run_loop(mod, q0, p0, t0, h, N, prm, settings, n, max_impacts_step, buffers:
         if buffers is None:
             out = record.allocate(N, n, m=m, cap_impacts=cap_imp)
         else:
-            out = buffers.get(N, n, m, cap_imp)
+            out = buffers.get(N, n, m, cap_imp, silent)
         info = np.zeros(len(record.COUNTERS), dtype=np.int64)
         # no np.errstate here: the compiled loop never touches numpy's error state, and with
         # NUMBA_DISABLE_JIT=1 the caller's np.errstate(all="raise") must reach the numerics

@@ -101,23 +101,40 @@ class Trajectory:
                 d[name] = np.zeros(f.shape(0, n, 0), dt)
 
     @classmethod
-    def of_run(cls, values: dict) -> "Trajectory":
+    def of_run(cls, values: dict, derive=None) -> "Trajectory":
         """The Trajectory of a finished run: `values` holds method, system, h, T, t, tolerances, options
         and every record row (None only for a row of some methods only, Hmod), as `__init__` takes
         them; the other fields take their defaults. The same object as `Trajectory(**values)`, built
         without the per-field pass of `__post_init__` (every row is given: `RUN_FIELDS` names what a
-        run gives, and a test holds `vcirun.run.api.trajectory_of` to it)."""
+        run gives, and a test holds `vcirun.run.api.trajectory_of` to it).
+
+        derive: a function name -> value for the fields that follow from the call alone (`DERIVED`: the
+        grid times, tolerances, options, dynamics, run_args, each record the run left empty, the
+        friction rows of a module without friction) that `values` leaves out. Each is made on its first read and kept, so a call pays only for what its
+        caller reads (`vcirun.run.api.trajectory_of`). Pickling makes them all first."""
         obj = cls.__new__(cls)
         d = obj.__dict__
-        d.update(_DEFAULTS)
+        if derive is None:
+            d.update(_DEFAULTS)
+        else:
+            d.update(_UNDERIVED_DEFAULTS)
+            d["_derive"] = derive
         d.update(values)
         return obj
+
+    def _settle(self) -> None:
+        """Make every derived field that is not made yet (`of_run`'s derive), and drop the derive."""
+        if "_derive" in self.__dict__:
+            for name in DERIVED:
+                getattr(self, name)
+            del self.__dict__["_derive"]
 
     @property
     def ok(self) -> bool:
         return self.status == OK
 
     def __getstate__(self):
+        self._settle()
         state = dict(self.__dict__)
         state["dynamics"] = None
         if not isinstance(state.get("source"), (str, type(None))):
@@ -415,8 +432,37 @@ def read_trajectory(path) -> Trajectory:
     return tr
 
 
+class _Derived:
+    """A Trajectory field that a run's `derive` makes on its first read (Trajectory.of_run); a value in
+    the instance's dict (every Trajectory made by `__init__`, and each field once read or assigned)
+    comes first, as for any non-data descriptor. Read on the class: the field's default."""
+
+    __slots__ = ("name", "default")
+
+    def __init__(self, name: str, default):
+        self.name, self.default = name, default
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return self.default
+        d = obj.__dict__
+        derive = d.get("_derive")
+        v = d[self.name] = self.default if derive is None else derive(self.name)
+        return v
+
+
+# the fields a run's derive may leave to their first read: those that follow from the call alone, the
+# records (a record a run left empty is a new empty array of its row's dtype and shape) and the friction
+# rows (zeros where the module has no friction; so are the records' tangential impulses)
+DERIVED = ("t", "tolerances", "options", "dynamics", "run_args", "contact_mode", "friction_work") + tuple(
+    f.name for f in record.FIELDS if f.axis not in ("grid", "step"))
+for _f in dataclasses.fields(Trajectory):
+    if _f.name in DERIVED:
+        setattr(Trajectory, _f.name, _Derived(_f.name, None if _f.default is dataclasses.MISSING else _f.default))
+
 # Trajectory.of_run: the defaults of the fields with one, and the fields a run must give (RUN_FIELDS)
 _DEFAULTS = {f.name: f.default for f in dataclasses.fields(Trajectory) if f.default is not dataclasses.MISSING}
+_UNDERIVED_DEFAULTS = {k: v for k, v in _DEFAULTS.items() if k not in DERIVED}
 RUN_FIELDS = frozenset(f.name for f in dataclasses.fields(Trajectory)
                         if f.default is dataclasses.MISSING or f.name in ("tolerances", "options")
                         or (f.name in record.FIELD and record.FIELD[f.name].only is None))
