@@ -85,15 +85,15 @@ def simulate(system, method=None, *, T, h=None, tol=None, beta=None, q0=None, p0
     beta = start_beta(sysd, beta, q0, p0)  # a scene's default beta, recorded in the trajectory
     start = start_state(sysd, beta, q0, p0, prm, p.sysm)
     mod = p.module()
-    q0, p0 = ready_start(p, mod, start, prm)
+    buffers = getattr(_LOCAL, "buffers", None)
+    if buffers is None:
+        buffers = _LOCAL.buffers = Buffers(keep_grid=False)
+    q0, p0 = ready_start(p, mod, start, prm, buffers)
     if p.note:
         import warnings
 
         warnings.warn(p.note, GridWarning, stacklevel=2)  # Python shows each distinct note once
     first_call(mod, p, q0, p0, prm)
-    buffers = getattr(_LOCAL, "buffers", None)
-    if buffers is None:
-        buffers = _LOCAL.buffers = Buffers(keep_grid=False)
     out, counters, wall = run_loop(mod, q0, p0, t0, h, N, prm, p.settings, sysd.n, p.max_impacts_step, buffers,
                                    p.rows(mod)[0])   # (the rows a run does not return are the buffers' own)
     p.ran(wall)
@@ -162,10 +162,11 @@ def trajectory_of(p, mod, out, counters, q0, p0, prm, beta, wall, call=None) -> 
     arguments of `run_args` after `p` (system, beta, q0, p0, params, constrained, resting_contact,
     options, t0), for `tr.run_args`; the fields that follow from the call alone are made on first read
     (`_Derive`)."""
-    sysd, h, t0, tol, meth, energies = p.sysd, p.h, p.t0, p.tol, p.meth, p.energies
+    h, t0, tol, energies = p.h, p.t0, p.tol, p.energies
     m = int(mod.NCON)
     _, own, records = p.rows(mod)
-    arrays = take(out, counters, p.ks.modified is not None, own, records)   # (meth.has_modified_energy)
+    arrays = take(out, counters, p.ks.modified is not None, own, records,   # (meth.has_modified_energy)
+                  p.fields(tr.run_defaults))
     status, fail = record.STATUS_CODES[counters["status"]], counters["fail_step"]
     message = ""
     if status != tr.OK:
@@ -185,8 +186,7 @@ def trajectory_of(p, mod, out, counters, q0, p0, prm, beta, wall, call=None) -> 
                                            else None, q0, p0)
     if bad_start and status == tr.OK:
         status, fail, message = tr.NONFINITE, 0, f"{tr.NONFINITE} at t = {t0:.6g}: {bad_start}"
-    arrays.update(
-        method=meth.name, system=sysd.name, h=h, T=p.N * h,
-        status=status, message=message, fail_step=fail, fail_time=(t0 + fail * h) if fail >= 0 else float("nan"),
-        beta=beta, wall_time=wall, coordinates=getattr(sysd, "coordinates", None), source=p.system)
-    return tr.Trajectory.of_run(arrays, _Derive(p, mod, prm, counters, m, call))
+    arrays["status"], arrays["message"], arrays["fail_step"] = status, message, fail
+    arrays["fail_time"] = (t0 + fail * h) if fail >= 0 else float("nan")
+    arrays["beta"], arrays["wall_time"] = beta, wall
+    return tr.Trajectory.of_run(arrays, _Derive(p, mod, prm, counters, m, call), complete=True)

@@ -86,6 +86,7 @@ class Plan:
     _tolerances: dict = field(default=None, init=False, repr=False, compare=False)
     _called: object = field(default=None, init=False, repr=False, compare=False)   # the module first_call made ready
     _rows: tuple = field(default=None, init=False, repr=False, compare=False)     # (module, `rows`)
+    _fields: dict = field(default=None, init=False, repr=False, compare=False)
 
     @property
     def max_impacts_step(self) -> int:
@@ -152,6 +153,17 @@ class Plan:
                 (axis, counter, tuple(x for x in fields if x[1] != _IMPULSE_T)) for axis, counter, fields in _RECORDS)
             r = self._rows = (mod, (silent, tuple(x for x in _OWN if x[1] not in silent), records))
         return r[1]
+
+    def fields(self, defaults) -> dict:
+        """A new dict of what every Trajectory of its runs holds before its run's own values: the
+        defaults of Trajectory.of_run (`defaults()`: vcirun.run.trajectory.run_defaults), the method,
+        system, h, T, coordinates and source (made once per plan)."""
+        f = self._fields
+        if f is None:
+            f = self._fields = defaults()
+            f.update(method=self.meth.name, system=self.sysd.name, h=self.h, T=self.N * self.h,
+                     coordinates=getattr(self.sysd, "coordinates", None), source=self.system)
+        return dict(f)
 
     def tolerances(self) -> dict:
         """The run's solver tolerances by name (a new dict per call)."""
@@ -290,13 +302,15 @@ def start_state(d: SystemData, beta, q0, p0, prm, sysm=None):
     return kind, q0, p0, sysm is not None
 
 
-def initial_state(d: SystemData, mod, start, prm):
+def initial_state(d: SystemData, mod, start, prm, Mq=None):
     """(q0, p0) from `start_state`. The Legendre transform uses the module's compiled M(q) on every
     path, so warm and cold starts compute the same bits; on the warm path the hyperregularity check
-    uses it too (compiled: mass_matrix_ok; numpy's check then only words the error)."""
+    uses it too (compiled: mass_matrix_ok; numpy's check then only words the error). Mq: an n x n
+    array to hold M(q0) (`Buffers.scratch`), else a new one."""
     kind, q0, p0, checked = start
     q0 = np.ascontiguousarray(q0, dtype=float)
-    Mq = np.empty((q0.shape[0], q0.shape[0]))
+    if Mq is None:
+        Mq = np.empty((q0.shape[0], q0.shape[0]))
     ok = mod.mass_matrix_ok(q0, prm, Mq)   # M(q0) once, for the check and the Legendre transform
     if not checked and not ok:
         check_mass_matrix(d.name, q0, Mq)
@@ -305,13 +319,15 @@ def initial_state(d: SystemData, mod, start, prm):
     return q0, p0
 
 
-def check_admissible(d: SystemData, mod, q0, prm, phi_text) -> None:
+def check_admissible(d: SystemData, mod, q0, prm, phi_text, phis=None) -> None:
     """A start inside the constraint is bad input (ValueError naming phi(q0), its value and the
     constraint phi_text() -- called only then: on the warm path it builds the symbolic system), not a
     run that ends later as `reset_failed` or `accumulation`; a start on the surface (to round-off)
-    is allowed."""
+    is allowed. phis: an array of the module's contacts to hold phi(q0) (`Buffers.scratch`)."""
     m = int(mod.NCON)
-    phis, G = np.empty(m), None
+    if phis is None:
+        phis = np.empty(m)
+    G = None
     mod.sys_phis(q0, prm, phis)
     for i in range(m):
         if 0.0 <= phis[i] < math.inf:   # outside or on the surface: no tolerance to compute
@@ -330,16 +346,19 @@ def constraint_text(sysm, i: int) -> str:
     return f"phi = {c.phi}" if sysm.m == 1 else f"constraint {c.name} (phi = {c.phi})"
 
 
-def ready_start(p: Plan, mod, start, prm):
+def ready_start(p: Plan, mod, start, prm, buffers: Buffers | None = None):
     """(q0, p0) of one run of plan `p` from its `start_state` (ValueError for a start the run refuses,
-    or for friction coefficients the run's parameters make invalid: mu < 0, mu_s < mu)."""
+    or for friction coefficients the run's parameters make invalid: mu < 0, mu_s < mu); buffers: this
+    thread's (their scratch holds M(q0) and phi(q0))."""
     if getattr(mod, "FRICTION", False):
         from ..core.system_data import friction_at
 
         friction_at(mod, prm, p.sysd.name)
-    q0, p0 = initial_state(p.sysd, mod, start, prm)
+    Mq, phis = (None, None) if buffers is None else buffers.scratch(p.sysd.n, int(mod.NCON))
+    q0, p0 = initial_state(p.sysd, mod, start, prm, Mq)
     if p.constrained:
-        check_admissible(p.sysd, mod, q0, prm, lambda i: constraint_text(p.sysm or resolve_system(p.system), i))
+        check_admissible(p.sysd, mod, q0, prm, lambda i: constraint_text(p.sysm or resolve_system(p.system), i),
+                         phis)
     return q0, p0
 
 
@@ -366,6 +385,15 @@ class Buffers:
                              if f.fill is not None and i not in self._fresh)   # reused, refilled per run
         self._specs = {}   # silent -> (index, shape, dtype, fill) of each fresh row at the current dims
         self._own = {}     # index -> a silent row's array at the current dims (never handed over)
+        self._scratch = (None, None, None)   # ((n, m), M(q0), phi(q0)) of a run's start (`scratch`)
+
+    def scratch(self, n: int, m: int) -> tuple:
+        """(an n x n array, an array of m): room for a start's M(q0) and phi(q0) (ready_start), which
+        never leave it."""
+        s = self._scratch
+        if s[0] != (n, m):
+            s = self._scratch = ((n, m), np.empty((n, n)), np.empty(m))
+        return s[1], s[2]
 
     def get(self, N: int, n: int, m: int, cap_imp: int, silent: tuple = ()) -> tuple:
         if self.big is None or self.dims != (N, n, m) or self.cap < cap_imp:
@@ -421,19 +449,23 @@ _FRICTION_ROWS = (_NAMES.index("contact_mode"), _NAMES.index("friction_work"))
 _IMPULSE_T = _NAMES.index("impact_impulse_t")
 
 
-def take(out: tuple, counters: dict, modified: bool, own: tuple = _OWN, records: tuple = _RECORDS) -> dict:
+def take(out: tuple, counters: dict, modified: bool, own: tuple = _OWN, records: tuple = _RECORDS,
+         into: dict | None = None) -> dict:
     """{name: array} of a finished loop whose grid and step rows are its own (`Buffers(keep_grid=False)`,
     or buffers allocated for the run): the grid and step rows of `own` ((name, index, axis)) as they are
     (views up to the states and steps reached where the run stopped early), the record rows of
     `records` ((axis, counter, ((name, index), ...))) copied up to their counts. The defaults take
     every row; `Plan.rows` leaves out those a run does not return. A row left out and a record with
     no entries are not in the dict (Trajectory.of_run's derive makes them on first read); Hmod is None
-    without `modified`. The values of `vcirun.core.record.trim`."""
+    without `modified`. The values of `vcirun.core.record.trim`; `into`: the dict to add them to."""
     steps = counters["steps"]
+    arrays = {} if into is None else into
     if steps + 1 != out[_Q].shape[0]:   # a run that stopped before t_N
-        arrays = {name: out[i][: steps + 1 if axis == "grid" else steps] for name, i, axis in own}
+        for name, i, axis in own:
+            arrays[name] = out[i][: steps + 1 if axis == "grid" else steps]
     else:
-        arrays = {name: out[i] for name, i, _ in own}
+        for name, i, _ in own:
+            arrays[name] = out[i]
     for axis, counter, fields in records:
         k = counters[counter]
         if k:

@@ -101,18 +101,24 @@ class Trajectory:
                 d[name] = np.zeros(f.shape(0, n, 0), dt)
 
     @classmethod
-    def of_run(cls, values: dict, derive=None) -> "Trajectory":
+    def of_run(cls, values: dict, derive=None, complete: bool = False) -> "Trajectory":
         """The Trajectory of a finished run: `values` holds method, system, h, T, t, tolerances, options
         and every record row (None only for a row of some methods only, Hmod), as `__init__` takes
         them; the other fields take their defaults. The same object as `Trajectory(**values)`, built
         without the per-field pass of `__post_init__` (every row is given: `RUN_FIELDS` names what a
         run gives, and a test holds `vcirun.run.api.trajectory_of` to it).
 
-        derive: a function name -> value for the fields that follow from the call alone (`DERIVED`: the
-        grid times, tolerances, options, dynamics, run_args, each record the run left empty, the
-        friction rows of a module without friction) that `values` leaves out. Each is made on its first read and kept, so a call pays only for what its
-        caller reads (`vcirun.run.api.trajectory_of`). Pickling makes them all first."""
+        derive: a function name -> value for the fields that follow from the call alone (`DERIVED`:
+        the grid times, tolerances, options, dynamics, run_args, each record the run left empty, the
+        friction rows of a module without friction) that `values` leaves out. Each is made on its
+        first read and kept, so a call pays only for what its caller reads
+        (`vcirun.run.api.trajectory_of`). Pickling makes them all first. complete: `values` already
+        holds every other field (it started from `run_defaults()`) and becomes the object's dict."""
         obj = cls.__new__(cls)
+        if complete:
+            values["_derive"] = derive
+            obj.__dict__ = values
+            return obj
         d = obj.__dict__
         if derive is None:
             d.update(_DEFAULTS)
@@ -463,6 +469,11 @@ for _f in dataclasses.fields(Trajectory):
 # Trajectory.of_run: the defaults of the fields with one, and the fields a run must give (RUN_FIELDS)
 _DEFAULTS = {f.name: f.default for f in dataclasses.fields(Trajectory) if f.default is not dataclasses.MISSING}
 _UNDERIVED_DEFAULTS = {k: v for k, v in _DEFAULTS.items() if k not in DERIVED}
+
+
+def run_defaults() -> dict:
+    """A new dict of the defaults of the fields a run's derive does not make (Trajectory.of_run)."""
+    return dict(_UNDERIVED_DEFAULTS)
 RUN_FIELDS = frozenset(f.name for f in dataclasses.fields(Trajectory)
                         if f.default is dataclasses.MISSING or f.name in ("tolerances", "options")
                         or (f.name in record.FIELD and record.FIELD[f.name].only is None))
