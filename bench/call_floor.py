@@ -55,7 +55,7 @@ def main(calls: int = 1000) -> dict:
         counters = dict(zip(names, info.tolist()))
         arrays = take(out, counters, False, own, records)
         arrays.update(method="CVA", wall_time=wall, status="ok")
-        return Trajectory.of_run(arrays, _Derive(p, mod, prm, counters, m, None))
+        return Trajectory.of_run(arrays, _Derive((p, mod, prm, counters, m, None)))
 
     args = hw.setup()
     hand_loop = hw.kernel_integrate(hw.vcirun_module())

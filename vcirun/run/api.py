@@ -97,10 +97,8 @@ def simulate(system, method=None, *, T, h=None, tol=None, beta=None, q0=None, p0
     out, counters, wall = run_loop(mod, q0, p0, t0, h, N, prm, p.settings, sysd.n, p.max_impacts_step, buffers,
                                    p.rows(mod)[0])   # (the rows a run does not return are the buffers' own)
     p.ran(wall)
-    traj = trajectory_of(p, mod, out, counters, q0, p0, prm, beta, wall,
+    return trajectory_of(p, mod, out, counters, q0, p0, prm, beta, wall,
                          call=(system, beta, q0, p0, params, constrained, resting_contact, options, t0))
-    traj.tier, traj.build = p.tier_used, p.build_used
-    return traj
 
 
 def _default_h(T):
@@ -129,28 +127,28 @@ class _Derive:
     values are those of the plan, parameters and arguments of the call; a caller that reads none of
     them does not pay for them."""
 
-    __slots__ = ("p", "mod", "prm", "counters", "m", "call")
+    __slots__ = ("args",)
 
-    def __init__(self, p, mod, prm, counters, m, call):
-        self.p, self.mod, self.prm, self.counters, self.m, self.call = p, mod, prm, counters, m, call
+    def __init__(self, args: tuple):
+        self.args = args   # (plan, module, parameter vector, counters, contacts, call)
 
     def __call__(self, name: str):
-        p = self.p
+        p, mod, prm, counters, m, call = self.args
         if name == "t":
-            return p.grid(self.counters["steps"])
+            return p.grid(counters["steps"])
         if name == "tolerances":
             return p.tolerances()
         if name == "options":
-            return {"params": dict(zip(p.sysd.params, self.prm.tolist())), "constrained": p.constrained, **p.mopts}
+            return {"params": dict(zip(p.sysd.params, prm.tolist())), "constrained": p.constrained, **p.mopts}
         if name == "dynamics":   # (its own parameters: a change through tr.dynamics.prm stays out of options)
-            return tr._dynamics(self.mod, self.prm.copy())
+            return tr._dynamics(mod, prm.copy())
         if name == "run_args":
-            return None if self.call is None else run_args(p, *self.call)
+            return None if call is None else run_args(p, *call)
         # a row the run left out: its zeros (Plan.rows: a module without friction never writes its
         # friction rows and writes 0 in its tangential impulses), or a record with no entries
         f = record.FIELD[name]
-        rows = self.counters["steps"] + 1 if f.axis == "grid" else self.counters[_COUNTS[f.axis]]
-        return np.zeros(f.shape(rows, p.sysd.n, self.m), np.bool_ if f.dtype == "bool" else f.dtype)
+        rows = counters["steps"] + 1 if f.axis == "grid" else counters[_COUNTS[f.axis]]
+        return np.zeros(f.shape(rows, p.sysd.n, m), np.bool_ if f.dtype == "bool" else f.dtype)
 
 
 _COUNTS = {"step": "steps", "impact": "n_impacts", "partial": "n_partial", "release": "n_releases",
@@ -158,10 +156,10 @@ _COUNTS = {"step": "steps", "impact": "n_impacts", "partial": "n_partial", "rele
 
 
 def trajectory_of(p, mod, out, counters, q0, p0, prm, beta, wall, call=None) -> tr.Trajectory:
-    """The Trajectory of one finished loop of plan `p` (its grid rows are the Trajectory's). call: the
-    arguments of `run_args` after `p` (system, beta, q0, p0, params, constrained, resting_contact,
-    options, t0), for `tr.run_args`; the fields that follow from the call alone are made on first read
-    (`_Derive`)."""
+    """The Trajectory of one finished loop of plan `p` (its grid rows are the Trajectory's), with the
+    tier and build the plan ran. call: the arguments of `run_args` after `p` (system, beta, q0, p0,
+    params, constrained, resting_contact, options, t0), for `tr.run_args`; the fields that follow from
+    the call alone are made on first read (`_Derive`)."""
     h, t0, tol, energies = p.h, p.t0, p.tol, p.energies
     m = int(mod.NCON)
     _, own, records = p.rows(mod)
@@ -189,4 +187,5 @@ def trajectory_of(p, mod, out, counters, q0, p0, prm, beta, wall, call=None) -> 
     arrays["status"], arrays["message"], arrays["fail_step"] = status, message, fail
     arrays["fail_time"] = (t0 + fail * h) if fail >= 0 else float("nan")
     arrays["beta"], arrays["wall_time"] = beta, wall
-    return tr.Trajectory.of_run(arrays, _Derive(p, mod, prm, counters, m, call), complete=True)
+    arrays["tier"], arrays["build"] = p.tier_used, p.build_used
+    return tr.Trajectory.of_run(arrays, _Derive((p, mod, prm, counters, m, call)), complete=True)
