@@ -1,7 +1,7 @@
 """`make bench` section `loop`: the engine loop's targets, this tree against a base tree, in one run.
 
     python bench/loop_targets.py [--base /work/main] [--rows yardstick,cradle,coldbuild] [--repeats 201]
-                                 [--builds shared,specialized,auto]
+                                 [--builds shared,specialized,auto] [--rounds 1]
 
 Rows (each tree in its own fresh process, its own code on PYTHONPATH, the shared kernel cache):
   yardstick  cart-pendulum CVA, T = 5, h = 1e-2, beta = 3.2: vcirun's compiled loop (Trajectory.wall_time)
@@ -19,7 +19,9 @@ The yardstick and kernels rows run in each build of --builds (VCIRUN_BUILD: the 
 calls the scene's kernels by address; the specialized module, one scene compiled with the loop; auto,
 the default, which runs the specialized module once the scene has been hot on this machine, as after
 the specialized row, and is measured for this tree only). Printed as a table with the targets of the
-engine issue; never asserted.
+engine issue; never asserted. --rounds K measures every row K times (the trees alternating within each
+round) and prints, per row, the round of median simulate() ratio with the range of both ratios over
+the rounds: this machine has slow phases of seconds to minutes that one round of 201 calls can fall in.
 """
 from __future__ import annotations
 
@@ -80,8 +82,25 @@ def measure(base: Path, rows: list[str], repeats: int, builds: tuple = ("shared"
     return out
 
 
+def combine(rounds: list[dict]) -> dict:
+    """One result of several rounds of `measure`: per yardstick or kernels row, the round of median
+    call ratio, with the ratios of every round ("loop_ratios", "call_ratios"); other rows from the first."""
+    out = {}
+    for name in rounds[0]:
+        res = dict(rounds[0][name])
+        for row, y in rounds[0][name].items():
+            if not (isinstance(y, dict) and "call_ratio" in y):
+                continue
+            ys = [r[name][row] for r in rounds if "call_ratio" in r[name].get(row, {})]
+            ys.sort(key=lambda x: x["call_ratio"])
+            res[row] = dict(ys[len(ys) // 2], loop_ratios=[x["loop_ratio"] for x in ys],
+                            call_ratios=[x["call_ratio"] for x in ys])
+        out[name] = res
+    return out
+
+
 def report(r: dict, log=print) -> None:
-    log("== the loop's targets: this tree against the base, one run (fresh process per tree and row)")
+    log("== the loop's targets: this tree against the base (fresh process per tree and row)")
     for name in ("this", "base"):
         t = r[name]
         rows = [(k, ("closed forms" if k.startswith("yardstick") else "generated kernels")
@@ -95,6 +114,10 @@ def report(r: dict, log=print) -> None:
                     f"x{y['call_ratio']:.2f} (target <= x{TARGETS['call_ratio']}) | same trajectory: impacts "
                     f"{y['impacts']}/{y['vcirun_impacts']}, |dq| {y['q_diff']:.1e}; module: "
                     f"{y.get('module_build', '?')}")
+                if len(y.get("call_ratios", ())) > 1:
+                    lr, cr = y["loop_ratios"], y["call_ratios"]
+                    log(f"       {len(cr)} rounds: loop x{min(lr):.2f}-x{max(lr):.2f}, simulate() "
+                        f"x{min(cr):.2f}-x{max(cr):.2f} (median x{cr[len(cr) // 2]:.2f})")
             elif y:
                 log(f"  {name:4s} {row}: {y.get('error')}")
         c = t.get("cradle", {})
@@ -117,8 +140,10 @@ def main(argv=None):
     ap.add_argument("--rows", default="yardstick,kernels,cradle,coldbuild")
     ap.add_argument("--repeats", type=int, default=201)
     ap.add_argument("--builds", default="shared,specialized,auto")
+    ap.add_argument("--rounds", type=int, default=1)
     a = ap.parse_args(argv)
-    r = measure(Path(a.base), a.rows.split(","), a.repeats, tuple(a.builds.split(",")))
+    r = combine([measure(Path(a.base), a.rows.split(","), a.repeats, tuple(a.builds.split(",")))
+                 for _ in range(max(1, a.rounds))])
     report(r)
     print(json.dumps(r))
 

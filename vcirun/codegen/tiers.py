@@ -34,8 +34,10 @@ def requested(tier=None) -> str:
     field = "tier"
     if tier is None:
         tier, field = getenv(ENV), ENV
-        if tier is None:   # (every simulate call asks: the common case first)
+        if tier is None:   # (every simulate call asks: the common cases first)
             return "auto"
+        if tier in TIERS:
+            return tier
         tier = tier.strip() or "auto"
     elif type(tier) is str and tier in TIERS:
         return tier

@@ -1,6 +1,7 @@
 """The Python API: `simulate`, `reference`, `l2_error`. The CLI and the sweep runner go through these."""
 from __future__ import annotations
 
+import math
 import threading
 
 import numpy as np
@@ -179,9 +180,10 @@ def trajectory_of(p, mod, out, counters, q0, p0, prm, beta, wall, call=None) -> 
         if cause:
             message += f"; cause: {cause}"
     # an energy that is not finite from the start (e.g. q0 = 1e300) is a failure, not ok
-    bad_start = nonfinite_start(arrays["H"][0], arrays["Ed"][0] if energies else None,
-                                           arrays["Hmod"][0] if energies and arrays.get("Hmod") is not None
-                                           else None, q0, p0)
+    H0, Hmod = arrays["H"][0], arrays["Hmod"]
+    bad_start = "" if (math.isfinite(H0) and (Hmod is None or math.isfinite(Hmod[0]))
+                       and math.isfinite(arrays["Ed"][0])) else nonfinite_start(
+        H0, arrays["Ed"][0] if energies else None, Hmod[0] if energies and Hmod is not None else None, q0, p0)
     if bad_start and status == tr.OK:
         status, fail, message = tr.NONFINITE, 0, f"{tr.NONFINITE} at t = {t0:.6g}: {bad_start}"
     arrays["status"], arrays["message"], arrays["fail_step"] = status, message, fail
