@@ -20,8 +20,9 @@ calls the scene's kernels by address; the specialized module, one scene compiled
 the default, which runs the specialized module once the scene has been hot on this machine, as after
 the specialized row, and is measured for this tree only). Printed as a table with the targets of the
 engine issue; never asserted. --rounds K measures every row K times (the trees alternating within each
-round) and prints, per row, the round of median simulate() ratio with the range of both ratios over
-the rounds: this machine has slow phases of seconds to minutes that one round of 201 calls can fall in.
+round) and prints, per row, the round of median simulate() ratio (cradle, cold build: median time) with
+the range over the rounds: this machine has slow phases of seconds to minutes that one round of 201
+calls can fall in.
 """
 from __future__ import annotations
 
@@ -84,17 +85,20 @@ def measure(base: Path, rows: list[str], repeats: int, builds: tuple = ("shared"
 
 def combine(rounds: list[dict]) -> dict:
     """One result of several rounds of `measure`: per yardstick or kernels row, the round of median
-    call ratio, with the ratios of every round ("loop_ratios", "call_ratios"); other rows from the first."""
+    call ratio, with the ratios of every round ("loop_ratios", "call_ratios"); the cradle and the cold
+    build, the round of median time, with every round's ("rounds")."""
     out = {}
     for name in rounds[0]:
         res = dict(rounds[0][name])
         for row, y in rounds[0][name].items():
-            if not (isinstance(y, dict) and "call_ratio" in y):
+            metric = next((k for k in ("call_ratio", "us_per_smooth_step", "cpu_s")
+                           if isinstance(y, dict) and k in y), None)
+            if metric is None:
                 continue
-            ys = [r[name][row] for r in rounds if "call_ratio" in r[name].get(row, {})]
-            ys.sort(key=lambda x: x["call_ratio"])
-            res[row] = dict(ys[len(ys) // 2], loop_ratios=[x["loop_ratio"] for x in ys],
-                            call_ratios=[x["call_ratio"] for x in ys])
+            ys = sorted((r[name][row] for r in rounds if metric in r[name].get(row, {})), key=lambda x: x[metric])
+            res[row] = dict(ys[len(ys) // 2], rounds=[x[metric] for x in ys])
+            if metric == "call_ratio":
+                res[row].update(loop_ratios=[x["loop_ratio"] for x in ys], call_ratios=[x["call_ratio"] for x in ys])
         out[name] = res
     return out
 
@@ -123,15 +127,21 @@ def report(r: dict, log=print) -> None:
         c = t.get("cradle", {})
         if "us_per_smooth_step" in c:
             log(f"  {name:4s} newton_cradle_100 CVA {c['us_per_smooth_step']:.1f} us per smooth step "
-                f"(target <= {TARGETS['cradle_us']:g} us; {c['smooth_steps']} steps, {c['status_smooth']})")
+                f"(target <= {TARGETS['cradle_us']:g} us; {c['smooth_steps']} steps, {c['status_smooth']})"
+                + _spread(c, "us"))
         elif c:
             log(f"  {name:4s} cradle: {c.get('error')}")
         b = t.get("coldbuild", {})
         if "cpu_s" in b:
             log(f"  {name:4s} cold build, first cart-pendulum CVA simulation, empty cache: {b['cpu_s']:.1f} s CPU "
-                f"({b['wall_s']:.1f} s wall at load {t['loadavg_before']:.1f})")
+                f"({b['wall_s']:.1f} s wall at load {t['loadavg_before']:.1f})" + _spread(b, "s"))
         elif b:
             log(f"  {name:4s} coldbuild: {b.get('error')}")
+
+
+def _spread(row: dict, unit: str) -> str:
+    r = row.get("rounds", ())
+    return f"; {len(r)} rounds {min(r):.1f}-{max(r):.1f} {unit}" if len(r) > 1 else ""
 
 
 def main(argv=None):
