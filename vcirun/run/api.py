@@ -123,10 +123,9 @@ class _Derive:
     """The fields of a run's Trajectory that follow from the call alone, made on their first read
     (vcirun.run.trajectory.DERIVED): the grid times, the tolerances and options, the dense output's
     dynamics, run_args (where the call handed its arguments), each record the run left empty and the
-    rows its module never writes (a module without friction: its friction rows and tangential impulses,
-    zeros). The
-    values are those of the plan, parameters and arguments of the call; a caller that reads none of
-    them does not pay for them."""
+    rows its module never writes (a module without friction: its friction rows and tangential
+    impulses, zeros). The values are those of the plan, parameters and arguments of the call; a
+    caller that reads none of them does not pay for them."""
 
     __slots__ = ("args",)
 

@@ -469,14 +469,14 @@ for _f in dataclasses.fields(Trajectory):
 # Trajectory.of_run: the defaults of the fields with one, and the fields a run must give (RUN_FIELDS)
 _DEFAULTS = {f.name: f.default for f in dataclasses.fields(Trajectory) if f.default is not dataclasses.MISSING}
 _UNDERIVED_DEFAULTS = {k: v for k, v in _DEFAULTS.items() if k not in DERIVED}
+RUN_FIELDS = frozenset(f.name for f in dataclasses.fields(Trajectory)
+                        if f.default is dataclasses.MISSING or f.name in ("tolerances", "options")
+                        or (f.name in record.FIELD and record.FIELD[f.name].only is None))
 
 
 def run_defaults() -> dict:
     """A new dict of the defaults of the fields a run's derive does not make (Trajectory.of_run)."""
     return dict(_UNDERIVED_DEFAULTS)
-RUN_FIELDS = frozenset(f.name for f in dataclasses.fields(Trajectory)
-                        if f.default is dataclasses.MISSING or f.name in ("tolerances", "options")
-                        or (f.name in record.FIELD and record.FIELD[f.name].only is None))
 
 
 def _dynamics(mod, prm):
